@@ -1,0 +1,254 @@
+/*
+ * fastsw.c - fastSW in O(1) time and O(D) memory per sample.
+ *
+ * Notation (paper, Sect. 4): the anchor a is the last segment point; for
+ * the samples i after it, t_i and y_i are taken relative to the anchor
+ * (t_i - t_a, y_i - y_a). The temporary segment to the newest sample n has
+ * slope beta_d = y_nd / t_n (eq. 7). Its SSR over the samples a < i <= n is
+ *
+ *   SSR = sum_i sum_d (y_id - beta_d t_i)^2                         eq. (9)
+ *       = Syy - 2 sum_d beta_d Sty_d + |beta|^2 Stt                 eq. (13)
+ *
+ * with Syy = sum_i |y_i|^2, Sty_d = sum_i t_i y_id, Stt = sum_i t_i^2. Only
+ * the *total* Syy over dimensions is needed (Algorithm 1 keeps one per
+ * dimension): D + 2 running sums. Sample n's own residual is exactly 0, so
+ * the sums cover a < i <= n-1 and sample n is added after the test, which
+ * avoids cancelling its terms. Multiplying by t_n^2 > 0 removes every
+ * division:
+ *
+ *   SSR > TH  <=>  t_n^2 Syy - 2 t_n (y_n . Sty) + |y_n|^2 Stt > TH t_n^2
+ *
+ * Sums, not running means: magnitudes stay bounded (|y_i| <= 2 for
+ * quaternions, max_len <= 2^24), and sums need no division per sample.
+ * Build with -ffp-contract=off so every target rounds the same way.
+ */
+#include "fastsw.h"
+
+#include <float.h>
+
+/* Largest accepted |y - y_a|^2: keeps |y - y_prev|^2 finite as well. */
+#define FASTSW_NN_LIMIT (FLT_MAX / 16.0f)
+
+const FastswSettings fastsw_default_settings = {1e-2f, 1000u, 4u};
+
+/** Threshold as used: NaN and negative values become 0 (any deviation breaks). */
+static float sanitized_threshold(float threshold)
+{
+    return (threshold >= 0.0f) ? threshold : 0.0f;
+}
+
+/** max_len as used: at least 1 sample per segment. */
+static uint32_t sanitized_max_len(uint32_t max_len)
+{
+    return (max_len > 0u) ? max_len : 1u;
+}
+
+FastswStatus fastsw_init(FastswState *state, const FastswSettings *settings)
+{
+    uint32_t d;
+
+    if (settings->dim == 0u || settings->dim > FASTSW_MAX_DIM) {
+        return FASTSW_BAD_SETTINGS;
+    }
+#if defined(FASTSW_FIXED_DIM)
+    if (settings->dim != (uint32_t)FASTSW_FIXED_DIM) {
+        return FASTSW_BAD_SETTINGS;
+    }
+#endif
+    state->settings = *settings;
+    fastsw_retune(state, settings->threshold, settings->max_len);
+    state->next_index = 0u;
+    state->count = 0u;
+    state->started = 0u;
+    state->syy = 0.0f;
+    state->stt = 0.0f;
+    for (d = 0u; d < FASTSW_MAX_DIM; d++) {
+        state->sty[d] = 0.0f;
+        state->anchor.y[d] = 0.0f;
+        state->prev.y[d] = 0.0f;
+    }
+    state->anchor.index = state->prev.index = 0u;
+    state->anchor.t = state->prev.t = 0u;
+    return FASTSW_NONE;
+}
+
+void fastsw_retune(FastswState *state, float threshold, uint32_t max_len)
+{
+    state->settings.threshold = sanitized_threshold(threshold);
+    state->settings.max_len = sanitized_max_len(max_len);
+}
+
+/** Copy sample (index, t, y) into *point. */
+static inline void store_point(FastswPoint *point, uint32_t dim, uint32_t index, uint32_t t,
+                               const float *y)
+{
+    uint32_t d;
+    point->index = index;
+    point->t = t;
+    for (d = 0u; d < dim; d++) {
+        point->y[d] = y[d];
+    }
+}
+
+/** The first sample of a stream: it is a segment point and the first anchor. */
+static FastswStatus start_stream(FastswState *s, uint32_t dim, uint32_t index, uint32_t t,
+                                 const float *y, FastswPoint *point)
+{
+    float nn = 0.0f;
+    uint32_t d;
+    for (d = 0u; d < dim; d++) {
+        nn += y[d] * y[d];
+    }
+    if (!(nn <= FASTSW_NN_LIMIT)) { /* NaN, Inf or overflow */
+        return FASTSW_REJECTED;
+    }
+    store_point(&s->anchor, dim, index, t, y);
+    s->prev = s->anchor;
+    s->started = 1u;
+    *point = s->anchor;
+    return FASTSW_POINT;
+}
+
+/** fastsw_update for a known dim (inlined with a constant dim where fixed). */
+static inline FastswStatus update(FastswState *s, uint32_t dim, uint32_t t, const float *y,
+                                  FastswPoint *point)
+{
+    const uint32_t index = s->next_index++;
+    float yn[FASTSW_MAX_DIM];
+    float tn, nn = 0.0f;
+    FastswStatus status = FASTSW_NONE;
+    uint32_t d;
+
+    if (!s->started) {
+        return start_stream(s, dim, index, t, y, point);
+    }
+    if ((int32_t)(t - s->prev.t) <= 0) { /* zero or negative time step */
+        return FASTSW_REJECTED;
+    }
+    tn = (float)(uint32_t)(t - s->anchor.t); /* eq. (4): time relative to the anchor */
+    for (d = 0u; d < dim; d++) {
+        yn[d] = y[d] - s->anchor.y[d]; /* eq. (5): value relative to the anchor */
+        nn += yn[d] * yn[d];
+    }
+    if (!(nn <= FASTSW_NN_LIMIT)) { /* NaN, Inf or overflow */
+        return FASTSW_REJECTED;
+    }
+
+    if (s->count >= s->settings.max_len) {
+        status = FASTSW_POINT;
+    } else {
+        float dot = 0.0f;
+        const float tt = tn * tn;
+        for (d = 0u; d < dim; d++) {
+            dot += yn[d] * s->sty[d];
+        }
+        /* eq. (13) times t_n^2 */
+        if ((tt * s->syy - 2.0f * tn * dot) + nn * s->stt > s->settings.threshold * tt) {
+            status = FASTSW_POINT;
+        }
+    }
+
+    if (status == FASTSW_POINT) { /* s_{n-1} becomes the segment point and new anchor */
+        *point = s->prev;
+        s->anchor = s->prev;
+        s->count = 0u;
+        s->syy = 0.0f;
+        s->stt = 0.0f;
+        tn = (float)(uint32_t)(t - s->anchor.t);
+        nn = 0.0f;
+        for (d = 0u; d < dim; d++) {
+            s->sty[d] = 0.0f;
+            yn[d] = y[d] - s->anchor.y[d];
+            nn += yn[d] * yn[d];
+        }
+    }
+
+    /* add sample n to the running sums, eq. (10)-(12) */
+    s->syy += nn;
+    s->stt += tn * tn;
+    for (d = 0u; d < dim; d++) {
+        s->sty[d] += tn * yn[d];
+    }
+    s->count++;
+    store_point(&s->prev, dim, index, t, y);
+    return status;
+}
+
+FastswStatus fastsw_update(FastswState *state, uint32_t t, const float *y, FastswPoint *point)
+{
+    return update(state, FASTSW_DIM(&state->settings), t, y, point);
+}
+
+FastswStatus fastsw_flush(FastswState *state, FastswPoint *point)
+{
+    if (!state->started || state->prev.index == state->anchor.index) {
+        return FASTSW_NONE;
+    }
+    *point = state->prev;
+    state->anchor = state->prev;
+    state->count = 0u;
+    state->syy = 0.0f;
+    state->stt = 0.0f;
+    {
+        uint32_t d;
+        for (d = 0u; d < FASTSW_MAX_DIM; d++) {
+            state->sty[d] = 0.0f;
+        }
+    }
+    return FASTSW_POINT;
+}
+
+size_t fastsw_segment(const FastswSettings *settings, const uint32_t *t, const float *y, size_t m,
+                      uint32_t *out_index, size_t *rejected)
+{
+    FastswState state;
+    FastswPoint point;
+    size_t i, k = 0u, bad = 0u;
+    uint32_t dim;
+
+    if (fastsw_init(&state, settings) != FASTSW_NONE) {
+        if (rejected != NULL) {
+            *rejected = m;
+        }
+        return 0u;
+    }
+    dim = FASTSW_DIM(settings);
+    for (i = 0u; i < m; i++) {
+        const FastswStatus status = update(&state, dim, t[i], y + i * dim, &point);
+        if (status == FASTSW_POINT) {
+            out_index[k++] = point.index;
+        } else if (status == FASTSW_REJECTED) {
+            bad++;
+        }
+    }
+    if (fastsw_flush(&state, &point) == FASTSW_POINT) {
+        out_index[k++] = point.index;
+    }
+    if (rejected != NULL) {
+        *rejected = bad;
+    }
+    return k;
+}
+
+size_t fastsw_update_many(FastswState *states, size_t count, const uint32_t *t, const float *y,
+                          uint8_t *status, FastswPoint *points)
+{
+    size_t k, emitted = 0u;
+    for (k = 0u; k < count; k++) {
+        const uint32_t dim = FASTSW_DIM(&states[k].settings);
+        const FastswStatus st = update(&states[k], dim, t[k], y + k * dim, &points[k]);
+        status[k] = (uint8_t)st;
+        emitted += (st == FASTSW_POINT);
+    }
+    return emitted;
+}
+
+size_t fastsw_state_size(void)
+{
+    return sizeof(FastswState);
+}
+
+uint32_t fastsw_max_dim(void)
+{
+    return (uint32_t)FASTSW_MAX_DIM;
+}

@@ -1,0 +1,163 @@
+/*
+ * sw.c - buffered Sliding Window baseline (see sw.h).
+ */
+#include "sw.h"
+
+#include <float.h>
+
+#define SW_NN_LIMIT (FLT_MAX / 16.0f)
+
+FastswStatus sw_init(SwState *state, const FastswSettings *settings)
+{
+    FastswSettings capped = *settings;
+    FastswState probe; /* reuse fastSW's validation and sanitising */
+
+    if (capped.max_len > SW_MAX_LEN) {
+        capped.max_len = SW_MAX_LEN;
+    }
+    if (fastsw_init(&probe, &capped) != FASTSW_NONE) {
+        return FASTSW_BAD_SETTINGS;
+    }
+    state->settings = probe.settings;
+    state->next_index = 0u;
+    state->count = 0u;
+    state->started = 0u;
+    state->anchor = probe.anchor;
+    state->prev = probe.prev;
+    return FASTSW_NONE;
+}
+
+/** Copy sample (index, t, y) into *point. */
+static void store_point(FastswPoint *point, uint32_t dim, uint32_t index, uint32_t t,
+                        const float *y)
+{
+    uint32_t d;
+    point->index = index;
+    point->t = t;
+    for (d = 0u; d < dim; d++) {
+        point->y[d] = y[d];
+    }
+}
+
+/** |y - anchor|^2 into *nn and y - anchor into yn; 0 if it is not finite. */
+static int relative_sample(const SwState *s, uint32_t dim, const float *y, float *yn, float *nn)
+{
+    float sum = 0.0f;
+    uint32_t d;
+    for (d = 0u; d < dim; d++) {
+        yn[d] = y[d] - s->anchor.y[d];
+        sum += yn[d] * yn[d];
+    }
+    *nn = sum;
+    return sum <= SW_NN_LIMIT;
+}
+
+/** SSR of the buffered samples against the line from the anchor to (tn, yn): eq. (9). */
+static float buffered_ssr(const SwState *s, uint32_t dim, float tn, const float *yn)
+{
+    const float r = 1.0f / tn;
+    float ssr = 0.0f;
+    uint32_t i, d;
+    for (i = 0u; i < s->count; i++) {
+        const float u = s->t_rel[i] * r;
+        for (d = 0u; d < dim; d++) {
+            const float e = s->y_rel[i][d] - u * yn[d];
+            ssr += e * e;
+        }
+    }
+    return ssr;
+}
+
+FastswStatus sw_update(SwState *s, uint32_t t, const float *y, FastswPoint *point)
+{
+    const uint32_t dim = FASTSW_DIM(&s->settings);
+    const uint32_t index = s->next_index++;
+    float yn[FASTSW_MAX_DIM];
+    float tn, nn;
+    FastswStatus status = FASTSW_NONE;
+    uint32_t d;
+
+    if (!s->started) {
+        nn = 0.0f;
+        for (d = 0u; d < dim; d++) {
+            nn += y[d] * y[d];
+        }
+        if (!(nn <= SW_NN_LIMIT)) {
+            return FASTSW_REJECTED;
+        }
+        store_point(&s->anchor, dim, index, t, y);
+        s->prev = s->anchor;
+        s->started = 1u;
+        *point = s->anchor;
+        return FASTSW_POINT;
+    }
+    if ((int32_t)(t - s->prev.t) <= 0) {
+        return FASTSW_REJECTED;
+    }
+    tn = (float)(uint32_t)(t - s->anchor.t);
+    if (!relative_sample(s, dim, y, yn, &nn)) {
+        return FASTSW_REJECTED;
+    }
+    if (s->count >= s->settings.max_len || buffered_ssr(s, dim, tn, yn) > s->settings.threshold) {
+        status = FASTSW_POINT;
+        *point = s->prev;
+        s->anchor = s->prev;
+        s->count = 0u;
+        tn = (float)(uint32_t)(t - s->anchor.t);
+        (void)relative_sample(s, dim, y, yn, &nn);
+    }
+    s->t_rel[s->count] = tn;
+    for (d = 0u; d < dim; d++) {
+        s->y_rel[s->count][d] = yn[d];
+    }
+    s->count++;
+    store_point(&s->prev, dim, index, t, y);
+    return status;
+}
+
+FastswStatus sw_flush(SwState *s, FastswPoint *point)
+{
+    if (!s->started || s->prev.index == s->anchor.index) {
+        return FASTSW_NONE;
+    }
+    *point = s->prev;
+    s->anchor = s->prev;
+    s->count = 0u;
+    return FASTSW_POINT;
+}
+
+size_t sw_segment(SwState *work, const FastswSettings *settings, const uint32_t *t, const float *y,
+                  size_t m, uint32_t *out_index, size_t *rejected)
+{
+    FastswPoint point;
+    size_t i, k = 0u, bad = 0u;
+    uint32_t dim;
+
+    if (sw_init(work, settings) != FASTSW_NONE) {
+        if (rejected != NULL) {
+            *rejected = m;
+        }
+        return 0u;
+    }
+    dim = FASTSW_DIM(settings);
+    for (i = 0u; i < m; i++) {
+        const FastswStatus status = sw_update(work, t[i], y + i * dim, &point);
+        if (status == FASTSW_POINT) {
+            out_index[k++] = point.index;
+        } else if (status == FASTSW_REJECTED) {
+            bad++;
+        }
+    }
+    if (sw_flush(work, &point) == FASTSW_POINT) {
+        out_index[k++] = point.index;
+    }
+    if (rejected != NULL) {
+        *rejected = bad;
+    }
+    return k;
+}
+
+size_t sw_state_size(void)
+{
+    return sizeof(SwState);
+}

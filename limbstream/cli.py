@@ -1,0 +1,52 @@
+"""``limbstream`` command line: one subcommand per tool, each in its own module.
+
+Every module named in :data:`COMMANDS` defines ``add_arguments(parser)`` and ``run(args) -> int``.
+Modules are imported only when their command runs (nothing opens a session at import time).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "up": ("limbstream.up", "run the whole live system on this machine"),
+    "router": ("limbstream.router", "run a Zenoh router (for one machine, no plugins)"),
+    "emulate": ("device_emulator.main", "run emulated IMU devices"),
+    "aggregate": ("services.aggregator.main", "run the aggregator (SLERP + fusion)"),
+    "dashboard": ("services.dashboard.main", "run the dashboard web service"),
+    "watch": ("limbstream.watch", "print a live text view of a subject's pose stream"),
+    "eval": ("limbstream.evaluation", "evaluate segmentation algorithms on motion files"),
+    "demo": ("limbstream.demo", "segment a built-in motion with the C kernel and print the result"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with one subparser per command."""
+    parser = argparse.ArgumentParser(prog="limbstream", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        sub.add_parser(name, help=help_text, description=help_text)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``limbstream`` script."""
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    if not argv or argv[0] not in COMMANDS:
+        parser.parse_args(argv)  # prints usage / error and exits
+        return 2
+    name = argv[0]
+    module = importlib.import_module(COMMANDS[name][0])
+    sub = argparse.ArgumentParser(prog=f"limbstream {name}", description=COMMANDS[name][1])
+    module.add_arguments(sub)
+    args = sub.parse_args(argv[1:])
+    try:
+        return int(module.run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,318 @@
+"""Python binding of the C kernels in ``firmware_c/`` (built into ``limbstream._kernels``).
+
+Offline use: :func:`segment` runs a whole stream through one algorithm.
+Streaming use (one device): :class:`Segmenter`. Many devices per tick: :class:`SegmenterBank`.
+
+Time: the kernels take ``uint32`` ticks (microseconds here, ``TICK_HZ``); only ratios of
+time differences enter the SSR, so the unit does not change the result. Seconds are
+converted with :func:`to_ticks`, relative to the first sample, modulo 2**32.
+"""
+from __future__ import annotations
+
+import ctypes
+import importlib.machinery
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+TICK_HZ = 1_000_000.0
+"""Kernel ticks per second used by the bindings (microseconds)."""
+
+NONE, POINT, REJECTED = 0, 1, 2
+"""FastswStatus values (fastsw.h)."""
+
+
+def _load_library() -> ctypes.CDLL:
+    here = Path(__file__).resolve().parent
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        candidate = here / f"_kernels{suffix}"
+        if candidate.exists():
+            return ctypes.CDLL(str(candidate))
+    raise ImportError(
+        f"limbstream C kernels not built in {here}: run `pip install -e .` in the repository"
+    )
+
+
+_lib = _load_library()
+MAX_DIM: int = _lib.fastsw_max_dim()
+
+
+class Settings(ctypes.Structure):
+    """FastswSettings: SSR threshold, max segment length (samples), dimension D."""
+
+    _fields_ = [("threshold", ctypes.c_float), ("max_len", ctypes.c_uint32), ("dim", ctypes.c_uint32)]
+
+
+class Point(ctypes.Structure):
+    """FastswPoint: a segment point (sample index, tick, value)."""
+
+    _fields_ = [("index", ctypes.c_uint32), ("t", ctypes.c_uint32), ("y", ctypes.c_float * MAX_DIM)]
+
+
+_u32p = np.ctypeslib.ndpointer(np.uint32, flags="C_CONTIGUOUS")
+_f32p = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")
+_u8p = np.ctypeslib.ndpointer(np.uint8, flags="C_CONTIGUOUS")
+_sizep = ctypes.POINTER(ctypes.c_size_t)
+
+_lib.fastsw_state_size.restype = ctypes.c_size_t
+_lib.sw_state_size.restype = ctypes.c_size_t
+_lib.fastsw_init.argtypes = [ctypes.c_void_p, ctypes.POINTER(Settings)]
+_lib.fastsw_init.restype = ctypes.c_int
+_lib.fastsw_update.argtypes = [ctypes.c_void_p, ctypes.c_uint32, _f32p, ctypes.POINTER(Point)]
+_lib.fastsw_update.restype = ctypes.c_int
+_lib.fastsw_flush.argtypes = [ctypes.c_void_p, ctypes.POINTER(Point)]
+_lib.fastsw_flush.restype = ctypes.c_int
+_lib.fastsw_retune.argtypes = [ctypes.c_void_p, ctypes.c_float, ctypes.c_uint32]
+_lib.fastsw_retune.restype = None
+_lib.fastsw_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, _u32p, _sizep]
+_lib.fastsw_segment.restype = ctypes.c_size_t
+_lib.sw_segment.argtypes = [
+    ctypes.c_void_p, ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, _u32p, _sizep,
+]
+_lib.sw_segment.restype = ctypes.c_size_t
+_lib.fastsw_update_many.argtypes = [
+    ctypes.c_void_p, ctypes.c_size_t, _u32p, _f32p, _u8p, ctypes.c_void_p,
+]
+_lib.fastsw_update_many.restype = ctypes.c_size_t
+
+STATE_SIZE: int = _lib.fastsw_state_size()
+SW_STATE_SIZE: int = _lib.sw_state_size()
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """Segment points of one stream.
+
+    Attributes
+    ----------
+    index : (K,) int64 or None
+        Sample indices of the segment points, increasing, first and last accepted sample
+        included. None for algorithms whose points are not original samples (CPLR, Swing).
+    t : (K,) float64
+        Timestamps of the points, seconds.
+    q : (K, D) float
+        Values of the points: the original rows ``q[index]`` bit for bit where ``index`` is set.
+    n_samples : int
+        Samples in the input stream (m).
+    rejected : int
+        Input samples the kernel rejected (non-finite values, time not increasing).
+    """
+
+    index: np.ndarray | None
+    t: np.ndarray
+    q: np.ndarray
+    n_samples: int
+    rejected: int = 0
+
+    @property
+    def icr(self) -> float:
+        """Inverse compression ratio: points sent / samples taken (paper, eq. 1)."""
+        return len(self.t) / self.n_samples if self.n_samples else float("nan")
+
+
+def to_ticks(t: np.ndarray, t0: float | None = None) -> np.ndarray:
+    """Seconds -> uint32 kernel ticks relative to ``t0`` (default: ``t[0]``), modulo 2**32.
+
+    Parameters
+    ----------
+    t : (m,) float64, seconds.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.size == 0:
+        return np.zeros(0, np.uint32)
+    origin = t[0] if t0 is None else t0
+    ticks = np.round((t - origin) * TICK_HZ)
+    ticks = np.where(np.isfinite(ticks), ticks, 0.0)
+    return (ticks.astype(np.int64) & 0xFFFFFFFF).astype(np.uint32)
+
+
+def make_settings(threshold: float, max_len: int, dim: int) -> Settings:
+    """Validated :class:`Settings`; raises ValueError naming the bad argument."""
+    if not 1 <= dim <= MAX_DIM:
+        raise ValueError(f"dim must be in 1..{MAX_DIM}, got {dim}")
+    if not 1 <= int(max_len) <= 0xFFFFFFFF:
+        raise ValueError(f"max_len must be a positive integer, got {max_len}")
+    threshold = float(threshold)
+    if not np.isfinite(threshold) or threshold < 0:
+        raise ValueError(f"threshold must be finite and >= 0, got {threshold}")
+    return Settings(threshold, int(max_len), int(dim))
+
+
+def _as_stream(t, q) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(t, dtype=np.float64)
+    q = np.asarray(q)
+    if q.ndim == 1:
+        q = q[:, None]
+    if t.ndim != 1 or q.ndim != 2 or len(t) != len(q):
+        raise ValueError(f"t must be (m,) and q (m, D); got t {t.shape}, q {q.shape}")
+    return t, q
+
+
+def _run_indexed(kernel: Callable, t, q, threshold, max_len) -> Segmentation:
+    """Run an index-returning C batch kernel (fastSW, SW) and gather the original rows."""
+    t, q = _as_stream(t, q)
+    settings = make_settings(threshold, max_len, q.shape[1])
+    ticks = to_ticks(t)
+    y = np.ascontiguousarray(q, dtype=np.float32)
+    out = np.empty(max(len(t), 1), np.uint32)
+    rejected = ctypes.c_size_t(0)
+    k = kernel(ctypes.byref(settings), ticks, y, len(t), out, ctypes.byref(rejected))
+    index = out[:k].astype(np.int64)
+    return Segmentation(index, t[index], q[index], len(t), int(rejected.value))
+
+
+def _fastsw(t, q, threshold, max_len) -> Segmentation:
+    return _run_indexed(_lib.fastsw_segment, t, q, threshold, max_len)
+
+
+def _sw(t, q, threshold, max_len) -> Segmentation:
+    if max_len > 1000:
+        raise ValueError(f"max_len for algorithm 'sw' is at most 1000 (SW_MAX_LEN), got {max_len}")
+    work = ctypes.create_string_buffer(SW_STATE_SIZE)
+
+    def kernel(settings, ticks, y, m, out, rejected):
+        return _lib.sw_segment(work, settings, ticks, y, m, out, rejected)
+
+    return _run_indexed(kernel, t, q, threshold, max_len)
+
+
+ALGORITHMS: dict[str, Callable[..., Segmentation]] = {"fastsw": _fastsw, "sw": _sw}
+"""Segmentation algorithms by name: (t, q, threshold, max_len) -> Segmentation."""
+
+
+def segment(t, q, threshold: float, max_len: int = 1000, algorithm: str = "fastsw") -> Segmentation:
+    """Segment one stream offline.
+
+    Parameters
+    ----------
+    t : (m,) float64
+        Sample timestamps, seconds, increasing (samples that are not are rejected).
+    q : (m, D) float
+        Samples, e.g. scalar-first unit quaternions (D = 4); computed in float32.
+    threshold : float
+        SSR threshold TH (>= 0).
+    max_len : int
+        Most samples one segment covers after its first point (paper: 1000).
+    algorithm : {"fastsw", "sw", ...}
+        A key of :data:`ALGORITHMS`.
+
+    Returns
+    -------
+    Segmentation
+    """
+    try:
+        run = ALGORITHMS[algorithm]
+    except KeyError:
+        raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}") from None
+    return run(t, q, threshold, max_len)
+
+
+class Segmenter:
+    """fastSW on one live stream (one device).
+
+    >>> seg = Segmenter(threshold=1e-2, max_len=25)
+    >>> point = seg.update(0.0, [1, 0, 0, 0])   # first sample is a point
+    """
+
+    def __init__(self, threshold: float = 1e-2, max_len: int = 1000, dim: int = 4):
+        self.dim = dim
+        self._settings = make_settings(threshold, max_len, dim)
+        self._state = ctypes.create_string_buffer(STATE_SIZE)
+        self._point = Point()
+        self._t0: float | None = None
+        _lib.fastsw_init(self._state, ctypes.byref(self._settings))
+
+    def _emit(self, status: int) -> tuple[int, float, np.ndarray] | None:
+        if status != POINT:
+            return None
+        p = self._point
+        return p.index, p.t / TICK_HZ + (self._t0 or 0.0), np.array(p.y[: self.dim], np.float32)
+
+    def update(self, t: float, y) -> tuple[int, float, np.ndarray] | None:
+        """Feed one sample (t seconds, y (D,)); return (index, t, y float32) of a new point or None."""
+        if self._t0 is None:
+            self._t0 = float(t)
+        tick = int(round((float(t) - self._t0) * TICK_HZ)) & 0xFFFFFFFF
+        y = np.ascontiguousarray(y, dtype=np.float32).reshape(self.dim)
+        return self._emit(_lib.fastsw_update(self._state, tick, y, ctypes.byref(self._point)))
+
+    def flush(self) -> tuple[int, float, np.ndarray] | None:
+        """End of stream: the last sample as a point, unless it already is one."""
+        return self._emit(_lib.fastsw_flush(self._state, ctypes.byref(self._point)))
+
+    def retune(self, threshold: float, max_len: int) -> None:
+        """Change threshold and max segment length from the next sample on."""
+        make_settings(threshold, max_len, self.dim)
+        _lib.fastsw_retune(self._state, float(threshold), int(max_len))
+
+
+class SegmenterBank:
+    """fastSW states of many streams in one buffer, advanced together one tick at a time.
+
+    One C call per tick for all streams (a device emulator's inner loop).
+
+    Parameters
+    ----------
+    count : int
+        Number of streams.
+    threshold, max_len : scalar or (count,)
+        Settings per stream.
+    dim : int
+        Sample dimension, shared.
+    """
+
+    def __init__(self, count: int, threshold=1e-2, max_len=1000, dim: int = 4):
+        self.count, self.dim = count, dim
+        self._states = ctypes.create_string_buffer(STATE_SIZE * max(count, 1))
+        self._points = (Point * max(count, 1))()
+        self._status = np.zeros(max(count, 1), np.uint8)
+        self._index = np.zeros(count, np.int64)
+        thresholds = np.broadcast_to(np.asarray(threshold, np.float64), (count,))
+        max_lens = np.broadcast_to(np.asarray(max_len, np.int64), (count,))
+        base = ctypes.addressof(self._states)
+        for k in range(count):
+            settings = make_settings(thresholds[k], max_lens[k], dim)
+            _lib.fastsw_init(base + k * STATE_SIZE, ctypes.byref(settings))
+        point_dtype = np.dtype(
+            {"names": ["index", "t", "y"], "formats": [np.uint32, np.uint32, (np.float32, MAX_DIM)],
+             "offsets": [0, 4, 8], "itemsize": ctypes.sizeof(Point)}
+        )
+        self._point_view = np.frombuffer(self._points, dtype=point_dtype)
+
+    def update(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance every stream by one sample.
+
+        Parameters
+        ----------
+        ticks : (count,) uint32, kernel ticks (microseconds).
+        y : (count, D) float32 samples.
+
+        Returns
+        -------
+        status : (count,) uint8 view (NONE, POINT, REJECTED); valid until the next call.
+        index : (count,) uint32 sample index of each stream's point (where status == POINT).
+        y : (count, D) float32 value of each stream's point (where status == POINT).
+        """
+        ticks = np.ascontiguousarray(ticks, np.uint32)
+        y = np.ascontiguousarray(y, np.float32)
+        _lib.fastsw_update_many(self._states, self.count, ticks, y, self._status, self._points)
+        view = self._point_view[: self.count]
+        return self._status[: self.count], view["index"], view["y"][:, : self.dim]
+
+    def points_t(self) -> np.ndarray:
+        """(count,) uint32 ticks of the points returned by the last :meth:`update`."""
+        return self._point_view[: self.count]["t"]
+
+    def retune(self, k: int, threshold: float, max_len: int) -> None:
+        """Change one stream's settings from its next sample on."""
+        make_settings(threshold, max_len, self.dim)
+        _lib.fastsw_retune(ctypes.addressof(self._states) + k * STATE_SIZE, float(threshold), int(max_len))
+
+    def flush(self, k: int) -> tuple[int, int, np.ndarray] | None:
+        """End stream k: (index, tick, y) of its last point, or None."""
+        point = Point()
+        if _lib.fastsw_flush(ctypes.addressof(self._states) + k * STATE_SIZE, ctypes.byref(point)) != POINT:
+            return None
+        return point.index, point.t, np.array(point.y[: self.dim], np.float32)

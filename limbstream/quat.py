@@ -1,0 +1,120 @@
+"""Quaternion math, one place: scalar-first (w, x, y, z) unit quaternions as NumPy arrays.
+
+scipy's Rotation is scalar-last; the converters here are the only place that swaps.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def normalize(q: np.ndarray) -> np.ndarray:
+    """(..., 4) -> (..., 4) float64 unit quaternions. Raises ValueError on zero norm."""
+    q = np.asarray(q, np.float64)
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(norm == 0) or not np.all(np.isfinite(norm)):
+        raise ValueError("q contains zero-norm or non-finite quaternions")
+    return q / norm
+
+
+def to_rotation(q: np.ndarray) -> Rotation:
+    """(..., 4) scalar-first -> scipy Rotation."""
+    q = np.asarray(q, np.float64)
+    return Rotation.from_quat(q[..., [1, 2, 3, 0]])
+
+
+def from_rotation(r: Rotation) -> np.ndarray:
+    """scipy Rotation -> (..., 4) float64 scalar-first."""
+    return r.as_quat()[..., [3, 0, 1, 2]]
+
+
+def angle_deg(q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """Angular deviation 2 arccos |<q0, q1>| in degrees (paper, eq. 2); q and -q are equal.
+
+    Parameters
+    ----------
+    q0, q1 : (..., 4) unit quaternions (broadcast). Returns (...) float64 degrees.
+    """
+    q0 = np.asarray(q0, np.float64)
+    q1 = np.asarray(q1, np.float64)
+    dot = np.abs(np.sum(q0 * q1, axis=-1))
+    dot /= np.linalg.norm(q0, axis=-1) * np.linalg.norm(q1, axis=-1)
+    return np.degrees(2.0 * np.arccos(np.clip(dot, 0.0, 1.0)))
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation along the shorter arc, vectorised.
+
+    Parameters
+    ----------
+    q0, q1 : (..., 4) unit quaternions (broadcast with u).
+    u : (...) interpolation parameter in [0, 1] (values outside extrapolate).
+
+    Returns
+    -------
+    (..., 4) float64 unit quaternions; u = 0 gives q0, u = 1 gives +-q1.
+    """
+    q0 = np.asarray(q0, np.float64)
+    q1 = np.asarray(q1, np.float64)
+    u = np.asarray(u, np.float64)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_theta = np.sin(theta)
+    near = sin_theta < 1e-6  # nearly identical: linear interpolation is exact to float precision
+    safe = np.where(near, 1.0, sin_theta)
+    w0 = np.where(near, 1.0 - u, np.sin((1.0 - u) * theta) / safe)
+    w1 = np.where(near, u, np.sin(u * theta) / safe)
+    out = w0 * q0 + w1 * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def interpolate(t_points: np.ndarray, q_points: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """SLERP reconstruction of a stream from its segment points.
+
+    Parameters
+    ----------
+    t_points : (K,) float64 increasing seconds; q_points : (K, 4) unit quaternions.
+    t : (m,) float64 seconds; values outside [t_points[0], t_points[-1]] are held at the ends.
+
+    Returns
+    -------
+    (m, 4) float64 unit quaternions.
+    """
+    t_points = np.asarray(t_points, np.float64)
+    q_points = np.asarray(q_points, np.float64)
+    t = np.asarray(t, np.float64)
+    if len(t_points) == 1:
+        return np.broadcast_to(normalize(q_points[0]), (len(t), 4)).copy()
+    k = np.clip(np.searchsorted(t_points, t, side="right") - 1, 0, len(t_points) - 2)
+    span = t_points[k + 1] - t_points[k]
+    u = np.clip((t - t_points[k]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
+    return slerp(normalize(q_points[k]), normalize(q_points[k + 1]), u)
+
+
+def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b of (..., 4) scalar-first quaternions."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate (..., 3) vectors v by (..., 4) unit quaternions q (broadcast)."""
+    q = np.asarray(q, np.float64)
+    v = np.asarray(v, np.float64)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)

@@ -1,0 +1,42 @@
+"""Shared fixtures: the shared motion data (skipped where absent, required in CI)."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = Path(os.environ.get("LIMBSTREAM_DATA", ROOT.parent / "shared" / "data"))
+IN_CI = os.environ.get("CI", "").lower() == "true"
+
+
+def require_data(relative: str) -> Path:
+    """Path of a file under the shared data folder; skip if absent, fail if absent in CI."""
+    path = DATA / relative
+    if not path.exists():
+        message = f"shared motion data not found: {path} (set LIMBSTREAM_DATA)"
+        if IN_CI:
+            pytest.fail(message)
+        pytest.skip(message)
+    return path
+
+
+@pytest.fixture(scope="session")
+def cmu_npz() -> Path:
+    return require_data("cmu_10seg_50hz.npz")
+
+
+@pytest.fixture(scope="session")
+def xio_dir() -> Path:
+    return require_data("xio_lower_body")
+
+
+@pytest.fixture(scope="session")
+def cmu_bvh_dir() -> Path:
+    return require_data("cmu")
+
+
+@pytest.fixture(scope="session")
+def xsens_dir() -> Path:
+    return require_data("xsens_opensense")
