@@ -77,6 +77,11 @@ _lib.fastsw_update_many.argtypes = [
 ]
 _lib.fastsw_update_many.restype = ctypes.c_size_t
 
+_lib.cplr_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
+_lib.cplr_segment.restype = ctypes.c_size_t
+_lib.swing_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
+_lib.swing_segment.restype = ctypes.c_size_t
+
 STATE_SIZE: int = _lib.fastsw_state_size()
 SW_STATE_SIZE: int = _lib.sw_state_size()
 
@@ -178,7 +183,45 @@ def _sw(t, q, threshold, max_len) -> Segmentation:
     return _run_indexed(kernel, t, q, threshold, max_len)
 
 
-ALGORITHMS: dict[str, Callable[..., Segmentation]] = {"fastsw": _fastsw, "sw": _sw}
+_POINT_DTYPE = np.dtype(
+    {"names": ["index", "t", "y"], "formats": [np.uint32, np.uint32, (np.float32, MAX_DIM)],
+     "offsets": [0, 4, 8], "itemsize": ctypes.sizeof(Point)}
+)
+"""numpy layout of :class:`Point` (FastswPoint)."""
+
+
+def _run_fitted(kernel: Callable, t, q, threshold, max_len) -> Segmentation:
+    """Run a point-returning C batch kernel (CPLR, Swing): values are fitted, not original rows.
+
+    A point has the timestamp of the sample it closes a segment at (``t`` is that sample's
+    time, exactly) and the value of the segment's line there (float32 precision).
+    """
+    t, q = _as_stream(t, q)
+    settings = make_settings(threshold, max_len, q.shape[1])
+    ticks = to_ticks(t)
+    y = np.ascontiguousarray(q, dtype=np.float32)
+    out = np.zeros(max(len(t), 1), _POINT_DTYPE)
+    rejected = ctypes.c_size_t(0)
+    k = kernel(ctypes.byref(settings), ticks, y, len(t), out.ctypes.data, ctypes.byref(rejected))
+    points = out[:k]
+    index = points["index"].astype(np.int64)
+    values = points["y"][:, : q.shape[1]].astype(np.float64)
+    return Segmentation(None, t[index], values, len(t), int(rejected.value))
+
+
+def _cplr(t, q, threshold, max_len) -> Segmentation:
+    """CPLR (cplr.h): threshold is the SSR bound of the regression line."""
+    return _run_fitted(_lib.cplr_segment, t, q, threshold, max_len)
+
+
+def _swing(t, q, threshold, max_len) -> Segmentation:
+    """Swing filter (swing.h): threshold is the largest absolute deviation per dimension."""
+    return _run_fitted(_lib.swing_segment, t, q, threshold, max_len)
+
+
+ALGORITHMS: dict[str, Callable[..., Segmentation]] = {
+    "fastsw": _fastsw, "sw": _sw, "cplr": _cplr, "swing": _swing,
+}
 """Segmentation algorithms by name: (t, q, threshold, max_len) -> Segmentation."""
 
 
@@ -192,10 +235,11 @@ def segment(t, q, threshold: float, max_len: int = 1000, algorithm: str = "fasts
     q : (m, D) float
         Samples, e.g. scalar-first unit quaternions (D = 4); computed in float32.
     threshold : float
-        SSR threshold TH (>= 0).
+        Threshold TH (>= 0): the SSR bound for fastsw, sw and cplr; the largest absolute
+        deviation per dimension for swing.
     max_len : int
         Most samples one segment covers after its first point (paper: 1000).
-    algorithm : {"fastsw", "sw", ...}
+    algorithm : {"fastsw", "sw", "cplr", "swing"}
         A key of :data:`ALGORITHMS`.
 
     Returns

@@ -118,3 +118,23 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     u = q[..., 1:]
     t = 2.0 * np.cross(u, v)
     return v + w * t + np.cross(u, t)
+
+
+def continuous(q: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Flip signs so that consecutive quaternions along ``axis`` have a non-negative dot product.
+
+    Parameters
+    ----------
+    q : (..., 4) quaternions; ``axis`` is the time axis (not the last one).
+
+    Returns
+    -------
+    Same shape, float64; the first sample keeps its sign, the rotations are unchanged.
+    """
+    q = np.moveaxis(np.asarray(q, np.float64), axis, 0)
+    if len(q) < 2:
+        return np.moveaxis(q.copy(), 0, axis)
+    dots = np.sum(q[1:] * q[:-1], axis=-1)
+    flips = np.cumsum(dots < 0, axis=0) % 2
+    sign = np.concatenate([np.ones_like(flips[:1]), 1 - 2 * flips]).astype(np.float64)
+    return np.moveaxis(q * sign[..., None], 0, axis)

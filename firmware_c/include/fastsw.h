@@ -77,8 +77,7 @@ typedef struct {
 typedef struct {
     FastswSettings settings;
     uint32_t next_index;        /**< index the next update call gets */
-    uint32_t count;             /**< accepted samples after the anchor; 0 = nothing seen */
-    uint32_t started;           /**< 1 once the first sample was accepted */
+    uint32_t count;             /**< accepted samples after the anchor; UINT32_MAX before the first */
     FastswPoint anchor;         /**< last segment point a */
     FastswPoint prev;           /**< last accepted sample n-1 */
     float syy;                  /**< sum over i in (a, n-1] of |y_i - y_a|^2 */

@@ -21,6 +21,12 @@
  * Sums, not running means: magnitudes stay bounded (|y_i| <= 2 for
  * quaternions, max_len <= 2^24), and sums need no division per sample.
  * Build with -ffp-contract=off so every target rounds the same way.
+ *
+ * Kept short for the Cortex-M4 (docs/kernel.md, instruction counts): sums
+ * start from their first term, not from 0 + term (this can only change the
+ * sign of a zero, which no later +, *, or comparison can tell apart); the
+ * first sample, a full segment and the time check behind it share one test
+ * on count; a break leaves through its own path.
  */
 #include "fastsw.h"
 
@@ -28,6 +34,9 @@
 
 /* Largest accepted |y - y_a|^2: keeps |y - y_prev|^2 finite as well. */
 #define FASTSW_NN_LIMIT (FLT_MAX / 16.0f)
+
+/* count of a stream before its first accepted sample (>= any max_len) */
+#define FASTSW_NOT_STARTED UINT32_MAX
 
 const FastswSettings fastsw_default_settings = {1e-2f, 1000u, 4u};
 
@@ -58,8 +67,7 @@ FastswStatus fastsw_init(FastswState *state, const FastswSettings *settings)
     state->settings = *settings;
     fastsw_retune(state, settings->threshold, settings->max_len);
     state->next_index = 0u;
-    state->count = 0u;
-    state->started = 0u;
+    state->count = FASTSW_NOT_STARTED;
     state->syy = 0.0f;
     state->stt = 0.0f;
     for (d = 0u; d < FASTSW_MAX_DIM; d++) {
@@ -78,35 +86,96 @@ void fastsw_retune(FastswState *state, float threshold, uint32_t max_len)
     state->settings.max_len = sanitized_max_len(max_len);
 }
 
-/** Copy sample (index, t, y) into *point. */
+#if defined(FASTSW_FIXED_DIM)
+/** A whole sample value, so that copies compile to load/store-multiple. */
+typedef struct {
+    float v[FASTSW_FIXED_DIM];
+} FastswValue;
+#endif
+
+/** Copy sample (index, t, y) into *point: a bit copy (NaN payloads and -0 survive). */
 static inline void store_point(FastswPoint *point, uint32_t dim, uint32_t index, uint32_t t,
                                const float *y)
 {
-    uint32_t d;
     point->index = index;
     point->t = t;
-    for (d = 0u; d < dim; d++) {
-        point->y[d] = y[d];
+#if defined(FASTSW_FIXED_DIM)
+    (void)dim;
+    *(FastswValue *)point->y = *(const FastswValue *)y;
+#else
+    {
+        uint32_t d;
+        for (d = 0u; d < dim; d++) {
+            point->y[d] = y[d];
+        }
     }
+#endif
 }
 
-/** The first sample of a stream: it is a segment point and the first anchor. */
-static FastswStatus start_stream(FastswState *s, uint32_t dim, uint32_t index, uint32_t t,
-                                 const float *y, FastswPoint *point)
+/**
+ * Relative sample (eq. 4-5): yn = y - y_a (dim floats); returns |yn|^2, NaN or
+ * Inf if y is not finite. The sum starts from the first square (0 + x = x).
+ */
+static inline float relative_sample(const float *anchor_y, uint32_t dim, const float *y, float *yn)
 {
-    float nn = 0.0f;
+    float nn;
     uint32_t d;
-    for (d = 0u; d < dim; d++) {
-        nn += y[d] * y[d];
+    yn[0] = y[0] - anchor_y[0];
+    nn = yn[0] * yn[0];
+    for (d = 1u; d < dim; d++) {
+        yn[d] = y[d] - anchor_y[d];
+        nn += yn[d] * yn[d];
     }
-    if (!(nn <= FASTSW_NN_LIMIT)) { /* NaN, Inf or overflow */
+    return nn;
+}
+
+/**
+ * Segment break at sample n: s_{n-1} becomes the segment point and the new
+ * anchor, and the running sums restart with sample n alone (eq. 10-12 from
+ * zero sums: 0 + x = x up to the sign of a zero, so they are set directly).
+ */
+static inline FastswStatus restart(FastswState *s, uint32_t dim, uint32_t index, uint32_t t,
+                                   const float *y, FastswPoint *point)
+{
+    float yn[FASTSW_MAX_DIM];
+    float tn;
+    uint32_t d;
+
+    *point = s->prev;
+    s->anchor = s->prev;
+    tn = (float)(uint32_t)(t - s->anchor.t); /* eq. (4) */
+    s->syy = relative_sample(s->anchor.y, dim, y, yn);
+    s->stt = tn * tn;
+    for (d = 0u; d < dim; d++) {
+        s->sty[d] = tn * yn[d];
+    }
+    s->count = 1u;
+    store_point(&s->prev, dim, index, t, y);
+    return FASTSW_POINT;
+}
+
+/**
+ * The rare cases, all with count >= max_len: the first sample of a stream
+ * (count == FASTSW_NOT_STARTED; it becomes a segment point and the anchor,
+ * whose y was 0, so nn = |y|^2 was checked), a time step that is not positive,
+ * or a segment that reached max_len.
+ */
+static FastswStatus long_segment(FastswState *s, uint32_t t, const float *y, FastswPoint *point)
+{
+    const uint32_t dim = FASTSW_DIM(&s->settings);
+    const uint32_t index = s->next_index - 1u;
+
+    if (s->count == FASTSW_NOT_STARTED) {
+        store_point(&s->anchor, dim, index, t, y);
+        s->prev = s->anchor;
+        s->count = 0u;
+        *point = s->anchor;
+        return FASTSW_POINT;
+    }
+    if ((int32_t)(t - s->prev.t) <= 0) { /* zero or negative time step */
         return FASTSW_REJECTED;
     }
-    store_point(&s->anchor, dim, index, t, y);
-    s->prev = s->anchor;
-    s->started = 1u;
-    *point = s->anchor;
-    return FASTSW_POINT;
+    return restart(s, dim, index, t, y, point);
 }
 
 /** fastsw_update for a known dim (inlined with a constant dim where fixed). */
@@ -115,63 +184,38 @@ static inline FastswStatus update(FastswState *s, uint32_t dim, uint32_t t, cons
 {
     const uint32_t index = s->next_index++;
     float yn[FASTSW_MAX_DIM];
-    float tn, nn = 0.0f;
-    FastswStatus status = FASTSW_NONE;
+    float tn, tt, nn, dot;
     uint32_t d;
 
-    if (!s->started) {
-        return start_stream(s, dim, index, t, y, point);
+    nn = relative_sample(s->anchor.y, dim, y, yn); /* eq. (5) */
+    if (!(nn <= FASTSW_NN_LIMIT)) {                /* NaN, Inf or overflow */
+        return FASTSW_REJECTED;
+    }
+    if (s->count >= s->settings.max_len) {
+        return long_segment(s, t, y, point);
     }
     if ((int32_t)(t - s->prev.t) <= 0) { /* zero or negative time step */
         return FASTSW_REJECTED;
     }
     tn = (float)(uint32_t)(t - s->anchor.t); /* eq. (4): time relative to the anchor */
-    for (d = 0u; d < dim; d++) {
-        yn[d] = y[d] - s->anchor.y[d]; /* eq. (5): value relative to the anchor */
-        nn += yn[d] * yn[d];
+    tt = tn * tn;
+    dot = yn[0] * s->sty[0];
+    for (d = 1u; d < dim; d++) {
+        dot += yn[d] * s->sty[d];
     }
-    if (!(nn <= FASTSW_NN_LIMIT)) { /* NaN, Inf or overflow */
-        return FASTSW_REJECTED;
+    /* eq. (13) times t_n^2 */
+    if ((tt * s->syy - 2.0f * tn * dot) + nn * s->stt > s->settings.threshold * tt) {
+        return restart(s, dim, index, t, y, point);
     }
-
-    if (s->count >= s->settings.max_len) {
-        status = FASTSW_POINT;
-    } else {
-        float dot = 0.0f;
-        const float tt = tn * tn;
-        for (d = 0u; d < dim; d++) {
-            dot += yn[d] * s->sty[d];
-        }
-        /* eq. (13) times t_n^2 */
-        if ((tt * s->syy - 2.0f * tn * dot) + nn * s->stt > s->settings.threshold * tt) {
-            status = FASTSW_POINT;
-        }
-    }
-
-    if (status == FASTSW_POINT) { /* s_{n-1} becomes the segment point and new anchor */
-        *point = s->prev;
-        s->anchor = s->prev;
-        s->count = 0u;
-        s->syy = 0.0f;
-        s->stt = 0.0f;
-        tn = (float)(uint32_t)(t - s->anchor.t);
-        nn = 0.0f;
-        for (d = 0u; d < dim; d++) {
-            s->sty[d] = 0.0f;
-            yn[d] = y[d] - s->anchor.y[d];
-            nn += yn[d] * yn[d];
-        }
-    }
-
     /* add sample n to the running sums, eq. (10)-(12) */
     s->syy += nn;
-    s->stt += tn * tn;
+    s->stt += tt;
     for (d = 0u; d < dim; d++) {
         s->sty[d] += tn * yn[d];
     }
     s->count++;
     store_point(&s->prev, dim, index, t, y);
-    return status;
+    return FASTSW_NONE;
 }
 
 FastswStatus fastsw_update(FastswState *state, uint32_t t, const float *y, FastswPoint *point)
@@ -181,7 +225,7 @@ FastswStatus fastsw_update(FastswState *state, uint32_t t, const float *y, Fasts
 
 FastswStatus fastsw_flush(FastswState *state, FastswPoint *point)
 {
-    if (!state->started || state->prev.index == state->anchor.index) {
+    if (state->count == FASTSW_NOT_STARTED || state->prev.index == state->anchor.index) {
         return FASTSW_NONE;
     }
     *point = state->prev;

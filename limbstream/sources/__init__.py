@@ -80,15 +80,40 @@ def load_npz(path: str | Path) -> list[Motion]:
 
 
 def load(path: str | Path) -> list[Motion]:
-    """Load every motion in a file or folder (.npz, .bvh, x-IMU3 .csv, Xsens .txt).
+    """Load every motion in a file or folder.
+
+    - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at 50 Hz (:mod:`.bvh`).
+    - x-IMU3 ``.csv`` / Xsens ``.txt`` file: one single-segment Motion of its raw samples.
+    - A folder of ``.csv`` (x-IMU3) or ``.txt`` (Xsens) files: one Motion, one segment per file,
+      aligned on a common time base (see :mod:`.imu_files`).
+    - Any other folder: every ``.npz`` and ``.bvh`` in it, in name order.
 
     Raises
     ------
     MotionFileError naming the file and what is wrong.
     """
+    from limbstream.sources import bvh, imu_files
+
     path = Path(path)
     if not path.exists():
         raise MotionFileError(f"{path}: no such file or folder")
-    if path.suffix == ".npz":
+    if path.is_dir():
+        suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()}
+        if ".csv" in suffixes:
+            return [imu_files.load_xio_folder(path)]
+        if ".txt" in suffixes:
+            return [imu_files.load_xsens_folder(path)]
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".npz", ".bvh"))
+        if not files:
+            raise MotionFileError(f"{path}: folder holds no .npz, .bvh, .csv or .txt motion files")
+        return [m for f in files for m in load(f)]
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
         return load_npz(path)
+    if suffix == ".bvh":
+        return [bvh.load_bvh(path)]
+    if suffix in (".csv", ".txt"):
+        read = imu_files.read_xio_csv if suffix == ".csv" else imu_files.read_xsens_txt
+        s = read(path)
+        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem)]
     raise MotionFileError(f"{path}: unknown motion file type (expected .npz, .bvh, .csv, .txt or a folder)")

@@ -1,0 +1,415 @@
+/* limbstream dashboard page: polls the REST API for device stats and history, draws each
+ * subject's skeleton from its WebSocket pose stream. No build step; uPlot is vendored. */
+"use strict";
+
+const MAX_FIGURES = 12;          // skeleton cards (one WebSocket each)
+const DEVICES_EVERY_MS = 1000;
+const SUBJECTS_EVERY_MS = 2000;
+const HISTORY_EVERY_MS = 2000;
+const COLORS = { left: "#5aa9ff", right: "#ff8a5b", mid: "#dce3ea", accent: "#3fc1c9",
+                 warn: "#f5c451", muted: "#8593a3", grid: "#26303b" };
+
+const $ = (id) => document.getElementById(id);
+const state = {
+  devices: [],
+  selected: null,
+  skeleton: null,
+  figures: new Map(),           // subject -> Figure
+  charts: null,
+};
+
+// ------------------------------------------------------------------ helpers
+
+function fmt(v, digits = 2) {
+  if (v === null || v === undefined || Number.isNaN(v)) return "–";
+  return Number(v).toFixed(digits);
+}
+
+function fmtBig(v) {
+  if (v === null || v === undefined) return "–";
+  if (Math.abs(v) >= 1e6) return (v / 1e6).toFixed(2) + " M";
+  if (Math.abs(v) >= 1e4) return (v / 1e3).toFixed(1) + " k";
+  return Number(v).toFixed(v < 100 ? 1 : 0);
+}
+
+function esc(s) {
+  return String(s).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
+}
+
+async function api(path, options = {}) {
+  const res = await fetch(path, options);
+  let body = null;
+  try { body = await res.json(); } catch (_) { /* empty or non-JSON body */ }
+  if (!res.ok) {
+    let detail = body && body.detail;
+    if (Array.isArray(detail)) detail = detail.map((d) => `${(d.loc || []).slice(1).join(".")}: ${d.msg}`).join("; ");
+    const err = new Error(`${res.status} ${detail || res.statusText}`);
+    err.status = res.status;
+    throw err;
+  }
+  return body;
+}
+
+function setStatus(kind, text) {
+  const el = $("status");
+  el.className = `pill pill-${kind}`;
+  el.textContent = text;
+}
+
+// ------------------------------------------------------------------ devices table
+
+async function refreshDevices() {
+  try {
+    state.devices = await api("/api/devices");
+  } catch (e) {
+    setStatus("bad", "service unreachable");
+    return;
+  }
+  const live = state.devices.filter((d) => !d.stale);
+  if (!state.devices.length) setStatus("wait", "no devices yet");
+  else if (!live.length) setStatus("wait", "stats stale");
+  else setStatus("ok", "live");
+  renderTotals();
+  renderTable();
+  syncSelects();
+}
+
+function renderTotals() {
+  const ds = state.devices;
+  const subjects = new Set(ds.map((d) => d.subject));
+  const online = ds.filter((d) => d.online).length;
+  const sum = (k) => ds.reduce((a, d) => a + (d[k] || 0), 0);
+  const mean = (k) => {
+    const xs = ds.map((d) => d[k]).filter((v) => v !== null && v !== undefined);
+    return xs.length ? xs.reduce((a, b) => a + b, 0) / xs.length : null;
+  };
+  $("tot-subjects").textContent = subjects.size;
+  $("tot-online").textContent = `${online} / ${ds.length}`;
+  $("tot-rate").textContent = fmtBig(sum("msgs_per_s"));
+  $("tot-bytes").textContent = fmtBig(sum("bytes_per_s"));
+  $("tot-icr").textContent = fmt(mean("icr"), 3);
+  const aad = mean("aad_deg");
+  $("tot-aad").textContent = aad === null ? "–" : `${fmt(aad, 2)}°`;
+}
+
+function renderTable() {
+  const body = $("devices-body");
+  if (!state.devices.length) {
+    body.innerHTML = '<tr class="empty-row"><td colspan="12">Waiting for device statistics…</td></tr>';
+    return;
+  }
+  const maxRate = Math.max(1, ...state.devices.map((d) => d.msgs_per_s || 0));
+  const rows = [];
+  let subject = null;
+  for (const d of state.devices) {
+    if (d.subject !== subject) {
+      subject = d.subject;
+      const n = state.devices.filter((x) => x.subject === subject);
+      rows.push(`<tr class="subject-row"><td colspan="12">${esc(subject)} · ${n.filter((x) => x.online).length}/${n.length} online</td></tr>`);
+    }
+    const dot = d.stale ? (d.alive ? "on" : "stale") : (d.online ? "on" : "off");
+    const stateText = d.online ? "online" : (d.stale && !d.alive ? "no data" : "offline");
+    const width = Math.round(36 * (d.msgs_per_s || 0) / maxRate);
+    const sel = d.device === state.selected ? " selected" : "";
+    rows.push(
+      `<tr class="device${sel}" data-device="${esc(d.device)}" data-online="${d.online}" ` +
+      `data-rate="${d.msgs_per_s ?? ""}" data-icr="${d.icr ?? ""}">` +
+      `<td>${esc(d.segment)}</td>` +
+      `<td><span class="dot ${dot}"></span>${stateText}</td>` +
+      `<td class="num"><span class="bar" style="width:${width}px"></span>${fmt(d.msgs_per_s, 1)}</td>` +
+      `<td class="num">${fmtBig(d.bytes_per_s)}</td>` +
+      `<td class="num">${fmt(d.icr, 3)}</td>` +
+      `<td class="num">${fmt(d.aad_deg)}</td>` +
+      `<td class="num">${fmt(d.p99_deg)}</td>` +
+      `<td class="num">${fmt(d.live_err_deg)}</td>` +
+      `<td class="num">${fmt(d.watermark_lag_s)}</td>` +
+      `<td class="num${d.gaps ? " warn" : ""}">${d.gaps ?? "–"}</td>` +
+      `<td class="num${d.dropped ? " bad" : ""}">${d.dropped ?? "–"}</td>` +
+      `<td class="num">${d.threshold === null || d.threshold === undefined ? "–" : Number(d.threshold).toPrecision(3)}</td>` +
+      `</tr>`);
+  }
+  body.innerHTML = rows.join("");
+}
+
+function syncSelects() {
+  const ids = state.devices.map((d) => d.device);
+  if (!state.selected && ids.length) selectDevice(ids[0]);
+  fillSelect($("chart-device"), ids.map((id) => [id, id]), state.selected);
+  const subjects = [...new Set(state.devices.map((d) => d.subject))];
+  const targets = subjects.map((s) => [`subject:${s}`, `all devices of ${s}`]).concat(ids.map((id) => [id, id]));
+  fillSelect($("ctl-target"), targets, null);
+}
+
+function fillSelect(select, options, value) {
+  const key = options.map((o) => o[0]).join("|");
+  if (select.dataset.key !== key) {
+    const keep = value ?? select.value;
+    select.innerHTML = options.map(([v, label]) => `<option value="${esc(v)}">${esc(label)}</option>`).join("");
+    select.dataset.key = key;
+    if (keep && options.some((o) => o[0] === keep)) select.value = keep;
+  } else if (value) {
+    select.value = value;
+  }
+}
+
+function selectDevice(id) {
+  state.selected = id;
+  $("chart-device").value = id;
+  for (const tr of document.querySelectorAll("#devices-body tr.device")) {
+    tr.classList.toggle("selected", tr.dataset.device === id);
+  }
+  refreshHistory();
+}
+
+// ------------------------------------------------------------------ charts
+
+function makeChart(el, series, yRange) {
+  const axis = { stroke: COLORS.muted, grid: { stroke: COLORS.grid, width: 1 }, ticks: { stroke: COLORS.grid } };
+  const opts = {
+    width: Math.max(200, el.clientWidth),
+    height: 160,
+    cursor: { drag: { x: false, y: false } },
+    legend: { live: true },
+    scales: { x: { time: true }, y: yRange ? { range: yRange } : {} },
+    axes: [axis, { ...axis, size: 48 }],
+    series: [{}].concat(series.map(([label, color, dash]) => ({
+      label, stroke: color, width: 1.6, dash, points: { show: false }, spanGaps: true,
+      value: (u, v) => (v === null ? "–" : v.toFixed(3)),
+    }))),
+  };
+  return new uPlot(opts, [[]].concat(series.map(() => [])), el);
+}
+
+function initCharts() {
+  state.charts = {
+    rate: makeChart($("chart-rate"), [["msgs/s", COLORS.accent]]),
+    icr: makeChart($("chart-icr"), [["ICR", COLORS.left]],
+      (u, min, max) => [0, Math.max(0.05, (max || 0) * 1.2)]),
+    err: makeChart($("chart-err"), [["AAD", COLORS.accent], ["p99", COLORS.warn, [4, 3]], ["live", COLORS.right]],
+      (u, min, max) => [0, Math.max(1, (max || 0) * 1.1)]),
+  };
+  new ResizeObserver(() => {
+    for (const [name, chart] of Object.entries(state.charts)) {
+      const el = $(`chart-${name}`);
+      chart.setSize({ width: Math.max(200, el.clientWidth), height: 160 });
+    }
+  }).observe($("chart-rate").parentElement.parentElement);
+}
+
+async function refreshHistory() {
+  const id = state.selected;
+  if (!id || !state.charts) return;
+  let h;
+  try {
+    h = await api(`/api/devices/${id}/history?seconds=${$("chart-window").value}`);
+  } catch (_) { return; }
+  if (id !== state.selected) return;
+  state.charts.rate.setData([h.t, h.msgs_per_s]);
+  state.charts.icr.setData([h.t, h.icr]);
+  state.charts.err.setData([h.t, h.aad_deg, h.p99_deg, h.live_err_deg]);
+}
+
+// ------------------------------------------------------------------ skeletons
+
+class Figure {
+  constructor(subject, container) {
+    this.subject = subject;
+    this.frame = null;
+    this.dirty = false;
+    this.drawn = 0;
+    this.yaw = -0.6;
+    this.received = 0;
+    this.retry = 500;
+    const card = document.createElement("div");
+    card.className = "skeleton";
+    card.dataset.subject = subject;
+    card.innerHTML = `<canvas width="440" height="520"></canvas>` +
+      `<div class="cap"><b>${esc(subject)}</b><span>waiting…</span></div>`;
+    container.appendChild(card);
+    this.card = card;
+    this.canvas = card.querySelector("canvas");
+    this.caption = card.querySelector(".cap span");
+    this.canvas.dataset.frames = "0";
+    this.bindDrag();
+    this.connect();
+  }
+
+  bindDrag() {
+    let x0 = null;
+    this.canvas.addEventListener("pointerdown", (e) => { x0 = e.clientX; this.canvas.setPointerCapture(e.pointerId); });
+    this.canvas.addEventListener("pointermove", (e) => {
+      if (x0 === null) return;
+      this.yaw += (e.clientX - x0) * 0.01;
+      x0 = e.clientX;
+      this.dirty = true;
+    });
+    this.canvas.addEventListener("pointerup", () => { x0 = null; });
+  }
+
+  connect() {
+    const proto = location.protocol === "https:" ? "wss" : "ws";
+    const ws = new WebSocket(`${proto}://${location.host}/ws/pose/${encodeURIComponent(this.subject)}`);
+    this.ws = ws;
+    ws.onmessage = (ev) => {
+      this.frame = JSON.parse(ev.data);
+      this.received += 1;
+      this.dirty = true;
+      this.retry = 500;
+    };
+    ws.onclose = () => {
+      if (this.closed) return;
+      this.caption.textContent = "reconnecting…";
+      setTimeout(() => this.connect(), this.retry);
+      this.retry = Math.min(this.retry * 2, 5000);
+    };
+  }
+
+  close() {
+    this.closed = true;
+    this.ws.close();
+    this.card.remove();
+  }
+
+  draw() {
+    if (!this.dirty || !this.frame || !state.skeleton) return;
+    this.dirty = false;
+    const f = this.frame;
+    const ctx = this.canvas.getContext("2d");
+    const W = this.canvas.width, H = this.canvas.height;
+    ctx.clearRect(0, 0, W, H);
+    const scale = H / 2.3, cx = W / 2, cy = H * 0.47;
+    const c = Math.cos(this.yaw), s = Math.sin(this.yaw);
+    const proj = (p) => {
+      const x = p[0] * c + p[2] * s;
+      const z = -p[0] * s + p[2] * c;
+      const k = 1 / (1 - z * 0.12);               // gentle perspective
+      return [cx + x * scale * k, cy - p[1] * scale * k, z];
+    };
+    // floor: ellipse under the lowest joint
+    const ys = Object.values(f.joints).map((p) => p[1]);
+    const floor = Math.min(...ys);
+    ctx.strokeStyle = COLORS.grid;
+    ctx.lineWidth = 1;
+    for (let r = 0.25; r <= 0.75; r += 0.25) {
+      ctx.beginPath();
+      ctx.ellipse(cx, cy - floor * scale, r * scale, r * scale * 0.22, 0, 0, 2 * Math.PI);
+      ctx.stroke();
+    }
+    const P = {};
+    for (const [name, p] of Object.entries(f.joints)) P[name] = proj(p);
+    const side = (n) => (n.startsWith("l_") ? COLORS.left : n.startsWith("r_") ? COLORS.right : COLORS.mid);
+    const bones = state.skeleton.bones
+      .filter(([a, b]) => P[a] && P[b])
+      .map(([a, b]) => [a, b, (P[a][2] + P[b][2]) / 2])
+      .sort((u, v) => u[2] - v[2]);                 // far first
+    ctx.lineCap = "round";
+    for (const [a, b, z] of bones) {
+      ctx.globalAlpha = 0.55 + 0.45 * Math.max(0, Math.min(1, 0.5 + z));
+      ctx.strokeStyle = side(b);
+      ctx.lineWidth = 7;
+      ctx.beginPath();
+      ctx.moveTo(P[a][0], P[a][1]);
+      ctx.lineTo(P[b][0], P[b][1]);
+      ctx.stroke();
+    }
+    ctx.globalAlpha = 1;
+    for (const [name, p] of Object.entries(P)) {
+      ctx.fillStyle = name === "head" ? COLORS.mid : "#0f1419";
+      ctx.strokeStyle = side(name);
+      ctx.lineWidth = 2.5;
+      ctx.beginPath();
+      ctx.arc(p[0], p[1], name === "head" ? 14 : 5, 0, 2 * Math.PI);
+      ctx.fill();
+      ctx.stroke();
+    }
+    this.drawn += 1;
+    this.canvas.dataset.frames = String(this.drawn);
+    this.card.classList.toggle("flag-missing", f.missing || f.gap);
+    const flags = f.missing ? " · missing" : f.gap ? " · gap" : "";
+    this.caption.textContent = `${f.kind} #${f.seq}${flags}`;
+  }
+}
+
+async function refreshSubjects() {
+  let subjects;
+  try { subjects = await api("/api/subjects"); } catch (_) { return; }
+  const container = $("skeletons");
+  const withPose = subjects.filter((s) => s.pose).slice(0, MAX_FIGURES);
+  for (const s of withPose) {
+    if (!state.figures.has(s.subject)) state.figures.set(s.subject, new Figure(s.subject, container));
+  }
+  $("skeletons-empty").hidden = state.figures.size > 0;
+}
+
+function animate() {
+  for (const fig of state.figures.values()) fig.draw();
+  requestAnimationFrame(animate);
+}
+
+// ------------------------------------------------------------------ control
+
+async function applyConfig(ev) {
+  ev.preventDefault();
+  const result = $("ctl-result");
+  const token = $("ctl-token").value.trim();
+  sessionStorage.setItem("limbstream-token", token);
+  const body = {};
+  const th = $("ctl-threshold").value.trim();
+  const ml = $("ctl-maxlen").value.trim();
+  if (th !== "") body.threshold = Number(th);
+  if (ml !== "") body.max_len = Number(ml);
+  if (!Object.keys(body).length) {
+    result.className = "result err";
+    result.textContent = "Enter a threshold and/or a max segment length.";
+    return;
+  }
+  const target = $("ctl-target").value;
+  const ids = target.startsWith("subject:")
+    ? state.devices.filter((d) => d.subject === target.slice(8)).map((d) => d.device)
+    : [target];
+  $("ctl-apply").disabled = true;
+  result.className = "result";
+  result.textContent = `applying to ${ids.length} device(s)…`;
+  const outcomes = await Promise.all(ids.map((id) => api(`/api/devices/${id}/config`, {
+    method: "PUT",
+    headers: { "Content-Type": "application/json", Authorization: `Bearer ${token}` },
+    body: JSON.stringify(body),
+  }).then((r) => ({ ok: true, r }), (e) => ({ ok: false, e }))));
+  $("ctl-apply").disabled = false;
+  const good = outcomes.filter((o) => o.ok);
+  const bad = outcomes.filter((o) => !o.ok);
+  if (!bad.length) {
+    const c = good[0].r;
+    result.className = "result ok";
+    result.textContent = `confirmed by ${good.length}/${ids.length}: threshold ${c.threshold}, max length ${c.max_len}`;
+  } else {
+    result.className = "result err";
+    result.textContent = `${good.length}/${ids.length} confirmed; ${bad[0].e.message}`;
+  }
+}
+
+// ------------------------------------------------------------------ start
+
+async function start() {
+  $("ctl-token").value = sessionStorage.getItem("limbstream-token") || "";
+  $("control").addEventListener("submit", applyConfig);
+  $("chart-device").addEventListener("change", (e) => selectDevice(e.target.value));
+  $("chart-window").addEventListener("change", refreshHistory);
+  $("devices-body").addEventListener("click", (e) => {
+    const tr = e.target.closest("tr.device");
+    if (tr) selectDevice(tr.dataset.device);
+  });
+  initCharts();
+  try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* retried by refreshSubjects' figures */ }
+  await refreshDevices();
+  await refreshSubjects();
+  setInterval(refreshDevices, DEVICES_EVERY_MS);
+  setInterval(refreshSubjects, SUBJECTS_EVERY_MS);
+  setInterval(refreshHistory, HISTORY_EVERY_MS);
+  setInterval(async () => {
+    if (!state.skeleton) { try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* next time */ } }
+  }, 3000);
+  requestAnimationFrame(animate);
+}
+
+start();

@@ -1,0 +1,261 @@
+"""Emulated IMU devices: each samples its subject's motion in real time, runs the C fastSW
+kernel with its own state, and publishes only its segment points over Zenoh.
+
+All devices of one process advance together, one tick per sample period, through one
+:class:`limbstream.kernel.SegmenterBank` call. Per device: an advanced publisher for
+segment points (cache for recovery, miss detection), a liveliness token, a share of one
+config queryable per subject, and optionally the truth tap (raw sample batches).
+Zenoh callbacks are not used: queries go to a FIFO channel read between ticks.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import random
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import zenoh
+import zenoh.ext as zext
+
+from limbstream import kernel, wire
+
+log = logging.getLogger("limbstream.emulator")
+
+
+@dataclass(frozen=True)
+class EmulatorSettings:
+    """What one emulator process runs.
+
+    Attributes
+    ----------
+    fs : device sample rate, Hz.
+    speed : time scale: 1 = real time, 10 = ten times faster (device clocks run faster too).
+    threshold, max_len : initial fastSW settings of every device (SSR; samples).
+    truth : publish raw samples on the truth tap.
+    raw_batch : samples per truth-tap message.
+    cache : segment points each device keeps for recovery (advanced publisher cache).
+    heartbeat_s : miss-detection heartbeat period, seconds.
+    """
+
+    fs: float = 50.0
+    speed: float = 1.0
+    threshold: float = 1e-2
+    max_len: int = 25
+    truth: bool = True
+    raw_batch: int = 25
+    cache: int = 512
+    heartbeat_s: float = 0.5
+
+
+@dataclass
+class Device:
+    """Book-keeping of one emulated device (the kernel state lives in the bank)."""
+
+    subject: str
+    segment: str
+    slot: int
+    stream: int
+    publisher: object = None
+    token: object = None
+    seq: int = 0
+    samples: int = 0
+    points: int = 0
+    threshold: float = 0.0
+    max_len: int = 0
+    raw_t: list = field(default_factory=list)
+    raw_q: list = field(default_factory=list)
+    raw_first: int = 0
+
+    @property
+    def id(self) -> str:
+        return wire.device_id(self.subject, self.segment)
+
+    def status(self) -> dict:
+        """The device's own view: config and counters (the config queryable's reply)."""
+        return {"device": self.id, "threshold": self.threshold, "max_len": self.max_len,
+                "stream": self.stream, "samples": self.samples, "points": self.points}
+
+
+@dataclass
+class TickStats:
+    """Pacing counters of the tick loop."""
+
+    ticks: int = 0
+    late: int = 0
+    max_late_s: float = 0.0
+    busy_s: float = 0.0
+
+
+class Emulator:
+    """Devices of several subjects in one process.
+
+    Parameters
+    ----------
+    session : an open Zenoh session (client).
+    feeds : {subject: feed}, a feed has ``segments``, ``sample(k) -> (S, 4) float32`` and
+        ``length`` (samples, or None for endless).
+    settings : EmulatorSettings.
+    """
+
+    def __init__(self, session: zenoh.Session, feeds: dict, settings: EmulatorSettings):
+        self.session, self.feeds, self.settings = session, feeds, settings
+        self.devices: list[Device] = []
+        for subject, feed in feeds.items():
+            for segment in feed.segments:
+                self.devices.append(Device(subject, segment, len(self.devices), random.getrandbits(16),
+                                           threshold=settings.threshold, max_len=settings.max_len))
+        self.bank = kernel.SegmenterBank(len(self.devices), settings.threshold, settings.max_len)
+        self.length = max((f.length or 0) for f in feeds.values()) if all(f.length for f in feeds.values()) else None
+        self.tick_stats = TickStats()
+        self.start_us = 0
+        self.finished = threading.Event()
+        self._declared = False
+
+    # ------------------------------------------------------------------ zenoh objects
+
+    def declare(self) -> None:
+        """Publishers, liveliness tokens and config queryables."""
+        s = self.settings
+        for d in self.devices:
+            d.publisher = zext.declare_advanced_publisher(
+                self.session, wire.seg_key(d.subject, d.segment),
+                cache=zext.CacheConfig(max_samples=s.cache),
+                sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s),
+                publisher_detection=True,
+            )
+            d.token = self.session.liveliness().declare_token(wire.alive_key(d.subject, d.segment))
+        self._raw_pubs = (
+            {d.slot: self.session.declare_publisher(wire.raw_key(d.subject, d.segment)) for d in self.devices}
+            if s.truth else {}
+        )
+        self._queries = [
+            self.session.declare_queryable(f"{wire.PREFIX}/{subject}/*/config", zenoh.handlers.FifoChannel(1024))
+            for subject in self.feeds
+        ]
+        self._by_key = {wire.config_key(d.subject, d.segment): d for d in self.devices}
+        self._declared = True
+
+    def undeclare(self) -> None:
+        """Drop tokens and publishers (devices go offline)."""
+        for d in self.devices:
+            for obj in (d.token, d.publisher):
+                if obj is not None:
+                    obj.undeclare()
+            d.token = d.publisher = None
+
+    # ------------------------------------------------------------------ config
+
+    def _answer_queries(self) -> None:
+        """Apply config queries that arrived since the last tick (never inside a callback)."""
+        for queryable in self._queries:
+            while (query := queryable.try_recv()) is not None:
+                self._answer(query)
+
+    def _answer(self, query: zenoh.Query) -> None:
+        targets = [d for key, d in self._by_key.items() if zenoh.KeyExpr(key).intersects(query.key_expr)]
+        config = None
+        if query.payload is not None and len(query.payload.to_bytes()) > 0:
+            try:
+                config = wire.decode_config(query.payload.to_bytes())
+            except wire.WireError as exc:
+                query.reply_err(json.dumps({"error": str(exc)}))
+                return
+        for d in targets:
+            if config is not None:
+                self.bank.retune(d.slot, config.threshold, config.max_len)
+                d.threshold, d.max_len = config.threshold, config.max_len
+                log.info("%s: threshold %g, max_len %d", d.id, d.threshold, d.max_len)
+            query.reply(wire.config_key(d.subject, d.segment), json.dumps(d.status()))
+
+    # ------------------------------------------------------------------ ticks
+
+    def _publish_points(self, k: int, status: np.ndarray, index: np.ndarray, y: np.ndarray) -> None:
+        period_us = 1e6 / self.settings.fs
+        for slot in np.flatnonzero(status == kernel.POINT):
+            self._publish_point(self.devices[slot], int(index[slot]), y[slot], period_us, 0)
+
+    def _publish_point(self, d: Device, index: int, y: np.ndarray, period_us: float, flags: int) -> None:
+        point = wire.SegmentPoint(d.stream, d.seq, index, self.start_us + round(index * period_us),
+                                  tuple(float(v) for v in y), flags)
+        d.publisher.put(wire.encode_point(point))
+        d.seq = (d.seq + 1) & 0xFFFFFFFF
+        d.points += 1
+
+    def _tap(self, k: int, t_us: int, samples: np.ndarray, final: bool = False) -> None:
+        """Truth tap: buffer raw samples; publish a device's batch when full (staggered over devices)."""
+        batch = self.settings.raw_batch
+        for d in self.devices:
+            if not d.raw_t:
+                d.raw_first = k
+            d.raw_t.append(t_us)
+            d.raw_q.append(samples[d.slot])
+            if final or len(d.raw_t) >= batch and (k + d.slot) % batch == 0 or len(d.raw_t) >= 2 * batch:
+                self._flush_tap(d)
+
+    def _flush_tap(self, d: Device) -> None:
+        if d.raw_t:
+            payload = wire.encode_raw(wire.RawBatch(d.stream, d.raw_first, np.asarray(d.raw_t, np.int64),
+                                                    np.asarray(d.raw_q, np.float32)))
+            self._raw_pubs[d.slot].put(payload)
+            d.raw_t, d.raw_q = [], []
+
+    def step(self, k: int) -> None:
+        """Sample k of every device: kernel, segment points, truth tap, config."""
+        t_us = self.start_us + round(k * 1e6 / self.settings.fs)
+        samples = np.concatenate([feed.sample(k) for feed in self.feeds.values()])
+        ticks = np.full(len(self.devices), (t_us - self.start_us) & 0xFFFFFFFF, np.uint32)
+        status, index, y = self.bank.update(ticks, samples)
+        for d in self.devices:
+            d.samples += 1
+        self._publish_points(k, status, index, y)
+        if self.settings.truth:
+            self._tap(k, t_us, samples)
+        self._answer_queries()
+
+    def finish(self) -> None:
+        """End of a finite stream: flush every device's last point and the truth tap."""
+        period_us = 1e6 / self.settings.fs
+        for d in self.devices:
+            last = self.bank.flush(d.slot)
+            if last is not None:
+                self._publish_point(d, last[0], last[2], period_us, wire.FLAG_FINAL)
+            if self.settings.truth:
+                self._flush_tap(d)
+        self.finished.set()
+
+    def run(self, stop: threading.Event, duration_s: float | None = None) -> TickStats:
+        """Tick in real time (scaled by speed) until ``stop``, the end of a finite source,
+        or ``duration_s`` seconds of device time. Keeps serving queries after a finite end."""
+        if not self._declared:
+            self.declare()
+        s = self.settings
+        period = 1.0 / (s.fs * s.speed)
+        self.start_us = int(time.time() * 1e6)
+        n_ticks = self.length
+        if duration_s is not None:
+            n_ticks = min(n_ticks or 1 << 62, int(round(duration_s * s.fs)))
+        start = time.perf_counter()
+        k = 0
+        while not stop.is_set() and (n_ticks is None or k < n_ticks):
+            deadline = start + k * period
+            now = time.perf_counter()
+            if now < deadline:
+                stop.wait(deadline - now)
+                if stop.is_set():
+                    break
+            elif now - deadline > period:
+                self.tick_stats.late += 1
+                self.tick_stats.max_late_s = max(self.tick_stats.max_late_s, now - deadline)
+            began = time.perf_counter()
+            self.step(k)
+            self.tick_stats.busy_s += time.perf_counter() - began
+            self.tick_stats.ticks += 1
+            k += 1
+        if n_ticks is not None and k >= n_ticks:
+            self.finish()
+            while not stop.wait(0.05):  # keep serving config queries and the recovery cache
+                self._answer_queries()
+        return self.tick_stats

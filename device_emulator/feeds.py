@@ -1,0 +1,65 @@
+"""Motion feeds: what each emulated subject's IMUs measure at sample k, forever.
+
+A feed turns a motion source into an endless sample stream on a uniform grid at the
+device rate: files are resampled (SLERP) to that rate and looped; the built-in generator
+is produced chunk by chunk, continuous across chunks.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from limbstream import quat
+from limbstream.sources import Motion
+from limbstream.sources.generator import GeneratorSource
+
+
+def resample(motion: Motion, fs: float) -> Motion:
+    """The motion on a uniform grid at ``fs`` Hz from its first sample (SLERP per segment)."""
+    if abs(motion.fs - fs) < 1e-6 * fs and np.allclose(np.diff(motion.t), 1.0 / fs, rtol=1e-6, atol=1e-9):
+        return motion
+    t = motion.t[0] + np.arange(int(np.floor((motion.t[-1] - motion.t[0]) * fs)) + 1) / fs
+    q = np.stack([quat.interpolate(motion.t, motion.q[:, s], t) for s in range(motion.q.shape[1])], axis=1)
+    return Motion(t, q, motion.segments, motion.name)
+
+
+class LoopFeed:
+    """A recorded motion at ``fs``, replayed in a loop (``once``: a finite stream).
+
+    Parameters
+    ----------
+    motion : Motion
+    fs : float, device rate, Hz.
+    once : bool, end after one pass instead of looping.
+    """
+
+    def __init__(self, motion: Motion, fs: float, once: bool = False):
+        self.motion = resample(motion, fs)
+        self.q = self.motion.q.astype(np.float32)
+        self.segments = self.motion.segments
+        self.length = len(self.q) if once else None
+
+    def sample(self, k: int) -> np.ndarray:
+        """(S, 4) float32 orientations at sample k."""
+        return self.q[k % len(self.q)]
+
+
+class GeneratorFeed:
+    """The built-in synthetic motion of one subject, generated in chunks as time goes on."""
+
+    CHUNK_S = 10.0
+
+    def __init__(self, seed: int, fs: float, noise_deg: float = 0.0):
+        self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg)
+        self.segments = self.source.segments
+        self.chunk_len = int(round(self.CHUNK_S * fs))
+        self.length = None
+        self._chunk_index = -1
+        self._chunk = np.zeros((0, len(self.segments), 4), np.float32)
+
+    def sample(self, k: int) -> np.ndarray:
+        """(S, 4) float32 orientations at sample k."""
+        c, i = divmod(k, self.chunk_len)
+        if c != self._chunk_index:
+            self._chunk = self.source.chunk(c * self.chunk_len, self.chunk_len)[1].astype(np.float32)
+            self._chunk_index = c
+        return self._chunk[i]

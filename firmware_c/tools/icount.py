@@ -1,0 +1,228 @@
+"""Exact instructions executed per call of fastsw_update and sw_update on the Cortex-M4.
+
+Runs ``build/icount.elf`` (firmware_c/m4/icount_main.c) under QEMU ``mps2-an386`` with one
+guest instruction per translation block (``-singlestep``, or ``-accel tcg,one-insn-per-tb=on``
+on QEMU >= 8.1) and ``-d exec,nochain``, so the log has one line per executed instruction.
+``-dfilter`` keeps only the measured functions, everything they call, and the return
+addresses of their call sites: a call's count is the number of lines from the function's
+entry up to (not including) the return address. The harness announces each call on the
+semihosting console ("F ssr_break", "S 17", ...), in call order, which labels the counts.
+A naked function of known length (icount_probe: 3 + 3k instructions) checks the counting.
+
+Usage::
+
+    python3 icount.py build/icount.elf [--json]
+
+prints the table and ``fastsw max instructions per sample: N``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+MEASURED = {"icount_probe": "K", "fastsw_update": "F", "sw_update": "S"}
+"""Function -> the letter its calls are announced with."""
+
+FASTSW_BRANCHES = ("first", "normal", "ssr_break", "max_len_break", "reject_nan", "reject_time")
+TRACE_LINE = re.compile(r"^Trace \d+: 0x[0-9a-f]+ \[[0-9a-f]+/([0-9a-f]+)/")
+CALL_LINE = re.compile(r"^\s*([0-9a-f]+):\s+(?:[0-9a-f]{4}(?: [0-9a-f]{4})?\s+)?(bl|b\.w|b)\s+[0-9a-f]+ <([^>+]+)>")
+
+
+def _tool(name: str) -> str:
+    path = shutil.which(name)
+    if path is None:
+        raise FileNotFoundError(f"{name} not found on PATH (apt install gcc-arm-none-eabi qemu-system-arm)")
+    return path
+
+
+def symbols(elf: Path) -> dict[str, tuple[int, int]]:
+    """Function symbols of the ELF: name -> (address, size in bytes), Thumb bit cleared."""
+    out = subprocess.run([_tool("arm-none-eabi-nm"), "-S", str(elf)], capture_output=True, text=True, check=True)
+    table = {}
+    for line in out.stdout.splitlines():
+        parts = line.split()
+        if len(parts) == 4 and parts[2] in "Tt":
+            table[parts[3]] = (int(parts[0], 16) & ~1, int(parts[1], 16))
+    return table
+
+
+def call_graph(elf: Path, syms: dict[str, tuple[int, int]]) -> tuple[dict[str, set[str]], dict[str, set[int]]]:
+    """From the disassembly: callees of each function (bl and tail-call branches to other
+    functions) and, per function, the return addresses of its bl call sites."""
+    out = subprocess.run(
+        [_tool("arm-none-eabi-objdump"), "-d", str(elf)], capture_output=True, text=True, check=True
+    ).stdout
+    callees: dict[str, set[str]] = defaultdict(set)
+    returns: dict[str, set[int]] = defaultdict(set)
+    current = None
+    lines = out.splitlines()
+    for i, line in enumerate(lines):
+        head = re.match(r"^[0-9a-f]+ <([^>]+)>:", line)
+        if head:
+            current = head.group(1)
+            continue
+        match = CALL_LINE.match(line)
+        if not match or current is None:
+            continue
+        address, op, target = int(match.group(1), 16), match.group(2), match.group(3)
+        if target != current and target in syms:
+            callees[current].add(target)
+            if op == "bl":
+                returns[target].add(address + 4)  # bl is a 32-bit instruction
+    return callees, returns
+
+
+def reachable(roots: list[str], callees: dict[str, set[str]]) -> set[str]:
+    """Functions reachable from roots through calls, roots included."""
+    seen, todo = set(), list(roots)
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo.extend(callees.get(name, ()))
+    return seen
+
+
+def qemu_command(elf: Path, dfilter: str, log: Path) -> list[str]:
+    """QEMU invocation logging one line per executed instruction within dfilter."""
+    qemu = _tool("qemu-system-arm")
+    version = subprocess.run([qemu, "--version"], capture_output=True, text=True).stdout
+    major, minor = map(int, re.search(r"version (\d+)\.(\d+)", version).groups())
+    one_insn = ["-accel", "tcg,one-insn-per-tb=on"] if (major, minor) >= (8, 1) else ["-singlestep"]
+    return [
+        qemu, "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "none",
+        "-semihosting-config", "enable=on,target=native", "-kernel", str(elf),
+        *one_insn, "-d", "exec,nochain", "-dfilter", dfilter, "-D", str(log),
+    ]
+
+
+def run_trace(elf: Path, timeout: float = 120.0) -> tuple[dict[str, list[int]], list[tuple[str, str]]]:
+    """Run the harness traced; return instruction counts per call of each measured
+    function, in call order, and the harness's announcements (letter, argument)."""
+    syms = symbols(elf)
+    callees, returns = call_graph(elf, syms)
+    missing = [name for name in MEASURED if name not in syms]
+    if missing:
+        raise ValueError(f"{elf}: functions {missing} not found")
+    ranges = [syms[name] for name in sorted(reachable(list(MEASURED), callees))]
+    ret_to = {address: name for name in MEASURED for address in returns[name]}
+    dfilter = ",".join([f"0x{a:x}+0x{max(s, 2):x}" for a, s in ranges] + [f"0x{a:x}+0x2" for a in ret_to])
+    entries = {syms[name][0]: name for name in MEASURED}
+
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "trace.log"
+        done = subprocess.run(qemu_command(elf, dfilter, log), capture_output=True, text=True, timeout=timeout)
+        if done.returncode != 0:
+            raise RuntimeError(f"{elf} under QEMU exited with {done.returncode}: {done.stderr[-500:]}")
+        counts: dict[str, list[int]] = defaultdict(list)
+        inside, n = None, 0
+        with open(log) as trace:
+            for line in trace:
+                match = TRACE_LINE.match(line)
+                if not match:
+                    continue
+                pc = int(match.group(1), 16)
+                if inside is None:
+                    if pc in entries:
+                        inside, n = entries[pc], 1
+                elif pc in ret_to and ret_to[pc] == inside:
+                    counts[inside].append(n)
+                    inside = None
+                else:
+                    n += 1
+    console = done.stderr + done.stdout
+    announced = [tuple(line.split(maxsplit=1)) for line in console.splitlines() if line[:2] in ("K ", "F ", "S ")]
+    return counts, announced
+
+
+def measure(elf: Path) -> dict:
+    """Counts per branch of fastSW, SW's fit a + b n and the counting check.
+
+    Returns
+    -------
+    dict with keys
+        fastsw: {branch: [counts]}, fastsw_min, fastsw_max, fastsw_max_branch,
+        sw_n: (N,) segment lengths, sw_count: (N,) counts, sw_a, sw_b, sw_residual_max,
+        probe: [(k, count, expected)].
+    """
+    counts, announced = run_trace(elf)
+    by_letter: dict[str, list[str]] = defaultdict(list)
+    for letter, arg in announced:
+        by_letter[letter].append(arg.strip())
+    for name, letter in MEASURED.items():
+        if len(by_letter[letter]) != len(counts[name]):
+            raise RuntimeError(
+                f"{name}: {len(counts[name])} traced calls but {len(by_letter[letter])} announced"
+            )
+    fastsw: dict[str, list[int]] = defaultdict(list)
+    for label, n in zip(by_letter["F"], counts["fastsw_update"]):
+        if label != "-":
+            fastsw[label].append(n)
+    absent = [b for b in FASTSW_BRANCHES if b not in fastsw]
+    if absent:
+        raise RuntimeError(f"fastsw branches never taken: {absent}")
+    every = [n for branch in FASTSW_BRANCHES for n in fastsw[branch]]
+    worst = max(FASTSW_BRANCHES, key=lambda b: max(fastsw[b]))
+    sw = [(int(a), n) for a, n in zip(by_letter["S"], counts["sw_update"]) if a != "-"]
+    sw_n = np.array([a for a, _ in sw])
+    sw_count = np.array([n for _, n in sw])
+    fit = (sw_n >= 1) & (sw_n <= 200)
+    design = np.c_[np.ones(fit.sum()), sw_n[fit]]
+    (a, b), *_ = np.linalg.lstsq(design, sw_count[fit].astype(float), rcond=None)
+    residual = np.abs(design @ [a, b] - sw_count[fit]).max()
+    probe = [(int(k), n, 3 + 3 * int(k)) for k, n in zip(by_letter["K"], counts["icount_probe"])]
+    return {
+        "fastsw": dict(fastsw), "fastsw_min": min(every), "fastsw_max": max(every),
+        "fastsw_max_branch": worst, "sw_n": sw_n.tolist(), "sw_count": sw_count.tolist(),
+        "sw_a": float(a), "sw_b": float(b), "sw_residual_max": float(residual), "probe": probe,
+    }
+
+
+def report(result: dict) -> str:
+    """The printed table."""
+    lines = ["fastsw_update, instructions per call (Cortex-M4, QEMU mps2-an386)",
+             f"{'branch':<15}{'calls':>7}{'min':>7}{'max':>7}"]
+    for branch in FASTSW_BRANCHES:
+        c = result["fastsw"][branch]
+        lines.append(f"{branch:<15}{len(c):>7}{min(c):>7}{max(c):>7}")
+    lines.append(f"{'all':<15}{sum(len(c) for c in result['fastsw'].values()):>7}"
+                 f"{result['fastsw_min']:>7}{result['fastsw_max']:>7}   max: {result['fastsw_max_branch']}")
+    lines.append("")
+    lines.append("sw_update, instructions per call vs samples n in the current segment")
+    counts = dict(zip(result["sw_n"], result["sw_count"]))
+    lines.append("  ".join(f"n={n}: {counts[n]}" for n in (1, 2, 10, 50, 100, 200) if n in counts))
+    lines.append(f"least-squares fit n=1..200: {result['sw_a']:.1f} + {result['sw_b']:.2f} n "
+                 f"(max residual {result['sw_residual_max']:.1f}; paper: 161 + 35 n)")
+    lines.append("")
+    checks = ", ".join(f"k={k}: {n} (expected {e})" for k, n, e in result["probe"])
+    lines.append(f"counting check, icount_probe = 3 + 3k: {checks}")
+    lines.append(f"fastsw max instructions per sample: {result['fastsw_max']}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("elf", type=Path, help="build/icount.elf")
+    parser.add_argument("--json", action="store_true", help="print the measurements as JSON")
+    args = parser.parse_args(argv)
+    result = measure(args.elf)
+    bad = [p for p in result["probe"] if p[1] != p[2]]
+    print(json.dumps(result) if args.json else report(result))
+    if bad:
+        print(f"error: instruction counting is off: {bad}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

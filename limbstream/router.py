@@ -1,0 +1,28 @@
+"""``limbstream router``: a Zenoh router in Python for one machine (compose uses eclipse/zenoh)."""
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+
+from limbstream import zconfig
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--listen", default="tcp/127.0.0.1:7447",
+                        help="endpoint(s) to listen on, comma-separated (default tcp/127.0.0.1:7447)")
+    parser.add_argument("--connect", default="", help="other routers to mesh with, comma-separated")
+    parser.add_argument("--zenoh-config", default="", help="JSON file of extra zenoh settings (TLS, auth, ACL)")
+
+
+def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+    """Serve until SIGINT/SIGTERM (or ``stop`` is set)."""
+    args.mode = "router"
+    settings = zconfig.from_args(args)
+    stop = stop or threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with zconfig.open_session(settings) as session:
+        print(f"zenoh router {session.zid()} listening on {', '.join(settings.listen)}", flush=True)
+        stop.wait()
+    return 0

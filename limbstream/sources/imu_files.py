@@ -1,0 +1,339 @@
+"""Real IMU recordings: x-IMU3 quaternion CSV files and Xsens MTw text exports.
+
+Both give per-sensor raw streams (:class:`SensorStream`, each with its own timestamps) and a
+folder loader that aligns the sensors into one :class:`Motion`:
+
+- x-IMU3 sensors have independent, jittered clocks and drop samples. The folder's Motion is
+  every sensor SLERP-resampled onto one uniform grid over the time all sensors overlap, at the
+  median of the sensors' median sample rates; t starts at 0 at the start of the overlap.
+  :func:`xio_streams` keeps the raw jittered timestamps for kernel evaluation.
+- Xsens MTw sensors of one recording share the packet counter, so the Motion is the counter
+  range all sensors cover, at the file's update rate; a sensor missing a packet is filled by
+  SLERP between its neighbours.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from limbstream import quat
+from limbstream.sources import Motion, MotionFileError
+
+XIO_HEADER = ("Timestamp (us)", "W", "X", "Y", "Z")
+XIO_SEGMENTS: dict[str, str] = {
+    "left_upper": "l_thigh",
+    "right_upper": "r_thigh",
+    "left_lower": "l_shank",
+    "right_lower": "r_shank",
+    "left_foot": "l_foot",
+    "right_foot": "r_foot",
+    "pelvis": "hip",
+}
+"""File-stem prefix (case-insensitive) -> segment name for the x-IMU3 lower-body recording;
+other files keep their stem as the segment name."""
+
+ORTHONORMAL_TOL = 1e-2
+"""Largest |M M^T - I| entry accepted for an Xsens rotation matrix."""
+
+_COUNTER_MOD = 1 << 16
+
+
+@dataclass(frozen=True)
+class SensorStream:
+    """The raw orientation stream of one sensor file.
+
+    Attributes
+    ----------
+    name : str
+        Segment name (see :data:`XIO_SEGMENTS`) or the file stem.
+    t : (m,) float64
+        Sample times, seconds on the device clock (x-IMU3) or counter / rate (Xsens), increasing.
+    q : (m, 4) float64
+        Sensor -> global orientation, scalar-first unit quaternions, signs continuous in time.
+    path : Path
+        The file.
+    dropped : int
+        Rows dropped because their time did not increase (or, Xsens, had no orientation).
+    """
+
+    name: str
+    t: np.ndarray
+    q: np.ndarray
+    path: Path
+    dropped: int = 0
+
+
+def _fail(path: Path, line: int | None, what: str) -> MotionFileError:
+    where = f"{path}, line {line}" if line is not None else f"{path}"
+    return MotionFileError(f"{where}: {what}")
+
+
+def _read_lines(path: Path) -> list[str]:
+    try:
+        return path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
+    except OSError as exc:
+        raise _fail(path, None, f"cannot read ({exc})") from exc
+
+
+def _parse_rows(path: Path, rows: list[str], first_line: int, sep: str, width: int) -> np.ndarray:
+    """(n, width) float64 from text rows; raises naming the first bad line."""
+    try:
+        values = np.array([r.split(sep) for r in rows], dtype=np.float64)
+        if values.shape == (len(rows), width) and np.all(np.isfinite(values)):
+            return values
+    except ValueError:
+        pass
+    for i, row in enumerate(rows):
+        fields = row.split(sep)
+        if len(fields) != width:
+            raise _fail(path, first_line + i, f"{len(fields)} fields, expected {width}")
+        for field in fields:
+            try:
+                value = float(field)
+            except ValueError:
+                raise _fail(path, first_line + i, f"{field.strip()!r} is not a number") from None
+            if not np.isfinite(value):
+                raise _fail(path, first_line + i, f"non-finite value {field.strip()!r}")
+    raise _fail(path, None, "unreadable rows")  # pragma: no cover - every case is caught above
+
+
+def _keep_increasing(t: np.ndarray) -> np.ndarray:
+    """Mask of samples whose time is above every earlier kept time."""
+    return (
+        np.concatenate([[True], t[1:] > np.maximum.accumulate(t)[:-1]])
+        if len(t)
+        else np.ones(0, bool)
+    )
+
+
+def _warn_dropped(path: Path, dropped: int, why: str) -> None:
+    if dropped:
+        warnings.warn(f"{path}: dropped {dropped} rows ({why})", stacklevel=3)
+
+
+def xio_segment_name(path: Path) -> str:
+    """Segment name of an x-IMU3 file from its stem (see :data:`XIO_SEGMENTS`)."""
+    stem = path.stem.lower()
+    for prefix, segment in XIO_SEGMENTS.items():
+        if stem.startswith(prefix):
+            return segment
+    return path.stem
+
+
+def read_xio_csv(path: str | Path) -> SensorStream:
+    """One x-IMU3 quaternion CSV (``Timestamp (us),W,X,Y,Z``).
+
+    Rows whose timestamp does not increase are dropped, counted and warned about.
+
+    Raises
+    ------
+    MotionFileError naming the file (and line): wrong header, non-numeric or non-finite
+    values, zero-norm quaternion, fewer than two samples.
+    """
+    path = Path(path)
+    lines = _read_lines(path)
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise _fail(path, None, "empty file")
+    header = tuple(h.strip() for h in lines[0].split(","))
+    if header != XIO_HEADER:
+        raise _fail(path, 1, f"header {','.join(header)!r}, expected {','.join(XIO_HEADER)!r}")
+    values = _parse_rows(path, lines[1:], 2, ",", 5)
+    if len(values) < 2:
+        raise _fail(path, None, f"{len(values)} samples, need at least 2")
+    norm = np.linalg.norm(values[:, 1:], axis=1)
+    if np.any(norm < 1e-6):
+        raise _fail(path, 2 + int(np.argmax(norm < 1e-6)), "zero-norm quaternion")
+    keep = _keep_increasing(values[:, 0])
+    dropped = int(np.count_nonzero(~keep))
+    _warn_dropped(path, dropped, "timestamp not increasing")
+    values = values[keep]
+    q = quat.continuous(values[:, 1:] / norm[keep, None])
+    return SensorStream(xio_segment_name(path), values[:, 0] * 1e-6, q, path, dropped)
+
+
+def _files(folder: Path, suffix: str) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == suffix and p.is_file())
+    if not files:
+        raise _fail(folder, None, f"no {suffix} files")
+    return files
+
+
+def xio_streams(folder: str | Path) -> list[SensorStream]:
+    """Raw per-sensor streams (own jittered timestamps) of every ``.csv`` in a folder."""
+    return [read_xio_csv(p) for p in _files(Path(folder), ".csv")]
+
+
+def align(streams: list[SensorStream], fs: float | None = None, name: str = "") -> Motion:
+    """Sensors SLERP-resampled onto one uniform grid over the time they all cover.
+
+    Parameters
+    ----------
+    streams : raw streams (at least one).
+    fs : grid rate in Hz; default: the median of the sensors' median sample rates.
+    name : the Motion's name.
+
+    Returns
+    -------
+    Motion with t (n,) seconds from the start of the overlap and q (n, S, 4).
+    """
+    start = max(s.t[0] for s in streams)
+    end = min(s.t[-1] for s in streams)
+    where = ", ".join(str(s.path) for s in streams)
+    if not end > start:
+        raise MotionFileError(f"{where}: the sensors' time ranges do not overlap")
+    if fs is None:
+        fs = float(np.median([1.0 / np.median(np.diff(s.t)) for s in streams]))
+    n = int(np.floor((end - start) * fs + 1e-9)) + 1
+    t = start + np.arange(n) / fs
+    q = np.stack([quat.continuous(quat.interpolate(s.t, s.q, t)) for s in streams], axis=1)
+    names = tuple(s.name for s in streams)
+    if len(set(names)) != len(names):
+        raise MotionFileError(f"{where}: two sensors map to the same segment ({names})")
+    return Motion(t - start, q, names, name)
+
+
+def load_xio_folder(folder: str | Path, fs: float | None = None) -> Motion:
+    """A folder of x-IMU3 CSV files as one Motion, one segment per file (see :func:`align`)."""
+    folder = Path(folder)
+    return align(xio_streams(folder), fs, folder.name)
+
+
+_RATE = re.compile(r"update rate:\s*([0-9.]+)\s*hz", re.IGNORECASE)
+_MAT = [f"Mat[{r}][{c}]" for r in (1, 2, 3) for c in (1, 2, 3)]
+
+
+def read_xsens_txt(path: str | Path, fs: float = 100.0) -> SensorStream:
+    """One Xsens MT Manager text export with ``PacketCounter`` and ``Mat[r][c]`` columns.
+
+    ``Mat[r][c]`` is taken as row r, column c of the sensor -> global rotation matrix: with it,
+    the accelerometer reading of a sensor at rest maps onto the global +Z (up) axis
+    (checked on the OpenSense recordings). Time is the 16-bit packet counter, unwrapped, over
+    the ``// Update Rate:`` of the file (``fs`` if the file does not state it). Rows without
+    orientation or with a repeated/backward counter are dropped, counted and warned about.
+
+    Raises
+    ------
+    MotionFileError naming the file (and line): no header, missing columns, non-numeric
+    values, a matrix that is not a rotation (off by more than :data:`ORTHONORMAL_TOL`).
+    """
+    path = Path(path)
+    lines = _read_lines(path)
+    rate = fs
+    header_at = None
+    for i, line in enumerate(lines):
+        if line.startswith("//"):
+            match = _RATE.search(line)
+            if match:
+                rate = float(match.group(1))
+        elif line.strip():
+            header_at = i
+            break
+    if header_at is None:
+        raise _fail(path, None, "no column header")
+    if not rate > 0:
+        raise _fail(path, None, f"update rate {rate} Hz")
+    header = [h.strip() for h in lines[header_at].split("\t")]
+    missing = [c for c in ["PacketCounter", *_MAT] if c not in header]
+    if missing:
+        raise _fail(path, header_at + 1, f"missing column(s) {', '.join(missing)}")
+    cols = [header.index("PacketCounter")] + [header.index(c) for c in _MAT]
+    counters, mats, line_no = [], [], []
+    no_orientation = 0
+    for i in range(header_at + 1, len(lines)):
+        fields = lines[i].split("\t")
+        if not lines[i].strip():
+            continue
+        picked = [fields[c].strip() if c < len(fields) else "" for c in cols]
+        if any(not p for p in picked[1:]):
+            no_orientation += 1
+            continue
+        try:
+            values = [float(p) for p in picked]
+        except ValueError:
+            bad = next(p for p in picked if not _is_float(p))
+            raise _fail(path, i + 1, f"{bad!r} is not a number") from None
+        if not np.all(np.isfinite(values)) or values[0] != int(values[0]) or values[0] < 0:
+            raise _fail(path, i + 1, f"bad values (counter {picked[0]!r})")
+        counters.append(int(values[0]))
+        mats.append(values[1:])
+        line_no.append(i + 1)
+    if len(counters) < 2:
+        raise _fail(path, None, f"{len(counters)} samples with orientation, need at least 2")
+    matrix = np.array(mats).reshape(-1, 3, 3)
+    error = np.abs(matrix @ matrix.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(matrix)
+    bad = np.flatnonzero((error > ORTHONORMAL_TOL) | (det < 0))
+    if len(bad):
+        k = bad[0]
+        raise _fail(
+            path,
+            line_no[k],
+            f"not a rotation matrix (|M M^T - I| = {error[k]:.3g}, det {det[k]:.3g})",
+        )
+    ticks, keep = _unwrap_counter(counters)
+    dropped = no_orientation + int(np.count_nonzero(~keep))
+    _warn_dropped(path, dropped, "no orientation or counter not increasing")
+    q = quat.continuous(quat.from_rotation(Rotation.from_matrix(matrix[keep])))
+    return SensorStream(path.stem, ticks / rate, q, path, dropped)
+
+
+def _unwrap_counter(counters: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Unwrapped 16-bit packet counters of the kept rows, and the keep mask.
+
+    A row whose counter repeats or goes back (a step of 0 or of half the range or more) is
+    dropped; the next step is measured from the last kept row.
+    """
+    ticks = np.empty(len(counters), np.int64)
+    keep = np.ones(len(counters), bool)
+    last_raw, last_tick = counters[0], counters[0]
+    ticks[0] = last_tick
+    for i in range(1, len(counters)):
+        step = (counters[i] - last_raw) % _COUNTER_MOD
+        if step == 0 or step >= _COUNTER_MOD // 2:
+            keep[i] = False
+            continue
+        last_raw, last_tick = counters[i], last_tick + step
+        ticks[i] = last_tick
+    return ticks[keep], keep
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def xsens_streams(folder: str | Path) -> list[SensorStream]:
+    """Raw per-sensor streams of every ``.txt`` in a folder."""
+    return [read_xsens_txt(p) for p in _files(Path(folder), ".txt")]
+
+
+def load_xsens_folder(folder: str | Path, names: Mapping[str, str] | None = None) -> Motion:
+    """A folder of Xsens MTw exports as one Motion on the shared packet counter.
+
+    Parameters
+    ----------
+    folder : holds one ``.txt`` per sensor.
+    names : file stem -> segment name; stems not in it keep the stem.
+    """
+    folder = Path(folder)
+    streams = xsens_streams(folder)
+    if names:
+        streams = [
+            SensorStream(names.get(s.name, s.name), s.t, s.q, s.path, s.dropped) for s in streams
+        ]
+    rates = {round(1.0 / np.min(np.diff(s.t)), 6) for s in streams}
+    if len(rates) != 1:
+        raise MotionFileError(f"{folder}: sensors have different update rates {sorted(rates)}")
+    return align(streams, rates.pop(), folder.name)

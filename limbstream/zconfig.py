@@ -1,0 +1,96 @@
+"""Zenoh configuration, one place: every process builds its ``zenoh.Config`` here.
+
+Multicast scouting is always off (endpoints are explicit; Docker carries no multicast).
+Clients retry the router forever with a short back-off, so they survive router restarts
+and may start before the router (ZENOH_NOTES: back ~0.3 s after the router returns).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from dataclasses import dataclass, field
+
+import zenoh
+
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+ROUTER_ENV = "LIMBSTREAM_ROUTER"
+"""Environment variable naming the router endpoint(s), comma-separated."""
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """Where and how a process joins the Zenoh network.
+
+    Attributes
+    ----------
+    mode : "client" | "peer" | "router"
+    connect : endpoints to connect to, e.g. ``["tcp/127.0.0.1:7447"]``
+    listen : endpoints to listen on (routers)
+    lease_ms : transport lease; a frozen process is declared gone after it
+    extra : further ``insert_json5`` entries (key -> JSON value), e.g. TLS or auth settings
+    """
+
+    mode: str = "client"
+    connect: tuple[str, ...] = (DEFAULT_ROUTER,)
+    listen: tuple[str, ...] = ()
+    lease_ms: int = 1000
+    extra: dict = field(default_factory=dict)
+
+
+def build_config(settings: ZenohSettings) -> zenoh.Config:
+    """The ``zenoh.Config`` for ``settings``."""
+    if settings.mode not in ("client", "peer", "router"):
+        raise ValueError(f"mode must be client, peer or router, got {settings.mode!r}")
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(settings.mode))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    config.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    config.insert_json5("transport/link/tx/lease", str(int(settings.lease_ms)))
+    if settings.mode != "router":
+        config.insert_json5("connect/timeout_ms", "-1")
+        config.insert_json5("connect/exit_on_failure", "false")
+        config.insert_json5(
+            "connect/retry",
+            json.dumps({"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 1.5}),
+        )
+    for key, value in settings.extra.items():
+        config.insert_json5(key, json.dumps(value))
+    return config
+
+
+def open_session(settings: ZenohSettings) -> zenoh.Session:
+    """Open a session; a client waits for its router (retrying) instead of failing."""
+    return zenoh.open(build_config(settings))
+
+
+def add_arguments(parser: argparse.ArgumentParser, mode: str = "client") -> None:
+    """The shared ``--connect/--listen/--mode`` flags (router default from $LIMBSTREAM_ROUTER)."""
+    group = parser.add_argument_group("zenoh")
+    default = os.environ.get(ROUTER_ENV, DEFAULT_ROUTER if mode != "router" else "")
+    group.add_argument("--connect", default=default,
+                       help=f"endpoint(s) to connect to, comma-separated (env {ROUTER_ENV}; default {default or 'none'})")
+    group.add_argument("--listen", default="", help="endpoint(s) to listen on, comma-separated")
+    group.add_argument("--mode", default=mode, choices=("client", "peer", "router"), help=f"zenoh mode (default {mode})")
+    group.add_argument("--zenoh-config", default=os.environ.get("LIMBSTREAM_ZENOH_CONFIG", ""),
+                       help="JSON file of extra zenoh settings (key -> value), e.g. TLS/auth "
+                            "(env LIMBSTREAM_ZENOH_CONFIG)")
+
+
+def from_args(args: argparse.Namespace) -> ZenohSettings:
+    """ZenohSettings from the flags of :func:`add_arguments`."""
+
+    def split(value: str) -> tuple[str, ...]:
+        return tuple(e.strip() for e in value.split(",") if e.strip())
+
+    extra = {}
+    if args.zenoh_config:
+        try:
+            with open(args.zenoh_config) as f:
+                extra = json.load(f)
+        except (OSError, ValueError) as exc:
+            raise SystemExit(f"--zenoh-config {args.zenoh_config}: {exc}") from None
+        if not isinstance(extra, dict):
+            raise SystemExit(f"--zenoh-config {args.zenoh_config}: expected a JSON object")
+    return ZenohSettings(mode=args.mode, connect=split(args.connect), listen=split(args.listen), extra=extra)

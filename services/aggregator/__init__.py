@@ -1,0 +1,1 @@
+"""The aggregator service: SLERP reconstruction and full-body fusion of segment points."""

@@ -1,0 +1,295 @@
+"""The aggregator: subscribes to every device of its subjects, rebuilds each limb by SLERP
+between segment points, fuses the limbs into full-body pose frames, publishes them and the
+per-device statistics.
+
+Zenoh delivers into bounded FIFO channels (its callbacks never run our code); one loop
+drains them, advances the frames of every subject, and publishes. Segment points come
+through an advanced subscriber (history for late joining, recovery of missed points).
+"""
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import threading
+import time
+from dataclasses import dataclass
+
+import zenoh
+import zenoh.ext as zext
+
+from limbstream import wire
+from limbstream.skeleton import Skeleton
+from services.aggregator.fusion import SubjectFusion
+from services.aggregator.track import DeviceTrack
+
+log = logging.getLogger("limbstream.aggregator")
+
+
+@dataclass(frozen=True)
+class AggregatorSettings:
+    """Tuning of one aggregator.
+
+    Attributes
+    ----------
+    subjects : key-chunk patterns of the subjects this instance serves (``*`` = all), e.g. ("s0*",).
+    rate : exact frame rate, Hz.
+    live_rate : live frame rate, Hz (0 = none).
+    tick_s : loop period, seconds.
+    stats_period_s : stats message period, seconds.
+    history : segment points per device to ask for when joining late.
+    error_window_s : angular-error window, seconds of samples at 50 Hz.
+    config_poll_s : how often device configs (threshold) are queried, seconds.
+    """
+
+    subjects: tuple[str, ...] = ("*",)
+    rate: float = 50.0
+    live_rate: float = 10.0
+    tick_s: float = 0.02
+    stats_period_s: float = 1.0
+    history: int = 512
+    error_window_s: float = 60.0
+    config_poll_s: float = 5.0
+    skeleton: Skeleton = Skeleton()
+
+
+@dataclass
+class LoopStats:
+    """Counters of the aggregator itself."""
+
+    ticks: int = 0
+    late: int = 0
+    points: int = 0
+    raw_batches: int = 0
+    frames: int = 0
+    missed: int = 0          # reported by Zenoh's miss detection (not recoverable)
+    max_backlog: int = 0     # most messages drained in one tick
+
+
+class Aggregator:
+    """Aggregator state and loop. ``open()`` declares the Zenoh entities, ``run()`` loops."""
+
+    def __init__(self, session: zenoh.Session, settings: AggregatorSettings):
+        self.session, self.settings = session, settings
+        self.subjects: dict[str, SubjectFusion] = {}
+        self.bad_keys: collections.Counter = collections.Counter()
+        self.loop = LoopStats()
+        self._pose_pubs: dict[str, zenoh.Publisher] = {}
+        self._config_replies: list = []
+        self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
+
+    # ------------------------------------------------------------------ zenoh
+
+    def open(self) -> None:
+        s = self.settings
+        self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []
+        for pattern in s.subjects:
+            sub = zext.declare_advanced_subscriber(
+                self.session, f"{wire.PREFIX}/{pattern}/*/seg", zenoh.handlers.FifoChannel(1 << 16),
+                history=zext.HistoryConfig(detect_late_publishers=True, max_samples=s.history),
+                recovery=zext.RecoveryConfig(heartbeat=True),
+                subscriber_detection=True,
+            )
+            self._seg_subs.append(sub)
+            self._misses.append(sub.sample_miss_listener(zenoh.handlers.FifoChannel(1024)))
+            self._raw_subs.append(self.session.declare_subscriber(
+                f"{wire.PREFIX}/{pattern}/*/raw", zenoh.handlers.FifoChannel(1 << 14)))
+            self._alive_subs.append(self.session.liveliness().declare_subscriber(
+                f"{wire.PREFIX}/{pattern}/*/alive", zenoh.handlers.FifoChannel(1 << 14), history=True))
+
+    def close(self) -> None:
+        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs):
+            for entity in group:
+                entity.undeclare()
+        for pub in self._pose_pubs.values():
+            pub.undeclare()
+
+    # ------------------------------------------------------------------ input
+
+    def track(self, subject: str, segment: str) -> DeviceTrack:
+        fusion = self.subjects.get(subject)
+        if fusion is None:
+            fusion = self.subjects[subject] = SubjectFusion(subject, self.settings.rate, self.settings.skeleton)
+        track = fusion.tracks.get(segment)
+        if track is None:
+            window = int(self.settings.error_window_s * 50)
+            track = fusion.tracks[segment] = DeviceTrack(subject, segment, error_window=window)
+        return track
+
+    def _parse_key(self, key: str, kind: str) -> tuple[str, str] | None:
+        try:
+            subject, segment, got = wire.parse_device_key(key)
+        except wire.WireError:
+            self.bad_keys["key"] += 1
+            return None
+        if got != kind:
+            self.bad_keys["key"] += 1
+            return None
+        return subject, segment
+
+    def on_point(self, key: str, payload: bytes, now: float) -> None:
+        """A segment point message (decoded, validated, counted)."""
+        ids = self._parse_key(key, "seg")
+        if ids is None:
+            return
+        track = self.track(*ids)
+        try:
+            point = wire.decode_point(payload)
+        except wire.WireError as exc:
+            track.dropped[exc.reason] += 1
+            return
+        if track.add_point(point, len(payload), now):
+            self.loop.points += 1
+
+    def on_raw(self, key: str, payload: bytes, now: float) -> None:
+        """A truth-tap batch."""
+        ids = self._parse_key(key, "raw")
+        if ids is None:
+            return
+        track = self.track(*ids)
+        try:
+            batch = wire.decode_raw(payload)
+        except wire.WireError as exc:
+            track.dropped[f"raw_{exc.reason}"] += 1
+            return
+        if track.add_raw(batch, now):
+            self.loop.raw_batches += 1
+
+    def on_alive(self, key: str, online: bool) -> None:
+        ids = self._parse_key(key, "alive")
+        if ids is not None:
+            self.track(*ids).online = online
+
+    def on_config(self, key: str, payload: bytes) -> None:
+        """A device's config reply: its threshold and max segment length."""
+        ids = self._parse_key(key, "config")
+        if ids is None:
+            return
+        try:
+            data = json.loads(payload)
+            threshold, max_len = float(data["threshold"]), int(data["max_len"])
+        except (ValueError, KeyError, TypeError):
+            self.bad_keys["config_reply"] += 1
+            return
+        track = self.track(*ids)
+        track.threshold, track.max_len = threshold, max_len
+
+    def drain(self, now: float, budget: int = 100_000) -> int:
+        """Move everything waiting in the channels into the tracks. Returns messages handled."""
+        handled = 0
+        for sub in self._alive_subs:
+            while (sample := sub.try_recv()) is not None:
+                self.on_alive(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+                handled += 1
+        for sub in self._seg_subs:
+            while handled < budget and (sample := sub.try_recv()) is not None:
+                self.on_point(str(sample.key_expr), sample.payload.to_bytes(), now)
+                handled += 1
+        for sub in self._raw_subs:
+            while handled < budget and (sample := sub.try_recv()) is not None:
+                self.on_raw(str(sample.key_expr), sample.payload.to_bytes(), now)
+                handled += 1
+        for listener in self._misses:
+            while (miss := listener.try_recv()) is not None:
+                self.loop.missed += miss.nb
+                log.warning("zenoh reports %d segment points missed for good", miss.nb)
+        open_replies = []
+        for replies in self._config_replies:
+            try:
+                while (reply := replies.try_recv()) is not None:
+                    if reply.ok is not None:
+                        self.on_config(str(reply.ok.key_expr), reply.ok.payload.to_bytes())
+                open_replies.append(replies)
+            except zenoh.ZError:  # the query is complete: its channel is closed
+                pass
+        self._config_replies = open_replies
+        self.loop.max_backlog = max(self.loop.max_backlog, handled)
+        return handled
+
+    def poll_configs(self) -> None:
+        """Ask every device for its config (answers arrive in a channel, read by drain)."""
+        self._config_replies += [
+            self.session.get(f"{wire.PREFIX}/{pattern}/*/config", zenoh.handlers.FifoChannel(4096), timeout=2.0)
+            for pattern in self.settings.subjects
+        ]
+
+    # ------------------------------------------------------------------ output
+
+    def _publish(self, subject: str, frame: wire.PoseFrame) -> None:
+        pub = self._pose_pubs.get(subject)
+        if pub is None:
+            pub = self._pose_pubs[subject] = self.session.declare_publisher(wire.pose_key(subject))
+        pub.put(wire.encode_pose(frame))
+
+    def advance(self, live: bool) -> int:
+        """Truth evaluation, exact frames (and a live frame) of every subject; returns frames published."""
+        published = 0
+        for subject, fusion in self.subjects.items():
+            for track in fusion.tracks.values():
+                track.evaluate_truth()
+            for frame in fusion.exact_frames():
+                self._publish(subject, frame)
+                published += 1
+            if live and (frame := fusion.live_frame()) is not None:
+                self._publish(subject, frame)
+            fusion.prune()
+        self.loop.frames += published
+        return published
+
+    def subject_stats(self, subject: str, now: float) -> dict:
+        fusion = self.subjects[subject]
+        return {
+            "devices": [fusion.tracks[name].stats(now) for name in sorted(fusion.tracks)],
+            "frames": fusion.frames,
+            "skipped_frames": fusion.skipped,
+            "watermark_us": fusion.watermark(),
+        }
+
+    def publish_stats(self, now: float) -> None:
+        wall = time.time()
+        for subject in list(self.subjects):
+            snapshot = self.subject_stats(subject, now)
+            devices = snapshot.pop("devices")
+            payload = wire.encode_stats(subject, wall, devices, snapshot)
+            self.session.put(wire.stats_key(subject), payload)
+
+    # ------------------------------------------------------------------ loop
+
+    def run(self, stop: threading.Event) -> LoopStats:
+        """Loop until ``stop``: drain, advance frames every tick, stats about once a second."""
+        s = self.settings
+        start = time.perf_counter()
+        next_live = next_stats = next_config = start
+        k = 0
+        while not stop.is_set():
+            deadline = start + k * s.tick_s
+            now = time.perf_counter()
+            if now < deadline:
+                if stop.wait(deadline - now):
+                    break
+            elif now - deadline > s.tick_s:
+                self.loop.late += 1
+            now = time.perf_counter()
+            with self.lock:
+                self.drain(now)
+                live = s.live_rate > 0 and now >= next_live
+                if live:
+                    next_live = now + 1.0 / s.live_rate
+                self.advance(live)
+                if now >= next_stats:
+                    self.publish_stats(now)
+                    next_stats = now + s.stats_period_s
+            if now >= next_config:
+                self.poll_configs()
+                next_config = now + s.config_poll_s
+            self.loop.ticks += 1
+            k += 1
+        return self.loop
+
+
+def snapshot(aggregator: Aggregator) -> dict:
+    """{device id: stats} of every device, taken under the aggregator's lock (tests and tools)."""
+    now = time.perf_counter()
+    with aggregator.lock:
+        return {t.id: t.stats(now) for f in aggregator.subjects.values() for t in f.tracks.values()}
+

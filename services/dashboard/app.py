@@ -1,0 +1,81 @@
+"""Assembles the dashboard app: settings, lifespan (Zenoh session), routers, static page."""
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from contextlib import asynccontextmanager
+
+import zenoh
+from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.staticfiles import StaticFiles
+
+from .metrics import build_registry
+from .routes import devices, live, ops, subjects
+from .settings import DashboardSettings
+from .state import LiveState
+from .zenoh_io import open_bridge
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI):
+    """Open the Zenoh session in the background (a client waits for its router; ``/health``
+    answers 503 meanwhile), subscribe, and close everything on shutdown."""
+    settings: DashboardSettings = app.state.settings
+    state = LiveState(settings.history_seconds, settings.max_devices, settings.max_subjects,
+                      settings.stale_after_s, settings.live_kind_window_s, settings.ws_queue)
+    app.state.live = state
+    app.state.registry = build_registry(state)
+    app.state.bridge = None
+    app.state.started = time.monotonic()
+    loop = asyncio.get_running_loop()
+    inbox = state.attach(loop)
+    closing = threading.Event()
+    lock = threading.Lock()
+
+    def connect() -> None:
+        try:
+            bridge = open_bridge(inbox, settings.zenoh_settings(), app.state.session)
+        except zenoh.ZError as exc:
+            print(f"dashboard: cannot open the Zenoh session: {exc}", flush=True)
+            return
+        with lock:
+            if closing.is_set():
+                bridge.close()
+                return
+            app.state.bridge = bridge
+
+    threading.Thread(target=connect, name="zenoh-connect", daemon=True).start()
+    try:
+        yield
+    finally:
+        with lock:
+            closing.set()
+            bridge, app.state.bridge = app.state.bridge, None
+        if bridge is not None:
+            await asyncio.to_thread(bridge.close)
+
+
+def create_app(settings: DashboardSettings | None = None, session: zenoh.Session | None = None) -> FastAPI:
+    """The dashboard app.
+
+    Parameters
+    ----------
+    settings : defaults to ``DashboardSettings()`` (environment); used as given (call
+        :meth:`DashboardSettings.with_token` first for a development token).
+    session : an open Zenoh session to use instead of opening one (left open on shutdown).
+    """
+    settings = settings or DashboardSettings()
+    app = FastAPI(title="limbstream dashboard", version="0.1.0", lifespan=lifespan,
+                  description="Live device statistics, pose streams and device control of limbstream.")
+    app.state.settings = settings
+    app.state.session = session
+    app.state.bridge = None
+    if settings.cors_origins:
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins,
+                           allow_methods=["GET", "PUT"], allow_headers=["Authorization", "Content-Type"])
+    for module in (ops, devices, subjects, live):
+        app.include_router(module.router)
+    app.mount("/", StaticFiles(directory=settings.static_dir, html=True), name="page")
+    return app

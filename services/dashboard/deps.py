@@ -1,0 +1,46 @@
+"""Dependencies declared once (``Annotated``) and used by the routes."""
+from __future__ import annotations
+
+import secrets
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Path
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from starlette.requests import HTTPConnection
+
+from .settings import DashboardSettings
+from .state import LiveState
+
+CHUNK = r"^[A-Za-z0-9_.\-]+$"
+
+
+async def _settings(conn: HTTPConnection) -> DashboardSettings:
+    return conn.app.state.settings
+
+
+async def _live(conn: HTTPConnection) -> LiveState:
+    return conn.app.state.live
+
+
+SettingsDep = Annotated[DashboardSettings, Depends(_settings)]
+LiveDep = Annotated[LiveState, Depends(_live)]
+SubjectPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="subject name")]
+SegmentPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="segment name")]
+
+_bearer = HTTPBearer(auto_error=False, description="LIMBSTREAM_API_TOKEN")
+
+
+async def _require_token(settings: SettingsDep,
+                   credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> None:
+    if settings.api_token is None:
+        raise HTTPException(403, "device control is disabled: no API token is configured "
+                                 "(set LIMBSTREAM_API_TOKEN)")
+    if credentials is None:
+        raise HTTPException(401, "missing bearer token (header 'Authorization: Bearer <token>')",
+                            headers={"WWW-Authenticate": "Bearer"})
+    expected = settings.api_token.get_secret_value().encode()
+    if not secrets.compare_digest(credentials.credentials.encode(), expected):
+        raise HTTPException(403, "invalid token")
+
+
+TokenDep = Depends(_require_token)

@@ -1,0 +1,122 @@
+"""Typed request and response bodies of the dashboard API."""
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+PoseKind = Literal["auto", "live", "exact"]
+
+
+class DeviceStats(BaseModel):
+    """One device: the stats fields of the wire contract (null until the aggregator reports),
+    plus ``subject``, ``alive`` (liveliness token present), ``age_s`` and ``stale``.
+    Extra fields the aggregator sends (e.g. ``max_len``) pass through."""
+
+    model_config = ConfigDict(extra="allow")
+
+    device: str = Field(examples=["s0/l_thigh"])
+    segment: str
+    subject: str
+    online: bool
+    alive: bool
+    stale: bool
+    age_s: float | None = Field(None, description="seconds since the last stats message")
+    samples: int | None = None
+    points: int | None = None
+    icr: float | None = Field(None, description="segment points / samples (0..1)")
+    msgs_per_s: float | None = None
+    bytes_per_s: float | None = None
+    aad_deg: float | None = None
+    p99_deg: float | None = None
+    max_deg: float | None = None
+    live_err_deg: float | None = None
+    watermark_lag_s: float | None = None
+    gaps: int | None = None
+    dropped: int | None = None
+    threshold: float | None = None
+
+
+class DeviceHistory(BaseModel):
+    """Column-wise time series of one device (one row per stats message, ~1 Hz)."""
+
+    device: str
+    t: list[float] = Field(description="stats time, seconds since the epoch")
+    msgs_per_s: list[float | None]
+    bytes_per_s: list[float | None]
+    icr: list[float | None]
+    aad_deg: list[float | None]
+    p99_deg: list[float | None]
+    max_deg: list[float | None]
+    live_err_deg: list[float | None]
+    watermark_lag_s: list[float | None]
+
+
+class PoseSummary(BaseModel):
+    seq: int
+    t: float
+    kind: Literal["live", "exact"]
+    age_s: float
+
+
+class Subject(BaseModel):
+    subject: str
+    devices: int
+    online: int
+    msgs_per_s: float
+    bytes_per_s: float
+    stats_age_s: float | None
+    pose: PoseSummary | None
+
+
+class Pose(BaseModel):
+    """A pose frame (:meth:`limbstream.wire.PoseFrame.to_json`) plus ``rx``, the time the
+    service received it (s, epoch)."""
+
+    subject: str
+    seq: int
+    t: float
+    kind: Literal["live", "exact"]
+    gap: bool
+    missing: bool
+    segments: dict[str, list[float]]
+    joints: dict[str, list[float]]
+    rx: float
+
+
+class Skeleton(BaseModel):
+    joints: list[str]
+    bones: list[tuple[str, str]]
+
+
+class ConfigUpdate(BaseModel):
+    """New device settings; a field left out keeps the device's current value."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    threshold: float | None = Field(None, ge=0, le=1e6, allow_inf_nan=False,
+                                    description="SSR threshold of the fastSW kernel (>= 0)")
+    max_len: int | None = Field(None, ge=1, le=100_000, description="max segment length, samples")
+
+    @model_validator(mode="after")
+    def _something(self) -> "ConfigUpdate":
+        if self.threshold is None and self.max_len is None:
+            raise ValueError("give threshold and/or max_len")
+        return self
+
+
+class DeviceConfig(BaseModel):
+    """The config a device confirmed."""
+
+    device: str
+    threshold: float
+    max_len: int
+
+
+class Health(BaseModel):
+    status: Literal["ok", "starting"]
+    zenoh: bool
+    subjects: int
+    devices: int
+    uptime_s: float
+    control: bool = Field(description="whether device control is enabled (an API token is set)")

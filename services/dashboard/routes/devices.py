@@ -1,0 +1,69 @@
+"""``/api/devices``: latest stats, history and configuration of devices."""
+from __future__ import annotations
+
+import asyncio
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, Request
+
+from limbstream import wire
+
+from ..deps import LiveDep, SegmentPath, SettingsDep, SubjectPath, TokenDep
+from ..models import ConfigUpdate, DeviceConfig, DeviceHistory, DeviceStats
+from ..zenoh_io import ConfigError, query_config
+
+router = APIRouter(prefix="/api/devices", tags=["devices"])
+
+NOT_FOUND = {404: {"description": "unknown device"}}
+
+
+def _known(live, subject: str, segment: str) -> str:
+    did = f"{subject}/{segment}"
+    if did not in live.devices:
+        raise HTTPException(404, f"unknown device {did!r}")
+    return did
+
+
+@router.get("", response_model=list[DeviceStats])
+async def list_devices(live: LiveDep) -> list[dict]:
+    """Every device seen (stats or liveliness), sorted by id."""
+    return live.device_views()
+
+
+@router.get("/{subject}/{segment}", response_model=DeviceStats, responses=NOT_FOUND)
+async def get_device(subject: SubjectPath, segment: SegmentPath, live: LiveDep) -> dict:
+    """One device; its id is ``<subject>/<segment>``."""
+    return live.device_view(_known(live, subject, segment))
+
+
+@router.get("/{subject}/{segment}/history", response_model=DeviceHistory, responses=NOT_FOUND)
+async def device_history(subject: SubjectPath, segment: SegmentPath, live: LiveDep, settings: SettingsDep,
+                   seconds: Annotated[float, Query(gt=0, le=86_400, description="window, s")] = 300) -> dict:
+    """Time series for the charts, the last ``seconds`` (at most the kept history)."""
+    did = _known(live, subject, segment)
+    return {"device": did} | live.history(did, min(seconds, settings.history_seconds))
+
+
+@router.put("/{subject}/{segment}/config", response_model=DeviceConfig, dependencies=[TokenDep],
+            responses={401: {"description": "no bearer token"}, 403: {"description": "bad token or control disabled"},
+                       **NOT_FOUND, 504: {"description": "the device did not confirm in time"},
+                       502: {"description": "the device answered with something else than a config"}})
+async def put_config(subject: SubjectPath, segment: SegmentPath, body: ConfigUpdate, request: Request,
+                     live: LiveDep, settings: SettingsDep) -> dict:
+    """Send a new threshold and/or max segment length to a device over Zenoh and answer with
+    the config the device confirms (fields left out keep the device's current value)."""
+    did = _known(live, subject, segment)
+    bridge = request.app.state.bridge
+    if bridge is None:
+        raise HTTPException(503, "not connected to Zenoh yet")
+    timeout = settings.config_timeout_s
+    try:
+        if body.threshold is None or body.max_len is None:
+            current = await asyncio.to_thread(query_config, bridge.session, subject, segment, None, timeout)
+            body = ConfigUpdate(threshold=current["threshold"] if body.threshold is None else body.threshold,
+                                max_len=current["max_len"] if body.max_len is None else body.max_len)
+        config = wire.DeviceConfig(float(body.threshold), int(body.max_len)).validate()
+        applied = await asyncio.to_thread(query_config, bridge.session, subject, segment, config, timeout)
+    except ConfigError as exc:
+        raise HTTPException(exc.status, exc.message) from None
+    return {"device": did} | applied

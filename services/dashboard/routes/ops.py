@@ -1,0 +1,30 @@
+"""Operations: ``/health`` and Prometheus ``/metrics``."""
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter, Request, Response
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+from ..deps import LiveDep, SettingsDep
+from ..models import Health
+
+router = APIRouter(tags=["ops"])
+
+
+@router.get("/health", response_model=Health, responses={503: {"model": Health, "description": "starting"}})
+async def health(request: Request, response: Response, live: LiveDep, settings: SettingsDep) -> dict:
+    """200 once the Zenoh session is open, 503 while it is still connecting."""
+    connected = request.app.state.bridge is not None
+    response.status_code = 200 if connected else 503
+    return {"status": "ok" if connected else "starting", "zenoh": connected,
+            "subjects": len({e.subject for e in live.devices.values()} | set(live.poses)), "devices": len(live.devices),
+            "uptime_s": round(time.monotonic() - request.app.state.started, 3),
+            "control": settings.api_token is not None}
+
+
+@router.get("/metrics", response_class=Response,
+            responses={200: {"content": {CONTENT_TYPE_LATEST: {}}, "description": "Prometheus text format"}})
+async def metrics(request: Request) -> Response:
+    """Prometheus exposition (per-device labels ``subject``, ``segment``)."""
+    return Response(generate_latest(request.app.state.registry), media_type=CONTENT_TYPE_LATEST)

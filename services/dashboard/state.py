@@ -1,0 +1,367 @@
+"""Live state of the dashboard, fed from Zenoh callbacks through a bounded hand-off.
+
+Zenoh callbacks run on Zenoh threads. They only put the raw payload into an :class:`Inbox`
+(a bounded deque for stats and liveliness, one "latest" slot per subject and kind for pose
+frames) and, at most once until it runs, schedule :meth:`LiveState.drain` on the event loop
+with ``loop.call_soon_threadsafe``. Everything else (decoding, history, fan-out to WebSocket
+and SSE clients) happens on the event loop, which owns all the structures below.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+from limbstream import wire
+
+HISTORY_FIELDS: tuple[str, ...] = (
+    "msgs_per_s", "bytes_per_s", "icr", "aad_deg", "p99_deg", "max_deg", "live_err_deg",
+    "watermark_lag_s",
+)
+"""Per-device series kept for the charts (plus the stats time ``t``)."""
+
+KINDS = {"exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
+
+
+class Inbox:
+    """Thread-side hand-off. Never blocks beyond a short lock; bounded; counts what it drops.
+
+    Parameters
+    ----------
+    loop : the event loop that drains it.
+    drain : callable run on ``loop`` (at most one pending call at a time).
+    max_pending : bound of the stats and liveliness queues.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, drain, max_pending: int = 4096):
+        self._loop = loop
+        self._drain = drain
+        self._lock = threading.Lock()
+        self._scheduled = False
+        self.stats: deque[tuple[float, str, bytes]] = deque()
+        self.alive: deque[tuple[str, bool]] = deque()
+        self.poses: dict[tuple[str, int], tuple[float, bytes]] = {}
+        self.max_pending = max_pending
+        self.dropped = Counter()
+
+    def _schedule(self) -> None:
+        if not self._scheduled:
+            self._scheduled = True
+            try:
+                self._loop.call_soon_threadsafe(self._drain)
+            except RuntimeError:  # loop closed during shutdown
+                pass
+
+    def put_stats(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            if len(self.stats) >= self.max_pending:
+                self.dropped["stats"] += 1
+                return
+            self.stats.append((time.time(), key, payload))
+            self._schedule()
+
+    def put_pose(self, key: str, payload: bytes) -> None:
+        kind = payload[1] if len(payload) > 1 else -1
+        with self._lock:
+            if (key, kind) in self.poses:
+                self.dropped["pose_coalesced"] += 1
+            self.poses[(key, kind)] = (time.time(), payload)
+            self._schedule()
+
+    def put_alive(self, key: str, present: bool) -> None:
+        with self._lock:
+            if len(self.alive) >= self.max_pending:
+                self.dropped["alive"] += 1
+                return
+            self.alive.append((key, present))
+            self._schedule()
+
+    def take(self):
+        """Swap out everything pending (event-loop side)."""
+        with self._lock:
+            stats, self.stats = self.stats, deque()
+            alive, self.alive = self.alive, deque()
+            poses, self.poses = self.poses, {}
+            self._scheduled = False
+        return stats, alive, poses
+
+
+@dataclass
+class DeviceEntry:
+    """Latest stats and bounded history of one device."""
+
+    subject: str
+    segment: str
+    stats: dict | None = None
+    updated: float = 0.0
+    history: deque = field(default_factory=deque)
+
+
+@dataclass
+class PoseEntry:
+    """Latest frame of one subject and kind, with its JSON text built on first use."""
+
+    frame: wire.PoseFrame
+    rx: float
+    _text: str | None = None
+
+    def as_dict(self, subject: str) -> dict:
+        return self.frame.to_json(subject) | {"rx": round(self.rx, 4)}
+
+    def text(self, subject: str) -> str:
+        if self._text is None:
+            self._text = json.dumps(self.as_dict(subject), separators=(",", ":"))
+        return self._text
+
+
+class PoseClient:
+    """One WebSocket/SSE client: a bounded queue; when full the oldest frame is skipped."""
+
+    def __init__(self, subject: str, kind: str, maxsize: int):
+        self.subject = subject
+        self.kind = kind
+        self.queue: asyncio.Queue[str] = asyncio.Queue(maxsize)
+        self.sent = 0
+        self.skipped = 0
+
+    def offer(self, text: str) -> None:
+        if self.queue.full():
+            self.queue.get_nowait()
+            self.skipped += 1
+        self.queue.put_nowait(text)
+
+
+def _clean(value):
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+class LiveState:
+    """Latest stats per device, bounded history per device, latest pose per subject.
+
+    Parameters
+    ----------
+    history_seconds : seconds of history kept per device.
+    max_devices, max_subjects : bounds on tracked devices / subjects.
+    stale_after_s : age (s) beyond which a device's stats count as stale.
+    live_kind_window_s : ``auto`` clients get exact frames if one arrived within this window,
+        else live frames.
+    ws_queue : per-client queue length.
+    """
+
+    def __init__(self, history_seconds: int = 900, max_devices: int = 10_000, max_subjects: int = 1_000,
+                 stale_after_s: float = 5.0, live_kind_window_s: float = 2.0, ws_queue: int = 4):
+        self.history_seconds = history_seconds
+        self.max_devices = max_devices
+        self.max_subjects = max_subjects
+        self.stale_after_s = stale_after_s
+        self.live_kind_window_s = live_kind_window_s
+        self.ws_queue = ws_queue
+        self.devices: dict[str, DeviceEntry] = {}
+        self.alive: set[str] = set()
+        self.poses: dict[str, dict[int, PoseEntry]] = {}
+        self.stats_times: dict[str, float] = {}
+        self.clients: dict[str, set[PoseClient]] = {}
+        self.received = Counter()
+        self.errors = Counter()
+        self.clients_skipped = 0
+        self.inbox: Inbox | None = None
+
+    # ------------------------------------------------------------------ hand-off
+
+    def attach(self, loop: asyncio.AbstractEventLoop) -> Inbox:
+        """Create the inbox that Zenoh callbacks feed, drained on ``loop``."""
+        self.inbox = Inbox(loop, self.drain)
+        return self.inbox
+
+    def drain(self) -> None:
+        """Apply everything the inbox holds (runs on the event loop)."""
+        if self.inbox is None:
+            return
+        stats, alive, poses = self.inbox.take()
+        for key, present in alive:
+            self.apply_alive(key, present)
+        for rx, key, payload in stats:
+            self.apply_stats(payload, rx)
+        for (key, _), (rx, payload) in poses.items():
+            self.apply_pose(key, payload, rx)
+
+    def apply_alive(self, key: str, present: bool) -> None:
+        try:
+            subject, segment, _ = wire.parse_device_key(key)
+        except wire.WireError:
+            self.errors["alive_key"] += 1
+            return
+        did = wire.device_id(subject, segment)
+        if present:
+            self.alive.add(did)
+            self._entry(subject, segment)
+        else:
+            self.alive.discard(did)
+
+    def apply_stats(self, payload: bytes, rx: float | None = None) -> None:
+        """Decode one stats message and update latest values and history."""
+        rx = time.time() if rx is None else rx
+        self.received["stats"] += 1
+        try:
+            data = wire.decode_stats(payload)
+            subject = wire.check_chunk(data["subject"], "subject")
+            t = float(data.get("t") or rx)
+        except (wire.WireError, ValueError, TypeError) as exc:
+            self.errors[getattr(exc, "reason", "stats")] += 1
+            return
+        self.stats_times[subject] = rx
+        for d in data["devices"]:
+            try:
+                device = str(d["device"])
+                dev_subject, segment = device.split("/")
+                wire.device_id(dev_subject, segment)
+            except (ValueError, TypeError):
+                self.errors["stats_device"] += 1
+                continue
+            entry = self._entry(dev_subject, segment)
+            if entry is None:
+                continue
+            entry.stats = {k: _clean(v) for k, v in d.items()}
+            entry.updated = rx
+            row = (t,) + tuple(_num(d.get(k)) for k in HISTORY_FIELDS)
+            entry.history.append(row)
+            while entry.history and (entry.history[0][0] < t - self.history_seconds
+                                     or len(entry.history) > 2 * self.history_seconds):
+                entry.history.popleft()
+
+    def apply_pose(self, key: str, payload: bytes, rx: float | None = None) -> None:
+        """Decode one pose frame, keep it as the latest and fan it out to clients."""
+        rx = time.time() if rx is None else rx
+        self.received["pose"] += 1
+        try:
+            subject, _ = wire.parse_subject_key(key)
+            frame = wire.decode_pose(payload)
+        except wire.WireError as exc:
+            self.errors[f"pose_{exc.reason}"] += 1
+            return
+        slots = self.poses.get(subject)
+        if slots is None:
+            if len(self.poses) >= self.max_subjects:
+                self.errors["too_many_subjects"] += 1
+                return
+            slots = self.poses[subject] = {}
+        entry = slots[frame.kind] = PoseEntry(frame, rx)
+        clients = self.clients.get(subject)
+        if clients:
+            kind = self.auto_kind(subject)
+            for client in clients:
+                wanted = kind if client.kind == "auto" else KINDS[client.kind]
+                if wanted == frame.kind:
+                    client.offer(entry.text(subject))
+
+    def _entry(self, subject: str, segment: str) -> DeviceEntry | None:
+        did = f"{subject}/{segment}"
+        entry = self.devices.get(did)
+        if entry is None:
+            if len(self.devices) >= self.max_devices:
+                self.errors["too_many_devices"] += 1
+                return None
+            entry = self.devices[did] = DeviceEntry(subject, segment)
+        return entry
+
+    # ------------------------------------------------------------------ reads
+
+    def auto_kind(self, subject: str) -> int:
+        """Exact frames (final, full rate) if one arrived recently, else live frames."""
+        exact = self.poses.get(subject, {}).get(wire.KIND_EXACT)
+        if exact is not None and time.time() - exact.rx <= self.live_kind_window_s:
+            return wire.KIND_EXACT
+        return wire.KIND_LIVE
+
+    def latest_pose(self, subject: str, kind: str = "auto") -> PoseEntry | None:
+        slots = self.poses.get(subject, {})
+        if kind == "auto":
+            return slots.get(self.auto_kind(subject)) or next(iter(slots.values()), None)
+        return slots.get(KINDS[kind])
+
+    def device_view(self, did: str, now: float | None = None) -> dict | None:
+        """The REST form of one device: every stats field, plus subject, alive, age_s, stale."""
+        entry = self.devices.get(did)
+        if entry is None:
+            return None
+        now = time.time() if now is None else now
+        stats = entry.stats or {}
+        view = {k: stats.get(k) for k in wire.STATS_FIELDS}
+        view |= {k: v for k, v in stats.items() if k not in view}
+        age = now - entry.updated if entry.stats is not None else None
+        stale = age is None or age > self.stale_after_s
+        alive = did in self.alive
+        view.update(device=did, segment=entry.segment, subject=entry.subject, alive=alive,
+                    age_s=None if age is None else round(age, 3), stale=stale,
+                    online=bool(stats.get("online")) if not stale else alive)
+        return view
+
+    def device_views(self) -> list[dict]:
+        now = time.time()
+        return [self.device_view(did, now) for did in sorted(self.devices)]
+
+    def history(self, did: str, seconds: float) -> dict | None:
+        """Column form ``{"t": [...], <field>: [...]}`` of the last ``seconds`` of a device."""
+        entry = self.devices.get(did)
+        if entry is None:
+            return None
+        rows = list(entry.history)
+        if rows:
+            cutoff = rows[-1][0] - seconds
+            rows = [r for r in rows if r[0] >= cutoff]
+        columns = {"t": [r[0] for r in rows]}
+        for i, name in enumerate(HISTORY_FIELDS, start=1):
+            columns[name] = [r[i] for r in rows]
+        return columns
+
+    def subject_views(self) -> list[dict]:
+        now = time.time()
+        names = sorted({e.subject for e in self.devices.values()} | set(self.poses))
+        out = []
+        for name in names:
+            views = [self.device_view(did, now) for did, e in sorted(self.devices.items()) if e.subject == name]
+            pose = self.latest_pose(name)
+            out.append({
+                "subject": name,
+                "devices": len(views),
+                "online": sum(1 for v in views if v["online"]),
+                "msgs_per_s": round(sum(v["msgs_per_s"] or 0.0 for v in views), 3),
+                "bytes_per_s": round(sum(v["bytes_per_s"] or 0.0 for v in views), 3),
+                "stats_age_s": round(now - self.stats_times[name], 3) if name in self.stats_times else None,
+                "pose": None if pose is None else {
+                    "seq": pose.frame.seq, "t": pose.frame.t_us / 1e6,
+                    "kind": "live" if pose.frame.kind == wire.KIND_LIVE else "exact",
+                    "age_s": round(now - pose.rx, 3)},
+            })
+        return out
+
+    # ------------------------------------------------------------------ clients
+
+    def add_client(self, subject: str, kind: str = "auto") -> PoseClient:
+        client = PoseClient(subject, kind, self.ws_queue)
+        self.clients.setdefault(subject, set()).add(client)
+        latest = self.latest_pose(subject, kind)
+        if latest is not None:
+            client.offer(latest.text(subject))
+        return client
+
+    def remove_client(self, client: PoseClient) -> None:
+        group = self.clients.get(client.subject)
+        if group is not None:
+            group.discard(client)
+            if not group:
+                del self.clients[client.subject]
+        self.clients_skipped += client.skipped
+
+    def client_count(self) -> int:
+        return sum(len(g) for g in self.clients.values())
+
+
+def _num(value) -> float | None:
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return None

@@ -1,0 +1,111 @@
+"""The dashboard's Zenoh side: subscriptions that feed the :class:`~.state.Inbox`, and the
+device-config query.
+
+Nothing here opens a session at import time; :func:`open_bridge` runs in the app lifespan.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import zenoh
+
+from limbstream import wire, zconfig
+
+from .state import Inbox
+
+STATS_SELECTOR = f"{wire.PREFIX}/*/stats"
+POSE_SELECTOR = f"{wire.PREFIX}/*/pose"
+ALIVE_SELECTOR = f"{wire.PREFIX}/*/*/alive"
+
+
+class ConfigError(Exception):
+    """A device config query failed. ``status`` is the HTTP status to answer with."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+@dataclass
+class Bridge:
+    """An open session with its subscribers. ``close()`` undeclares them (and closes the
+    session if the bridge opened it)."""
+
+    session: zenoh.Session
+    owns_session: bool
+    subscribers: list
+
+    def close(self) -> None:
+        for sub in self.subscribers:
+            try:
+                sub.undeclare()
+            except zenoh.ZError:
+                pass
+        self.subscribers.clear()
+        if self.owns_session:
+            self.session.close()
+
+
+def open_bridge(inbox: Inbox, settings: zconfig.ZenohSettings | None = None,
+                session: zenoh.Session | None = None) -> Bridge:
+    """Subscribe to every subject's stats and pose streams and to device liveliness.
+
+    Parameters
+    ----------
+    inbox : where callbacks hand the payloads off (they do nothing else).
+    settings : used to open a session when ``session`` is None.
+    session : an already open session (not closed by :meth:`Bridge.close`).
+    """
+    owns = session is None
+    if session is None:
+        session = zconfig.open_session(settings or zconfig.ZenohSettings())
+
+    def on_stats(sample: zenoh.Sample) -> None:
+        inbox.put_stats(str(sample.key_expr), sample.payload.to_bytes())
+
+    def on_pose(sample: zenoh.Sample) -> None:
+        inbox.put_pose(str(sample.key_expr), sample.payload.to_bytes())
+
+    def on_alive(sample: zenoh.Sample) -> None:
+        inbox.put_alive(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+    subs = [
+        session.declare_subscriber(STATS_SELECTOR, on_stats),
+        session.declare_subscriber(POSE_SELECTOR, on_pose),
+        session.liveliness().declare_subscriber(ALIVE_SELECTOR, on_alive, history=True),
+    ]
+    return Bridge(session, owns, subs)
+
+
+def query_config(session: zenoh.Session, subject: str, segment: str,
+                 config: wire.DeviceConfig | None, timeout_s: float) -> dict:
+    """Send ``config`` to a device (or read its config when None) and return what it confirms.
+
+    Blocking: run it in a worker thread. Raises :class:`ConfigError` with status 504 (no
+    reply within ``timeout_s``), 422 (the device refused it: its message) or 502 (a reply
+    that is not a config).
+    """
+    key = wire.config_key(subject, segment)
+    payload = None if config is None else wire.encode_config(config)
+    replies = session.get(key, payload=payload, timeout=timeout_s)
+    rejected, broken = [], []
+    for reply in replies:
+        if reply.ok is not None:
+            try:
+                applied = wire.decode_config(reply.ok.payload.to_bytes())
+            except wire.WireError as exc:
+                broken.append(str(exc))
+                continue
+            return {"threshold": applied.threshold, "max_len": applied.max_len}
+        raw = reply.err.payload.to_bytes()
+        try:
+            rejected.append(str(json.loads(raw).get("error", raw.decode(errors="replace"))))
+        except (ValueError, AttributeError):
+            rejected.append(raw.decode(errors="replace"))
+    if rejected:
+        raise ConfigError(422, f"device {subject}/{segment} rejected the config: {'; '.join(rejected)}")
+    if broken:
+        raise ConfigError(502, f"device {subject}/{segment} answered with a bad config: {'; '.join(broken)}")
+    raise ConfigError(504, f"device {subject}/{segment} did not confirm within {timeout_s:g} s")

@@ -1,0 +1,248 @@
+"""limbstream.evaluation: the paper's protocol (ICR, AAD, p99, max, segment-point deviation).
+
+The oracle rebuilds every stream on its own with scipy (Slerp, Rotation.magnitude) and pools the
+deviations in plain Python; it shares no code with the evaluator's vectorised reconstruction.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from limbstream import cli, evaluation, kernel
+from limbstream.sources import load
+
+
+def _rotation(q: np.ndarray) -> Rotation:
+    """(n, 4) scalar-first -> Rotation (scipy normalises)."""
+    return Rotation.from_quat(np.asarray(q, np.float64)[:, [1, 2, 3, 0]])
+
+
+def oracle(
+    streams: list[evaluation.Stream], algorithm: str, threshold: float, max_len: int = 1000
+) -> dict:
+    """Brute force: per stream, scipy Slerp at every timestamp; deviations pooled over all streams."""
+    rec_dev, point_dev = [], []
+    n_points = n_samples = 0
+    for s in streams:
+        seg = kernel.segment(s.t, s.q, threshold, max_len, algorithm=algorithm)
+        n_points += len(seg.t)
+        n_samples += len(s.t)
+        truth = _rotation(s.q)
+        if len(seg.t) == 1:
+            recon = _rotation(np.repeat(seg.q, len(s.t), axis=0))
+        else:
+            recon = Slerp(seg.t, _rotation(seg.q))(np.clip(s.t, seg.t[0], seg.t[-1]))
+        rec_dev.extend(np.degrees((truth.inv() * recon).magnitude()))
+        for t_point, q_point in zip(seg.t, seg.q):
+            i = int(np.flatnonzero(s.t == t_point)[0])
+            point_dev.append(np.degrees((truth[i].inv() * _rotation(q_point[None])[0]).magnitude()))
+    dev = np.array(rec_dev)
+    return {
+        "icr": n_points / n_samples,
+        "aad": dev.mean(),
+        "std": dev.std(),
+        "p99": np.percentile(dev, 99),
+        "max": dev.max(),
+        "point_aad": float(np.mean(point_dev)),
+        "point_max": float(np.max(point_dev)),
+    }
+
+
+def synthetic_streams(count: int, m: int, seed: int) -> list[evaluation.Stream]:
+    """Random smooth rotations with jittered timestamps (not a common time base)."""
+    rng = np.random.default_rng(seed)
+    streams = []
+    for j in range(count):
+        t = np.cumsum(rng.uniform(0.015, 0.025, m)) + rng.uniform(0, 100)
+        rotvec = np.cumsum(np.cumsum(rng.normal(0, 0.02, (m, 3)), axis=0), axis=0)
+        q = Rotation.from_rotvec(rotvec).as_quat()[:, [3, 0, 1, 2]]
+        q *= np.where(np.cumsum(np.r_[0, np.sum(q[1:] * q[:-1], axis=1) < 0]) % 2, -1.0, 1.0)[
+            :, None
+        ]
+        streams.append(evaluation.Stream(t, q, f"synthetic/{j}"))
+    return streams
+
+
+@pytest.fixture(scope="module")
+def cmu_motions(cmu_npz):
+    return load(cmu_npz)
+
+
+def _compare(rows, expected, label):
+    for field in ("aad", "std", "p99", "max", "point_aad", "point_max"):
+        assert rows[field] == pytest.approx(expected[field], abs=2e-4), (
+            f"{label} {field}: evaluator {rows[field]!r}, oracle {expected[field]!r}"
+        )
+    assert rows["icr"] == pytest.approx(expected["icr"], rel=1e-12), f"{label} icr"
+
+
+@pytest.mark.parametrize("algorithm", ["fastsw", "cplr", "swing"])
+def test_matches_oracle_on_cmu(cmu_motions, algorithm):
+    streams = evaluation.streams_of(cmu_motions[1:3])  # two clips, 20 streams
+    thresholds = {
+        "fastsw": [0.0, 1e-4, 1e-2, 1.0],
+        "cplr": [1e-4, 1e-2, 1.0],
+        "swing": [1e-3, 1e-2, 1e-1],
+    }[algorithm]
+    rows = evaluation.evaluate(streams, [algorithm], thresholds)
+    for row, th in zip(rows, thresholds):
+        assert row["algorithm"] == algorithm and row["threshold"] == th
+        _compare(row, oracle(streams, algorithm, th), f"{algorithm} TH={th}")
+
+
+@pytest.mark.parametrize("algorithm", ["sw", "cplr", "swing"])
+def test_matches_oracle_on_jittered_streams(algorithm):
+    """Streams of different lengths and time bases, pooled in one vectorised pass."""
+    streams = synthetic_streams(3, 250, seed=1) + synthetic_streams(2, 97, seed=2)
+    for th in (1e-3, 3e-2):
+        row = evaluation.evaluate(streams, [algorithm], [th])[0]
+        _compare(row, oracle(streams, algorithm, th), f"{algorithm} TH={th}")
+
+
+def test_fastsw_reference_numbers(cmu_motions):
+    """Independent brute-force SW on all CMU clips at TH = 1e-2: ICR 0.099, AAD 2.43 deg, max 10.9 deg."""
+    row = evaluation.evaluate(cmu_motions, ["fastsw"], [1e-2])[0]
+    assert row["icr"] == pytest.approx(0.099, abs=0.001), row
+    assert row["aad"] == pytest.approx(2.43, abs=0.01), row
+    assert row["max"] == pytest.approx(10.9, abs=0.05), row
+    assert row["point_max"] < 1e-4, f"fastSW points are samples, deviation {row['point_max']}"
+
+
+def test_baseline_points_drift_as_icr_falls(cmu_motions):
+    """CPLR's and the Swing filter's points deviate more the fewer there are; fastSW's never."""
+    thresholds = np.logspace(-6, 3, 25)
+    rows = evaluation.evaluate(cmu_motions[:3], ["fastsw", "cplr", "swing"], thresholds)
+    targets = (0.5, 0.25, 0.1, 0.05, 0.02)
+    fast = evaluation.at_icr(rows, "fastsw", targets)
+    assert max(r["point_max"] for r in fast) < 1e-4, fast
+    for name in ("cplr", "swing"):
+        point_aad = [r["point_aad"] for r in evaluation.at_icr(rows, name, targets)]
+        assert all(np.diff(point_aad) > 0), f"{name} point AAD at ICR {targets}: {point_aad}"
+        assert point_aad[-1] > 10.0, f"{name} point AAD at ICR 0.02: {point_aad[-1]:.2f} deg"
+
+
+def test_at_icr_interpolates_in_log_icr():
+    rows = [
+        {
+            "algorithm": "x",
+            "threshold": th,
+            "icr": icr,
+            "aad": aad,
+            "std": 0.0,
+            "p99": 0.0,
+            "max": 0.0,
+            "point_aad": 0.0,
+            "point_max": 0.0,
+        }
+        for th, icr, aad in [
+            (1e-4, 0.4, 1.0),
+            (1e-3, 0.1, 3.0),
+            (1e-3, 0.1, 5.0),
+            (1e-2, 0.025, 9.0),
+        ]
+    ]
+    out = evaluation.at_icr(rows, "x", (0.2, 0.05, 0.5, 0.01))
+    assert out[0]["aad"] == pytest.approx(1.0 + 3.0 * 0.5), out[
+        0
+    ]  # halfway in log ICR; ties averaged to 4
+    assert out[0]["threshold"] == pytest.approx(10**-3.5), out[0]
+    assert out[1]["aad"] == pytest.approx(4.0 + 5.0 * 0.5), out[1]
+    assert np.isnan(out[2]["aad"]) and np.isnan(out[3]["aad"]), "outside the swept ICR range"
+
+
+def test_bad_samples_are_left_out():
+    """A NaN sample and a time step backwards: rejected by the kernels, not a NaN result."""
+    streams = synthetic_streams(2, 200, seed=3)
+    q = streams[0].q.copy()
+    q[40] = np.nan
+    t = streams[0].t.copy()
+    t[90] = t[88]
+    broken = [evaluation.Stream(t, q, "broken"), streams[1]]
+    row = evaluation.evaluate(broken, ["fastsw", "cplr"], [1e-3])
+    for r in row:
+        assert all(np.isfinite(r[k]) for k in evaluation.MEASURES), r
+        assert 0 < r["icr"] < 1, r
+
+
+def test_thresholds_are_the_papers():
+    th = evaluation.THRESHOLDS
+    assert len(th) == 206 and th[0] == 0.0
+    assert th[1] == pytest.approx(1e-6) and th[-1] == pytest.approx(1e3)
+    assert np.allclose(np.diff(np.log10(th[1:])), 9 / 204)
+
+
+def test_cli_writes_table_json_and_plot(cmu_npz, tmp_path, capsys):
+    out_json, out_png = tmp_path / "rows.json", tmp_path / "fig.png"
+    code = cli.main(
+        [
+            "eval",
+            str(cmu_npz),
+            "--algorithms",
+            "fastsw",
+            "swing",
+            "--thresholds",
+            "0",
+            "1e-2",
+            "1",
+            "--json",
+            str(out_json),
+            "--plot",
+            str(out_png),
+        ]
+    )
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "60 streams" in text and "fastsw" in text and "swing" in text, text
+    rows = json.loads(out_json.read_text())
+    assert len(rows) == 6, rows
+    assert all(list(r) == list(evaluation.KEYS) for r in rows), rows[0]
+    fast = next(r for r in rows if r["algorithm"] == "fastsw" and r["threshold"] == 1e-2)
+    assert fast["icr"] == pytest.approx(0.099, abs=0.001), fast
+    assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_table_at_icr(cmu_npz, capsys):
+    code = cli.main(["eval", str(cmu_npz), "--algorithms", "fastsw,cplr", "--max-len", "1000"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    lines = [ln.split() for ln in text.splitlines() if ln.startswith(("fastsw", "cplr"))]
+    assert [(ln[0], ln[1]) for ln in lines] == [
+        (a, f"{c:.2f}") for a in ("fastsw", "cplr") for c in evaluation.ICR_TARGETS
+    ], text
+    assert 2.2 < float(lines[1][2]) < 2.6, f"fastSW AAD at ICR 0.10: {lines[1]}"
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["eval", "/no/such/file.npz"], "no such file"),
+        (["eval", "{npz}", "--json", "/no/such/dir/out.json"], "does not exist"),
+        (["eval", "{npz}", "--plot", "{tmp}/fig.svg"], ".png"),
+    ],
+)
+def test_cli_bad_paths_exit_2(cmu_npz, tmp_path, capsys, argv, message):
+    argv = [a.format(npz=cmu_npz, tmp=tmp_path) for a in argv]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "error" in err and message in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["eval", "x.npz", "--algorithms", "bogus"],
+        ["eval", "x.npz", "--thresholds", "-1"],
+        ["eval", "x.npz", "--thresholds", "abc"],
+        ["eval", "x.npz", "--max-len", "0"],
+    ],
+)
+def test_cli_bad_arguments_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "error" in err and "Traceback" not in err, err
