@@ -169,7 +169,7 @@ function makeChart(el, series, yRange) {
     width: Math.max(200, el.clientWidth),
     height: 160,
     cursor: { drag: { x: false, y: false } },
-    legend: { live: true },
+    legend: { live: false },
     scales: { x: { time: true }, y: yRange ? { range: yRange } : {} },
     axes: [axis, { ...axis, size: 48 }],
     series: [{}].concat(series.map(([label, color, dash]) => ({
@@ -182,7 +182,8 @@ function makeChart(el, series, yRange) {
 
 function initCharts() {
   state.charts = {
-    rate: makeChart($("chart-rate"), [["msgs/s", COLORS.accent]]),
+    rate: makeChart($("chart-rate"), [["msgs/s", COLORS.accent]],
+      (u, min, max) => [0, Math.max(1, (max || 0) * 1.25)]),
     icr: makeChart($("chart-icr"), [["ICR", COLORS.left]],
       (u, min, max) => [0, Math.max(0.05, (max || 0) * 1.2)]),
     err: makeChart($("chart-err"), [["AAD", COLORS.accent], ["p99", COLORS.warn, [4, 3]], ["live", COLORS.right]],
@@ -277,7 +278,7 @@ class Figure {
     const ctx = this.canvas.getContext("2d");
     const W = this.canvas.width, H = this.canvas.height;
     ctx.clearRect(0, 0, W, H);
-    const scale = H / 2.3, cx = W / 2, cy = H * 0.47;
+    const scale = H / 2.05, cx = W / 2, cy = H * 0.45;
     const c = Math.cos(this.yaw), s = Math.sin(this.yaw);
     const proj = (p) => {
       const x = p[0] * c + p[2] * s;

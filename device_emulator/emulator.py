@@ -156,15 +156,14 @@ class Emulator:
 
     def _answer(self, query: zenoh.Query) -> None:
         targets = [d for key, d in self._by_key.items() if zenoh.KeyExpr(key).intersects(query.key_expr)]
-        config = None
-        if query.payload is not None and len(query.payload.to_bytes()) > 0:
-            try:
-                config = wire.decode_config(query.payload.to_bytes())
-            except wire.WireError as exc:
-                query.reply_err(json.dumps({"error": str(exc)}))
-                return
+        payload = query.payload.to_bytes() if query.payload is not None else b""
         for d in targets:
-            if config is not None:
+            if payload:
+                try:
+                    config = wire.decode_config(payload, wire.DeviceConfig(d.threshold, d.max_len))
+                except wire.WireError as exc:
+                    query.reply_err(json.dumps({"error": str(exc)}))
+                    return
                 self.bank.retune(d.slot, config.threshold, config.max_len)
                 d.threshold, d.max_len = config.threshold, config.max_len
                 log.info("%s: threshold %g, max_len %d", d.id, d.threshold, d.max_len)

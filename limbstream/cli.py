@@ -17,7 +17,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dashboard": ("services.dashboard.main", "run the dashboard web service"),
     "watch": ("limbstream.watch", "print a live text view of a subject's pose stream"),
     "eval": ("limbstream.evaluation", "evaluate segmentation algorithms on motion files"),
-    "demo": ("limbstream.demo", "segment a built-in motion with the C kernel and print the result"),
 }
 
 

@@ -369,10 +369,29 @@ def encode_config(config: DeviceConfig) -> bytes:
     return json.dumps({"threshold": config.threshold, "max_len": config.max_len}).encode()
 
 
-def decode_config(payload: bytes) -> DeviceConfig:
-    """JSON ``{"threshold": float, "max_len": int}`` -> validated DeviceConfig; WireError('config')."""
+def decode_config(payload: bytes, current: DeviceConfig | None = None) -> DeviceConfig:
+    """JSON ``{"threshold": float, "max_len": int}`` -> validated DeviceConfig; WireError('config').
+
+    With ``current``, either field may be left out (it keeps its current value)."""
     try:
         data = json.loads(bytes(payload))
-        return DeviceConfig(float(data["threshold"]), data["max_len"]).validate()
-    except (ValueError, KeyError, TypeError) as exc:
-        raise WireError("config", f"bad device config: {exc}") from None
+    except ValueError as exc:
+        raise WireError("config", f"device config is not JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise WireError("config", "device config must be a JSON object {threshold, max_len}")
+    unknown = set(data) - {"threshold", "max_len"}
+    if unknown:
+        raise WireError("config", f"unknown device config fields {sorted(unknown)}")
+    base = current or DeviceConfig(math.nan, 0)
+    if current is None and len(data) < 2 or not data:
+        raise WireError("config", "device config needs threshold and max_len")
+    threshold = data.get("threshold", base.threshold)
+    max_len = data.get("max_len", base.max_len)
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)):
+        raise WireError("config", f"threshold must be a number, got {threshold!r}")
+    if isinstance(max_len, bool):
+        raise WireError("config", f"max_len must be an integer, got {max_len!r}")
+    try:
+        return DeviceConfig(float(threshold), max_len).validate()
+    except ValueError as exc:
+        raise WireError("config", str(exc)) from None

@@ -25,8 +25,8 @@
  * Kept short for the Cortex-M4 (docs/kernel.md, instruction counts): sums
  * start from their first term, not from 0 + term (this can only change the
  * sign of a zero, which no later +, *, or comparison can tell apart); the
- * first sample, a full segment and the time check behind it share one test
- * on count; a break leaves through its own path.
+ * first sample and a full segment share one test on count (UINT32_MAX
+ * before the first sample); a break leaves through its own path.
  */
 #include "fastsw.h"
 

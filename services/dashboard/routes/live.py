@@ -67,7 +67,7 @@ async def ws_pose(websocket: WebSocket, subject: str, live: LiveDep, settings: S
                                      RuntimeError, OSError):
                 await task
         live.remove_client(client)
-        with contextlib.suppress(RuntimeError, OSError):
+        with contextlib.suppress(RuntimeError, OSError, WebSocketDisconnect):
             await websocket.close()
 
 

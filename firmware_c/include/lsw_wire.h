@@ -1,0 +1,45 @@
+/*
+ * lsw_wire.h - the segment-point message of the limbstream wire contract (docs/protocol.md).
+ *
+ * 36 bytes, little-endian, written byte by byte so any target's endianness and struct
+ * padding are irrelevant. limbstream/wire.py decodes the same layout; a test checks both
+ * agree byte for byte.
+ *
+ * | offset | size | field                                         |
+ * |-------:|-----:|-----------------------------------------------|
+ * |      0 |    1 | version (LSW_VERSION)                         |
+ * |      1 |    1 | flags (LSW_FLAG_FINAL: last point of stream)  |
+ * |      2 |    2 | stream id (drawn at device start)             |
+ * |      4 |    4 | sequence number of segment-point messages     |
+ * |      8 |    4 | sample index in the device's stream           |
+ * |     12 |    8 | device time, microseconds since the epoch     |
+ * |     20 |   16 | quaternion w, x, y, z (IEEE-754 float32)      |
+ */
+#ifndef LSW_WIRE_H
+#define LSW_WIRE_H
+
+#include <stdint.h>
+
+#include "fastsw.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define LSW_VERSION 1u
+#define LSW_POINT_SIZE 36u
+#define LSW_FLAG_FINAL 0x01u
+
+/**
+ * Write one segment point message into out (LSW_POINT_SIZE bytes).
+ * point->y holds the quaternion (w, x, y, z); t_us is the device time of the point.
+ * Returns LSW_POINT_SIZE.
+ */
+uint32_t lsw_encode_point(uint8_t *out, uint8_t flags, uint16_t stream, uint32_t seq,
+                          const FastswPoint *point, int64_t t_us);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* LSW_WIRE_H */

@@ -1,0 +1,400 @@
+"""Dashboard REST/WebSocket/SSE API against real Zenoh traffic (a router and client sessions
+on loopback), with the app's lifespan on."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import zenoh
+from fastapi.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
+
+from limbstream import wire, zconfig
+from limbstream.watch import render, subscribe_pose
+from services.dashboard.app import create_app
+from services.dashboard.main import parse_http
+from services.dashboard.settings import DashboardSettings
+from services.dashboard.state import LiveState
+from stack import ROOT, free_port, wait_until
+
+TOKEN = "test-token-123"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+@pytest.fixture(scope="module")
+def router():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = zconfig.open_session(zconfig.ZenohSettings(mode="router", connect=(), listen=(endpoint,)))
+    yield endpoint
+    session.close()
+
+
+@pytest.fixture(scope="module")
+def pub(router):
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(router,)))
+    yield session
+    session.close()
+
+
+def make_client(router: str, **overrides) -> TestClient:
+    settings = DashboardSettings(router=router, api_token=TOKEN, config_timeout_s=1.0, **overrides)
+    return TestClient(create_app(settings))
+
+
+@pytest.fixture
+def client(router):
+    with make_client(router) as c:
+        wait_until(lambda: c.get("/health").status_code == 200, 10, "zenoh session")
+        yield c
+
+
+def device_stats(subject: str, segment: str, **values) -> dict:
+    base = {k: None for k in wire.STATS_FIELDS}
+    base.update(device=f"{subject}/{segment}", segment=segment, online=True, samples=500, points=50,
+                icr=0.1, msgs_per_s=5.0, bytes_per_s=180.0, aad_deg=1.5, p99_deg=4.0, max_deg=6.0,
+                live_err_deg=9.0, watermark_lag_s=0.4, gaps=0, dropped=0, threshold=0.01)
+    base.update(values)
+    return base
+
+
+def publish_until(client: TestClient, publish, predicate, what: str, timeout: float = 10.0):
+    """Publish repeatedly until ``predicate()`` holds (the subscriber may join late)."""
+    def step():
+        publish()
+        return predicate()
+    return wait_until(step, timeout, what, interval=0.05)
+
+
+def pose_frame(seq: int, kind: int = wire.KIND_EXACT, seed: int = 0) -> wire.PoseFrame:
+    rng = np.random.default_rng(seed + seq)
+    q = rng.normal(size=(10, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    joints = rng.uniform(-1, 1, size=(len(wire.JOINTS), 3))
+    return wire.PoseFrame(seq, 1_700_000_000_000_000 + seq * 20_000, kind, 0, q.astype(np.float32),
+                          joints.astype(np.float32))
+
+
+# ----------------------------------------------------------------------------- REST
+
+
+def test_health_docs_and_page(client):
+    health = client.get("/health").json()
+    assert health["status"] == "ok" and health["zenoh"] is True and health["control"] is True, health
+    assert client.get("/docs").status_code == 200
+    paths = client.get("/openapi.json").json()["paths"]
+    for path in ("/api/devices", "/api/devices/{subject}/{segment}", "/api/devices/{subject}/{segment}/history",
+                 "/api/devices/{subject}/{segment}/config", "/api/subjects", "/api/subjects/{subject}/pose",
+                 "/health", "/metrics"):
+        assert path in paths, f"{path} missing from OpenAPI: {sorted(paths)}"
+    page = client.get("/")
+    assert page.status_code == 200 and "limbstream" in page.text and "uPlot.iife.min.js" in page.text
+    assert client.get("/vendor/uPlot.iife.min.js").status_code == 200
+    assert "WebSocket" in client.get("/app.js").text
+
+
+def test_devices_carry_every_stats_field(client, pub):
+    devices = [device_stats("apiA", "hip", icr=0.125, max_len=25),
+               device_stats("apiA", "neck", online=False, aad_deg=float("nan"))]
+    publish_until(client, lambda: pub.put(wire.stats_key("apiA"), wire.encode_stats("apiA", time.time(), devices)),
+                  lambda: len([d for d in client.get("/api/devices").json() if d["subject"] == "apiA"]) == 2,
+                  "two devices of apiA")
+    listed = {d["device"]: d for d in client.get("/api/devices").json() if d["subject"] == "apiA"}
+    hip = listed["apiA/hip"]
+    for key in wire.STATS_FIELDS:
+        assert key in hip, f"{key} missing from {hip}"
+    assert hip["icr"] == 0.125 and hip["msgs_per_s"] == 5.0 and hip["online"] is True, hip
+    assert hip["max_len"] == 25 and hip["stale"] is False and hip["subject"] == "apiA", hip
+    neck = client.get("/api/devices/apiA/neck").json()
+    assert neck["online"] is False and neck["aad_deg"] is None, neck
+    subjects = {s["subject"]: s for s in client.get("/api/subjects").json()}
+    assert subjects["apiA"]["devices"] == 2 and subjects["apiA"]["online"] == 1, subjects
+    assert math.isclose(subjects["apiA"]["msgs_per_s"], 10.0), subjects
+
+
+def test_unknown_and_malformed_ids(client):
+    r = client.get("/api/devices/nobody/hip")
+    assert r.status_code == 404 and "nobody/hip" in r.json()["detail"], r.text
+    assert client.get("/api/devices/bad%20name/hip").status_code == 422
+    assert client.get("/api/subjects/ghost/pose").status_code == 404
+    assert client.get("/api/devices/ghost/hip/history").status_code == 404
+
+
+def test_history_is_bounded_and_windowed(router, pub):
+    with make_client(router, history_seconds=10) as c:
+        wait_until(lambda: c.get("/health").status_code == 200, 10, "zenoh session")
+        t0 = time.time()
+        publish_until(c, lambda: pub.put(wire.stats_key("histB"), wire.encode_stats("histB", t0, [device_stats("histB", "hip")])),
+                      lambda: c.get("/api/devices/histB/hip").status_code == 200, "histB/hip")
+        for i in range(1, 61):  # 60 s of stats at 1 Hz (stats time t drives the window)
+            pub.put(wire.stats_key("histB"), wire.encode_stats("histB", t0 + i, [device_stats("histB", "hip", icr=i / 100)]))
+        wait_until(lambda: c.get("/api/devices/histB/hip").json()["icr"] == 0.6, 10, "last stats applied")
+        h = c.get("/api/devices/histB/hip/history", params={"seconds": 1000}).json()
+        assert len(h["t"]) == 11 and h["t"][-1] == t0 + 60 and h["t"][0] == t0 + 50, h["t"]
+        assert h["icr"][-1] == 0.6 and len(h["icr"]) == len(h["t"]), h["icr"]
+        h5 = c.get("/api/devices/histB/hip/history", params={"seconds": 5}).json()
+        assert h5["t"] == [t0 + k for k in range(55, 61)], h5["t"]
+        assert c.get("/api/devices/histB/hip/history", params={"seconds": -1}).status_code == 422
+
+
+def test_latest_pose_and_kinds(client, pub):
+    exact, live = pose_frame(7), pose_frame(8, wire.KIND_LIVE)
+
+    def publish():
+        pub.put(wire.pose_key("poseC"), wire.encode_pose(exact))
+        pub.put(wire.pose_key("poseC"), wire.encode_pose(live))
+
+    publish_until(client, publish, lambda: client.get("/api/subjects/poseC/pose?kind=live").status_code == 200,
+                  "poseC frames")
+    got = client.get("/api/subjects/poseC/pose", params={"kind": "exact"}).json()
+    expected = exact.to_json("poseC")
+    assert got["seq"] == 7 and got["kind"] == "exact" and got["t"] == expected["t"], got
+    for joint, xyz in expected["joints"].items():
+        assert np.allclose(got["joints"][joint], xyz, atol=1e-4), (joint, got["joints"][joint], xyz)
+    assert client.get("/api/subjects/poseC/pose?kind=auto").json()["kind"] == "exact"
+    assert client.get("/api/subjects/poseC/pose?kind=live").json()["seq"] == 8
+    assert client.get("/api/subjects/poseC/pose?kind=sideways").status_code == 422
+    skeleton = client.get("/api/skeleton").json()
+    assert skeleton["joints"] == list(wire.JOINTS) and len(skeleton["bones"]) == len(wire.BONES)
+
+
+def test_bad_payloads_are_counted_not_fatal(client, pub):
+    def publish():
+        pub.put(wire.pose_key("junkD"), b"\x01\x02\x03")
+        pub.put(wire.stats_key("junkD"), b"{not json")
+    publish_until(client, publish, lambda: 'reason="pose_size"' in client.get("/metrics").text, "pose error count")
+    text = client.get("/metrics").text
+    assert 'limbstream_dashboard_errors_total{reason="json"}' in text, text[-800:]
+    assert client.get("/health").status_code == 200
+    assert client.get("/api/subjects/junkD/pose").status_code == 404
+
+
+def test_metrics_have_per_device_labels(client, pub):
+    stats = [device_stats("metE", "l_shank", msgs_per_s=7.5, icr=0.2, gaps=3)]
+    publish_until(client, lambda: pub.put(wire.stats_key("metE"), wire.encode_stats("metE", time.time(), stats)),
+                  lambda: 'subject="metE"' in client.get("/metrics").text, "metE metrics")
+    text = client.get("/metrics").text
+    assert 'limbstream_device_messages_per_second{segment="l_shank",subject="metE"} 7.5' in text
+    assert 'limbstream_device_icr{segment="l_shank",subject="metE"} 0.2' in text
+    assert 'limbstream_device_gaps_total{segment="l_shank",subject="metE"} 3.0' in text
+    assert 'limbstream_device_online{segment="l_shank",subject="metE"} 1.0' in text
+
+
+def test_liveliness_marks_devices_alive(client, pub):
+    token = pub.liveliness().declare_token(wire.alive_key("aliveF", "hip"))
+    try:
+        wait_until(lambda: client.get("/api/devices/aliveF/hip").status_code == 200
+                   and client.get("/api/devices/aliveF/hip").json()["alive"], 10, "alive token seen")
+        d = client.get("/api/devices/aliveF/hip").json()
+        assert d["online"] is True and d["stale"] is True and d["icr"] is None, d
+    finally:
+        token.undeclare()
+    wait_until(lambda: client.get("/api/devices/aliveF/hip").json()["alive"] is False, 10, "token gone")
+    assert client.get("/api/devices/aliveF/hip").json()["online"] is False
+
+
+# ----------------------------------------------------------------------------- control
+
+
+class Device:
+    """A device's config queryable, as the contract describes it (the emulator implements the
+    same in the end-to-end test)."""
+
+    def __init__(self, session: zenoh.Session, subject: str, segment: str, reject: str | None = None):
+        self.config = wire.DeviceConfig(0.01, 25)
+        self.reject = reject
+        self.queryable = session.declare_queryable(wire.config_key(subject, segment), self.on_query)
+
+    def on_query(self, query: zenoh.Query) -> None:
+        if query.payload is not None:
+            if self.reject:
+                query.reply_err(json.dumps({"error": self.reject}))
+                return
+            try:
+                self.config = wire.decode_config(query.payload.to_bytes())
+            except wire.WireError as exc:
+                query.reply_err(json.dumps({"error": str(exc)}))
+                return
+        query.reply(query.key_expr, wire.encode_config(self.config))
+
+
+def announce(client, pub, subject, segment):
+    publish_until(client, lambda: pub.put(wire.stats_key(subject), wire.encode_stats(
+        subject, time.time(), [device_stats(subject, segment)])),
+        lambda: client.get(f"/api/devices/{subject}/{segment}").status_code == 200, f"{subject}/{segment}")
+
+
+def test_config_is_forwarded_and_confirmed(client, pub):
+    device = Device(pub, "ctlG", "hip")
+    try:
+        announce(client, pub, "ctlG", "hip")
+        r = client.put("/api/devices/ctlG/hip/config", json={"threshold": 0.05, "max_len": 10}, headers=AUTH)
+        assert r.status_code == 200, r.text
+        assert r.json() == {"device": "ctlG/hip", "threshold": 0.05, "max_len": 10}
+        assert device.config == wire.DeviceConfig(0.05, 10)
+        r = client.put("/api/devices/ctlG/hip/config", json={"threshold": 0.002}, headers=AUTH)
+        assert r.status_code == 200 and r.json()["max_len"] == 10 and r.json()["threshold"] == 0.002, r.text
+    finally:
+        device.queryable.undeclare()
+
+
+def test_config_validation_messages(client, pub):
+    announce(client, pub, "ctlH", "hip")
+    cases = [({"threshold": -1}, "threshold"), ({"max_len": 0}, "max_len"), ({}, "threshold and/or max_len"),
+             ({"threshold": 0.1, "colour": 1}, "colour"), ({"max_len": 1.5}, "max_len")]
+    for body, needle in cases:
+        r = client.put("/api/devices/ctlH/hip/config", json=body, headers=AUTH)
+        assert r.status_code == 422 and needle in r.text, (body, r.status_code, r.text)
+    r = client.put("/api/devices/ctlH/hip/config", content=b"not json", headers=AUTH | {"Content-Type": "application/json"})
+    assert r.status_code == 422, r.text
+
+
+def test_config_rejected_or_unanswered(client, pub):
+    device = Device(pub, "ctlI", "hip", reject="max_len beyond the device buffer")
+    try:
+        announce(client, pub, "ctlI", "hip")
+        r = client.put("/api/devices/ctlI/hip/config", json={"threshold": 0.1, "max_len": 50}, headers=AUTH)
+        assert r.status_code == 422 and "beyond the device buffer" in r.json()["detail"], r.text
+    finally:
+        device.queryable.undeclare()
+    announce(client, pub, "ctlJ", "hip")  # stats but no device answering
+    start = time.monotonic()
+    r = client.put("/api/devices/ctlJ/hip/config", json={"threshold": 0.1, "max_len": 5}, headers=AUTH)
+    assert r.status_code == 504 and "did not confirm" in r.json()["detail"], r.text
+    assert time.monotonic() - start < 5, "timeout not honoured"
+    r = client.put("/api/devices/nobody/hip/config", json={"threshold": 0.1}, headers=AUTH)
+    assert r.status_code == 404, r.text
+
+
+def test_auth_failures(client, router):
+    body = {"threshold": 0.1}
+    r = client.put("/api/devices/x/hip/config", json=body)
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer", r.text
+    r = client.put("/api/devices/x/hip/config", json=body, headers={"Authorization": "Bearer wrong"})
+    assert r.status_code == 403 and "invalid token" in r.text, r.text
+    r = client.put("/api/devices/x/hip/config", json=body, headers={"Authorization": f"Basic {TOKEN}"})
+    assert r.status_code == 401, r.text
+    settings = DashboardSettings(router=router, mode="production", api_token=None)
+    assert settings.with_token() == (settings, False), "production must not invent a token"
+    with TestClient(create_app(settings)) as prod:
+        r = prod.put("/api/devices/x/hip/config", json=body, headers=AUTH)
+        assert r.status_code == 403 and "LIMBSTREAM_API_TOKEN" in r.json()["detail"], r.text
+        assert prod.get("/health").json()["control"] is False
+    dev, generated = DashboardSettings(router=router, mode="development", api_token=None).with_token()
+    assert generated and len(dev.api_token.get_secret_value()) >= 24
+
+
+def test_settings_from_environment(monkeypatch):
+    monkeypatch.setenv("LIMBSTREAM_API_TOKEN", "from-env")
+    monkeypatch.setenv("LIMBSTREAM_MODE", "production")
+    monkeypatch.setenv("LIMBSTREAM_ROUTER", "tcp/10.0.0.1:7447,tcp/10.0.0.2:7447")
+    s = DashboardSettings()
+    assert s.api_token.get_secret_value() == "from-env" and s.mode == "production"
+    assert s.zenoh_settings().connect == ("tcp/10.0.0.1:7447", "tcp/10.0.0.2:7447")
+    assert "from-env" not in repr(s)
+    assert parse_http("0.0.0.0:9000") == ("0.0.0.0", 9000) and parse_http(":80") == ("127.0.0.1", 80)
+    with pytest.raises(Exception, match="HOST:PORT"):
+        parse_http("localhost")
+
+
+# ----------------------------------------------------------------------------- live streams
+
+
+def test_websocket_streams_frames_in_order(client, pub):
+    publish_until(client, lambda: pub.put(wire.pose_key("wsK"), wire.encode_pose(pose_frame(0))),
+                  lambda: client.get("/api/subjects/wsK/pose").status_code == 200, "wsK first frame")
+    with client.websocket_connect("/ws/pose/wsK") as ws:
+        first = json.loads(ws.receive_text())  # the latest frame, sent on connect
+        assert first["subject"] == "wsK" and first["seq"] == 0, first
+        stop = threading.Event()
+
+        def publish():
+            seq = 1
+            while not stop.is_set() and seq < 500:
+                pub.put(wire.pose_key("wsK"), wire.encode_pose(pose_frame(seq)))
+                seq += 1
+                stop.wait(0.005)
+
+        threading.Thread(target=publish, daemon=True).start()
+        seqs = [json.loads(ws.receive_text())["seq"] for _ in range(20)]
+        stop.set()
+    assert seqs == sorted(seqs) and len(set(seqs)) == 20 and seqs[0] >= 1, seqs
+
+
+def test_websocket_rejects_foreign_origin(client):
+    with pytest.raises(WebSocketDisconnect) as info:
+        with client.websocket_connect("/ws/pose/wsK", headers={"Origin": "http://evil.example"}) as ws:
+            ws.receive_text()
+    assert info.value.code == 1008, info.value
+    with client.websocket_connect("/ws/pose/wsK", headers={"Origin": "http://testserver"}) as ws:
+        assert ws is not None
+
+
+def test_sse_streams_frames(client, pub):
+    publish_until(client, lambda: pub.put(wire.pose_key("sseL"), wire.encode_pose(pose_frame(3))),
+                  lambda: client.get("/api/subjects/sseL/pose").status_code == 200, "sseL frame")
+    r = client.get("/sse/pose/sseL", params={"limit": 1})
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/event-stream"), r.headers
+    events = [json.loads(line[6:]) for line in r.text.splitlines() if line.startswith("data: ")]
+    assert [e["seq"] for e in events] == [3] and events[0]["subject"] == "sseL", r.text
+
+
+def test_slow_client_skips_frames_without_stalling_others():
+    state = LiveState(ws_queue=4)
+    slow, fast = state.add_client("s", "exact"), state.add_client("s", "exact")
+    received = []
+    for seq in range(100):
+        state.apply_pose(wire.pose_key("s"), wire.encode_pose(pose_frame(seq)))
+        received.append(json.loads(fast.queue.get_nowait())["seq"])
+    assert received == list(range(100)), received[:10]
+    kept = [json.loads(slow.queue.get_nowait())["seq"] for _ in range(slow.queue.qsize())]
+    assert kept == [96, 97, 98, 99] and slow.skipped == 96, (kept, slow.skipped)
+    state.remove_client(slow)
+    state.remove_client(fast)
+    assert state.client_count() == 0 and state.clients_skipped == 96
+
+
+# ----------------------------------------------------------------------------- python client
+
+
+def test_subscribe_pose_and_watch_command(router, pub):
+    got = []
+    arrived = threading.Event()
+
+    def on_frame(subject, frame):
+        got.append((subject, frame.seq))
+        arrived.set()
+
+    with zconfig.open_session(zconfig.ZenohSettings(connect=(router,))) as session:
+        with subscribe_pose(session, "watchM", on_frame) as sub:
+            wait_until(lambda: pub.put(wire.pose_key("watchM"), wire.encode_pose(pose_frame(5))) or arrived.is_set(),
+                       10, "a frame through subscribe_pose")
+            pub.put(wire.pose_key("watchM"), b"broken")
+            wait_until(lambda: sub.errors == 1, 5, "bad frame counted")
+    assert got[0] == ("watchM", 5), got
+    with pytest.raises(ValueError, match="subject"):
+        subscribe_pose(zconfig.ZenohSettings(connect=(router,)), "bad/subject", on_frame)
+    text = render("watchM", pose_frame(5), 50.0)
+    assert "watchM  exact #5" in text and "l_wrist" in text and "°" in text, text
+
+    proc = subprocess.Popen([sys.executable, "-m", "limbstream.cli", "watch", "watchM", "--connect", router,
+                             "--count", "2", "--timeout", "20", "--refresh", "20"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        seq = 10
+        while proc.poll() is None and seq < 3000:
+            pub.put(wire.pose_key("watchM"), wire.encode_pose(pose_frame(seq)))
+            seq += 1
+            time.sleep(0.01)  # publishing rate of the stand-in aggregator, not a synchronisation
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "watchM  exact #" in out and "frames/s" in out and "joints (m, Y up)" in out, out

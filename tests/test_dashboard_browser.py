@@ -1,0 +1,105 @@
+"""The web page in headless Chromium against the real stack: router, emulator, aggregator and
+dashboard as subprocesses. Writes tests/artifacts/dashboard.png for inspection."""
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
+
+CHROMIUM = os.environ.get("LIMBSTREAM_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1, EXCLUDE localhost",
+]
+ARTIFACTS = ROOT / "tests" / "artifacts"
+SUBJECTS = 2
+TOKEN = "browser-test-token"
+
+playwright_api = pytest.importorskip("playwright.sync_api")
+
+
+def require_chromium() -> str:
+    if not (Path(CHROMIUM).exists() or shutil.which(CHROMIUM)):
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(f"Chromium not found at {CHROMIUM} (set LIMBSTREAM_CHROMIUM)")
+        pytest.skip(f"Chromium not found at {CHROMIUM} (set LIMBSTREAM_CHROMIUM)")
+    return CHROMIUM
+
+
+ROWS_READY = """(n) => {
+  const rows = [...document.querySelectorAll('#devices-body tr.device')];
+  return rows.length === n && rows.every(r => Number(r.dataset.rate) > 0 && r.dataset.icr !== '');
+}"""
+
+SKELETONS_DRAWN = """(n) => {
+  const canvases = [...document.querySelectorAll('.skeleton canvas')];
+  if (canvases.length !== n) return false;
+  return canvases.every(c => {
+    if (Number(c.dataset.frames) < 5) return false;
+    const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let lit = 0;
+    for (let i = 3; i < px.length; i += 4) if (px[i] > 0) lit++;
+    return lit > 2000;
+  });
+}"""
+
+
+@pytest.mark.slow
+def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
+    chromium = require_chromium()
+    stack.router()
+    stack.emulator(SUBJECTS, 1.0)
+    stack.aggregator()
+    url = stack.dashboard(env={"LIMBSTREAM_API_TOKEN": TOKEN, "LIMBSTREAM_MODE": "production"})
+    n_devices = SUBJECTS * 10
+    wait_until(lambda: sum(1 for d in http_json(url + "/api/devices")[1] if d["msgs_per_s"]) == n_devices,
+               60, f"{n_devices} devices with a data rate", interval=0.2, on_fail=stack.logs)
+
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    errors = []
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1440, "height": 1000})
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(url + "/")
+            page.wait_for_function(ROWS_READY, arg=n_devices, timeout=30_000)
+            page.wait_for_function(SKELETONS_DRAWN, arg=SUBJECTS, timeout=30_000)
+            rows = page.eval_on_selector_all(
+                "#devices-body tr.device",
+                "rs => rs.map(r => [r.dataset.device, Number(r.dataset.rate), Number(r.dataset.icr), r.dataset.online])")
+            devices = {d["device"] for d in http_json(url + "/api/devices")[1]}
+            assert {r[0] for r in rows} == devices and len(devices) == n_devices, (rows, devices)
+            for device, rate, icr, online in rows:
+                assert rate > 0 and 0 < icr <= 1 and online == "true", (device, rate, icr, online)
+            assert page.text_content("#tot-online") == f"{n_devices} / {n_devices}"
+            # charts got data for the selected device
+            page.wait_for_function("() => document.querySelectorAll('#chart-icr .u-over').length === 1", timeout=10_000)
+
+            # threshold control: a wrong token is refused, the right one is confirmed by every device
+            page.select_option("#ctl-target", "subject:s01")
+            page.fill("#ctl-threshold", "0.02")
+            page.fill("#ctl-token", "wrong")
+            page.click("#ctl-apply")
+            page.wait_for_function("() => /403/.test(document.querySelector('#ctl-result').textContent)",
+                                   timeout=10_000)
+            page.fill("#ctl-token", TOKEN)
+            page.click("#ctl-apply")
+            page.wait_for_function("() => /confirmed by 10\\/10/.test(document.querySelector('#ctl-result').textContent)",
+                                   timeout=20_000)
+            assert "threshold 0.02" in page.text_content("#ctl-result")
+            wait_until(lambda: all(d["threshold"] == 0.02 for d in http_json(url + "/api/devices")[1]
+                                   if d["subject"] == "s01"), 20, "aggregator reporting the new threshold",
+                       interval=0.2, on_fail=stack.logs)
+            page.wait_for_function("""() => [...document.querySelectorAll('#devices-body tr[data-device^="s01/"]')]
+                .every(r => r.lastElementChild.textContent === '0.0200')""", timeout=10_000)
+            page.screenshot(path=str(ARTIFACTS / "dashboard.png"), full_page=True)
+        finally:
+            browser.close()
+    assert not errors, errors
+    assert (ARTIFACTS / "dashboard.png").stat().st_size > 20_000

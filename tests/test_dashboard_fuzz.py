@@ -1,0 +1,69 @@
+"""Property-based fuzz of the dashboard API from its OpenAPI schema (schemathesis): no request,
+authenticated or not, gets a 5xx, and every response conforms to the schema."""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+import uvicorn
+from hypothesis import HealthCheck, settings
+
+from limbstream import wire, zconfig
+from services.dashboard.app import create_app
+from services.dashboard.settings import DashboardSettings
+from stack import free_port, http_json, wait_until
+from test_dashboard_api import Device, device_stats, pose_frame
+
+schemathesis = pytest.importorskip("schemathesis")
+
+TOKEN = "fuzz-token"
+
+
+@pytest.fixture(scope="module")
+def served():
+    """A router, a publisher with one answering device and one subject's frames, and the
+    dashboard served by uvicorn on a free port (in a thread)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = zconfig.open_session(zconfig.ZenohSettings(mode="router", connect=(), listen=(endpoint,)))
+    pub = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+    device = Device(pub, "s0", "hip")
+    port = free_port()
+    app = create_app(DashboardSettings(router=endpoint, api_token=TOKEN, config_timeout_s=1.0))
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    url = f"http://127.0.0.1:{port}"
+    try:
+        wait_until(lambda: http_json(url + "/health", timeout=1)[0] == 200, 20, "dashboard health")
+
+        def feed():
+            pub.put(wire.stats_key("s0"), wire.encode_stats("s0", time.time(), [device_stats("s0", "hip")]))
+            pub.put(wire.pose_key("s0"), wire.encode_pose(pose_frame(1)))
+            return http_json(url + "/api/subjects/s0/pose")[0] == 200 and http_json(url + "/api/devices/s0/hip")[0] == 200
+        wait_until(feed, 20, "s0 stats and pose")
+        yield url
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        device.queryable.undeclare()
+        pub.close()
+        router.close()
+
+
+@pytest.fixture(scope="module")
+def api_schema(served):
+    schema = schemathesis.openapi.from_url(served + "/openapi.json")
+    return schema.exclude(path_regex="^/sse/")  # endless streams (tested in test_dashboard_api)
+
+
+schema = schemathesis.pytest.from_fixture("api_schema")
+
+
+@schema.parametrize()
+@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+def test_no_server_errors(case, served):
+    for headers in ({"Authorization": f"Bearer {TOKEN}"}, None):
+        response = case.call(base_url=served, headers=headers, timeout=10)
+        assert response.status_code < 500, (case.method, case.formatted_path, response.status_code, response.text[:300])
+        case.validate_response(response)

@@ -1,0 +1,96 @@
+"""Exact Cortex-M4 instruction counts per call under QEMU (firmware_c/tools/icount.py).
+
+The ceiling below is the maximum the kernel reached (docs/kernel.md, "Cortex-M4 and
+instruction counts"); a change that makes fastsw_update's slowest branch longer fails.
+"""
+from __future__ import annotations
+
+import importlib.util
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import IN_CI, ROOT
+
+FIRMWARE = ROOT / "firmware_c"
+TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-nm", "arm-none-eabi-objdump", "qemu-system-arm", "make")
+
+FASTSW_MAX_INSTRUCTIONS = 130
+"""Reached maximum of fastsw_update per sample (paper, Table 2: 210)."""
+
+
+def require_tools() -> None:
+    """Skip without the cross toolchain and QEMU; fail in CI."""
+    missing = [tool for tool in TOOLS if shutil.which(tool) is None]
+    if missing:
+        message = f"Cortex-M4 tools not installed: {missing} (apt install gcc-arm-none-eabi qemu-system-arm)"
+        if IN_CI:
+            pytest.fail(message)
+        pytest.skip(message)
+
+
+def load_icount():
+    spec = importlib.util.spec_from_file_location("m4_icount", FIRMWARE / "tools" / "icount.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def build_dir(tmp_path_factory) -> Path:
+    require_tools()
+    build = tmp_path_factory.mktemp("icount")
+    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, f"make m4 failed:\n{done.stdout}\n{done.stderr}"
+    return build
+
+
+@pytest.fixture(scope="module")
+def counts(build_dir) -> dict:
+    return load_icount().measure(build_dir / "icount.elf")
+
+
+def test_counting_is_exact(counts):
+    """A naked function of known length (3 + 3k instructions) is counted exactly."""
+    assert len(counts["probe"]) == 3
+    for k, measured, expected in counts["probe"]:
+        assert measured == expected, f"icount_probe({k}): counted {measured}, it has {expected}"
+
+
+def test_fastsw_max_within_ceiling(counts):
+    fastsw = counts["fastsw"]
+    for branch in ("first", "normal", "ssr_break", "max_len_break", "reject_nan", "reject_time"):
+        assert fastsw.get(branch), f"branch {branch} never taken"
+    assert counts["fastsw_max"] <= FASTSW_MAX_INSTRUCTIONS, (
+        f"fastsw_update takes up to {counts['fastsw_max']} instructions ({counts['fastsw_max_branch']}), "
+        f"ceiling {FASTSW_MAX_INSTRUCTIONS}"
+    )
+    # constant time: every call of one branch costs the same, whatever the segment length
+    for branch in ("normal", "ssr_break", "max_len_break"):
+        assert len(set(fastsw[branch])) == 1, f"{branch}: counts vary {sorted(set(fastsw[branch]))}"
+
+
+def test_sw_cost_is_linear_in_segment_length(counts):
+    a, b = counts["sw_a"], counts["sw_b"]
+    assert counts["sw_n"][0] == 0 and counts["sw_n"][-1] == 200, counts["sw_n"][:3]
+    assert 15 <= b <= 60, f"SW slope {b:.2f} instructions per buffered sample (paper: 35)"
+    assert 20 <= a <= 300, f"SW intercept {a:.1f} (paper: 161)"
+    assert counts["sw_residual_max"] <= 2.0, f"SW count not linear: residual {counts['sw_residual_max']}"
+    # at n = 200 SW costs far more than fastSW's worst case
+    assert counts["sw_count"][-1] > 20 * counts["fastsw_max"]
+
+
+def test_make_icount_prints_table(build_dir):
+    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "icount", f"BUILD={build_dir}"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    lines = re.findall(r"^fastsw max instructions per sample: (\d+)$", done.stdout, re.MULTILINE)
+    assert len(lines) == 1, done.stdout
+    assert int(lines[0]) <= FASTSW_MAX_INSTRUCTIONS, done.stdout
+    assert "ssr_break" in done.stdout and "least-squares fit" in done.stdout, done.stdout

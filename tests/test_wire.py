@@ -1,0 +1,140 @@
+"""The wire contract: codecs round-trip, reject bad payloads by reason, and the C encoder agrees."""
+from __future__ import annotations
+
+import ctypes
+import json
+import math
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from limbstream import kernel, wire
+from limbstream.sources import SEGMENTS
+
+u16 = st.integers(0, 0xFFFF)
+u32 = st.integers(0, 0xFFFFFFFF)
+i64 = st.integers(-(2**63), 2**63 - 1)
+
+
+def unit_quaternions():
+    return st.lists(st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4).filter(
+        lambda v: sum(x * x for x in v) > 0.1).map(lambda v: tuple(np.float32(np.array(v) / np.linalg.norm(v))))
+
+
+_lib = kernel._lib
+_lib.lsw_encode_point.argtypes = [ctypes.c_char_p, ctypes.c_uint8, ctypes.c_uint16, ctypes.c_uint32,
+                                  ctypes.POINTER(kernel.Point), ctypes.c_int64]
+_lib.lsw_encode_point.restype = ctypes.c_uint32
+
+
+def c_encode(p: wire.SegmentPoint) -> bytes:
+    point = kernel.Point()
+    point.index, point.t = p.index, 0
+    for d in range(4):
+        point.y[d] = p.q[d]
+    out = ctypes.create_string_buffer(wire.POINT_SIZE)
+    assert _lib.lsw_encode_point(out, p.flags, p.stream, p.seq, ctypes.byref(point), p.t_us) == wire.POINT_SIZE
+    return out.raw
+
+
+@settings(max_examples=2000, deadline=None)
+@given(u16, u32, u32, i64, unit_quaternions(), st.integers(0, 255))
+def test_c_encoder_and_python_codec_agree_byte_for_byte(stream, seq, index, t_us, q, flags):
+    p = wire.SegmentPoint(stream, seq, index, t_us, tuple(float(v) for v in q), flags)
+    encoded = wire.encode_point(p)
+    assert c_encode(p) == encoded
+    assert wire.decode_point(encoded) == p
+
+
+
+def test_point_is_36_bytes_little_endian():
+    p = wire.SegmentPoint(0x0102, 0x03040506, 7, 0x1122334455667788, (1.0, 0.0, 0.0, 0.0), wire.FLAG_FINAL)
+    raw = wire.encode_point(p)
+    assert len(raw) == 36 <= 40
+    assert raw[:4] == bytes([wire.VERSION, 1, 0x02, 0x01])
+    assert raw[4:8] == bytes([6, 5, 4, 3])
+    assert raw[12:20] == bytes.fromhex("8877665544332211")
+    assert raw[20:24] == struct.pack("<f", 1.0)
+
+
+@pytest.mark.parametrize("mutate, reason", [
+    (lambda b: b[:-1], "size"),
+    (lambda b: b + b"\0", "size"),
+    (lambda b: bytes([9]) + b[1:], "version"),
+    (lambda b: b[:20] + struct.pack("<4f", math.nan, 0, 0, 0), "non_finite"),
+    (lambda b: b[:20] + struct.pack("<4f", math.inf, 0, 0, 0), "non_finite"),
+    (lambda b: b[:20] + struct.pack("<4f", 0.5, 0, 0, 0), "non_unit"),
+    (lambda b: b[:20] + struct.pack("<4f", 0, 0, 0, 0), "non_unit"),
+])
+def test_bad_points_are_rejected_with_a_reason(mutate, reason):
+    good = wire.encode_point(wire.SegmentPoint(1, 2, 3, 4, (0.0, 1.0, 0.0, 0.0)))
+    with pytest.raises(wire.WireError) as err:
+        wire.decode_point(mutate(good))
+    assert err.value.reason == reason
+
+
+def test_raw_batch_round_trip_and_errors():
+    rng = np.random.default_rng(0)
+    t = 1_700_000_000_000_000 + np.arange(25) * 20_000
+    q = rng.normal(size=(25, 4)).astype(np.float32)
+    batch = wire.RawBatch(7, 1000, t, q)
+    back = wire.decode_raw(wire.encode_raw(batch))
+    assert back.stream == 7 and back.first_index == 1000
+    assert np.array_equal(back.t_us, t) and np.array_equal(back.q, q)
+    raw = wire.encode_raw(batch)
+    for bad, reason in ((raw[:-3], "size"), (raw[:10], "size"), (bytes([2]) + raw[1:], "version")):
+        with pytest.raises(wire.WireError) as err:
+            wire.decode_raw(bad)
+        assert err.value.reason == reason
+
+
+def test_pose_frame_round_trip():
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(len(SEGMENTS), 4)).astype(np.float32)
+    joints = rng.normal(size=(len(wire.JOINTS), 3)).astype(np.float32)
+    frame = wire.PoseFrame(5, 123456789, wire.KIND_LIVE, wire.FRAME_GAP, q, joints)
+    back = wire.decode_pose(wire.encode_pose(frame))
+    assert (back.seq, back.t_us, back.kind, back.flags) == (5, 123456789, wire.KIND_LIVE, wire.FRAME_GAP)
+    assert np.array_equal(back.q, q) and np.array_equal(back.joints, joints)
+    as_json = back.to_json("s01")
+    assert as_json["kind"] == "live" and as_json["gap"] and set(as_json["segments"]) == set(SEGMENTS)
+    with pytest.raises(wire.WireError):
+        wire.decode_pose(wire.encode_pose(frame)[:-1])
+
+
+def test_stats_round_trip_and_null_for_non_finite():
+    device = {k: 0 for k in wire.STATS_FIELDS} | {"device": "s01/hip", "aad_deg": math.nan}
+    data = wire.decode_stats(wire.encode_stats("s01", 1.5, [device], {"frames": 3}))
+    assert data["subject"] == "s01" and data["frames"] == 3
+    assert data["devices"][0]["aad_deg"] is None
+    with pytest.raises(wire.WireError):
+        wire.decode_stats(b"{not json")
+    with pytest.raises(wire.WireError):
+        wire.decode_stats(json.dumps({"subject": "s01", "devices": [{"device": "x"}]}).encode())
+
+
+def test_keys_and_bad_chunks():
+    assert wire.seg_key("s01", "l_shank") == "limbstream/s01/l_shank/seg"
+    assert wire.parse_device_key("limbstream/s01/l_shank/raw") == ("s01", "l_shank", "raw")
+    for bad in ("limbstream/s01/seg", "other/s01/x/seg", "limbstream/s 1/x/seg"):
+        with pytest.raises(wire.WireError):
+            wire.parse_device_key(bad)
+    for bad in ("", "a/b", "*", "x y"):
+        with pytest.raises(ValueError):
+            wire.device_id(bad, "hip")
+
+
+def test_config_validation():
+    assert wire.decode_config(b'{"threshold": 0.01, "max_len": 25}') == wire.DeviceConfig(0.01, 25)
+    current = wire.DeviceConfig(0.01, 25)
+    assert wire.decode_config(b'{"threshold": 0.5}', current) == wire.DeviceConfig(0.5, 25)
+    assert wire.decode_config(b'{"max_len": 7}', current) == wire.DeviceConfig(0.01, 7)
+    for bad, words in ((b'{"threshold": -1, "max_len": 25}', "threshold"), (b'{"threshold": 0.1, "max_len": 0}', "max_len"),
+                       (b'{"threshold": "x", "max_len": 5}', "threshold"), (b'{"max_len": 5}', "needs"),
+                       (b"[]", "object"), (b"\xff", "JSON"), (b'{"max_len": 5.5}', "max_len"),
+                       (b'{"threshold": true}', "threshold"), (b'{"speed": 1}', "unknown"), (b"{}", "needs")):
+        with pytest.raises(wire.WireError, match=words):
+            wire.decode_config(bad, current if b"speed" in bad or bad == b"{}" else None)
