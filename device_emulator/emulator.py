@@ -14,7 +14,7 @@ import logging
 import random
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import zenoh
@@ -61,22 +61,20 @@ class Device:
     publisher: object = None
     token: object = None
     seq: int = 0
-    samples: int = 0
     points: int = 0
     threshold: float = 0.0
     max_len: int = 0
-    raw_t: list = field(default_factory=list)
-    raw_q: list = field(default_factory=list)
-    raw_first: int = 0
+    raw_next: int = 0  # first sample index not yet on the truth tap
 
     @property
     def id(self) -> str:
         return wire.device_id(self.subject, self.segment)
 
-    def status(self) -> dict:
-        """The device's own view: config and counters (the config queryable's reply)."""
+    def status(self, samples: int) -> dict:
+        """The device's own view: config and counters (the config queryable's reply);
+        ``samples``: samples taken so far (all devices of an emulator sample together)."""
         return {"device": self.id, "threshold": self.threshold, "max_len": self.max_len,
-                "stream": self.stream, "samples": self.samples, "points": self.points}
+                "stream": self.stream, "samples": samples, "points": self.points}
 
 
 @dataclass
@@ -110,7 +108,11 @@ class Emulator:
         self.bank = kernel.SegmenterBank(len(self.devices), settings.threshold, settings.max_len)
         self.length = max((f.length or 0) for f in feeds.values()) if all(f.length for f in feeds.values()) else None
         self.tick_stats = TickStats()
+        batch = settings.raw_batch
+        self._ring_t = np.zeros(batch, np.int64)                         # last `batch` sample times
+        self._ring_q = np.zeros((batch, len(self.devices), 4), np.float32)  # and samples of every device
         self.start_us = 0
+        self.samples = 0
         self.finished = threading.Event()
         self._declared = False
 
@@ -167,7 +169,7 @@ class Emulator:
                 self.bank.retune(d.slot, config.threshold, config.max_len)
                 d.threshold, d.max_len = config.threshold, config.max_len
                 log.info("%s: threshold %g, max_len %d", d.id, d.threshold, d.max_len)
-            query.reply(wire.config_key(d.subject, d.segment), json.dumps(d.status()))
+            query.reply(wire.config_key(d.subject, d.segment), json.dumps(d.status(self.samples)))
 
     # ------------------------------------------------------------------ ticks
 
@@ -183,23 +185,23 @@ class Emulator:
         d.seq = (d.seq + 1) & 0xFFFFFFFF
         d.points += 1
 
-    def _tap(self, k: int, t_us: int, samples: np.ndarray, final: bool = False) -> None:
-        """Truth tap: buffer raw samples; publish a device's batch when full (staggered over devices)."""
+    def _tap(self, k: int, t_us: int, samples: np.ndarray) -> None:
+        """Truth tap: keep the last raw_batch samples of every device in a ring; each device
+        publishes its batch when full, staggered over devices so each tick sends a few."""
         batch = self.settings.raw_batch
-        for d in self.devices:
-            if not d.raw_t:
-                d.raw_first = k
-            d.raw_t.append(t_us)
-            d.raw_q.append(samples[d.slot])
-            if final or len(d.raw_t) >= batch and (k + d.slot) % batch == 0 or len(d.raw_t) >= 2 * batch:
-                self._flush_tap(d)
+        self._ring_t[k % batch] = t_us
+        self._ring_q[k % batch] = samples
+        for slot in range(-(k % batch) % batch, len(self.devices), batch):  # (k + slot) % batch == 0
+            self._flush_tap(self.devices[slot], k)
 
-    def _flush_tap(self, d: Device) -> None:
-        if d.raw_t:
-            payload = wire.encode_raw(wire.RawBatch(d.stream, d.raw_first, np.asarray(d.raw_t, np.int64),
-                                                    np.asarray(d.raw_q, np.float32)))
-            self._raw_pubs[d.slot].put(payload)
-            d.raw_t, d.raw_q = [], []
+    def _flush_tap(self, d: Device, k: int) -> None:
+        """Publish device d's samples d.raw_next .. k (at most raw_batch, all still in the ring)."""
+        if k < d.raw_next:
+            return
+        rows = np.arange(d.raw_next, k + 1) % self.settings.raw_batch
+        payload = wire.encode_raw(wire.RawBatch(d.stream, d.raw_next, self._ring_t[rows], self._ring_q[rows, d.slot]))
+        self._raw_pubs[d.slot].put(payload)
+        d.raw_next = k + 1
 
     def step(self, k: int) -> None:
         """Sample k of every device: kernel, segment points, truth tap, config."""
@@ -207,8 +209,7 @@ class Emulator:
         samples = np.concatenate([feed.sample(k) for feed in self.feeds.values()])
         ticks = np.full(len(self.devices), (t_us - self.start_us) & 0xFFFFFFFF, np.uint32)
         status, index, y = self.bank.update(ticks, samples)
-        for d in self.devices:
-            d.samples += 1
+        self.samples = k + 1
         self._publish_points(k, status, index, y)
         if self.settings.truth:
             self._tap(k, t_us, samples)
@@ -222,7 +223,7 @@ class Emulator:
             if last is not None:
                 self._publish_point(d, last[0], last[2], period_us, wire.FLAG_FINAL)
             if self.settings.truth:
-                self._flush_tap(d)
+                self._flush_tap(d, self.samples - 1)
         self.finished.set()
 
     def run(self, stop: threading.Event, duration_s: float | None = None) -> TickStats:

@@ -44,7 +44,11 @@ class LoopFeed:
 
 
 class GeneratorFeed:
-    """The built-in synthetic motion of one subject, generated in chunks as time goes on."""
+    """The built-in synthetic motion of one subject, generated in chunks as time goes on.
+
+    Chunk boundaries are staggered by seed, so many subjects in one process do not all
+    generate their next chunk on the same tick.
+    """
 
     CHUNK_S = 10.0
 
@@ -52,14 +56,18 @@ class GeneratorFeed:
         self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg)
         self.segments = self.source.segments
         self.chunk_len = int(round(self.CHUNK_S * fs))
+        self.offset = (seed * 7919) % self.chunk_len
         self.length = None
-        self._chunk_index = -1
+        self._start = 0
         self._chunk = np.zeros((0, len(self.segments), 4), np.float32)
 
     def sample(self, k: int) -> np.ndarray:
         """(S, 4) float32 orientations at sample k."""
-        c, i = divmod(k, self.chunk_len)
-        if c != self._chunk_index:
-            self._chunk = self.source.chunk(c * self.chunk_len, self.chunk_len)[1].astype(np.float32)
-            self._chunk_index = c
+        i = k - self._start
+        if not 0 <= i < len(self._chunk):
+            c = (k + self.offset) // self.chunk_len
+            self._start = max(0, c * self.chunk_len - self.offset)
+            end = (c + 1) * self.chunk_len - self.offset
+            self._chunk = self.source.chunk(self._start, end - self._start)[1].astype(np.float32)
+            i = k - self._start
         return self._chunk[i]

@@ -94,8 +94,8 @@ def test_health_docs_and_page(client):
         assert path in paths, f"{path} missing from OpenAPI: {sorted(paths)}"
     page = client.get("/")
     assert page.status_code == 200 and "limbstream" in page.text and "uPlot.iife.min.js" in page.text
-    assert client.get("/vendor/uPlot.iife.min.js").status_code == 200
-    assert "WebSocket" in client.get("/app.js").text
+    assert client.get("/static/vendor/uPlot.iife.min.js").status_code == 200
+    assert "WebSocket" in client.get("/static/app.js").text
 
 
 def test_devices_carry_every_stats_field(client, pub):

@@ -64,6 +64,11 @@ class LoopStats:
     frames: int = 0
     missed: int = 0          # reported by Zenoh's miss detection (not recoverable)
     max_backlog: int = 0     # most messages drained in one tick
+    recent_backlog: int = 0  # most messages drained in one tick since the last stats message
+
+    def as_dict(self) -> dict:
+        """The counters as published in every stats message (``"aggregator"`` entry)."""
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
 class Aggregator:
@@ -204,6 +209,7 @@ class Aggregator:
                 pass
         self._config_replies = open_replies
         self.loop.max_backlog = max(self.loop.max_backlog, handled)
+        self.loop.recent_backlog = max(self.loop.recent_backlog, handled)
         return handled
 
     def poll_configs(self) -> None:
@@ -250,8 +256,10 @@ class Aggregator:
         for subject in list(self.subjects):
             snapshot = self.subject_stats(subject, now)
             devices = snapshot.pop("devices")
+            snapshot["aggregator"] = self.loop.as_dict()  # load / soak figures (bench/soak.py)
             payload = wire.encode_stats(subject, wall, devices, snapshot)
             self.session.put(wire.stats_key(subject), payload)
+        self.loop.recent_backlog = 0
 
     # ------------------------------------------------------------------ loop
 

@@ -61,5 +61,5 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         loop = aggregator.run(stop)
         aggregator.close()
     print(f"aggregator: {loop.ticks} ticks ({loop.late} late), {loop.points} points, {loop.frames} frames, "
-          f"{loop.missed} missed", flush=True)
+          f"{loop.missed} missed, max backlog {loop.max_backlog}", flush=True)
     return 0

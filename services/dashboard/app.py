@@ -1,4 +1,5 @@
-"""Assembles the dashboard app: settings, lifespan (Zenoh session), routers, static page."""
+"""Assembles the dashboard app: settings, lifespan (Zenoh session), routers, the page at ``/``
+(its files under ``/static``)."""
 from __future__ import annotations
 
 import asyncio
@@ -9,6 +10,7 @@ from contextlib import asynccontextmanager
 import zenoh
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from .metrics import build_registry
@@ -77,5 +79,12 @@ def create_app(settings: DashboardSettings | None = None, session: zenoh.Session
                            allow_methods=["GET", "PUT"], allow_headers=["Authorization", "Content-Type"])
     for module in (ops, devices, subjects, live):
         app.include_router(module.router)
-    app.mount("/", StaticFiles(directory=settings.static_dir, html=True), name="page")
+    index = settings.static_dir / "index.html"
+
+    @app.get("/", include_in_schema=False)
+    async def page() -> FileResponse:
+        return FileResponse(index, headers={"Cache-Control": "no-cache"})
+
+    # Under /static, not at /: a mount at / would answer every unknown method on an API path.
+    app.mount("/static", StaticFiles(directory=settings.static_dir), name="static")
     return app

@@ -1,7 +1,7 @@
 """Typed request and response bodies of the dashboard API."""
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -85,18 +85,19 @@ class Pose(BaseModel):
 
 
 class Skeleton(BaseModel):
-    joints: list[str]
-    bones: list[tuple[str, str]]
+    joints: list[str] = Field(description="joint names, in the order of pose frames")
+    bones: list[Annotated[list[str], Field(min_length=2, max_length=2)]] = Field(
+        description="pairs of joints to draw a line between")
 
 
 class ConfigUpdate(BaseModel):
     """New device settings; a field left out keeps the device's current value."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"minProperties": 1})
 
-    threshold: float | None = Field(None, ge=0, le=1e6, allow_inf_nan=False,
-                                    description="SSR threshold of the fastSW kernel (>= 0)")
-    max_len: int | None = Field(None, ge=1, le=100_000, description="max segment length, samples")
+    threshold: float = Field(None, ge=0, le=1e6, allow_inf_nan=False,
+                             description="SSR threshold of the fastSW kernel (>= 0)")
+    max_len: int = Field(None, ge=1, le=100_000, description="max segment length, samples")
 
     @model_validator(mode="after")
     def _something(self) -> "ConfigUpdate":

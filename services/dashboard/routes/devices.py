@@ -45,7 +45,7 @@ async def device_history(subject: SubjectPath, segment: SegmentPath, live: LiveD
 
 
 @router.put("/{subject}/{segment}/config", response_model=DeviceConfig, dependencies=[TokenDep],
-            responses={401: {"description": "no bearer token"}, 403: {"description": "bad token or control disabled"},
+            responses={400: {"description": "the body is not decodable JSON"}, 401: {"description": "no bearer token"}, 403: {"description": "bad token or control disabled"},
                        **NOT_FOUND, 504: {"description": "the device did not confirm in time"},
                        502: {"description": "the device answered with something else than a config"}})
 async def put_config(subject: SubjectPath, segment: SegmentPath, body: ConfigUpdate, request: Request,

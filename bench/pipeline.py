@@ -1,0 +1,227 @@
+"""Live-pipeline benchmarks (docs/benchmarks.md), on loopback with a real router process.
+
+    python bench/pipeline.py emulator     # devices one emulator process sustains at 50 Hz
+    python bench/pipeline.py aggregator   # points/s and subjects one aggregator process fuses
+    python bench/pipeline.py latency      # segment point publish -> first frame using it
+    python bench/pipeline.py all
+
+Every run prints a markdown table. The router is `limbstream router` in its own process;
+the component measured runs in this process so its own loop counters can be read.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import zenoh
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
+from device_emulator.feeds import GeneratorFeed  # noqa: E402
+from device_emulator.main import subject_names  # noqa: E402
+from limbstream import wire, zconfig  # noqa: E402
+from services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Router:
+    """`limbstream router` in a child process on a free port."""
+
+    def __enter__(self):
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.proc = subprocess.Popen([sys.executable, "-m", "limbstream.cli", "router", "--listen", self.endpoint],
+                                     cwd=ROOT, stdout=subprocess.DEVNULL)
+        host, port = self.endpoint[4:].split(":")
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection((host, int(port)), 0.2).close()
+                return self
+            except OSError:
+                time.sleep(0.05)
+        raise RuntimeError("router did not start")
+
+    def cpu_s(self) -> float:
+        with open(f"/proc/{self.proc.pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def __exit__(self, *exc):
+        self.proc.terminate()
+        self.proc.wait(10)
+
+
+def client(endpoint: str) -> zenoh.Session:
+    return zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+
+
+def start_emulator_process(endpoint: str, subjects: int, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "limbstream.cli", "emulate", "--connect", endpoint,
+                             "--subjects", str(subjects), *extra], cwd=ROOT, stdout=subprocess.DEVNULL)
+
+
+def cpu_now() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+# ----------------------------------------------------------------------------- emulator
+
+
+def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
+    print(f"\n### Devices per emulator process ({seconds:g} s at 50 Hz each, truth tap {'on' if truth else 'off'},"
+          " router in its own process, no aggregator)\n")
+    print("| devices | ticks | late ticks | busy (of 1 core) | emulator CPU | router CPU | points/s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for n in counts:
+        with Router() as router:
+            session = client(router.endpoint)
+            feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
+            emulator = Emulator(session, feeds, EmulatorSettings(truth=truth))
+            emulator.declare()
+            stop = threading.Event()
+            timer = threading.Timer(seconds, stop.set)
+            cpu0, rcpu0 = cpu_now(), router.cpu_s()
+            timer.start()
+            ticks = emulator.run(stop)
+            cpu, rcpu = cpu_now() - cpu0, router.cpu_s() - rcpu0
+            points = sum(d.points for d in emulator.devices)
+            emulator.undeclare()
+            session.close()
+        print(f"| {n} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
+              f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {100 * rcpu / seconds:.0f} % | "
+              f"{points / seconds:.0f} |")
+
+
+# ----------------------------------------------------------------------------- aggregator
+
+
+def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
+    print(f"\n### One aggregator process ({seconds:g} s; devices in a separate emulator process, 50 Hz, truth tap on)\n")
+    print("| subjects | devices | points/s in | frames/s out | expected frames/s | late ticks | "
+          "aggregator CPU | max drained per tick | gaps | dropped |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for subjects in subject_counts:
+        with Router() as router:
+            emu = start_emulator_process(router.endpoint, subjects)
+            session = client(router.endpoint)
+            agg = Aggregator(session, AggregatorSettings(live_rate=0.0))
+            agg.open()
+            stop = threading.Event()
+            thread = threading.Thread(target=agg.run, args=(stop,))
+            thread.start()
+            deadline = time.monotonic() + 60  # warm-up: every device seen and frames flowing
+            while time.monotonic() < deadline and not (
+                    len(agg.subjects) == subjects and all(f.frames > 0 for f in agg.subjects.values())):
+                time.sleep(0.1)
+            p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.late, agg.loop.ticks
+            cpu0, wall0 = cpu_now(), time.monotonic()
+            stop.wait(seconds)
+            wall = time.monotonic() - wall0
+            cpu = cpu_now() - cpu0
+            points, frames = agg.loop.points - p0, agg.loop.frames - f0
+            late, ticks = agg.loop.late - l0, agg.loop.ticks - t0
+            stop.set()
+            thread.join()
+            tracks = [t for f in agg.subjects.values() for t in f.tracks.values()]
+            gaps = sum(t.gaps for t in tracks)
+            dropped = sum(sum(t.dropped.values()) for t in tracks)
+            agg.close()
+            session.close()
+            emu.terminate()
+            emu.wait(10)
+        print(f"| {subjects} | {10 * subjects} | {points / wall:.0f} | {frames / wall:.0f} | {50 * subjects} | "
+              f"{100 * late / max(ticks, 1):.2f} % | {100 * cpu / wall:.0f} % | {agg.loop.max_backlog} | {gaps} | "
+              f"{dropped} |")
+
+
+# ----------------------------------------------------------------------------- latency
+
+
+def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
+    """Arrival of each segment point vs arrival of the first exact frame at or after its time."""
+    with Router() as router:
+        emu = start_emulator_process(router.endpoint, subjects, "--max-len", str(max_len))
+        agg = subprocess.Popen([sys.executable, "-m", "limbstream.cli", "aggregate", "--connect", router.endpoint],
+                               cwd=ROOT, stdout=subprocess.DEVNULL)
+        session = client(router.endpoint)
+        seg = session.declare_subscriber("limbstream/s01/*/seg", zenoh.handlers.FifoChannel(1 << 16))
+        pose = session.declare_subscriber("limbstream/s01/pose", zenoh.handlers.FifoChannel(1 << 16))
+        stats = session.declare_subscriber("limbstream/s01/stats", zenoh.handlers.FifoChannel(1024))
+        points, frames, last_stats = [], [], None
+        end = time.monotonic() + seconds + 5
+        while time.monotonic() < end:
+            now = time.monotonic()
+            while (s := seg.try_recv()) is not None:
+                points.append((wire.decode_point(s.payload.to_bytes()).t_us, now))
+            while (s := pose.try_recv()) is not None:
+                f = wire.decode_pose(s.payload.to_bytes())
+                if f.kind == wire.KIND_EXACT:
+                    frames.append((f.t_us, now, time.time()))
+            while (s := stats.try_recv()) is not None:
+                last_stats = json.loads(s.payload.to_bytes())
+            time.sleep(0.001)  # poll period of this measuring client (1 ms resolution)
+        for p in (emu, agg):
+            p.terminate()
+            p.wait(10)
+        session.close()
+    frame_t = np.array([f[0] for f in frames])
+    frame_arrival = np.array([f[1] for f in frames])
+    lat = []
+    for t_us, arrival in points[len(points) // 5:]:  # skip warm-up
+        k = np.searchsorted(frame_t, t_us)
+        if k < len(frame_t):
+            lat.append(frame_arrival[k] - arrival)
+    lat = np.array(lat) * 1e3
+    sample_lag = np.array([(wall - t_us / 1e6) for t_us, _, wall in frames[len(frames) // 5:]]) * 1e3
+    devices = last_stats["devices"] if last_stats else []
+    bps = np.mean([d["bytes_per_s"] for d in devices]) if devices else float("nan")
+    mps = np.mean([d["msgs_per_s"] for d in devices]) if devices else float("nan")
+    print(f"\n### Latency ({seconds:g} s, {subjects} subjects, max segment length {max_len}, 50 Hz)\n")
+    print("| measure | p50 | p99 | max |")
+    print("|---|---:|---:|---:|")
+    print(f"| segment point arrival -> first exact frame using it (ms) | {np.percentile(lat, 50):.1f} | "
+          f"{np.percentile(lat, 99):.1f} | {lat.max():.1f} |")
+    print(f"| frame time -> frame arrival, i.e. sample to exact frame (ms) | {np.percentile(sample_lag, 50):.1f} | "
+          f"{np.percentile(sample_lag, 99):.1f} | {sample_lag.max():.1f} |")
+    every = 50 * wire.POINT_SIZE
+    print(f"\nData rate per device: {mps:.2f} msgs/s, {bps:.0f} B/s of segment points; streaming every sample "
+          f"in the same 36-byte message would be {every} B/s ({every / bps:.1f}x more); SlimeVR's 31-byte "
+          f"packets at 100 Hz: 3100 B/s.")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("what", choices=("emulator", "aggregator", "latency", "all"))
+    parser.add_argument("--seconds", type=float, default=20.0, help="measuring time per row")
+    parser.add_argument("--devices", default="500,1000,2000,3000", help="emulator rows (device counts)")
+    parser.add_argument("--subjects", default="20,100,200", help="aggregator rows (subject counts)")
+    parser.add_argument("--no-truth", action="store_true", help="emulator rows without the truth tap")
+    args = parser.parse_args(argv)
+    if args.what in ("emulator", "all"):
+        bench_emulator([int(n) for n in args.devices.split(",")], args.seconds, not args.no_truth)
+    if args.what in ("aggregator", "all"):
+        bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds)
+    if args.what in ("latency", "all"):
+        for max_len in (25, 1000):
+            bench_latency(args.seconds, 2, max_len)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,283 @@
+"""Load and soak: many emulated devices through one router and one aggregator for minutes.
+
+Starts real processes on free loopback ports (router, aggregator, ``--procs`` emulators that
+share the devices), samples the resident memory of each over time, and reads the
+aggregator's stats messages. At the end it prints a table: RSS over time per process, the
+growth after warm-up, late ticks, the largest per-tick backlog, dropped / gaps / missed
+segment points, and frames.
+
+    python bench/soak.py                         # 2,000 devices, 10 minutes
+    python bench/soak.py --devices 200 --minutes 1 --check   # CI size; exit 1 if a target fails
+
+Targets (``--check``): RSS growth after warm-up < 10 % per process, late ticks < 1 %,
+dropped 0, gaps 0, missed 0, no backlog growth (the last third's max backlog at most twice
+the first third's, plus a small floor).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import zenoh  # noqa: E402
+
+from limbstream import wire, zconfig  # noqa: E402
+
+SEGMENTS_PER_SUBJECT = 10
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rss_mib(pid: int) -> float:
+    """Resident set size of a process, MiB (0 if gone)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process."""
+    try:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except OSError:
+        return 0.0
+
+
+@dataclass
+class Proc:
+    name: str
+    popen: subprocess.Popen
+    log: Path
+    rss: list = field(default_factory=list)
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace")
+
+
+def start(name: str, args: list[str], workdir: Path) -> Proc:
+    log = workdir / f"{name}.log"
+    with open(log, "wb") as out:
+        popen = subprocess.Popen([sys.executable, "-m", "limbstream.cli", *args], cwd=ROOT, stdout=out,
+                                 stderr=subprocess.STDOUT, env=os.environ | {"PYTHONUNBUFFERED": "1"},
+                                 start_new_session=True)
+    return Proc(name, popen, log)
+
+
+def wait_port(port: int, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise SystemExit(f"soak: router did not listen on port {port} within {timeout:g} s")
+
+
+def stop(procs: list[Proc], grace: float = 20.0) -> None:
+    for p in procs:
+        if p.popen.poll() is None:
+            os.killpg(p.popen.pid, signal.SIGTERM)
+    deadline = time.monotonic() + grace
+    for p in procs:
+        try:
+            p.popen.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            os.killpg(p.popen.pid, signal.SIGKILL)
+            p.popen.wait()
+
+
+class StatsReader:
+    """Latest stats per device and per subject from the aggregator's stats messages."""
+
+    def __init__(self, endpoint: str):
+        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+        self.sub = self.session.declare_subscriber(f"{wire.PREFIX}/*/stats", zenoh.handlers.FifoChannel(1 << 14))
+        self.devices: dict[str, dict] = {}
+        self.subjects: dict[str, dict] = {}
+        self.aggregator: dict = {}
+        self.recent_backlog = 0
+
+    def poll(self) -> None:
+        while (sample := self.sub.try_recv()) is not None:
+            data = wire.decode_stats(sample.payload.to_bytes())
+            self.subjects[data["subject"]] = data
+            agg = data.get("aggregator") or {}
+            if agg.get("ticks", 0) >= self.aggregator.get("ticks", 0):
+                self.aggregator = agg
+            self.recent_backlog = max(self.recent_backlog, agg.get("recent_backlog", 0))
+            for d in data["devices"]:
+                self.devices[d["device"]] = d
+
+    def take_backlog(self) -> int:
+        value, self.recent_backlog = self.recent_backlog, 0
+        return value
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def parse_emulator(text: str) -> tuple[int, float]:
+    """(ticks, late %) from an emulator's final line."""
+    m = re.search(r"emulator: (\d+) ticks, ([\d.]+) % late", text)
+    return (int(m.group(1)), float(m.group(2))) if m else (0, float("nan"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--devices", type=int, default=2000, help="devices (multiple of 10; default 2000)")
+    parser.add_argument("--minutes", type=float, default=10.0, help="duration, minutes (default 10)")
+    parser.add_argument("--procs", type=int, default=2, help="emulator processes sharing the devices (default 2)")
+    parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--truth", action="store_true", help="also stream the truth tap (raw samples)")
+    parser.add_argument("--warmup", type=float, default=None,
+                        help="warm-up, s, before the RSS baseline (default: 20 %% of the run, at most 120 s)")
+    parser.add_argument("--samples", type=int, default=11, help="RSS samples over the run (default 11)")
+    parser.add_argument("--check", action="store_true", help="exit 1 if a target is missed")
+    parser.add_argument("--json", default="", help="also write the results to this JSON file")
+    args = parser.parse_args(argv)
+    if args.devices < SEGMENTS_PER_SUBJECT or args.devices % SEGMENTS_PER_SUBJECT:
+        parser.error(f"--devices must be a positive multiple of {SEGMENTS_PER_SUBJECT}, got {args.devices}")
+    if args.procs < 1 or args.minutes <= 0:
+        parser.error("--procs must be >= 1 and --minutes > 0")
+    subjects = args.devices // SEGMENTS_PER_SUBJECT
+    duration = args.minutes * 60
+    warmup = args.warmup if args.warmup is not None else min(0.2 * duration, 120.0)
+
+    workdir = Path(tempfile.mkdtemp(prefix="limbstream-soak-"))
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = start("router", ["router", "--listen", endpoint], workdir)
+    wait_port(port)
+    procs = [router]
+    procs.append(start("aggregator", ["aggregate", "--connect", endpoint, "--live-rate", "0"], workdir))
+    share, first = [subjects // args.procs + (i < subjects % args.procs) for i in range(args.procs)], 1
+    emulators = []
+    for i, n in enumerate(share):
+        if n:
+            extra = [] if args.truth else ["--no-truth"]
+            emulators.append(start(f"emulator{i}", ["emulate", "--connect", endpoint, "--subjects", str(n),
+                                                    "--first-subject", str(first), "--rate", str(args.rate),
+                                                    *extra], workdir))
+            first += n
+    procs += emulators
+    reader = StatsReader(endpoint)
+    print(f"soak: {args.devices} devices ({subjects} subjects, {len(emulators)} emulator processes), "
+          f"{args.minutes:g} min, truth tap {'on' if args.truth else 'off'}, logs in {workdir}", flush=True)
+
+    times, backlog = [], []
+    t0 = time.monotonic()
+    sample_at = [warmup + k * (duration - warmup) / max(args.samples - 1, 1) for k in range(args.samples)]
+    sample_at = sorted({0.0, 10.0, *sample_at})
+    cpu0 = {p.name: cpu_s(p.popen.pid) for p in procs}
+    try:
+        for at in sample_at:
+            while time.monotonic() - t0 < at:
+                reader.poll()
+                time.sleep(0.2)
+                dead = [p.name for p in procs if p.popen.poll() is not None]
+                if dead:
+                    raise SystemExit(f"soak: {dead} exited early; logs in {workdir}")
+            reader.poll()
+            times.append(time.monotonic() - t0)
+            backlog.append(reader.take_backlog())
+            for p in procs:
+                p.rss.append(rss_mib(p.popen.pid))
+            online = sum(1 for d in reader.devices.values() if d["online"])
+            print(f"  t={times[-1]:6.0f} s  devices online {online:5d}  RSS MiB "
+                  + " ".join(f"{p.name} {p.rss[-1]:.0f}" for p in procs)
+                  + f"  backlog {backlog[-1]}", flush=True)
+        cpu = {p.name: (cpu_s(p.popen.pid) - cpu0[p.name]) / (time.monotonic() - t0) * 100 for p in procs}
+        reader.poll()
+    finally:
+        stop(emulators)
+        time.sleep(1.0)
+        reader.poll()
+        stop([p for p in procs if p not in emulators])
+        reader.close()
+
+    # ------------------------------------------------------------------ results
+    base = next(i for i, t in enumerate(times) if t >= warmup - 1e-6)
+    rows = []
+    for p in procs:
+        ref, top = p.rss[base], max(p.rss[base:])
+        rows.append((p.name, p.rss, ref, 100.0 * (top - ref) / ref if ref else float("nan")))
+    em_ticks = [parse_emulator(p.output()) for p in emulators]
+    em_late = sum(t * late / 100 for t, late in em_ticks) / max(sum(t for t, _ in em_ticks), 1) * 100
+    agg = reader.aggregator
+    agg_late = 100.0 * agg.get("late", 0) / max(agg.get("ticks", 1), 1)
+    devices = reader.devices
+    dropped = sum(d["dropped"] or 0 for d in devices.values())
+    gaps = sum(d["gaps"] or 0 for d in devices.values())
+    points = sum(d["points"] or 0 for d in devices.values())
+    samples = sum(d["samples"] or 0 for d in devices.values())
+    frames = sum(s.get("frames", 0) for s in reader.subjects.values())
+    skipped = sum(s.get("skipped_frames", 0) for s in reader.subjects.values())
+    third = max(1, (len(backlog) - base) // 3)
+    early, late_q = max(backlog[base:base + third] or [0]), max(backlog[-third:] or [0])
+
+    print(f"\nRSS (MiB) at t = " + ", ".join(f"{t:.0f}" for t in times) + " s")
+    print("| process | RSS after warm-up | max after | growth | CPU % | RSS series |")
+    print("|---|---|---|---|---|---|")
+    for name, series, ref, growth in rows:
+        print(f"| {name} | {ref:.0f} | {max(series[base:]):.0f} | {growth:+.1f} % | {cpu[name]:.0f} | "
+              + " ".join(f"{v:.0f}" for v in series) + " |")
+    print("\n| measure | value |")
+    print("|---|---|")
+    results = {
+        "devices seen": len(devices),
+        "segment points received": points,
+        "samples covered": samples,
+        "ICR": points / samples if samples else float("nan"),
+        "emulator late ticks %": em_late,
+        "aggregator late ticks %": agg_late,
+        "aggregator max backlog (msgs/tick), first / last third": f"{early} / {late_q}",
+        "aggregator max backlog overall": agg.get("max_backlog", 0),
+        "dropped (all reasons)": dropped,
+        "gaps (lost seq numbers)": gaps,
+        "missed (zenoh miss detection)": agg.get("missed", 0),
+        "exact frames": frames,
+        "skipped frames": skipped,
+    }
+    for k, v in results.items():
+        print(f"| {k} | {v:.4f} |" if isinstance(v, float) else f"| {k} | {v} |")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"args": vars(args), "times": times, "backlog": backlog,
+                                               "rss": {n: s for n, s, _, _ in rows}, "cpu": cpu,
+                                               "results": results}, indent=1))
+    failures = [f"{name} RSS grew {g:.1f} %" for name, _, _, g in rows if not g < 10.0]
+    failures += [f"{k} = {results[k]}" for k in ("dropped (all reasons)", "gaps (lost seq numbers)",
+                                                 "missed (zenoh miss detection)") if results[k]]
+    failures += [f"late ticks {v:.2f} %" for v in (em_late, agg_late) if not v < 1.0]
+    if late_q > 2 * early + 50:
+        failures.append(f"backlog grew: {early} -> {late_q} messages per tick")
+    if len(devices) != args.devices:
+        failures.append(f"{len(devices)} of {args.devices} devices seen")
+    print("\n" + ("PASS" if not failures else "FAIL: " + "; ".join(failures)))
+    return 1 if args.check and failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
