@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import re
 import signal
+import socket
 import threading
 
 from device_emulator.emulator import Emulator, EmulatorSettings
@@ -12,8 +15,19 @@ from limbstream import wire, zconfig
 from limbstream.sources import MotionFileError, load
 
 
+def host_prefix(hostname: str | None = None) -> str:
+    """``<hostname>-s``: a subject prefix unique per container (replicas get distinct hostnames).
+
+    The hostname comes from ``$HOSTNAME`` (set by Docker to the container's) or the system;
+    characters not allowed in a key chunk become ``-``.
+    """
+    hostname = hostname or os.environ.get("HOSTNAME") or socket.gethostname()
+    return re.sub(r"[^A-Za-z0-9_.\-]", "-", hostname) + "-s"
+
+
 def subject_names(count: int, first: int = 1, prefix: str = "s") -> list[str]:
-    """``s01, s02, ...`` (valid key chunks)."""
+    """``s01, s02, ...`` (valid key chunks); prefix ``auto`` is :func:`host_prefix`."""
+    prefix = host_prefix() if prefix == "auto" else prefix
     return [wire.check_chunk(f"{prefix}{k:02d}", "subject") for k in range(first, first + count)]
 
 
@@ -28,11 +42,16 @@ def build_feeds(args: argparse.Namespace) -> dict:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--subjects", type=int, default=2, help="number of subjects (10 IMUs each), default 2")
+    env = os.environ.get
+    parser.add_argument("--subjects", type=int, default=env("LIMBSTREAM_SUBJECTS", "2"),
+                        help="number of subjects (10 IMUs each; env LIMBSTREAM_SUBJECTS, default 2)")
     parser.add_argument("--first-subject", type=int, default=1, help="number of the first subject (s01 = 1)")
-    parser.add_argument("--subject-prefix", default="s", help="subject name prefix (default s: s01, s02, ...)")
-    parser.add_argument("--source", default="generator",
-                        help="'generator' (built-in, default) or a motion file/folder (.npz, .bvh, .csv, .txt)")
+    parser.add_argument("--subject-prefix", default=env("LIMBSTREAM_SUBJECT_PREFIX", "s"),
+                        help="subject name prefix (env LIMBSTREAM_SUBJECT_PREFIX; default s: s01, s02, ...); "
+                             "'auto' = '<hostname>-s', distinct for each scaled container")
+    parser.add_argument("--source", default=env("LIMBSTREAM_SOURCE", "generator"),
+                        help="'generator' (built-in, default) or a motion file/folder (.npz, .bvh, .csv, .txt) "
+                             "(env LIMBSTREAM_SOURCE)")
     parser.add_argument("--once", action="store_true", help="play a file source once, then flush and idle")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
     parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")

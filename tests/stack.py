@@ -101,6 +101,11 @@ class Stack:
     port: int = field(default_factory=free_port)
     procs: list[Proc] = field(default_factory=list)
     env: dict = field(default_factory=dict)
+    launcher: tuple[str, ...] = (sys.executable, "-m", "limbstream.cli")
+    """The ``limbstream`` command (e.g. the entry point of an installed wheel instead)."""
+    cwd: Path = ROOT
+    base_env: dict | None = None
+    """Environment every process starts from (default: this process's)."""
 
     @property
     def endpoint(self) -> str:
@@ -110,11 +115,12 @@ class Stack:
         return "".join(p.tail() for p in self.procs)
 
     def start(self, name: str, *args: str, env: dict | None = None) -> Proc:
-        """Run ``python -m limbstream.cli <args>`` in its own process group."""
+        """Run ``limbstream <args>`` (see :attr:`launcher`) in its own process group."""
         log = self.workdir / f"{name}-{len(self.procs)}.log"
-        full_env = os.environ | {"PYTHONUNBUFFERED": "1"} | self.env | (env or {})
+        base = os.environ if self.base_env is None else self.base_env
+        full_env = dict(base) | {"PYTHONUNBUFFERED": "1"} | self.env | (env or {})
         with open(log, "wb") as out:
-            popen = subprocess.Popen([sys.executable, "-m", "limbstream.cli", *args], cwd=ROOT,
+            popen = subprocess.Popen([*self.launcher, *args], cwd=self.cwd,
                                      stdout=out, stderr=subprocess.STDOUT, env=full_env,
                                      start_new_session=True)
         proc = Proc(name, popen, log)
