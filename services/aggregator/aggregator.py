@@ -20,7 +20,7 @@ import zenoh.ext as zext
 
 from limbstream import wire
 from limbstream.skeleton import Skeleton
-from services.aggregator.fusion import SubjectFusion
+from services.aggregator.fusion import Fusion, Subject
 from services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
@@ -40,6 +40,8 @@ class AggregatorSettings:
     history : segment points per device to ask for when joining late.
     error_window_s : angular-error window, seconds of samples at 50 Hz.
     config_poll_s : how often device configs (threshold) are queried, seconds.
+    frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
+        covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
     """
 
     subjects: tuple[str, ...] = ("*",)
@@ -50,6 +52,7 @@ class AggregatorSettings:
     history: int = 512
     error_window_s: float = 60.0
     config_poll_s: float = 5.0
+    frame_batch_s: float = 0.0
     skeleton: Skeleton = Skeleton()
 
 
@@ -76,7 +79,9 @@ class Aggregator:
 
     def __init__(self, session: zenoh.Session, settings: AggregatorSettings):
         self.session, self.settings = session, settings
-        self.subjects: dict[str, SubjectFusion] = {}
+        self.fusion = Fusion(settings.rate, settings.skeleton, capacity=max(1024, 2 * settings.history),
+                             error_window=int(settings.error_window_s * 50))
+        self.subjects: dict[str, Subject] = self.fusion.subjects
         self.bad_keys: collections.Counter = collections.Counter()
         self.loop = LoopStats()
         self._pose_pubs: dict[str, zenoh.Publisher] = {}
@@ -112,14 +117,7 @@ class Aggregator:
     # ------------------------------------------------------------------ input
 
     def track(self, subject: str, segment: str) -> DeviceTrack:
-        fusion = self.subjects.get(subject)
-        if fusion is None:
-            fusion = self.subjects[subject] = SubjectFusion(subject, self.settings.rate, self.settings.skeleton)
-        track = fusion.tracks.get(segment)
-        if track is None:
-            window = int(self.settings.error_window_s * 50)
-            track = fusion.tracks[segment] = DeviceTrack(subject, segment, error_window=window)
-        return track
+        return self.fusion.track(subject, segment)
 
     def _parse_key(self, key: str, kind: str) -> tuple[str, str] | None:
         try:
@@ -143,7 +141,7 @@ class Aggregator:
         except wire.WireError as exc:
             track.dropped[exc.reason] += 1
             return
-        if track.add_point(point, len(payload), now):
+        if self.fusion.add_point(track, point, len(payload), now):
             self.loop.points += 1
 
     def on_raw(self, key: str, payload: bytes, now: float) -> None:
@@ -157,7 +155,7 @@ class Aggregator:
         except wire.WireError as exc:
             track.dropped[f"raw_{exc.reason}"] += 1
             return
-        if track.add_raw(batch, now):
+        if self.fusion.add_raw(track, batch, now):
             self.loop.raw_batches += 1
 
     def on_alive(self, key: str, online: bool) -> None:
@@ -227,28 +225,27 @@ class Aggregator:
             pub = self._pose_pubs[subject] = self.session.declare_publisher(wire.pose_key(subject))
         pub.put(wire.encode_pose(frame))
 
-    def advance(self, live: bool) -> int:
-        """Truth evaluation, exact frames (and a live frame) of every subject; returns frames published."""
-        published = 0
-        for subject, fusion in self.subjects.items():
-            for track in fusion.tracks.values():
-                track.evaluate_truth()
-            for frame in fusion.exact_frames():
-                self._publish(subject, frame)
-                published += 1
-            if live and (frame := fusion.live_frame()) is not None:
-                self._publish(subject, frame)
-            fusion.prune()
-        self.loop.frames += published
-        return published
+    def advance(self, live: bool, prune: bool = True) -> int:
+        """Truth evaluation, exact frames (and live frames) of every subject; returns frames published."""
+        self.fusion.evaluate_truth()
+        frames = self.fusion.exact_frames()
+        for sub, frame in frames:
+            self._publish(sub.name, frame)
+        if live:
+            for sub, frame in self.fusion.live_frames():
+                self._publish(sub.name, frame)
+        if prune:
+            self.fusion.prune()
+        self.loop.frames += len(frames)
+        return len(frames)
 
     def subject_stats(self, subject: str, now: float) -> dict:
-        fusion = self.subjects[subject]
+        sub = self.subjects[subject]
         return {
-            "devices": [fusion.tracks[name].stats(now) for name in sorted(fusion.tracks)],
-            "frames": fusion.frames,
-            "skipped_frames": fusion.skipped,
-            "watermark_us": fusion.watermark(),
+            "devices": self.fusion.device_stats(sub, now),
+            "frames": sub.frames,
+            "skipped_frames": sub.skipped,
+            "watermark_us": self.fusion.watermark(sub),
         }
 
     def publish_stats(self, now: float) -> None:
@@ -267,7 +264,7 @@ class Aggregator:
         """Loop until ``stop``: drain, advance frames every tick, stats about once a second."""
         s = self.settings
         start = time.perf_counter()
-        next_live = next_stats = next_config = start
+        next_live = next_stats = next_config = next_frames = next_prune = start
         k = 0
         while not stop.is_set():
             deadline = start + k * s.tick_s
@@ -283,7 +280,11 @@ class Aggregator:
                 live = s.live_rate > 0 and now >= next_live
                 if live:
                     next_live = now + 1.0 / s.live_rate
-                self.advance(live)
+                if live or now >= next_frames:
+                    prune = now >= next_prune
+                    self.advance(live, prune)
+                    next_frames = now + s.frame_batch_s
+                    next_prune = now + 0.5 if prune else next_prune
                 if now >= next_stats:
                     self.publish_stats(now)
                     next_stats = now + s.stats_period_s
@@ -299,5 +300,6 @@ def snapshot(aggregator: Aggregator) -> dict:
     """{device id: stats} of every device, taken under the aggregator's lock (tests and tools)."""
     now = time.perf_counter()
     with aggregator.lock:
-        return {t.id: t.stats(now) for f in aggregator.subjects.values() for t in f.tracks.values()}
+        return {d["device"]: d for sub in aggregator.subjects.values()
+                for d in aggregator.fusion.device_stats(sub, now)}
 

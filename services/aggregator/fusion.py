@@ -1,119 +1,247 @@
-"""Full-body frames of one subject from its device tracks (DESIGN section 4).
+"""Full-body frames of every subject from the devices' segment points (DESIGN section 4),
+computed for all subjects at once.
 
-Exact frames: on a fixed grid (multiples of the output period in device time), emitted once
-every active device has a segment point at or after the frame time (the watermark), so the
-SLERP reconstruction in them is final. A device that is offline or has ended its stream
-does not hold the watermark back; its segment is held at its last point and the frame is
-flagged MISSING. Live frames: at the newest device time seen, every segment held at its
-newest point (a receiver's best guess "now"; its error is reported separately).
+Exact frames lie on a fixed grid (multiples of the output period in device time) and are
+emitted once every active device of the subject has a segment point at or after the frame
+time (the watermark), so the SLERP reconstruction in them is final. A device that is offline
+or has ended its stream does not hold the watermark back; its segment is held at its last
+point and the frame is flagged MISSING. Live frames: at the newest device time seen, every
+segment held at its newest point (a receiver's best guess "now"; its error is reported
+separately). Angular errors are measured at every truth sample once it is final.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from limbstream import wire
+from limbstream import quat, wire
 from limbstream.skeleton import Skeleton
 from limbstream.sources import SEGMENTS
+from services.aggregator.store import IDENTITY, ErrorRings, PointStore, TruthQueue
 from services.aggregator.track import DeviceTrack
 
 MAX_FRAMES_PER_CALL = 500
-"""Most exact frames one call builds (catch-up after recovery proceeds over several ticks)."""
+"""Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""
+
+_SEGMENT_INDEX = {name: i for i, name in enumerate(SEGMENTS)}
+_NONE = np.iinfo(np.int64).min
 
 
-class SubjectFusion:
-    """Frame builder of one subject.
+class Subject:
+    """A subject's devices and frame counters."""
 
-    Parameters
-    ----------
-    subject : its key chunk.
-    rate : exact frame rate, Hz.
-    skeleton : forward-kinematics model for the joint positions.
-    """
-
-    def __init__(self, subject: str, rate: float, skeleton: Skeleton):
-        self.subject, self.skeleton = subject, skeleton
-        self.period_us = 1e6 / rate
+    def __init__(self, name: str, index: int):
+        self.name, self.index = name, index
         self.tracks: dict[str, DeviceTrack] = {}
-        self.next_frame: int | None = None  # grid index k of the next exact frame (t = k * period)
-        self.exact_seq = 0
-        self.live_seq = 0
         self.frames = 0
         self.skipped = 0
 
-    def watermark(self) -> int | None:
-        """Device time (us) up to which every frame is final, or None if nothing is known."""
-        with_points = [t for t in self.tracks.values() if t.n]
-        active = [t for t in with_points if t.online and not t.final]
-        basis = active or with_points
-        return min(t.watermark for t in basis) if basis else None
 
-    def _frame_times(self, max_backlog_s: float) -> np.ndarray:
-        wm = self.watermark()
-        if wm is None:
-            return np.zeros(0, np.int64)
-        if self.next_frame is None:
-            start = max(t.first_t for t in self.tracks.values() if t.n)
-            self.next_frame = int(np.ceil(start / self.period_us))
-        last = int(np.floor(wm / self.period_us))
-        backlog = last - self.next_frame + 1
-        limit = int(max_backlog_s * 1e6 / self.period_us)
-        if backlog > limit:  # far behind (e.g. long outage): jump, count what is skipped
-            self.skipped += backlog - limit
-            self.next_frame = last - limit + 1
-        count = max(0, min(last - self.next_frame + 1, MAX_FRAMES_PER_CALL))
-        k = self.next_frame + np.arange(count)
-        self.next_frame += count
-        return np.round(k * self.period_us).astype(np.int64)
+class Fusion:
+    """Tracks, stores and frame builder of all subjects of one aggregator.
 
-    def _orientations(self, t_us: np.ndarray, held: bool) -> tuple[np.ndarray, int]:
-        """(F, 10, 4) orientations and the frame flags common to all F frames."""
-        q = np.zeros((len(t_us), len(SEGMENTS), 4))
-        q[..., 0] = 1.0
-        flags = 0
-        for s, name in enumerate(SEGMENTS):
-            track = self.tracks.get(name)
-            if track is None or not track.n:
-                flags |= wire.FRAME_MISSING
-                continue
-            q[:, s] = track.held_at(t_us + 1) if held else track.orientation_at(t_us)
-            if not track.online or (not held and track.watermark < t_us[-1]):
-                flags |= wire.FRAME_MISSING
-        return q, flags
+    Parameters
+    ----------
+    rate : exact frame rate, Hz.
+    skeleton : forward-kinematics model for the joint positions.
+    capacity : segment points kept per device (history on joining + what frames still need).
+    error_window : samples in each device's angular-error windows.
+    max_backlog_s : frames further behind than this are skipped (counted) instead of built.
+    """
 
-    def exact_frames(self, max_backlog_s: float = 60.0) -> list[wire.PoseFrame]:
-        """Every exact frame that became final since the last call (oldest first)."""
-        t_us = self._frame_times(max_backlog_s)
-        if len(t_us) == 0:
+    def __init__(self, rate: float, skeleton: Skeleton, capacity: int = 1024, error_window: int = 3000,
+                 max_backlog_s: float = 60.0):
+        self.period_us = 1e6 / rate
+        self.skeleton = skeleton
+        self.max_backlog = int(max_backlog_s * rate)
+        self.store = PointStore(capacity)
+        self.truth = TruthQueue()
+        self.exact = ErrorRings(error_window)
+        self.live = ErrorRings(error_window)
+        self.subjects: dict[str, Subject] = {}
+        self.tracks: list[DeviceTrack] = []
+        self.seg_slots = np.full((0, len(SEGMENTS)), -1, np.int64)  # (subjects, 10) device slot or -1
+        self.next_frame = np.zeros(0, np.int64)  # grid index of each subject's next exact frame, -1 unset
+        self.exact_seq = np.zeros(0, np.int64)
+        self.live_seq = np.zeros(0, np.int64)
+
+    # ------------------------------------------------------------------ devices
+
+    def track(self, subject: str, segment: str) -> DeviceTrack:
+        """The track of a device, created (with its rows) on first sight."""
+        sub = self.subjects.get(subject)
+        if sub is None:
+            sub = self.subjects[subject] = Subject(subject, len(self.subjects))
+            self.seg_slots = np.vstack([self.seg_slots, np.full((1, len(SEGMENTS)), -1, np.int64)])
+            self.next_frame = np.append(self.next_frame, -1)
+            self.exact_seq = np.append(self.exact_seq, 0)
+            self.live_seq = np.append(self.live_seq, 0)
+        track = sub.tracks.get(segment)
+        if track is None:
+            slot = self.store.add_slot()
+            self.exact.ensure(slot + 1)
+            self.live.ensure(slot + 1)
+            track = sub.tracks[segment] = DeviceTrack(subject, segment, slot)
+            self.tracks.append(track)
+            if segment in _SEGMENT_INDEX:
+                self.seg_slots[sub.index, _SEGMENT_INDEX[segment]] = slot
+        return track
+
+    def _stream(self, track: DeviceTrack, stream: int) -> bool:
+        state = track.check_stream(stream)
+        if state == "new":
+            self.store.reset(track.slot)
+            self.exact.reset(track.slot)
+            self.live.reset(track.slot)
+        return state != "stale"
+
+    def add_point(self, track: DeviceTrack, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
+        """A decoded segment point; False if dropped (counted on the track)."""
+        if not self._stream(track, p.stream) or not track.accept_point(p, nbytes, now):
+            return False
+        forgotten = self.store.append(track.slot, p.t_us, p.q)
+        if forgotten:
+            track.dropped["buffer_full"] += forgotten
+        return True
+
+    def add_raw(self, track: DeviceTrack, batch: wire.RawBatch, now: float) -> bool:
+        """A decoded truth-tap batch; False if dropped (counted)."""
+        if not track.accept_raw(batch, now):
+            return False
+        self.truth.put(track.slot, track.generation, batch.t_us, batch.q)
+        return True
+
+    # ------------------------------------------------------------------ errors
+
+    def evaluate_truth(self) -> int:
+        """Angular error of the exact reconstruction and of holding the last point, at every truth
+        sample whose reconstruction became final. Returns how many samples."""
+        generation = np.array([t.generation for t in self.tracks], np.int64)
+        slots, t_us, truth, overflow = self.truth.take_ready(self.store.last_t(), generation)
+        for slot in overflow:
+            self.tracks[slot].dropped["raw_overflow"] += 1
+        if len(slots):
+            self.exact.add(slots, quat.angle_deg(self.store.interpolate(slots, t_us), truth))
+            self.live.add(slots, quat.angle_deg(self.store.held(slots, t_us), truth))
+        return len(slots)
+
+    # ------------------------------------------------------------------ frames
+
+    def _watermarks(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per subject: watermark (us; _NONE if no data) and which segments are stale
+        (no device, offline, ended) as (subjects, 10) bool."""
+        last = self.store.last_t()
+        slots = self.seg_slots
+        have = slots >= 0
+        last_s = np.where(have, last[np.maximum(slots, 0)], _NONE)
+        have &= last_s != _NONE
+        live = np.array([t.online and not t.final for t in self.tracks] or [False], bool)
+        active = have & live[np.maximum(slots, 0)]
+        big = np.iinfo(np.int64).max
+        wm_active = np.where(active, last_s, big).min(axis=1, initial=big)
+        wm_have = np.where(have, last_s, big).min(axis=1, initial=big)
+        wm = np.where(active.any(axis=1), wm_active, np.where(have.any(axis=1), wm_have, _NONE))
+        return wm, ~active
+
+    def exact_frames(self) -> list[tuple[Subject, wire.PoseFrame]]:
+        """Every exact frame that became final since the last call, per subject oldest first."""
+        wm, stale = self._watermarks()
+        subjects = list(self.subjects.values())
+        for sub in subjects:  # a subject's first frame: where every device it has is covered
+            if self.next_frame[sub.index] < 0 and wm[sub.index] != _NONE:
+                first = max(self.store.first_t(t.slot) or 0 for t in sub.tracks.values())
+                self.next_frame[sub.index] = math.ceil(first / self.period_us)
+        last_k = np.where(wm != _NONE, np.floor(wm / self.period_us), -1).astype(np.int64)
+        count = np.where(self.next_frame >= 0, last_k - self.next_frame + 1, 0)
+        behind = count > self.max_backlog
+        if behind.any():  # far behind (e.g. a long outage): jump ahead, count what is skipped
+            for i in np.flatnonzero(behind):
+                subjects[i].skipped += int(count[i] - self.max_backlog)
+            self.next_frame[behind] = last_k[behind] - self.max_backlog + 1
+            count[behind] = self.max_backlog
+        count = np.clip(count, 0, MAX_FRAMES_PER_CALL)
+        total = int(count.sum())
+        if total == 0:
             return []
-        q, flags = self._orientations(t_us, held=False)
-        gap = np.zeros(len(t_us), bool)
-        for track in self.tracks.values():
-            if track.gap_spans:
-                gap |= track.in_gap(t_us)
+        owner = np.repeat(np.arange(len(count)), count)
+        k = self.next_frame[owner] + np.arange(total) - np.repeat(np.cumsum(count) - count, count)
+        t_us = np.round(k * self.period_us).astype(np.int64)
+        seq = self.exact_seq[owner] + (k - self.next_frame[owner])
+        self.next_frame += count
+        self.exact_seq += count
+
+        slots = self.seg_slots[owner]                       # (F, 10)
+        q = np.tile(IDENTITY, (total, len(SEGMENTS), 1))
+        valid = slots >= 0
+        q[valid] = self.store.interpolate(slots[valid], np.broadcast_to(t_us[:, None], slots.shape)[valid])
+        last = self.store.last_t()
+        beyond = valid & (last[np.maximum(slots, 0)] < t_us[:, None])
+        missing = (stale[owner] & beyond).any(axis=1) | (~valid).any(axis=1)
         joints = self.skeleton.positions(q)
+        gap = np.zeros(total, bool)
+        for i in np.unique(owner):
+            tracks = [t for t in subjects[i].tracks.values() if t.gap_spans]
+            mine = owner == i
+            for track in tracks:
+                gap[mine] |= track.in_gap(t_us[mine])
+        flags = np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0)
         frames = []
-        for i, t in enumerate(t_us):
-            frames.append(wire.PoseFrame(self.exact_seq, int(t), wire.KIND_EXACT,
-                                         flags | (wire.FRAME_GAP if gap[i] else 0), q[i], joints[i]))
-            self.exact_seq += 1
-        self.frames += len(frames)
+        for f in range(total):
+            sub = subjects[owner[f]]
+            frames.append((sub, wire.PoseFrame(int(seq[f]), int(t_us[f]), wire.KIND_EXACT, int(flags[f]),
+                                               q[f], joints[f])))
+            sub.frames += 1
         return frames
 
-    def live_frame(self) -> wire.PoseFrame | None:
-        """A frame at the newest device time seen, every segment held at its newest point."""
-        latest = [t.latest_t_us for t in self.tracks.values() if t.latest_t_us is not None and t.n]
-        if not latest:
-            return None
-        t_us = np.array([max(latest)], np.int64)
-        q, flags = self._orientations(t_us, held=True)
-        frame = wire.PoseFrame(self.live_seq, int(t_us[0]), wire.KIND_LIVE, flags, q[0],
-                               self.skeleton.positions(q)[0])
-        self.live_seq += 1
-        return frame
+    def live_frames(self) -> list[tuple[Subject, wire.PoseFrame]]:
+        """One frame per subject at its newest device time, every segment held at its newest point."""
+        subjects, times = [], []
+        for sub in self.subjects.values():
+            latest = [t.latest_t_us for t in sub.tracks.values() if t.latest_t_us is not None and t.points]
+            if latest:
+                subjects.append(sub)
+                times.append(max(latest))
+        if not subjects:
+            return []
+        index = np.array([s.index for s in subjects])
+        t_us = np.array(times, np.int64)
+        slots = self.seg_slots[index]
+        valid = slots >= 0
+        q = np.tile(IDENTITY, (len(subjects), len(SEGMENTS), 1))
+        q[valid] = self.store.held(slots[valid], np.broadcast_to(t_us[:, None] + 1, slots.shape)[valid])
+        online = np.array([t.online for t in self.tracks] or [False], bool)
+        missing = (~valid | ~online[np.maximum(slots, 0)]).any(axis=1)
+        joints = self.skeleton.positions(q)
+        frames = []
+        for i, sub in enumerate(subjects):
+            frames.append((sub, wire.PoseFrame(int(self.live_seq[sub.index]), int(t_us[i]), wire.KIND_LIVE,
+                                               wire.FRAME_MISSING if missing[i] else 0, q[i], joints[i])))
+            self.live_seq[sub.index] += 1
+        return frames
 
     def prune(self) -> None:
-        """Let every track forget points before the next exact frame."""
-        if self.next_frame is not None:
-            needed = int(self.next_frame * self.period_us)
-            for track in self.tracks.values():
-                track.prune(needed)
+        """Let every row forget points no frame and no waiting truth sample needs."""
+        keep = np.full(self.store.size, np.iinfo(np.int64).max)
+        for sub in self.subjects.values():
+            nf = self.next_frame[sub.index]
+            for track in sub.tracks.values():
+                keep[track.slot] = int(nf * self.period_us) if nf >= 0 else np.iinfo(np.int64).min
+        keep = np.minimum(keep, self.truth.oldest(self.store.size))
+        self.store.prune(keep)
+
+    # ------------------------------------------------------------------ figures
+
+    def device_stats(self, sub: Subject, now: float) -> list[dict]:
+        tracks = [sub.tracks[name] for name in sorted(sub.tracks)]
+        slots = np.array([t.slot for t in tracks], np.int64)
+        aad, p99, mx = self.exact.summary(slots)
+        live, _, _ = self.live.summary(slots)
+        count = self.exact.count[slots]
+        aad_all = np.where(count > 0, self.exact.total[slots] / np.maximum(count, 1), np.nan)
+        return [t.stats(now, (float(aad[i]), float(p99[i]), float(mx[i]), float(live[i]), float(aad_all[i]),
+                              int(count[i]))) for i, t in enumerate(tracks)]
+
+    def watermark(self, sub: Subject) -> int | None:
+        wm, _ = self._watermarks()
+        return None if wm[sub.index] == _NONE else int(wm[sub.index])

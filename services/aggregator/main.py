@@ -18,6 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=50.0, help="exact frame rate, Hz (default 50)")
     parser.add_argument("--live-rate", type=float, default=10.0, help="live frame rate, Hz (0: none; default 10)")
     parser.add_argument("--tick", type=float, default=0.02, help="loop period, s (default 0.02)")
+    parser.add_argument("--frame-batch", type=float, default=0.0,
+                        help="build exact frames at most every this many s (0: every tick; ~0.5 for 200 subjects)")
     parser.add_argument("--history", type=int, default=512, help="segment points per device fetched when joining")
     parser.add_argument("--error-window", type=float, default=60.0, help="angular-error window, s (default 60)")
     parser.add_argument("--rest-pose", choices=("standing", "tpose"), default="standing",
@@ -38,12 +40,14 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
                 wire.check_chunk(p.replace("*", "x"), "--subjects entry")
         skeleton = Skeleton(thigh=args.thigh, shank=args.shank, upperarm=args.upperarm, lowerarm=args.lowerarm,
                             spine=args.spine, neck=args.neck, rest_pose=args.rest_pose)
-        if not (args.rate > 0 and args.tick > 0 and args.live_rate >= 0 and args.history >= 1):
-            raise ValueError("--rate and --tick must be > 0, --live-rate >= 0, --history >= 1")
+        if not (args.rate > 0 and args.tick > 0 and args.live_rate >= 0 and args.history >= 1
+                and args.frame_batch >= 0):
+            raise ValueError("--rate and --tick must be > 0, --live-rate, --frame-batch >= 0, --history >= 1")
     except ValueError as exc:
         raise SystemExit(f"limbstream aggregate: error: {exc}") from None
     return AggregatorSettings(subjects=patterns or ("*",), rate=args.rate, live_rate=args.live_rate,
                               tick_s=args.tick, history=args.history, error_window_s=args.error_window,
+                              frame_batch_s=args.frame_batch,
                               skeleton=skeleton)
 
 
