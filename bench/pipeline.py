@@ -30,6 +30,7 @@ from device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
 from device_emulator.feeds import GeneratorFeed  # noqa: E402
 from device_emulator.main import subject_names  # noqa: E402
 from limbstream import wire, zconfig  # noqa: E402
+from limbstream.sources import SEGMENTS  # noqa: E402
 from services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
 
 
@@ -57,13 +58,18 @@ class Router:
         raise RuntimeError("router did not start")
 
     def cpu_s(self) -> float:
-        with open(f"/proc/{self.proc.pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return process_cpu_s(self.proc.pid)
 
     def __exit__(self, *exc):
         self.proc.terminate()
         self.proc.wait(10)
+
+
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) a process has used."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def client(endpoint: str) -> zenoh.Session:
@@ -114,8 +120,8 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
 def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
     print(f"\n### One aggregator process ({seconds:g} s; devices in a separate emulator process, 50 Hz, truth tap on)\n")
     print("| subjects | devices | points/s in | frames/s out | expected frames/s | late ticks | "
-          "aggregator CPU | max drained per tick | gaps | dropped |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "aggregator CPU | emulator CPU | router CPU | max drained per tick | gaps | dropped |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for subjects in subject_counts:
         with Router() as router:
             emu = start_emulator_process(router.endpoint, subjects)
@@ -131,9 +137,11 @@ def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
                 time.sleep(0.1)
             p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.late, agg.loop.ticks
             cpu0, wall0 = cpu_now(), time.monotonic()
+            ecpu0, rcpu0 = process_cpu_s(emu.pid), router.cpu_s()
             stop.wait(seconds)
             wall = time.monotonic() - wall0
             cpu = cpu_now() - cpu0
+            ecpu, rcpu = process_cpu_s(emu.pid) - ecpu0, router.cpu_s() - rcpu0
             points, frames = agg.loop.points - p0, agg.loop.frames - f0
             late, ticks = agg.loop.late - l0, agg.loop.ticks - t0
             stop.set()
@@ -146,8 +154,74 @@ def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
             emu.terminate()
             emu.wait(10)
         print(f"| {subjects} | {10 * subjects} | {points / wall:.0f} | {frames / wall:.0f} | {50 * subjects} | "
-              f"{100 * late / max(ticks, 1):.2f} % | {100 * cpu / wall:.0f} % | {agg.loop.max_backlog} | {gaps} | "
+              f"{100 * late / max(ticks, 1):.2f} % | {100 * cpu / wall:.0f} % | {100 * ecpu / wall:.0f} % | "
+              f"{100 * rcpu / wall:.0f} % | {agg.loop.max_backlog} | {gaps} | "
               f"{dropped} |")
+
+
+def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list, int]:
+    """Segment points and truth batches of ``subjects`` generator subjects, as the devices would
+    publish them: (sample tick when published, kind 0 point / 1 raw, key, payload), in order."""
+    from limbstream import kernel
+    from limbstream.sources.generator import GeneratorSource
+
+    m = int(seconds * fs)
+    start_us = 1_800_000_000_000_000
+    events = []
+    for s in range(subjects):
+        q = GeneratorSource(s + 1, fs).chunk(0, m)[1].astype(np.float32)
+        t = np.arange(m) / fs
+        name = f"s{s + 1:03d}"
+        for j, seg in enumerate(SEGMENTS):
+            r = kernel.segment(t, q[:, j], 1e-2, 25)
+            for n, idx in enumerate(r.index):
+                p = wire.SegmentPoint(s, n, int(idx), start_us + int(idx) * 20000, tuple(map(float, q[idx, j])))
+                events.append((int(idx) + 1, 0, wire.seg_key(name, seg), wire.encode_point(p)))
+            for b in range(0, m, 25):
+                batch = wire.RawBatch(s, b, start_us + np.arange(b, b + 25) * 20000, q[b:b + 25, j])
+                events.append((b + 25, 1, wire.raw_key(name, seg), wire.encode_raw(batch)))
+    events.sort(key=lambda e: e[0])
+    return events, m
+
+
+def bench_aggregator_core(subject_counts: list[int], seconds: float) -> None:
+    """The aggregator's own work without Zenoh: replayed messages, frames built and encoded,
+    stats encoded once a second; CPU per second of stream = load at real time."""
+    print(f"\n### Aggregator core, replayed messages ({seconds:g} s of stream, 50 Hz, truth tap on, "
+          "frames and stats encoded, not sent)\n")
+    print("| subjects | devices | points/s | truth samples/s | frames/s | CPU per second of stream | "
+          "subjects at 100 % of one core |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for subjects in subject_counts:
+        events, m = replay_events(subjects, seconds)
+        agg = Aggregator(None, AggregatorSettings(live_rate=10.0))
+        agg._publish = lambda subject, frame: wire.encode_pose(frame)
+        for name in (f"s{s + 1:03d}" for s in range(subjects)):
+            for seg in SEGMENTS:
+                agg.track(name, seg).online = True
+        i = n_points = 0
+        cpu0 = cpu_now()
+        for k in range(m):
+            now = k / 50.0
+            while i < len(events) and events[i][0] <= k:
+                _, kind, key, payload = events[i]
+                if kind == 0:
+                    agg.on_point(key, payload, now)
+                    n_points += 1
+                else:
+                    agg.on_raw(key, payload, now)
+                i += 1
+            if k % 5 == 0:  # live frames at 10 Hz
+                agg.advance(True, prune=k % 25 == 0)
+            else:
+                agg.advance(False, prune=False)
+            if k % 50 == 0:
+                for subject in agg.subjects:
+                    stats = agg.subject_stats(subject, now)
+                    wire.encode_stats(subject, now, stats.pop("devices"), stats)
+        load = (cpu_now() - cpu0) / seconds
+        print(f"| {subjects} | {10 * subjects} | {n_points / seconds:.0f} | {500 * subjects:.0f} | "
+              f"{agg.loop.frames / seconds:.0f} | {100 * load:.0f} % | {subjects / load:.0f} |")
 
 
 # ----------------------------------------------------------------------------- latency
@@ -207,7 +281,7 @@ def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("emulator", "aggregator", "latency", "all"))
+    parser.add_argument("what", choices=("emulator", "aggregator", "core", "latency", "all"))
     parser.add_argument("--seconds", type=float, default=20.0, help="measuring time per row")
     parser.add_argument("--devices", default="500,1000,2000,3000", help="emulator rows (device counts)")
     parser.add_argument("--subjects", default="20,100,200", help="aggregator rows (subject counts)")
@@ -217,6 +291,8 @@ def main(argv: list[str] | None = None) -> int:
         bench_emulator([int(n) for n in args.devices.split(",")], args.seconds, not args.no_truth)
     if args.what in ("aggregator", "all"):
         bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds)
+    if args.what in ("core", "all"):
+        bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds)
     if args.what in ("latency", "all"):
         for max_len in (25, 1000):
             bench_latency(args.seconds, 2, max_len)

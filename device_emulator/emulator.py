@@ -127,6 +127,7 @@ class Emulator:
                 cache=zext.CacheConfig(max_samples=s.cache),
                 sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s),
                 publisher_detection=True,
+                congestion_control=zenoh.CongestionControl.BLOCK,  # never drop a point under load
             )
             d.token = self.session.liveliness().declare_token(wire.alive_key(d.subject, d.segment))
         self._raw_pubs = (
