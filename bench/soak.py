@@ -151,9 +151,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--minutes", type=float, default=10.0, help="duration, minutes (default 10)")
     parser.add_argument("--procs", type=int, default=2, help="emulator processes sharing the devices (default 2)")
     parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--frame-batch", type=float, default=1.0,
+                        help="aggregator --frame-batch, s (default 1: a build costs ~1-2 ms per subject)")
     parser.add_argument("--truth", action="store_true", help="also stream the truth tap (raw samples)")
     parser.add_argument("--warmup", type=float, default=None,
-                        help="warm-up, s, before the RSS baseline (default: 20 %% of the run, at most 120 s)")
+                        help="warm-up, s, before the RSS baseline (default: 30 %% of the run, at most 180 s: the recovery caches fill first)")
     parser.add_argument("--samples", type=int, default=11, help="RSS samples over the run (default 11)")
     parser.add_argument("--check", action="store_true", help="exit 1 if a target is missed")
     parser.add_argument("--json", default="", help="also write the results to this JSON file")
@@ -164,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--procs must be >= 1 and --minutes > 0")
     subjects = args.devices // SEGMENTS_PER_SUBJECT
     duration = args.minutes * 60
-    warmup = args.warmup if args.warmup is not None else min(0.2 * duration, 120.0)
+    warmup = args.warmup if args.warmup is not None else min(0.3 * duration, 180.0)
 
     workdir = Path(tempfile.mkdtemp(prefix="limbstream-soak-"))
     port = free_port()
@@ -172,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     router = start("router", ["router", "--listen", endpoint], workdir)
     wait_port(port)
     procs = [router]
-    procs.append(start("aggregator", ["aggregate", "--connect", endpoint, "--live-rate", "0"], workdir))
+    procs.append(start("aggregator", ["aggregate", "--connect", endpoint, "--live-rate", "0",
+                                             "--frame-batch", str(args.frame_batch)], workdir))
     share, first = [subjects // args.procs + (i < subjects % args.procs) for i in range(args.procs)], 1
     emulators = []
     for i, n in enumerate(share):

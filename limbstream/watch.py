@@ -6,7 +6,8 @@ import argparse
 import sys
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
+from typing import Self
 
 import zenoh
 
@@ -35,7 +36,7 @@ class PoseSubscription:
             self.session.close()
             self.owns_session = False
 
-    def __enter__(self) -> "PoseSubscription":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:

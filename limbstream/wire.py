@@ -203,7 +203,7 @@ def encode_raw(batch: RawBatch) -> bytes:
 
 
 def decode_raw(payload: bytes) -> RawBatch:
-    """Bytes -> RawBatch; WireError with reason size / version / non_finite."""
+    """Bytes -> RawBatch; WireError with reason size / version / non_finite / time_backwards."""
     if len(payload) < _RAW_HEADER.size:
         raise WireError("size", f"raw batch has {len(payload)} bytes, less than its header")
     version, _, stream, n, _, first_index, t0 = _RAW_HEADER.unpack_from(payload)
@@ -216,6 +216,8 @@ def decode_raw(payload: bytes) -> RawBatch:
     q = body["q"].copy()
     if not np.all(np.isfinite(q)):
         raise WireError("non_finite", "raw batch has non-finite samples")
+    if n > 1 and np.any(np.diff(body["dt_us"].astype(np.int64)) < 0):
+        raise WireError("time_backwards", "raw batch timestamps go backwards")
     return RawBatch(stream, first_index, t0 + body["dt_us"].astype(np.int64), q)
 
 
@@ -337,7 +339,7 @@ def encode_stats(subject: str, t: float, devices: list[dict], extra: dict | None
 def decode_stats(payload: bytes) -> dict:
     """Stats JSON -> dict; WireError('json') if malformed or missing fields."""
     try:
-        data = json.loads(bytes(payload))
+        data = json.loads(bytes(payload))  # RecursionError: nesting deeper than the parser allows
         devices = data["devices"]
         if not isinstance(data["subject"], str) or not isinstance(devices, list):
             raise TypeError("subject must be a string and devices a list")
@@ -345,7 +347,7 @@ def decode_stats(payload: bytes) -> dict:
             missing = [k for k in STATS_FIELDS if k not in d]
             if missing:
                 raise KeyError(f"device entry lacks {missing}")
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("json", f"bad stats message: {exc}") from None
     return data
 
@@ -375,7 +377,7 @@ def decode_config(payload: bytes, current: DeviceConfig | None = None) -> Device
     With ``current``, either field may be left out (it keeps its current value)."""
     try:
         data = json.loads(bytes(payload))
-    except ValueError as exc:
+    except (ValueError, RecursionError) as exc:  # RecursionError: absurdly deep nesting
         raise WireError("config", f"device config is not JSON: {exc}") from None
     if not isinstance(data, dict):
         raise WireError("config", "device config must be a JSON object {threshold, max_len}")
@@ -393,5 +395,5 @@ def decode_config(payload: bytes, current: DeviceConfig | None = None) -> Device
         raise WireError("config", f"max_len must be an integer, got {max_len!r}")
     try:
         return DeviceConfig(float(threshold), max_len).validate()
-    except ValueError as exc:
+    except (ValueError, OverflowError) as exc:  # OverflowError: an integer beyond float range
         raise WireError("config", str(exc)) from None

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 from fastapi.testclient import TestClient
+from stack import ROOT, free_port, wait_until
 from starlette.websockets import WebSocketDisconnect
 
 from limbstream import wire, zconfig
@@ -21,7 +22,6 @@ from services.dashboard.app import create_app
 from services.dashboard.main import parse_http
 from services.dashboard.settings import DashboardSettings
 from services.dashboard.state import LiveState
-from stack import ROOT, free_port, wait_until
 
 TOKEN = "test-token-123"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -220,7 +220,8 @@ class Device:
             except wire.WireError as exc:
                 query.reply_err(json.dumps({"error": str(exc)}))
                 return
-        query.reply(query.key_expr, wire.encode_config(self.config))
+        status = json.loads(wire.encode_config(self.config)) | {"device": "x", "samples": 10}
+        query.reply(query.key_expr, json.dumps(status))
 
 
 def announce(client, pub, subject, segment):
@@ -235,7 +236,7 @@ def test_config_is_forwarded_and_confirmed(client, pub):
         announce(client, pub, "ctlG", "hip")
         r = client.put("/api/devices/ctlG/hip/config", json={"threshold": 0.05, "max_len": 10}, headers=AUTH)
         assert r.status_code == 200, r.text
-        assert r.json() == {"device": "ctlG/hip", "threshold": 0.05, "max_len": 10}
+        assert r.json() == {"device": "ctlG/hip", "threshold": 0.05, "max_len": 10, "samples": 10}
         assert device.config == wire.DeviceConfig(0.05, 10)
         r = client.put("/api/devices/ctlG/hip/config", json={"threshold": 0.002}, headers=AUTH)
         assert r.status_code == 200 and r.json()["max_len"] == 10 and r.json()["threshold"] == 0.002, r.text
@@ -327,9 +328,9 @@ def test_websocket_streams_frames_in_order(client, pub):
 
 
 def test_websocket_rejects_foreign_origin(client):
-    with pytest.raises(WebSocketDisconnect) as info:
-        with client.websocket_connect("/ws/pose/wsK", headers={"Origin": "http://evil.example"}) as ws:
-            ws.receive_text()
+    with pytest.raises(WebSocketDisconnect) as info, \
+            client.websocket_connect("/ws/pose/wsK", headers={"Origin": "http://evil.example"}) as ws:
+        ws.receive_text()
     assert info.value.code == 1008, info.value
     with client.websocket_connect("/ws/pose/wsK", headers={"Origin": "http://testserver"}) as ws:
         assert ws is not None
@@ -370,12 +371,12 @@ def test_subscribe_pose_and_watch_command(router, pub):
         got.append((subject, frame.seq))
         arrived.set()
 
-    with zconfig.open_session(zconfig.ZenohSettings(connect=(router,))) as session:
-        with subscribe_pose(session, "watchM", on_frame) as sub:
-            wait_until(lambda: pub.put(wire.pose_key("watchM"), wire.encode_pose(pose_frame(5))) or arrived.is_set(),
-                       10, "a frame through subscribe_pose")
-            pub.put(wire.pose_key("watchM"), b"broken")
-            wait_until(lambda: sub.errors == 1, 5, "bad frame counted")
+    with zconfig.open_session(zconfig.ZenohSettings(connect=(router,))) as session, \
+            subscribe_pose(session, "watchM", on_frame) as sub:
+        wait_until(lambda: pub.put(wire.pose_key("watchM"), wire.encode_pose(pose_frame(5))) or arrived.is_set(),
+                   10, "a frame through subscribe_pose")
+        pub.put(wire.pose_key("watchM"), b"broken")
+        wait_until(lambda: sub.errors == 1, 5, "bad frame counted")
     assert got[0] == ("watchM", 5), got
     with pytest.raises(ValueError, match="subject"):
         subscribe_pose(zconfig.ZenohSettings(connect=(router,)), "bad/subject", on_frame)

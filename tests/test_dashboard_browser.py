@@ -7,7 +7,6 @@ import shutil
 from pathlib import Path
 
 import pytest
-
 from stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 CHROMIUM = os.environ.get("LIMBSTREAM_CHROMIUM", "/usr/bin/chromium")
@@ -90,8 +89,10 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
                                    timeout=10_000)
             page.fill("#ctl-token", TOKEN)
             page.click("#ctl-apply")
-            page.wait_for_function("() => /confirmed by 10\\/10/.test(document.querySelector('#ctl-result').textContent)",
+            page.wait_for_function("() => /confirmed|\\d+\\/10/.test(document.querySelector('#ctl-result').textContent)",
                                    timeout=20_000)
+            outcome = page.text_content("#ctl-result")
+            assert "confirmed by 10/10" in outcome, (outcome, stack.logs())
             assert "threshold 0.02" in page.text_content("#ctl-result")
             wait_until(lambda: all(d["threshold"] == 0.02 for d in http_json(url + "/api/devices")[1]
                                    if d["subject"] == "s01"), 20, "aggregator reporting the new threshold",

@@ -8,12 +8,12 @@ import time
 import pytest
 import uvicorn
 from hypothesis import HealthCheck, settings
+from stack import free_port, http_json, wait_until
+from test_dashboard_api import Device, device_stats, pose_frame
 
 from limbstream import wire, zconfig
 from services.dashboard.app import create_app
 from services.dashboard.settings import DashboardSettings
-from stack import free_port, http_json, wait_until
-from test_dashboard_api import Device, device_stats, pose_frame
 
 schemathesis = pytest.importorskip("schemathesis")
 
@@ -27,7 +27,7 @@ def served():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zconfig.open_session(zconfig.ZenohSettings(mode="router", connect=(), listen=(endpoint,)))
     pub = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-    device = Device(pub, "s0", "hip")
+    device = Device(pub, "s01", "hip")
     port = free_port()
     app = create_app(DashboardSettings(router=endpoint, api_token=TOKEN, config_timeout_s=1.0))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
@@ -38,10 +38,10 @@ def served():
         wait_until(lambda: http_json(url + "/health", timeout=1)[0] == 200, 20, "dashboard health")
 
         def feed():
-            pub.put(wire.stats_key("s0"), wire.encode_stats("s0", time.time(), [device_stats("s0", "hip")]))
-            pub.put(wire.pose_key("s0"), wire.encode_pose(pose_frame(1)))
-            return http_json(url + "/api/subjects/s0/pose")[0] == 200 and http_json(url + "/api/devices/s0/hip")[0] == 200
-        wait_until(feed, 20, "s0 stats and pose")
+            pub.put(wire.stats_key("s01"), wire.encode_stats("s01", time.time(), [device_stats("s01", "hip")]))
+            pub.put(wire.pose_key("s01"), wire.encode_pose(pose_frame(1)))
+            return http_json(url + "/api/subjects/s01/pose")[0] == 200 and http_json(url + "/api/devices/s01/hip")[0] == 200
+        wait_until(feed, 20, "s01 stats and pose")
         yield url
     finally:
         server.should_exit = True
@@ -53,11 +53,11 @@ def served():
 
 @pytest.fixture(scope="module")
 def api_schema(served):
-    schema = schemathesis.openapi.from_url(served + "/openapi.json")
-    return schema.exclude(path_regex="^/sse/")  # endless streams (tested in test_dashboard_api)
+    return schemathesis.openapi.from_url(served + "/openapi.json")
 
 
-schema = schemathesis.pytest.from_fixture("api_schema")
+# The SSE stream is endless by design (tested in test_dashboard_api).
+schema = schemathesis.pytest.from_fixture("api_schema").exclude(path_regex="^/sse/")
 
 
 @schema.parametrize()
@@ -67,3 +67,13 @@ def test_no_server_errors(case, served):
         response = case.call(base_url=served, headers=headers, timeout=10)
         assert response.status_code < 500, (case.method, case.formatted_path, response.status_code, response.text[:300])
         case.validate_response(response)
+        if headers and case.formatted_path == "/api/devices/s01/hip/config" and response.status_code == 200:
+            confirmed.add(response.json()["threshold"])
+
+
+confirmed: set = set()
+
+
+def test_fuzz_reached_the_device():
+    """The explicit examples (``s01/hip``) sent configs through Zenoh to the answering device."""
+    assert confirmed, "no config was confirmed by the device during the fuzz run"

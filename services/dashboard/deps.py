@@ -24,8 +24,8 @@ async def _live(conn: HTTPConnection) -> LiveState:
 
 SettingsDep = Annotated[DashboardSettings, Depends(_settings)]
 LiveDep = Annotated[LiveState, Depends(_live)]
-SubjectPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="subject name")]
-SegmentPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="segment name")]
+SubjectPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="subject name", examples=["s01"])]
+SegmentPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="segment name", examples=["hip"])]
 
 _bearer = HTTPBearer(auto_error=False, description="LIMBSTREAM_API_TOKEN")
 

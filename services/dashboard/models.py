@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
 PoseKind = Literal["auto", "live", "exact"]
 
@@ -90,24 +90,34 @@ class Skeleton(BaseModel):
         description="pairs of joints to draw a line between")
 
 
+def _whole(value):
+    """JSON integers may be written 25.0; booleans and fractions are not integers."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
 class ConfigUpdate(BaseModel):
     """New device settings; a field left out keeps the device's current value."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"minProperties": 1})
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"minProperties": 1})
 
     threshold: float = Field(None, ge=0, le=1e6, allow_inf_nan=False,
                              description="SSR threshold of the fastSW kernel (>= 0)")
-    max_len: int = Field(None, ge=1, le=100_000, description="max segment length, samples")
+    max_len: Annotated[int, BeforeValidator(_whole)] = Field(None, ge=1, le=100_000,
+                                                               description="max segment length, samples")
 
     @model_validator(mode="after")
-    def _something(self) -> "ConfigUpdate":
+    def _something(self) -> ConfigUpdate:
         if self.threshold is None and self.max_len is None:
             raise ValueError("give threshold and/or max_len")
         return self
 
 
 class DeviceConfig(BaseModel):
-    """The config a device confirmed."""
+    """The config a device confirmed (status fields the device adds pass through)."""
+
+    model_config = ConfigDict(extra="allow")
 
     device: str
     threshold: float

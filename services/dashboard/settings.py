@@ -68,7 +68,7 @@ class DashboardSettings(BaseSettings):
     max_subjects: int = Field(1_000, ge=1)
     stale_after_s: float = Field(5.0, gt=0)
     config_timeout_s: float = Field(2.0, gt=0, le=60)
-    ws_queue: int = Field(4, ge=1, le=1024)
+    ws_queue: int = Field(16, ge=1, le=1024)
     ws_send_timeout_s: float = Field(5.0, gt=0)
     live_kind_window_s: float = Field(2.0, gt=0)
     static_dir: Path = DASHBOARD_DIR
@@ -80,7 +80,7 @@ class DashboardSettings(BaseSettings):
             return None
         return value
 
-    def with_token(self) -> tuple["DashboardSettings", bool]:
+    def with_token(self) -> tuple[DashboardSettings, bool]:
         """These settings, with a generated token in development mode if none is set.
 
         Returns

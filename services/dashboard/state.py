@@ -1,8 +1,8 @@
 """Live state of the dashboard, fed from Zenoh callbacks through a bounded hand-off.
 
 Zenoh callbacks run on Zenoh threads. They only put the raw payload into an :class:`Inbox`
-(a bounded deque for stats and liveliness, one "latest" slot per subject and kind for pose
-frames) and, at most once until it runs, schedule :meth:`LiveState.drain` on the event loop
+(bounded deques; when the loop falls behind, the oldest pose frames are skipped and counted)
+and, at most once until it runs, schedule :meth:`LiveState.drain` on the event loop
 with ``loop.call_soon_threadsafe``. Everything else (decoding, history, fan-out to WebSocket
 and SSE clients) happens on the event loop, which owns all the structures below.
 """
@@ -44,7 +44,7 @@ class Inbox:
         self._scheduled = False
         self.stats: deque[tuple[float, str, bytes]] = deque()
         self.alive: deque[tuple[str, bool]] = deque()
-        self.poses: dict[tuple[str, int], tuple[float, bytes]] = {}
+        self.poses: deque[tuple[float, str, bytes]] = deque()
         self.max_pending = max_pending
         self.dropped = Counter()
 
@@ -65,11 +65,11 @@ class Inbox:
             self._schedule()
 
     def put_pose(self, key: str, payload: bytes) -> None:
-        kind = payload[1] if len(payload) > 1 else -1
         with self._lock:
-            if (key, kind) in self.poses:
-                self.dropped["pose_coalesced"] += 1
-            self.poses[(key, kind)] = (time.time(), payload)
+            if len(self.poses) >= self.max_pending:
+                self.poses.popleft()  # the loop is behind: skip the oldest frame
+                self.dropped["pose"] += 1
+            self.poses.append((time.time(), key, payload))
             self._schedule()
 
     def put_alive(self, key: str, present: bool) -> None:
@@ -85,7 +85,7 @@ class Inbox:
         with self._lock:
             stats, self.stats = self.stats, deque()
             alive, self.alive = self.alive, deque()
-            poses, self.poses = self.poses, {}
+            poses, self.poses = self.poses, deque()
             self._scheduled = False
         return stats, alive, poses
 
@@ -153,7 +153,7 @@ class LiveState:
     """
 
     def __init__(self, history_seconds: int = 900, max_devices: int = 10_000, max_subjects: int = 1_000,
-                 stale_after_s: float = 5.0, live_kind_window_s: float = 2.0, ws_queue: int = 4):
+                 stale_after_s: float = 5.0, live_kind_window_s: float = 2.0, ws_queue: int = 16):
         self.history_seconds = history_seconds
         self.max_devices = max_devices
         self.max_subjects = max_subjects
@@ -186,7 +186,7 @@ class LiveState:
             self.apply_alive(key, present)
         for rx, key, payload in stats:
             self.apply_stats(payload, rx)
-        for (key, _), (rx, payload) in poses.items():
+        for rx, key, payload in poses:
             self.apply_pose(key, payload, rx)
 
     def apply_alive(self, key: str, present: bool) -> None:

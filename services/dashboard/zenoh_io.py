@@ -81,7 +81,8 @@ def open_bridge(inbox: Inbox, settings: zconfig.ZenohSettings | None = None,
 
 def query_config(session: zenoh.Session, subject: str, segment: str,
                  config: wire.DeviceConfig | None, timeout_s: float) -> dict:
-    """Send ``config`` to a device (or read its config when None) and return what it confirms.
+    """Send ``config`` to a device (or read its config when None) and return what it confirms:
+    ``{"threshold", "max_len"}`` plus any status fields the device adds.
 
     Blocking: run it in a worker thread. Raises :class:`ConfigError` with status 504 (no
     reply within ``timeout_s``), 422 (the device refused it: its message) or 502 (a reply
@@ -93,12 +94,15 @@ def query_config(session: zenoh.Session, subject: str, segment: str,
     rejected, broken = [], []
     for reply in replies:
         if reply.ok is not None:
-            try:
-                applied = wire.decode_config(reply.ok.payload.to_bytes())
-            except wire.WireError as exc:
+            try:  # the device may add status fields (samples, points, ...) to its config
+                status = json.loads(reply.ok.payload.to_bytes())
+                fields = {k: status[k] for k in ("threshold", "max_len") if k in status}
+                applied = wire.decode_config(json.dumps(fields).encode())
+            except (ValueError, TypeError, wire.WireError) as exc:
                 broken.append(str(exc))
                 continue
-            return {"threshold": applied.threshold, "max_len": applied.max_len}
+            extra = {k: v for k, v in status.items() if k not in fields and k != "device"}
+            return extra | {"threshold": applied.threshold, "max_len": applied.max_len}
         raw = reply.err.payload.to_bytes()
         try:
             rejected.append(str(json.loads(raw).get("error", raw.decode(errors="replace"))))

@@ -87,7 +87,7 @@ async def sse_pose(subject: SubjectPath, request: Request, live: LiveDep,
             while limit is None or sent < limit:
                 try:
                     text = await asyncio.wait_for(client.queue.get(), KEEPALIVE_S)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     if await request.is_disconnected():
                         return
                     yield ": keep-alive\n\n"
