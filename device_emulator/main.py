@@ -96,7 +96,10 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     stop = stop or threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    with zconfig.open_session(zconfig.from_args(args)) as session:
+    session = zconfig.open_session(zconfig.from_args(args), stop)
+    if session is None:  # stopped while waiting for the router
+        return 0
+    with session:
         emulator = Emulator(session, feeds, settings)
         emulator.declare()
         print(f"emulating {len(emulator.devices)} devices of {len(feeds)} subjects "

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import threading
 
@@ -12,7 +13,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", default="tcp/127.0.0.1:7447",
                         help="endpoint(s) to listen on, comma-separated (default tcp/127.0.0.1:7447)")
     parser.add_argument("--connect", default="", help="other routers to mesh with, comma-separated")
-    parser.add_argument("--zenoh-config", default="", help="JSON file of extra zenoh settings (TLS, auth, ACL)")
+    parser.add_argument("--zenoh-config", default=os.environ.get(zconfig.CONFIG_ENV, ""),
+                        help=f"JSON file of extra zenoh settings: TLS, auth, ACL (env {zconfig.CONFIG_ENV})")
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:

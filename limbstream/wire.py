@@ -82,6 +82,16 @@ def stats_key(subject: str) -> str:
     return f"{PREFIX}/{check_chunk(subject, 'subject')}/stats"
 
 
+def subject_pattern(text: str) -> str:
+    """A user's subject pattern as a key chunk: ``*`` (all), a name, or a name with ``*``
+    wildcards inside (``s0*`` becomes Zenoh's ``s0$*``). ValueError if it is neither."""
+    text = text.strip()
+    if text == "*":
+        return text
+    check_chunk(text.replace("*", "x"), "subject pattern")
+    return text.replace("*", "$*")
+
+
 def subject_selector(subjects: str = "*") -> str:
     """Key expression of every device key of the subjects matched by ``subjects`` (a chunk or ``*``)."""
     return f"{PREFIX}/{subjects}/*"

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import threading
 from dataclasses import dataclass, field
 
 import zenoh
@@ -16,6 +17,8 @@ import zenoh
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 ROUTER_ENV = "LIMBSTREAM_ROUTER"
 """Environment variable naming the router endpoint(s), comma-separated."""
+CONFIG_ENV = "LIMBSTREAM_ZENOH_CONFIG"
+"""Environment variable naming a JSON file of extra Zenoh settings (TLS, auth)."""
 
 
 @dataclass(frozen=True)
@@ -60,9 +63,33 @@ def build_config(settings: ZenohSettings) -> zenoh.Config:
     return config
 
 
-def open_session(settings: ZenohSettings) -> zenoh.Session:
-    """Open a session; a client waits for its router (retrying) instead of failing."""
-    return zenoh.open(build_config(settings))
+def open_session(settings: ZenohSettings, stop: threading.Event | None = None) -> zenoh.Session | None:
+    """Open a session; a client waits for its router (retrying) instead of failing.
+
+    With ``stop``, the wait happens in a helper thread so that setting ``stop`` (a signal
+    handler does) ends it: the result is then None and the caller should exit.
+    """
+    config = build_config(settings)
+    if stop is None:
+        return zenoh.open(config)
+    result: dict = {}
+    done = threading.Event()
+
+    def opener():
+        try:
+            result["session"] = zenoh.open(config)
+        except Exception as exc:  # noqa: BLE001 - re-raised in the caller's thread
+            result["error"] = exc
+        finally:
+            done.set()
+
+    threading.Thread(target=opener, name="zenoh-open", daemon=True).start()
+    while not done.wait(0.1):
+        if stop.is_set():
+            return None
+    if "error" in result:
+        raise result["error"]
+    return result["session"]
 
 
 def add_arguments(parser: argparse.ArgumentParser, mode: str = "client") -> None:
@@ -73,9 +100,8 @@ def add_arguments(parser: argparse.ArgumentParser, mode: str = "client") -> None
                        help=f"endpoint(s) to connect to, comma-separated (env {ROUTER_ENV}; default {default or 'none'})")
     group.add_argument("--listen", default="", help="endpoint(s) to listen on, comma-separated")
     group.add_argument("--mode", default=mode, choices=("client", "peer", "router"), help=f"zenoh mode (default {mode})")
-    group.add_argument("--zenoh-config", default=os.environ.get("LIMBSTREAM_ZENOH_CONFIG", ""),
-                       help="JSON file of extra zenoh settings (key -> value), e.g. TLS/auth "
-                            "(env LIMBSTREAM_ZENOH_CONFIG)")
+    group.add_argument("--zenoh-config", default=os.environ.get(CONFIG_ENV, ""),
+                       help=f"JSON file of extra zenoh settings (key -> value), e.g. TLS/auth (env {CONFIG_ENV})")
 
 
 def from_args(args: argparse.Namespace) -> ZenohSettings:

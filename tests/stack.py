@@ -31,6 +31,8 @@ from pathlib import Path
 
 import pytest
 
+from limbstream import zconfig
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -190,3 +192,13 @@ def stack(tmp_path):
         yield s
     finally:
         s.stop()
+
+
+def wait_for_subscribers(endpoint: str, keys: list[str], what: str, on_fail=None) -> None:
+    """Block until a publisher on ``endpoint`` would reach a subscriber for every key (no sample is sent)."""
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+    try:
+        publishers = [session.declare_publisher(k) for k in keys]
+        wait_until(lambda: all(p.matching_status.matching for p in publishers), 30, what, on_fail=on_fail)
+    finally:
+        session.close()

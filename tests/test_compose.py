@@ -48,7 +48,7 @@ def compose_config(*files: str, env: dict, fmt: str = "json") -> subprocess.Comp
     args = [str(COMPOSE_BIN)]
     for f in files:
         args += ["-f", f]
-    return subprocess.run(args + ["config", "--format", fmt], cwd=ROOT, env=env, capture_output=True,
+    return subprocess.run(args + ["config", "--format", fmt], cwd=ROOT, env=env, check=False, capture_output=True,
                           text=True, timeout=60)
 
 
@@ -122,8 +122,8 @@ def test_development_override_layers_on_top():
 
 def test_compose_files_match_the_compose_spec_schema():
     res = subprocess.run([sys.executable, "-m", "check_jsonschema", "--builtin-schema", "vendor.compose-spec",
-                          "docker-compose.yml", "compose.dev.yml"], cwd=ROOT, capture_output=True, text=True,
-                         timeout=60)
+                          "docker-compose.yml", "compose.dev.yml"],
+                         cwd=ROOT, check=False, capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stdout + res.stderr
 
 
@@ -201,7 +201,7 @@ def image(tmp_path_factory) -> dict:
     wheels = tmp / "wheels"
     # The build stage's `pip wheel .`, without the dependencies (they are installed on this machine).
     res = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--wheel-dir", str(wheels), "."],
-                         cwd=context, capture_output=True, text=True, timeout=300)
+                         cwd=context, check=False, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"pip wheel failed:\n{res.stdout}\n{res.stderr}"
     (wheel,) = wheels.glob("limbstream-*.whl")
 
@@ -209,7 +209,7 @@ def image(tmp_path_factory) -> dict:
     venv.create(env_dir, system_site_packages=True, with_pip=False)
     python = env_dir / "bin" / "python"
     res = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps",
-                          "--no-index", str(wheel)], capture_output=True, text=True, timeout=300)
+                          "--no-index", str(wheel)], check=False, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"installing {wheel.name} failed:\n{res.stdout}\n{res.stderr}"
 
     root = tmp / "root"  # the runtime stage's file system for its COPY destinations
@@ -231,8 +231,8 @@ def test_installed_wheel_runs_outside_the_source_tree(image):
              "t = np.arange(200, dtype=np.uint32) * 20000\n"
              "q = np.tile([1.0, 0.0, 0.0, 0.0], (200, 1)).astype(np.float32)\n"
              "print(limbstream.__file__, services.__file__, device_emulator.__file__, len(segment(t, q, 1e-2).index))")
-    res = subprocess.run([str(image["python"]), "-c", probe], cwd=image["home"], capture_output=True, text=True,
-                         env=clean_env(), timeout=60)
+    res = subprocess.run([str(image["python"]), "-c", probe], cwd=image["home"], check=False,
+                         capture_output=True, text=True, env=clean_env(), timeout=60)
     assert res.returncode == 0, res.stderr
     *paths, n_points = res.stdout.split()
     site = str(image["bin"].parent)
@@ -270,7 +270,7 @@ def test_compose_services_run_as_local_processes(image, tmp_path):
         def healthy():
             dead = [p.name for p in stack.procs if not p.alive()]
             assert not dead, f"exited: {dead}"
-            return subprocess.run(health, capture_output=True, timeout=10).returncode == 0
+            return subprocess.run(health, check=False, capture_output=True, timeout=10).returncode == 0
         wait_until(healthy, 60, "the dashboard's compose healthcheck to pass", interval=0.2, on_fail=stack.logs)
 
         per_replica = int(services["emulator"]["environment"]["LIMBSTREAM_SUBJECTS"])

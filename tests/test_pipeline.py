@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from stack import stack, wait_until  # noqa: F401  (fixture)
+from stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, wire, zconfig
 from limbstream.sources import SEGMENTS, load_npz
@@ -55,6 +55,8 @@ def test_recorded_clip_frames_match_offline_evaluation(stack, watch, cmu_npz):  
     motion = load_npz(cmu_npz)[0]
     m = len(motion.t)
     stack.aggregator()
+    keys = [k for seg in motion.segments for k in (wire.seg_key("s01", seg), wire.raw_key("s01", seg))]
+    wait_for_subscribers(stack.endpoint, keys, "the aggregator's subscriptions", on_fail=stack.logs)
     stack.emulator(1, 10.0, "--source", str(cmu_npz), "--once", "--max-len", "25")
 
     def finished():

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import zenoh
-from stack import free_port, stack, wait_until  # noqa: F401  (fixture)
+from stack import free_port, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, wire, zconfig
 from limbstream.sources import load_npz
@@ -37,16 +37,6 @@ class Tap:
 
     def close(self) -> None:
         self.session.close()
-
-
-def wait_for_subscribers(endpoint: str, keys: list[str], what: str, on_fail=None) -> None:
-    """Block until a publisher on ``endpoint`` would reach a subscriber for every key (no sample is sent)."""
-    session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-    try:
-        publishers = [session.declare_publisher(k) for k in keys]
-        wait_until(lambda: all(p.matching_status.matching for p in publishers), 30, what, on_fail=on_fail)
-    finally:
-        session.close()
 
 
 @pytest.fixture
@@ -81,8 +71,11 @@ def test_devices_and_aggregator_on_two_meshed_routers(stack, tap_factory, cmu_np
         tap.poll()
         mine = tap.devices("s01")
         return len(mine) == 10 and all(d["final"] and d["error_samples"] == m for d in mine) and mine
+    def report():
+        seen = [(d["segment"], d["final"], d["samples"], d["error_samples"]) for d in tap.devices("s01")]
+        return f"\n(segment, final, samples, error_samples) of {m}: {seen}" + stack.logs()
     mine = wait_until(finished, 90, "every device of s01 to finish its clip through both routers",
-                      on_fail=stack.logs)
+                      on_fail=report)
 
     expected = evaluation.evaluate([motion], ["fastsw"], [1e-2], max_len=25)[0]
     pooled = sum(d["aad_all_deg"] * d["error_samples"] for d in mine) / sum(d["error_samples"] for d in mine)

@@ -138,3 +138,12 @@ def test_config_validation():
                        (b'{"threshold": true}', "threshold"), (b'{"speed": 1}', "unknown"), (b"{}", "needs")):
         with pytest.raises(wire.WireError, match=words):
             wire.decode_config(bad, current if b"speed" in bad or bad == b"{}" else None)
+
+
+def test_subject_patterns_become_key_chunks():
+    assert wire.subject_pattern("*") == "*"
+    assert wire.subject_pattern(" s01 ") == "s01"
+    assert wire.subject_pattern("s0*") == "s0$*"
+    for bad in ("s/1", "", "s 1"):
+        with pytest.raises(ValueError):
+            wire.subject_pattern(bad)

@@ -40,6 +40,7 @@ class AggregatorSettings:
     history : segment points per device to ask for when joining late.
     error_window_s : angular-error window, seconds of samples at 50 Hz.
     config_poll_s : how often device configs (threshold) are queried, seconds.
+    max_devices : most devices tracked; messages of further devices are counted and dropped.
     frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
         covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
     """
@@ -53,6 +54,7 @@ class AggregatorSettings:
     error_window_s: float = 60.0
     config_poll_s: float = 5.0
     frame_batch_s: float = 0.0
+    max_devices: int = 10_000
     skeleton: Skeleton = Skeleton()
 
 
@@ -130,18 +132,41 @@ class Aggregator:
             return None
         return subject, segment
 
+    def _known(self, subject: str, segment: str) -> DeviceTrack | None:
+        sub = self.subjects.get(subject)
+        return sub.tracks.get(segment) if sub is not None else None
+
+    def _device(self, ids: tuple[str, str], kind: str, reason: str | None) -> DeviceTrack | None:
+        """The track a message of ``kind`` counts against, or None (counted in ``bad_keys``).
+
+        Undecodable messages (``reason``) of devices never seen create no track, and at most
+        ``max_devices`` tracks exist: keys invented by a faulty or hostile client cannot grow
+        the aggregator's memory without bound (tests/test_live_fuzz.py)."""
+        track = self._known(*ids)
+        if track is None:
+            if reason is not None:
+                self.bad_keys[f"{kind}_{reason}"] += 1
+                return None
+            if len(self.fusion.tracks) >= self.settings.max_devices:
+                self.bad_keys["too_many_devices"] += 1
+                return None
+            track = self.track(*ids)
+        if reason is not None:
+            track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
+        return track
+
     def on_point(self, key: str, payload: bytes, now: float) -> None:
         """A segment point message (decoded, validated, counted)."""
         ids = self._parse_key(key, "seg")
         if ids is None:
             return
-        track = self.track(*ids)
         try:
             point = wire.decode_point(payload)
         except wire.WireError as exc:
-            track.dropped[exc.reason] += 1
+            self._device(ids, "seg", exc.reason)
             return
-        if self.fusion.add_point(track, point, len(payload), now):
+        track = self._device(ids, "seg", None)
+        if track is not None and self.fusion.add_point(track, point, len(payload), now):
             self.loop.points += 1
 
     def on_raw(self, key: str, payload: bytes, now: float) -> None:
@@ -149,19 +174,19 @@ class Aggregator:
         ids = self._parse_key(key, "raw")
         if ids is None:
             return
-        track = self.track(*ids)
         try:
             batch = wire.decode_raw(payload)
         except wire.WireError as exc:
-            track.dropped[f"raw_{exc.reason}"] += 1
+            self._device(ids, "raw", exc.reason)
             return
-        if self.fusion.add_raw(track, batch, now):
+        track = self._device(ids, "raw", None)
+        if track is not None and self.fusion.add_raw(track, batch, now):
             self.loop.raw_batches += 1
 
     def on_alive(self, key: str, online: bool) -> None:
         ids = self._parse_key(key, "alive")
-        if ids is not None:
-            self.track(*ids).online = online
+        if ids is not None and (track := self._device(ids, "alive", None)) is not None:
+            track.online = online
 
     def on_config(self, key: str, payload: bytes) -> None:
         """A device's config reply: its threshold and max segment length."""
@@ -174,8 +199,9 @@ class Aggregator:
         except (ValueError, KeyError, TypeError):
             self.bad_keys["config_reply"] += 1
             return
-        track = self.track(*ids)
-        track.threshold, track.max_len = threshold, max_len
+        track = self._known(*ids)
+        if track is not None:
+            track.threshold, track.max_len = threshold, max_len
 
     def drain(self, now: float, budget: int = 100_000) -> int:
         """Move everything waiting in the channels into the tracks. Returns messages handled."""
@@ -253,7 +279,8 @@ class Aggregator:
         for subject in list(self.subjects):
             snapshot = self.subject_stats(subject, now)
             devices = snapshot.pop("devices")
-            snapshot["aggregator"] = self.loop.as_dict()  # load / soak figures (bench/soak.py)
+            # load / soak figures (bench/soak.py) and messages no device could be charged with
+            snapshot["aggregator"] = self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
             payload = wire.encode_stats(subject, wall, devices, snapshot)
             self.session.put(wire.stats_key(subject), payload)
         self.loop.recent_backlog = 0

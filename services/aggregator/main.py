@@ -33,11 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
     """AggregatorSettings from the flags; SystemExit with a clear message on bad values."""
-    patterns = tuple(p.strip() for p in args.subjects.split(",") if p.strip())
     try:
-        for p in patterns:
-            if p != "*":
-                wire.check_chunk(p.replace("*", "x"), "--subjects entry")
+        patterns = tuple(wire.subject_pattern(p) for p in args.subjects.split(",") if p.strip())
         skeleton = Skeleton(thigh=args.thigh, shank=args.shank, upperarm=args.upperarm, lowerarm=args.lowerarm,
                             spine=args.spine, neck=args.neck, rest_pose=args.rest_pose)
         if not (args.rate > 0 and args.tick > 0 and args.live_rate >= 0 and args.history >= 1
@@ -58,7 +55,10 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     stop = stop or threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    with zconfig.open_session(zconfig.from_args(args)) as session:
+    session = zconfig.open_session(zconfig.from_args(args), stop)
+    if session is None:  # stopped while waiting for the router
+        return 0
+    with session:
         aggregator = Aggregator(session, settings)
         aggregator.open()
         print(f"aggregating subjects {','.join(settings.subjects)} at {settings.rate:g} Hz", flush=True)

@@ -14,6 +14,11 @@ from limbstream import wire
 RATE_WINDOW_S = 5.0
 """Sliding window of the data-rate figures, seconds (arrival time)."""
 
+MAX_T_US = 2**53
+"""Device timestamps must lie in [0, 2**53) us (year 2255): frame times and SLERP run in
+float64, exact below 2**53. Others are dropped as ``time_range`` (a point near the int64 limit
+once overflowed the frame grid and stopped the aggregator; tests/test_fuzz.py)."""
+
 
 class DeviceTrack:
     """One device as seen by the aggregator.
@@ -69,6 +74,9 @@ class DeviceTrack:
     def accept_point(self, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
         """Sequence and time checks of a point of the current stream; counts and returns
         False to drop it, else records it (the caller stores its value)."""
+        if not 0 <= p.t_us < MAX_T_US:
+            self.dropped["time_range"] += 1
+            return False
         if self.next_seq is not None and p.seq < self.next_seq:
             self.dropped["duplicate"] += 1
             return False
@@ -89,6 +97,9 @@ class DeviceTrack:
     def accept_raw(self, batch: wire.RawBatch, now: float) -> bool:
         if batch.stream != self.stream:
             self.dropped["raw_other_stream"] += 1
+            return False
+        if not 0 <= int(batch.t_us[0]) <= int(batch.t_us[-1]) < MAX_T_US:  # (wrapped int64 fails too)
+            self.dropped["raw_time_range"] += 1
             return False
         self.last_raw_index = max(self.last_raw_index, batch.first_index + len(batch.t_us) - 1)
         self.see(int(batch.t_us[-1]), now)
