@@ -44,7 +44,7 @@ def segment_length_table(m: int, repeats: int) -> list[tuple[int, float, float, 
         result = kernel.segment(t, y, THRESHOLD)
         realised = (m - 1) / max(len(result.index) - 1, 1)
         ns = {
-            alg: best_ns(lambda a=alg: kernel.segment(t, y, THRESHOLD, algorithm=a), repeats) / m
+            alg: best_ns(lambda a=alg, t=t, y=y: kernel.segment(t, y, THRESHOLD, algorithm=a), repeats) / m
             for alg in ("fastsw", "sw")
         }
         rows.append((length, realised, ns["fastsw"], ns["sw"]))

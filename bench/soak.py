@@ -241,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     third = max(1, (len(backlog) - base) // 3)
     early, late_q = max(backlog[base:base + third] or [0]), max(backlog[-third:] or [0])
 
-    print(f"\nRSS (MiB) at t = " + ", ".join(f"{t:.0f}" for t in times) + " s")
+    print("\nRSS (MiB) at t = " + ", ".join(f"{t:.0f}" for t in times) + " s")
     print("| process | RSS after warm-up | max after | growth | CPU % | RSS series |")
     print("|---|---|---|---|---|---|")
     for name, series, ref, growth in rows:

@@ -369,7 +369,7 @@ class DeviceConfig:
     threshold: float
     max_len: int
 
-    def validate(self) -> "DeviceConfig":
+    def validate(self) -> DeviceConfig:
         if not (isinstance(self.threshold, (int, float)) and math.isfinite(self.threshold) and self.threshold >= 0):
             raise ValueError(f"threshold must be a finite number >= 0, got {self.threshold!r}")
         if not (isinstance(self.max_len, int) and 1 <= self.max_len <= 100_000):

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import require_data
 from sw_oracle import sliding_window
 
 from limbstream import kernel

@@ -141,7 +141,7 @@ def test_random_bytes_and_json_on_every_key(stack):  # noqa: F811
         # the good streams were not disturbed: no gaps, points kept coming, the error stays small
         wait_until(lambda: all(watch.poll()[k]["points"] > before[k]["points"] + 3 for k in before),
                    30, "s01 points to keep coming")
-        for k, d in watch.poll().items():
+        for d in watch.poll().values():
             assert d["online"] and d["gaps"] == 0, d
             assert d["aad_deg"] is not None and d["aad_deg"] < 5.0, d
         bad = watch.extra["aggregator"]["bad_keys"]

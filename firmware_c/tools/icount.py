@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -66,7 +65,7 @@ def call_graph(elf: Path, syms: dict[str, tuple[int, int]]) -> tuple[dict[str, s
     returns: dict[str, set[int]] = defaultdict(set)
     current = None
     lines = out.splitlines()
-    for i, line in enumerate(lines):
+    for line in lines:
         head = re.match(r"^[0-9a-f]+ <([^>]+)>:", line)
         if head:
             current = head.group(1)

@@ -184,7 +184,7 @@ class LiveState:
         stats, alive, poses = self.inbox.take()
         for key, present in alive:
             self.apply_alive(key, present)
-        for rx, key, payload in stats:
+        for rx, _key, payload in stats:
             self.apply_stats(payload, rx)
         for rx, key, payload in poses:
             self.apply_pose(key, payload, rx)
