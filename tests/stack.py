@@ -116,13 +116,14 @@ class Stack:
     def logs(self) -> str:
         return "".join(p.tail() for p in self.procs)
 
-    def start(self, name: str, *args: str, env: dict | None = None) -> Proc:
-        """Run ``limbstream <args>`` (see :attr:`launcher`) in its own process group."""
+    def start(self, name: str, *args: str, env: dict | None = None, prefix: tuple[str, ...] = ()) -> Proc:
+        """Run ``limbstream <args>`` (see :attr:`launcher`) in its own process group; ``prefix`` is
+        a wrapper command, e.g. ``("ip", "netns", "exec", "ns1")``."""
         log = self.workdir / f"{name}-{len(self.procs)}.log"
         base = os.environ if self.base_env is None else self.base_env
         full_env = dict(base) | {"PYTHONUNBUFFERED": "1"} | self.env | (env or {})
         with open(log, "wb") as out:
-            popen = subprocess.Popen([*self.launcher, *args], cwd=self.cwd,
+            popen = subprocess.Popen([*prefix, *self.launcher, *args], cwd=self.cwd,
                                      stdout=out, stderr=subprocess.STDOUT, env=full_env,
                                      start_new_session=True)
         proc = Proc(name, popen, log)
@@ -137,8 +138,8 @@ class Stack:
                 return True
         wait_until(listening, timeout, f"{proc.name} to listen on port {port}", on_fail=self.logs)
 
-    def router(self, timeout: float = 20.0) -> Proc:
-        proc = self.start("router", "router", "--listen", self.endpoint)
+    def router(self, *extra: str, timeout: float = 20.0) -> Proc:
+        proc = self.start("router", "router", "--listen", self.endpoint, *extra)
         self._wait_port(self.port, proc, timeout)
         return proc
 

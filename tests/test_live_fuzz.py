@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import collections
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
+import pytest
 import zenoh
-from stack import http_json, stack, wait_until  # noqa: F401  (fixture)
+from stack import ROOT, http_json, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 from limbstream.sources import SEGMENTS
@@ -153,3 +157,35 @@ def test_random_bytes_and_json_on_every_key(stack):  # noqa: F811
         assert status == 200, (status, health)
     finally:
         watch.session.close()
+
+
+# ----------------------------------------------------------------------------- bad files and flags
+
+
+BAD_INVOCATIONS = [
+    (["emulate", "--rate", "-5"], "--rate"),
+    (["emulate", "--subjects", "0"], "--subjects"),
+    (["emulate", "--raw-batch", "999999"], "--raw-batch"),
+    (["emulate", "--source", "{tmp}/broken.bvh"], "broken.bvh"),
+    (["emulate", "--source", "{tmp}/broken.csv"], "broken.csv"),
+    (["emulate", "--source", "{tmp}/missing.npz"], "missing.npz"),
+    (["emulate", "--zenoh-config", "{tmp}/bad.json"], "bad.json"),
+    (["aggregate", "--subjects", "a/b"], "a/b"),
+    (["aggregate", "--tick", "0"], "--tick"),
+    (["router", "--zenoh-config", "{tmp}/list.json"], "expected a JSON object"),
+]
+
+
+@pytest.mark.parametrize("argv, names", BAD_INVOCATIONS, ids=[" ".join(a) for a, _ in BAD_INVOCATIONS])
+def test_bad_files_and_flags_get_clear_errors(tmp_path, argv, names):
+    """Exit status != 0, one line naming the flag or file, no traceback."""
+    (tmp_path / "broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0\n")
+    (tmp_path / "broken.csv").write_text("Time (s),Quaternion W\n0.0,1.0\nnot,a,number\n")
+    (tmp_path / "bad.json").write_text("{not json")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    result = subprocess.run([sys.executable, "-m", "limbstream.cli", *args], cwd=ROOT, capture_output=True,
+                            text=True, timeout=60, env=os.environ | {"LIMBSTREAM_ROUTER": "tcp/127.0.0.1:1"})
+    err = result.stderr + result.stdout
+    assert result.returncode != 0, err
+    assert names in err and "Traceback" not in err, err

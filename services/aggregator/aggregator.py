@@ -104,8 +104,10 @@ class Aggregator:
             )
             self._seg_subs.append(sub)
             self._misses.append(sub.sample_miss_listener(zenoh.handlers.FifoChannel(1024)))
-            self._raw_subs.append(self.session.declare_subscriber(
-                f"{wire.PREFIX}/{pattern}/*/raw", zenoh.handlers.FifoChannel(1 << 14)))
+            self._raw_subs.append(zext.declare_advanced_subscriber(  # truth tap: recovered like points
+                self.session, f"{wire.PREFIX}/{pattern}/*/raw", zenoh.handlers.FifoChannel(1 << 14),
+                history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
+                recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
             self._alive_subs.append(self.session.liveliness().declare_subscriber(
                 f"{wire.PREFIX}/{pattern}/*/alive", zenoh.handlers.FifoChannel(1 << 14), history=True))
 

@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live-rate", type=float, default=10.0, help="live frame rate, Hz (0: none; default 10)")
     parser.add_argument("--tick", type=float, default=0.02, help="loop period, s (default 0.02)")
     parser.add_argument("--frame-batch", type=float, default=0.0,
-                        help="build exact frames at most every this many s (0: every tick; ~0.5 for 200 subjects)")
+                        help="build exact frames at most every this many s (0: every tick)")
     parser.add_argument("--history", type=int, default=512, help="segment points per device fetched when joining")
     parser.add_argument("--error-window", type=float, default=60.0, help="angular-error window, s (default 60)")
     parser.add_argument("--rest-pose", choices=("standing", "tpose"), default="standing",
