@@ -158,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
                              "caches fill during warm-up (~150 s at 512), so short runs use less")
     parser.add_argument("--truth", action="store_true", help="also stream the truth tap (raw samples)")
     parser.add_argument("--warmup", type=float, default=None,
-                        help="warm-up, s, before the RSS baseline (default: 30 %% of the run, at most 180 s: the recovery caches fill first)")
+                        help="warm-up, s, before the RSS baseline (default: 30 %% of the run, at most "
+                             "180 s: the recovery caches fill first)")
     parser.add_argument("--samples", type=int, default=11, help="RSS samples over the run (default 11)")
     parser.add_argument("--check", action="store_true", help="exit 1 if a target is missed")
     parser.add_argument("--json", default="", help="also write the results to this JSON file")

@@ -93,7 +93,8 @@ def test_segment_point_decoder_bulk():
         payload = mutate(rng, good[k % len(good)]) if k % 4 else rng.bytes(int(rng.integers(0, 80)))
         result = decodes_or_wire_error(wire.decode_point, payload)
         check_point(result)
-        reasons[result if isinstance(result, str) else "ok"] = reasons.get(result if isinstance(result, str) else "ok", 0) + 1
+        key = result if isinstance(result, str) else "ok"
+        reasons[key] = reasons.get(key, 0) + 1
     count("point", 40_000)
     assert {"size", "version", "non_finite", "non_unit", "ok"} <= set(reasons), reasons
 
