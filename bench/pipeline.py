@@ -89,13 +89,37 @@ def cpu_now() -> float:
 # ----------------------------------------------------------------------------- emulator
 
 
+SINK = """
+import sys, time, zenoh
+from limbstream import zconfig
+s = zconfig.open_session(zconfig.ZenohSettings(connect=(sys.argv[1],)))
+subs = [s.declare_subscriber(k, zenoh.handlers.FifoChannel(1 << 16)) for k in ("limbstream/*/*/seg", "limbstream/*/*/raw")]
+print("ready", flush=True)
+while True:
+    got = 0
+    for sub in subs:
+        while sub.try_recv() is not None:
+            got += 1
+    if not got:
+        time.sleep(0.005)
+"""
+
+
+def start_sink(endpoint: str) -> subprocess.Popen:
+    """A subscriber process that takes every segment point and truth batch (so the router routes them)."""
+    proc = subprocess.Popen([sys.executable, "-c", SINK, endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    proc.stdout.readline()
+    return proc
+
+
 def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
     print(f"\n### Devices per emulator process ({seconds:g} s at 50 Hz each, truth tap {'on' if truth else 'off'},"
-          " router in its own process, no aggregator)\n")
+          " router and a subscriber taking everything in their own processes)\n")
     print("| devices | ticks | late ticks | busy (of 1 core) | emulator CPU | router CPU | points/s |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for n in counts:
         with Router() as router:
+            sink = start_sink(router.endpoint)
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
             emulator = Emulator(session, feeds, EmulatorSettings(truth=truth))
@@ -109,6 +133,8 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
             points = sum(d.points for d in emulator.devices)
             emulator.undeclare()
             session.close()
+            sink.terminate()
+            sink.wait(10)
         print(f"| {n} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
               f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {100 * rcpu / seconds:.0f} % | "
               f"{points / seconds:.0f} |")

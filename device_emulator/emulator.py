@@ -239,6 +239,8 @@ class Emulator:
             self.declare()
         s = self.settings
         period = 1.0 / (s.fs * s.speed)
+        for feed in self.feeds.values():  # generate every feed's first chunk before the clock starts
+            feed.sample(0)
         self.start_us = int(time.time() * 1e6)
         n_ticks = self.length
         if duration_s is not None:
