@@ -1,16 +1,21 @@
 # limbstream: the two commands of the README are `make run` and `make test`.
+# Both first install the package (building the C kernels) when its sources changed.
 PYTHON ?= python3
 PYTEST_ARGS ?=
+STAMP := build/.installed
 
 .PHONY: install run test icount bench m4 clean
 
-install:
+$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/include/*.h)
 	$(PYTHON) -m pip install -e '.[test]'
+	@mkdir -p build && touch $@
 
-run:
+install: $(STAMP)
+
+run: $(STAMP)
 	$(PYTHON) -m limbstream.cli up
 
-test:
+test: $(STAMP)
 	$(PYTHON) -m pytest $(PYTEST_ARGS)
 
 icount:
@@ -19,8 +24,9 @@ icount:
 m4:
 	$(MAKE) -C firmware_c m4
 
-bench:
+bench: $(STAMP)
 	$(PYTHON) bench/kernel_speed.py
+	$(PYTHON) bench/pipeline.py all
 
 clean:
 	$(MAKE) -C firmware_c clean

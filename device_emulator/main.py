@@ -5,12 +5,12 @@ import argparse
 import logging
 import os
 import re
-import signal
 import socket
 import threading
 
 from device_emulator.emulator import Emulator, EmulatorSettings
 from device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.cli import stop_on_signals
 from limbstream import wire, zconfig
 from limbstream.sources import MotionFileError, load
 
@@ -93,9 +93,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     settings = EmulatorSettings(fs=args.rate, speed=args.speed, threshold=args.threshold, max_len=args.max_len,
                                 truth=args.truth, raw_batch=args.raw_batch, cache=args.cache)
-    stop = stop or threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals(stop)
     session = zconfig.open_session(zconfig.from_args(args), stop)
     if session is None:  # stopped while waiting for the router
         return 0

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("limbstream.up", "run the whole live system on this machine"),
@@ -18,6 +20,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "watch": ("limbstream.watch", "print a live text view of a subject's pose stream"),
     "eval": ("limbstream.evaluation", "evaluate segmentation algorithms on motion files"),
 }
+
+
+def stop_on_signals(stop: threading.Event | None = None) -> threading.Event:
+    """The event a command's loop waits on, set by SIGINT and SIGTERM (a new one if None)."""
+    stop = stop or threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
 
 
 def build_parser() -> argparse.ArgumentParser:

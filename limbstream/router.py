@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import threading
 
 from limbstream import zconfig
+from limbstream.cli import stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,9 +21,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     """Serve until SIGINT/SIGTERM (or ``stop`` is set)."""
     args.mode = "router"
     settings = zconfig.from_args(args)
-    stop = stop or threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals(stop)
     with zconfig.open_session(settings) as session:
         print(f"zenoh router {session.zid()} listening on {', '.join(settings.listen)}", flush=True)
         stop.wait()

@@ -18,6 +18,8 @@ import threading
 import time
 from dataclasses import dataclass
 
+from limbstream.cli import stop_on_signals
+
 STOP_TIMEOUT_S = 5.0
 
 
@@ -124,9 +126,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             raise ValueError("--subjects and --emulators must be >= 1")
     except ValueError as exc:
         raise SystemExit(f"limbstream up: error: {exc}") from None
-    stop = stop or threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals(stop)
     children = plan(args)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     started: list[Child] = []

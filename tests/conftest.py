@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+pytest_plugins = ("stack",)  # the `stack` and `watch` fixtures of real processes
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("LIMBSTREAM_DATA", ROOT.parent / "shared" / "data"))
 IN_CI = os.environ.get("CI", "").lower() == "true"

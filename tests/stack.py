@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+import zenoh
 
-from limbstream import zconfig
+from limbstream import wire, zconfig
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -203,3 +204,38 @@ def wait_for_subscribers(endpoint: str, keys: list[str], what: str, on_fail=None
         wait_until(lambda: all(p.matching_status.matching for p in publishers), 30, what, on_fail=on_fail)
     finally:
         session.close()
+
+
+class StatsWatch:
+    """A client session in the test that keeps the latest stats of every device."""
+
+    def __init__(self, endpoint: str):
+        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+        self.sub = self.session.declare_subscriber("limbstream/*/stats", zenoh.handlers.FifoChannel(4096))
+        self.devices: dict[str, dict] = {}
+        self.subjects: dict[str, dict] = {}
+
+    def poll(self) -> dict[str, dict]:
+        while (sample := self.sub.try_recv()) is not None:
+            data = wire.decode_stats(sample.payload.to_bytes())
+            self.subjects[data["subject"]] = data
+            for d in data["devices"]:
+                self.devices[d["device"]] = d
+        return self.devices
+
+    def device_status(self, device: str) -> dict:
+        """The device's own counters, asked over its config queryable."""
+        subject, segment = device.split("/")
+        replies = list(self.session.get(wire.config_key(subject, segment), timeout=5.0))
+        return json.loads(replies[0].ok.payload.to_bytes())
+
+    def close(self):
+        self.session.close()
+
+
+@pytest.fixture
+def watch(stack):  # noqa: F811 - the fixture above
+    stack.router()
+    w = StatsWatch(stack.endpoint)
+    yield w
+    w.close()

@@ -15,8 +15,7 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
-from test_pipeline import StatsWatch
+from stack import ROOT, StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, quat, wire
 from limbstream.sources import load_npz
@@ -53,12 +52,6 @@ class Frames:
         return self.t
 
 
-@pytest.fixture
-def watch(stack):  # noqa: F811
-    stack.router()
-    w = StatsWatch(stack.endpoint)
-    yield w
-    w.close()
 
 
 def aggregator_counters(watch: StatsWatch, subject: str) -> dict:

@@ -5,45 +5,23 @@ instruction counts"); a change that makes fastsw_update's slowest branch longer 
 """
 from __future__ import annotations
 
-import importlib.util
 import re
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import IN_CI, ROOT
+from firmware import FIRMWARE, load_tool, require_tools
 
-FIRMWARE = ROOT / "firmware_c"
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-nm", "arm-none-eabi-objdump", "qemu-system-arm", "make")
 
 FASTSW_MAX_INSTRUCTIONS = 130
 """Reached maximum of fastsw_update per sample (paper, Table 2: 210)."""
 
 
-def require_tools() -> None:
-    """Skip without the cross toolchain and QEMU; fail in CI."""
-    missing = [tool for tool in TOOLS if shutil.which(tool) is None]
-    if missing:
-        message = f"Cortex-M4 tools not installed: {missing} (apt install gcc-arm-none-eabi qemu-system-arm)"
-        if IN_CI:
-            pytest.fail(message)
-        pytest.skip(message)
-
-
-def load_icount():
-    spec = importlib.util.spec_from_file_location("m4_icount", FIRMWARE / "tools" / "icount.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
 def build_dir(tmp_path_factory) -> Path:
-    require_tools()
+    require_tools(*TOOLS)
     build = tmp_path_factory.mktemp("icount")
     done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}"],
                           capture_output=True, text=True, timeout=120)
@@ -53,7 +31,7 @@ def build_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def counts(build_dir) -> dict:
-    return load_icount().measure(build_dir / "icount.elf")
+    return load_tool("icount").measure(build_dir / "icount.elf")
 
 
 def test_counting_is_exact(counts):

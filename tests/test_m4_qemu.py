@@ -8,50 +8,29 @@ from __future__ import annotations
 
 import ast
 import ctypes
-import importlib.util
 import re
-import shutil
 import struct
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from limbstream import kernel
-from tests.conftest import IN_CI, ROOT
+from conftest import ROOT
+from firmware import FIRMWARE, load_tool, require_tools
 
-FIRMWARE = ROOT / "firmware_c"
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-objdump", "qemu-system-arm", "make")
 FUSED = re.compile(r"\bv(fma|fms|fnma|fnms)\.f32\b")
 
 
-def require_tools() -> None:
-    """Skip without the cross toolchain and QEMU; fail in CI."""
-    missing = [tool for tool in TOOLS if shutil.which(tool) is None]
-    if missing:
-        message = f"Cortex-M4 tools not installed: {missing} (apt install gcc-arm-none-eabi qemu-system-arm)"
-        if IN_CI:
-            pytest.fail(message)
-        pytest.skip(message)
-
-
-def load_vectors_module():
-    spec = importlib.util.spec_from_file_location("m4_vectors", FIRMWARE / "tools" / "vectors.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
-
-
-vectors = load_vectors_module()
+vectors = load_tool("vectors")
 
 
 @pytest.fixture(scope="module")
 def build_dir(tmp_path_factory) -> Path:
     """A fresh `make m4` into a temporary build folder."""
-    require_tools()
+    require_tools(*TOOLS)
     build = tmp_path_factory.mktemp("m4build")
     done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}"],
                           capture_output=True, text=True, timeout=120)

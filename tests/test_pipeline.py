@@ -11,43 +11,8 @@ import pytest
 import zenoh
 from stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
-from limbstream import evaluation, wire, zconfig
+from limbstream import evaluation, wire
 from limbstream.sources import SEGMENTS, load_npz
-
-
-class StatsWatch:
-    """A client session in the test that keeps the latest stats of every device."""
-
-    def __init__(self, endpoint: str):
-        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.sub = self.session.declare_subscriber("limbstream/*/stats", zenoh.handlers.FifoChannel(4096))
-        self.devices: dict[str, dict] = {}
-        self.subjects: dict[str, dict] = {}
-
-    def poll(self) -> dict[str, dict]:
-        while (sample := self.sub.try_recv()) is not None:
-            data = wire.decode_stats(sample.payload.to_bytes())
-            self.subjects[data["subject"]] = data
-            for d in data["devices"]:
-                self.devices[d["device"]] = d
-        return self.devices
-
-    def device_status(self, device: str) -> dict:
-        """The device's own counters, asked over its config queryable."""
-        subject, segment = device.split("/")
-        replies = list(self.session.get(wire.config_key(subject, segment), timeout=5.0))
-        return json.loads(replies[0].ok.payload.to_bytes())
-
-    def close(self):
-        self.session.close()
-
-
-@pytest.fixture
-def watch(stack):  # noqa: F811
-    stack.router()
-    w = StatsWatch(stack.endpoint)
-    yield w
-    w.close()
 
 
 def test_recorded_clip_frames_match_offline_evaluation(stack, watch, cmu_npz):  # noqa: F811
@@ -73,7 +38,8 @@ def test_recorded_clip_frames_match_offline_evaluation(stack, watch, cmu_npz):  
         own = watch.device_status(d["device"])
         assert d["samples"] == own["samples"] == m, (d, own)
         assert d["points"] == own["points"], (d, own)
-        assert d["gaps"] == 0 and d["dropped"] == 0, d
+        # history replayed to a joining subscriber may repeat live points: dropped as duplicates, nothing else
+        assert d["gaps"] == 0 and set(d["dropped_by_reason"]) <= {"duplicate"}, d
     total_points = sum(d["points"] for d in mine)
     assert total_points / (10 * m) == pytest.approx(expected["icr"], abs=1e-12)
 

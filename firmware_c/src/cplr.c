@@ -21,6 +21,8 @@
  */
 #include "cplr.h"
 
+#include "fastsw_batch.h"
+
 #include <float.h>
 
 /* Largest accepted |y - y_a|^2 (as fastsw.c). */
@@ -173,12 +175,22 @@ FastswStatus cplr_flush(CplrState *state, FastswPoint *point)
     return FASTSW_POINT;
 }
 
-size_t cplr_segment(const FastswSettings *settings, const uint32_t *t, const float *y, size_t m,
-                    FastswPoint *out, size_t *rejected)
+/** cplr_update / cplr_flush over an opaque state, for the batch driver. */
+static FastswStatus update_any(void *state, uint32_t t, const float *y, FastswPoint *point)
 {
+    return cplr_update((CplrState *)state, t, y, point);
+}
+
+static FastswStatus flush_any(void *state, FastswPoint *point)
+{
+    return cplr_flush((CplrState *)state, point);
+}
+
+size_t cplr_segment(const FastswSettings *settings, const uint32_t *t, const float *y, size_t m,
+                   FastswPoint *out, size_t *rejected)
+{
+    static const FastswKernel kernel = {update_any, flush_any};
     CplrState state;
-    size_t i, k = 0u, bad = 0u;
-    uint32_t dim;
 
     if (cplr_init(&state, settings) != FASTSW_NONE) {
         if (rejected != NULL) {
@@ -186,22 +198,7 @@ size_t cplr_segment(const FastswSettings *settings, const uint32_t *t, const flo
         }
         return 0u;
     }
-    dim = FASTSW_DIM(settings);
-    for (i = 0u; i < m; i++) {
-        const FastswStatus status = update(&state, dim, t[i], y + i * dim, &out[k]);
-        if (status == FASTSW_POINT) {
-            k++;
-        } else if (status == FASTSW_REJECTED) {
-            bad++;
-        }
-    }
-    if (k < m && cplr_flush(&state, &out[k]) == FASTSW_POINT) {
-        k++;
-    }
-    if (rejected != NULL) {
-        *rejected = bad;
-    }
-    return k;
+    return fastsw_run_batch(&state, &kernel, FASTSW_DIM(settings), t, y, m, NULL, out, rejected);
 }
 
 size_t cplr_state_size(void)

@@ -29,6 +29,7 @@
  * before the first sample); a break leaves through its own path.
  */
 #include "fastsw.h"
+#include "fastsw_batch.h"
 
 #include <float.h>
 
@@ -242,13 +243,22 @@ FastswStatus fastsw_flush(FastswState *state, FastswPoint *point)
     return FASTSW_POINT;
 }
 
+/** fastsw_update / fastsw_flush over an opaque state, for the batch driver. */
+static FastswStatus update_any(void *state, uint32_t t, const float *y, FastswPoint *point)
+{
+    return fastsw_update((FastswState *)state, t, y, point);
+}
+
+static FastswStatus flush_any(void *state, FastswPoint *point)
+{
+    return fastsw_flush((FastswState *)state, point);
+}
+
 size_t fastsw_segment(const FastswSettings *settings, const uint32_t *t, const float *y, size_t m,
                       uint32_t *out_index, size_t *rejected)
 {
+    static const FastswKernel kernel = {update_any, flush_any};
     FastswState state;
-    FastswPoint point;
-    size_t i, k = 0u, bad = 0u;
-    uint32_t dim;
 
     if (fastsw_init(&state, settings) != FASTSW_NONE) {
         if (rejected != NULL) {
@@ -256,22 +266,7 @@ size_t fastsw_segment(const FastswSettings *settings, const uint32_t *t, const f
         }
         return 0u;
     }
-    dim = FASTSW_DIM(settings);
-    for (i = 0u; i < m; i++) {
-        const FastswStatus status = update(&state, dim, t[i], y + i * dim, &point);
-        if (status == FASTSW_POINT) {
-            out_index[k++] = point.index;
-        } else if (status == FASTSW_REJECTED) {
-            bad++;
-        }
-    }
-    if (fastsw_flush(&state, &point) == FASTSW_POINT) {
-        out_index[k++] = point.index;
-    }
-    if (rejected != NULL) {
-        *rejected = bad;
-    }
-    return k;
+    return fastsw_run_batch(&state, &kernel, FASTSW_DIM(settings), t, y, m, out_index, NULL, rejected);
 }
 
 size_t fastsw_update_many(FastswState *states, size_t count, const uint32_t *t, const float *y,

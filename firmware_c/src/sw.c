@@ -3,6 +3,8 @@
  */
 #include "sw.h"
 
+#include "fastsw_batch.h"
+
 #include <float.h>
 
 #define SW_NN_LIMIT (FLT_MAX / 16.0f)
@@ -126,12 +128,21 @@ FastswStatus sw_flush(SwState *s, FastswPoint *point)
     return FASTSW_POINT;
 }
 
+/** sw_update / sw_flush over an opaque state, for the batch driver. */
+static FastswStatus update_any(void *state, uint32_t t, const float *y, FastswPoint *point)
+{
+    return sw_update((SwState *)state, t, y, point);
+}
+
+static FastswStatus flush_any(void *state, FastswPoint *point)
+{
+    return sw_flush((SwState *)state, point);
+}
+
 size_t sw_segment(SwState *work, const FastswSettings *settings, const uint32_t *t, const float *y,
                   size_t m, uint32_t *out_index, size_t *rejected)
 {
-    FastswPoint point;
-    size_t i, k = 0u, bad = 0u;
-    uint32_t dim;
+    static const FastswKernel kernel = {update_any, flush_any};
 
     if (sw_init(work, settings) != FASTSW_NONE) {
         if (rejected != NULL) {
@@ -139,22 +150,7 @@ size_t sw_segment(SwState *work, const FastswSettings *settings, const uint32_t 
         }
         return 0u;
     }
-    dim = FASTSW_DIM(settings);
-    for (i = 0u; i < m; i++) {
-        const FastswStatus status = sw_update(work, t[i], y + i * dim, &point);
-        if (status == FASTSW_POINT) {
-            out_index[k++] = point.index;
-        } else if (status == FASTSW_REJECTED) {
-            bad++;
-        }
-    }
-    if (sw_flush(work, &point) == FASTSW_POINT) {
-        out_index[k++] = point.index;
-    }
-    if (rejected != NULL) {
-        *rejected = bad;
-    }
-    return k;
+    return fastsw_run_batch(work, &kernel, FASTSW_DIM(settings), t, y, m, out_index, NULL, rejected);
 }
 
 size_t sw_state_size(void)

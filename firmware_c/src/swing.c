@@ -19,6 +19,8 @@
  */
 #include "swing.h"
 
+#include "fastsw_batch.h"
+
 #include <float.h>
 
 /* Largest accepted |y - y_a|^2 (as fastsw.c). */
@@ -180,12 +182,22 @@ FastswStatus swing_flush(SwingState *state, FastswPoint *point)
     return FASTSW_POINT;
 }
 
-size_t swing_segment(const FastswSettings *settings, const uint32_t *t, const float *y, size_t m,
-                     FastswPoint *out, size_t *rejected)
+/** swing_update / swing_flush over an opaque state, for the batch driver. */
+static FastswStatus update_any(void *state, uint32_t t, const float *y, FastswPoint *point)
 {
+    return swing_update((SwingState *)state, t, y, point);
+}
+
+static FastswStatus flush_any(void *state, FastswPoint *point)
+{
+    return swing_flush((SwingState *)state, point);
+}
+
+size_t swing_segment(const FastswSettings *settings, const uint32_t *t, const float *y, size_t m,
+                    FastswPoint *out, size_t *rejected)
+{
+    static const FastswKernel kernel = {update_any, flush_any};
     SwingState state;
-    size_t i, k = 0u, bad = 0u;
-    uint32_t dim;
 
     if (swing_init(&state, settings) != FASTSW_NONE) {
         if (rejected != NULL) {
@@ -193,22 +205,7 @@ size_t swing_segment(const FastswSettings *settings, const uint32_t *t, const fl
         }
         return 0u;
     }
-    dim = FASTSW_DIM(settings);
-    for (i = 0u; i < m; i++) {
-        const FastswStatus status = update(&state, dim, t[i], y + i * dim, &out[k]);
-        if (status == FASTSW_POINT) {
-            k++;
-        } else if (status == FASTSW_REJECTED) {
-            bad++;
-        }
-    }
-    if (k < m && swing_flush(&state, &out[k]) == FASTSW_POINT) {
-        k++;
-    }
-    if (rejected != NULL) {
-        *rejected = bad;
-    }
-    return k;
+    return fastsw_run_batch(&state, &kernel, FASTSW_DIM(settings), t, y, m, NULL, out, rejected);
 }
 
 size_t swing_state_size(void)

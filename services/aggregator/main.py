@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import threading
 
+from limbstream.cli import stop_on_signals
 from limbstream import wire, zconfig
 from limbstream.skeleton import Skeleton
 from services.aggregator.aggregator import Aggregator, AggregatorSettings
@@ -52,9 +52,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(message)s")
     settings = settings_from_args(args)
-    stop = stop or threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals(stop)
     session = zconfig.open_session(zconfig.from_args(args), stop)
     if session is None:  # stopped while waiting for the router
         return 0
