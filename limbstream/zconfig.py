@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import threading
 from dataclasses import dataclass, field
 
@@ -63,6 +64,20 @@ def build_config(settings: ZenohSettings) -> zenoh.Config:
     return config
 
 
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+def _open_masked(config: zenoh.Config) -> zenoh.Session:
+    """zenoh.open with SIGINT/SIGTERM blocked in the calling thread, so the threads Zenoh starts
+    inherit the mask and these signals always reach the main thread (whose Python handler
+    could otherwise wait forever while a Zenoh thread takes the signal)."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        return zenoh.open(config)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 def open_session(settings: ZenohSettings, stop: threading.Event | None = None) -> zenoh.Session | None:
     """Open a session; a client waits for its router (retrying) instead of failing.
 
@@ -71,13 +86,13 @@ def open_session(settings: ZenohSettings, stop: threading.Event | None = None) -
     """
     config = build_config(settings)
     if stop is None:
-        return zenoh.open(config)
+        return _open_masked(config)
     result: dict = {}
     done = threading.Event()
 
     def opener():
         try:
-            result["session"] = zenoh.open(config)
+            result["session"] = _open_masked(config)
         except Exception as exc:  # noqa: BLE001 - re-raised in the caller's thread
             result["error"] = exc
         finally:
