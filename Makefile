@@ -6,7 +6,7 @@ STAMP := build/.installed
 
 .PHONY: install run test icount bench m4 clean
 
-$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/include/*.h)
+$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.h firmware_c/include/*.h)
 	$(PYTHON) -m pip install -e '.[test]'
 	@mkdir -p build && touch $@
 

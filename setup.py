@@ -16,7 +16,7 @@ setup(
             "limbstream._kernels",
             sources=sorted(glob("firmware_c/src/*.c")),
             include_dirs=["firmware_c/include"],
-            depends=sorted(glob("firmware_c/include/*.h")),
+            depends=sorted(glob("firmware_c/include/*.h") + glob("firmware_c/src/*.h")),
             extra_compile_args=KERNEL_CFLAGS,
         )
     ]

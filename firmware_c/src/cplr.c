@@ -22,11 +22,7 @@
 #include "cplr.h"
 
 #include "fastsw_batch.h"
-
-#include <float.h>
-
-/* Largest accepted |y - y_a|^2 (as fastsw.c). */
-#define CPLR_NN_LIMIT (FLT_MAX / 16.0f)
+#include "kernel_common.h"
 
 FastswStatus cplr_init(CplrState *state, const FastswSettings *settings)
 {
@@ -48,31 +44,6 @@ FastswStatus cplr_init(CplrState *state, const FastswSettings *settings)
         state->sty[d] = 0.0f;
     }
     return FASTSW_NONE;
-}
-
-/** Copy sample (index, t, y) into *point. */
-static void store_point(FastswPoint *point, uint32_t dim, uint32_t index, uint32_t t,
-                        const float *y)
-{
-    uint32_t d;
-    point->index = index;
-    point->t = t;
-    for (d = 0u; d < dim; d++) {
-        point->y[d] = y[d];
-    }
-}
-
-/** y - anchor into yn (dim floats) and |y - anchor|^2 into *nn; 0 if not finite. */
-static int relative_sample(const CplrState *s, uint32_t dim, const float *y, float *yn, float *nn)
-{
-    float sum = 0.0f;
-    uint32_t d;
-    for (d = 0u; d < dim; d++) {
-        yn[d] = y[d] - s->anchor.y[d]; /* eq. (5) of fastSW: relative to the anchor */
-        sum += yn[d] * yn[d];
-    }
-    *nn = sum;
-    return sum <= CPLR_NN_LIMIT;
 }
 
 /** Close the segment at the last accepted sample: the fitted value there becomes the anchor. */
@@ -112,7 +83,7 @@ static FastswStatus update(CplrState *s, uint32_t dim, uint32_t t, const float *
         for (d = 0u; d < dim; d++) {
             nn += y[d] * y[d];
         }
-        if (!(nn <= CPLR_NN_LIMIT)) { /* NaN, Inf or overflow */
+        if (!(nn <= FASTSW_NN_LIMIT)) { /* NaN, Inf or overflow */
             return FASTSW_REJECTED;
         }
         store_point(&s->anchor, dim, index, t, y);
@@ -125,7 +96,8 @@ static FastswStatus update(CplrState *s, uint32_t dim, uint32_t t, const float *
         return FASTSW_REJECTED;
     }
     tn = (float)(uint32_t)(t - s->anchor.t);
-    if (!relative_sample(s, dim, y, yn, &nn)) {
+    nn = relative_sample(s->anchor.y, dim, y, yn);
+    if (!(nn <= FASTSW_NN_LIMIT)) {
         return FASTSW_REJECTED;
     }
 
@@ -147,7 +119,7 @@ static FastswStatus update(CplrState *s, uint32_t dim, uint32_t t, const float *
     if (status == FASTSW_POINT) {
         close_segment(s, dim, point);
         tn = (float)(uint32_t)(t - s->anchor.t);
-        (void)relative_sample(s, dim, y, yn, &nn);
+        nn = relative_sample(s->anchor.y, dim, y, yn);
     }
 
     /* add sample n to the running sums */

@@ -4,10 +4,7 @@
 #include "sw.h"
 
 #include "fastsw_batch.h"
-
-#include <float.h>
-
-#define SW_NN_LIMIT (FLT_MAX / 16.0f)
+#include "kernel_common.h"
 
 FastswStatus sw_init(SwState *state, const FastswSettings *settings)
 {
@@ -27,31 +24,6 @@ FastswStatus sw_init(SwState *state, const FastswSettings *settings)
     state->anchor = probe.anchor;
     state->prev = probe.prev;
     return FASTSW_NONE;
-}
-
-/** Copy sample (index, t, y) into *point. */
-static void store_point(FastswPoint *point, uint32_t dim, uint32_t index, uint32_t t,
-                        const float *y)
-{
-    uint32_t d;
-    point->index = index;
-    point->t = t;
-    for (d = 0u; d < dim; d++) {
-        point->y[d] = y[d];
-    }
-}
-
-/** |y - anchor|^2 into *nn and y - anchor into yn; 0 if it is not finite. */
-static int relative_sample(const SwState *s, uint32_t dim, const float *y, float *yn, float *nn)
-{
-    float sum = 0.0f;
-    uint32_t d;
-    for (d = 0u; d < dim; d++) {
-        yn[d] = y[d] - s->anchor.y[d];
-        sum += yn[d] * yn[d];
-    }
-    *nn = sum;
-    return sum <= SW_NN_LIMIT;
 }
 
 /** SSR of the buffered samples against the line from the anchor to (tn, yn): eq. (9). */
@@ -84,7 +56,7 @@ FastswStatus sw_update(SwState *s, uint32_t t, const float *y, FastswPoint *poin
         for (d = 0u; d < dim; d++) {
             nn += y[d] * y[d];
         }
-        if (!(nn <= SW_NN_LIMIT)) {
+        if (!(nn <= FASTSW_NN_LIMIT)) {
             return FASTSW_REJECTED;
         }
         store_point(&s->anchor, dim, index, t, y);
@@ -97,7 +69,8 @@ FastswStatus sw_update(SwState *s, uint32_t t, const float *y, FastswPoint *poin
         return FASTSW_REJECTED;
     }
     tn = (float)(uint32_t)(t - s->anchor.t);
-    if (!relative_sample(s, dim, y, yn, &nn)) {
+    nn = relative_sample(s->anchor.y, dim, y, yn);
+    if (!(nn <= FASTSW_NN_LIMIT)) {
         return FASTSW_REJECTED;
     }
     if (s->count >= s->settings.max_len || buffered_ssr(s, dim, tn, yn) > s->settings.threshold) {
@@ -106,7 +79,7 @@ FastswStatus sw_update(SwState *s, uint32_t t, const float *y, FastswPoint *poin
         s->anchor = s->prev;
         s->count = 0u;
         tn = (float)(uint32_t)(t - s->anchor.t);
-        (void)relative_sample(s, dim, y, yn, &nn);
+        nn = relative_sample(s->anchor.y, dim, y, yn);
     }
     s->t_rel[s->count] = tn;
     for (d = 0u; d < dim; d++) {

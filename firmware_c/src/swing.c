@@ -20,11 +20,7 @@
 #include "swing.h"
 
 #include "fastsw_batch.h"
-
-#include <float.h>
-
-/* Largest accepted |y - y_a|^2 (as fastsw.c). */
-#define SWING_NN_LIMIT (FLT_MAX / 16.0f)
+#include "kernel_common.h"
 
 FastswStatus swing_init(SwingState *state, const FastswSettings *settings)
 {
@@ -47,30 +43,6 @@ FastswStatus swing_init(SwingState *state, const FastswSettings *settings)
         state->hi[d] = 0.0f;
     }
     return FASTSW_NONE;
-}
-
-/** Copy sample (index, t, y) into *point. */
-static void store_point(FastswPoint *point, uint32_t dim, uint32_t index, uint32_t t,
-                        const float *y)
-{
-    uint32_t d;
-    point->index = index;
-    point->t = t;
-    for (d = 0u; d < dim; d++) {
-        point->y[d] = y[d];
-    }
-}
-
-/** y - anchor into yn (dim floats); 0 if |y - anchor|^2 is not finite. */
-static int relative_sample(const SwingState *s, uint32_t dim, const float *y, float *yn)
-{
-    float sum = 0.0f;
-    uint32_t d;
-    for (d = 0u; d < dim; d++) {
-        yn[d] = y[d] - s->anchor.y[d];
-        sum += yn[d] * yn[d];
-    }
-    return sum <= SWING_NN_LIMIT;
 }
 
 /** Close the segment at the last accepted sample on the line of eq. (S2); it becomes the anchor. */
@@ -116,7 +88,7 @@ static FastswStatus update(SwingState *s, uint32_t dim, uint32_t t, const float 
         for (d = 0u; d < dim; d++) {
             nn += y[d] * y[d];
         }
-        if (!(nn <= SWING_NN_LIMIT)) { /* NaN, Inf or overflow */
+        if (!(nn <= FASTSW_NN_LIMIT)) { /* NaN, Inf or overflow */
             return FASTSW_REJECTED;
         }
         store_point(&s->anchor, dim, index, t, y);
@@ -128,7 +100,7 @@ static FastswStatus update(SwingState *s, uint32_t dim, uint32_t t, const float 
     if ((int32_t)(t - s->prev.t) <= 0) { /* zero or negative time step */
         return FASTSW_REJECTED;
     }
-    if (!relative_sample(s, dim, y, yn)) {
+    if (!(relative_sample(s->anchor.y, dim, y, yn) <= FASTSW_NN_LIMIT)) {
         return FASTSW_REJECTED;
     }
     tn = (float)(uint32_t)(t - s->anchor.t);
@@ -146,7 +118,7 @@ static FastswStatus update(SwingState *s, uint32_t dim, uint32_t t, const float 
 
     if (status == FASTSW_POINT) {
         close_segment(s, dim, point);
-        (void)relative_sample(s, dim, y, yn);
+        (void)relative_sample(s->anchor.y, dim, y, yn);
         tn = (float)(uint32_t)(t - s->anchor.t);
         r = 1.0f / tn;
     }
