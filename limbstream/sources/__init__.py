@@ -20,6 +20,21 @@ SEGMENTS: tuple[str, ...] = (
 class MotionFileError(ValueError):
     """A motion file that cannot be read; the message names the file and the problem."""
 
+    @classmethod
+    def at(cls, path: Path, line: int | None, what: str) -> MotionFileError:
+        """The error for ``what`` at ``path`` (and 1-based ``line``, if known)."""
+        where = f"{path}, line {line}" if line is not None else f"{path}"
+        return cls(f"{where}: {what}")
+
+
+def is_number(text: str) -> bool:
+    """True if ``text`` parses as a float."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
 
 @dataclass(frozen=True)
 class Motion:

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat
-from limbstream.sources import SEGMENTS, Motion, MotionFileError
+from limbstream.sources import SEGMENTS, Motion, MotionFileError, is_number
 
 CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
     # CMU BVH export of the ASF skeleton ("LeftShoulder" is the collar bone here).
@@ -94,11 +94,6 @@ class BvhClip:
         return sum(len(c) for c in self.channels[:joint])
 
 
-def _fail(path: Path, line: int | None, what: str) -> MotionFileError:
-    where = f"{path}, line {line}" if line is not None else f"{path}"
-    return MotionFileError(f"{where}: {what}")
-
-
 def parse_bvh(path: str | Path) -> BvhClip:
     """Read a BVH file (HIERARCHY and MOTION sections).
 
@@ -111,7 +106,7 @@ def parse_bvh(path: str | Path) -> BvhClip:
     try:
         lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     except OSError as exc:
-        raise _fail(path, None, f"cannot read ({exc})") from exc
+        raise MotionFileError.at(path, None, f"cannot read ({exc})") from exc
     tokens: list[tuple[str, int]] = []
     motion_line = None
     for number, line in enumerate(lines, 1):
@@ -120,9 +115,9 @@ def parse_bvh(path: str | Path) -> BvhClip:
             break
         tokens.extend((tok, number) for tok in line.split())
     if not tokens or tokens[0][0] != "HIERARCHY":
-        raise _fail(path, 1, "not a BVH file (expected HIERARCHY on the first line)")
+        raise MotionFileError.at(path, 1, "not a BVH file (expected HIERARCHY on the first line)")
     if motion_line is None:
-        raise _fail(path, None, "no MOTION section")
+        raise MotionFileError.at(path, None, "no MOTION section")
 
     joints: list[str] = []
     parents: list[int] = []
@@ -134,7 +129,7 @@ def parse_bvh(path: str | Path) -> BvhClip:
     def take() -> tuple[str, int]:
         nonlocal pos
         if pos >= len(tokens):
-            raise _fail(path, motion_line, "hierarchy ends early (unbalanced braces?)")
+            raise MotionFileError.at(path, motion_line, "hierarchy ends early (unbalanced braces?)")
         pos += 1
         return tokens[pos - 1]
 
@@ -145,7 +140,7 @@ def parse_bvh(path: str | Path) -> BvhClip:
             try:
                 values.append(float(tok))
             except ValueError:
-                raise _fail(path, line, f"{what}: {tok!r} is not a number") from None
+                raise MotionFileError.at(path, line, f"{what}: {tok!r} is not a number") from None
         return values
 
     while pos < len(tokens):
@@ -153,46 +148,46 @@ def parse_bvh(path: str | Path) -> BvhClip:
         if tok in ("ROOT", "JOINT"):
             name, line = take()
             if tok == "JOINT" and (not stack or stack[-1] < 0):
-                raise _fail(path, line, f"JOINT {name} outside a joint")
+                raise MotionFileError.at(path, line, f"JOINT {name} outside a joint")
             parents.append(stack[-1] if stack else -1)
             joints.append(name)
             offsets.append([0.0, 0.0, 0.0])
             channels.append(())
             if take()[0] != "{":
-                raise _fail(path, line, f"expected '{{' after {tok} {name}")
+                raise MotionFileError.at(path, line, f"expected '{{' after {tok} {name}")
             stack.append(len(joints) - 1)
         elif tok == "End":
             site, line = take()
             if site != "Site" or take()[0] != "{":
-                raise _fail(path, line, "expected 'End Site {'")
+                raise MotionFileError.at(path, line, "expected 'End Site {'")
             stack.append(-2)
         elif tok == "OFFSET":
             values = numbers(3, "OFFSET")
             if not stack:
-                raise _fail(path, line, "OFFSET outside a joint")
+                raise MotionFileError.at(path, line, "OFFSET outside a joint")
             if stack[-1] >= 0:
                 offsets[stack[-1]] = values
         elif tok == "CHANNELS":
             count_tok, _ = take()
             if not count_tok.isdigit():
-                raise _fail(path, line, f"CHANNELS count {count_tok!r} is not a number")
+                raise MotionFileError.at(path, line, f"CHANNELS count {count_tok!r} is not a number")
             names = tuple(take()[0] for _ in range(int(count_tok)))
             bad = [n for n in names if n not in _AXES and n not in _POSITIONS]
             if bad:
-                raise _fail(path, line, f"unknown channel {bad[0]!r}")
+                raise MotionFileError.at(path, line, f"unknown channel {bad[0]!r}")
             if not stack or stack[-1] < 0:
-                raise _fail(path, line, "CHANNELS outside a joint")
+                raise MotionFileError.at(path, line, "CHANNELS outside a joint")
             channels[stack[-1]] = names
         elif tok == "}":
             if not stack:
-                raise _fail(path, line, "unbalanced '}'")
+                raise MotionFileError.at(path, line, "unbalanced '}'")
             stack.pop()
         else:
-            raise _fail(path, line, f"unexpected {tok!r} in HIERARCHY")
+            raise MotionFileError.at(path, line, f"unexpected {tok!r} in HIERARCHY")
     if stack:
-        raise _fail(path, motion_line, "hierarchy ends with unclosed braces")
+        raise MotionFileError.at(path, motion_line, "hierarchy ends with unclosed braces")
     if not joints:
-        raise _fail(path, motion_line, "no joints in HIERARCHY")
+        raise MotionFileError.at(path, motion_line, "no joints in HIERARCHY")
 
     frames, frame_time = _motion_header(path, lines, motion_line)
     n_channels = sum(len(c) for c in channels)
@@ -223,15 +218,15 @@ def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int,
         assert key.strip() == "Frames"
         frames = int(value)
     except (IndexError, ValueError, AssertionError):
-        raise _fail(path, motion_line + 1, "expected 'Frames: <count>'") from None
+        raise MotionFileError.at(path, motion_line + 1, "expected 'Frames: <count>'") from None
     try:
         key, value = lines[motion_line + 1].split(":", 1)
         assert key.strip() == "Frame Time"
         frame_time = float(value)
     except (IndexError, ValueError, AssertionError):
-        raise _fail(path, motion_line + 2, "expected 'Frame Time: <seconds>'") from None
+        raise MotionFileError.at(path, motion_line + 2, "expected 'Frame Time: <seconds>'") from None
     if frames < 1 or not frame_time > 0:
-        raise _fail(
+        raise MotionFileError.at(
             path,
             motion_line + 1,
             f"needs Frames >= 1 and Frame Time > 0, got {frames}, {frame_time}",
@@ -246,25 +241,17 @@ def _bad_frame(
     for i, line in enumerate(body):
         values = line.split()
         if len(values) != n_channels:
-            return _fail(
+            return MotionFileError.at(
                 path, first_line + i, f"frame has {len(values)} values, expected {n_channels}"
             )
         try:
             row = np.array(values, dtype=np.float64)
         except ValueError:
-            bad = next(v for v in values if not _is_float(v))
-            return _fail(path, first_line + i, f"{bad!r} is not a number")
+            bad = next(v for v in values if not is_number(v))
+            return MotionFileError.at(path, first_line + i, f"{bad!r} is not a number")
         if not np.all(np.isfinite(row)):
-            return _fail(path, first_line + i, "non-finite channel value")
-    return _fail(path, None, f"MOTION holds {len(body)} frames, header says Frames: {frames}")
-
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+            return MotionFileError.at(path, first_line + i, "non-finite channel value")
+    return MotionFileError.at(path, None, f"MOTION holds {len(body)} frames, header says Frames: {frames}")
 
 
 def local_rotations(clip: BvhClip, joint: int) -> Rotation:
@@ -292,7 +279,7 @@ def global_rotations(clip: BvhClip, joints: list[str]) -> dict[str, Rotation]:
 
     missing = [name for name in joints if name not in index]
     if missing:
-        raise _fail(
+        raise MotionFileError.at(
             clip.path, None, f"no joint named {missing[0]!r} (joints: {', '.join(clip.joints)})"
         )
     return {name: of(index[name]) for name in joints}
@@ -378,7 +365,7 @@ def load_bvh(
     if segment_map is None:
         segment_map = pick_segment_map(clip.joints)
         if not segment_map:
-            raise _fail(clip.path, None, "joint names match no CMU naming scheme; pass segment_map")
+            raise MotionFileError.at(clip.path, None, "joint names match no CMU naming scheme; pass segment_map")
         segment_map = {s: segment_map[s] for s in SEGMENTS}
     segments = tuple(segment_map)
     rotations = global_rotations(clip, [segment_map[s] for s in segments])

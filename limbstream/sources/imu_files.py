@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat
-from limbstream.sources import Motion, MotionFileError
+from limbstream.sources import Motion, MotionFileError, is_number
 
 XIO_HEADER = ("Timestamp (us)", "W", "X", "Y", "Z")
 XIO_SEGMENTS: dict[str, str] = {
@@ -70,16 +70,11 @@ class SensorStream:
     dropped: int = 0
 
 
-def _fail(path: Path, line: int | None, what: str) -> MotionFileError:
-    where = f"{path}, line {line}" if line is not None else f"{path}"
-    return MotionFileError(f"{where}: {what}")
-
-
 def _read_lines(path: Path) -> list[str]:
     try:
         return path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     except OSError as exc:
-        raise _fail(path, None, f"cannot read ({exc})") from exc
+        raise MotionFileError.at(path, None, f"cannot read ({exc})") from exc
 
 
 def _parse_rows(path: Path, rows: list[str], first_line: int, sep: str, width: int) -> np.ndarray:
@@ -93,15 +88,15 @@ def _parse_rows(path: Path, rows: list[str], first_line: int, sep: str, width: i
     for i, row in enumerate(rows):
         fields = row.split(sep)
         if len(fields) != width:
-            raise _fail(path, first_line + i, f"{len(fields)} fields, expected {width}")
+            raise MotionFileError.at(path, first_line + i, f"{len(fields)} fields, expected {width}")
         for field in fields:
             try:
                 value = float(field)
             except ValueError:
-                raise _fail(path, first_line + i, f"{field.strip()!r} is not a number") from None
+                raise MotionFileError.at(path, first_line + i, f"{field.strip()!r} is not a number") from None
             if not np.isfinite(value):
-                raise _fail(path, first_line + i, f"non-finite value {field.strip()!r}")
-    raise _fail(path, None, "unreadable rows")  # pragma: no cover - every case is caught above
+                raise MotionFileError.at(path, first_line + i, f"non-finite value {field.strip()!r}")
+    raise MotionFileError.at(path, None, "unreadable rows")  # pragma: no cover - every case is caught above
 
 
 def _keep_increasing(t: np.ndarray) -> np.ndarray:
@@ -142,16 +137,16 @@ def read_xio_csv(path: str | Path) -> SensorStream:
     while lines and not lines[-1].strip():
         lines.pop()
     if not lines:
-        raise _fail(path, None, "empty file")
+        raise MotionFileError.at(path, None, "empty file")
     header = tuple(h.strip() for h in lines[0].split(","))
     if header != XIO_HEADER:
-        raise _fail(path, 1, f"header {','.join(header)!r}, expected {','.join(XIO_HEADER)!r}")
+        raise MotionFileError.at(path, 1, f"header {','.join(header)!r}, expected {','.join(XIO_HEADER)!r}")
     values = _parse_rows(path, lines[1:], 2, ",", 5)
     if len(values) < 2:
-        raise _fail(path, None, f"{len(values)} samples, need at least 2")
+        raise MotionFileError.at(path, None, f"{len(values)} samples, need at least 2")
     norm = np.linalg.norm(values[:, 1:], axis=1)
     if np.any(norm < 1e-6):
-        raise _fail(path, 2 + int(np.argmax(norm < 1e-6)), "zero-norm quaternion")
+        raise MotionFileError.at(path, 2 + int(np.argmax(norm < 1e-6)), "zero-norm quaternion")
     keep = _keep_increasing(values[:, 0])
     dropped = int(np.count_nonzero(~keep))
     _warn_dropped(path, dropped, "timestamp not increasing")
@@ -163,7 +158,7 @@ def read_xio_csv(path: str | Path) -> SensorStream:
 def _files(folder: Path, suffix: str) -> list[Path]:
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() == suffix and p.is_file())
     if not files:
-        raise _fail(folder, None, f"no {suffix} files")
+        raise MotionFileError.at(folder, None, f"no {suffix} files")
     return files
 
 
@@ -238,13 +233,13 @@ def read_xsens_txt(path: str | Path, fs: float = 100.0) -> SensorStream:
             header_at = i
             break
     if header_at is None:
-        raise _fail(path, None, "no column header")
+        raise MotionFileError.at(path, None, "no column header")
     if not rate > 0:
-        raise _fail(path, None, f"update rate {rate} Hz")
+        raise MotionFileError.at(path, None, f"update rate {rate} Hz")
     header = [h.strip() for h in lines[header_at].split("\t")]
     missing = [c for c in ["PacketCounter", *_MAT] if c not in header]
     if missing:
-        raise _fail(path, header_at + 1, f"missing column(s) {', '.join(missing)}")
+        raise MotionFileError.at(path, header_at + 1, f"missing column(s) {', '.join(missing)}")
     cols = [header.index("PacketCounter")] + [header.index(c) for c in _MAT]
     counters, mats, line_no = [], [], []
     no_orientation = 0
@@ -259,22 +254,22 @@ def read_xsens_txt(path: str | Path, fs: float = 100.0) -> SensorStream:
         try:
             values = [float(p) for p in picked]
         except ValueError:
-            bad = next(p for p in picked if not _is_float(p))
-            raise _fail(path, i + 1, f"{bad!r} is not a number") from None
+            bad = next(p for p in picked if not is_number(p))
+            raise MotionFileError.at(path, i + 1, f"{bad!r} is not a number") from None
         if not np.all(np.isfinite(values)) or values[0] != int(values[0]) or values[0] < 0:
-            raise _fail(path, i + 1, f"bad values (counter {picked[0]!r})")
+            raise MotionFileError.at(path, i + 1, f"bad values (counter {picked[0]!r})")
         counters.append(int(values[0]))
         mats.append(values[1:])
         line_no.append(i + 1)
     if len(counters) < 2:
-        raise _fail(path, None, f"{len(counters)} samples with orientation, need at least 2")
+        raise MotionFileError.at(path, None, f"{len(counters)} samples with orientation, need at least 2")
     matrix = np.array(mats).reshape(-1, 3, 3)
     error = np.abs(matrix @ matrix.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(matrix)
     bad = np.flatnonzero((error > ORTHONORMAL_TOL) | (det < 0))
     if len(bad):
         k = bad[0]
-        raise _fail(
+        raise MotionFileError.at(
             path,
             line_no[k],
             f"not a rotation matrix (|M M^T - I| = {error[k]:.3g}, det {det[k]:.3g})",
@@ -304,14 +299,6 @@ def _unwrap_counter(counters: list[int]) -> tuple[np.ndarray, np.ndarray]:
         last_raw, last_tick = counters[i], last_tick + step
         ticks[i] = last_tick
     return ticks[keep], keep
-
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def xsens_streams(folder: str | Path) -> list[SensorStream]:
