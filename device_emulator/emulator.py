@@ -140,10 +140,10 @@ class Emulator:
             if s.truth else {}
         )
         self._queries = [
-            self.session.declare_queryable(f"{wire.PREFIX}/{subject}/*/config", zenoh.handlers.FifoChannel(1024))
+            (self.session.declare_queryable(f"{wire.PREFIX}/{subject}/*/config", zenoh.handlers.FifoChannel(1024)),
+             {zenoh.KeyExpr(wire.config_key(d.subject, d.segment)): d for d in self.devices if d.subject == subject})
             for subject in self.feeds
         ]
-        self._by_key = {wire.config_key(d.subject, d.segment): d for d in self.devices}
         self._declared = True
 
     def undeclare(self) -> None:
@@ -158,12 +158,13 @@ class Emulator:
 
     def _answer_queries(self) -> None:
         """Apply config queries that arrived since the last tick (never inside a callback)."""
-        for queryable in self._queries:
+        for queryable, devices in self._queries:
             while (query := queryable.try_recv()) is not None:
-                self._answer(query)
+                self._answer(query, devices)
 
-    def _answer(self, query: zenoh.Query) -> None:
-        targets = [d for key, d in self._by_key.items() if zenoh.KeyExpr(key).intersects(query.key_expr)]
+    def _answer(self, query: zenoh.Query, devices: dict) -> None:
+        """Apply and answer one query on a subject's queryable; ``devices``: its {config key: Device}."""
+        targets = [d for key, d in devices.items() if key.intersects(query.key_expr)]
         payload = query.payload.to_bytes() if query.payload is not None else b""
         for d in targets:
             if payload:
