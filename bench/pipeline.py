@@ -242,9 +242,9 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float) -> None:
                     agg.on_raw(key, payload, now)
                 i += 1
             if k % 5 == 0:  # live frames at 10 Hz
-                agg.advance(True, prune=k % 25 == 0)
+                agg.advance(True, prune=k % 25 == 0, now=now)
             else:
-                agg.advance(False, prune=False)
+                agg.advance(False, prune=False, now=now)
             if k % 50 == 0:
                 for subject in agg.subjects:
                     stats = agg.subject_stats(subject, now)

@@ -253,8 +253,11 @@ class Aggregator:
             pub = self._pose_pubs[subject] = self.session.declare_publisher(wire.pose_key(subject))
         pub.put(wire.encode_pose(frame))
 
-    def advance(self, live: bool, prune: bool = True) -> int:
-        """Truth evaluation, exact frames (and live frames) of every subject; returns frames published."""
+    def advance(self, live: bool, prune: bool = True, now: float | None = None) -> int:
+        """Truth evaluation, exact frames (and live frames) of every subject; returns frames published.
+        ``now``: the arrival clock of the messages (perf_counter), if time went on without any."""
+        if now is not None:
+            self.fusion.clock = max(self.fusion.clock, now)
         self.fusion.evaluate_truth()
         frames = self.fusion.exact_frames()
         for sub, frame in frames:
@@ -276,16 +279,21 @@ class Aggregator:
             "watermark_us": self.fusion.watermark(sub),
         }
 
-    def publish_stats(self, now: float) -> None:
+    def publish_stats(self, now: float, part: int = 0, parts: int = 1) -> None:
+        """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop
+        spreads one round over the ticks of a stats period so that no tick carries them all."""
         wall = time.time()
-        for subject in list(self.subjects):
-            snapshot = self.subject_stats(subject, now)
+        for sub in list(self.subjects.values()):
+            if sub.index % parts != part:
+                continue
+            snapshot = self.subject_stats(sub.name, now)
             devices = snapshot.pop("devices")
             # load / soak figures (bench/soak.py) and messages no device could be charged with
             snapshot["aggregator"] = self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
-            payload = wire.encode_stats(subject, wall, devices, snapshot)
-            self.session.put(wire.stats_key(subject), payload)
-        self.loop.recent_backlog = 0
+            payload = wire.encode_stats(sub.name, wall, devices, snapshot)
+            self.session.put(wire.stats_key(sub.name), payload)
+        if part == parts - 1:
+            self.loop.recent_backlog = 0
 
     # ------------------------------------------------------------------ loop
 
@@ -293,7 +301,8 @@ class Aggregator:
         """Loop until ``stop``: drain, advance frames every tick, stats about once a second."""
         s = self.settings
         start = time.perf_counter()
-        next_live = next_stats = next_config = next_frames = next_prune = start
+        next_live = next_config = next_frames = next_prune = start
+        stats_parts = max(1, round(s.stats_period_s / s.tick_s))  # one stats round per period
         k = 0
         while not stop.is_set():
             deadline = start + k * s.tick_s
@@ -311,12 +320,10 @@ class Aggregator:
                     next_live = now + 1.0 / s.live_rate
                 if live or now >= next_frames:
                     prune = now >= next_prune
-                    self.advance(live, prune)
+                    self.advance(live, prune, now)
                     next_frames = now + s.frame_batch_s
                     next_prune = now + 0.5 if prune else next_prune
-                if now >= next_stats:
-                    self.publish_stats(now)
-                    next_stats = now + s.stats_period_s
+                self.publish_stats(now, k % stats_parts, stats_parts)
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s

@@ -61,6 +61,7 @@ class Fusion:
         self.live = ErrorRings(error_window)
         self.subjects: dict[str, Subject] = {}
         self.tracks: list[DeviceTrack] = []
+        self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period
         self.seg_slots = np.full((0, len(SEGMENTS)), -1, np.int64)  # (subjects, 10) device slot or -1
         self.next_frame = np.zeros(0, np.int64)  # grid index of each subject's next exact frame, -1 unset
         self.exact_seq = np.zeros(0, np.int64)
@@ -98,15 +99,21 @@ class Fusion:
 
     def add_point(self, track: DeviceTrack, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
         """A decoded segment point; False if dropped (counted on the track)."""
-        if not self._stream(track, p.stream) or not track.accept_point(p, nbytes, now):
+        self.clock = max(self.clock, now)
+        if not self._stream(track, p.stream):
             return False
-        forgotten = self.store.append(track.slot, p.t_us, p.q)
-        if forgotten:
-            track.dropped["buffer_full"] += forgotten
-        return True
+        how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(track.slot, t_us))
+        if how == "append":
+            forgotten = self.store.append(track.slot, p.t_us, p.q)
+            if forgotten:
+                track.dropped["buffer_full"] += forgotten
+        elif how == "insert" and not self.store.insert(track.slot, p.t_us, p.q):
+            track.dropped["buffer_full"] += 1
+        return how is not None
 
     def add_raw(self, track: DeviceTrack, batch: wire.RawBatch, now: float) -> bool:
         """A decoded truth-tap batch; False if dropped (counted)."""
+        self.clock = max(self.clock, now)
         if not track.accept_raw(batch, now):
             return False
         self.truth.put(track.slot, track.generation, batch.t_us, batch.q)
@@ -118,9 +125,13 @@ class Fusion:
         """Angular error of the exact reconstruction and of holding the last point, at every truth
         sample whose reconstruction became final. Returns how many samples."""
         generation = np.array([t.generation for t in self.tracks], np.int64)
-        slots, t_us, truth, overflow = self.truth.take_ready(self.store.last_t(), generation)
+        slots, t_us, truth, overflow = self.truth.take_ready(self._last_settled(), generation)
         for slot in overflow:
             self.tracks[slot].dropped["raw_overflow"] += 1
+        before = t_us < self.store.t[slots, 0]  # older than the stream's first point known: no reconstruction
+        for slot in slots[before]:
+            self.tracks[slot].dropped["raw_before_first_point"] += 1
+        slots, t_us, truth = slots[~before], t_us[~before], truth[~before]
         if len(slots):
             self.exact.add(slots, quat.angle_deg(self.store.interpolate(slots, t_us), truth))
             self.live.add(slots, quat.angle_deg(self.store.held(slots, t_us), truth))
@@ -128,10 +139,16 @@ class Fusion:
 
     # ------------------------------------------------------------------ frames
 
+    def _last_settled(self) -> np.ndarray:
+        """(slots,) newest point time of each device whose points may be used, _NONE for the others
+        (no points yet, or earlier points of its stream may still arrive)."""
+        settled = np.array([t.settled(self.clock) for t in self.tracks] or [True], bool)
+        return np.where(settled[: self.store.size], self.store.last_t(), _NONE)
+
     def _watermarks(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per subject: watermark (us; _NONE if no data) and which segments are stale
-        (no device, offline, ended) as (subjects, 10) bool."""
-        last = self.store.last_t()
+        """Per subject: watermark (us; _NONE if no data) and which segments are stale (no device,
+        offline, ended, or not settled: held and flagged until they are) as (subjects, 10) bool."""
+        last = self._last_settled()
         slots = self.seg_slots
         have = slots >= 0
         last_s = np.where(have, last[np.maximum(slots, 0)], _NONE)
@@ -227,6 +244,8 @@ class Fusion:
             nf = self.next_frame[sub.index]
             for track in sub.tracks.values():
                 keep[track.slot] = int(nf * self.period_us) if nf >= 0 else np.iinfo(np.int64).min
+                if track.last_raw_t_us is not None:  # truth samples still to come need these points
+                    keep[track.slot] = min(keep[track.slot], track.last_raw_t_us)
         keep = np.minimum(keep, self.truth.oldest(self.store.size))
         self.store.prune(keep)
 

@@ -50,6 +50,23 @@ class PointStore:
         self.n[slot] = k + 1
         return forgotten
 
+    def contains(self, slot: int, t_us: int) -> bool:
+        """True if row ``slot`` holds a point at ``t_us``."""
+        return bool(np.any(self.t[slot, : self.n[slot]] == t_us))
+
+    def insert(self, slot: int, t_us: int, q) -> bool:
+        """Add an older point in time order; False (not stored) if the row is full."""
+        n = self.n[slot]
+        if n == self.cap:
+            return False
+        k = int(np.searchsorted(self.t[slot, :n], t_us))
+        self.t[slot, k + 1: n + 1] = self.t[slot, k:n].copy()
+        self.q[slot, k + 1: n + 1] = self.q[slot, k:n].copy()
+        self.t[slot, k] = t_us
+        self.q[slot, k] = q
+        self.n[slot] = n + 1
+        return True
+
     def shift(self, slot: int, k: int) -> None:
         """Forget the oldest ``k`` points of a row."""
         n = self.n[slot]

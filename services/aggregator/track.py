@@ -8,8 +8,13 @@ from __future__ import annotations
 
 import collections
 import math
+from collections.abc import Callable
 
 from limbstream import wire
+
+HISTORY_GRACE_S = 1.0
+"""How long after a stream's first point earlier points (Zenoh history replayed to a joining
+aggregator, which may arrive after live points) are still taken in, seconds."""
 
 RATE_WINDOW_S = 5.0
 """Sliding window of the data-rate figures, seconds (arrival time)."""
@@ -45,10 +50,15 @@ class DeviceTrack:
     def reset_stream(self) -> None:
         """Forget the stream's counters (the caller resets the stores' rows)."""
         self.next_seq: int | None = None
+        self.first_seq: int | None = None    # sequence number of the first point received
+        self.first_arrival = 0.0
+        self.first_t_us: int | None = None
+        self.early: set[int] = set()          # points older than the first one, taken in later
         self.points = 0
         self.last_t_us: int | None = None   # newest point's device time
         self.last_index = -1
         self.last_raw_index = -1
+        self.last_raw_t_us: int | None = None  # newest truth-tap sample time (later ones need later points)
         self.final = False
         self.gaps = 0
         self.gap_spans: collections.deque = collections.deque(maxlen=64)  # (t0, t1) us
@@ -71,28 +81,48 @@ class DeviceTrack:
         self.reset_stream()
         return "new"
 
-    def accept_point(self, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
-        """Sequence and time checks of a point of the current stream; counts and returns
-        False to drop it, else records it (the caller stores its value)."""
+    def accept_point(self, p: wire.SegmentPoint, nbytes: int, now: float,
+                     stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
+        """Sequence and time checks of a point of the current stream. Returns "append" (newest
+        point), "insert" (an earlier point of the stream's start arriving late, e.g. history),
+        or None when it is dropped (counted by reason). ``stored(t_us)``: a point with that
+        time is already kept."""
         if not 0 <= p.t_us < MAX_T_US:
             self.dropped["time_range"] += 1
-            return False
+            return None
         if self.next_seq is not None and p.seq < self.next_seq:
+            if (p.seq < self.first_seq and p.seq not in self.early and p.t_us < self.first_t_us
+                    and now - self.first_arrival < HISTORY_GRACE_S and not stored(p.t_us)):
+                self.early.add(p.seq)
+                self._count(p, nbytes, now)
+                return "insert"
             self.dropped["duplicate"] += 1
-            return False
+            return None
         if self.last_t_us is not None and (p.t_us <= self.last_t_us or p.index <= self.last_index):
             self.dropped["time_backwards"] += 1
-            return False
-        if self.next_seq is not None and p.seq > self.next_seq:
+            return None
+        if self.next_seq is None:
+            self.first_seq, self.first_arrival, self.first_t_us = p.seq, now, p.t_us
+        elif p.seq > self.next_seq:
             self.gaps += p.seq - self.next_seq
-            self.gap_spans.append((self.last_t_us if self.last_t_us is not None else p.t_us, p.t_us))
+            self.gap_spans.append((self.last_t_us, p.t_us))
         self.next_seq = p.seq + 1
-        self.points += 1
         self.last_t_us, self.last_index = p.t_us, p.index
         self.final = bool(p.flags & wire.FLAG_FINAL)
+        self._count(p, nbytes, now)
+        return "append"
+
+    def _count(self, p: wire.SegmentPoint, nbytes: int, now: float) -> None:
+        self.points += 1
         self.arrivals.append((now, nbytes))
         self.see(p.t_us, now)
-        return True
+
+    def settled(self, now: float) -> bool:
+        """True once the stream's start is complete (from sequence number 0), or the history
+        grace period after its first point is over: its points may then be used."""
+        if self.first_seq is None:
+            return True
+        return len(self.early) >= self.first_seq or now - self.first_arrival >= HISTORY_GRACE_S
 
     def accept_raw(self, batch: wire.RawBatch, now: float) -> bool:
         if batch.stream != self.stream:
@@ -102,6 +132,7 @@ class DeviceTrack:
             self.dropped["raw_time_range"] += 1
             return False
         self.last_raw_index = max(self.last_raw_index, batch.first_index + len(batch.t_us) - 1)
+        self.last_raw_t_us = max(self.last_raw_t_us or 0, int(batch.t_us[-1]))
         self.see(int(batch.t_us[-1]), now)
         return True
 
