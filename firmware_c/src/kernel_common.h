@@ -54,4 +54,26 @@ static inline float relative_sample(const float *anchor_y, uint32_t dim, const f
     return nn;
 }
 
+
+/**
+ * The first sample of a baseline stream: if |y|^2 is finite it becomes the anchor, the
+ * previous sample and a segment point (FASTSW_POINT), else FASTSW_REJECTED.
+ */
+static inline FastswStatus start_stream(FastswPoint *anchor, FastswPoint *prev, uint32_t dim,
+                                        uint32_t index, uint32_t t, const float *y, FastswPoint *point)
+{
+    float nn = y[0] * y[0];
+    uint32_t d;
+    for (d = 1u; d < dim; d++) {
+        nn += y[d] * y[d];
+    }
+    if (!(nn <= FASTSW_NN_LIMIT)) { /* NaN, Inf or overflow */
+        return FASTSW_REJECTED;
+    }
+    store_point(anchor, dim, index, t, y);
+    *prev = *anchor;
+    *point = *anchor;
+    return FASTSW_POINT;
+}
+
 #endif /* KERNEL_COMMON_H */

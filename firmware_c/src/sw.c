@@ -52,18 +52,9 @@ FastswStatus sw_update(SwState *s, uint32_t t, const float *y, FastswPoint *poin
     uint32_t d;
 
     if (!s->started) {
-        nn = 0.0f;
-        for (d = 0u; d < dim; d++) {
-            nn += y[d] * y[d];
-        }
-        if (!(nn <= FASTSW_NN_LIMIT)) {
-            return FASTSW_REJECTED;
-        }
-        store_point(&s->anchor, dim, index, t, y);
-        s->prev = s->anchor;
-        s->started = 1u;
-        *point = s->anchor;
-        return FASTSW_POINT;
+        status = start_stream(&s->anchor, &s->prev, dim, index, t, y, point);
+        s->started = (status == FASTSW_POINT);
+        return status;
     }
     if ((int32_t)(t - s->prev.t) <= 0) {
         return FASTSW_REJECTED;
