@@ -225,10 +225,10 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float) -> None:
     for subjects in subject_counts:
         events, m = replay_events(subjects, seconds)
         agg = Aggregator(None, AggregatorSettings(live_rate=10.0))
-        agg._publish = lambda subject, frame: wire.encode_pose(frame)
+        agg._publish = lambda subject, payload: None
         for name in (f"s{s + 1:03d}" for s in range(subjects)):
             for seg in SEGMENTS:
-                agg.track(name, seg).online = True
+                agg.fusion.set_online(agg.track(name, seg), True)
         i = n_points = 0
         cpu0 = cpu_now()
         for k in range(m):

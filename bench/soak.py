@@ -119,6 +119,7 @@ class StatsReader:
         self.subjects: dict[str, dict] = {}
         self.aggregator: dict = {}
         self.recent_backlog = 0
+        self.recent_tick_ms = 0.0
 
     def poll(self) -> None:
         while (sample := self.sub.try_recv()) is not None:
@@ -128,11 +129,14 @@ class StatsReader:
             if agg.get("ticks", 0) >= self.aggregator.get("ticks", 0):
                 self.aggregator = agg
             self.recent_backlog = max(self.recent_backlog, agg.get("recent_backlog", 0))
+            self.recent_tick_ms = max(self.recent_tick_ms, agg.get("recent_max_tick_ms", 0.0))
             for d in data["devices"]:
                 self.devices[d["device"]] = d
 
-    def take_backlog(self) -> int:
-        value, self.recent_backlog = self.recent_backlog, 0
+    def take_backlog(self) -> tuple[int, float]:
+        """(most messages drained in one tick, longest tick in ms) since the last call."""
+        value, self.recent_backlog = (self.recent_backlog, self.recent_tick_ms), 0
+        self.recent_tick_ms = 0.0
         return value
 
     def close(self) -> None:
@@ -151,8 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--minutes", type=float, default=10.0, help="duration, minutes (default 10)")
     parser.add_argument("--procs", type=int, default=2, help="emulator processes sharing the devices (default 2)")
     parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
-    parser.add_argument("--frame-batch", type=float, default=1.0,
-                        help="aggregator --frame-batch, s (default 1: a build costs ~1-2 ms per subject)")
+    parser.add_argument("--frame-batch", type=float, default=0.0,
+                        help="aggregator --frame-batch, s (default 0: frames every tick, as deployed)")
     parser.add_argument("--cache", type=int, default=512,
                         help="emulator --cache: points per device kept for recovery (default 512); the "
                              "caches fill during warm-up (~150 s at 512), so short runs use less")
@@ -194,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"soak: {args.devices} devices ({subjects} subjects, {len(emulators)} emulator processes), "
           f"{args.minutes:g} min, truth tap {'on' if args.truth else 'off'}, logs in {workdir}", flush=True)
 
-    times, backlog = [], []
+    times, backlog, tick_ms = [], [], []
     at_warmup = None
     t0 = time.monotonic()
     sample_at = [warmup + k * (duration - warmup) / max(args.samples - 1, 1) for k in range(args.samples)]
@@ -210,7 +214,9 @@ def main(argv: list[str] | None = None) -> int:
                     raise SystemExit(f"soak: {dead} exited early; logs in {workdir}")
             reader.poll()
             times.append(time.monotonic() - t0)
-            backlog.append(reader.take_backlog())
+            most, longest = reader.take_backlog()
+            backlog.append(most)
+            tick_ms.append(longest)
             for p in procs:
                 p.rss.append(rss_mib(p.popen.pid))
             if at >= warmup and at_warmup is None:  # loss counters at the end of the warm-up
@@ -248,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     gaps0, missed0, late0, ticks0 = at_warmup or (0, 0, 0, 0)
     frames = sum(s.get("frames", 0) for s in reader.subjects.values())
     skipped = sum(s.get("skipped_frames", 0) for s in reader.subjects.values())
+    max_tick_after = max(tick_ms[base + 1:] or [float("nan")])
     third = max(1, (len(backlog) - base) // 3)
     early, late_q = max(backlog[base:base + third] or [0]), max(backlog[-third:] or [0])
 
@@ -268,6 +275,8 @@ def main(argv: list[str] | None = None) -> int:
         "aggregator late ticks %": agg_late,
         "aggregator late ticks % after warm-up":
             100.0 * (agg.get("late", 0) - late0) / max(agg.get("ticks", 0) - ticks0, 1),
+        "aggregator busy % of wall time (main loop)": 100.0 * agg.get("busy_s", 0.0) / duration,
+        "aggregator longest tick after warm-up (ms)": max_tick_after,
         "aggregator max backlog (msgs/tick), first / last third": f"{early} / {late_q}",
         "aggregator max backlog overall": agg.get("max_backlog", 0),
         "dropped (all reasons)": dropped,
@@ -281,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     for k, v in results.items():
         print(f"| {k} | {v:.4f} |" if isinstance(v, float) else f"| {k} | {v} |")
     if args.json:
-        Path(args.json).write_text(json.dumps({"args": vars(args), "times": times, "backlog": backlog,
+        Path(args.json).write_text(json.dumps({"args": vars(args), "times": times, "backlog": backlog, "tick_ms": tick_ms,
                                                "rss": {n: s for n, s, _, _ in rows}, "cpu": cpu,
                                                "results": results}, indent=1))
     failures = [f"{name} RSS grew {g:.1f} %" for name, _, _, g in rows if not g < 10.0]

@@ -255,8 +255,11 @@ FRAME_GAP = 0x01
 FRAME_MISSING = 0x02
 """Pose frame flag: some segment has no data (offline device); its orientation is held or identity."""
 
-_POSE_HEADER = struct.Struct("<BBBBIq")  # version, kind, flags, n_segments, seq, t_us
-_POSE_SIZE = _POSE_HEADER.size + len(SEGMENTS) * 16 + len(JOINTS) * 12
+POSE_DTYPE = np.dtype([("version", "u1"), ("kind", "u1"), ("flags", "u1"), ("n_segments", "u1"),
+                       ("seq", "<u4"), ("t_us", "<i8"), ("q", "<f4", (len(SEGMENTS), 4)),
+                       ("joints", "<f4", (len(JOINTS), 3))])
+"""Layout of a pose frame payload (356 bytes, packed little-endian)."""
+_POSE_SIZE = POSE_DTYPE.itemsize
 
 
 @dataclass(frozen=True)
@@ -300,27 +303,59 @@ class PoseFrame:
         }
 
 
+@dataclass(frozen=True)
+class PoseFrames:
+    """F pose frames of one kind, columnar (what the aggregator builds per tick).
+
+    Attributes: seq (F,) int, t_us (F,) int, kind, flags (F,) int, q (F, 10, 4), joints (F, 15, 3)
+    in the units of :class:`PoseFrame`.
+    """
+
+    seq: np.ndarray
+    t_us: np.ndarray
+    kind: int
+    flags: np.ndarray
+    q: np.ndarray
+    joints: np.ndarray
+
+    @classmethod
+    def empty(cls, kind: int) -> PoseFrames:
+        return cls(np.zeros(0, np.int64), np.zeros(0, np.int64), kind, np.zeros(0, np.int64),
+                   np.zeros((0, len(SEGMENTS), 4)), np.zeros((0, len(JOINTS), 3)))
+
+    def __len__(self) -> int:
+        return len(self.t_us)
+
+    def __getitem__(self, i: int) -> PoseFrame:
+        return PoseFrame(int(self.seq[i]), int(self.t_us[i]), self.kind, int(self.flags[i]),
+                         self.q[i].astype(np.float32), self.joints[i].astype(np.float32))
+
+    def encode(self) -> list[bytes]:
+        """One payload per frame, as :func:`encode_pose` (built in one pass)."""
+        rec = np.zeros(len(self), POSE_DTYPE)
+        rec["version"], rec["kind"], rec["n_segments"] = VERSION, self.kind, len(SEGMENTS)
+        rec["flags"], rec["seq"], rec["t_us"] = self.flags, self.seq, self.t_us
+        rec["q"], rec["joints"] = self.q, self.joints
+        buf = rec.tobytes()
+        return [buf[i:i + _POSE_SIZE] for i in range(0, len(buf), _POSE_SIZE)]
+
+
 def encode_pose(frame: PoseFrame) -> bytes:
-    """PoseFrame -> 356 bytes: header (u8 version, u8 kind, u8 flags, u8 n_segments, u32 seq,
-    i64 t_us), 10 x 4 f32 quaternions, 15 x 3 f32 joint positions."""
-    return (
-        _POSE_HEADER.pack(VERSION, frame.kind, frame.flags, len(SEGMENTS), frame.seq, frame.t_us)
-        + np.asarray(frame.q, "<f4").tobytes()
-        + np.asarray(frame.joints, "<f4").tobytes()
-    )
+    """PoseFrame -> 356 bytes (:data:`POSE_DTYPE`): u8 version, u8 kind, u8 flags, u8 n_segments,
+    u32 seq, i64 t_us, 10 x 4 f32 quaternions, 15 x 3 f32 joint positions."""
+    return PoseFrames(np.array([frame.seq]), np.array([frame.t_us]), frame.kind, np.array([frame.flags]),
+                      np.asarray(frame.q)[None], np.asarray(frame.joints)[None]).encode()[0]
 
 
 def decode_pose(payload: bytes) -> PoseFrame:
     """Bytes -> PoseFrame; WireError with reason size / version."""
     if len(payload) != _POSE_SIZE:
         raise WireError("size", f"pose frame has {len(payload)} bytes, expected {_POSE_SIZE}")
-    version, kind, flags, n_segments, seq, t_us = _POSE_HEADER.unpack_from(payload)
-    if version != VERSION or n_segments != len(SEGMENTS):
-        raise WireError("version", f"pose frame version {version} with {n_segments} segments")
-    offset = _POSE_HEADER.size
-    q = np.frombuffer(payload, "<f4", len(SEGMENTS) * 4, offset).reshape(-1, 4).copy()
-    joints = np.frombuffer(payload, "<f4", len(JOINTS) * 3, offset + q.nbytes).reshape(-1, 3).copy()
-    return PoseFrame(seq, t_us, kind, flags, q, joints)
+    rec = np.frombuffer(payload, POSE_DTYPE, 1)[0]
+    if rec["version"] != VERSION or rec["n_segments"] != len(SEGMENTS):
+        raise WireError("version", f"pose frame version {rec['version']} with {rec['n_segments']} segments")
+    return PoseFrame(int(rec["seq"]), int(rec["t_us"]), int(rec["kind"]), int(rec["flags"]),
+                     rec["q"].copy(), rec["joints"].copy())
 
 
 # ----------------------------------------------------------------------------- stats and config

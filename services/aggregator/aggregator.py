@@ -70,6 +70,9 @@ class LoopStats:
     missed: int = 0          # reported by Zenoh's miss detection (not recoverable)
     max_backlog: int = 0     # most messages drained in one tick
     recent_backlog: int = 0  # most messages drained in one tick since the last stats message
+    busy_s: float = 0.0      # time spent working (not waiting for the next tick), seconds
+    max_tick_ms: float = 0.0      # longest tick's work, ms
+    recent_max_tick_ms: float = 0.0  # longest tick's work since the last stats round, ms
 
     def as_dict(self) -> dict:
         """The counters as published in every stats message (``"aggregator"`` entry)."""
@@ -87,6 +90,7 @@ class Aggregator:
         self.bad_keys: collections.Counter = collections.Counter()
         self.loop = LoopStats()
         self._pose_pubs: dict[str, zenoh.Publisher] = {}
+        self._stats_pubs: dict[str, zenoh.Publisher] = {}
         self._config_replies: list = []
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
 
@@ -115,7 +119,7 @@ class Aggregator:
         for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs):
             for entity in group:
                 entity.undeclare()
-        for pub in self._pose_pubs.values():
+        for pub in (*self._pose_pubs.values(), *self._stats_pubs.values()):
             pub.undeclare()
 
     # ------------------------------------------------------------------ input
@@ -188,7 +192,7 @@ class Aggregator:
     def on_alive(self, key: str, online: bool) -> None:
         ids = self._parse_key(key, "alive")
         if ids is not None and (track := self._device(ids, "alive", None)) is not None:
-            track.online = online
+            self.fusion.set_online(track, online)
 
     def on_config(self, key: str, payload: bytes) -> None:
         """A device's config reply: its threshold and max segment length."""
@@ -247,11 +251,12 @@ class Aggregator:
 
     # ------------------------------------------------------------------ output
 
-    def _publish(self, subject: str, frame: wire.PoseFrame) -> None:
+    def _publish(self, subject: str, payload: bytes) -> None:
+        """An encoded pose frame of ``subject``."""
         pub = self._pose_pubs.get(subject)
         if pub is None:
             pub = self._pose_pubs[subject] = self.session.declare_publisher(wire.pose_key(subject))
-        pub.put(wire.encode_pose(frame))
+        pub.put(payload)
 
     def advance(self, live: bool, prune: bool = True, now: float | None = None) -> int:
         """Truth evaluation, exact frames (and live frames) of every subject; returns frames published.
@@ -259,12 +264,13 @@ class Aggregator:
         if now is not None:
             self.fusion.clock = max(self.fusion.clock, now)
         self.fusion.evaluate_truth()
-        frames = self.fusion.exact_frames()
-        for sub, frame in frames:
-            self._publish(sub.name, frame)
+        owners, frames = self.fusion.exact_frames()
+        for sub, payload in zip(owners, frames.encode()):
+            self._publish(sub.name, payload)
         if live:
-            for sub, frame in self.fusion.live_frames():
-                self._publish(sub.name, frame)
+            owners, live_frames = self.fusion.live_frames()
+            for sub, payload in zip(owners, live_frames.encode()):
+                self._publish(sub.name, payload)
         if prune:
             self.fusion.prune()
         self.loop.frames += len(frames)
@@ -290,10 +296,13 @@ class Aggregator:
             devices = snapshot.pop("devices")
             # load / soak figures (bench/soak.py) and messages no device could be charged with
             snapshot["aggregator"] = self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
-            payload = wire.encode_stats(sub.name, wall, devices, snapshot)
-            self.session.put(wire.stats_key(sub.name), payload)
+            pub = self._stats_pubs.get(sub.name)
+            if pub is None:
+                pub = self._stats_pubs[sub.name] = self.session.declare_publisher(wire.stats_key(sub.name))
+            pub.put(wire.encode_stats(sub.name, wall, devices, snapshot))
         if part == parts - 1:
             self.loop.recent_backlog = 0
+            self.loop.recent_max_tick_ms = 0.0
 
     # ------------------------------------------------------------------ loop
 
@@ -327,6 +336,10 @@ class Aggregator:
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s
+            work = time.perf_counter() - now
+            self.loop.busy_s += work
+            self.loop.max_tick_ms = max(self.loop.max_tick_ms, 1e3 * work)
+            self.loop.recent_max_tick_ms = max(self.loop.recent_max_tick_ms, 1e3 * work)
             self.loop.ticks += 1
             k += 1
         return self.loop

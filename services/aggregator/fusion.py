@@ -66,6 +66,17 @@ class Fusion:
         self.next_frame = np.zeros(0, np.int64)  # grid index of each subject's next exact frame, -1 unset
         self.exact_seq = np.zeros(0, np.int64)
         self.live_seq = np.zeros(0, np.int64)
+        # per device slot, kept current as messages arrive, so a tick reads them without a loop
+        self.owner = np.zeros(0, np.int64)        # subject index
+        self.online = np.zeros(0, bool)           # liveliness token present
+        self.active = np.zeros(0, bool)           # online and its stream not ended
+        self.generation = np.zeros(0, np.int64)   # stream generation (truth samples of older ones are dropped)
+        self.latest_t = np.zeros(0, np.int64)     # newest device time of a point or truth sample, or _NONE
+        self.last_raw_t = np.zeros(0, np.int64)   # newest truth sample time, _NONE before one
+        self.settled = np.zeros(0, bool)          # DeviceTrack.settled, refreshed for the _unsettled ones
+        self._unsettled: set[DeviceTrack] = set()
+        self._gappy: set[DeviceTrack] = set()     # tracks with lost points (frames in those spans: GAP)
+        self._view: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see _device_view
 
     # ------------------------------------------------------------------ devices
 
@@ -85,47 +96,82 @@ class Fusion:
             self.live.ensure(slot + 1)
             track = sub.tracks[segment] = DeviceTrack(subject, segment, slot)
             self.tracks.append(track)
+            self.owner = np.append(self.owner, sub.index)
+            self.online = np.append(self.online, False)
+            self.active = np.append(self.active, False)
+            self.generation = np.append(self.generation, 0)
+            self.latest_t = np.append(self.latest_t, _NONE)
+            self.last_raw_t = np.append(self.last_raw_t, _NONE)
+            self.settled = np.append(self.settled, True)
+            self._view = None
             if segment in _SEGMENT_INDEX:
                 self.seg_slots[sub.index, _SEGMENT_INDEX[segment]] = slot
         return track
 
+    def set_online(self, track: DeviceTrack, online: bool) -> None:
+        """The device's liveliness token appeared (True) or vanished (False)."""
+        track.online = self.online[track.slot] = online
+        self.active[track.slot] = online and not track.final
+        self._view = None
+
     def _stream(self, track: DeviceTrack, stream: int) -> bool:
         state = track.check_stream(stream)
         if state == "new":
-            self.store.reset(track.slot)
-            self.exact.reset(track.slot)
-            self.live.reset(track.slot)
+            slot = track.slot
+            self.store.reset(slot)
+            self.exact.reset(slot)
+            self.live.reset(slot)
+            self.generation[slot] = track.generation
+            self.latest_t[slot] = self.last_raw_t[slot] = _NONE
+            self._unsettled.add(track)
+            self._gappy.discard(track)
         return state != "stale"
 
     def add_point(self, track: DeviceTrack, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
         """A decoded segment point; False if dropped (counted on the track)."""
-        self.clock = max(self.clock, now)
+        self._tick_clock(now)
         if not self._stream(track, p.stream):
             return False
-        how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(track.slot, t_us))
+        slot = track.slot
+        how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(slot, t_us))
         if how == "append":
-            forgotten = self.store.append(track.slot, p.t_us, p.q)
+            forgotten = self.store.append(slot, p.t_us, p.q)
             if forgotten:
                 track.dropped["buffer_full"] += forgotten
-        elif how == "insert" and not self.store.insert(track.slot, p.t_us, p.q):
+            self.active[slot] = track.online and not track.final
+            if track.gap_spans:
+                self._gappy.add(track)
+        elif how == "insert" and not self.store.insert(slot, p.t_us, p.q):
             track.dropped["buffer_full"] += 1
-        return how is not None
+        if how is None:
+            return False
+        self.latest_t[slot] = track.latest_t_us
+        self._view = None
+        return True
 
     def add_raw(self, track: DeviceTrack, batch: wire.RawBatch, now: float) -> bool:
         """A decoded truth-tap batch; False if dropped (counted)."""
-        self.clock = max(self.clock, now)
+        self._tick_clock(now)
         if not track.accept_raw(batch, now):
             return False
+        self.last_raw_t[track.slot] = track.last_raw_t_us
+        self.latest_t[track.slot] = track.latest_t_us
         self.truth.put(track.slot, track.generation, batch.t_us, batch.q)
         return True
+
+    def _tick_clock(self, now: float) -> None:
+        """Advance the arrival clock; devices still in their history grace period may settle."""
+        if now > self.clock:
+            self.clock = now
+            if self._unsettled:
+                self._view = None
 
     # ------------------------------------------------------------------ errors
 
     def evaluate_truth(self) -> int:
         """Angular error of the exact reconstruction and of holding the last point, at every truth
         sample whose reconstruction became final. Returns how many samples."""
-        generation = np.array([t.generation for t in self.tracks], np.int64)
-        slots, t_us, truth, overflow = self.truth.take_ready(self._last_settled(), generation)
+        slots, t_us, truth, overflow = self.truth.take_ready(self._device_view()[0], self.generation)
         for slot in overflow:
             self.tracks[slot].dropped["raw_overflow"] += 1
         before = t_us < self.store.t[slots, 0]  # older than the stream's first point known: no reconstruction
@@ -139,31 +185,34 @@ class Fusion:
 
     # ------------------------------------------------------------------ frames
 
-    def _last_settled(self) -> np.ndarray:
-        """(slots,) newest point time of each device whose points may be used, _NONE for the others
-        (no points yet, or earlier points of its stream may still arrive)."""
-        settled = np.array([t.settled(self.clock) for t in self.tracks] or [True], bool)
-        return np.where(settled[: self.store.size], self.store.last_t(), _NONE)
-
-    def _watermarks(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per subject: watermark (us; _NONE if no data) and which segments are stale (no device,
-        offline, ended, or not settled: held and flagged until they are) as (subjects, 10) bool."""
-        last = self._last_settled()
+    def _device_view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What frames and truth evaluation need of every device, computed once per change:
+        (slots,) newest usable point time (_NONE: no points yet, or earlier points of its stream
+        may still arrive), (subjects,) watermark (us; _NONE if no data) and (subjects, 10) bool
+        stale segments (no device, offline, ended, or not settled: held and flagged)."""
+        if self._view is not None:
+            return self._view
+        for track in list(self._unsettled):
+            ok = self.settled[track.slot] = track.settled(self.clock)
+            if ok and track.first_seq is not None:
+                self._unsettled.discard(track)
+        last = np.where(self.settled, self.store.last_t(), _NONE)
         slots = self.seg_slots
         have = slots >= 0
         last_s = np.where(have, last[np.maximum(slots, 0)], _NONE)
         have &= last_s != _NONE
-        live = np.array([t.online and not t.final for t in self.tracks] or [False], bool)
-        active = have & live[np.maximum(slots, 0)]
+        active = have & self.active[np.maximum(slots, 0)]
         big = np.iinfo(np.int64).max
         wm_active = np.where(active, last_s, big).min(axis=1, initial=big)
         wm_have = np.where(have, last_s, big).min(axis=1, initial=big)
         wm = np.where(active.any(axis=1), wm_active, np.where(have.any(axis=1), wm_have, _NONE))
-        return wm, ~active
+        self._view = last, wm, ~active
+        return self._view
 
-    def exact_frames(self) -> list[tuple[Subject, wire.PoseFrame]]:
-        """Every exact frame that became final since the last call, per subject oldest first."""
-        wm, stale = self._watermarks()
+    def exact_frames(self) -> tuple[list[Subject], wire.PoseFrames]:
+        """Every exact frame that became final since the last call, per subject oldest first,
+        and the subject of each."""
+        _, wm, stale = self._device_view()
         subjects = list(self.subjects.values())
         for sub in subjects:  # a subject's first frame: where every device it has is covered
             if self.next_frame[sub.index] < 0 and wm[sub.index] != _NONE:
@@ -180,7 +229,7 @@ class Fusion:
         count = np.clip(count, 0, MAX_FRAMES_PER_CALL)
         total = int(count.sum())
         if total == 0:
-            return []
+            return [], wire.PoseFrames.empty(wire.KIND_EXACT)
         owner = np.repeat(np.arange(len(count)), count)
         k = self.next_frame[owner] + np.arange(total) - np.repeat(np.cumsum(count) - count, count)
         t_us = np.round(k * self.period_us).astype(np.int64)
@@ -195,57 +244,43 @@ class Fusion:
         last = self.store.last_t()
         beyond = valid & (last[np.maximum(slots, 0)] < t_us[:, None])
         missing = (stale[owner] & beyond).any(axis=1) | (~valid).any(axis=1)
-        joints = self.skeleton.positions(q)
         gap = np.zeros(total, bool)
-        for i in np.unique(owner):
-            tracks = [t for t in subjects[i].tracks.values() if t.gap_spans]
-            mine = owner == i
-            for track in tracks:
+        for track in self._gappy:
+            mine = owner == self.owner[track.slot]
+            if mine.any():
                 gap[mine] |= track.in_gap(t_us[mine])
         flags = np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0)
-        frames = []
-        for f in range(total):
-            sub = subjects[owner[f]]
-            frames.append((sub, wire.PoseFrame(int(seq[f]), int(t_us[f]), wire.KIND_EXACT, int(flags[f]),
-                                               q[f], joints[f])))
-            sub.frames += 1
-        return frames
+        per_subject = np.bincount(owner, minlength=len(subjects))
+        for i in np.flatnonzero(per_subject):
+            subjects[i].frames += int(per_subject[i])
+        return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
+                                                             self.skeleton.positions(q))
 
-    def live_frames(self) -> list[tuple[Subject, wire.PoseFrame]]:
+    def live_frames(self) -> tuple[list[Subject], wire.PoseFrames]:
         """One frame per subject at its newest device time, every segment held at its newest point."""
-        subjects, times = [], []
-        for sub in self.subjects.values():
-            latest = [t.latest_t_us for t in sub.tracks.values() if t.latest_t_us is not None and t.points]
-            if latest:
-                subjects.append(sub)
-                times.append(max(latest))
-        if not subjects:
-            return []
-        index = np.array([s.index for s in subjects])
-        t_us = np.array(times, np.int64)
-        slots = self.seg_slots[index]
+        slots = self.seg_slots
         valid = slots >= 0
-        q = np.tile(IDENTITY, (len(subjects), len(SEGMENTS), 1))
+        has_points = valid & (self.store.n[np.maximum(slots, 0)] > 0)
+        latest = np.where(has_points, self.latest_t[np.maximum(slots, 0)], _NONE).max(axis=1, initial=_NONE)
+        index = np.flatnonzero(latest != _NONE)
+        if len(index) == 0:
+            return [], wire.PoseFrames.empty(wire.KIND_LIVE)
+        t_us, slots, valid = latest[index], slots[index], valid[index]
+        q = np.tile(IDENTITY, (len(index), len(SEGMENTS), 1))
         q[valid] = self.store.held(slots[valid], np.broadcast_to(t_us[:, None] + 1, slots.shape)[valid])
-        online = np.array([t.online for t in self.tracks] or [False], bool)
-        missing = (~valid | ~online[np.maximum(slots, 0)]).any(axis=1)
-        joints = self.skeleton.positions(q)
-        frames = []
-        for i, sub in enumerate(subjects):
-            frames.append((sub, wire.PoseFrame(int(self.live_seq[sub.index]), int(t_us[i]), wire.KIND_LIVE,
-                                               wire.FRAME_MISSING if missing[i] else 0, q[i], joints[i])))
-            self.live_seq[sub.index] += 1
-        return frames
+        missing = (~valid | ~self.online[np.maximum(slots, 0)]).any(axis=1)
+        seq = self.live_seq[index].copy()
+        self.live_seq[index] += 1
+        subjects = list(self.subjects.values())
+        return [subjects[i] for i in index], wire.PoseFrames(seq, t_us, wire.KIND_LIVE,
+                                                             np.where(missing, wire.FRAME_MISSING, 0), q,
+                                                             self.skeleton.positions(q))
 
     def prune(self) -> None:
         """Let every row forget points no frame and no waiting truth sample needs."""
-        keep = np.full(self.store.size, np.iinfo(np.int64).max)
-        for sub in self.subjects.values():
-            nf = self.next_frame[sub.index]
-            for track in sub.tracks.values():
-                keep[track.slot] = int(nf * self.period_us) if nf >= 0 else np.iinfo(np.int64).min
-                if track.last_raw_t_us is not None:  # truth samples still to come need these points
-                    keep[track.slot] = min(keep[track.slot], track.last_raw_t_us)
+        nf = self.next_frame[self.owner]
+        keep = np.where(nf >= 0, np.floor(nf * self.period_us), np.iinfo(np.int64).min).astype(np.int64)
+        keep = np.where(self.last_raw_t != _NONE, np.minimum(keep, self.last_raw_t), keep)  # truth still to come
         keep = np.minimum(keep, self.truth.oldest(self.store.size))
         self.store.prune(keep)
 
@@ -262,5 +297,5 @@ class Fusion:
                               int(count[i]))) for i, t in enumerate(tracks)]
 
     def watermark(self, sub: Subject) -> int | None:
-        wm, _ = self._watermarks()
+        wm = self._device_view()[1]
         return None if wm[sub.index] == _NONE else int(wm[sub.index])
