@@ -105,6 +105,27 @@ def test_pose_frame_round_trip():
         wire.decode_pose(wire.encode_pose(frame)[:-1])
 
 
+def test_pose_frames_encode_as_the_documented_layout():
+    """A batch encodes frame by frame to the bytes docs/protocol.md gives: header
+    <BBBBIq (version, kind, flags, n_segments, seq, t_us), then 10 x 4 and 15 x 3 float32."""
+    rng = np.random.default_rng(2)
+    n = 7
+    frames = wire.PoseFrames(rng.integers(0, 2**32, n), rng.integers(0, 2**53, n), wire.KIND_EXACT,
+                             rng.integers(0, 4, n), rng.normal(size=(n, len(SEGMENTS), 4)),
+                             rng.normal(size=(n, len(wire.JOINTS), 3)))
+    payloads = frames.encode()
+    assert len(payloads) == n and all(len(p) == 356 for p in payloads)
+    header = struct.Struct("<BBBBIq")
+    for i, payload in enumerate(payloads):
+        expected = (header.pack(wire.VERSION, wire.KIND_EXACT, int(frames.flags[i]), len(SEGMENTS),
+                                int(frames.seq[i]), int(frames.t_us[i]))
+                    + frames.q[i].astype("<f4").tobytes() + frames.joints[i].astype("<f4").tobytes())
+        assert payload == expected == wire.encode_pose(frames[i])
+        back = wire.decode_pose(payload)
+        assert (back.seq, back.t_us, back.flags) == (frames.seq[i], frames.t_us[i], frames.flags[i])
+    assert wire.PoseFrames.empty(wire.KIND_LIVE).encode() == []
+
+
 def test_stats_round_trip_and_null_for_non_finite():
     device = {k: 0 for k in wire.STATS_FIELDS} | {"device": "s01/hip", "aad_deg": math.nan}
     data = wire.decode_stats(wire.encode_stats("s01", 1.5, [device], {"frames": 3}))

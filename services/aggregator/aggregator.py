@@ -262,7 +262,7 @@ class Aggregator:
         """Truth evaluation, exact frames (and live frames) of every subject; returns frames published.
         ``now``: the arrival clock of the messages (perf_counter), if time went on without any."""
         if now is not None:
-            self.fusion.clock = max(self.fusion.clock, now)
+            self.fusion.advance_clock(now)
         self.fusion.evaluate_truth()
         owners, frames = self.fusion.exact_frames()
         for sub, payload in zip(owners, frames.encode()):

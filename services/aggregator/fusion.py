@@ -129,7 +129,7 @@ class Fusion:
 
     def add_point(self, track: DeviceTrack, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
         """A decoded segment point; False if dropped (counted on the track)."""
-        self._tick_clock(now)
+        self.advance_clock(now)
         if not self._stream(track, p.stream):
             return False
         slot = track.slot
@@ -151,7 +151,7 @@ class Fusion:
 
     def add_raw(self, track: DeviceTrack, batch: wire.RawBatch, now: float) -> bool:
         """A decoded truth-tap batch; False if dropped (counted)."""
-        self._tick_clock(now)
+        self.advance_clock(now)
         if not track.accept_raw(batch, now):
             return False
         self.last_raw_t[track.slot] = track.last_raw_t_us
@@ -159,7 +159,7 @@ class Fusion:
         self.truth.put(track.slot, track.generation, batch.t_us, batch.q)
         return True
 
-    def _tick_clock(self, now: float) -> None:
+    def advance_clock(self, now: float) -> None:
         """Advance the arrival clock; devices still in their history grace period may settle."""
         if now > self.clock:
             self.clock = now

@@ -1,0 +1,128 @@
+"""The aggregator's frame rules on hand-made message sequences (no Zenoh): when exact frames
+become final, what holds them back, and what they are flagged with."""
+from __future__ import annotations
+
+import numpy as np
+
+from limbstream import wire
+from limbstream.sources import SEGMENTS
+from services.aggregator.aggregator import Aggregator, AggregatorSettings
+from services.aggregator.track import HISTORY_GRACE_S
+
+T0 = 1_700_000_000_000_000
+STEP_US = 100_000  # one segment point every 100 ms
+IDENTITY = (1.0, 0.0, 0.0, 0.0)
+
+
+def aggregator() -> tuple[Aggregator, list[wire.PoseFrame]]:
+    """An aggregator without a session whose published frames are decoded into a list."""
+    agg = Aggregator(None, AggregatorSettings())
+    sent: list[wire.PoseFrame] = []
+    agg._publish = lambda subject, payload: sent.append(wire.decode_pose(payload))
+    return agg, sent
+
+
+def send(agg: Aggregator, segment: str, seqs, now: float, subject: str = "s01") -> None:
+    """Segment points of sequence numbers ``seqs`` (point k at T0 + k * 100 ms), arriving at ``now``."""
+    for k in seqs:
+        point = wire.SegmentPoint(1, k, 5 * k, T0 + k * STEP_US, IDENTITY)
+        agg.on_point(wire.seg_key(subject, segment), wire.encode_point(point), now)
+
+
+def exact(frames: list[wire.PoseFrame]) -> list[wire.PoseFrame]:
+    return [f for f in frames if f.kind == wire.KIND_EXACT]
+
+
+def online_subject(agg: Aggregator, subject: str = "s01") -> None:
+    for segment in SEGMENTS:
+        agg.on_alive(wire.alive_key(subject, segment), True)
+
+
+def test_frames_wait_for_the_slowest_device():
+    agg, sent = aggregator()
+    online_subject(agg)
+    for segment in SEGMENTS[:-1]:
+        send(agg, segment, range(11), now=0.0)          # 0 .. 1.0 s
+    send(agg, SEGMENTS[-1], range(6), now=0.0)           # 0 .. 0.5 s
+    agg.advance(live=False, now=0.0)
+    assert [f.t_us - T0 for f in exact(sent)] == list(range(0, 500_001, 20_000)), "50 Hz grid up to the slowest"
+    send(agg, SEGMENTS[-1], range(6, 11), now=0.1)
+    agg.advance(live=False, now=0.1)
+    frames = exact(sent)
+    assert [f.t_us - T0 for f in frames] == list(range(0, 1_000_001, 20_000)), "no frame twice, none skipped"
+    assert [f.seq for f in frames] == list(range(51)) and all(f.flags == 0 for f in frames)
+
+
+def test_online_device_without_points_does_not_stall_its_subject():
+    agg, sent = aggregator()
+    online_subject(agg)
+    for segment in SEGMENTS[:-1]:
+        send(agg, segment, range(11), now=0.0)
+    agg.advance(live=False, now=0.0)
+    assert len(exact(sent)) == 51 and all(f.flags & wire.FRAME_MISSING for f in exact(sent))
+
+
+def truth(agg: Aggregator, segment: str, k: int, now: float) -> None:
+    """One truth-tap sample of ``segment`` at sample index 5 * k (T0 + k * 100 ms)."""
+    batch = wire.RawBatch(1, 5 * k, np.array([T0 + k * STEP_US]), np.array([IDENTITY], np.float32))
+    agg.on_raw(wire.raw_key("s01", segment), wire.encode_raw(batch), now)
+
+
+def test_truth_before_a_late_joiners_first_point_waits_for_its_history_grace():
+    """Points from seq 3 on (0-2 may still come as history): a truth sample before them is not
+    judged until the grace period is over, even if no further message wakes the aggregator;
+    then it is dropped (no reconstruction) instead of compared with a held point."""
+    agg, _ = aggregator()
+    online_subject(agg)
+    late = agg.track("s01", SEGMENTS[-1])
+    send(agg, SEGMENTS[-1], range(3, 11), now=0.0)
+    truth(agg, SEGMENTS[-1], 1, now=0.0)
+    agg.advance(live=False, now=0.5)
+    assert not late.dropped and agg.fusion.exact.count[late.slot] == 0, "must wait for the history"
+    agg.advance(live=False, now=HISTORY_GRACE_S + 0.01)  # time passes, no message
+    assert late.dropped == {"raw_before_first_point": 1}, dict(late.dropped)
+
+
+def test_history_arriving_after_live_points_completes_the_stream():
+    agg, _ = aggregator()
+    online_subject(agg)
+    late = agg.track("s01", SEGMENTS[-1])
+    send(agg, SEGMENTS[-1], range(3, 11), now=0.0)
+    truth(agg, SEGMENTS[-1], 1, now=0.0)
+    send(agg, SEGMENTS[-1], range(3), now=0.2)           # the history of its start
+    agg.advance(live=False, now=0.2)
+    n = agg.fusion.store.n[late.slot]
+    assert np.array_equal(agg.fusion.store.t[late.slot, :n], T0 + np.arange(11) * STEP_US), "inserted in order"
+    assert late.points == 11 and not late.dropped, dict(late.dropped)
+    assert agg.fusion.exact.count[late.slot] == 1, "the truth sample is judged against the full stream"
+
+
+def test_offline_device_does_not_hold_frames_back_and_they_are_flagged():
+    agg, sent = aggregator()
+    online_subject(agg)
+    for segment in SEGMENTS:
+        send(agg, segment, range(6), now=0.0)
+    agg.advance(live=False, now=0.0)
+    before = len(exact(sent))
+    agg.on_alive(wire.alive_key("s01", SEGMENTS[0]), False)
+    for segment in SEGMENTS[1:]:
+        send(agg, segment, range(6, 11), now=0.1)
+    agg.advance(live=False, now=0.1)
+    later = exact(sent)[before:]
+    assert [f.t_us - T0 for f in later] == list(range(520_000, 1_000_001, 20_000))
+    assert all(f.flags & wire.FRAME_MISSING for f in later), "the held segment is flagged"
+    stats = {d["segment"]: d for d in agg.fusion.device_stats(agg.subjects["s01"], 0.1)}
+    assert stats[SEGMENTS[0]]["online"] is False and stats[SEGMENTS[1]]["online"] is True
+
+
+def test_lost_points_flag_the_frames_they_span_as_gap():
+    agg, sent = aggregator()
+    online_subject(agg)
+    for segment in SEGMENTS:
+        send(agg, segment, [k for k in range(11) if segment != SEGMENTS[2] or k not in (4, 5)], now=0.0)
+    agg.advance(live=False, now=0.0)
+    frames = exact(sent)
+    gap = np.array([bool(f.flags & wire.FRAME_GAP) for f in frames])
+    t = np.array([f.t_us - T0 for f in frames])
+    assert agg.track("s01", SEGMENTS[2]).gaps == 2
+    assert np.array_equal(gap, (t > 300_000) & (t < 600_000)), "GAP exactly between the points around the loss"
