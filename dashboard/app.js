@@ -342,6 +342,17 @@ async function refreshSubjects() {
   $("skeletons-empty").hidden = state.figures.size > 0;
 }
 
+async function refreshAggregators() {
+  let aggs;
+  try { aggs = (await api("/api/aggregators")).filter((a) => !a.stale); } catch (_) { return; }
+  const el = $("tot-agg");
+  if (!aggs.length) { el.textContent = "–"; el.className = ""; return; }
+  const busiest = aggs.reduce((a, b) => ((b.load ?? 0) > (a.load ?? 0) ? b : a));
+  el.textContent = `${fmt(100 * (busiest.load ?? NaN), 0)} % · ${fmt(busiest.late_pct, 2)} %`;
+  el.className = busiest.load >= 1 ? "bad" : (busiest.load >= 0.8 || busiest.late_pct >= 1 ? "warn" : "");
+  el.dataset.load = busiest.load ?? "";
+}
+
 function animate() {
   for (const fig of state.figures.values()) fig.draw();
   requestAnimationFrame(animate);
@@ -404,8 +415,10 @@ async function start() {
   try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* retried by refreshSubjects' figures */ }
   await refreshDevices();
   await refreshSubjects();
+  await refreshAggregators();
   setInterval(refreshDevices, DEVICES_EVERY_MS);
   setInterval(refreshSubjects, SUBJECTS_EVERY_MS);
+  setInterval(refreshAggregators, SUBJECTS_EVERY_MS);
   setInterval(refreshHistory, HISTORY_EVERY_MS);
   setInterval(async () => {
     if (!state.skeleton) { try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* next time */ } }

@@ -90,7 +90,7 @@ def test_health_docs_and_page(client):
     paths = client.get("/openapi.json").json()["paths"]
     for path in ("/api/devices", "/api/devices/{subject}/{segment}", "/api/devices/{subject}/{segment}/history",
                  "/api/devices/{subject}/{segment}/config", "/api/subjects", "/api/subjects/{subject}/pose",
-                 "/health", "/metrics"):
+                 "/api/aggregators", "/health", "/metrics"):
         assert path in paths, f"{path} missing from OpenAPI: {sorted(paths)}"
     page = client.get("/")
     assert page.status_code == 200 and "limbstream" in page.text and "uPlot.iife.min.js" in page.text
@@ -115,6 +115,45 @@ def test_devices_carry_every_stats_field(client, pub):
     subjects = {s["subject"]: s for s in client.get("/api/subjects").json()}
     assert subjects["apiA"]["devices"] == 2 and subjects["apiA"]["online"] == 1, subjects
     assert math.isclose(subjects["apiA"]["msgs_per_s"], 10.0), subjects
+
+
+def test_aggregators_report_their_loop_and_bad_entries_are_counted(client, pub):
+    """Each stats message carries its aggregator's loop figures: the dashboard keeps the latest
+    per aggregator, with the subjects it serves, and exports them; malformed entries are counted."""
+    loop = {"ticks": 5000, "late": 25, "load": 0.38, "max_tick_ms": 45.0, "recent_max_tick_ms": 12.5,
+            "recent_backlog": 300, "max_backlog": 700, "missed": 0, "points": 1234, "frames": 5678,
+            "subjects": 2, "bad_keys": {"key": 3, "bogus": "x"}}
+
+    def publish():
+        for subject, aid in (("aggA1", "hostA:1"), ("aggA2", "hostA:1"), ("aggB1", "hostB:2")):
+            pub.put(wire.stats_key(subject), wire.encode_stats(subject, time.time(), [device_stats(subject, "hip")],
+                                                               {"aggregator": loop | {"id": aid}}))
+
+    def both():
+        return {a["id"] for a in client.get("/api/aggregators").json()} >= {"hostA:1", "hostB:2"}
+
+    publish_until(client, publish, both, "two aggregators")
+    wait_until(lambda: client.get("/api/aggregators").json()[0]["serving"] == ["aggA1", "aggA2"], 5, "both subjects")
+    views = {a["id"]: a for a in client.get("/api/aggregators").json()}
+    a = views["hostA:1"]
+    assert a["serving"] == ["aggA1", "aggA2"] and views["hostB:2"]["serving"] == ["aggB1"], views
+    assert a["late_pct"] == 0.5 and a["load"] == 0.38 and a["recent_backlog"] == 300 and not a["stale"], a
+    assert a["bad_keys"] == {"key": 3}, "non-numeric counts are not passed on"
+    text = client.get("/metrics").text
+    assert 'limbstream_aggregator_late_ticks_total{aggregator="hostA:1"} 25.0' in text
+    assert 'limbstream_aggregator_load{aggregator="hostB:2"} 0.38' in text
+    assert 'limbstream_aggregator_bad_keys_total{aggregator="hostA:1",reason="key"} 3.0' in text
+
+    def errors():
+        return {line.split()[0]: float(line.split()[1]) for line in client.get("/metrics").text.splitlines()
+                if line.startswith("limbstream_dashboard_errors_total")}
+
+    before = errors().get('limbstream_dashboard_errors_total{reason="stats_aggregator"}', 0.0)
+    for bad in ({"ticks": 1}, {"id": ""}, {"id": 7}, ["not", "a", "dict"], {"id": "x" * 500}):
+        pub.put(wire.stats_key("aggA1"), wire.encode_stats("aggA1", time.time(), [], {"aggregator": bad}))
+    wait_until(lambda: errors().get('limbstream_dashboard_errors_total{reason="stats_aggregator"}', 0.0) >= before + 5,
+               5, "five malformed aggregator entries counted")
+    assert {a["id"] for a in client.get("/api/aggregators").json()} >= {"hostA:1", "hostB:2"}
 
 
 def test_unknown_and_malformed_ids(client):

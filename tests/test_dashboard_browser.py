@@ -77,6 +77,10 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
             for device, rate, icr, online in rows:
                 assert rate > 0 and 0 < icr <= 1 and online == "true", (device, rate, icr, online)
             assert page.text_content("#tot-online") == f"{n_devices} / {n_devices}"
+            # the aggregator's own load, as it reports it in its stats
+            page.wait_for_function("() => document.querySelector('#tot-agg').dataset.load > 0", timeout=10_000)
+            load = float(page.get_attribute("#tot-agg", "data-load"))
+            assert 0 < load < 1 and " % · " in page.text_content("#tot-agg"), page.text_content("#tot-agg")
             # charts got data for the selected device
             page.wait_for_function("() => document.querySelectorAll('#chart-icr .u-over').length === 1", timeout=10_000)
 

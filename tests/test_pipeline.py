@@ -75,6 +75,12 @@ def test_generator_subjects_stream_full_body_frames(stack, watch):  # noqa: F811
     for d in watch.poll().values():
         assert d["aad_deg"] < 5.0 and d["max_deg"] < 30.0, d
         assert d["msgs_per_s"] > 0 and d["bytes_per_s"] == pytest.approx(d["msgs_per_s"] * wire.POINT_SIZE)
+    # the aggregator's own loop, in every stats message (load: once a first second is over)
+    wait_until(lambda: watch.poll() and watch.subjects["s01"]["aggregator"]["load"] > 0, 10, "aggregator load")
+    loop = watch.subjects["s01"]["aggregator"]
+    assert loop["id"] == watch.subjects["s02"]["aggregator"]["id"] and loop["subjects"] == 2, loop
+    assert loop["ticks"] > 0 and 0 <= loop["late"] < loop["ticks"] and loop["missed"] == 0, loop
+    assert 0 < loop["load"] < 1 and 0 < loop["recent_max_tick_ms"] <= loop["max_tick_ms"], loop
 
 
 def test_killed_device_goes_offline_while_others_stream_on(stack, watch):  # noqa: F811

@@ -98,13 +98,17 @@ def test_devices_and_aggregator_on_two_meshed_routers(stack, tap_factory, cmu_np
 
 
 def test_two_aggregators_shard_subjects(stack, tap_factory):  # noqa: F811
-    """--subjects s01,s03 and --subjects s02,s04: each subject served by exactly one aggregator."""
-    shards = (("s01", "s03"), ("s02", "s04"))
+    """Two rooms, roomA-s01..s02 and roomB-s01..s02, one aggregator each: --subjects 'roomA-s*'
+    (a partial-name pattern) and --subjects roomB-s01,roomB-s02 (names). Each subject is served
+    by exactly one aggregator."""
+    shards = (("roomA-s01", "roomA-s02"), ("roomB-s01", "roomB-s02"))
+    selectors = ("roomA-s*", ",".join(shards[1]))
     subjects = sorted(s for shard in shards for s in shard)
     stack.router()
     tap = tap_factory(stack.endpoint)
-    stack.emulator(len(subjects), 1.0, "--no-truth")
-    stack.aggregator("--subjects", ",".join(shards[0]))
+    for room in ("roomA-s", "roomB-s"):
+        stack.emulator(2, 1.0, "--no-truth", "--subject-prefix", room)
+    stack.aggregator("--subjects", selectors[0])
 
     # Phase 1: only the first shard runs. Its subjects stream; the others get nothing meanwhile.
     def first_shard_streams():
@@ -116,7 +120,7 @@ def test_two_aggregators_shard_subjects(stack, tap_factory):  # noqa: F811
 
     # Phase 2: the second shard joins; together they cover every subject.
     before = {s: len(tap.frames.get(s, [])) for s in subjects}
-    stack.aggregator("--subjects", ",".join(shards[1]))
+    stack.aggregator("--subjects", selectors[1])
 
     def all_stream():
         tap.poll()

@@ -11,9 +11,11 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import os
+import socket
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import zenoh
 import zenoh.ext as zext
@@ -71,12 +73,31 @@ class LoopStats:
     max_backlog: int = 0     # most messages drained in one tick
     recent_backlog: int = 0  # most messages drained in one tick since the last stats message
     busy_s: float = 0.0      # time spent working (not waiting for the next tick), seconds
+    load: float = 0.0        # share of the last stats period spent working (0..1; >= 1: cannot keep up)
     max_tick_ms: float = 0.0      # longest tick's work, ms
     recent_max_tick_ms: float = 0.0  # longest tick's work since the last stats round, ms
 
+    _round_start: float = field(default_factory=time.perf_counter, repr=False)
+    _round_busy: float = field(default=0.0, repr=False)
+
+    def record(self, work_s: float) -> None:
+        """One tick done, after ``work_s`` seconds of work."""
+        self.ticks += 1
+        self.busy_s += work_s
+        self._round_busy += work_s
+        self.max_tick_ms = max(self.max_tick_ms, 1e3 * work_s)
+        self.recent_max_tick_ms = max(self.recent_max_tick_ms, 1e3 * work_s)
+
+    def end_round(self, now: float) -> None:
+        """A stats round is out: ``load`` over it, and the ``recent_*`` figures start over."""
+        self.load = round(self._round_busy / max(now - self._round_start, 1e-9), 4)
+        self._round_start, self._round_busy = now, 0.0
+        self.recent_backlog = 0
+        self.recent_max_tick_ms = 0.0
+
     def as_dict(self) -> dict:
         """The counters as published in every stats message (``"aggregator"`` entry)."""
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        return {k: getattr(self, k) for k in self.__dataclass_fields__ if not k.startswith("_")}
 
 
 class Aggregator:
@@ -93,6 +114,7 @@ class Aggregator:
         self._stats_pubs: dict[str, zenoh.Publisher] = {}
         self._config_replies: list = []
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
+        self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
 
     # ------------------------------------------------------------------ zenoh
 
@@ -295,14 +317,14 @@ class Aggregator:
             snapshot = self.subject_stats(sub.name, now)
             devices = snapshot.pop("devices")
             # load / soak figures (bench/soak.py) and messages no device could be charged with
-            snapshot["aggregator"] = self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
+            snapshot["aggregator"] = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {
+                "bad_keys": dict(self.bad_keys)}
             pub = self._stats_pubs.get(sub.name)
             if pub is None:
                 pub = self._stats_pubs[sub.name] = self.session.declare_publisher(wire.stats_key(sub.name))
             pub.put(wire.encode_stats(sub.name, wall, devices, snapshot))
         if part == parts - 1:
-            self.loop.recent_backlog = 0
-            self.loop.recent_max_tick_ms = 0.0
+            self.loop.end_round(now)
 
     # ------------------------------------------------------------------ loop
 
@@ -336,11 +358,7 @@ class Aggregator:
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s
-            work = time.perf_counter() - now
-            self.loop.busy_s += work
-            self.loop.max_tick_ms = max(self.loop.max_tick_ms, 1e3 * work)
-            self.loop.recent_max_tick_ms = max(self.loop.recent_max_tick_ms, 1e3 * work)
-            self.loop.ticks += 1
+            self.loop.record(time.perf_counter() - now)
             k += 1
         return self.loop
 

@@ -24,6 +24,17 @@ DEVICE_COUNTERS = {
     "dropped": ("limbstream_device_dropped", "bad segment-point payloads dropped"),
 }
 LABELS = ["subject", "segment"]
+AGGREGATOR_METRICS = {  # figure: (metric, help, counter?)
+    "ticks": ("limbstream_aggregator_ticks", "loop ticks", True),
+    "late": ("limbstream_aggregator_late_ticks", "ticks started more than one period late", True),
+    "missed": ("limbstream_aggregator_missed_points", "segment points lost for good (Zenoh miss detection)", True),
+    "load": ("limbstream_aggregator_load", "share of the last second spent working (>= 1: falling behind)", False),
+    "recent_max_tick_ms": ("limbstream_aggregator_tick_max_milliseconds", "longest tick in the last second, ms",
+                           False),
+    "recent_backlog": ("limbstream_aggregator_backlog_messages", "most messages waiting at one tick, last second",
+                       False),
+    "subjects": ("limbstream_aggregator_subjects", "subjects the aggregator tracks", False),
+}
 
 
 class LiveCollector(Collector):
@@ -52,6 +63,19 @@ class LiveCollector(Collector):
             online.add_metric([v["subject"], v["segment"]], 1.0 if v["online"] else 0.0)
         yield online
         live = self.live
+        aggregators = live.aggregator_views()
+        for key, (name, doc, counter) in AGGREGATOR_METRICS.items():
+            family = (CounterMetricFamily if counter else GaugeMetricFamily)(name, doc, labels=["aggregator"])
+            for a in aggregators:
+                if a[key] is not None:
+                    family.add_metric([a["id"]], a[key])
+            yield family
+        bad = CounterMetricFamily("limbstream_aggregator_bad_keys", "messages no device could be charged with",
+                                  labels=["aggregator", "reason"])
+        for a in aggregators:
+            for reason, n in a["bad_keys"].items():
+                bad.add_metric([a["id"], reason], n)
+        yield bad
         yield GaugeMetricFamily("limbstream_dashboard_stream_clients", "connected WebSocket/SSE clients",
                                 value=live.client_count())
         skipped = live.clients_skipped + sum(c.skipped for g in live.clients.values() for c in g)

@@ -124,6 +124,29 @@ class DeviceConfig(BaseModel):
     max_len: int
 
 
+class Aggregator(BaseModel):
+    """One aggregator's own loop, as it reported it with its last stats message (~1 Hz).
+    Figures are null if the aggregator did not send them."""
+
+    id: str = Field(description="host:pid of the aggregator process", examples=["lab-pc:4242"])
+    serving: list[str] = Field(description="subjects whose stats it sent")
+    subjects: float | None = Field(None, description="subjects it tracks")
+    ticks: float | None = Field(None, description="loop ticks (one per 20 ms)")
+    late: float | None = Field(None, description="ticks that started more than one period late")
+    late_pct: float | None = Field(None, description="late / ticks, %")
+    load: float | None = Field(None, description="share of the last second spent working (>= 1: falling behind)")
+    max_tick_ms: float | None = Field(None, description="longest tick since start, ms")
+    recent_max_tick_ms: float | None = Field(None, description="longest tick in the last second, ms")
+    recent_backlog: float | None = Field(None, description="most messages waiting at one tick, last second")
+    max_backlog: float | None = None
+    missed: float | None = Field(None, description="segment points Zenoh reported lost for good")
+    points: float | None = None
+    frames: float | None = None
+    bad_keys: dict[str, float] = Field(description="messages no device could be charged with, by reason")
+    age_s: float
+    stale: bool
+
+
 class Health(BaseModel):
     status: Literal["ok", "starting"]
     zenoh: bool

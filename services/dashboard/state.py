@@ -101,6 +101,25 @@ class DeviceEntry:
     history: deque = field(default_factory=deque)
 
 
+AGGREGATOR_FIGURES: tuple[str, ...] = (
+    "subjects", "ticks", "late", "load", "max_tick_ms", "recent_max_tick_ms", "recent_backlog",
+    "max_backlog", "missed", "points", "frames",
+)
+"""Numbers an aggregator reports about its own loop in every stats message (``"aggregator"``)."""
+MAX_AGGREGATORS = 64
+MAX_BAD_KEY_REASONS = 32
+
+
+@dataclass
+class AggregatorEntry:
+    """The latest loop figures of one aggregator and the subjects it reported on."""
+
+    figures: dict
+    bad_keys: dict
+    updated: float
+    subjects: set = field(default_factory=set)
+
+
 @dataclass
 class PoseEntry:
     """Latest frame of one subject and kind, with its JSON text built on first use."""
@@ -164,6 +183,7 @@ class LiveState:
         self.alive: set[str] = set()
         self.poses: dict[str, dict[int, PoseEntry]] = {}
         self.stats_times: dict[str, float] = {}
+        self.aggregators: dict[str, AggregatorEntry] = {}
         self.clients: dict[str, set[PoseClient]] = {}
         self.received = Counter()
         self.errors = Counter()
@@ -214,6 +234,7 @@ class LiveState:
             self.errors[getattr(exc, "reason", "stats")] += 1
             return
         self.stats_times[subject] = rx
+        self._apply_aggregator(data.get("aggregator"), subject, rx)
         for d in data["devices"]:
             try:
                 device = str(d["device"])
@@ -232,6 +253,40 @@ class LiveState:
             while entry.history and (entry.history[0][0] < t - self.history_seconds
                                      or len(entry.history) > 2 * self.history_seconds):
                 entry.history.popleft()
+
+    def _apply_aggregator(self, entry, subject: str, rx: float) -> None:
+        """Keep the loop figures an aggregator sent along with a subject's stats (bounded: at
+        most MAX_AGGREGATORS, the longest silent one makes room; malformed entries are counted)."""
+        if entry is None:
+            return
+        aid = entry.get("id") if isinstance(entry, dict) else None
+        if not isinstance(aid, str) or not 0 < len(aid) <= 128:
+            self.errors["stats_aggregator"] += 1
+            return
+        if aid not in self.aggregators and len(self.aggregators) >= MAX_AGGREGATORS:
+            del self.aggregators[min(self.aggregators, key=lambda a: self.aggregators[a].updated)]
+        bad = entry.get("bad_keys")
+        bad = {str(k)[:64]: v for k, v in bad.items() if _num(v) is not None} if isinstance(bad, dict) else {}
+        for other in self.aggregators.values():  # a subject is served by one aggregator at a time
+            other.subjects.discard(subject)
+        agg = self.aggregators.setdefault(aid, AggregatorEntry({}, {}, rx))
+        agg.figures = {k: _num(entry.get(k)) for k in AGGREGATOR_FIGURES}
+        agg.bad_keys = dict(sorted(bad.items())[:MAX_BAD_KEY_REASONS])
+        agg.updated = rx
+        agg.subjects.add(subject)
+
+    def aggregator_views(self) -> list[dict]:
+        """The REST form of every aggregator: its figures, late ticks in %, age and staleness."""
+        now = time.time()
+        out = []
+        for aid, agg in sorted(self.aggregators.items()):
+            f = agg.figures
+            late_pct = 100.0 * f["late"] / f["ticks"] if f["ticks"] and f["late"] is not None else None
+            age = now - agg.updated
+            out.append({"id": aid, **f, "late_pct": None if late_pct is None else round(late_pct, 4),
+                        "bad_keys": agg.bad_keys, "serving": sorted(agg.subjects),
+                        "age_s": round(age, 3), "stale": age > self.stale_after_s})
+        return out
 
     def apply_pose(self, key: str, payload: bytes, rx: float | None = None) -> None:
         """Decode one pose frame, keep it as the latest and fan it out to clients."""

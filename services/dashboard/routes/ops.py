@@ -7,7 +7,7 @@ from fastapi import APIRouter, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from ..deps import LiveDep, SettingsDep
-from ..models import Health
+from ..models import Aggregator, Health
 
 router = APIRouter(tags=["ops"])
 
@@ -21,6 +21,12 @@ async def health(request: Request, response: Response, live: LiveDep, settings: 
             "subjects": len({e.subject for e in live.devices.values()} | set(live.poses)), "devices": len(live.devices),
             "uptime_s": round(time.monotonic() - request.app.state.started, 3),
             "control": settings.api_token is not None}
+
+
+@router.get("/api/aggregators", response_model=list[Aggregator])
+async def aggregators(live: LiveDep) -> list[dict]:
+    """Every aggregator heard from: its load, late ticks, backlog and losses."""
+    return live.aggregator_views()
 
 
 @router.get("/metrics", response_class=Response,
