@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import zenoh
 import zenoh.ext as zext
 
-from limbstream import wire
+from limbstream import heap, wire
 from limbstream.skeleton import Skeleton
 from services.aggregator.fusion import Fusion, Subject
 from services.aggregator.track import DeviceTrack
@@ -42,6 +42,7 @@ class AggregatorSettings:
     history : segment points per device to ask for when joining late.
     error_window_s : angular-error window, seconds of samples at 50 Hz.
     config_poll_s : how often device configs (threshold) are queried, seconds.
+    trim_s : how often freed heap memory is given back to the OS, seconds (limbstream.heap).
     max_devices : most devices tracked; messages of further devices are counted and dropped.
     frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
         covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
@@ -55,6 +56,7 @@ class AggregatorSettings:
     history: int = 512
     error_window_s: float = 60.0
     config_poll_s: float = 5.0
+    trim_s: float = 10.0
     frame_batch_s: float = 0.0
     max_devices: int = 10_000
     skeleton: Skeleton = Skeleton()
@@ -115,6 +117,7 @@ class Aggregator:
         self._config_replies: list = []
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
         self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
+        self._missed_unlogged, self._next_miss_log = 0, 0.0
 
     # ------------------------------------------------------------------ zenoh
 
@@ -249,7 +252,11 @@ class Aggregator:
         for listener in self._misses:
             while (miss := listener.try_recv()) is not None:
                 self.loop.missed += miss.nb
-                log.warning("zenoh reports %d segment points missed for good", miss.nb)
+                self._missed_unlogged += miss.nb
+        if self._missed_unlogged and now >= self._next_miss_log:  # at most one line per 5 s
+            log.warning("zenoh reports %d segment points missed for good (%d in all)",
+                        self._missed_unlogged, self.loop.missed)
+            self._missed_unlogged, self._next_miss_log = 0, now + 5.0
         open_replies = []
         for replies in self._config_replies:
             try:
@@ -332,7 +339,7 @@ class Aggregator:
         """Loop until ``stop``: drain, advance frames every tick, stats about once a second."""
         s = self.settings
         start = time.perf_counter()
-        next_live = next_config = next_frames = next_prune = start
+        next_live = next_config = next_frames = next_prune = next_trim = start
         stats_parts = max(1, round(s.stats_period_s / s.tick_s))  # one stats round per period
         k = 0
         while not stop.is_set():
@@ -358,6 +365,9 @@ class Aggregator:
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s
+            elif now >= next_trim:
+                heap.release_free_heap()
+                next_trim = now + s.trim_s
             self.loop.record(time.perf_counter() - now)
             k += 1
         return self.loop
