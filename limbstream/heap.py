@@ -1,9 +1,10 @@
-"""Give freed heap memory back to the operating system.
+"""Keep a long-running service's resident memory at its live heap (glibc).
 
-A long-running service that allocates many short-lived buffers from several threads (NumPy
-temporaries on the main thread, Zenoh's receive threads) leaves glibc's arenas holding free
-pages: resident memory creeps up in steps although the live heap stays flat (bench/soak.py,
-docs/reliability.md). ``malloc_trim(0)`` returns those pages; it takes 1-4 ms with 2,000 devices.
+The aggregator allocates short-lived NumPy temporaries every tick while Zenoh's threads
+allocate message buffers; glibc's arenas keep the pages of freed blocks. The aggregator's RSS
+crept up in steps (+14 % in 30 min with 2,000 devices) while its live heap stayed flat
+(mallinfo2: 44-45 MiB in use, free arena space growing; docs/reliability.md).
+:func:`release_free_heap` (``malloc_trim``, 1-4 ms with 2,000 devices) returns those pages.
 """
 from __future__ import annotations
 

@@ -31,3 +31,4 @@ def test_freed_heap_pages_are_returned():
     after = rss_mib()
     libc.free(keep)
     assert before - after > 50, f"RSS {before:.0f} -> {after:.0f} MiB: free pages not returned"
+

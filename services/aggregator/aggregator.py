@@ -56,7 +56,7 @@ class AggregatorSettings:
     history: int = 512
     error_window_s: float = 60.0
     config_poll_s: float = 5.0
-    trim_s: float = 10.0
+    trim_s: float = 5.0
     frame_batch_s: float = 0.0
     max_devices: int = 10_000
     skeleton: Skeleton = Skeleton()
