@@ -135,7 +135,7 @@ class StatsReader:
             for d in data["devices"]:
                 self.devices[d["device"]] = d
 
-    def take_backlog(self) -> tuple[int, float]:
+    def take_recent(self) -> tuple[int, float]:
         """(most messages drained in one tick, longest tick in ms) since the last call."""
         value, self.recent_backlog = (self.recent_backlog, self.recent_tick_ms), 0
         self.recent_tick_ms = 0.0
@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
                     raise SystemExit(f"soak: {dead} exited early; logs in {workdir}")
             reader.poll()
             times.append(time.monotonic() - t0)
-            most, longest = reader.take_backlog()
+            most, longest = reader.take_recent()
             backlog.append(most)
             tick_ms.append(longest)
             for p in procs:

@@ -112,8 +112,7 @@ class Aggregator:
         self.subjects: dict[str, Subject] = self.fusion.subjects
         self.bad_keys: collections.Counter = collections.Counter()
         self.loop = LoopStats()
-        self._pose_pubs: dict[str, zenoh.Publisher] = {}
-        self._stats_pubs: dict[str, zenoh.Publisher] = {}
+        self._pubs: dict[str, zenoh.Publisher] = {}  # by key expression (pose and stats of each subject)
         self._config_replies: list = []
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
         self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
@@ -144,7 +143,7 @@ class Aggregator:
         for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs):
             for entity in group:
                 entity.undeclare()
-        for pub in (*self._pose_pubs.values(), *self._stats_pubs.values()):
+        for pub in self._pubs.values():
             pub.undeclare()
 
     # ------------------------------------------------------------------ input
@@ -282,10 +281,14 @@ class Aggregator:
 
     def _publish(self, subject: str, payload: bytes) -> None:
         """An encoded pose frame of ``subject``."""
-        pub = self._pose_pubs.get(subject)
+        self._publisher(wire.pose_key(subject)).put(payload)
+
+    def _publisher(self, key: str) -> zenoh.Publisher:
+        """The publisher of ``key``, declared on first use."""
+        pub = self._pubs.get(key)
         if pub is None:
-            pub = self._pose_pubs[subject] = self.session.declare_publisher(wire.pose_key(subject))
-        pub.put(payload)
+            pub = self._pubs[key] = self.session.declare_publisher(key)
+        return pub
 
     def advance(self, live: bool, prune: bool = True, now: float | None = None) -> int:
         """Truth evaluation, exact frames (and live frames) of every subject; returns frames published.
@@ -326,10 +329,7 @@ class Aggregator:
             # load / soak figures (bench/soak.py) and messages no device could be charged with
             snapshot["aggregator"] = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {
                 "bad_keys": dict(self.bad_keys)}
-            pub = self._stats_pubs.get(sub.name)
-            if pub is None:
-                pub = self._stats_pubs[sub.name] = self.session.declare_publisher(wire.stats_key(sub.name))
-            pub.put(wire.encode_stats(sub.name, wall, devices, snapshot))
+            self._publisher(wire.stats_key(sub.name)).put(wire.encode_stats(sub.name, wall, devices, snapshot))
         if part == parts - 1:
             self.loop.end_round(now)
 
