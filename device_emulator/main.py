@@ -10,7 +10,7 @@ import threading
 
 from device_emulator.emulator import Emulator, EmulatorSettings
 from device_emulator.feeds import GeneratorFeed, LoopFeed
-from limbstream.cli import stop_on_signals
+from limbstream.signals import stop_on_signals
 from limbstream import wire, zconfig
 from limbstream.sources import MotionFileError, load
 

@@ -17,7 +17,7 @@ from stack import ROOT, free_port, wait_until
 from starlette.websockets import WebSocketDisconnect
 
 from limbstream import wire, zconfig
-from limbstream.watch import render, subscribe_pose
+from limbstream.cli.watch import render, subscribe_pose
 from services.dashboard.app import create_app
 from services.dashboard.main import parse_http
 from services.dashboard.settings import DashboardSettings

@@ -5,7 +5,7 @@ import argparse
 import logging
 import threading
 
-from limbstream.cli import stop_on_signals
+from limbstream.signals import stop_on_signals
 from limbstream import wire, zconfig
 from limbstream.skeleton import Skeleton
 from services.aggregator.aggregator import Aggregator, AggregatorSettings

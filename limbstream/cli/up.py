@@ -18,7 +18,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from limbstream.cli import stop_on_signals
+from limbstream.signals import stop_on_signals
 
 STOP_TIMEOUT_S = 5.0
 

@@ -1,5 +1,9 @@
 """``limbstream`` command line: one subcommand per tool, each in its own module.
 
+This package is the top layer: it starts the parts (``device_emulator``, ``services``) and the
+tools built on the core library (``limbstream.wire``, ``kernel``, ``sources``, ...); nothing
+below imports it.
+
 Every module named in :data:`COMMANDS` defines ``add_arguments(parser)`` and ``run(args) -> int``.
 Modules are imported only when their command runs (nothing opens a session at import time).
 """
@@ -7,27 +11,17 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
-import threading
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "up": ("limbstream.up", "run the whole live system on this machine"),
-    "router": ("limbstream.router", "run a Zenoh router (for one machine, no plugins)"),
+    "up": ("limbstream.cli.up", "run the whole live system on this machine"),
+    "router": ("limbstream.cli.router", "run a Zenoh router (for one machine, no plugins)"),
     "emulate": ("device_emulator.main", "run emulated IMU devices"),
     "aggregate": ("services.aggregator.main", "run the aggregator (SLERP + fusion)"),
     "dashboard": ("services.dashboard.main", "run the dashboard web service"),
-    "watch": ("limbstream.watch", "print a live text view of a subject's pose stream"),
-    "eval": ("limbstream.evaluation", "evaluate segmentation algorithms on motion files"),
+    "watch": ("limbstream.cli.watch", "print a live text view of a subject's pose stream"),
+    "eval": ("limbstream.cli.evaluate", "evaluate segmentation algorithms on motion files"),
 }
-
-
-def stop_on_signals(stop: threading.Event | None = None) -> threading.Event:
-    """The event a command's loop waits on, set by SIGINT and SIGTERM (a new one if None)."""
-    stop = stop or threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
 
 
 def build_parser() -> argparse.ArgumentParser:

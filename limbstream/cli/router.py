@@ -6,7 +6,7 @@ import os
 import threading
 
 from limbstream import zconfig
-from limbstream.cli import stop_on_signals
+from limbstream.signals import stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,0 +1,190 @@
+"""``limbstream eval``: evaluate segmentation algorithms on motion files (table, JSON rows, Fig. 4 plot).
+
+The computation is :mod:`limbstream.evaluation`; this module parses, prints and draws.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from limbstream import kernel
+from limbstream.evaluation import (ALGORITHMS, MAX_LEN, THRESHOLDS, evaluate, format_table, streams_of,
+                                   write_json)
+from limbstream.sources import Motion, MotionFileError, load
+
+
+def plot(
+    rows: Sequence[dict], algorithms: Sequence[str], path: str | Path, title: str = ""
+) -> None:
+    """The two panels of the paper's Fig. 4 as a PNG: reconstruction and segment-point deviation vs ICR."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    for n, a in enumerate(algorithms):
+        own = sorted(
+            (r for r in rows if r["algorithm"] == a and r["icr"] > 0), key=lambda r: r["icr"]
+        )
+        icr = np.array([r["icr"] for r in own])
+        style = {"ls": "--" if a == "sw" else "-", "color": f"C{n}"}
+        left.plot(icr, [r["aad"] for r in own], label=a, **style)
+        right.plot(icr, [r["point_aad"] for r in own], label=f"{a} mean", **style)
+        right.plot(icr, [r["point_max"] for r in own], ls=":", color=f"C{n}", label=f"{a} max")
+    left.set(
+        xscale="log",
+        xlabel="ICR (segment points / samples)",
+        ylabel="AAD (deg)",
+        title="SLERP reconstruction vs. original samples (AAD)",
+    )
+    right.set(
+        xscale="log",
+        yscale="symlog",
+        xlabel="ICR (segment points / samples)",
+        ylabel="angular deviation (deg)",
+        title="segment points vs. original samples",
+    )
+    right.set_yscale("symlog", linthresh=1e-3)
+    right.set_ylim(bottom=0)
+    for ax in (left, right):
+        ax.set_xlim(3e-3, 1.0)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, ncol=2)
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _algorithm_list(text: str) -> list[str]:
+    names = [n for n in text.replace(" ", ",").split(",") if n]
+    for n in names:
+        if n not in kernel.ALGORITHMS:
+            raise argparse.ArgumentTypeError(
+                f"unknown algorithm {n!r} (choose from {', '.join(kernel.ALGORITHMS)})"
+            )
+    return names
+
+
+def _threshold(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"threshold must be finite and >= 0, got {text}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``limbstream eval``."""
+    parser.add_argument(
+        "paths",
+        nargs="+",
+        metavar="PATH",
+        help="motion files (.npz, .bvh, x-IMU3 .csv, Xsens .txt) or folders of them",
+    )
+    parser.add_argument(
+        "--algorithms",
+        nargs="+",
+        type=_algorithm_list,
+        default=[list(ALGORITHMS)],
+        metavar="NAME",
+        help=f"algorithms to compare (default: {' '.join(ALGORITHMS)})",
+    )
+    parser.add_argument(
+        "--thresholds",
+        nargs="+",
+        type=_threshold,
+        default=None,
+        metavar="TH",
+        help="evaluate these thresholds instead of the paper's sweep (0 and 205 values 1e-6..1e3)",
+    )
+    parser.add_argument(
+        "--max-len",
+        type=_positive_int,
+        default=MAX_LEN,
+        help=f"largest segment length, samples (default {MAX_LEN})",
+    )
+    parser.add_argument(
+        "--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here"
+    )
+    parser.add_argument(
+        "--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG"
+    )
+
+
+def _fail(message: str) -> int:
+    print(f"limbstream eval: error: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    """``limbstream eval``: print the ICR table, optionally write JSON rows and the plot."""
+    algorithms = list(dict.fromkeys(n for group in args.algorithms for n in group))
+    if "sw" in algorithms and args.max_len > 1000:
+        return _fail(f"--max-len for algorithm 'sw' is at most 1000, got {args.max_len}")
+    for out, what in ((args.json, "--json"), (args.plot, "--plot")):
+        if out is not None and not out.parent.resolve().is_dir():
+            return _fail(f"{what} {out}: folder {out.parent} does not exist")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        return _fail(f"--plot {args.plot}: must end in .png")
+    motions: list[Motion] = []
+    for path in args.paths:
+        try:
+            motions.extend(load(path))
+        except MotionFileError as exc:
+            return _fail(str(exc))
+        except OSError as exc:
+            return _fail(f"{path}: {exc}")
+    streams = streams_of(motions)
+    if not streams:
+        return _fail(f"no motion streams in {' '.join(map(str, args.paths))}")
+    thresholds = THRESHOLDS if args.thresholds is None else np.asarray(args.thresholds, np.float64)
+    n_samples = sum(len(s.t) for s in streams)
+
+    start = time.perf_counter()
+    rows = evaluate(streams, algorithms, thresholds, args.max_len)
+    elapsed = time.perf_counter() - start
+
+    print(
+        f"{len(motions)} motions, {len(streams)} streams, {n_samples} samples; "
+        f"{len(algorithms)} algorithms x {len(thresholds)} thresholds, max_len {args.max_len}: "
+        f"{elapsed:.1f} s"
+    )
+    if args.thresholds is not None:  # explicit thresholds: show every row
+        print(
+            f"{'algorithm':<9} {'TH':>9} {'ICR':>7} {'AAD':>7} {'std':>7} {'p99':>7} {'max':>7} "
+            f"{'pt_AAD':>8} {'pt_max':>8}"
+        )
+        for r in rows:
+            print(
+                f"{r['algorithm']:<9} {r['threshold']:>9.2e} {r['icr']:>7.4f} {r['aad']:>7.3f} {r['std']:>7.3f} "
+                f"{r['p99']:>7.3f} {r['max']:>7.3f} {r['point_aad']:>8.3f} {r['point_max']:>8.3f}"
+            )
+    else:
+        print(format_table(rows, algorithms))
+    if args.json is not None:
+        write_json(rows, args.json)
+        print(f"wrote {len(rows)} rows to {args.json}")
+    if args.plot is not None:
+        plot(rows, algorithms, args.plot, title=", ".join(str(p) for p in args.paths))
+        print(f"wrote {args.plot}")
+    return 0
