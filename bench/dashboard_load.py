@@ -22,7 +22,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))
+
+from limbstream.cli.launch import Launcher, free_port, wait_until  # noqa: E402
 
 
 def pct(values, q) -> float:
@@ -136,21 +138,25 @@ def main() -> int:
     if args.client:
         return client_main(args)
 
-    from stack import Stack, http_json, wait_until
+    import httpx
+
+    def get(path: str):
+        return httpx.get(url + path, timeout=5.0).json()
 
     with tempfile.TemporaryDirectory() as tmp:
-        stack = Stack(Path(tmp))
+        launcher = Launcher(Path(tmp), cwd=ROOT)
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
         try:
-            stack.router()
-            stack.emulator(args.subjects, 1.0)
-            stack.aggregator()
-            url = stack.dashboard()
+            launcher.router(endpoint)
+            launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(args.subjects))
+            launcher.start("aggregate", "aggregate", "--connect", endpoint)
+            dashboard, url = launcher.dashboard(f"127.0.0.1:{free_port()}", endpoint)
             n = args.subjects * 10
-            wait_until(lambda: sum(1 for d in http_json(url + "/api/devices")[1] if d["msgs_per_s"]) == n,
-                       120, f"{n} devices streaming", interval=0.5, on_fail=stack.logs)
-            wait_until(lambda: len(http_json(url + "/api/subjects")[1]) == args.subjects
-                       and all(s["pose"] for s in http_json(url + "/api/subjects")[1]), 60, "pose of every subject")
-            dash = stack.procs[-1].popen.pid
+            wait_until(lambda: sum(1 for d in get("/api/devices") if d["msgs_per_s"]) == n,
+                       120, f"{n} devices streaming", interval=0.5, on_fail=launcher.logs)
+            wait_until(lambda: len(get("/api/subjects")) == args.subjects
+                       and all(s["pose"] for s in get("/api/subjects")), 60, "pose of every subject")
+            dash = dashboard.pid
 
             c0, t0 = cpu_seconds(dash), time.monotonic()
             time.sleep(args.duration / 2)  # idle baseline: streaming only, no clients
@@ -163,9 +169,9 @@ def main() -> int:
             c0, t0 = cpu_seconds(dash), time.monotonic()
             ws = run_client("ws", url, args)
             ws_cpu = (cpu_seconds(dash) - c0) / (time.monotonic() - t0)
-            metrics = http_json(url + "/metrics")[1]
+            metrics = httpx.get(url + "/metrics", timeout=5.0).text
         finally:
-            stack.stop()
+            launcher.stop()
 
     skipped = next((line.split()[-1] for line in metrics.splitlines()
                     if line.startswith("limbstream_dashboard_frames_skipped_total")), "?")

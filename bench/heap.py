@@ -20,12 +20,10 @@ import threading
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from soak import free_port, start, stop, wait_port  # noqa: E402
-
 from limbstream import heap, zconfig  # noqa: E402
+from limbstream.cli.launch import Launcher, free_port, stop_all  # noqa: E402
 from services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
 
 
@@ -46,11 +44,9 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("bench/heap.py: needs glibc >= 2.33 (mallinfo2)")
     libc.mallinfo2.restype = MallInfo2
 
-    workdir = Path(tempfile.mkdtemp(prefix="limbstream-heap-"))
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    router = start("router", ["router", "--listen", endpoint], workdir)
-    wait_port(port)
+    launcher = Launcher(Path(tempfile.mkdtemp(prefix="limbstream-heap-")))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    launcher.router(endpoint)
     session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
     agg = Aggregator(session, AggregatorSettings(live_rate=0.0, trim_s=5.0 if args.trim else float("inf")))
     agg.open()
@@ -58,8 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     loop = threading.Thread(target=agg.run, args=(halt,), daemon=True)
     loop.start()
     half = args.subjects // 2
-    emulators = [start(f"emulator{i}", ["emulate", "--connect", endpoint, "--subjects", str(n), "--first-subject",
-                                        str(first), "--no-truth"], workdir)
+    emulators = [launcher.start(f"emulator{i}", "emulate", "--connect", endpoint, "--subjects", str(n),
+                                "--first-subject", str(first), "--no-truth")
                  for i, (n, first) in enumerate(((args.subjects - half, 1), (half, args.subjects - half + 1))) if n]
     print(f"heap: {args.subjects} subjects, {args.seconds:g} s, trimming {'on' if args.trim else 'off'}\n")
     print("| t (s) | RSS (MiB) | heap in use (MiB) | heap free, kept (MiB) | mmapped (MiB) | trim (ms) | RSS after trim |")
@@ -80,10 +76,10 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         halt.set()
         loop.join(5)
-        stop(emulators)
+        stop_all(emulators, 20.0)
         agg.close()
         session.close()
-        stop([router])
+        launcher.stop()
     print(f"\naggregator: {agg.loop.ticks} ticks, {100 * agg.loop.late / max(agg.loop.ticks, 1):.2f} % late, "
           f"{agg.loop.missed} missed")
     return 0

@@ -14,11 +14,11 @@ import argparse
 import json
 import os
 import resource
-import socket
-import subprocess
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import zenoh
@@ -30,43 +30,29 @@ from device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
 from device_emulator.feeds import GeneratorFeed  # noqa: E402
 from device_emulator.main import subject_names  # noqa: E402
 from limbstream import wire, zconfig  # noqa: E402
+from limbstream.cli.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
 from limbstream.sources import SEGMENTS  # noqa: E402
 from services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Router:
-    """`limbstream router` in a child process on a free port."""
+    """`limbstream router` in a child process on a free port; the other child processes of a
+    measurement are started with :meth:`start` and stopped with it. Logs go to a temporary folder."""
 
     def __enter__(self):
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.proc = subprocess.Popen([sys.executable, "-m", "limbstream.cli", "router", "--listen", self.endpoint],
-                                     cwd=ROOT, stdout=subprocess.DEVNULL)
-        host, port = self.endpoint[4:].split(":")
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection((host, int(port)), 0.2).close()
-                return self
-            except OSError:
-                time.sleep(0.05)
-        raise RuntimeError("router did not start")
+        self.launcher = Launcher(Path(tempfile.mkdtemp(prefix="limbstream-bench-")), cwd=ROOT)
+        self.proc = self.launcher.router(self.endpoint)
+        return self
+
+    def start(self, name: str, *args: str, command=None) -> Child:
+        return self.launcher.start(name, *args, command=command)
 
     def cpu_s(self) -> float:
         return process_cpu_s(self.proc.pid)
 
     def __exit__(self, *exc):
-        self.proc.terminate()
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        self.launcher.stop(10.0)
 
 
 def process_cpu_s(pid: int) -> float:
@@ -80,9 +66,8 @@ def client(endpoint: str) -> zenoh.Session:
     return zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
 
 
-def start_emulator_process(endpoint: str, subjects: int, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "limbstream.cli", "emulate", "--connect", endpoint,
-                             "--subjects", str(subjects), *extra], cwd=ROOT, stdout=subprocess.DEVNULL)
+def start_emulator_process(router: Router, subjects: int, *extra: str) -> Child:
+    return router.start("emulator", "emulate", "--connect", router.endpoint, "--subjects", str(subjects), *extra)
 
 
 def cpu_now() -> float:
@@ -109,11 +94,11 @@ while True:
 """
 
 
-def start_sink(endpoint: str) -> subprocess.Popen:
+def start_sink(router: Router) -> Child:
     """A subscriber process that takes every segment point and truth batch (so the router routes them)."""
-    proc = subprocess.Popen([sys.executable, "-c", SINK, endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
-    proc.stdout.readline()
-    return proc
+    sink = router.start("sink", router.endpoint, command=(sys.executable, "-c", SINK))
+    wait_until(lambda: "ready" in sink.tail(), 30, "the sink to subscribe")
+    return sink
 
 
 def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
@@ -123,7 +108,7 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for n in counts:
         with Router() as router:
-            sink = start_sink(router.endpoint)
+            sink = start_sink(router)
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
             emulator = Emulator(session, feeds, EmulatorSettings(truth=truth))
@@ -137,8 +122,7 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
             points = sum(d.points for d in emulator.devices)
             emulator.undeclare()
             session.close()
-            sink.terminate()
-            sink.wait(10)
+            stop_all([sink])
         print(f"| {n} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
               f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {100 * rcpu / seconds:.0f} % | "
               f"{points / seconds:.0f} |")
@@ -154,7 +138,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for subjects in subject_counts:
         with Router() as router:
-            emu = start_emulator_process(router.endpoint, subjects)
+            emu = start_emulator_process(router, subjects)
             session = client(router.endpoint)
             agg = Aggregator(session, AggregatorSettings(live_rate=0.0))
             agg.open()
@@ -181,8 +165,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
             dropped = sum(sum(t.dropped.values()) for t in tracks)
             agg.close()
             session.close()
-            emu.terminate()
-            emu.wait(10)
+            stop_all([emu])
         print(f"| {subjects} | {10 * subjects} | {points / wall:.0f} | {frames / wall:.0f} | {50 * subjects} | "
               f"{100 * late / max(ticks, 1):.2f} % | {100 * cpu / wall:.0f} % | {100 * ecpu / wall:.0f} % | "
               f"{100 * rcpu / wall:.0f} % | {agg.loop.max_backlog} | {gaps} | "
@@ -260,9 +243,8 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float) -> None:
 def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
     """Arrival of each segment point vs arrival of the first exact frame at or after its time."""
     with Router() as router:
-        emu = start_emulator_process(router.endpoint, subjects, "--max-len", str(max_len))
-        agg = subprocess.Popen([sys.executable, "-m", "limbstream.cli", "aggregate", "--connect", router.endpoint],
-                               cwd=ROOT, stdout=subprocess.DEVNULL)
+        emu = start_emulator_process(router, subjects, "--max-len", str(max_len))
+        agg = router.start("aggregator", "aggregate", "--connect", router.endpoint)
         session = client(router.endpoint)
         seg = session.declare_subscriber("limbstream/s01/*/seg", zenoh.handlers.FifoChannel(1 << 16))
         pose = session.declare_subscriber("limbstream/s01/pose", zenoh.handlers.FifoChannel(1 << 16))
@@ -280,9 +262,7 @@ def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
             while (s := stats.try_recv()) is not None:
                 last_stats = json.loads(s.payload.to_bytes())
             time.sleep(0.001)  # poll period of this measuring client (1 ms resolution)
-        for p in (emu, agg):
-            p.terminate()
-            p.wait(10)
+        stop_all([emu, agg])
         session.close()
     frame_t = np.array([f[0] for f in frames])
     frame_arrival = np.array([f[1] for f in frames])

@@ -20,14 +20,10 @@ import argparse
 import json
 import os
 import re
-import signal
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -36,14 +32,10 @@ sys.path.insert(0, str(ROOT))
 import zenoh  # noqa: E402
 
 from limbstream import wire, zconfig  # noqa: E402
+from limbstream.cli.launch import Launcher, free_port, stop_all  # noqa: E402
 
 SEGMENTS_PER_SUBJECT = 10
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+GRACE_S = 20.0  # emulators of 1,000 devices take a while to stop
 
 
 def rss_mib(pid: int) -> float:
@@ -65,50 +57,6 @@ def cpu_s(pid: int) -> float:
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
     except OSError:
         return 0.0
-
-
-@dataclass
-class Proc:
-    name: str
-    popen: subprocess.Popen
-    log: Path
-    rss: list = field(default_factory=list)
-
-    def output(self) -> str:
-        return self.log.read_text(errors="replace")
-
-
-def start(name: str, args: list[str], workdir: Path) -> Proc:
-    log = workdir / f"{name}.log"
-    with open(log, "wb") as out:
-        popen = subprocess.Popen([sys.executable, "-m", "limbstream.cli", *args], cwd=ROOT, stdout=out,
-                                 stderr=subprocess.STDOUT, env=os.environ | {"PYTHONUNBUFFERED": "1"},
-                                 start_new_session=True)
-    return Proc(name, popen, log)
-
-
-def wait_port(port: int, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.05)
-    raise SystemExit(f"soak: router did not listen on port {port} within {timeout:g} s")
-
-
-def stop(procs: list[Proc], grace: float = 20.0) -> None:
-    for p in procs:
-        if p.popen.poll() is None:
-            os.killpg(p.popen.pid, signal.SIGTERM)
-    deadline = time.monotonic() + grace
-    for p in procs:
-        try:
-            p.popen.wait(max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            os.killpg(p.popen.pid, signal.SIGKILL)
-            p.popen.wait()
 
 
 class StatsReader:
@@ -179,23 +127,22 @@ def main(argv: list[str] | None = None) -> int:
     warmup = args.warmup if args.warmup is not None else min(0.3 * duration, 180.0)
 
     workdir = Path(tempfile.mkdtemp(prefix="limbstream-soak-"))
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    router = start("router", ["router", "--listen", endpoint], workdir)
-    wait_port(port)
-    procs = [router]
-    procs.append(start("aggregator", ["aggregate", "--connect", endpoint, "--live-rate", "0",
-                                             "--frame-batch", str(args.frame_batch)], workdir))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    launcher = Launcher(workdir)
+    launcher.router(endpoint)
+    launcher.start("aggregator", "aggregate", "--connect", endpoint, "--live-rate", "0",
+                   "--frame-batch", str(args.frame_batch))
     share, first = [subjects // args.procs + (i < subjects % args.procs) for i in range(args.procs)], 1
     emulators = []
     for i, n in enumerate(share):
         if n:
             extra = [] if args.truth else ["--no-truth"]
-            emulators.append(start(f"emulator{i}", ["emulate", "--connect", endpoint, "--subjects", str(n),
-                                                    "--first-subject", str(first), "--rate", str(args.rate),
-                                                    "--cache", str(args.cache), *extra], workdir))
+            emulators.append(launcher.start(f"emulator{i}", "emulate", "--connect", endpoint, "--subjects", str(n),
+                                            "--first-subject", str(first), "--rate", str(args.rate),
+                                            "--cache", str(args.cache), *extra))
             first += n
-    procs += emulators
+    procs = launcher.children
+    rss: dict[str, list[float]] = {p.name: [] for p in procs}
     reader = StatsReader(endpoint)
     print(f"soak: {args.devices} devices ({subjects} subjects, {len(emulators)} emulator processes), "
           f"{args.minutes:g} min, truth tap {'on' if args.truth else 'off'}, logs in {workdir}", flush=True)
@@ -205,13 +152,13 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     sample_at = [warmup + k * (duration - warmup) / max(args.samples - 1, 1) for k in range(args.samples)]
     sample_at = sorted({0.0, 10.0, *sample_at})
-    cpu0 = {p.name: cpu_s(p.popen.pid) for p in procs}
+    cpu0 = {p.name: cpu_s(p.pid) for p in procs}
     try:
         for at in sample_at:
             while time.monotonic() - t0 < at:
                 reader.poll()
                 time.sleep(0.2)
-                dead = [p.name for p in procs if p.popen.poll() is not None]
+                dead = [p.name for p in procs if not p.alive()]
                 if dead:
                     raise SystemExit(f"soak: {dead} exited early; logs in {workdir}")
             reader.poll()
@@ -220,35 +167,35 @@ def main(argv: list[str] | None = None) -> int:
             backlog.append(most)
             tick_ms.append(longest)
             for p in procs:
-                p.rss.append(rss_mib(p.popen.pid))
+                rss[p.name].append(rss_mib(p.pid))
             if at >= warmup and at_warmup is None:  # loss counters at the end of the warm-up
                 at_warmup = (sum(d["gaps"] or 0 for d in reader.devices.values()),
                              reader.aggregator.get("missed", 0), reader.aggregator.get("late", 0),
                              reader.aggregator.get("ticks", 0))
             online = sum(1 for d in reader.devices.values() if d["online"])
             print(f"  t={times[-1]:6.0f} s  devices online {online:5d}  RSS MiB "
-                  + " ".join(f"{p.name} {p.rss[-1]:.0f}" for p in procs)
+                  + " ".join(f"{p.name} {rss[p.name][-1]:.0f}" for p in procs)
                   + f"  backlog {backlog[-1]}", flush=True)
-        cpu = {p.name: (cpu_s(p.popen.pid) - cpu0[p.name]) / (time.monotonic() - t0) * 100 for p in procs}
+        cpu = {p.name: (cpu_s(p.pid) - cpu0[p.name]) / (time.monotonic() - t0) * 100 for p in procs}
         reader.poll()
     finally:
-        stop(emulators)
+        stop_all(emulators, GRACE_S)
         time.sleep(1.0)
         reader.poll()
-        stop([p for p in procs if p not in emulators])
+        launcher.stop(GRACE_S)
         reader.close()
 
     # ------------------------------------------------------------------ results
     base = next(i for i, t in enumerate(times) if t >= warmup - 1e-6)
     rows = []
     for p in procs:  # growth: median of the last third of the samples after warm-up vs the first
-        after = p.rss[base:]
+        after = rss[p.name][base:]
         k = max(1, len(after) // 3)
         first, last = statistics.median(after[:k]), statistics.median(after[-k:])
         growth = 100.0 * (last - first) / first if first else float("nan")
         peak = 100.0 * (max(after) - after[0]) / after[0] if after[0] else float("nan")
-        rows.append((p.name, p.rss, after[0], growth, peak))
-    em_ticks = [parse_emulator(p.output()) for p in emulators]
+        rows.append((p.name, rss[p.name], after[0], growth, peak))
+    em_ticks = [parse_emulator(p.log.read_text(errors="replace")) for p in emulators]
     em_samples = sum(t * n * SEGMENTS_PER_SUBJECT for (t, _), n in zip(em_ticks, [n for n in share if n]))
     em_late = sum(t * late / 100 for t, late in em_ticks) / max(sum(t for t, _ in em_ticks), 1) * 100
     agg = reader.aggregator

@@ -1,4 +1,5 @@
-"""Start the real live system as subprocesses for end-to-end tests.
+"""Start the real live system as subprocesses for end-to-end tests, with the launcher of
+``limbstream up`` (limbstream/cli/launch.py).
 
 Usage in a test module::
 
@@ -12,53 +13,34 @@ Usage in a test module::
         ...
 
 Every process gets free ports, its output goes to a log file under the test's tmp_path (the
-tail is shown when a readiness wait fails), readiness is polled with a deadline, and teardown
-sends SIGTERM to each process group, then SIGKILL after a grace period (no orphans).
+tail is shown when a readiness wait fails), readiness is polled with a deadline (a child that
+exits meanwhile fails the wait at once), and teardown sends SIGTERM to each process group, then
+SIGKILL after a grace period (no orphans).
 """
 from __future__ import annotations
 
 import json
-import os
-import signal
-import socket
-import subprocess
-import sys
-import time
 import urllib.error
 import urllib.request
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 import zenoh
 
 from limbstream import wire, zconfig
+from limbstream.cli import launch
+from limbstream.cli.launch import Child, free_port  # noqa: F401  (re-exported for the tests)
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def free_port() -> int:
-    """A TCP port that was free on 127.0.0.1 a moment ago."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def wait_until(predicate, timeout: float, what: str, interval: float = 0.05, on_fail=None):
-    """Poll ``predicate()`` until it returns a truthy value (returned) or fail naming ``what``."""
-    deadline = time.monotonic() + timeout
-    last = None
-    while time.monotonic() < deadline:
-        try:
-            last = predicate()
-        except Exception as exc:  # noqa: BLE001 - the last error is reported on timeout
-            last = exc
-        else:
-            if last:
-                return last
-        time.sleep(interval)
-    extra = on_fail() if on_fail else ""
-    raise AssertionError(f"timed out after {timeout:g} s waiting for {what} (last: {last!r}){extra}")
+    """Poll ``predicate()`` until it returns a truthy value (returned) or fail naming ``what``
+    (:func:`limbstream.cli.launch.wait_until`, failing as an assertion)."""
+    try:
+        return launch.wait_until(predicate, timeout, what, interval, on_fail)
+    except TimeoutError as exc:
+        raise AssertionError(str(exc)) from None
 
 
 def http_json(url: str, timeout: float = 5.0, method: str = "GET", body=None, headers=None):
@@ -77,113 +59,55 @@ def http_json(url: str, timeout: float = 5.0, method: str = "GET", body=None, he
         return status, raw.decode(errors="replace")
 
 
-@dataclass
-class Proc:
-    """One started process and its log file."""
+class Stack(launch.Launcher):
+    """Router, emulator(s), aggregator(s) and dashboard of one test, on free ports.
 
-    name: str
-    popen: subprocess.Popen
-    log: Path
+    Parameters
+    ----------
+    workdir : where the logs go.
+    launcher : the ``limbstream`` command (e.g. the entry point of an installed wheel instead).
+    cwd : working directory of the processes.
+    base_env : environment every process starts from (default: this process's).
+    env : variables added for every process.
+    """
 
-    def tail(self, n: int = 40) -> str:
-        try:
-            lines = self.log.read_text(errors="replace").splitlines()[-n:]
-        except OSError:
-            return ""
-        return f"\n--- {self.name} (exit {self.popen.poll()}) {self.log}:\n" + "\n".join(lines)
-
-    def alive(self) -> bool:
-        return self.popen.poll() is None
-
-
-@dataclass
-class Stack:
-    """Router, emulator(s), aggregator(s) and dashboard of one test, on free ports."""
-
-    workdir: Path
-    port: int = field(default_factory=free_port)
-    procs: list[Proc] = field(default_factory=list)
-    env: dict = field(default_factory=dict)
-    launcher: tuple[str, ...] = (sys.executable, "-m", "limbstream.cli")
-    """The ``limbstream`` command (e.g. the entry point of an installed wheel instead)."""
-    cwd: Path = ROOT
-    base_env: dict | None = None
-    """Environment every process starts from (default: this process's)."""
+    def __init__(self, workdir: Path, launcher=launch.LIMBSTREAM, cwd: Path = ROOT, base_env: dict | None = None,
+                 env: dict | None = None):
+        super().__init__(logdir=workdir, command=launcher, cwd=cwd, base_env=base_env, env=env)
+        self.workdir = workdir
+        self.port = free_port()
 
     @property
     def endpoint(self) -> str:
         return f"tcp/127.0.0.1:{self.port}"
 
-    def logs(self) -> str:
-        return "".join(p.tail() for p in self.procs)
+    @property
+    def procs(self) -> list[Child]:
+        return self.children
 
-    def start(self, name: str, *args: str, env: dict | None = None, prefix: tuple[str, ...] = ()) -> Proc:
-        """Run ``limbstream <args>`` (see :attr:`launcher`) in its own process group; ``prefix`` is
-        a wrapper command, e.g. ``("ip", "netns", "exec", "ns1")``."""
-        log = self.workdir / f"{name}-{len(self.procs)}.log"
-        base = os.environ if self.base_env is None else self.base_env
-        full_env = dict(base) | {"PYTHONUNBUFFERED": "1"} | self.env | (env or {})
-        with open(log, "wb") as out:
-            popen = subprocess.Popen([*prefix, *self.launcher, *args], cwd=self.cwd,
-                                     stdout=out, stderr=subprocess.STDOUT, env=full_env,
-                                     start_new_session=True)
-        proc = Proc(name, popen, log)
-        self.procs.append(proc)
-        return proc
+    def _wait_port(self, port: int, proc: Child, timeout: float) -> None:
+        self.wait_ready(proc, lambda: launch.port_open("127.0.0.1", port), f"{proc.name} to listen on port {port}",
+                        timeout)
 
-    def _wait_port(self, port: int, proc: Proc, timeout: float) -> None:
-        def listening():
-            if not proc.alive():
-                raise AssertionError(f"{proc.name} exited with {proc.popen.returncode}")
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return True
-        wait_until(listening, timeout, f"{proc.name} to listen on port {port}", on_fail=self.logs)
+    def wait_ready(self, child, predicate, what, timeout):
+        try:
+            super().wait_ready(child, predicate, what, timeout)
+        except TimeoutError as exc:
+            raise AssertionError(str(exc)) from None
 
-    def router(self, *extra: str, timeout: float = 20.0) -> Proc:
-        proc = self.start("router", "router", "--listen", self.endpoint, *extra)
-        self._wait_port(self.port, proc, timeout)
-        return proc
+    def router(self, *extra: str, timeout: float = 20.0) -> Child:
+        return super().router(self.endpoint, *extra, timeout=timeout)
 
-    def emulator(self, subjects: int = 2, speed: float = 1.0, *extra: str) -> Proc:
+    def emulator(self, subjects: int = 2, speed: float = 1.0, *extra: str) -> Child:
         return self.start("emulate", "emulate", "--connect", self.endpoint, "--subjects", str(subjects),
                           "--speed", str(speed), *extra)
 
-    def aggregator(self, *extra: str) -> Proc:
+    def aggregator(self, *extra: str) -> Child:
         return self.start("aggregate", "aggregate", "--connect", self.endpoint, *extra)
 
     def dashboard(self, *extra: str, env: dict | None = None, timeout: float = 30.0) -> str:
         """Start the dashboard; returns its base URL once ``/health`` answers 200."""
-        port = free_port()
-        proc = self.start("dashboard", "dashboard", "--http", f"127.0.0.1:{port}", "--connect",
-                          self.endpoint, *extra, env=env)
-        url = f"http://127.0.0.1:{port}"
-
-        def healthy():
-            if not proc.alive():
-                raise AssertionError(f"dashboard exited with {proc.popen.returncode}")
-            return http_json(url + "/health", timeout=1.0)[0] == 200
-        wait_until(healthy, timeout, f"dashboard health at {url}", interval=0.1, on_fail=self.logs)
-        return url
-
-    def stop(self, grace: float = 5.0) -> None:
-        """SIGTERM every process group (newest first), then SIGKILL what is left."""
-        for proc in reversed(self.procs):
-            if proc.alive():
-                try:
-                    os.killpg(proc.popen.pid, signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
-        deadline = time.monotonic() + grace
-        for proc in reversed(self.procs):
-            try:
-                proc.popen.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                pass
-            try:  # the group may hold children even after the leader exited
-                os.killpg(proc.popen.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-            proc.popen.wait()
+        return super().dashboard(f"127.0.0.1:{free_port()}", self.endpoint, *extra, env=env, timeout=timeout)[1]
 
 
 @pytest.fixture

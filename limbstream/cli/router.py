@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import threading
+
+import zenoh
 
 from limbstream import zconfig
 from limbstream.signals import stop_on_signals
@@ -22,7 +25,12 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     args.mode = "router"
     settings = zconfig.from_args(args)
     stop = stop_on_signals(stop)
-    with zconfig.open_session(settings) as session:
+    try:
+        session = zconfig.open_session(settings)
+    except zenoh.ZError as exc:  # e.g. the port is taken: one line, without Zenoh's source locations
+        raise SystemExit(f"limbstream router: error: --listen {args.listen}: "
+                         f"{re.sub(r' at [^ ]+[.]rs:[0-9]+[.]?', '', str(exc))}") from None
+    with session:
         print(f"zenoh router {session.zid()} listening on {', '.join(settings.listen)}", flush=True)
         stop.wait()
     return 0

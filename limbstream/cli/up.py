@@ -1,86 +1,46 @@
 """``limbstream up``: the whole live system on this machine, one command.
 
-Starts a Zenoh router, emulated devices, the aggregator and the dashboard as child
-processes, prints what runs and where to look, and stops them all on Ctrl-C or SIGTERM.
-Children get SIGTERM if this process dies (PR_SET_PDEATHSIG), so none outlives it.
+Starts a Zenoh router, emulated devices, the aggregator and the dashboard as child processes
+(:mod:`limbstream.cli.launch`), forwards their output, prints what runs and where to look, and
+keeps them running: a part that exits is started again after a back-off (0.5 s, doubling up
+to 10 s, back to 0.5 s after a minute of health); one that exits ``--max-exits`` times within
+60 s, or fails while the system starts, stops everything with a one-line error naming it.
+Ctrl-C or SIGTERM stops everything; children get SIGTERM if this process dies
+(PR_SET_PDEATHSIG), so none outlives it.
+
+Restart counts per part are kept in a JSON status file (``--status-file``; its path is given
+to the dashboard in ``LIMBSTREAM_UP_STATUS``)::
+
+    {"supervisor": "limbstream up", "pid": 4242, "state": "running", "updated": 1730000000.0,
+     "parts": {"router": {"pid": 4243, "state": "running", "restarts": 0, "last_exit": null}, ...}}
+
+``state`` of ``up``: starting, running, stopped; of a part: running, restarting (waiting for its
+back-off), exited; ``last_exit``: e.g. ``killed by SIGKILL``, ``exit status 1``.
 """
 from __future__ import annotations
 
 import argparse
-import ctypes
 import importlib.util
+import json
 import os
+import secrets
 import signal
-import socket
-import subprocess
 import sys
+import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from pathlib import Path
 
+from limbstream import wire
+from limbstream.cli.launch import ChildExited, CrashLoop, Launcher, RestartPolicy, Supervisor, split_endpoint
 from limbstream.signals import stop_on_signals
 
-STOP_TIMEOUT_S = 5.0
-
-
-def _die_with_parent() -> None:  # runs in the child between fork and exec
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
-
-
-@dataclass
-class Child:
-    """A started component."""
-
-    name: str
-    argv: list[str]
-    process: subprocess.Popen | None = None
-
-
-def start(child: Child, env: dict | None = None) -> Child:
-    child.process = subprocess.Popen(child.argv, preexec_fn=_die_with_parent, env=env)
-    return child
-
-
-def stop_all(children: list[Child], timeout: float = STOP_TIMEOUT_S) -> None:
-    """SIGTERM every child (last started first), then SIGKILL what is left after ``timeout``."""
-    for child in reversed(children):
-        if child.process and child.process.poll() is None:
-            child.process.terminate()
-    deadline = time.monotonic() + timeout
-    for child in reversed(children):
-        if child.process is None:
-            continue
-        try:
-            child.process.wait(max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            child.process.kill()
-            child.process.wait()
-
-
-def wait_for_port(host: str, port: int, timeout: float, proc: subprocess.Popen | None = None) -> bool:
-    """Poll until a TCP connect to host:port succeeds (or the process dies / time runs out)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc is not None and proc.poll() is not None:
-            return False
-        try:
-            with socket.create_connection((host, port), timeout=0.2):
-                return True
-        except OSError:
-            time.sleep(0.05)
-    return False
-
-
-def split_endpoint(endpoint: str) -> tuple[str, int]:
-    """``tcp/HOST:PORT`` or ``HOST:PORT`` -> (host, port); ValueError otherwise."""
-    address = endpoint.split("/", 1)[1] if "/" in endpoint else endpoint
-    host, _, port = address.rpartition(":")
-    if not host or not port.isdigit():
-        raise ValueError(f"expected HOST:PORT, got {endpoint!r}")
-    return host.strip("[]"), int(port)
+TOKEN_ENV = "LIMBSTREAM_API_TOKEN"
+STATUS_ENV = "LIMBSTREAM_UP_STATUS"
+"""Environment variable with the status file's path, set for the dashboard."""
+ROUTER_TIMEOUT_S = 15.0
+DASHBOARD_TIMEOUT_S = 30.0
+POLL_S = 0.1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,68 +50,130 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--http", default="127.0.0.1:8000", help="dashboard address (default 127.0.0.1:8000)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
-    parser.add_argument("--threshold", type=float, default=1e-2, help="fastSW SSR threshold (default 1e-2)")
-    parser.add_argument("--max-len", type=int, default=25, help="max segment length, samples (default 25)")
+    wire.add_arguments(parser)  # the device tunables, passed on to the emulators
     parser.add_argument("--no-truth", action="store_true", help="devices do not publish the truth tap")
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
+    parser.add_argument("--max-exits", type=int, default=RestartPolicy.max_exits,
+                        help=f"stop everything when one part exits this many times within "
+                             f"{RestartPolicy.window_s:g} s (default {RestartPolicy.max_exits})")
+    parser.add_argument("--status-file", type=Path, default=None,
+                        help="where to keep the JSON status of the parts (restart counts); default: a "
+                             "temporary file removed on exit")
 
 
-def plan(args: argparse.Namespace) -> list[Child]:
-    """The child processes ``up`` starts, in start order."""
-    py = [sys.executable, "-m", "limbstream.cli"]
+def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
+    """(name, ``limbstream`` arguments) of the emulators and the aggregator, in start order."""
     connect = ["--connect", args.router]
-    children = [Child("router", py + ["router", "--listen", args.router])]
+    parts = []
     per = -(-args.subjects // args.emulators)
     for e in range(args.emulators):
         first = 1 + e * per
         count = min(per, args.subjects - e * per)
         if count <= 0:
             break
-        argv = py + ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
-                     "--speed", str(args.speed), "--threshold", str(args.threshold), "--max-len", str(args.max_len)]
+        argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
+                "--speed", str(args.speed), *wire.config_from_args(args).flags()]
         if args.no_truth:
             argv.append("--no-truth")
-        children.append(Child(f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
-    children.append(Child("aggregator", py + ["aggregate"] + connect))
-    if not args.no_dashboard and importlib.util.find_spec("services.dashboard.main") is not None:
-        children.append(Child("dashboard", py + ["dashboard", "--http", args.http] + connect))
-    return children
+        parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
+    parts.append(("aggregator", ["aggregate"] + connect))
+    return parts
+
+
+def write_status(path: Path, state: str, supervisor: Supervisor) -> None:
+    """Replace the status file at once (readers never see half a file)."""
+    data = {"supervisor": "limbstream up", "pid": os.getpid(), "state": state, "updated": time.time(),
+            "parts": supervisor.status()}
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1) + "\n")
+    os.replace(tmp, path)
+
+
+def dashboard_env(status_file: Path) -> dict[str, str]:
+    """The dashboard's extra variables: the status file, and in development mode without a token
+    one generated here, so that a restarted dashboard keeps it."""
+    env = {STATUS_ENV: str(status_file)}
+    if not os.environ.get(TOKEN_ENV, "").strip() and os.environ.get("LIMBSTREAM_MODE", "development") != "production":
+        env[TOKEN_ENV] = secrets.token_urlsafe(24)
+        print(f"limbstream up: development API token of the dashboard (set {TOKEN_ENV} to choose one): "
+              f"{env[TOKEN_ENV]}", flush=True)
+    return env
+
+
+def _abort_start(*_) -> None:
+    raise KeyboardInterrupt
+
+
+def say(message: str) -> None:
+    print(f"limbstream up: {message}", file=sys.stderr, flush=True)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     try:
-        router_host, router_port = split_endpoint(args.router)
+        split_endpoint(args.router)
         split_endpoint(args.http)
-        if args.subjects < 1 or args.emulators < 1:
-            raise ValueError("--subjects and --emulators must be >= 1")
+        if args.subjects < 1 or args.emulators < 1 or args.max_exits < 1:
+            raise ValueError("--subjects, --emulators and --max-exits must be >= 1")
     except ValueError as exc:
-        raise SystemExit(f"limbstream up: error: {exc}") from None
-    stop = stop_on_signals(stop)
-    children = plan(args)
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    started: list[Child] = []
+        print(f"limbstream up: error: {exc}", file=sys.stderr)
+        return 2
+    temp = None
+    if args.status_file is None:
+        temp = Path(tempfile.mkdtemp(prefix="limbstream-up-"))
+        args.status_file = temp / "status.json"
+    status_file = args.status_file.resolve()
+    launcher = Launcher()
+    supervisor = Supervisor(launcher.children, RestartPolicy(max_exits=args.max_exits), report=say)
+    dashboard = not args.no_dashboard and importlib.util.find_spec("services.dashboard.main") is not None
+    signal.signal(signal.SIGTERM, _abort_start)  # while starting, Ctrl-C or SIGTERM abort the start
     try:
-        started.append(start(children[0], env))
-        if not wait_for_port(router_host, router_port, 15.0, children[0].process):
-            print(f"limbstream up: the router did not come up on {args.router} (port in use?)", file=sys.stderr)
+        try:
+            launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
+            write_status(status_file, "starting", supervisor)
+            for name, argv in plan(args):
+                launcher.start(name, *argv)
+            write_status(status_file, "starting", supervisor)
+            if dashboard:
+                launcher.dashboard(args.http, args.router, env=dashboard_env(status_file),
+                                   timeout=DASHBOARD_TIMEOUT_S)
+        except ChildExited as exc:
+            say(f"{exc.child.name} failed to start ({exc.child.exit_text()}): {exc.child.last_line()}")
             return 1
-        for child in children[1:]:
-            started.append(start(child, env))
+        except TimeoutError:
+            late = launcher.children[-1]
+            say(f"{late.name} did not come up within "
+                f"{ROUTER_TIMEOUT_S if late.name == 'router' else DASHBOARD_TIMEOUT_S:g} s: {late.last_line()}")
+            return 1
+        stop = stop_on_signals(stop)
+        write_status(status_file, "running", supervisor)
         print(f"\nlimbstream is running ({args.subjects} subjects x 10 IMUs, source {args.source}):")
-        for child in started:
-            print(f"  {child.name:<11} pid {child.process.pid}")
-        if any(c.name == "dashboard" for c in started):
+        for child in launcher.children:
+            print(f"  {child.name:<11} pid {child.pid}")
+        if dashboard:
             print(f"\n  dashboard   http://{args.http}/   (API docs http://{args.http}/docs)")
         print(f"  zenoh       {args.router}  keys limbstream/<subject>/pose, limbstream/<subject>/stats")
+        print(f"  status      {status_file}  (restart counts; a part that exits is started again)")
         print("\nCtrl-C stops everything.\n", flush=True)
-        while not stop.wait(0.2):
-            dead = [c for c in started if c.process.poll() is not None]
-            if dead:
-                for c in dead:
-                    print(f"limbstream up: {c.name} exited with status {c.process.returncode}; stopping",
-                          file=sys.stderr)
+        while not stop.wait(POLL_S):
+            try:
+                if supervisor.poll():
+                    write_status(status_file, "running", supervisor)
+            except CrashLoop as exc:
+                say(f"{exc}; stopping")
+                print(f"last lines of {exc.child.name}'s output:", file=sys.stderr)
+                for line in exc.child.tail(10):
+                    print(f"  {line}", file=sys.stderr)
                 return 1
         return 0
+    except KeyboardInterrupt:
+        return 130
     finally:
-        stop_all(started)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # stopping: not interrupted again
+        launcher.stop()
+        if temp is not None:
+            for f in (status_file, status_file.with_name(status_file.name + ".tmp")):
+                f.unlink(missing_ok=True)
+            temp.rmdir()
+        elif status_file.exists():
+            write_status(status_file, "stopped", supervisor)
         print("limbstream up: stopped", flush=True)
