@@ -2,15 +2,18 @@
 kernel with its own state, and publishes only its segment points over Zenoh.
 
 All devices of one process advance together, one tick per sample period, through one
-:class:`limbstream.kernel.SegmenterBank` call. Per device: an advanced publisher for
-segment points (cache for recovery, miss detection), a liveliness token, a share of one
-config queryable per subject, and optionally the truth tap (raw sample batches).
+:class:`limbstream.kernel.SegmenterBank` call; a device whose feed ends (``--once``, clips
+of different lengths) publishes its last point as FINAL then, and nothing after it. Per
+device: an advanced publisher for segment points (cache for recovery, miss detection), a
+liveliness token, a share of one config queryable per subject, and optionally the truth
+tap (raw sample batches).
 Zenoh callbacks are not used: queries go to a FIFO channel read between ticks.
 """
 from __future__ import annotations
 
 import json
 import logging
+import math
 import random
 import threading
 import time
@@ -65,6 +68,7 @@ class Device:
     threshold: float = 0.0
     max_len: int = 0
     raw_next: int = 0  # first sample index not yet on the truth tap
+    length: int | None = None  # samples in the device's stream (its feed's), None: endless
 
     @property
     def id(self) -> str:
@@ -72,7 +76,8 @@ class Device:
 
     def status(self, samples: int) -> dict:
         """The device's own view: config and counters (the config queryable's reply);
-        ``samples``: samples taken so far (all devices of an emulator sample together)."""
+        ``samples``: ticks so far (all devices of an emulator sample together until their stream ends)."""
+        samples = samples if self.length is None else min(samples, self.length)
         return {"device": self.id, "threshold": self.threshold, "max_len": self.max_len,
                 "stream": self.stream, "samples": samples, "points": self.points}
 
@@ -101,10 +106,18 @@ class Emulator:
     def __init__(self, session: zenoh.Session, feeds: dict, settings: EmulatorSettings):
         self.session, self.feeds, self.settings = session, feeds, settings
         self.devices: list[Device] = []
-        for subject, feed in feeds.items():
-            for segment in feed.segments:
-                self.devices.append(Device(subject, segment, len(self.devices), random.getrandbits(16),
-                                           threshold=settings.threshold, max_len=settings.max_len))
+        # longer feeds take the lower slots: the devices still streaming at any tick are a prefix of the bank
+        by_length = sorted(feeds, key=lambda subject: -(feeds[subject].length or math.inf))
+        self._by_length = [feeds[subject] for subject in by_length]
+        self._ending: dict[int, list[Device]] = {}  # last sample index -> devices whose stream ends there
+        for subject in by_length:
+            length = feeds[subject].length
+            for segment in feeds[subject].segments:
+                d = Device(subject, segment, len(self.devices), random.getrandbits(16),
+                           threshold=settings.threshold, max_len=settings.max_len, length=length)
+                self.devices.append(d)
+                if length is not None:
+                    self._ending.setdefault(length - 1, []).append(d)
         self.bank = kernel.SegmenterBank(len(self.devices), settings.threshold, settings.max_len)
         self.length = max((f.length or 0) for f in feeds.values()) if all(f.length for f in feeds.values()) else None
         self.tick_stats = TickStats()
@@ -193,12 +206,13 @@ class Emulator:
         d.points += 1
 
     def _tap(self, k: int, t_us: int, samples: np.ndarray) -> None:
-        """Truth tap: keep the last raw_batch samples of every device in a ring; each device
-        publishes its batch when full, staggered over devices so each tick sends a few."""
+        """Truth tap: keep the last raw_batch samples of every streaming device (the first
+        len(samples) slots) in a ring; each publishes its batch when full, staggered over
+        devices so each tick sends a few."""
         batch = self.settings.raw_batch
         self._ring_t[k % batch] = t_us
-        self._ring_q[k % batch] = samples
-        for slot in range(-(k % batch) % batch, len(self.devices), batch):  # (k + slot) % batch == 0
+        self._ring_q[k % batch, : len(samples)] = samples
+        for slot in range(-(k % batch) % batch, len(samples), batch):  # (k + slot) % batch == 0
             self._flush_tap(self.devices[slot], k)
 
     def _flush_tap(self, d: Device, k: int) -> None:
@@ -211,26 +225,34 @@ class Emulator:
         d.raw_next = k + 1
 
     def step(self, k: int) -> None:
-        """Sample k of every device: kernel, segment points, truth tap, config."""
+        """Sample k of every device whose stream has not ended: kernel, segment points, truth
+        tap; the end of the streams whose last sample this is; config."""
         t_us = self.start_us + round(k * 1e6 / self.settings.fs)
-        samples = np.concatenate([feed.sample(k) for feed in self.feeds.values()])
-        ticks = np.full(len(self.devices), (t_us - self.start_us) & 0xFFFFFFFF, np.uint32)
-        status, index, y = self.bank.update(ticks, samples)
+        live = [feed for feed in self._by_length if feed.length is None or k < feed.length]
+        samples = np.concatenate([feed.sample(k) for feed in live])
+        ticks = np.full(len(samples), (t_us - self.start_us) & 0xFFFFFFFF, np.uint32)
+        status, index, y = self.bank.update(ticks, samples)  # the first len(samples) slots
         self.samples = k + 1
         self._publish_points(k, status, index, y)
         if self.settings.truth:
             self._tap(k, t_us, samples)
+        for d in self._ending.get(k, ()):
+            self._end(d)
         self._answer_queries()
 
+    def _end(self, d: Device) -> None:
+        """End device d's stream after its last sample: flush its last point (FINAL) and its truth tap."""
+        last = self.bank.flush(d.slot)
+        if last is not None:
+            self._publish_point(d, last[0], last[2], 1e6 / self.settings.fs, wire.FLAG_FINAL)
+        if self.settings.truth:
+            self._flush_tap(d, self.samples - 1)
+
     def finish(self) -> None:
-        """End of a finite stream: flush every device's last point and the truth tap."""
-        period_us = 1e6 / self.settings.fs
+        """End of a finite run: end every stream that has not ended yet."""
         for d in self.devices:
-            last = self.bank.flush(d.slot)
-            if last is not None:
-                self._publish_point(d, last[0], last[2], period_us, wire.FLAG_FINAL)
-            if self.settings.truth:
-                self._flush_tap(d, self.samples - 1)
+            if d.length is None or d.length > self.samples:
+                self._end(d)
         self.finished.set()
 
     def run(self, stop: threading.Event, duration_s: float | None = None) -> TickStats:

@@ -1,8 +1,9 @@
-"""Motion feeds: what each emulated subject's IMUs measure at sample k, forever.
+"""Motion feeds: what each emulated subject's IMUs measure at sample k.
 
-A feed turns a motion source into an endless sample stream on a uniform grid at the
-device rate: files are resampled (SLERP) to that rate and looped; the built-in generator
-is produced chunk by chunk, continuous across chunks.
+A feed turns a motion source into a sample stream on a uniform grid at the device rate:
+files are resampled (SLERP) to that rate and looped, or played once (a stream of
+``length`` samples); the built-in generator is endless, produced chunk by chunk,
+continuous across chunks.
 """
 from __future__ import annotations
 
@@ -29,7 +30,8 @@ class LoopFeed:
     ----------
     motion : Motion
     fs : float, device rate, Hz.
-    once : bool, end after one pass instead of looping.
+    once : bool, end after one pass instead of looping: ``length`` is then the number of
+        samples of the stream (the resampled clip's), else None.
     """
 
     def __init__(self, motion: Motion, fs: float, once: bool = False):
@@ -39,7 +41,9 @@ class LoopFeed:
         self.length = len(self.q) if once else None
 
     def sample(self, k: int) -> np.ndarray:
-        """(S, 4) float32 orientations at sample k."""
+        """(S, 4) float32 orientations at sample k; IndexError past the end of a finite stream."""
+        if self.length is not None and not 0 <= k < self.length:
+            raise IndexError(f"sample {k} of a {self.length}-sample stream ({self.motion.name})")
         return self.q[k % len(self.q)]
 
 

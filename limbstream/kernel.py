@@ -313,6 +313,7 @@ class SegmenterBank:
         self._points = (Point * max(count, 1))()
         self._status = np.zeros(max(count, 1), np.uint8)
         self._index = np.zeros(count, np.int64)
+        self._n = count  # streams advanced by the last update
         thresholds = np.broadcast_to(np.asarray(threshold, np.float64), (count,))
         max_lens = np.broadcast_to(np.asarray(max_len, np.int64), (count,))
         base = ctypes.addressof(self._states)
@@ -326,28 +327,33 @@ class SegmenterBank:
         self._point_view = np.frombuffer(self._points, dtype=point_dtype)
 
     def update(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Advance every stream by one sample.
+        """Advance the first n streams by one sample (n = len(ticks) <= count; the others,
+        e.g. streams that have ended, are left as they are).
 
         Parameters
         ----------
-        ticks : (count,) uint32, kernel ticks (microseconds).
-        y : (count, D) float32 samples.
+        ticks : (n,) uint32, kernel ticks (microseconds).
+        y : (n, D) float32 samples.
 
         Returns
         -------
-        status : (count,) uint8 view (NONE, POINT, REJECTED); valid until the next call.
-        index : (count,) uint32 sample index of each stream's point (where status == POINT).
-        y : (count, D) float32 value of each stream's point (where status == POINT).
+        status : (n,) uint8 view (NONE, POINT, REJECTED); valid until the next call.
+        index : (n,) uint32 sample index of each stream's point (where status == POINT).
+        y : (n, D) float32 value of each stream's point (where status == POINT).
         """
         ticks = np.ascontiguousarray(ticks, np.uint32)
         y = np.ascontiguousarray(y, np.float32)
-        _lib.fastsw_update_many(self._states, self.count, ticks, y, self._status, self._points)
-        view = self._point_view[: self.count]
-        return self._status[: self.count], view["index"], view["y"][:, : self.dim]
+        n = len(ticks)
+        if n > self.count or y.shape != (n, self.dim):
+            raise ValueError(f"ticks (n,) and y (n, {self.dim}) with n <= {self.count}; got {ticks.shape}, {y.shape}")
+        _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points)
+        self._n = n
+        view = self._point_view[:n]
+        return self._status[:n], view["index"], view["y"][:, : self.dim]
 
     def points_t(self) -> np.ndarray:
-        """(count,) uint32 ticks of the points returned by the last :meth:`update`."""
-        return self._point_view[: self.count]["t"]
+        """(n,) uint32 ticks of the points returned by the last :meth:`update`."""
+        return self._point_view[: self._n]["t"]
 
     def retune(self, k: int, threshold: float, max_len: int) -> None:
         """Change one stream's settings from its next sample on."""

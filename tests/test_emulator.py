@@ -8,7 +8,7 @@ import pytest
 
 from device_emulator import main as emulate
 from device_emulator.feeds import GeneratorFeed, LoopFeed, resample
-from limbstream import quat
+from limbstream import kernel, quat
 from limbstream.sources import Motion
 from limbstream.sources.generator import GeneratorSource
 
@@ -30,9 +30,49 @@ def test_loop_feed_resamples_jittered_time_and_loops():
     assert np.allclose(np.diff(uniform.t), 0.02)
     ref = np.stack([quat.interpolate(t, q[:, s], uniform.t) for s in range(2)], axis=1)
     assert np.max(quat.angle_deg(uniform.q, ref)) < 1e-9
-    feed = LoopFeed(motion, 50.0, once=True)
-    assert feed.length == len(uniform.t)
-    assert np.array_equal(feed.sample(feed.length), feed.sample(0))
+    loop = LoopFeed(motion, 50.0)
+    assert loop.length is None
+    assert np.array_equal(loop.sample(len(uniform.t) + 7), loop.sample(7))
+
+
+def test_once_feed_ends_at_its_own_last_sample():
+    rng = np.random.default_rng(1)
+    q = quat.normalize(np.cumsum(rng.normal(0, 0.02, (137, 2, 4)), axis=0) + [1, 0, 0, 0])
+    feed = LoopFeed(Motion(np.arange(137) / 50.0, q, ("hip", "neck"), "short"), 50.0, once=True)
+    assert feed.length == 137
+    assert np.array_equal(feed.sample(136), q[136].astype(np.float32))
+    for k in (137, 138, 137 + 5, -1):
+        with pytest.raises(IndexError, match="137-sample"):
+            feed.sample(k)
+
+
+def test_bank_advances_only_the_streams_still_running():
+    """The emulator's ended devices are the bank's last slots: update(n rows) leaves the others as they are."""
+    rng = np.random.default_rng(2)
+    y = quat.normalize(np.cumsum(rng.normal(0, 0.05, (200, 3, 4)), axis=0) + [1, 0, 0, 0]).astype(np.float32)
+    ticks = (np.arange(200) * 20_000).astype(np.uint32)
+    bank = kernel.SegmenterBank(3, threshold=1e-3, max_len=25)
+    got = [[], [], []]
+
+    def take(j, point):
+        if point is not None:
+            got[j].append(int(point[0]))
+    for k in range(200):
+        n = 3 if k < 120 else 1  # streams 1 and 2 end after sample 119
+        status, index, _ = bank.update(np.full(n, ticks[k]), y[k, :n])
+        assert len(status) == len(index) == n
+        for j in np.flatnonzero(status == kernel.POINT):
+            got[j].append(int(index[j]))
+        if k == 119:
+            take(1, bank.flush(1))
+            take(2, bank.flush(2))
+    take(0, bank.flush(0))
+    for j, m in ((0, 200), (1, 120), (2, 120)):
+        want = kernel.segment(ticks[:m] / 1e6, y[:m, j], 1e-3, 25).index.tolist()
+        assert got[j] == want, f"stream {j}: last points {got[j][-3:]} vs offline {want[-3:]}"
+    assert bank.flush(1) is None and bank.flush(2) is None  # nothing was fed after their end
+    with pytest.raises(ValueError, match="n <= 3"):
+        bank.update(np.zeros(4, np.uint32), np.zeros((4, 4), np.float32))
 
 
 def parse(*argv):
