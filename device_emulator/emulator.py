@@ -36,7 +36,7 @@ class EmulatorSettings:
     ----------
     fs : device sample rate, Hz.
     speed : time scale: 1 = real time, 10 = ten times faster (device clocks run faster too).
-    threshold, max_len : initial fastSW settings of every device (SSR; samples).
+    config : initial fastSW settings of every device (limbstream.wire.TUNABLES).
     truth : publish raw samples on the truth tap.
     raw_batch : samples per truth-tap message.
     cache : segment points each device keeps for recovery (advanced publisher cache).
@@ -45,8 +45,7 @@ class EmulatorSettings:
 
     fs: float = 50.0
     speed: float = 1.0
-    threshold: float = 1e-2
-    max_len: int = 25
+    config: wire.DeviceConfig = wire.DeviceConfig()
     truth: bool = True
     raw_batch: int = 25
     cache: int = 512
@@ -65,8 +64,7 @@ class Device:
     token: object = None
     seq: int = 0
     points: int = 0
-    threshold: float = 0.0
-    max_len: int = 0
+    config: wire.DeviceConfig = wire.DeviceConfig()
     raw_next: int = 0  # first sample index not yet on the truth tap
     length: int | None = None  # samples in the device's stream (its feed's), None: endless
 
@@ -74,12 +72,11 @@ class Device:
     def id(self) -> str:
         return wire.device_id(self.subject, self.segment)
 
-    def status(self, samples: int) -> dict:
+    def status(self, samples: int) -> wire.DeviceStatus:
         """The device's own view: config and counters (the config queryable's reply);
         ``samples``: ticks so far (all devices of an emulator sample together until their stream ends)."""
         samples = samples if self.length is None else min(samples, self.length)
-        return {"device": self.id, "threshold": self.threshold, "max_len": self.max_len,
-                "stream": self.stream, "samples": samples, "points": self.points}
+        return wire.DeviceStatus(self.id, self.config, self.stream, samples, self.points)
 
 
 @dataclass
@@ -114,11 +111,11 @@ class Emulator:
             length = feeds[subject].length
             for segment in feeds[subject].segments:
                 d = Device(subject, segment, len(self.devices), random.getrandbits(16),
-                           threshold=settings.threshold, max_len=settings.max_len, length=length)
+                           config=settings.config, length=length)
                 self.devices.append(d)
                 if length is not None:
                     self._ending.setdefault(length - 1, []).append(d)
-        self.bank = kernel.SegmenterBank(len(self.devices), settings.threshold, settings.max_len)
+        self.bank = kernel.SegmenterBank(len(self.devices), settings.config.threshold, settings.config.max_len)
         self.length = max((f.length or 0) for f in feeds.values()) if all(f.length for f in feeds.values()) else None
         self.tick_stats = TickStats()
         batch = settings.raw_batch
@@ -153,7 +150,7 @@ class Emulator:
             if s.truth else {}
         )
         self._queries = [
-            (self.session.declare_queryable(f"{wire.PREFIX}/{subject}/*/config", zenoh.handlers.FifoChannel(1024)),
+            (self.session.declare_queryable(wire.device_selector("config", subject), zenoh.handlers.FifoChannel(1024)),
              {zenoh.KeyExpr(wire.config_key(d.subject, d.segment)): d for d in self.devices if d.subject == subject})
             for subject in self.feeds
         ]
@@ -182,14 +179,14 @@ class Emulator:
         for d in targets:
             if payload:
                 try:
-                    config = wire.decode_config(payload, wire.DeviceConfig(d.threshold, d.max_len))
+                    config = wire.decode_config(payload, d.config)
                 except wire.WireError as exc:
                     query.reply_err(json.dumps({"error": str(exc)}))
                     return
                 self.bank.retune(d.slot, config.threshold, config.max_len)
-                d.threshold, d.max_len = config.threshold, config.max_len
-                log.info("%s: threshold %g, max_len %d", d.id, d.threshold, d.max_len)
-            query.reply(wire.config_key(d.subject, d.segment), json.dumps(d.status(self.samples)))
+                d.config = config
+                log.info("%s: %s", d.id, config)
+            query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(d.status(self.samples)))
 
     # ------------------------------------------------------------------ ticks
 

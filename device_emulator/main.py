@@ -56,8 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
     parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = real time)")
-    parser.add_argument("--threshold", type=float, default=1e-2, help="fastSW SSR threshold (default 1e-2)")
-    parser.add_argument("--max-len", type=int, default=25, help="max segment length, samples (default 25)")
+    wire.add_arguments(parser)  # --threshold, --max-len: the device tunables
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
@@ -73,8 +72,6 @@ def validate(args: argparse.Namespace) -> None:
         (args.subjects >= 1, f"--subjects must be >= 1, got {args.subjects}"),
         (args.rate > 0, f"--rate must be > 0, got {args.rate}"),
         (args.speed > 0, f"--speed must be > 0, got {args.speed}"),
-        (args.threshold >= 0, f"--threshold must be >= 0, got {args.threshold}"),
-        (args.max_len >= 1, f"--max-len must be >= 1, got {args.max_len}"),
         (1 <= args.raw_batch <= wire.MAX_RAW_BATCH, f"--raw-batch must be in 1..{wire.MAX_RAW_BATCH}"),
         (args.cache >= 1, f"--cache must be >= 1, got {args.cache}"),
     ]
@@ -91,7 +88,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         feeds = build_feeds(args)
     except (MotionFileError, ValueError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
-    settings = EmulatorSettings(fs=args.rate, speed=args.speed, threshold=args.threshold, max_len=args.max_len,
+    settings = EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
                                 truth=args.truth, raw_batch=args.raw_batch, cache=args.cache)
     stop = stop_on_signals(stop)
     session = zconfig.open_session(zconfig.from_args(args), stop)

@@ -17,6 +17,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from limbstream import wire
+
 TICK_HZ = 1_000_000.0
 """Kernel ticks per second used by the bindings (microseconds)."""
 
@@ -134,15 +136,11 @@ def to_ticks(t: np.ndarray, t0: float | None = None) -> np.ndarray:
 
 
 def make_settings(threshold: float, max_len: int, dim: int) -> Settings:
-    """Validated :class:`Settings`; raises ValueError naming the bad argument."""
+    """Validated :class:`Settings`; raises ValueError naming the bad argument. The bounds of
+    threshold and max_len are the device tunables' (limbstream.wire.TUNABLES)."""
     if not 1 <= dim <= MAX_DIM:
         raise ValueError(f"dim must be in 1..{MAX_DIM}, got {dim}")
-    if not 1 <= int(max_len) <= 0xFFFFFFFF:
-        raise ValueError(f"max_len must be a positive integer, got {max_len}")
-    threshold = float(threshold)
-    if not np.isfinite(threshold) or threshold < 0:
-        raise ValueError(f"threshold must be finite and >= 0, got {threshold}")
-    return Settings(threshold, int(max_len), int(dim))
+    return Settings(wire.THRESHOLD.check(threshold), wire.MAX_LEN.check(max_len), int(dim))
 
 
 def _as_stream(t, q) -> tuple[np.ndarray, np.ndarray]:

@@ -82,12 +82,11 @@ def parse(*argv):
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["--subjects", "0"], "--subjects"), (["--rate", "-5"], "--rate"), (["--max-len", "0"], "--max-len"),
-    (["--threshold", "-1"], "--threshold"), (["--raw-batch", "0"], "--raw-batch"),
+    (["--subjects", "0"], "--subjects"), (["--rate", "-5"], "--rate"), (["--raw-batch", "0"], "--raw-batch"),
 ])
 def test_bad_flags_give_clear_errors(argv, words):
     with pytest.raises(SystemExit, match=words):
-        emulate.validate(parse(*argv))
+        emulate.validate(parse(*argv))  # (the device tunables are refused while parsing: tests/test_bounds.py)
 
 
 def test_missing_source_file_is_a_clear_error(tmp_path):

@@ -126,11 +126,46 @@ def test_pose_frames_encode_as_the_documented_layout():
     assert wire.PoseFrames.empty(wire.KIND_LIVE).encode() == []
 
 
+SAMPLE_VALUES = {float: 0.5, int: 3, bool: True, str: "s01/hip", dict: {"size": 1}}
+
+
 def test_stats_round_trip_and_null_for_non_finite():
-    device = {k: 0 for k in wire.STATS_FIELDS} | {"device": "s01/hip", "aad_deg": math.nan}
-    data = wire.decode_stats(wire.encode_stats("s01", 1.5, [device], {"frames": 3}))
-    assert data["subject"] == "s01" and data["frames"] == 3
+    device = {f.name: SAMPLE_VALUES[f.type] for f in wire.DEVICE_FIELDS} | {"aad_deg": math.nan}
+    loop = {f.name: SAMPLE_VALUES[f.type] for f in wire.AGGREGATOR_FIELDS}
+    data = wire.decode_stats(wire.encode_stats("s01", 1.5, [device], {"frames": 3, "aggregator": loop}, seq=7))
+    assert data["subject"] == "s01" and data["frames"] == 3 and data["seq"] == 7
     assert data["devices"][0]["aad_deg"] is None
+    assert data["devices"][0] == {k: v for k, v in device.items() if k != "aad_deg"} | {"aad_deg": None}
+    assert data["aggregator"] == loop
+    assert list(data["devices"][0]) == list(wire.STATS_FIELDS), "device fields in table order"
+
+
+def test_stats_fields_are_declared_and_typed():
+    """The encoder refuses a field the table lacks; the decoder a value of the wrong type."""
+    with pytest.raises(ValueError, match="not declared"):
+        wire.encode_stats("s01", 1.0, [{"device": "s01/hip", "speed": 3}])
+    with pytest.raises(ValueError, match="not declared"):
+        wire.encode_stats("s01", 1.0, [], {"aggregator": {"colour": 1}})
+    sparse = json.loads(wire.encode_stats("s01", 1.0, [{"device": "s01/hip"}]))
+    assert set(sparse["devices"][0]) == set(wire.STATS_FIELDS), "missing device fields are sent as null"
+    for field in wire.DEVICE_FIELDS:
+        wrong = "text" if field.type is not str else 5
+        bad = dict(sparse, devices=[sparse["devices"][0] | {field.name: wrong}])
+        with pytest.raises(wire.WireError, match=field.name):
+            wire.decode_stats(json.dumps(bad).encode())
+    for bad_seq in ("1", 1.5, True):
+        with pytest.raises(wire.WireError):
+            wire.decode_stats(json.dumps(sparse | {"seq": bad_seq}).encode())
+
+
+def test_field_table_is_consistent():
+    names = [(f.scope, f.name) for f in wire.FIELDS]
+    assert len(names) == len(set(names)), "a field is declared twice"
+    metrics = [f.metric for f in wire.FIELDS if f.metric]
+    assert len(metrics) == len(set(metrics)) and all(m.startswith("limbstream_") for m in metrics)
+    assert all(f.type in (float, int) for f in wire.FIELDS if f.chart), "charts need numbers"
+    assert set(wire.HISTORY_FIELDS) <= set(wire.STATS_FIELDS)
+    assert set(wire.TUNABLES) <= set(wire.STATS_FIELDS), "every tunable is reported per device"
     with pytest.raises(wire.WireError):
         wire.decode_stats(b"{not json")
     with pytest.raises(wire.WireError):
@@ -156,7 +191,7 @@ def test_config_validation():
     for bad, words in ((b'{"threshold": -1, "max_len": 25}', "threshold"), (b'{"threshold": 0.1, "max_len": 0}', "max_len"),
                        (b'{"threshold": "x", "max_len": 5}', "threshold"), (b'{"max_len": 5}', "needs"),
                        (b"[]", "object"), (b"\xff", "JSON"), (b'{"max_len": 5.5}', "max_len"),
-                       (b'{"threshold": true}', "threshold"), (b'{"speed": 1}', "unknown"), (b"{}", "needs")):
+                       (b'{"threshold": true}', "threshold"), (b'{"speed": 1}', "unknown"), (b"{}", "some of")):
         with pytest.raises(wire.WireError, match=words):
             wire.decode_config(bad, current if b"speed" in bad or bad == b"{}" else None)
 

@@ -74,7 +74,7 @@ def subscribe_pose(session_or_settings: zenoh.Session | zconfig.ZenohSettings, s
             return
         callback(name, frame)
 
-    handle.subscriber = handle.session.declare_subscriber(f"{wire.PREFIX}/{subject}/pose", on_sample)
+    handle.subscriber = handle.session.declare_subscriber(wire.subject_selector("pose", subject), on_sample)
     return handle
 
 

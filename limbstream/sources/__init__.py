@@ -10,11 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-SEGMENTS: tuple[str, ...] = (
-    "l_shank", "r_shank", "l_thigh", "r_thigh", "l_lowerarm",
-    "r_lowerarm", "l_upperarm", "r_upperarm", "neck", "hip",
-)
-"""The 10-IMU layout, in the order of ``cmu_10seg_50hz.npz``."""
+from limbstream.wire.body import SEGMENTS  # noqa: F401  (re-exported: the 10-IMU layout)
 
 
 class MotionFileError(ValueError):

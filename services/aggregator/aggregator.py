@@ -9,7 +9,6 @@ through an advanced subscriber (history for late joining, recovery of missed poi
 from __future__ import annotations
 
 import collections
-import json
 import logging
 import os
 import socket
@@ -111,6 +110,7 @@ class Aggregator:
                              error_window=int(settings.error_window_s * 50))
         self.subjects: dict[str, Subject] = self.fusion.subjects
         self.bad_keys: collections.Counter = collections.Counter()
+        self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
         self.loop = LoopStats()
         self._pubs: dict[str, zenoh.Publisher] = {}  # by key expression (pose and stats of each subject)
         self._config_replies: list = []
@@ -125,7 +125,7 @@ class Aggregator:
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
-                self.session, f"{wire.PREFIX}/{pattern}/*/seg", zenoh.handlers.FifoChannel(1 << 16),
+                self.session, wire.device_selector("seg", pattern), zenoh.handlers.FifoChannel(1 << 16),
                 history=zext.HistoryConfig(detect_late_publishers=True, max_samples=s.history),
                 recovery=zext.RecoveryConfig(heartbeat=True),
                 subscriber_detection=True,
@@ -133,11 +133,11 @@ class Aggregator:
             self._seg_subs.append(sub)
             self._misses.append(sub.sample_miss_listener(zenoh.handlers.FifoChannel(1024)))
             self._raw_subs.append(zext.declare_advanced_subscriber(  # truth tap: recovered like points
-                self.session, f"{wire.PREFIX}/{pattern}/*/raw", zenoh.handlers.FifoChannel(1 << 14),
+                self.session, wire.device_selector("raw", pattern), zenoh.handlers.FifoChannel(1 << 14),
                 history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
                 recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
             self._alive_subs.append(self.session.liveliness().declare_subscriber(
-                f"{wire.PREFIX}/{pattern}/*/alive", zenoh.handlers.FifoChannel(1 << 14), history=True))
+                wire.device_selector("alive", pattern), zenoh.handlers.FifoChannel(1 << 14), history=True))
 
     def close(self) -> None:
         for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs):
@@ -219,19 +219,18 @@ class Aggregator:
             self.fusion.set_online(track, online)
 
     def on_config(self, key: str, payload: bytes) -> None:
-        """A device's config reply: its threshold and max segment length."""
+        """A device's config reply (its status): the settings it runs."""
         ids = self._parse_key(key, "config")
         if ids is None:
             return
         try:
-            data = json.loads(payload)
-            threshold, max_len = float(data["threshold"]), int(data["max_len"])
-        except (ValueError, KeyError, TypeError):
+            status = wire.decode_status(payload)
+        except wire.WireError:
             self.bad_keys["config_reply"] += 1
             return
         track = self._known(*ids)
         if track is not None:
-            track.threshold, track.max_len = threshold, max_len
+            track.config = status.config
 
     def drain(self, now: float, budget: int = 100_000) -> int:
         """Move everything waiting in the channels into the tracks. Returns messages handled."""
@@ -273,7 +272,7 @@ class Aggregator:
     def poll_configs(self) -> None:
         """Ask every device for its config (answers arrive in a channel, read by drain)."""
         self._config_replies += [
-            self.session.get(f"{wire.PREFIX}/{pattern}/*/config", zenoh.handlers.FifoChannel(4096), timeout=2.0)
+            self.session.get(wire.device_selector("config", pattern), zenoh.handlers.FifoChannel(4096), timeout=2.0)
             for pattern in self.settings.subjects
         ]
 
@@ -329,7 +328,9 @@ class Aggregator:
             # load / soak figures (bench/soak.py) and messages no device could be charged with
             snapshot["aggregator"] = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {
                 "bad_keys": dict(self.bad_keys)}
-            self._publisher(wire.stats_key(sub.name)).put(wire.encode_stats(sub.name, wall, devices, snapshot))
+            payload = wire.encode_stats(sub.name, wall, devices, snapshot, seq=self.stats_seq[sub.name])
+            self._publisher(wire.stats_key(sub.name)).put(payload)
+            self.stats_seq[sub.name] += 1
         if part == parts - 1:
             self.loop.end_round(now)
 

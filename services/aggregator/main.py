@@ -34,7 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
     """AggregatorSettings from the flags; SystemExit with a clear message on bad values."""
     try:
-        patterns = tuple(wire.subject_pattern(p) for p in args.subjects.split(",") if p.strip())
+        patterns = tuple(p.strip() for p in args.subjects.split(",") if p.strip())
+        for p in patterns:
+            wire.subject_pattern(p)  # ValueError naming a bad one
         skeleton = Skeleton(thigh=args.thigh, shank=args.shank, upperarm=args.upperarm, lowerarm=args.lowerarm,
                             spine=args.spine, neck=args.neck, rest_pose=args.rest_pose)
         if not (args.rate > 0 and args.tick > 0 and args.live_rate >= 0 and args.history >= 1

@@ -38,8 +38,7 @@ class DeviceTrack:
         self.subject, self.segment, self.slot = subject, segment, slot
         self.id = wire.device_id(subject, segment)
         self.online = False
-        self.threshold = math.nan
-        self.max_len: int | None = None
+        self.config: wire.DeviceConfig | None = None  # as the device last reported it
         self.dropped: collections.Counter = collections.Counter()
         self.restarts = 0
         self.generation = 0
@@ -145,7 +144,7 @@ class DeviceTrack:
         return [any(t0 < t < t1 for t0, t1 in self.gap_spans) for t in t_us]
 
     def stats(self, now: float, errors: tuple[float, float, float, float, float, int]) -> dict:
-        """The device entry of a stats message (wire.STATS_FIELDS and extras).
+        """The device entry of a stats message (the device fields of limbstream.wire.fields).
 
         ``errors``: (aad, p99, max, live mean, aad since the stream began, samples compared).
         """
@@ -169,6 +168,7 @@ class DeviceTrack:
             "aad_deg": aad, "p99_deg": p99, "max_deg": mx, "live_err_deg": live,
             "aad_all_deg": aad_all, "error_samples": compared,
             "watermark_lag_s": lag, "gaps": self.gaps, "dropped": sum(self.dropped.values()),
-            "dropped_by_reason": dict(self.dropped), "threshold": self.threshold, "max_len": self.max_len,
+            "dropped_by_reason": dict(self.dropped),
+            **{name: getattr(self.config, name, None) for name in wire.TUNABLES},
             "stream": self.stream, "restarts": self.restarts, "final": self.final,
         }

@@ -8,9 +8,10 @@ import time
 from contextlib import asynccontextmanager
 
 import zenoh
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from .metrics import build_registry
@@ -77,6 +78,13 @@ def create_app(settings: DashboardSettings | None = None, session: zenoh.Session
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins,
                            allow_methods=["GET", "PUT"], allow_headers=["Authorization", "Content-Type"])
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(_request: Request, exc: RequestValidationError) -> JSONResponse:
+        """422 with where and what for each error, without echoing the input (a NaN in a body is
+        not JSON and would break the answer)."""
+        detail = [{k: e[k] for k in ("type", "loc", "msg") if k in e} for e in exc.errors()]
+        return JSONResponse({"detail": detail}, status_code=422)
+
     for module in (ops, devices, subjects, live):
         app.include_router(module.router)
     index = settings.static_dir / "index.html"

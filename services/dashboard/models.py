@@ -3,53 +3,39 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, model_validator
+
+from limbstream import wire
 
 PoseKind = Literal["auto", "live", "exact"]
 
 
-class DeviceStats(BaseModel):
-    """One device: the stats fields of the wire contract (null until the aggregator reports),
-    plus ``subject``, ``alive`` (liveliness token present), ``age_s`` and ``stale``.
-    Extra fields the aggregator sends (e.g. ``max_len``) pass through."""
-
-    model_config = ConfigDict(extra="allow")
-
-    device: str = Field(examples=["s0/l_thigh"])
-    segment: str
-    subject: str
-    online: bool
-    alive: bool
-    stale: bool
-    age_s: float | None = Field(None, description="seconds since the last stats message")
-    samples: int | None = None
-    points: int | None = None
-    icr: float | None = Field(None, description="segment points / samples (0..1)")
-    msgs_per_s: float | None = None
-    bytes_per_s: float | None = None
-    aad_deg: float | None = None
-    p99_deg: float | None = None
-    max_deg: float | None = None
-    live_err_deg: float | None = None
-    watermark_lag_s: float | None = None
-    gaps: int | None = None
-    dropped: int | None = None
-    threshold: float | None = None
+def _described(f: wire.StatsField):
+    unit = f" ({f.unit})" if f.unit else ""
+    return Field(None, description=f"{f.help}{unit}")
 
 
-class DeviceHistory(BaseModel):
-    """Column-wise time series of one device (one row per stats message, ~1 Hz)."""
+def _from_fields(name: str, doc: str, fields: tuple[wire.StatsField, ...], wrap=lambda t: t, **extra) -> type:
+    """A response model with one optional attribute per stats field (``wrap``: of its type)."""
+    attributes = {f.name: (wrap(f.type if f.type is not dict else dict[str, float]) | None, _described(f))
+                  for f in fields}
+    return create_model(name, __doc__=doc, **extra, **attributes)
 
-    device: str
-    t: list[float] = Field(description="stats time, seconds since the epoch")
-    msgs_per_s: list[float | None]
-    bytes_per_s: list[float | None]
-    icr: list[float | None]
-    aad_deg: list[float | None]
-    p99_deg: list[float | None]
-    max_deg: list[float | None]
-    live_err_deg: list[float | None]
-    watermark_lag_s: list[float | None]
+
+DeviceStats = _from_fields(
+    "DeviceStats", "One device: the device fields of the stats contract (limbstream.wire.fields; null "
+    "until the aggregator reports), plus ``alive`` (liveliness token present), ``age_s`` and ``stale``.",
+    wire.DEVICE_FIELDS,
+    alive=(bool, Field(description="liveliness token present")),
+    stale=(bool, Field(description="no stats for longer than the stale limit")),
+    age_s=(float | None, Field(None, description="seconds since the last stats message")),
+)
+
+DeviceHistory = _from_fields(
+    "DeviceHistory", "Column-wise time series of one device (one row per stats message, ~1 Hz).",
+    tuple(f for f in wire.DEVICE_FIELDS if f.chart), wrap=lambda t: list[t | None],
+    device=(str, ...), t=(list[float], Field(description="stats time, seconds since the epoch")),
+)
 
 
 class PoseSummary(BaseModel):
@@ -90,61 +76,51 @@ class Skeleton(BaseModel):
         description="pairs of joints to draw a line between")
 
 
-def _whole(value):
-    """JSON integers may be written 25.0; booleans and fractions are not integers."""
-    if isinstance(value, float) and value.is_integer():
-        return int(value)
-    return value
+def _tunable(t: wire.Tunable):
+    """An optional body field checked by the tunable itself (the same refusal as the CLI and the
+    device's queryable give)."""
+    unit = f", {t.unit}" if t.unit else ""
+    return (Annotated[t.type, BeforeValidator(t.check)],
+            Field(None, ge=t.low, le=t.high, description=f"{t.help}{unit} ({t.describe()})"))
 
 
-class ConfigUpdate(BaseModel):
-    """New device settings; a field left out keeps the device's current value."""
-
-    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"minProperties": 1})
-
-    threshold: float = Field(None, ge=0, le=1e6, allow_inf_nan=False,
-                             description="SSR threshold of the fastSW kernel (>= 0)")
-    max_len: Annotated[int, BeforeValidator(_whole)] = Field(None, ge=1, le=100_000,
-                                                               description="max segment length, samples")
+class _Update(BaseModel):
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"minProperties": 1})
 
     @model_validator(mode="after")
-    def _something(self) -> ConfigUpdate:
-        if self.threshold is None and self.max_len is None:
-            raise ValueError("give threshold and/or max_len")
+    def _something(self):
+        if not self.model_fields_set:
+            raise ValueError(f"give some of {', '.join(wire.TUNABLES)}")
         return self
 
-
-class DeviceConfig(BaseModel):
-    """The config a device confirmed (status fields the device adds pass through)."""
-
-    model_config = ConfigDict(extra="allow")
-
-    device: str
-    threshold: float
-    max_len: int
+    def update(self) -> dict:
+        """The fields the client gave (a partial config for the device)."""
+        return {name: getattr(self, name) for name in self.model_fields_set}
 
 
-class Aggregator(BaseModel):
-    """One aggregator's own loop, as it reported it with its last stats message (~1 Hz).
-    Figures are null if the aggregator did not send them."""
+ConfigUpdate = create_model(
+    "ConfigUpdate", __base__=_Update, __doc__="New device settings; a field left out keeps the device's value.",
+    **{name: _tunable(t) for name, t in wire.TUNABLES.items()},
+)
 
-    id: str = Field(description="host:pid of the aggregator process", examples=["lab-pc:4242"])
-    serving: list[str] = Field(description="subjects whose stats it sent")
-    subjects: float | None = Field(None, description="subjects it tracks")
-    ticks: float | None = Field(None, description="loop ticks (one per 20 ms)")
-    late: float | None = Field(None, description="ticks that started more than one period late")
-    late_pct: float | None = Field(None, description="late / ticks, %")
-    load: float | None = Field(None, description="share of the last second spent working (>= 1: falling behind)")
-    max_tick_ms: float | None = Field(None, description="longest tick since start, ms")
-    recent_max_tick_ms: float | None = Field(None, description="longest tick in the last second, ms")
-    recent_backlog: float | None = Field(None, description="most messages waiting at one tick, last second")
-    max_backlog: float | None = None
-    missed: float | None = Field(None, description="segment points Zenoh reported lost for good")
-    points: float | None = None
-    frames: float | None = None
-    bad_keys: dict[str, float] = Field(description="messages no device could be charged with, by reason")
-    age_s: float
-    stale: bool
+DeviceConfig = create_model(
+    "DeviceConfig", __doc__="The settings and counters a device confirmed (its status).",
+    device=(str, ...), stream=(int, ...), samples=(int, ...), points=(int, ...),
+    **{name: (t.type, Field(description=t.help)) for name, t in wire.TUNABLES.items()},
+)
+
+
+Aggregator = _from_fields(
+    "Aggregator", "One aggregator's own loop, as it reported it with its last stats message (~1 Hz). "
+    "Figures are null if the aggregator did not send them.",
+    wire.AGGREGATOR_FIGURES, wrap=lambda t: float,
+    id=(str, Field(description="host:pid of the aggregator process", examples=["lab-pc:4242"])),
+    serving=(list[str], Field(description="subjects whose stats it sent")),
+    late_pct=(float | None, Field(None, description="late / ticks, %")),
+    bad_keys=(dict[str, float], Field(description="messages no device could be charged with, by reason")),
+    age_s=(float, ...),
+    stale=(bool, ...),
+)
 
 
 class Health(BaseModel):

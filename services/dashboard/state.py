@@ -18,11 +18,8 @@ from dataclasses import dataclass, field
 
 from limbstream import wire
 
-HISTORY_FIELDS: tuple[str, ...] = (
-    "msgs_per_s", "bytes_per_s", "icr", "aad_deg", "p99_deg", "max_deg", "live_err_deg",
-    "watermark_lag_s",
-)
-"""Per-device series kept for the charts (plus the stats time ``t``)."""
+HISTORY_FIELDS = wire.HISTORY_FIELDS
+"""Per-device series kept for the charts (plus the stats time ``t``): the charted stats fields."""
 
 KINDS = {"exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
 
@@ -101,10 +98,7 @@ class DeviceEntry:
     history: deque = field(default_factory=deque)
 
 
-AGGREGATOR_FIGURES: tuple[str, ...] = (
-    "subjects", "ticks", "late", "load", "max_tick_ms", "recent_max_tick_ms", "recent_backlog",
-    "max_backlog", "missed", "points", "frames",
-)
+AGGREGATOR_FIGURES: tuple[str, ...] = tuple(f.name for f in wire.AGGREGATOR_FIGURES)
 """Numbers an aggregator reports about its own loop in every stats message (``"aggregator"``)."""
 MAX_AGGREGATORS = 64
 MAX_BAD_KEY_REASONS = 32
@@ -187,6 +181,8 @@ class LiveState:
         self.clients: dict[str, set[PoseClient]] = {}
         self.received = Counter()
         self.errors = Counter()
+        self.missed = Counter()  # messages lost on the way, by stream: stats, pose_exact, pose_live
+        self._next_seq: dict[tuple[str, str], int] = {}
         self.clients_skipped = 0
         self.inbox: Inbox | None = None
 
@@ -234,6 +230,7 @@ class LiveState:
             self.errors[getattr(exc, "reason", "stats")] += 1
             return
         self.stats_times[subject] = rx
+        self._count_missed(subject, "stats", data.get("seq"))
         self._apply_aggregator(data.get("aggregator"), subject, rx)
         for d in data["devices"]:
             try:
@@ -304,6 +301,7 @@ class LiveState:
                 self.errors["too_many_subjects"] += 1
                 return
             slots = self.poses[subject] = {}
+        self._count_missed(subject, "pose_live" if frame.kind == wire.KIND_LIVE else "pose_exact", frame.seq)
         entry = slots[frame.kind] = PoseEntry(frame, rx)
         clients = self.clients.get(subject)
         if clients:
@@ -312,6 +310,17 @@ class LiveState:
                 wanted = kind if client.kind == "auto" else KINDS[client.kind]
                 if wanted == frame.kind:
                     client.offer(entry.text(subject))
+
+    def _count_missed(self, subject: str, stream: str, seq: int | None) -> None:
+        """Sequence check of one of a subject's streams: a jump forward counts the messages
+        skipped as missed; a number at or below the last one is a restarted sender (starts over)."""
+        if seq is None:
+            return
+        key = (subject, stream)
+        expected = self._next_seq.get(key)
+        if expected is not None and seq > expected:
+            self.missed[stream] += seq - expected
+        self._next_seq[key] = seq + 1
 
     def _entry(self, subject: str, segment: str) -> DeviceEntry | None:
         did = f"{subject}/{segment}"

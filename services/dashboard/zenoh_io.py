@@ -14,9 +14,9 @@ from limbstream import wire, zconfig
 
 from .state import Inbox
 
-STATS_SELECTOR = f"{wire.PREFIX}/*/stats"
-POSE_SELECTOR = f"{wire.PREFIX}/*/pose"
-ALIVE_SELECTOR = f"{wire.PREFIX}/*/*/alive"
+STATS_SELECTOR = wire.subject_selector("stats")
+POSE_SELECTOR = wire.subject_selector("pose")
+ALIVE_SELECTOR = wire.device_selector("alive")
 
 
 class ConfigError(Exception):
@@ -79,30 +79,26 @@ def open_bridge(inbox: Inbox, settings: zconfig.ZenohSettings | None = None,
     return Bridge(session, owns, subs)
 
 
-def query_config(session: zenoh.Session, subject: str, segment: str,
-                 config: wire.DeviceConfig | None, timeout_s: float) -> dict:
-    """Send ``config`` to a device (or read its config when None) and return what it confirms:
-    ``{"threshold", "max_len"}`` plus any status fields the device adds.
+def query_config(session: zenoh.Session, subject: str, segment: str, update: dict | None,
+                 timeout_s: float) -> wire.DeviceStatus:
+    """Send ``update`` (some tunables, e.g. ``{"threshold": 0.001}``) to a device, or read its
+    status when None, and return the status the device confirms.
 
     Blocking: run it in a worker thread. Raises :class:`ConfigError` with status 504 (no
     reply within ``timeout_s``), 422 (the device refused it: its message) or 502 (a reply
-    that is not a config).
+    that is not a device status).
     """
     key = wire.config_key(subject, segment)
-    payload = None if config is None else wire.encode_config(config)
+    payload = None if update is None else wire.encode_config(update)
     replies = session.get(key, payload=payload, timeout=timeout_s)
     rejected, broken = [], []
     for reply in replies:
         if reply.ok is not None:
-            try:  # the device may add status fields (samples, points, ...) to its config
-                status = json.loads(reply.ok.payload.to_bytes())
-                fields = {k: status[k] for k in ("threshold", "max_len") if k in status}
-                applied = wire.decode_config(json.dumps(fields).encode())
-            except (ValueError, TypeError, wire.WireError) as exc:
+            try:
+                return wire.decode_status(reply.ok.payload.to_bytes())
+            except wire.WireError as exc:
                 broken.append(str(exc))
                 continue
-            extra = {k: v for k, v in status.items() if k not in fields and k != "device"}
-            return extra | {"threshold": applied.threshold, "max_len": applied.max_len}
         raw = reply.err.payload.to_bytes()
         try:
             rejected.append(str(json.loads(raw).get("error", raw.decode(errors="replace"))))

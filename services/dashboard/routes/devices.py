@@ -6,8 +6,6 @@ from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Request
 
-from limbstream import wire
-
 from ..deps import LiveDep, SegmentPath, SettingsDep, SubjectPath, TokenDep
 from ..models import ConfigUpdate, DeviceConfig, DeviceHistory, DeviceStats
 from ..zenoh_io import ConfigError, query_config
@@ -50,20 +48,15 @@ async def device_history(subject: SubjectPath, segment: SegmentPath, live: LiveD
                        502: {"description": "the device answered with something else than a config"}})
 async def put_config(subject: SubjectPath, segment: SegmentPath, body: ConfigUpdate, request: Request,
                      live: LiveDep, settings: SettingsDep) -> dict:
-    """Send a new threshold and/or max segment length to a device over Zenoh and answer with
-    the config the device confirms (fields left out keep the device's current value)."""
-    did = _known(live, subject, segment)
+    """Send new settings (some of the device tunables) to a device over Zenoh and answer with
+    the status the device confirms (fields left out keep the device's current value)."""
+    _known(live, subject, segment)
     bridge = request.app.state.bridge
     if bridge is None:
         raise HTTPException(503, "not connected to Zenoh yet")
-    timeout = settings.config_timeout_s
     try:
-        if body.threshold is None or body.max_len is None:
-            current = await asyncio.to_thread(query_config, bridge.session, subject, segment, None, timeout)
-            body = ConfigUpdate(threshold=current["threshold"] if body.threshold is None else body.threshold,
-                                max_len=current["max_len"] if body.max_len is None else body.max_len)
-        config = wire.DeviceConfig(float(body.threshold), int(body.max_len)).validate()
-        applied = await asyncio.to_thread(query_config, bridge.session, subject, segment, config, timeout)
+        status = await asyncio.to_thread(query_config, bridge.session, subject, segment, body.update(),
+                                         settings.config_timeout_s)
     except ConfigError as exc:
         raise HTTPException(exc.status, exc.message) from None
-    return {"device": did} | applied
+    return status.as_dict()

@@ -1,0 +1,32 @@
+"""The wire contract, one place (docs/protocol.md): everything the parts say to each other.
+
+==============  ==============================================================
+module          what it holds
+==============  ==============================================================
+:mod:`.keys`    key-expression grammar: builders for every key and selector
+:mod:`.body`    body layout: segments, joints, bones
+:mod:`.point`   segment point codec (device -> aggregator)
+:mod:`.raw`     truth-tap batch codec
+:mod:`.pose`    pose frame codec (aggregator -> clients)
+:mod:`.fields`  the stats field table; :mod:`.stats` its JSON codec
+:mod:`.config`  device tunables (defaults, bounds), config and status messages
+==============  ==============================================================
+
+All binary payloads are little-endian and start with a format version byte. Import the
+package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
+"""
+from .body import BONES, JOINTS, SEGMENTS
+from .config import (MAX_LEN, THRESHOLD, TUNABLES, DeviceConfig, DeviceStatus, Tunable, add_arguments,
+                     config_from_args, decode_config, decode_status, encode_config, encode_status)
+from .errors import WireError
+from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
+                     StatsField)
+from .keys import (DEVICE_KINDS, PREFIX, SUBJECT_KINDS, alive_key, check_chunk, config_key, device_id, device_key,
+                   device_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
+                   split_device_id, stats_key, subject_key, subject_pattern, subject_selector)
+from .point import FLAG_FINAL, POINT_SIZE, UNIT_TOLERANCE, VERSION, SegmentPoint, decode_point, encode_point
+from .pose import (FRAME_GAP, FRAME_MISSING, KIND_EXACT, KIND_LIVE, POSE_DTYPE, PoseFrame, PoseFrames,
+                   decode_pose, encode_pose)
+from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RawBatch, decode_raw, encode_raw
+from .stats import decode_stats, encode_stats
+

@@ -1,0 +1,195 @@
+"""Device settings: each tunable with its default and bounds, written once, and the config /
+status messages of a device's queryable (``limbstream/<subject>/<segment>/config``).
+
+The command line (:func:`add_arguments`), the queryable (:func:`decode_config`), the dashboard's
+REST model and the kernel binding all check a value with :meth:`Tunable.check`, so a bad value
+gets the same refusal on every path. (The C kernel keeps its own defined behaviour for values
+outside these bounds: firmware_c/include/fastsw.h.)
+
+Query protocol: a ``get`` with no payload reads the device's status; a payload is a JSON object
+with some of the tunables (``{"threshold": 0.001}``): the device applies them (the others keep
+their value) and answers with its status, or answers with an error reply
+``{"error": "<reason>"}`` and changes nothing.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import numbers
+from dataclasses import asdict, dataclass, fields, replace
+
+from .errors import WireError
+
+
+@dataclass(frozen=True)
+class Tunable:
+    """One device setting.
+
+    Attributes
+    ----------
+    name : JSON key and DeviceConfig attribute (the CLI flag is ``--`` + name with ``-``).
+    type : ``float`` or ``int``.
+    default : value of a new device.
+    low, high : inclusive bounds.
+    unit : unit, empty when it has none.
+    help : one line for people.
+    """
+
+    name: str
+    type: type
+    default: float | int
+    low: float | int
+    high: float | int
+    unit: str
+    help: str
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+    def describe(self) -> str:
+        """'an integer in 1..100000' / 'a number in 0..1e+06'."""
+        kind = "an integer" if self.type is int else "a number"
+        return f"{kind} in {self.low:g}..{self.high:g}"
+
+    def check(self, value):
+        """``value`` as this tunable's type if it is one within bounds, else ValueError naming
+        the tunable. JSON-style: booleans and strings are refused; 25.0 is an integer."""
+        try:
+            ok = (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+                  and self.low <= value <= self.high and (self.type is float or float(value).is_integer()))
+        except OverflowError:  # an integer beyond float range
+            ok = False
+        if not ok:
+            raise ValueError(f"{self.name} must be {self.describe()}, got {value!r}")
+        return self.type(value)
+
+    def parse(self, text: str):
+        """A command-line value; argparse.ArgumentTypeError with :meth:`check`'s message."""
+        try:
+            value = float(text) if self.type is float else int(text)
+        except ValueError:
+            try:
+                value = float(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{self.name} must be {self.describe()}, got {text!r}") from None
+        try:
+            return self.check(value)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+THRESHOLD = Tunable("threshold", float, 1e-2, 0.0, 1e6, "",
+                    "fastSW SSR threshold: largest sum of squared residuals of a segment")
+MAX_LEN = Tunable("max_len", int, 25, 1, 100_000, "samples",
+                  "max segment length (a still limb still sends a point this often)")
+TUNABLES: dict[str, Tunable] = {t.name: t for t in (THRESHOLD, MAX_LEN)}
+"""Every device setting, by name (DeviceConfig has one attribute per entry)."""
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    """Settings a device applies (one attribute per :data:`TUNABLES` entry)."""
+
+    threshold: float = THRESHOLD.default
+    max_len: int = MAX_LEN.default
+
+    def validate(self) -> DeviceConfig:
+        """Self, with every value checked (ValueError naming the first bad one)."""
+        return DeviceConfig(**{f.name: TUNABLES[f.name].check(getattr(self, f.name)) for f in fields(self)})
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def flags(self) -> list[str]:
+        """The command-line flags that give this config (``["--threshold", "0.01", ...]``)."""
+        return [a for name, t in TUNABLES.items() for a in (t.flag, str(getattr(self, name)))]
+
+
+def add_arguments(parser: argparse.ArgumentParser, defaults: dict | None = None) -> None:
+    """One flag per tunable (``--threshold``, ``--max-len``, ...), checked by :meth:`Tunable.parse`.
+    ``defaults``: overrides of the tunables' defaults, by name."""
+    for t in TUNABLES.values():
+        default = (defaults or {}).get(t.name, t.default)
+        unit = f", {t.unit}" if t.unit else ""
+        parser.add_argument(t.flag, dest=t.name, type=t.parse, default=t.check(default),
+                            help=f"{t.help}{unit} ({t.describe()}, default {default:g})")
+
+
+def config_from_args(args: argparse.Namespace) -> DeviceConfig:
+    """The DeviceConfig of parsed :func:`add_arguments` flags."""
+    return DeviceConfig(**{name: getattr(args, name) for name in TUNABLES})
+
+
+def encode_config(update: DeviceConfig | dict) -> bytes:
+    """A config query payload: a whole DeviceConfig or a dict with some tunables."""
+    values = update.as_dict() if isinstance(update, DeviceConfig) else dict(update)
+    return json.dumps(values).encode()
+
+
+def decode_config(payload: bytes, current: DeviceConfig | None = None) -> DeviceConfig:
+    """JSON object of tunables -> validated DeviceConfig; WireError('config') naming the problem.
+
+    Fields left out keep their value in ``current`` (the device's settings); without
+    ``current`` every tunable must be given."""
+    try:
+        data = json.loads(bytes(payload))
+    except (ValueError, RecursionError) as exc:  # RecursionError: absurdly deep nesting
+        raise WireError("config", f"device config is not JSON: {exc}") from None
+    if not isinstance(data, dict) or not data:
+        raise WireError("config", f"device config must be a JSON object with some of {sorted(TUNABLES)}")
+    unknown = set(data) - set(TUNABLES)
+    if unknown:
+        raise WireError("config", f"unknown device config fields {sorted(unknown)}")
+    if current is None and set(data) != set(TUNABLES):
+        raise WireError("config", f"device config needs {sorted(TUNABLES)}")
+    try:
+        values = {name: TUNABLES[name].check(value) for name, value in data.items()}
+    except ValueError as exc:
+        raise WireError("config", str(exc)) from None
+    return replace(current or DeviceConfig(), **values)
+
+
+@dataclass(frozen=True)
+class DeviceStatus:
+    """A device's answer to a config query: its settings and its own counters.
+
+    Attributes
+    ----------
+    device : ``<subject>/<segment>``.
+    config : the settings it runs.
+    stream : its stream id.
+    samples : samples taken in this stream.
+    points : segment points sent in this stream.
+    """
+
+    device: str
+    config: DeviceConfig
+    stream: int
+    samples: int
+    points: int
+
+    def as_dict(self) -> dict:
+        return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
+                "samples": self.samples, "points": self.points}
+
+
+def encode_status(status: DeviceStatus) -> bytes:
+    """``{"device", <tunables>..., "stream", "samples", "points"}``."""
+    return json.dumps(status.as_dict()).encode()
+
+
+def decode_status(payload: bytes) -> DeviceStatus:
+    """A config reply -> DeviceStatus; WireError('status') if it is not one."""
+    try:
+        data = json.loads(bytes(payload))
+        if not isinstance(data, dict):
+            raise TypeError("a device status must be an object")
+        config = DeviceConfig(**{name: TUNABLES[name].check(data[name]) for name in TUNABLES})
+        counters = [data[k] for k in ("stream", "samples", "points")]
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in counters):
+            raise TypeError(f"stream, samples and points must be integers, got {counters}")
+        return DeviceStatus(str(data["device"]), config, *counters)
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:
+        raise WireError("status", f"bad device status: {exc}") from None

@@ -1,0 +1,135 @@
+"""Every figure of a stats message, declared once.
+
+A stats message (``limbstream/<subject>/stats``, JSON, about 1 Hz) has three scopes of fields:
+
+- ``device``: one entry per device of the subject (``"devices": [...]``);
+- ``subject``: top-level fields of the subject's message;
+- ``aggregator``: the loop figures of the aggregator that sent it (``"aggregator": {...}``).
+
+The stats codec (:mod:`.stats`), the dashboard's response models, its per-device history, its
+Prometheus families and docs/protocol.md's field list all come from :data:`FIELDS`. Adding a
+field is one row here plus the code that computes it (docs/protocol.md, "How to add a field").
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+Scope = Literal["device", "subject", "aggregator"]
+
+
+@dataclass(frozen=True)
+class StatsField:
+    """One field of a stats message.
+
+    Attributes
+    ----------
+    name : JSON key.
+    type : ``float``, ``int``, ``bool``, ``str`` or ``dict`` (of str -> number). Every value may
+        also be null (not known yet, or not finite).
+    scope : ``device``, ``subject`` or ``aggregator``.
+    help : one line for people: what it is, with its unit.
+    unit : unit symbol (``deg``, ``s``, ``1/s``, ...), empty when it has none.
+    chart : the dashboard keeps a per-device time series of it (device scope, numbers only).
+    metric : Prometheus family name, or empty for none (device and aggregator scopes).
+    counter : the Prometheus family is a counter (it only grows within a stream), else a gauge.
+    """
+
+    name: str
+    type: type
+    scope: Scope
+    help: str
+    unit: str = ""
+    chart: bool = False
+    metric: str = ""
+    counter: bool = False
+
+
+def _device(name, type_, help_, unit="", chart=False, metric="", counter=False) -> StatsField:
+    return StatsField(name, type_, "device", help_, unit, chart, metric, counter)
+
+
+def _aggregator(name, type_, help_, unit="", metric="", counter=False) -> StatsField:
+    return StatsField(name, type_, "aggregator", help_, unit, False, metric, counter)
+
+
+FIELDS: tuple[StatsField, ...] = (
+    # ---- per device
+    _device("device", str, "device id <subject>/<segment>"),
+    _device("segment", str, "segment name"),
+    _device("subject", str, "subject name"),
+    _device("online", bool, "liveliness token present and the stream not ended"),
+    _device("samples", int, "samples the device took in this stream (from sample indices)",
+            metric="limbstream_device_samples", counter=True),
+    _device("points", int, "segment points received in this stream",
+            metric="limbstream_device_points", counter=True),
+    _device("icr", float, "inverse compression ratio: points / samples (0..1)", chart=True,
+            metric="limbstream_device_icr"),
+    _device("msgs_per_s", float, "segment-point messages received per second (5 s window)", "1/s", chart=True,
+            metric="limbstream_device_messages_per_second"),
+    _device("bytes_per_s", float, "segment-point bytes received per second (5 s window)", "B/s", chart=True,
+            metric="limbstream_device_bytes_per_second"),
+    _device("aad_deg", float, "average angular deviation of exact frames from the truth tap (60 s window)", "deg",
+            chart=True, metric="limbstream_device_aad_degrees"),
+    _device("p99_deg", float, "99th percentile of that deviation (60 s window)", "deg", chart=True,
+            metric="limbstream_device_p99_degrees"),
+    _device("max_deg", float, "largest such deviation (60 s window)", "deg", chart=True,
+            metric="limbstream_device_max_degrees"),
+    _device("live_err_deg", float, "mean angle between live frames and the truth tap (60 s window)", "deg",
+            chart=True, metric="limbstream_device_live_error_degrees"),
+    _device("aad_all_deg", float, "average angular deviation of exact frames since the stream began", "deg"),
+    _device("error_samples", int, "truth samples compared since the stream began"),
+    _device("watermark_lag_s", float, "device time since its newest segment point", "s", chart=True,
+            metric="limbstream_device_watermark_lag_seconds"),
+    _device("gaps", int, "segment points lost (sequence gaps)", metric="limbstream_device_gaps", counter=True),
+    _device("dropped", int, "messages dropped as invalid (all reasons)", metric="limbstream_device_dropped",
+            counter=True),
+    _device("dropped_by_reason", dict, "dropped messages by reason"),
+    _device("threshold", float, "fastSW SSR threshold the device runs", metric="limbstream_device_threshold"),
+    _device("max_len", int, "max segment length the device runs", "samples", metric="limbstream_device_max_len"),
+    _device("stream", int, "the device's current stream id (a new one after a restart)"),
+    _device("restarts", int, "new streams seen after the first", metric="limbstream_device_restarts", counter=True),
+    _device("final", bool, "the stream ended (its last point carried FINAL)"),
+    # ---- per subject
+    StatsField("frames", int, "subject", "exact frames published"),
+    StatsField("skipped_frames", int, "subject", "frame times skipped (no data could make them)"),
+    StatsField("watermark_us", int, "subject", "exact frames are final up to this device time", "us"),
+    # ---- the aggregator's own loop
+    _aggregator("id", str, "host:pid of the aggregator process"),
+    _aggregator("subjects", int, "subjects it tracks", metric="limbstream_aggregator_subjects"),
+    _aggregator("ticks", int, "loop ticks (one per 20 ms)", metric="limbstream_aggregator_ticks", counter=True),
+    _aggregator("late", int, "ticks that started more than one period late",
+                metric="limbstream_aggregator_late_ticks", counter=True),
+    _aggregator("points", int, "segment points taken in"),
+    _aggregator("raw_batches", int, "truth-tap batches taken in"),
+    _aggregator("frames", int, "exact frames published, all subjects"),
+    _aggregator("missed", int, "segment points Zenoh reported lost for good",
+                metric="limbstream_aggregator_missed_points", counter=True),
+    _aggregator("max_backlog", int, "most messages waiting at one tick since start"),
+    _aggregator("recent_backlog", int, "most messages waiting at one tick, last second",
+                metric="limbstream_aggregator_backlog_messages"),
+    _aggregator("busy_s", float, "time spent working since start", "s"),
+    _aggregator("load", float, "share of the last second spent working (>= 1: falling behind)",
+                metric="limbstream_aggregator_load"),
+    _aggregator("max_tick_ms", float, "longest tick since start", "ms"),
+    _aggregator("recent_max_tick_ms", float, "longest tick in the last second", "ms",
+                metric="limbstream_aggregator_tick_max_milliseconds"),
+    _aggregator("bad_keys", dict, "messages no device could be charged with, by reason"),
+)
+"""The stats fields, in message order."""
+
+
+def scope(name: Scope) -> tuple[StatsField, ...]:
+    """The fields of one scope, in message order."""
+    return tuple(f for f in FIELDS if f.scope == name)
+
+
+DEVICE_FIELDS = scope("device")
+SUBJECT_FIELDS = scope("subject")
+AGGREGATOR_FIELDS = scope("aggregator")
+STATS_FIELDS: tuple[str, ...] = tuple(f.name for f in DEVICE_FIELDS)
+"""Names of the fields of every device entry."""
+AGGREGATOR_FIGURES: tuple[StatsField, ...] = tuple(f for f in AGGREGATOR_FIELDS if f.type in (int, float))
+"""The numbers among the aggregator's fields."""
+HISTORY_FIELDS: tuple[str, ...] = tuple(f.name for f in DEVICE_FIELDS if f.chart)
+"""Per-device series the dashboard keeps for its charts."""

@@ -1,0 +1,129 @@
+"""Key expressions: the grammar of every key and selector, written once.
+
+=====================================================  =========================  ==========
+key                                                     payload                    publisher
+=====================================================  =========================  ==========
+``limbstream/<subject>/<segment>/seg``                  segment point              device
+``limbstream/<subject>/<segment>/raw``                  truth-tap batch            device
+``limbstream/<subject>/<segment>/alive``                liveliness token           device
+``limbstream/<subject>/<segment>/config``               queryable: config/status   device
+``limbstream/<subject>/pose``                           pose frame                 aggregator
+``limbstream/<subject>/stats``                          stats JSON                 aggregator
+=====================================================  =========================  ==========
+
+``<subject>`` and ``<segment>`` are single chunks of letters, digits, ``_``, ``-`` and ``.``.
+Selectors take a subject *pattern*: ``*``, a name, or a name with ``*`` inside (``s0*``).
+"""
+from __future__ import annotations
+
+import re
+
+from .errors import WireError
+
+PREFIX = "limbstream"
+DEVICE_KINDS: tuple[str, ...] = ("seg", "raw", "alive", "config")
+"""Last chunk of a device key."""
+SUBJECT_KINDS: tuple[str, ...] = ("pose", "stats")
+"""Last chunk of a subject key."""
+
+_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+def check_chunk(name: str, what: str = "name") -> str:
+    """Return ``name`` if it is a valid single key chunk, else raise ValueError naming it."""
+    if not isinstance(name, str) or not _CHUNK.match(name):
+        raise ValueError(f"{what} must be a non-empty chunk of letters, digits, '_', '-', '.'; got {name!r}")
+    return name
+
+
+def device_id(subject: str, segment: str) -> str:
+    """The device id ``<subject>/<segment>`` used in keys, stats and the REST API."""
+    return f"{check_chunk(subject, 'subject')}/{check_chunk(segment, 'segment')}"
+
+
+def split_device_id(did: str) -> tuple[str, str]:
+    """``<subject>/<segment>`` -> (subject, segment); ValueError if it is not a device id."""
+    subject, sep, segment = str(did).partition("/")
+    if not sep:
+        raise ValueError(f"device id must be <subject>/<segment>, got {did!r}")
+    device_id(subject, segment)
+    return subject, segment
+
+
+def device_key(subject: str, segment: str, kind: str) -> str:
+    """``limbstream/<subject>/<segment>/<kind>``, kind one of :data:`DEVICE_KINDS`."""
+    if kind not in DEVICE_KINDS:
+        raise ValueError(f"device key kind must be one of {DEVICE_KINDS}, got {kind!r}")
+    return f"{PREFIX}/{device_id(subject, segment)}/{kind}"
+
+
+def subject_key(subject: str, kind: str) -> str:
+    """``limbstream/<subject>/<kind>``, kind one of :data:`SUBJECT_KINDS`."""
+    if kind not in SUBJECT_KINDS:
+        raise ValueError(f"subject key kind must be one of {SUBJECT_KINDS}, got {kind!r}")
+    return f"{PREFIX}/{check_chunk(subject, 'subject')}/{kind}"
+
+
+def seg_key(subject: str, segment: str) -> str:
+    return device_key(subject, segment, "seg")
+
+
+def raw_key(subject: str, segment: str) -> str:
+    return device_key(subject, segment, "raw")
+
+
+def alive_key(subject: str, segment: str) -> str:
+    return device_key(subject, segment, "alive")
+
+
+def config_key(subject: str, segment: str) -> str:
+    return device_key(subject, segment, "config")
+
+
+def pose_key(subject: str) -> str:
+    return subject_key(subject, "pose")
+
+
+def stats_key(subject: str) -> str:
+    return subject_key(subject, "stats")
+
+
+def subject_pattern(text: str) -> str:
+    """A user's subject pattern as a key chunk: ``*`` (all), a name, or a name with ``*``
+    wildcards inside (``s0*`` becomes Zenoh's ``s0$*``). ValueError if it is neither."""
+    text = str(text).strip()
+    if text == "*":
+        return text
+    check_chunk(text.replace("*", "x"), "subject pattern")
+    return text.replace("*", "$*")
+
+
+def device_selector(kind: str, subjects: str = "*") -> str:
+    """Every ``kind`` key of the devices of the subjects matched by ``subjects`` (a pattern,
+    see :func:`subject_pattern`), e.g. ``limbstream/s0$*/*/seg``."""
+    if kind not in DEVICE_KINDS:
+        raise ValueError(f"device key kind must be one of {DEVICE_KINDS}, got {kind!r}")
+    return f"{PREFIX}/{subject_pattern(subjects)}/*/{kind}"
+
+
+def subject_selector(kind: str, subjects: str = "*") -> str:
+    """Every ``kind`` key (``pose`` / ``stats``) of the subjects matched by ``subjects``."""
+    if kind not in SUBJECT_KINDS:
+        raise ValueError(f"subject key kind must be one of {SUBJECT_KINDS}, got {kind!r}")
+    return f"{PREFIX}/{subject_pattern(subjects)}/{kind}"
+
+
+def parse_device_key(key: str) -> tuple[str, str, str]:
+    """``limbstream/<subject>/<segment>/<kind>`` -> (subject, segment, kind); WireError('key') otherwise."""
+    parts = str(key).split("/")
+    if len(parts) != 4 or parts[0] != PREFIX or not all(_CHUNK.match(p) for p in parts[1:]):
+        raise WireError("key", f"not a device key: {key!r}")
+    return parts[1], parts[2], parts[3]
+
+
+def parse_subject_key(key: str) -> tuple[str, str]:
+    """``limbstream/<subject>/<kind>`` -> (subject, kind); WireError('key') otherwise."""
+    parts = str(key).split("/")
+    if len(parts) != 3 or parts[0] != PREFIX or not all(_CHUNK.match(p) for p in parts[1:]):
+        raise WireError("key", f"not a subject key: {key!r}")
+    return parts[1], parts[2]
