@@ -14,7 +14,7 @@ from limbstream import quat
 
 SEED = 20240614
 ONE = np.array([1.0, 0.0, 0.0, 0.0])
-I = np.array([0.0, 1.0, 0.0, 0.0])
+QI = np.array([0.0, 1.0, 0.0, 0.0])
 
 
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -37,7 +37,7 @@ def scipy_slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 def test_closed_form_one_to_i():
     u = np.linspace(-0.5, 1.5, 81)  # outside [0, 1]: extrapolation along the same great circle
-    got = quat.slerp(ONE, I, u)
+    got = quat.slerp(ONE, QI, u)
     want = np.stack([np.cos(np.pi * u / 2), np.sin(np.pi * u / 2), 0 * u, 0 * u], axis=1)
     err = np.abs(got - want).max()
     assert err < 1e-14, f"slerp(1, i, u) off the closed form by {err:.3g}"
