@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+from pathlib import Path
 import math
 import struct
 
@@ -203,3 +204,12 @@ def test_subject_patterns_become_key_chunks():
     for bad in ("s/1", "", "s 1"):
         with pytest.raises(ValueError):
             wire.subject_pattern(bad)
+
+
+def test_protocol_doc_holds_the_generated_tables():
+    """docs/protocol.md lists every stats field and tunable exactly as the contract declares them."""
+    from limbstream.wire.__main__ import tables
+
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "protocol.md").read_text()
+    for heading, table in tables().items():
+        assert table in doc, f"docs/protocol.md: the '{heading}' table is out of date: run python -m limbstream.wire"

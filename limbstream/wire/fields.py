@@ -55,10 +55,10 @@ def _aggregator(name, type_, help_, unit="", metric="", counter=False) -> StatsF
 
 FIELDS: tuple[StatsField, ...] = (
     # ---- per device
-    _device("device", str, "device id <subject>/<segment>"),
+    _device("device", str, "device id: subject/segment"),
     _device("segment", str, "segment name"),
     _device("subject", str, "subject name"),
-    _device("online", bool, "liveliness token present and the stream not ended"),
+    _device("online", bool, "the device's liveliness token is present"),
     _device("samples", int, "samples the device took in this stream (from sample indices)",
             metric="limbstream_device_samples", counter=True),
     _device("points", int, "segment points received in this stream",
@@ -75,7 +75,8 @@ FIELDS: tuple[StatsField, ...] = (
             metric="limbstream_device_p99_degrees"),
     _device("max_deg", float, "largest such deviation (60 s window)", "deg", chart=True,
             metric="limbstream_device_max_degrees"),
-    _device("live_err_deg", float, "mean angle between live frames and the truth tap (60 s window)", "deg",
+    _device("live_err_deg", float, "mean error of holding the newest segment point known at each truth sample "
+            "(60 s window)", "deg",
             chart=True, metric="limbstream_device_live_error_degrees"),
     _device("aad_all_deg", float, "average angular deviation of exact frames since the stream began", "deg"),
     _device("error_samples", int, "truth samples compared since the stream began"),
@@ -85,7 +86,8 @@ FIELDS: tuple[StatsField, ...] = (
     _device("dropped", int, "messages dropped as invalid (all reasons)", metric="limbstream_device_dropped",
             counter=True),
     _device("dropped_by_reason", dict, "dropped messages by reason"),
-    _device("threshold", float, "fastSW SSR threshold the device runs", metric="limbstream_device_threshold"),
+    _device("threshold", float, "fastSW SSR threshold the device runs (asked every 5 s)",
+            metric="limbstream_device_threshold"),
     _device("max_len", int, "max segment length the device runs", "samples", metric="limbstream_device_max_len"),
     _device("stream", int, "the device's current stream id (a new one after a restart)"),
     _device("restarts", int, "new streams seen after the first", metric="limbstream_device_restarts", counter=True),
