@@ -360,19 +360,28 @@ function animate() {
 
 // ------------------------------------------------------------------ control
 
+// One input per device tunable, as the contract declares them (GET /api/tunables).
+function buildTunables(tunables) {
+  state.tunables = tunables;
+  $("ctl-tunables").innerHTML = tunables.map((t) =>
+    `<label title="${esc(t.help)}">${esc(t.name.replace(/_/g, " "))}${t.unit ? ` (${esc(t.unit)})` : ""}` +
+    `<input id="ctl-${esc(t.name)}" type="number" min="${t.low}" max="${t.high}" ` +
+    `step="${t.type === "int" ? 1 : "any"}" placeholder="default ${t.default}"></label>`).join("");
+}
+
 async function applyConfig(ev) {
   ev.preventDefault();
   const result = $("ctl-result");
   const token = $("ctl-token").value.trim();
   sessionStorage.setItem("limbstream-token", token);
   const body = {};
-  const th = $("ctl-threshold").value.trim();
-  const ml = $("ctl-maxlen").value.trim();
-  if (th !== "") body.threshold = Number(th);
-  if (ml !== "") body.max_len = Number(ml);
+  for (const t of state.tunables || []) {
+    const text = $(`ctl-${t.name}`).value.trim();
+    if (text !== "") body[t.name] = Number(text);
+  }
   if (!Object.keys(body).length) {
     result.className = "result err";
-    result.textContent = "Enter a threshold and/or a max segment length.";
+    result.textContent = `Enter some of: ${(state.tunables || []).map((t) => t.name).join(", ")}.`;
     return;
   }
   const target = $("ctl-target").value;
@@ -393,7 +402,8 @@ async function applyConfig(ev) {
   if (!bad.length) {
     const c = good[0].r;
     result.className = "result ok";
-    result.textContent = `confirmed by ${good.length}/${ids.length}: threshold ${c.threshold}, max length ${c.max_len}`;
+    const values = (state.tunables || []).map((t) => `${t.name.replace(/_/g, " ")} ${c[t.name]}`).join(", ");
+    result.textContent = `confirmed by ${good.length}/${ids.length}: ${values}`;
   } else {
     result.className = "result err";
     result.textContent = `${good.length}/${ids.length} confirmed; ${bad[0].e.message}`;
@@ -412,6 +422,7 @@ async function start() {
     if (tr) selectDevice(tr.dataset.device);
   });
   initCharts();
+  try { buildTunables(await api("/api/tunables")); } catch (_) { /* the form says so on submit */ }
   try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* retried by refreshSubjects' figures */ }
   await refreshDevices();
   await refreshSubjects();

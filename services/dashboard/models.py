@@ -103,6 +103,18 @@ ConfigUpdate = create_model(
     **{name: _tunable(t) for name, t in wire.TUNABLES.items()},
 )
 
+class Tunable(BaseModel):
+    """A device setting as the contract declares it (limbstream.wire.TUNABLES)."""
+
+    name: str = Field(examples=["threshold"])
+    type: Literal["float", "int"]
+    default: float
+    low: float = Field(description="smallest value accepted")
+    high: float = Field(description="largest value accepted")
+    unit: str
+    help: str
+
+
 DeviceConfig = create_model(
     "DeviceConfig", __doc__="The settings and counters a device confirmed (its status).",
     device=(str, ...), stream=(int, ...), samples=(int, ...), points=(int, ...),

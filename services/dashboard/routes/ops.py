@@ -7,7 +7,9 @@ from fastapi import APIRouter, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from ..deps import LiveDep, SettingsDep
-from ..models import Aggregator, Health
+from limbstream import wire
+
+from ..models import Aggregator, Health, Tunable
 
 router = APIRouter(tags=["ops"])
 
@@ -27,6 +29,14 @@ async def health(request: Request, response: Response, live: LiveDep, settings: 
 async def aggregators(live: LiveDep) -> list[dict]:
     """Every aggregator heard from: its load, late ticks, backlog and losses."""
     return live.aggregator_views()
+
+
+@router.get("/api/tunables", response_model=list[Tunable])
+async def tunables() -> list[dict]:
+    """The device settings ``PUT /api/devices/{subject}/{segment}/config`` accepts, with defaults
+    and bounds (the page builds its control form from them)."""
+    return [{"name": t.name, "type": t.type.__name__, "default": t.default, "low": t.low, "high": t.high,
+             "unit": t.unit, "help": t.help} for t in wire.TUNABLES.values()]
 
 
 @router.get("/metrics", response_class=Response,
