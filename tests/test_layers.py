@@ -1,0 +1,49 @@
+"""The import layers hold: the core library (limbstream, less limbstream.cli) imports nothing
+above it; the parts (device_emulator, services) import the core only; only limbstream.cli starts
+them (by module name). Read from the source, so a string import cannot hide a cycle."""
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+UPPER = {"core": ("limbstream.cli", "services", "device_emulator"), "parts": ("limbstream.cli",)}
+
+
+def imported(path: Path) -> set[str]:
+    """Modules a file imports, by import statements and by names in strings that look like a
+    module path (``importlib.import_module("services.x")``)."""
+    tree = ast.parse(path.read_text(), str(path))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and re.fullmatch(r"[a-z_]+(\.[a-z_]+)+", node.value):
+            names.add(node.value)
+    return names
+
+
+def layer(path: Path) -> str | None:
+    rel = path.relative_to(ROOT).as_posix()
+    if rel.startswith("limbstream/cli/"):
+        return None
+    if rel.startswith("limbstream/"):
+        return "core"
+    if rel.startswith(("services/", "device_emulator/")):
+        return "parts"
+    return None
+
+
+def test_no_module_imports_a_layer_above_it():
+    wrong = []
+    for path in sorted(ROOT.glob("*/**/*.py")):
+        kind = layer(path)
+        if kind is None:
+            continue
+        for name in imported(path):
+            if any(name == up or name.startswith(up + ".") for up in UPPER[kind]):
+                wrong.append(f"{path.relative_to(ROOT)} ({kind}) imports {name}")
+    assert not wrong, "\n".join(wrong)
