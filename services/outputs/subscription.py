@@ -1,0 +1,235 @@
+"""The one subscription path of every live output: decoded pose frames, stats, segment points
+and truth batches of the subjects matching a pattern, from a bounded hand-off channel.
+
+Zenoh callbacks only put ``(kind, sample, receive time)`` into the channel; the consumer's own
+loop takes :class:`Item` s out (:meth:`Subscription.get`, :meth:`Subscription.drain`), decoded
+with the wire contract's decoders. Undecodable messages and messages that find the channel full
+are counted by reason in :attr:`Subscription.errors`, never raised.
+
+Segment points and truth batches come through advanced subscribers with history, like the
+aggregator's, so a consumer that starts after the devices still gets what their caches hold.
+
+Example::
+
+    with Subscription(zconfig.ZenohSettings(), "s0*", ("pose",)) as sub:
+        while (item := sub.get(timeout=1.0)) is not None:
+            print(item.subject, item.value.seq)
+"""
+from __future__ import annotations
+
+import collections
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable
+from typing import NamedTuple, Self
+
+import zenoh
+import zenoh.ext as zext
+
+from limbstream import wire, zconfig
+
+KINDS: tuple[str, ...] = ("pose", "stats", "seg", "raw")
+"""What a subscription can carry: subject kinds (pose, stats) and device kinds (seg, raw)."""
+
+_DECODERS: dict[str, Callable[[bytes], object]] = {
+    "pose": wire.decode_pose, "stats": wire.decode_stats, "seg": wire.decode_point, "raw": wire.decode_raw,
+}
+
+
+class Item(NamedTuple):
+    """One decoded message.
+
+    Attributes
+    ----------
+    kind : "pose" | "stats" | "seg" | "raw"
+    subject : the subject key chunk.
+    segment : the segment of a device kind, None for pose and stats.
+    value : :class:`wire.PoseFrame` | stats dict | :class:`wire.SegmentPoint` | :class:`wire.RawBatch`.
+    key : the key expression it came on.
+    payload : the wire bytes as received.
+    received_ns : when the Zenoh callback handed it off, ns since the Unix epoch (this host's clock).
+    """
+
+    kind: str
+    subject: str
+    segment: str | None
+    value: object
+    key: str
+    payload: bytes
+    received_ns: int
+
+
+class Subscription:
+    """Subscribers of ``kinds`` for the subjects matching ``subjects``, feeding one bounded channel.
+
+    Parameters
+    ----------
+    source : an open session (left open by :meth:`close`) or the settings to open one (closed by it).
+    subjects : subject pattern: ``*``, a name, or a name with ``*`` inside (``s0*``), see
+        :func:`wire.subject_pattern`. ValueError naming it if it is not one.
+    kinds : some of :data:`KINDS`.
+    capacity : messages the channel holds; more are dropped and counted as ``overflow``.
+    history : segment points per device asked for when joining late (truth batches: 64).
+
+    Attributes
+    ----------
+    errors : Counter of dropped messages by reason: ``overflow`` (channel full), ``<kind>_key``
+        (a key outside the grammar), ``<kind>_<wire reason>`` (e.g. ``pose_size``, ``stats_json``).
+    received : messages taken out of the channel so far (decoded or not).
+    """
+
+    def __init__(self, source: zenoh.Session | zconfig.ZenohSettings, subjects: str = "*",
+                 kinds: Iterable[str] = ("pose", "stats"), capacity: int = 1 << 16, history: int = 512):
+        kinds = tuple(kinds)
+        bad = [k for k in kinds if k not in KINDS]
+        if bad or not kinds:
+            raise ValueError(f"kinds must be some of {KINDS}, got {kinds!r}")
+        wire.subject_pattern(subjects)  # ValueError naming a bad pattern, before any session opens
+        if not capacity >= 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        if isinstance(source, zconfig.ZenohSettings):
+            self.session, self.owns_session = zconfig.open_session(source), True
+        elif isinstance(source, zenoh.Session):
+            self.session, self.owns_session = source, False
+        else:
+            raise TypeError(f"source must be a zenoh.Session or ZenohSettings, got {type(source).__name__}")
+        self.subjects, self.kinds, self.capacity = subjects, kinds, capacity
+        self.errors: collections.Counter = collections.Counter()
+        self.received = 0
+        self._channel: queue.SimpleQueue = queue.SimpleQueue()
+        self._overflow_lock = threading.Lock()
+        self._subscribers: list = []
+        try:
+            for kind in kinds:
+                self._subscribers.append(self._declare(kind, history))
+        except BaseException:
+            self.close()
+            raise
+
+    def _declare(self, kind: str, history: int):
+        channel, capacity = self._channel, self.capacity
+
+        def hand_off(sample: zenoh.Sample) -> None:  # runs on a Zenoh thread: nothing else
+            if channel.qsize() < capacity:
+                channel.put((kind, sample, time.time_ns()))
+            else:
+                with self._overflow_lock:
+                    self.errors["overflow"] += 1
+
+        if kind in wire.SUBJECT_KINDS:
+            return self.session.declare_subscriber(wire.subject_selector(kind, self.subjects), hand_off)
+        return zext.declare_advanced_subscriber(
+            self.session, wire.device_selector(kind, self.subjects), hand_off,
+            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=history if kind == "seg" else 64),
+            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
+
+    # ------------------------------------------------------------------ consumer side
+
+    def _decode(self, kind: str, sample: zenoh.Sample, received_ns: int) -> Item | None:
+        self.received += 1
+        key = str(sample.key_expr)
+        try:
+            if kind in wire.SUBJECT_KINDS:
+                subject, got = wire.parse_subject_key(key)
+                segment = None
+            else:
+                subject, segment, got = wire.parse_device_key(key)
+            if got != kind:
+                raise wire.WireError("key", f"{key!r} is not a {kind} key")
+            payload = sample.payload.to_bytes()
+            return Item(kind, subject, segment, _DECODERS[kind](payload), key, payload, received_ns)
+        except wire.WireError as exc:
+            self.errors[f"{kind}_{exc.reason}"] += 1
+            return None
+
+    def get(self, timeout: float | None = None) -> Item | None:
+        """The next decodable message, waiting at most ``timeout`` seconds (None: forever);
+        None if none came in time."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                entry = self._channel.get(timeout=left)
+            except queue.Empty:
+                return None
+            if (item := self._decode(*entry)) is not None:
+                return item
+
+    def drain(self, limit: int = 1 << 20) -> list[Item]:
+        """Every decodable message waiting now (at most ``limit`` taken out), without blocking."""
+        items = []
+        channel, decode = self._channel, self._decode
+        for _ in range(limit):
+            try:
+                entry = channel.get_nowait()
+            except queue.Empty:
+                break
+            if (item := decode(*entry)) is not None:
+                items.append(item)
+        return items
+
+    def backlog(self) -> int:
+        """Messages waiting in the channel now."""
+        return self._channel.qsize()
+
+    def close(self) -> None:
+        """Undeclare the subscribers (and close the session if this subscription opened it)."""
+        for sub in self._subscribers:
+            try:
+                sub.undeclare()
+            except zenoh.ZError:
+                pass
+        self._subscribers.clear()
+        if self.owns_session:
+            self.session.close()
+            self.owns_session = False
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class PoseSubscription:
+    """:func:`subscribe_pose`'s handle: ``close()`` (or leaving the ``with`` block) stops the
+    callback thread and closes the :class:`Subscription`. ``errors``: undecodable frames."""
+
+    def __init__(self, subscription: Subscription, callback: Callable[[str, wire.PoseFrame], None]):
+        self.subscription = subscription
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(callback,), name="pose-callback", daemon=True)
+        self._thread.start()
+
+    @property
+    def errors(self) -> int:
+        return sum(self.subscription.errors.values())
+
+    def _run(self, callback) -> None:
+        while not self._stop.is_set():
+            item = self.subscription.get(timeout=0.1)
+            if item is not None:
+                callback(item.subject, item.value)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join()
+        self.subscription.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def subscribe_pose(source: zenoh.Session | zconfig.ZenohSettings, subjects: str,
+                   callback: Callable[[str, wire.PoseFrame], None]) -> PoseSubscription:
+    """Call ``callback(subject, frame)`` for every pose frame of the subjects matching ``subjects``
+    (a pattern, as in :class:`Subscription`), on a thread of its own (not a Zenoh thread).
+
+    For Python programs that prefer callbacks to a loop over :meth:`Subscription.get`.
+    """
+    return PoseSubscription(Subscription(source, subjects, ("pose",)), callback)
