@@ -110,6 +110,11 @@ def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def conjugate(q: np.ndarray) -> np.ndarray:
+    """(..., 4) -> (..., 4) float64 (w, -x, -y, -z): the inverse of a unit quaternion."""
+    return np.asarray(q, np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
 def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate (..., 3) vectors v by (..., 4) unit quaternions q (broadcast)."""
     q = np.asarray(q, np.float64)

@@ -21,6 +21,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dashboard": ("services.dashboard.main", "run the dashboard web service"),
     "watch": ("limbstream.cli.watch", "print a live text view of a subject's pose stream"),
     "eval": ("limbstream.cli.evaluate", "evaluate segmentation algorithms on motion files"),
+    "record": ("limbstream.cli.record", "record what crosses the router to an MCAP file"),
+    "replay": ("limbstream.cli.replay", "publish a recording's devices again (segment points, truth)"),
+    "export": ("limbstream.cli.export", "export a recording or motion file to BVH, CSV or npz"),
+    "vmc": ("limbstream.cli.vmc", "send a subject's live pose to avatar apps (VMC protocol, OSC/UDP)"),
 }
 
 
