@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import queue
+import re
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -35,6 +36,16 @@ KINDS: tuple[str, ...] = ("pose", "stats", "seg", "raw")
 _DECODERS: dict[str, Callable[[bytes], object]] = {
     "pose": wire.decode_pose, "stats": wire.decode_stats, "seg": wire.decode_point, "raw": wire.decode_raw,
 }
+
+
+def open_session(settings: zconfig.ZenohSettings, stop: threading.Event | None = None) -> zenoh.Session | None:
+    """:func:`zconfig.open_session`, with a Zenoh error (e.g. a ``--listen`` port in use) raised
+    as ValueError in one line naming the flag. None if ``stop`` was set while waiting."""
+    try:
+        return zconfig.open_session(settings, stop)
+    except zenoh.ZError as exc:
+        flag = f"--listen {','.join(settings.listen)}" if settings.listen else f"--connect {','.join(settings.connect)}"
+        raise ValueError(f"{flag}: {re.sub(r' at [^ ]+[.]rs:[0-9]+[.]?', '', str(exc)).strip()}") from None
 
 
 class Item(NamedTuple):

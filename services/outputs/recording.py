@@ -1,0 +1,292 @@
+"""The recording file: what crosses the router, in MCAP (https://mcap.dev), written once here
+and read back by replay and export. Layout in docs/outputs.md.
+
+One channel per key kind (:data:`TOPICS`); each message is an envelope of the key and the wire
+bytes as they came (:func:`envelope`), logged at its receive time. Exact pose frames are also
+written as ``foxglove.SceneUpdate`` skeletons on :data:`SKELETON_TOPIC`, so the Foxglove app
+draws the bodies straight from the file.
+
+Writing is chunked (zstd) and :meth:`RecordingWriter.flush` ends the chunk in progress and
+hands it to the OS: a writer killed at any moment leaves a file readable up to its last
+flushed chunk (:class:`Recording` reads such a file and says so).
+"""
+from __future__ import annotations
+
+import struct
+import time
+from collections import Counter
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from limbstream import wire
+
+KINDS: tuple[str, ...] = ("seg", "raw", "pose", "stats", "config")
+"""Key kinds a recording holds, one channel each."""
+TOPICS: dict[str, str] = {kind: f"/limbstream/{kind}" for kind in KINDS}
+"""MCAP topic of each kind."""
+SKELETON_TOPIC = "/limbstream/skeleton"
+"""foxglove.SceneUpdate of every exact pose frame (Foxglove's 3-D panel)."""
+MESSAGE_ENCODING = "limbstream"
+"""Message encoding of the :data:`TOPICS` channels: :func:`envelope`."""
+PROFILE = "limbstream"
+METADATA_NAME = "limbstream"
+"""Name of the metadata record with the recorder's settings."""
+
+_PAYLOADS = {
+    "seg": "segment point, 36 bytes (docs/protocol.md: Segment point)",
+    "raw": "truth-tap batch (docs/protocol.md: Truth tap)",
+    "pose": "pose frame, 356 bytes, exact or live (docs/protocol.md: Pose frame)",
+    "stats": "stats JSON of one subject (docs/protocol.md: Stats)",
+    "config": "device status JSON, a config query's reply (docs/protocol.md: Device config)",
+}
+SCHEMAS: dict[str, tuple[str, bytes]] = {
+    kind: (f"limbstream.{kind}",
+           (f"limbstream envelope v1: u16 little-endian key length, the Zenoh key (UTF-8), then the "
+            f"payload: {text}. log_time: receive time, ns since the Unix epoch.").encode())
+    for kind, text in _PAYLOADS.items()
+}
+"""Schema (name, data) of each kind: the data is the layout in words (schema encoding
+:data:`MESSAGE_ENCODING`)."""
+
+_LEN = struct.Struct("<H")
+_BONE_INDEX = [wire.JOINTS.index(j) for bone in wire.BONES for j in bone]
+SUBJECT_SPACING_M = 1.0
+"""Skeletons are drawn side by side: the n-th subject seen at x = n * this (metres)."""
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be written or read; the message names the file (one line)."""
+
+
+def envelope(key: str, payload: bytes) -> bytes:
+    """The message data of a :data:`TOPICS` channel: u16 key length, key, payload."""
+    raw = key.encode()
+    return _LEN.pack(len(raw)) + raw + payload
+
+
+def open_envelope(data: bytes) -> tuple[str, bytes]:
+    """(key, payload) of an envelope; WireError('envelope') if it is not one."""
+    if len(data) < _LEN.size:
+        raise wire.WireError("envelope", f"message of {len(data)} bytes has no key length")
+    n = _LEN.unpack_from(data)[0]
+    if len(data) < _LEN.size + n:
+        raise wire.WireError("envelope", f"key of {n} bytes does not fit a {len(data)}-byte message")
+    try:
+        key = bytes(data[_LEN.size:_LEN.size + n]).decode()
+    except UnicodeDecodeError:
+        raise wire.WireError("envelope", "key is not UTF-8") from None
+    return key, bytes(data[_LEN.size + n:])
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def _skeleton_schema():
+    import foxglove.messages as fm  # the Foxglove SDK: its schema and protobuf encoder
+
+    return fm, fm.SceneUpdate.get_schema()
+
+
+class RecordingWriter:
+    """Writes a recording.
+
+    Parameters
+    ----------
+    path : output file (created or replaced).
+    metadata : string pairs stored in the ``limbstream`` metadata record (settings, host, ...).
+    chunk_size : uncompressed bytes per chunk at most (a chunk also ends at every :meth:`flush`).
+    skeleton : also write exact pose frames as Foxglove skeletons.
+
+    Raises RecordingError naming ``path`` if it cannot be created.
+    """
+
+    def __init__(self, path: str | Path, metadata: dict[str, str] | None = None, chunk_size: int = 1 << 20,
+                 skeleton: bool = True):
+        self.path = Path(path)
+        try:
+            self._file = open(self.path, "wb")  # noqa: SIM115 - closed by close()
+        except OSError as exc:
+            raise RecordingError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        self._mcap = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._mcap.start(profile=PROFILE, library="limbstream")
+        self._mcap.add_metadata(METADATA_NAME, {"wire_version": str(wire.VERSION), **(metadata or {})})
+        self.channels: dict[str, int] = {}
+        for kind in KINDS:
+            name, data = SCHEMAS[kind]
+            schema = self._mcap.register_schema(name, MESSAGE_ENCODING, data)
+            self.channels[kind] = self._mcap.register_channel(TOPICS[kind], MESSAGE_ENCODING, schema)
+        self._fm = None
+        if skeleton:
+            self._fm, sk = _skeleton_schema()
+            schema = self._mcap.register_schema(sk.name, sk.encoding, sk.data)
+            self.channels["skeleton"] = self._mcap.register_channel(SKELETON_TOPIC, sk.encoding, schema)
+        self._prefixes: dict[str, bytes] = {}
+        self._slots: dict[str, int] = {}
+        self.counts: Counter = Counter()
+        self.closed = False
+
+    def add(self, kind: str, key: str, payload: bytes, log_ns: int, publish_ns: int | None = None) -> None:
+        """One message of ``kind`` (see :data:`KINDS`) received on ``key`` at ``log_ns``
+        (ns since the Unix epoch); ``publish_ns``: its own time if it has one."""
+        prefix = self._prefixes.get(key)
+        if prefix is None:
+            raw = key.encode()
+            prefix = self._prefixes[key] = _LEN.pack(len(raw)) + raw
+        self._mcap.add_message(self.channels[kind], log_ns, prefix + payload,
+                               log_ns if publish_ns is None else publish_ns, self.counts[kind])
+        self.counts[kind] += 1
+
+    def add_skeleton(self, subject: str, frame: wire.PoseFrame, log_ns: int) -> None:
+        """``frame`` of ``subject`` as a foxglove.SceneUpdate on :data:`SKELETON_TOPIC`: one entity
+        per subject (id = subject, frame "world", X right, Y up as in pose frames), joints joined by
+        a line list of :data:`wire.BONES`, placed :data:`SUBJECT_SPACING_M` apart."""
+        if self._fm is None:
+            return
+        fm = self._fm
+        slot = self._slots.setdefault(subject, len(self._slots))
+        points = np.asarray(frame.joints, np.float64).tolist()
+        sec, nsec = divmod(int(frame.t_us) * 1000, 1_000_000_000)
+        entity = fm.SceneEntity(
+            timestamp=fm.Timestamp(sec=sec, nsec=nsec), frame_id="world", id=subject,
+            lines=[fm.LinePrimitive(
+                type=fm.LinePrimitiveLineType.LineList, thickness=0.03,
+                pose=fm.Pose(position=fm.Vector3(x=slot * SUBJECT_SPACING_M, y=0.0, z=0.0),
+                             orientation=fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+                points=[fm.Point3(x=x, y=y, z=z) for x, y, z in points], indices=_BONE_INDEX,
+                color=fm.Color(r=0.2, g=0.8, b=1.0, a=1.0))])
+        data = fm.SceneUpdate(entities=[entity]).encode()
+        self._mcap.add_message(self.channels["skeleton"], log_ns, data, int(frame.t_us) * 1000,
+                               self.counts["skeleton"])
+        self.counts["skeleton"] += 1
+
+    def flush(self) -> None:
+        """End the chunk in progress and hand everything to the OS (survives a SIGKILL)."""
+        self._mcap.flush()
+
+    @property
+    def size(self) -> int:
+        """Bytes written to the file so far."""
+        return self._size if self.closed else self._file.tell()
+
+    def close(self) -> None:
+        """Write the indexes and summary and close the file."""
+        if not self.closed:
+            self.closed = True
+            self._mcap.finish()
+            self._size = self._file.tell()
+            self._file.close()
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+class Entry(NamedTuple):
+    """One recorded message of a :data:`TOPICS` channel.
+
+    Attributes: kind, key (the Zenoh key), payload (wire bytes), log_ns (receive time, ns since
+    the Unix epoch), publish_ns (the payload's own time, or log_ns).
+    """
+
+    kind: str
+    key: str
+    payload: bytes
+    log_ns: int
+    publish_ns: int
+
+
+@dataclass
+class Recording:
+    """A recording opened for reading (nothing is read before :meth:`entries`).
+
+    Parameters
+    ----------
+    path : the MCAP file.
+
+    Attributes (known once :meth:`entries` has run to its end)
+    ----------
+    metadata : the ``limbstream`` metadata record.
+    truncated : why the file ends early (no summary: the writer was killed, or the file was
+        cut), or "" for a properly closed file. Everything before that point was read.
+    bad : envelopes that could not be opened, by kind.
+    """
+
+    path: Path
+    metadata: dict = field(default_factory=dict)
+    truncated: str = ""
+    bad: Counter = field(default_factory=Counter)
+
+    def __post_init__(self):
+        self.path = Path(self.path)
+        if not self.path.is_file():
+            raise RecordingError(f"{self.path}: no such file")
+        try:
+            with open(self.path, "rb") as f:
+                magic = f.read(8)
+        except OSError as exc:
+            raise RecordingError(f"{self.path}: cannot read ({exc.strerror or exc})") from None
+        if magic != b"\x89MCAP0\r\n":
+            raise RecordingError(f"{self.path}: not an MCAP file")
+
+    def entries(self, kinds: Iterable[str] = KINDS) -> Iterator[Entry]:
+        """The messages of ``kinds`` in file order (= receive order). RecordingError if the file
+        is not a limbstream recording or holds no complete chunk; a file that ends early ends
+        the iteration (see :attr:`truncated`)."""
+        wanted = set(kinds)
+        topics = {topic: kind for kind, topic in TOPICS.items()}
+        channels: dict[int, str] = {}  # channel id -> kind, for limbstream channels
+        foreign: set[str] = set()
+        ended = False
+        with open(self.path, "rb") as f:
+            records = StreamReader(f, record_size_limit=1 << 30).records
+            while True:
+                try:
+                    record = next(records)
+                except StopIteration:
+                    ended = True
+                    break
+                except (McapError, struct.error, ValueError, EOFError) as exc:
+                    self.truncated = f"cut inside a record ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
+                    break
+                if isinstance(record, Message):
+                    kind = channels.get(record.channel_id)
+                    if kind is None or kind not in wanted:
+                        continue
+                    try:
+                        key, payload = open_envelope(record.data)
+                    except wire.WireError:
+                        self.bad[kind] += 1
+                        continue
+                    yield Entry(kind, key, payload, record.log_time, record.publish_time)
+                elif isinstance(record, Channel):
+                    if record.topic in topics and record.message_encoding == MESSAGE_ENCODING:
+                        channels[record.id] = topics[record.topic]
+                    elif record.topic != SKELETON_TOPIC:
+                        foreign.add(record.topic)
+                elif isinstance(record, Metadata) and record.name == METADATA_NAME:
+                    self.metadata = dict(record.metadata)
+                elif isinstance(record, Header) and record.profile not in (PROFILE, ""):
+                    foreign.add(f"profile {record.profile!r}")
+                elif isinstance(record, DataEnd | Footer):
+                    ended = True
+                    break
+        if not channels:
+            what = f" (it holds {', '.join(sorted(foreign)[:5])})" if foreign else ""
+            if self.truncated and not foreign:
+                raise RecordingError(f"{self.path}: truncated before its first complete chunk ({self.truncated})")
+            raise RecordingError(f"{self.path}: not a limbstream recording: no {TOPICS['seg']} "
+                                 f"or other limbstream channel{what}")
+        if not ended and not self.truncated:
+            self.truncated = "no summary (the recorder did not close it)"
+
+
+def now_ns() -> int:
+    """Receive-time clock of recordings: ns since the Unix epoch."""
+    return time.time_ns()
