@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("limbstream.cli.record", "record what crosses the router to an MCAP file"),
     "replay": ("limbstream.cli.replay", "publish a recording's devices again (segment points, truth)"),
     "export": ("limbstream.cli.export", "export a recording or motion file to BVH, CSV or npz"),
+    "foxglove": ("limbstream.cli.foxglove", "serve the live pose and stats to the Foxglove app (WebSocket)"),
     "vmc": ("limbstream.cli.vmc", "send a subject's live pose to avatar apps (VMC protocol, OSC/UDP)"),
 }
 

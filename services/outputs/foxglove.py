@@ -1,0 +1,180 @@
+"""Live Foxglove output: pose frames and stats over the Foxglove WebSocket protocol (foxglove-sdk),
+so the Foxglove app (``ws://127.0.0.1:8765``) shows skeletons in its 3-D panel and plots stats.
+
+Topics, per subject ``<s>`` (created when its first message comes):
+
+=================  ==========================  ==============================================
+topic              schema                      content
+=================  ==========================  ==============================================
+``/<s>/tf``        ``foxglove.FrameTransforms``  ``world -> <s>`` and ``<s> -> <s>/<segment>``
+                                               for the 10 segments (pose frames)
+``/<s>/skeleton``  ``foxglove.SceneUpdate``      one entity ``<s>`` in frame ``<s>``: a line per
+                                               :data:`wire.BONES` pair, a sphere per joint
+``/<s>/stats``     JSON (JSON Schema from        the stats message with ``devices`` keyed by
+                   :data:`wire.FIELDS`)          segment: plot ``/s01/stats.devices.l_thigh.icr``
+=================  ==========================  ==============================================
+
+Frames: the subject frame ``<s>`` is limbstream's (Y up, X to the subject's left, pelvis at the
+origin); ``world -> <s>`` turns it Z up (Foxglove's and ROS's convention: limbstream's Z, X, Y
+become world X, Y, Z), lifts the pelvis to the default leg length so the feet touch the grid,
+and places the n-th subject seen (from 0) :data:`SPACING_M` to the right of the one before.
+``<s>/<segment>`` sits at the joint where the segment starts (``l_thigh`` at ``l_hip``) and has
+the pose frame's global segment orientation, unchanged. Frames shown: live ones first
+(:mod:`services.outputs.kinds`). Messages are built only for topics a client subscribed to.
+"""
+from __future__ import annotations
+
+import foxglove
+from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
+from foxglove.messages import (Color, FrameTransform, FrameTransforms, LinePrimitive, LinePrimitiveLineType,
+                               Point3, Pose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp,
+                               Vector3)
+
+from limbstream import wire
+from limbstream.skeleton import Skeleton
+from services.outputs.kinds import LiveFirst
+from services.outputs.subscription import Item
+
+SPACING_M = 1.0
+"""Distance between neighbouring subjects in the world frame, metres."""
+SEGMENT_ORIGIN: dict[str, str] = {
+    "hip": "pelvis", "neck": "neck_base",
+    **{f"{s}_{seg}": f"{s}_{joint}" for s in "lr" for seg, joint in (
+        ("thigh", "hip"), ("shank", "knee"), ("upperarm", "shoulder"), ("lowerarm", "elbow"))},
+}
+"""The joint each segment's frame sits at."""
+_Y_UP_TO_Z_UP = (0.5, 0.5, 0.5, 0.5)  # (x, y, z, w): 120 deg about (1, 1, 1); x -> y, y -> z, z -> x
+_LEG_M = Skeleton().thigh + Skeleton().shank
+_J = {name: i for i, name in enumerate(wire.JOINTS)}
+_ORIGINS = [(i, seg, _J[SEGMENT_ORIGIN[seg]]) for i, seg in enumerate(wire.SEGMENTS)]
+_BONE_ROWS = [(_J[a], _J[b]) for a, b in wire.BONES]
+_BONE_COLOR = Color(r=0.2, g=0.7, b=1.0, a=1.0)
+_JOINT_COLOR = Color(r=1.0, g=0.6, b=0.1, a=1.0)
+_JOINT_SIZE = Vector3(x=0.05, y=0.05, z=0.05)
+_IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+def _stamp(t_us: int) -> Timestamp:
+    return Timestamp(t_us // 1_000_000, t_us % 1_000_000 * 1000)
+
+
+def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> FrameTransforms:
+    """``world -> <subject>`` and ``<subject> -> <subject>/<segment>`` for every segment.
+
+    Parameters
+    ----------
+    subject : key chunk, the frame id.
+    frame : its pose frame (q (10, 4) scalar-first, joints (15, 3) m).
+    slot : the subject's place in the row (0, 1, ...), :data:`SPACING_M` apart.
+    """
+    stamp = _stamp(frame.t_us)
+    x, y, z, w = _Y_UP_TO_Z_UP
+    out = [FrameTransform(timestamp=stamp, parent_frame_id="world", child_frame_id=subject,
+                          translation=Vector3(x=0.0, y=-SPACING_M * slot, z=_LEG_M),
+                          rotation=Quaternion(x=x, y=y, z=z, w=w))]
+    q, joints = frame.q.tolist(), frame.joints.tolist()
+    for i, seg, j in _ORIGINS:
+        (qw, qx, qy, qz), (px, py, pz) = q[i], joints[j]
+        out.append(FrameTransform(timestamp=stamp, parent_frame_id=subject, child_frame_id=f"{subject}/{seg}",
+                                  translation=Vector3(x=px, y=py, z=pz),
+                                  rotation=Quaternion(x=qx, y=qy, z=qz, w=qw)))
+    return FrameTransforms(transforms=out)
+
+
+def scene_update(subject: str, frame: wire.PoseFrame) -> SceneUpdate:
+    """The skeleton of ``frame`` as one entity in frame ``subject``: bones and joints."""
+    joints = frame.joints.tolist()
+    points = [Point3(x=x, y=y, z=z) for x, y, z in joints]
+    lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
+                          points=[points[k] for pair in _BONE_ROWS for k in pair])
+    spheres = [SpherePrimitive(pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY),
+                               size=_JOINT_SIZE, color=_JOINT_COLOR) for x, y, z in joints]
+    entity = SceneEntity(timestamp=_stamp(frame.t_us), frame_id=subject, id=subject, frame_locked=True,
+                         lines=[lines], spheres=spheres)
+    return SceneUpdate(entities=[entity])
+
+
+def stats_message(stats: dict) -> dict:
+    """A decoded stats message with ``devices`` as {segment: entry} (plot paths by name)."""
+    return {**stats, "devices": {d.get("segment") or d.get("device"): d for d in stats["devices"]}}
+
+
+def stats_schema() -> dict:
+    """JSON Schema of :func:`stats_message`, from the stats field table (every value may be null)."""
+    kinds = {float: "number", int: "integer", bool: "boolean", str: "string", dict: "object"}
+
+    def props(scope):
+        return {f.name: {"type": [kinds[f.type], "null"],
+                         "description": f.help + (f" ({f.unit})" if f.unit else "")} for f in scope}
+
+    device = {"type": "object", "properties": props(wire.DEVICE_FIELDS)}
+    return {"type": "object", "properties": {
+        "subject": {"type": "string"}, "t": {"type": "number", "description": "send time (s, epoch)"},
+        "seq": {"type": "integer", "description": "stats message counter of the subject"},
+        **props(wire.SUBJECT_FIELDS),
+        "devices": {"type": "object", "additionalProperties": device,
+                    "properties": {s: device for s in wire.SEGMENTS}},
+        "aggregator": {"type": "object", "properties": props(wire.AGGREGATOR_FIELDS)},
+    }}
+
+
+class _Topics:
+    """The three channels of one subject."""
+
+    def __init__(self, subject: str, slot: int, context: foxglove.Context, schema: dict):
+        self.slot = slot
+        self.tf = FrameTransformsChannel(f"/{subject}/tf", context=context)
+        self.skeleton = SceneUpdateChannel(f"/{subject}/skeleton", context=context)
+        self.stats = foxglove.Channel(f"/{subject}/stats", schema=schema, context=context)
+
+
+class FoxgloveOutput:
+    """Publishes pose and stats items on a foxglove-sdk WebSocket server.
+
+    Parameters
+    ----------
+    host, port : where the server listens (port 0: a free one, see :attr:`port`).
+    name : server name shown in the app.
+
+    Raises
+    ------
+    OSError if the server cannot listen there (port taken, bad host).
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 8765, name: str = "limbstream"):
+        self.context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        except RuntimeError as exc:  # foxglove-sdk: "FoxgloveError: Failed to bind port: ..."
+            raise OSError(str(exc).removeprefix("FoxgloveError: ")) from None
+        self.port = self.server.port
+        self.kinds = LiveFirst()
+        self.topics: dict[str, _Topics] = {}
+        self.schema = stats_schema()
+        self.published = 0  # messages logged (to at least one subscribed client)
+
+    def _topics(self, subject: str) -> _Topics:
+        if (t := self.topics.get(subject)) is None:
+            t = self.topics[subject] = _Topics(subject, len(self.topics), self.context, self.schema)
+        return t
+
+    def publish(self, item: Item) -> None:
+        """Log one pose or stats item (pose frames of the kind :class:`LiveFirst` picks)."""
+        topics = self._topics(item.subject)
+        if item.kind == "pose":
+            frame = item.value
+            if not self.kinds.wanted(item.subject, frame):
+                return
+            log_time = frame.t_us * 1000
+            if topics.tf.has_sinks():
+                topics.tf.log(frame_transforms(item.subject, frame, topics.slot), log_time=log_time)
+                self.published += 1
+            if topics.skeleton.has_sinks():
+                topics.skeleton.log(scene_update(item.subject, frame), log_time=log_time)
+                self.published += 1
+        elif item.kind == "stats" and topics.stats.has_sinks():
+            topics.stats.log(stats_message(item.value), log_time=int(item.value["t"] * 1e9))
+            self.published += 1
+
+    def close(self) -> None:
+        self.server.stop()
