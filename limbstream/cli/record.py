@@ -58,10 +58,10 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     try:
         session = open_session(settings, stop)
     except ValueError as exc:
-        writer.close()
+        writer.discard()
         return fail(str(exc))
     if session is None:  # stopped while waiting for the router
-        writer.close()
+        writer.discard()
         return 0
     tty = sys.stderr.isatty()
 

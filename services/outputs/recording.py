@@ -12,6 +12,7 @@ flushed chunk (:class:`Recording` reads such a file and says so).
 """
 from __future__ import annotations
 
+import os
 import struct
 import time
 from collections import Counter
@@ -21,7 +22,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
 from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
@@ -176,6 +177,11 @@ class RecordingWriter:
         """Bytes written to the file so far."""
         return self._size if self.closed else self._file.tell()
 
+    def discard(self) -> None:
+        """Close and delete the file (nothing was recorded)."""
+        self.close()
+        self.path.unlink(missing_ok=True)
+
     def close(self) -> None:
         """Write the indexes and summary and close the file."""
         if not self.closed:
@@ -235,10 +241,16 @@ class Recording:
         if magic != b"\x89MCAP0\r\n":
             raise RecordingError(f"{self.path}: not an MCAP file")
 
-    def entries(self, kinds: Iterable[str] = KINDS) -> Iterator[Entry]:
+    def check(self) -> None:
+        """RecordingError unless the file holds a limbstream channel (reads up to the first one)."""
+        for _ in self.entries((), until_channel=True):
+            pass
+
+    def entries(self, kinds: Iterable[str] = KINDS, until_channel: bool = False) -> Iterator[Entry]:
         """The messages of ``kinds`` in file order (= receive order). RecordingError if the file
         is not a limbstream recording or holds no complete chunk; a file that ends early ends
-        the iteration (see :attr:`truncated`)."""
+        the iteration (see :attr:`truncated`). ``until_channel``: stop at the first limbstream
+        channel (:meth:`check`)."""
         wanted = set(kinds)
         topics = {topic: kind for kind, topic in TOPICS.items()}
         channels: dict[int, str] = {}  # channel id -> kind, for limbstream channels
@@ -247,13 +259,17 @@ class Recording:
         with open(self.path, "rb") as f:
             records = StreamReader(f, record_size_limit=1 << 30).records
             while True:
+                at = f.tell()  # where the next record starts (or records of a chunk already read)
                 try:
                     record = next(records)
                 except StopIteration:
                     ended = True
                     break
                 except (McapError, struct.error, ValueError, EOFError) as exc:
-                    self.truncated = f"cut inside a record ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
+                    if at >= os.fstat(f.fileno()).st_size and isinstance(exc, EndOfFile):
+                        break  # the file ends between two records: the writer stopped there
+                    self.truncated = (f"cut inside a record at byte {at} "
+                                      f"({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})")
                     break
                 if isinstance(record, Message):
                     kind = channels.get(record.channel_id)
@@ -268,6 +284,8 @@ class Recording:
                 elif isinstance(record, Channel):
                     if record.topic in topics and record.message_encoding == MESSAGE_ENCODING:
                         channels[record.id] = topics[record.topic]
+                        if until_channel:
+                            return
                     elif record.topic != SKELETON_TOPIC:
                         foreign.add(record.topic)
                 elif isinstance(record, Metadata) and record.name == METADATA_NAME:
@@ -278,11 +296,13 @@ class Recording:
                     ended = True
                     break
         if not channels:
-            what = f" (it holds {', '.join(sorted(foreign)[:5])})" if foreign else ""
-            if self.truncated and not foreign:
-                raise RecordingError(f"{self.path}: truncated before its first complete chunk ({self.truncated})")
-            raise RecordingError(f"{self.path}: not a limbstream recording: no {TOPICS['seg']} "
-                                 f"or other limbstream channel{what}")
+            if foreign:
+                raise RecordingError(f"{self.path}: not a limbstream recording: no {TOPICS['seg']} or other "
+                                     f"limbstream channel (it holds {', '.join(sorted(foreign)[:5])})")
+            if not ended:
+                raise RecordingError(f"{self.path}: truncated before its first complete chunk"
+                                     + (f" ({self.truncated})" if self.truncated else ""))
+            raise RecordingError(f"{self.path}: not a limbstream recording: no limbstream channel")
         if not ended and not self.truncated:
             self.truncated = "no summary (the recorder did not close it)"
 

@@ -1,0 +1,258 @@
+"""Outputs room: the subscription path, `limbstream record` and `limbstream replay`, with real
+processes on loopback (tests/stack.py) and the mcap library reading the files back."""
+from __future__ import annotations
+
+import collections
+import os
+import signal
+import socket
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from mcap.exceptions import EndOfFile
+from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+from mcap.writer import Writer
+from stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+
+from limbstream import quat, wire, zconfig
+from services.outputs.recording import SKELETON_TOPIC, TOPICS, Recording, RecordingError, envelope, open_envelope
+from services.outputs.subscription import Subscription
+
+CLIP_SAMPLES = 1146  # first clip of cmu_10seg_50hz.npz (01_01), the one subject s01 streams
+
+
+def cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "limbstream.cli", *args], cwd=ROOT, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def pose(seq: int, t_us: int = 1_700_000_000_000_000) -> wire.PoseFrame:
+    return wire.PoseFrame(seq, t_us, wire.KIND_EXACT, 0, np.tile(np.float32([1, 0, 0, 0]), (10, 1)))
+
+
+# ----------------------------------------------------------------------------- subscription
+
+
+def test_subscription_decodes_matches_the_pattern_and_counts_bad_messages(stack):  # noqa: F811
+    stack.router()
+    with zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,))) as pub, \
+            Subscription(zconfig.ZenohSettings(connect=(stack.endpoint,)), "a*", ("pose", "stats"),
+                         capacity=8) as sub:
+        wait_for_subscribers(stack.endpoint, [wire.pose_key("a1"), wire.stats_key("a1")], "the subscription")
+        pub.put(wire.pose_key("b1"), wire.encode_pose(pose(1)))  # outside the pattern
+        pub.put(wire.pose_key("a1"), wire.encode_pose(pose(2)))
+        pub.put(wire.pose_key("a2"), b"short")
+        pub.put(wire.stats_key("a1"), b"{not json")
+        pub.put(wire.stats_key("a2"), wire.encode_stats("a2", 1.0, [], seq=3))
+        got = []
+        wait_until(lambda: got.extend(sub.drain()) or len(got) == 2 and sum(sub.errors.values()) == 2, 10,
+                   "2 items and 2 counted errors")
+        assert [(i.kind, i.subject, i.segment) for i in got] == [("pose", "a1", None), ("stats", "a2", None)], got
+        assert got[0].value.seq == 2 and got[1].value["seq"] == 3 and got[0].payload == wire.encode_pose(pose(2))
+        assert dict(sub.errors) == {"pose_size": 1, "stats_json": 1}
+        # a full channel drops and counts, it never blocks Zenoh
+        for seq in range(20):
+            pub.put(wire.pose_key("a1"), wire.encode_pose(pose(seq)))
+        wait_until(lambda: sub.backlog() + sub.errors["overflow"] == 20, 10, "20 frames kept or counted")
+        assert sub.backlog() == 8 and sub.errors["overflow"] == 12
+        assert [i.value.seq for i in sub.drain()] == list(range(8))
+        assert sub.get(timeout=0.05) is None
+    with pytest.raises(ValueError, match="subject pattern"):
+        Subscription(zconfig.ZenohSettings(connect=(stack.endpoint,)), "a/b")
+    with pytest.raises(ValueError, match="kinds"):
+        Subscription(zconfig.ZenohSettings(connect=(stack.endpoint,)), "*", ("alive",))
+
+
+# ----------------------------------------------------------------------------- record and replay
+
+
+def finished(watch, subject: str):
+    """The stats of the 10 devices of ``subject`` once all of them streamed the whole clip."""
+    mine = [d for k, d in watch.poll().items() if k.startswith(subject + "/")]
+    return len(mine) == 10 and all(d["final"] and d["error_samples"] == CLIP_SAMPLES for d in mine) and mine
+
+
+def pooled_aad(devices) -> float:
+    return sum(d["aad_all_deg"] * d["error_samples"] for d in devices) / sum(d["error_samples"] for d in devices)
+
+
+def exact_frames(sub: Subscription, frames: dict) -> dict:
+    for item in sub.drain():
+        if item.value.kind == wire.KIND_EXACT:
+            frames.setdefault(item.subject, {})[item.value.t_us] = item.value
+    return frames
+
+
+def test_record_then_replay_rebuilds_the_same_frames(stack, watch, cmu_npz, tmp_path):  # noqa: F811
+    """A CMU clip streamed once is recorded by a recorder started before the devices and by one
+    started after they finished (history); the first recording replayed into a fresh aggregator
+    gives the same exact frames, AAD and ICR; the second holds the same segment points and truth."""
+    live, late = tmp_path / "live.mcap", tmp_path / "late.mcap"
+    stack.aggregator("--subjects", "s01")
+    stack.aggregator("--subjects", "r-*")
+    recorder = stack.start("record", "record", str(live), "--connect", stack.endpoint)
+    frames_sub = Subscription(watch.session, "*", ("pose",))
+    keys = [k for seg in wire.SEGMENTS for k in (wire.seg_key("s01", seg), wire.raw_key("s01", seg))]
+    wait_for_subscribers(stack.endpoint, keys + [wire.pose_key("s01")], "the recorder and aggregator",
+                         on_fail=stack.logs)
+    stack.emulator(1, 10.0, "--source", str(cmu_npz), "--once")
+    original = wait_until(lambda: finished(watch, "s01"), 60, "s01 to finish its clip", on_fail=stack.logs)
+
+    late_recorder = stack.start("record", "record", str(late), "--connect", stack.endpoint, "--no-skeleton")
+
+    def recorded(path, kind):
+        try:
+            return [e for e in Recording(path).entries([kind])]
+        except RecordingError:
+            return []
+    # every FINAL point in the live recording's flushed chunks: then stop it (SIGTERM closes it properly)
+    wait_until(lambda: sum(wire.decode_point(e.payload).flags & wire.FLAG_FINAL for e in recorded(live, "seg")) == 10,
+               15, "the live recorder to hold the 10 final points", on_fail=stack.logs)
+    wait_until(lambda: len(recorded(late, "seg")) == sum(d["points"] for d in original), 15,
+               "the late recorder to get every point from the devices' caches", on_fail=stack.logs)
+    for child in (recorder, late_recorder):
+        child.signal(signal.SIGTERM)
+        assert child.popen.wait(20) == 0, stack.logs()
+    log = recorder.log.read_text()
+    assert "recording " in log and " MB " in log and "msg/s" in log and "record: {" in log, log
+
+    # properly closed: the mcap library reads the summary
+    with open(live, "rb") as f:
+        summary = make_reader(f).get_summary()
+    counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+    points = sum(d["points"] for d in original)
+    assert counts[TOPICS["seg"]] == points, counts
+    assert counts[TOPICS["raw"]] >= 10 * CLIP_SAMPLES // 25 and counts[TOPICS["pose"]] > 0, counts
+    assert counts[TOPICS["config"]] >= 10 and counts[SKELETON_TOPIC] > 0, counts
+    assert {s.name for s in summary.schemas.values()} >= {"limbstream.seg", "foxglove.SceneUpdate"}
+    seg_of = {(e.key, e.payload) for e in Recording(live).entries(["seg", "raw"])}
+    assert seg_of == {(e.key, e.payload) for e in Recording(late).entries(["seg", "raw"])}
+
+    # replay into a fresh aggregator (subjects r-*), 4x faster
+    replay = stack.start("replay", "replay", str(live), "--connect", stack.endpoint, "--subject-prefix", "r-",
+                         "--speed", "4", "--hold", "30")
+    rebuilt = wait_until(lambda: finished(watch, "r-s01"), 60, "r-s01 to finish", on_fail=stack.logs)
+    a, b = pooled_aad(original), pooled_aad(rebuilt)
+    print(f"\nexact-frame AAD recorded {a:.6f} deg, replayed {b:.6f} deg; points {points}")
+    assert abs(a - b) < 0.01
+    assert {d["segment"]: (d["points"], d["samples"]) for d in original} == \
+        {d["segment"]: (d["points"], d["samples"]) for d in rebuilt}  # ICR equal
+    assert all(set(d["dropped_by_reason"]) <= {"duplicate"} and d["gaps"] == 0 for d in rebuilt), rebuilt
+    frames: dict = {}
+
+    def replayed_frames():
+        exact_frames(frames_sub, frames)
+        return len(frames.get("r-s01", {})) >= len(frames.get("s01", {})) > 1000
+    wait_until(replayed_frames, 30, "the replayed exact frames")
+    common = sorted(set(frames["s01"]) & set(frames["r-s01"]))
+    assert len(common) >= 1000, len(common)
+    q1 = np.stack([frames["s01"][t].q for t in common]).astype(float)
+    q2 = np.stack([frames["r-s01"][t].q for t in common]).astype(float)
+    assert float(np.max(quat.angle_deg(q1, q2))) < 0.01
+    frames_sub.close()
+    replay.signal(signal.SIGTERM)
+    assert replay.popen.wait(20) == 0
+
+
+def test_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(stack, tmp_path):  # noqa: F811
+    stack.router()
+    stack.aggregator()
+    stack.emulator(2, 1.0)
+    killed, stopped = tmp_path / "killed.mcap", tmp_path / "stopped.mcap"
+    victim = stack.start("record", "record", str(killed), "--connect", stack.endpoint)
+    stack.start("record", "record", str(stopped), "--connect", stack.endpoint, "--duration", "3")
+
+    def flushed_messages():
+        count = 0
+        try:
+            with open(killed, "rb") as f:
+                for record in StreamReader(f).records:
+                    count += isinstance(record, Message)
+        except (EndOfFile, OSError):
+            pass
+        return count
+    wait_until(lambda: flushed_messages() > 200, 30, "a few flushed chunks", on_fail=stack.logs)
+    os.killpg(victim.popen.pid, signal.SIGKILL)
+    victim.popen.wait(10)
+    with open(killed, "rb") as f:  # the mcap library: records up to the end of the last chunk, then EOF
+        messages = []
+        with pytest.raises(EndOfFile):
+            for record in StreamReader(f).records:
+                if isinstance(record, Message):
+                    messages.append(record)
+    assert len(messages) >= 200
+    rec = Recording(killed)
+    kinds = collections.Counter(e.kind for e in rec.entries())
+    assert rec.truncated.startswith("no summary") and kinds["seg"] > 0 and kinds["pose"] > 0, (rec.truncated, kinds)
+    # cut in the middle of a chunk: still read up to the chunk before
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(killed.read_bytes()[: killed.stat().st_size - 100])
+    rec = Recording(cut)
+    assert sum(1 for _ in rec.entries()) > 0 and rec.truncated.startswith("cut inside a record"), rec.truncated
+
+    # --duration: closed properly, with a summary
+    wait_until(lambda: stack.procs[-1].returncode is not None, 30, "the --duration recorder to stop")
+    assert stack.procs[-1].returncode == 0, stack.logs()
+    with open(stopped, "rb") as f:
+        assert make_reader(f).get_summary().statistics.message_count > 100
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def one_line_error(result: subprocess.CompletedProcess, *words: str) -> str:
+    err = result.stderr.strip()
+    assert result.returncode == 2, (result.returncode, result.stdout, err)
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for word in words:
+        assert word in err, (word, err)
+    return err
+
+
+def test_bad_recordings_and_paths_are_one_line_errors(tmp_path):
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as f:
+        w = Writer(f)
+        w.start()
+        w.add_message(w.register_channel("/camera", "json", 0), 1, b"{}", 1)
+        w.finish()
+    one_line_error(cli("replay", str(foreign)), "foreign.mcap", "not a limbstream recording", "/camera")
+    text = tmp_path / "notes.mcap"
+    text.write_text("hello")
+    one_line_error(cli("replay", str(text)), "notes.mcap", "not an MCAP file")
+    one_line_error(cli("replay", str(tmp_path / "absent.mcap")), "absent.mcap", "no such file")
+    # a recording cut before its first chunk ended
+    rec = tmp_path / "rec.mcap"
+    from services.outputs.recording import RecordingWriter
+    writer = RecordingWriter(rec, skeleton=False)
+    writer.add("seg", wire.seg_key("s01", "hip"), wire.encode_point(wire.SegmentPoint(1, 0, 0, 0, (1, 0, 0, 0))), 1)
+    writer.close()
+    stub = tmp_path / "stub.mcap"
+    stub.write_bytes(rec.read_bytes()[:60])
+    one_line_error(cli("replay", str(stub)), "stub.mcap", "truncated")
+    one_line_error(cli("record", str(tmp_path / "no" / "such" / "dir.mcap"), "--duration", "1"), "dir.mcap",
+                   "cannot write")
+    one_line_error(cli("record", str(tmp_path / "x.mcap"), "--subjects", "a/b"), "--subjects")
+    one_line_error(cli("replay", str(rec), "--speed", "0"), "--speed")
+    one_line_error(cli("replay", str(rec), "--subject-prefix", "a/"), "--subject-prefix")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"
+        one_line_error(cli("record", str(tmp_path / "y.mcap"), "--listen", endpoint, "--duration", "1"),
+                       "--listen", endpoint, "in use")
+        one_line_error(cli("replay", str(rec), "--listen", endpoint), "--listen", "in use")
+    assert not (tmp_path / "y.mcap").exists()
+
+
+def test_envelope_round_trip_and_refusals():
+    key = wire.seg_key("s01", "hip")
+    assert open_envelope(envelope(key, b"\x01\x02")) == (key, b"\x01\x02")
+    for bad in (b"", b"\x05\x00ab", b"\x02\x00\xff\xfe"):
+        with pytest.raises(wire.WireError) as info:
+            open_envelope(bad)
+        assert info.value.reason == "envelope"
