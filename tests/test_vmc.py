@@ -4,11 +4,13 @@ local bone rotations with Unity's humanoid hierarchy, written here independently
 services/outputs/vmc.py, and compares it with the pose frames published."""
 from __future__ import annotations
 
+import socket
 import threading
 
 import numpy as np
 import pytest
 from pythonosc import dispatcher, osc_server
+from pythonosc.osc_bundle import OscBundle
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat, wire, zconfig
@@ -62,19 +64,18 @@ def motion_q(n: int) -> np.ndarray:
 @pytest.mark.parametrize("rest_pose", ["standing", "tpose"])
 def test_local_rotations_give_back_the_segments(rest_pose):
     q = motion_q(200)
-    rest = vmc.rest_offsets(rest_pose)
     names = [b.name for b in vmc.VMC_BONES]
     assert set(names) == set(PARENT)
     worst = 0.0
     for frame_q in q:
-        local = vmc.local_rotations(frame_q, rest)
+        local = vmc.local_rotations(frame_q, rest_pose)
         got = segment_orientations(dict(zip(names, local[:, [1, 2, 3, 0]])), rest_pose)
         worst = max(worst, quat.angle_deg(got, frame_q).max())
     assert worst < 1e-4, f"{worst:.3g} deg"  # angle_deg (arccos) resolves ~1e-6 deg
 
 
 def test_held_bones_are_at_rest_and_positions_mirror():
-    local = vmc.local_rotations(motion_q(1)[0], vmc.rest_offsets("standing"))
+    local = vmc.local_rotations(motion_q(1)[0], "standing")
     for bone, row in zip(vmc.VMC_BONES, local):
         if not bone.segment:
             assert quat.angle_deg(row, [1, 0, 0, 0]) < 1e-6, bone.name
@@ -102,6 +103,28 @@ def test_live_frames_first():
     assert rule.wanted("s02", exact, now=1.5)  # per subject
     assert rule.wanted("s01", exact, now=2.1)  # live ones stopped for 1 s
     assert rule.skipped == 1
+
+
+def test_a_bad_frame_is_counted_and_the_others_sent():
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.settimeout(5.0)
+    sender = vmc.VmcSender({"s01": receiver.getsockname(), "s02": receiver.getsockname()})
+    try:
+        q = motion_q(3)
+        bad = np.zeros((10, 4), np.float32)
+        frames = [("s01", wire.PoseFrame(0, 0, wire.KIND_LIVE, 0, q[0])),
+                  ("s02", wire.PoseFrame(0, 0, wire.KIND_LIVE, 0, bad)),
+                  ("s03", wire.PoseFrame(0, 0, wire.KIND_LIVE, 0, q[1])),  # not one of its subjects
+                  ("s02", wire.PoseFrame(1, 20_000, wire.KIND_LIVE, 0, q[2]))]
+        assert sender.send(frames) == 2
+        assert (sender.counters.sent, sender.counters.bad) == (2, 1)
+        got = [OscBundle(receiver.recv(65536)) for _ in range(2)]
+        names = [[m.params[0] for m in b if m.address == "/VMC/Ext/Bone/Pos"] for b in got]
+        assert names[0] == names[1] == [b.name for b in vmc.VMC_BONES]
+    finally:
+        sender.close()
+        receiver.close()
 
 
 class OscReceiver:

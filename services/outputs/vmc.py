@@ -24,6 +24,7 @@ writes each bone's rotation, the tracking int and the time into it.
 """
 from __future__ import annotations
 
+import functools
 import socket
 import threading
 import time
@@ -106,6 +107,10 @@ _CHILD_ROW = np.array([_driver(b) for b in VMC_BONES])
 _PARENT_ROW = np.array([_driver(_BY_NAME[b.parent]) if b.parent else _ROOT for b in VMC_BONES])
 _MIRROR_Q = np.array([1.0, 1.0, -1.0, -1.0])
 _MIRROR_P = np.array([-1.0, 1.0, 1.0])
+_PRODUCT = quat.multiply(np.eye(4)[:, None, :], np.eye(4)[None, :, :])
+"""(4, 4, 4) structure constants: the Hamilton product a * b is sum_ij a_i b_j _PRODUCT[i, j]."""
+_LOCAL = (_PRODUCT * quat.conjugate(np.ones(4))[:, None, None] * _MIRROR_Q).reshape(16, 4)
+"""mirror(conj(a) * b) as one (16, 4) matrix applied to the outer product of a and b."""
 
 
 def rest_offsets(rest_pose: str) -> np.ndarray:
@@ -121,22 +126,36 @@ def rest_offsets(rest_pose: str) -> np.ndarray:
     return out
 
 
-def local_rotations(q: np.ndarray, rest: np.ndarray) -> np.ndarray:
+@functools.cache
+def _right_factor(rest_pose: str) -> np.ndarray:
+    """(10, 4, 4): q @ m[s] = q * rest_offsets(rest_pose)[s]."""
+    return np.einsum("ijk,sj->sik", _PRODUCT, rest_offsets(rest_pose))
+
+
+def local_rotations(q: np.ndarray, rest_pose: str = "standing") -> np.ndarray:
     """Local bone rotations of :data:`VMC_BONES` in Unity's frame.
 
     Parameters
     ----------
-    q : (10, 4) global segment orientations, scalar-first, limbstream frame (a pose frame's q).
-    rest : (10, 4) from :func:`rest_offsets`.
+    q : (..., 10, 4) global segment orientations, scalar-first, limbstream frame (pose frames' q).
+    rest_pose : the rest pose of ``q`` (:func:`rest_offsets`).
 
     Returns
     -------
-    (B, 4) float64 scalar-first (w, x, y, z) in Unity's frame, B = len(VMC_BONES).
-    ValueError if a quaternion of ``q`` has zero norm or is not finite.
+    (..., B, 4) float64 scalar-first (w, x, y, z) in Unity's frame, B = len(VMC_BONES):
+    mirror(conj(g[parent]) * g[bone]) with g = normalize(q) * rest, held bones taking their nearest
+    measured ancestor's g (identity for none). ValueError if a quaternion of ``q`` has zero norm
+    or is not finite.
     """
-    g = np.concatenate([quat.multiply(quat.normalize(q), rest), [[1.0, 0.0, 0.0, 0.0]]])
-    local = quat.multiply(quat.conjugate(g[_PARENT_ROW]), g[_CHILD_ROW])
-    return local * _MIRROR_Q
+    q = np.asarray(q, np.float64)
+    norm = np.sqrt(np.einsum("...i,...i->...", q, q))
+    if not np.all((norm > 0) & np.isfinite(norm)):
+        raise ValueError("q contains zero-norm or non-finite quaternions")
+    g = np.empty(q.shape[:-2] + (_ROOT + 1, 4))
+    g[..., :_ROOT, :] = np.einsum("...si,sik->...sk", q / norm[..., None], _right_factor(rest_pose))
+    g[..., _ROOT, :] = (1.0, 0.0, 0.0, 0.0)
+    a, b = g[..., _PARENT_ROW, :], g[..., _CHILD_ROW, :]
+    return (a[..., :, None] * b[..., None, :]).reshape(a.shape[:-1] + (16,)) @ _LOCAL
 
 
 def rest_positions() -> np.ndarray:
@@ -153,7 +172,8 @@ class VmcEncoder:
     """
 
     def __init__(self, rest_pose: str = "standing"):
-        self.rest = rest_offsets(rest_pose)
+        rest_offsets(rest_pose)  # ValueError on a bad name
+        self.rest_pose = rest_pose
         bundle = OscBundleBuilder(IMMEDIATELY)
         messages = [self._message("/VMC/Ext/Root/Pos", "root", [0.0] * 6 + [1.0])]
         for bone, p in zip(VMC_BONES, rest_positions()):
@@ -187,9 +207,11 @@ class VmcEncoder:
             m.add_arg(float(v), "f")
         return m.build()
 
-    def encode(self, frame: wire.PoseFrame) -> bytes:
-        """The bundle of ``frame`` (about 1.2 kB). ValueError on a zero-norm quaternion."""
-        local = local_rotations(frame.q, self.rest)
+    def encode(self, frame: wire.PoseFrame, local: np.ndarray | None = None) -> bytes:
+        """The bundle of ``frame`` (about 1.6 kB); ``local``: its :func:`local_rotations` if
+        already computed. ValueError on a zero-norm quaternion."""
+        if local is None:
+            local = local_rotations(frame.q, self.rest_pose)
         self._floats[self._rot] = local[:, [1, 2, 3, 0]]
         self._ints[self._tracking] = 0 if frame.flags & wire.FRAME_MISSING else 1
         if self.t0_us is None:
@@ -232,36 +254,44 @@ class VmcSender:
 
     def __init__(self, targets: dict[str, tuple[str, int]], rest_pose: str = "standing"):
         self.targets = dict(targets)
+        self.rest_pose = rest_pose
         self.encoders = {s: VmcEncoder(rest_pose) for s in targets}
         self.kinds = LiveFirst()
         self.counters = VmcCounters()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
-    def send(self, subject: str, frame: wire.PoseFrame, now: float | None = None) -> bool:
-        """Send ``frame`` of ``subject`` if it is one of the subjects and the kind shown.
-        Returns whether it was sent."""
-        encoder = self.encoders.get(subject)
-        if encoder is None or not self.kinds.wanted(subject, frame, now):
-            return False
+    def send(self, items: list[tuple[str, wire.PoseFrame]], now: float | None = None) -> int:
+        """Send the frames of ``items`` (subject, frame) that are of the sender's subjects and of
+        the kind shown; their rotations are computed in one vectorised call. Returns bundles sent."""
+        todo = [(s, f) for s, f in items if s in self.encoders and self.kinds.wanted(s, f, now)]
+        if not todo:
+            return 0
         try:
-            payload = encoder.encode(frame)
-        except ValueError:
-            self.counters.bad += 1
-            return False
-        try:
-            self.sock.sendto(payload, self.targets[subject])
-        except OSError:
-            self.counters.send_errors += 1
-            return False
-        self.counters.sent += 1
-        return True
+            local = local_rotations(np.stack([f.q for _, f in todo]), self.rest_pose)
+        except ValueError:  # a bad frame among them: one by one, so only it is refused
+            local = [None] * len(todo)
+        sent = 0
+        for (subject, frame), rows in zip(todo, local):
+            try:
+                payload = self.encoders[subject].encode(frame, rows)
+            except ValueError:
+                self.counters.bad += 1
+                continue
+            try:
+                self.sock.sendto(payload, self.targets[subject])
+            except OSError:
+                self.counters.send_errors += 1
+                continue
+            sent += 1
+        self.counters.sent += sent
+        return sent
 
     def close(self) -> None:
         self.sock.close()
 
 
 def serve(sender: VmcSender, subscriptions: list[Subscription], stop: threading.Event,
-          wait_s: float = 0.0, period_s: float = 0.005) -> str | None:
+          wait_s: float = 0.0, period_s: float = 0.01) -> str | None:
     """Send every pose frame the subscriptions bring until ``stop`` is set.
 
     Parameters
@@ -279,10 +309,9 @@ def serve(sender: VmcSender, subscriptions: list[Subscription], stop: threading.
     start = time.monotonic()
     seen: set[str] = set()
     while not stop.wait(period_s):
-        for sub in subscriptions:
-            for item in sub.drain():
-                seen.add(item.subject)
-                sender.send(item.subject, item.value)
+        items = [(item.subject, item.value) for sub in subscriptions for item in sub.drain()]
+        seen.update(s for s, _ in items)
+        sender.send(items)
         if wait_s and len(seen) < len(sender.targets) and time.monotonic() - start > wait_s:
             return next(s for s in sender.targets if s not in seen)
     return None
