@@ -1,0 +1,47 @@
+"""``limbstream export IN -o OUT``: one subject of a recording (its exact pose frames) or of a
+motion file, as BVH, CSV or npz (services/outputs/export.py; layouts in docs/outputs.md)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from services.outputs.export import FORMATS, ExportError, export, read_take
+
+PROG = "limbstream export"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("source", metavar="IN", help="a recording (.mcap) or a motion file/folder limbstream reads "
+                                                     "(.npz, .bvh, x-IMU3 .csv, Xsens .txt)")
+    parser.add_argument("--subject", default=None,
+                        help="subject of a recording, or clip name (or s01, s02, ... in file order) of a motion "
+                             "file (default: the only one)")
+    parser.add_argument("--format", choices=FORMATS, default=None,
+                        help="output format (default: from OUT's extension)")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT", help="file to write (replaced if it exists)")
+    parser.add_argument("--rest-pose", choices=("standing", "tpose"), default=None,
+                        help="rest pose of a motion file's body (default: tpose for .bvh, standing otherwise; "
+                             "recordings: the aggregator's, read from the frames)")
+
+
+def fail(message: str) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    fmt = args.format or Path(args.output).suffix.lower().lstrip(".")
+    if fmt not in FORMATS:
+        return fail(f"--format: say bvh, csv or npz (OUT {args.output!r} does not tell)")
+    try:
+        take = read_take(args.source, args.subject, args.rest_pose)
+        export(take, fmt, args.output)
+    except ExportError as exc:
+        return fail(str(exc))
+    for note in take.notes:
+        print(f"{PROG}: note: {note}", file=sys.stderr)
+    seconds = len(take) * take.period_us / 1e6
+    print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:g} Hz ({seconds:.1f} s, "
+          f"{take.skeleton.rest_pose} rest pose) to {args.output} ({fmt})", flush=True)
+    return 0

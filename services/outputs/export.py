@@ -1,0 +1,328 @@
+"""Export one subject's motion to files other tools read: BVH (Blender, MotionBuilder, ...),
+CSV (one row per frame) and npz (``limbstream.sources.load`` reads it back).
+
+Sources: the exact pose frames of a subject in a recording (:mod:`.recording`), or any motion
+file ``limbstream.sources.load`` reads (resampled to 50 Hz where it is not). Layouts, units and
+the handling of gaps: docs/outputs.md.
+
+BVH: the body of :class:`limbstream.skeleton.Skeleton` — joints named as in the CMU clips so
+BVH tools and limbstream's own loader (``limbstream.sources.bvh``) map them to segments — with
+offsets in metres (Y up, X to the subject's left), every joint's rotation channels in the order
+``Zrotation Xrotation Yrotation`` (intrinsic, degrees) and the root's position channels first.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from limbstream import quat, wire
+from limbstream.skeleton import Skeleton
+from limbstream.sources import Motion, MotionFileError, load
+from limbstream.sources.bvh import resample
+
+from .recording import Recording, RecordingError
+
+FORMATS = ("bvh", "csv", "npz")
+FS = 50.0
+"""Frame rate of exports from motion files, Hz (recordings keep their aggregator's rate)."""
+
+
+class ExportError(ValueError):
+    """An export that cannot be done; the message names the file or flag (one line)."""
+
+
+@dataclass
+class Take:
+    """F frames of one subject on a uniform time grid.
+
+    Attributes
+    ----------
+    name : subject (recording) or clip name (motion file).
+    period_us : frame period, microseconds.
+    t_us : (F,) int64 frame times, µs (device time since the Unix epoch for recordings; from the
+        clip start for motion files).
+    q : (F, 10, 4) float64 global segment orientations, :data:`wire.SEGMENTS` order, scalar-first.
+    joints : (F, 15, 3) float32 joint positions, metres, :data:`wire.JOINTS` order, pelvis at the origin.
+    seq, flags : (F,) int frame counters and pose-frame flags (``FRAME_GAP``, ``FRAME_MISSING``).
+    filled : (F,) bool, True where no frame was recorded and the previous one is repeated.
+    skeleton : the body whose rest pose the orientations refer to.
+    notes : what the export should tell its user (gaps, segments the source lacks).
+    """
+
+    name: str
+    period_us: int
+    t_us: np.ndarray
+    q: np.ndarray
+    joints: np.ndarray
+    seq: np.ndarray
+    flags: np.ndarray
+    filled: np.ndarray
+    skeleton: Skeleton
+    notes: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.t_us)
+
+
+# ----------------------------------------------------------------------------- sources
+
+
+def skeleton_of(frame: wire.PoseFrame) -> Skeleton:
+    """The body an aggregator used for ``frame``: bone lengths from its joint positions, rest pose
+    from the upper arm's direction in its own segment frame (down: standing; sideways: T-pose)."""
+    j = {name: np.asarray(frame.joints[i], np.float64) for i, name in enumerate(wire.JOINTS)}
+    s = {name: np.asarray(frame.q[i], np.float64) for i, name in enumerate(wire.SEGMENTS)}
+
+    def length(a: str, b: str) -> float:
+        return float(np.linalg.norm(j[a] - j[b]))
+    arm = quat.rotate(quat.conjugate(s["l_upperarm"]), j["l_elbow"] - j["l_shoulder"])
+    rest = "tpose" if abs(arm[0]) > abs(arm[1]) else "standing"
+    return Skeleton(thigh=length("l_knee", "l_hip"), shank=length("l_ankle", "l_knee"),
+                    upperarm=length("l_elbow", "l_shoulder"), lowerarm=length("l_wrist", "l_elbow"),
+                    spine=length("neck_base", "pelvis"), neck=length("head", "neck_base"),
+                    hip_width=length("l_hip", "r_hip"), shoulder_width=length("l_shoulder", "r_shoulder"),
+                    rest_pose=rest)
+
+
+def from_recording(recording: Recording, subject: str | None) -> Take:
+    """The exact pose frames of ``subject`` in ``recording`` on their frame grid (the median step);
+    a grid point without a recorded frame repeats the frame before (``filled``).
+
+    ExportError naming the subject and the subjects there are if it has no exact frames;
+    ``subject`` None: the only subject."""
+    frames: dict[str, dict[int, wire.PoseFrame]] = {}
+    bad = 0
+    for entry in recording.entries(["pose"]):
+        try:
+            name, _ = wire.parse_subject_key(entry.key)
+            frame = wire.decode_pose(entry.payload)
+        except wire.WireError:
+            bad += 1
+            continue
+        if frame.kind == wire.KIND_EXACT:
+            frames.setdefault(name, {})[frame.t_us] = frame
+    subjects = sorted(frames)
+    if subject is None:
+        if len(subjects) != 1:
+            raise ExportError(f"--subject: {recording.path} holds exact frames of "
+                              f"{', '.join(subjects) if subjects else 'no subject'}; name one")
+        subject = subjects[0]
+    if subject not in frames:
+        raise ExportError(f"--subject {subject}: no exact pose frames of it in {recording.path} "
+                          f"(subjects: {', '.join(subjects) if subjects else 'none'})")
+    mine = frames[subject]
+    times = np.array(sorted(mine), np.int64)
+    period = int(np.median(np.diff(times))) if len(times) > 1 else int(1e6 / FS)
+    if period <= 0:
+        raise ExportError(f"{recording.path}: exact frames of {subject} have no frame period")
+    slots = np.round((times - times[0]) / period).astype(np.int64)
+    grid = np.arange(slots[-1] + 1)
+    taken = np.searchsorted(slots, grid, side="right") - 1  # the last recorded frame at or before each slot
+    chosen = [mine[int(times[i])] for i in taken]
+    filled = slots[taken] != grid
+    take = Take(subject, period, times[0] + grid * period, np.stack([f.q for f in chosen]).astype(np.float64),
+                np.stack([f.joints for f in chosen]), np.array([f.seq for f in chosen]),
+                np.array([f.flags for f in chosen]) | np.where(filled, wire.FRAME_GAP, 0), filled,
+                skeleton_of(chosen[0]))
+    if filled.any():
+        take.notes.append(f"{int(filled.sum())} of {len(grid)} frames were not recorded: each repeats the frame "
+                          f"before (flag GAP; npz 'filled')")
+    if bad:
+        take.notes.append(f"{bad} undecodable pose frames skipped")
+    if recording.truncated:
+        take.notes.append(f"{recording.path}: {recording.truncated}; exported what it holds")
+    return take
+
+
+def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pose: str | None) -> Take:
+    """One clip of a motion file at :data:`FS` Hz. ``subject``: its name, or ``s01``, ``s02``, ...
+    as ``limbstream emulate`` numbers them; None: the only clip. Segments the clip lacks follow
+    their parent (hip: identity)."""
+    names = [m.name for m in motions]
+    if subject is None:
+        if len(motions) != 1:
+            raise ExportError(f"--subject: {path} holds {len(motions)} clips ({', '.join(names[:8])}); name one")
+        motion = motions[0]
+    elif subject in names:
+        motion = motions[names.index(subject)]
+    elif subject[:1] == "s" and subject[1:].isdigit() and 1 <= int(subject[1:]) <= len(motions):
+        motion = motions[int(subject[1:]) - 1]
+    else:
+        raise ExportError(f"--subject {subject}: no such clip in {path} "
+                          f"(clips: {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}; or s01..s{len(names):02d})")
+    t, q_in = motion.t, motion.q
+    if len(t) > 1 and abs(motion.fs - FS) > 1e-6:
+        t, q_in = resample(t, q_in, FS)
+    q = np.zeros((len(t), len(wire.SEGMENTS), 4))
+    q[..., 0] = 1.0
+    lacking = []
+    for seg, parent in _SEGMENT_PARENT.items():  # parents first
+        i = wire.SEGMENTS.index(seg)
+        if seg in motion.segments:
+            q[:, i] = quat.normalize(q_in[:, motion.segments.index(seg)])
+        else:
+            lacking.append(seg)
+            if parent is not None:
+                q[:, i] = q[:, wire.SEGMENTS.index(parent)]
+    skeleton = Skeleton(rest_pose=rest_pose or ("tpose" if path.suffix.lower() == ".bvh" else "standing"))
+    n = len(t)
+    take = Take(motion.name or path.stem, int(round(1e6 / FS)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
+                skeleton.positions(q), np.arange(n), np.full(n, wire.FRAME_MISSING if lacking else 0),
+                np.zeros(n, bool), skeleton)
+    if lacking:
+        take.notes.append(f"{path} has no {', '.join(lacking)}: each follows its parent segment (flag MISSING)")
+    return take
+
+
+_SEGMENT_PARENT = {"hip": None, "neck": "hip", "l_thigh": "hip", "r_thigh": "hip", "l_upperarm": "hip",
+                   "r_upperarm": "hip", "l_shank": "l_thigh", "r_shank": "r_thigh", "l_lowerarm": "l_upperarm",
+                   "r_lowerarm": "r_upperarm"}
+"""Each segment's parent in the body, parents first."""
+
+
+def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None) -> Take:
+    """A recording (``.mcap``) or a motion file, as a :class:`Take`; ExportError naming the problem."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".mcap":
+            return from_recording(Recording(path), subject)
+        return from_motion(load(path), subject, path, rest_pose)
+    except (RecordingError, MotionFileError) as exc:
+        raise ExportError(str(exc)) from None
+
+
+# ----------------------------------------------------------------------------- BVH
+
+
+@dataclass(frozen=True)
+class BvhJoint:
+    """A BVH joint: its name, parent, the segment whose orientation it carries (None: it follows
+    its parent), the pose-frame joint it sits at, and the joint its End Site marks (if any)."""
+
+    name: str
+    parent: str | None
+    segment: str | None
+    at: str
+    end: str | None = None
+
+
+BVH_JOINTS: tuple[BvhJoint, ...] = (
+    BvhJoint("Hips", None, "hip", "pelvis"),
+    BvhJoint("LeftUpLeg", "Hips", "l_thigh", "l_hip"),
+    BvhJoint("LeftLeg", "LeftUpLeg", "l_shank", "l_knee", end="l_ankle"),
+    BvhJoint("RightUpLeg", "Hips", "r_thigh", "r_hip"),
+    BvhJoint("RightLeg", "RightUpLeg", "r_shank", "r_knee", end="r_ankle"),
+    BvhJoint("Spine", "Hips", None, "neck_base"),
+    BvhJoint("Neck", "Spine", "neck", "neck_base", end="head"),
+    BvhJoint("LeftArm", "Spine", "l_upperarm", "l_shoulder"),
+    BvhJoint("LeftForeArm", "LeftArm", "l_lowerarm", "l_elbow", end="l_wrist"),
+    BvhJoint("RightArm", "Spine", "r_upperarm", "r_shoulder"),
+    BvhJoint("RightForeArm", "RightArm", "r_lowerarm", "r_elbow", end="r_wrist"),
+)
+"""The exported hierarchy, parents first (names of the CMU clips' joints: see
+``limbstream.sources.bvh.CMU_SEGMENT_MAPS['cmu']``). Spine carries no sensor: it turns with the hips."""
+ROTATION_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
+
+
+def _fmt(values) -> str:
+    """Numbers with 6 decimals (no "-0.000000")."""
+    return " ".join(f"{v:.6f}" for v in np.where(np.abs(values) < 5e-7, 0.0, values))
+
+
+def bvh_text(take: Take) -> str:
+    """The BVH file of ``take`` (see the module docstring)."""
+    rest = take.skeleton.positions(np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))).astype(np.float64)
+    at = {name: rest[i] for i, name in enumerate(wire.JOINTS)}
+    by_name = {j.name: j for j in BVH_JOINTS}
+    children: dict[str | None, list[BvhJoint]] = {}
+    for j in BVH_JOINTS:
+        children.setdefault(j.parent, []).append(j)
+    lines = ["HIERARCHY"]
+
+    def write(joint: BvhJoint, depth: int) -> None:
+        pad = "  " * depth
+        parent_at = at[by_name[joint.parent].at] if joint.parent else at[joint.at]
+        lines.append(f"{pad}{'ROOT' if joint.parent is None else 'JOINT'} {joint.name}")
+        lines.append(f"{pad}{{")
+        lines.append(f"{pad}  OFFSET {_fmt(at[joint.at] - parent_at)}")
+        position = "Xposition Yposition Zposition " if joint.parent is None else ""
+        count = 6 if joint.parent is None else 3
+        lines.append(f"{pad}  CHANNELS {count} {position}{' '.join(ROTATION_CHANNELS)}")
+        for child in children.get(joint.name, []):
+            write(child, depth + 1)
+        if joint.end is not None:
+            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {_fmt(at[joint.end] - at[joint.at])}",
+                          f"{pad}  }}"])
+        lines.append(f"{pad}}}")
+
+    write(children[None][0], 0)
+    columns = [np.tile([0.0, -float(at["l_ankle"][1]), 0.0], (len(take), 1))]  # root: feet on the floor at rest
+    seg = {name: i for i, name in enumerate(wire.SEGMENTS)}
+
+    def carried(joint: BvhJoint | None) -> np.ndarray:
+        """(F, 4) global orientation a joint carries (its segment's, or its parent's)."""
+        if joint is None:
+            return np.tile([1.0, 0.0, 0.0, 0.0], (len(take), 1))
+        if joint.segment is None:
+            return carried(by_name.get(joint.parent))
+        return take.q[:, seg[joint.segment]]
+
+    for joint in BVH_JOINTS:
+        local = quat.multiply(quat.conjugate(carried(by_name.get(joint.parent))), carried(joint))
+        columns.append(quat.to_rotation(quat.normalize(local)).as_euler("ZXY", degrees=True))
+    motion = np.concatenate(columns, axis=1)
+    lines += ["MOTION", f"Frames: {len(take)}", f"Frame Time: {take.period_us / 1e6:.6f}"]
+    lines += [_fmt(row) for row in motion]
+    return "\n".join(lines) + "\n"
+
+
+# ----------------------------------------------------------------------------- CSV and npz
+
+
+def csv_header() -> list[str]:
+    """Columns of the CSV export (docs/outputs.md)."""
+    return (["t_s", "t_us", "seq", "flags"]
+            + [f"{s}_{c}" for s in wire.SEGMENTS for c in ("qw", "qx", "qy", "qz")]
+            + [f"{j}_{c}" for j in wire.JOINTS for c in ("x", "y", "z")])
+
+
+def write_csv(take: Take, path: Path) -> None:
+    """One row per recorded frame (repeated frames of gaps left out)."""
+    keep = ~take.filled
+    t = take.t_us[keep]
+    with open(path, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(csv_header())
+        q = take.q[keep].reshape(len(t), -1)
+        joints = take.joints[keep].reshape(len(t), -1)
+        for k in range(len(t)):
+            out.writerow([f"{(t[k] - t[0]) / 1e6:.6f}", int(t[k]), int(take.seq[keep][k]), int(take.flags[keep][k])]
+                         + [f"{v:.7f}" for v in q[k]] + [f"{v:.5f}" for v in joints[k]])
+
+
+def write_npz(take: Take, path: Path) -> None:
+    """``clip_<name>`` (F, 10, 4), ``fs``, ``segment_names`` (what ``load_npz`` reads) and the frame
+    details: ``t_us``, ``joints``, ``seq``, ``flags``, ``filled``."""
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **{f"clip_{take.name}": take.q}, fs=np.float64(1e6 / take.period_us),
+                            segment_names=np.array(wire.SEGMENTS), t_us=take.t_us, joints=take.joints,
+                            seq=take.seq, flags=take.flags, filled=take.filled)
+
+
+def export(take: Take, fmt: str, path: str | Path) -> None:
+    """Write ``take`` as ``fmt`` (:data:`FORMATS`) to ``path``; ExportError naming it if it cannot."""
+    path = Path(path)
+    try:
+        if fmt == "bvh":
+            path.write_text(bvh_text(take))
+        elif fmt == "csv":
+            write_csv(take, path)
+        elif fmt == "npz":
+            write_npz(take, path)
+        else:
+            raise ExportError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    except OSError as exc:
+        raise ExportError(f"-o {path}: cannot write ({exc.strerror or exc})") from None
