@@ -38,7 +38,8 @@ def decoder(channel: dict):
 
 class Publisher:
     """Pose frames (live, 50 Hz of device time, sent as fast as 200 Hz) and stats of s01 on a
-    thread; exact frames of other orientations and times in between (must not be shown)."""
+    thread; exact frames of other orientations and times in between (must not be shown), and
+    undecodable messages first."""
 
     def __init__(self, endpoint: str):
         motion = generator.generate(4.0, seed=5, activities=[("walking", 2.0), ("arm_circles", 2.0)])
@@ -54,6 +55,8 @@ class Publisher:
     def _run(self):
         devices = [{"device": f"s01/{s}", "segment": s, "subject": "s01", "icr": 0.1 + i / 100, "online": True}
                    for i, s in enumerate(wire.SEGMENTS)]
+        self.pose.put(b"not a pose frame")  # undecodable: counted and dropped by the output
+        self.stats.put(b'{"subject": "s01", "t": "soon", "devices": [{}]}')
         i = 0
         while not self.stop.wait(0.005):
             row = i % len(self.q)

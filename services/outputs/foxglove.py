@@ -159,7 +159,8 @@ class FoxgloveOutput:
         return t
 
     def publish(self, item: Item) -> None:
-        """Log one pose or stats item (pose frames of the kind :class:`LiveFirst` picks)."""
+        """Log one pose or stats item (pose frames of the kind :class:`LiveFirst` picks; log time:
+        a pose frame's time, a stats message's receive time)."""
         topics = self._topics(item.subject)
         if item.kind == "pose":
             frame = item.value
@@ -173,7 +174,7 @@ class FoxgloveOutput:
                 topics.skeleton.log(scene_update(item.subject, frame), log_time=log_time)
                 self.published += 1
         elif item.kind == "stats" and topics.stats.has_sinks():
-            topics.stats.log(stats_message(item.value), log_time=int(item.value["t"] * 1e9))
+            topics.stats.log(stats_message(item.value), log_time=item.received_ns)
             self.published += 1
 
     def close(self) -> None:
