@@ -64,6 +64,7 @@ class RecorderStats:
 
     messages: collections.Counter = field(default_factory=collections.Counter)  # written, by kind
     duplicates: int = 0
+    max_batch: int = 0  # most messages taken in one pass
     started: float = field(default_factory=time.monotonic)
 
 
@@ -105,6 +106,7 @@ class Recorder:
             items.insert(0, first)
         for item in items:
             self._write(item)
+        self.stats.max_batch = max(self.stats.max_batch, len(items))
         self._configs_step()
         if time.monotonic() >= self._next_flush:
             self.writer.flush()
@@ -198,7 +200,7 @@ class Recorder:
         """Counters for the final report (JSON-ready)."""
         return {"file": str(self.writer.path), "seconds": round(time.monotonic() - self.stats.started, 3),
                 "messages": dict(self.stats.messages), "bytes": self.writer.size,
-                "duplicates": self.stats.duplicates, "missing": self.missing(),
+                "duplicates": self.stats.duplicates, "max_batch": self.stats.max_batch, "missing": self.missing(),
                 "dropped": dict(self.subscription.errors)}
 
     def run(self, stop: threading.Event, duration_s: float | None = None, on_progress=None,

@@ -1,10 +1,11 @@
 """The one subscription path of every live output: decoded pose frames, stats, segment points
-and truth batches of the subjects matching a pattern, from a bounded hand-off channel.
+and truth batches of the subjects matching a pattern, from bounded hand-off channels.
 
-Zenoh callbacks only put ``(kind, sample, receive time)`` into the channel; the consumer's own
-loop takes :class:`Item` s out (:meth:`Subscription.get`, :meth:`Subscription.drain`), decoded
-with the wire contract's decoders. Undecodable messages and messages that find the channel full
-are counted by reason in :attr:`Subscription.errors`, never raised.
+Zenoh delivers into bounded FIFO channels (Zenoh's own: its threads never wait for Python, so a
+busy consumer never stalls the transport; a full channel holds Zenoh back instead of losing
+messages on this side). The consumer's own loop takes :class:`Item` s out
+(:meth:`Subscription.get`, :meth:`Subscription.drain`), decoded with the wire contract's
+decoders; undecodable messages are counted by reason in :attr:`Subscription.errors`, never raised.
 
 Segment points and truth batches come through advanced subscribers with history, like the
 aggregator's, so a consumer that starts after the devices still gets what their caches hold.
@@ -18,7 +19,6 @@ Example::
 from __future__ import annotations
 
 import collections
-import queue
 import re
 import threading
 import time
@@ -59,7 +59,8 @@ class Item(NamedTuple):
     value : :class:`wire.PoseFrame` | stats dict | :class:`wire.SegmentPoint` | :class:`wire.RawBatch`.
     key : the key expression it came on.
     payload : the wire bytes as received.
-    received_ns : when the Zenoh callback handed it off, ns since the Unix epoch (this host's clock).
+    received_ns : when the consumer took it out of the channel, ns since the Unix epoch (this
+        host's clock; :meth:`Subscription.drain` stamps all it takes with one time).
     """
 
     kind: str
@@ -71,8 +72,12 @@ class Item(NamedTuple):
     received_ns: int
 
 
+POLL_S = 0.002
+"""How often :meth:`Subscription.get` looks at empty channels, seconds."""
+
+
 class Subscription:
-    """Subscribers of ``kinds`` for the subjects matching ``subjects``, feeding one bounded channel.
+    """Subscribers of ``kinds`` for the subjects matching ``subjects``, each into a bounded channel.
 
     Parameters
     ----------
@@ -80,14 +85,15 @@ class Subscription:
     subjects : subject pattern: ``*``, a name, or a name with ``*`` inside (``s0*``), see
         :func:`wire.subject_pattern`. ValueError naming it if it is not one.
     kinds : some of :data:`KINDS`.
-    capacity : messages the channel holds; more are dropped and counted as ``overflow``.
+    capacity : messages each kind's channel holds; while it is full, Zenoh waits (and the router
+        may drop what is not published with congestion control BLOCK: pose frames, stats, truth).
     history : segment points per device asked for when joining late (truth batches: 64).
 
     Attributes
     ----------
-    errors : Counter of dropped messages by reason: ``overflow`` (channel full), ``<kind>_key``
-        (a key outside the grammar), ``<kind>_<wire reason>`` (e.g. ``pose_size``, ``stats_json``).
-    received : messages taken out of the channel so far (decoded or not).
+    errors : Counter of dropped messages by reason: ``<kind>_key`` (a key outside the grammar),
+        ``<kind>_<wire reason>`` (e.g. ``pose_size``, ``stats_json``).
+    received : messages taken out of the channels so far (decoded or not).
     """
 
     def __init__(self, source: zenoh.Session | zconfig.ZenohSettings, subjects: str = "*",
@@ -108,30 +114,21 @@ class Subscription:
         self.subjects, self.kinds, self.capacity = subjects, kinds, capacity
         self.errors: collections.Counter = collections.Counter()
         self.received = 0
-        self._channel: queue.SimpleQueue = queue.SimpleQueue()
-        self._overflow_lock = threading.Lock()
-        self._subscribers: list = []
+        self._subscribers: list[tuple[str, object]] = []
+        self._turn = 0  # which channel get() looks at first (each gets its turn)
         try:
             for kind in kinds:
-                self._subscribers.append(self._declare(kind, history))
+                self._subscribers.append((kind, self._declare(kind, history)))
         except BaseException:
             self.close()
             raise
 
     def _declare(self, kind: str, history: int):
-        channel, capacity = self._channel, self.capacity
-
-        def hand_off(sample: zenoh.Sample) -> None:  # runs on a Zenoh thread: nothing else
-            if channel.qsize() < capacity:
-                channel.put((kind, sample, time.time_ns()))
-            else:
-                with self._overflow_lock:
-                    self.errors["overflow"] += 1
-
+        channel = zenoh.handlers.FifoChannel(self.capacity)
         if kind in wire.SUBJECT_KINDS:
-            return self.session.declare_subscriber(wire.subject_selector(kind, self.subjects), hand_off)
+            return self.session.declare_subscriber(wire.subject_selector(kind, self.subjects), channel)
         return zext.declare_advanced_subscriber(
-            self.session, wire.device_selector(kind, self.subjects), hand_off,
+            self.session, wire.device_selector(kind, self.subjects), channel,
             history=zext.HistoryConfig(detect_late_publishers=True, max_samples=history if kind == "seg" else 64),
             recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
 
@@ -156,37 +153,35 @@ class Subscription:
 
     def get(self, timeout: float | None = None) -> Item | None:
         """The next decodable message, waiting at most ``timeout`` seconds (None: forever);
-        None if none came in time."""
+        None if none came in time. The channels take turns."""
         deadline = None if timeout is None else time.monotonic() + timeout
+        n = len(self._subscribers)
         while True:
-            left = None if deadline is None else max(0.0, deadline - time.monotonic())
-            try:
-                entry = self._channel.get(timeout=left)
-            except queue.Empty:
+            for k in range(n):
+                kind, sub = self._subscribers[(self._turn + k) % n]
+                while (sample := sub.try_recv()) is not None:
+                    if (item := self._decode(kind, sample, time.time_ns())) is not None:
+                        self._turn = (self._turn + k + 1) % n
+                        return item
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
                 return None
-            if (item := self._decode(*entry)) is not None:
-                return item
+            time.sleep(POLL_S if left is None else min(POLL_S, left))
 
     def drain(self, limit: int = 1 << 20) -> list[Item]:
         """Every decodable message waiting now (at most ``limit`` taken out), without blocking."""
-        items = []
-        channel, decode = self._channel, self._decode
-        for _ in range(limit):
-            try:
-                entry = channel.get_nowait()
-            except queue.Empty:
-                break
-            if (item := decode(*entry)) is not None:
-                items.append(item)
+        items: list[Item] = []
+        taken, now = 0, time.time_ns()
+        for kind, sub in self._subscribers:
+            while taken < limit and (sample := sub.try_recv()) is not None:
+                taken += 1
+                if (item := self._decode(kind, sample, now)) is not None:
+                    items.append(item)
         return items
-
-    def backlog(self) -> int:
-        """Messages waiting in the channel now."""
-        return self._channel.qsize()
 
     def close(self) -> None:
         """Undeclare the subscribers (and close the session if this subscription opened it)."""
-        for sub in self._subscribers:
+        for _, sub in self._subscribers:
             try:
                 sub.undeclare()
             except zenoh.ZError:
