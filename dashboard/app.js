@@ -353,6 +353,18 @@ async function refreshAggregators() {
   el.dataset.load = busiest.load ?? "";
 }
 
+async function refreshParts() {  // restart counts when `limbstream up` runs the system
+  let health;
+  try { health = await api("/health"); } catch (_) { return; }
+  const parts = Object.entries(health.parts || {});
+  $("tot-parts-box").hidden = !parts.length;
+  const total = parts.reduce((n, [, p]) => n + p.restarts, 0);
+  const el = $("tot-parts");
+  el.textContent = total ? parts.filter(([, p]) => p.restarts).map(([name, p]) => `${name} ${p.restarts}`).join(" · ") : "0";
+  el.className = parts.some(([, p]) => p.state !== "running") ? "bad" : (total ? "warn" : "");
+  el.dataset.restarts = total;
+}
+
 function animate() {
   for (const fig of state.figures.values()) fig.draw();
   requestAnimationFrame(animate);
@@ -427,9 +439,11 @@ async function start() {
   await refreshDevices();
   await refreshSubjects();
   await refreshAggregators();
+  await refreshParts();
   setInterval(refreshDevices, DEVICES_EVERY_MS);
   setInterval(refreshSubjects, SUBJECTS_EVERY_MS);
   setInterval(refreshAggregators, SUBJECTS_EVERY_MS);
+  setInterval(refreshParts, SUBJECTS_EVERY_MS);
   setInterval(refreshHistory, HISTORY_EVERY_MS);
   setInterval(async () => {
     if (!state.skeleton) { try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* next time */ } }

@@ -41,6 +41,15 @@ _output_lock = threading.Lock()
 # ----------------------------------------------------------------------------- readiness
 
 
+class PortTaken(RuntimeError):
+    """A server part's port already accepts connections before the part starts (another process
+    listens there; a readiness check would be fooled by it)."""
+
+    def __init__(self, name: str, host: str, port: int):
+        super().__init__(f"{name} cannot start: {host}:{port} is already in use by another process")
+        self.name = name
+
+
 class ChildExited(RuntimeError):
     """A child exited while something waited for it (or for another part)."""
 
@@ -241,8 +250,10 @@ class Child:
             return []
 
     def last_line(self) -> str:
-        """Its last non-blank line of output (usually the error that stopped it)."""
-        return next((line.strip() for line in reversed(self.tail()) if line.strip()), "(no output)")
+        """Its last line of output that mentions an error (what stopped it; a process may print
+        more while it shuts down), else its last non-blank line."""
+        lines = [line.strip() for line in self.tail() if line.strip()]
+        return next((line for line in reversed(lines) if "error" in line.lower()), lines[-1] if lines else "(no output)")
 
     def signal(self, sig: int) -> None:
         """Send ``sig`` to its process group (gone groups are ignored)."""
@@ -324,8 +335,11 @@ class Launcher:
             raise
 
     def router(self, listen: str, *extra: str, timeout: float = 20.0) -> Child:
-        """``limbstream router --listen LISTEN``, returned once its first endpoint accepts connections."""
+        """``limbstream router --listen LISTEN``, returned once its first endpoint accepts connections
+        (:class:`PortTaken` if it did before)."""
         host, port = split_endpoint(listen)
+        if port_open(host, port):
+            raise PortTaken("router", host, port)
         child = self.start("router", "router", "--listen", listen, *extra)
         self.wait_ready(child, lambda: port_open(host, port), f"the router to listen on {listen}", timeout)
         return child
@@ -333,10 +347,12 @@ class Launcher:
     def dashboard(self, http: str, connect: str, *extra: str, env: Mapping[str, str] | None = None,
                   timeout: float = 30.0) -> tuple[Child, str]:
         """``limbstream dashboard --http HTTP --connect CONNECT``, returned with its base URL once
-        ``/health`` answers 200 (its Zenoh session is open)."""
+        ``/health`` answers 200 (its Zenoh session is open); :class:`PortTaken` if its port is."""
         host, port = split_endpoint(http)
         host = local_host(host)
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
+        if port_open(host, port):
+            raise PortTaken("dashboard", host, port)
         child = self.start("dashboard", "dashboard", "--http", http, "--connect", connect, *extra, env=env)
         self.wait_ready(child, lambda: http_status(url + "/health") == 200, f"dashboard health at {url}", timeout)
         return child, url

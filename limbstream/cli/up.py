@@ -32,7 +32,8 @@ import time
 from pathlib import Path
 
 from limbstream import wire
-from limbstream.cli.launch import ChildExited, CrashLoop, Launcher, RestartPolicy, Supervisor, split_endpoint
+from limbstream.cli.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
+                                   split_endpoint)
 from limbstream.signals import stop_on_signals
 
 TOKEN_ENV = "LIMBSTREAM_API_TOKEN"
@@ -95,8 +96,6 @@ def dashboard_env(status_file: Path) -> dict[str, str]:
     env = {STATUS_ENV: str(status_file)}
     if not os.environ.get(TOKEN_ENV, "").strip() and os.environ.get("LIMBSTREAM_MODE", "development") != "production":
         env[TOKEN_ENV] = secrets.token_urlsafe(24)
-        print(f"limbstream up: development API token of the dashboard (set {TOKEN_ENV} to choose one): "
-              f"{env[TOKEN_ENV]}", flush=True)
     return env
 
 
@@ -134,10 +133,13 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
                 launcher.start(name, *argv)
             write_status(status_file, "starting", supervisor)
             if dashboard:
-                launcher.dashboard(args.http, args.router, env=dashboard_env(status_file),
-                                   timeout=DASHBOARD_TIMEOUT_S)
+                dashboard_vars = dashboard_env(status_file)
+                launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
         except ChildExited as exc:
             say(f"{exc.child.name} failed to start ({exc.child.exit_text()}): {exc.child.last_line()}")
+            return 1
+        except PortTaken as exc:
+            say(str(exc))
             return 1
         except TimeoutError:
             late = launcher.children[-1]
@@ -151,6 +153,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             print(f"  {child.name:<11} pid {child.pid}")
         if dashboard:
             print(f"\n  dashboard   http://{args.http}/   (API docs http://{args.http}/docs)")
+            if TOKEN_ENV in dashboard_vars:
+                print(f"  API token   {dashboard_vars[TOKEN_ENV]}   (development; set {TOKEN_ENV} to choose one)")
         print(f"  zenoh       {args.router}  keys limbstream/<subject>/pose, limbstream/<subject>/stats")
         print(f"  status      {status_file}  (restart counts; a part that exits is started again)")
         print("\nCtrl-C stops everything.\n", flush=True)

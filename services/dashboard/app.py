@@ -18,6 +18,7 @@ from .metrics import build_registry
 from .routes import devices, live, ops, subjects
 from .settings import DashboardSettings
 from .state import LiveState
+from .supervision import UpCollector, UpStatus
 from .zenoh_io import open_bridge
 
 
@@ -30,6 +31,8 @@ async def lifespan(app: FastAPI):
                       settings.stale_after_s, settings.live_kind_window_s, settings.ws_queue)
     app.state.live = state
     app.state.registry = build_registry(state)
+    app.state.up = UpStatus.from_env()
+    app.state.registry.register(UpCollector(app.state.up))
     app.state.bridge = None
     app.state.started = time.monotonic()
     loop = asyncio.get_running_loop()

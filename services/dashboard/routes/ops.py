@@ -9,20 +9,23 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from ..deps import LiveDep, SettingsDep
 from limbstream import wire
 
-from ..models import Aggregator, Health, Tunable
+from ..models import Aggregator, Tunable
+from ..supervision import HealthWithParts
 
 router = APIRouter(tags=["ops"])
 
 
-@router.get("/health", response_model=Health, responses={503: {"model": Health, "description": "starting"}})
+@router.get("/health", response_model=HealthWithParts,
+            responses={503: {"model": HealthWithParts, "description": "starting"}})
 async def health(request: Request, response: Response, live: LiveDep, settings: SettingsDep) -> dict:
-    """200 once the Zenoh session is open, 503 while it is still connecting."""
+    """200 once the Zenoh session is open, 503 while it is still connecting; ``parts``: restart
+    counts of the parts when ``limbstream up`` runs them."""
     connected = request.app.state.bridge is not None
     response.status_code = 200 if connected else 503
     return {"status": "ok" if connected else "starting", "zenoh": connected,
             "subjects": len({e.subject for e in live.devices.values()} | set(live.poses)), "devices": len(live.devices),
             "uptime_s": round(time.monotonic() - request.app.state.started, 3),
-            "control": settings.api_token is not None}
+            "control": settings.api_token is not None, "parts": request.app.state.up.parts()}
 
 
 @router.get("/api/aggregators", response_model=list[Aggregator])

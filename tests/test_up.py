@@ -1,0 +1,316 @@
+"""``limbstream up`` keeps the live system running: its parts are SIGKILLed one after another and
+come back by themselves; a part that keeps failing, or cannot start, stops ``up`` with one line.
+
+Real processes on free loopback ports. The kill test prints one ``UP |`` line per part (time
+from the SIGKILL to the part being back) that docs/reliability.md collects:
+``pytest tests/test_up.py -s | grep 'UP |'``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from stack import StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
+
+from limbstream import wire
+from limbstream.cli.launch import Child, ChildExited, CrashLoop, RestartPolicy, Supervisor, port_open
+
+PERIOD_US = 20_000  # exact frames at 50 Hz
+
+
+def report(part: str, how: str, back: str) -> None:
+    print(f"\nUP | {part} | {how} | {back} |")
+
+
+def gone(pid: int) -> bool:
+    """True if the process no longer runs (a zombie counts as gone)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+def taken_port(port: int) -> socket.socket:
+    """Another process's listener on 127.0.0.1:port (SO_REUSEADDR: the port may have TIME_WAIT
+    connections of the process killed a moment ago)."""
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind(("127.0.0.1", port))
+    s.listen()
+    return s
+
+
+class Up:
+    """A ``limbstream up`` process of the test's stack and its status file."""
+
+    def __init__(self, stack, tmp_path: Path, *extra: str, http: str | None = None):  # noqa: F811
+        self.status_file = tmp_path / "up-status.json"
+        self.http = http or f"127.0.0.1:{free_port()}"
+        self.url = f"http://{self.http}"
+        self.child = stack.start("up", "up", "--router", stack.endpoint, "--http", self.http,
+                                 "--status-file", str(self.status_file), *extra)
+        self.logs = stack.logs
+
+    def status(self) -> dict:
+        if not self.child.alive():
+            raise ChildExited(self.child)
+        return json.loads(self.status_file.read_text())
+
+    def part(self, name: str) -> dict:
+        return self.status()["parts"][name]
+
+    def kill(self, name: str) -> tuple[int, float]:
+        """SIGKILL a part; (its pid, time of the kill)."""
+        pid = json.loads(self.status_file.read_text())["parts"][name]["pid"]
+        os.kill(pid, signal.SIGKILL)
+        return pid, time.monotonic()
+
+    def restarted(self, name: str, old_pid: int) -> bool:
+        part = self.part(name)
+        return part["state"] == "running" and part["pid"] != old_pid
+
+    def output(self) -> list[str]:
+        return self.child.tail(200)
+
+    def wait_exit(self, timeout: float) -> int:
+        wait_until(lambda: not self.child.alive(), timeout, "limbstream up to stop", on_fail=self.logs)
+        return self.child.returncode
+
+
+class Frames:
+    """Exact pose frames of some subjects as they arrive."""
+
+    def __init__(self, session: zenoh.Session, subjects: list[str]):
+        self.subs = {s: session.declare_subscriber(wire.pose_key(s), zenoh.handlers.FifoChannel(1 << 16))
+                     for s in subjects}
+        self.t = {s: [] for s in subjects}
+        self.arrival = {s: [] for s in subjects}
+
+    def poll(self) -> dict[str, list[int]]:
+        for subject, sub in self.subs.items():
+            while (sample := sub.try_recv()) is not None:
+                frame = wire.decode_pose(sample.payload.to_bytes())
+                if frame.kind == wire.KIND_EXACT:
+                    self.t[subject].append(frame.t_us)
+                    self.arrival[subject].append(time.monotonic())
+        return self.t
+
+    def first_after(self, subject: str, since: float) -> float | None:
+        """Arrival of the first frame received after ``since`` (monotonic), or None."""
+        self.poll()
+        return next((a for a in self.arrival[subject] if a > since), None)
+
+    def largest_hole_us(self, subject: str, since_t_us: int) -> int:
+        t = np.array(sorted({x for x in self.t[subject] if x >= since_t_us}))
+        return int(np.diff(t).max()) if len(t) > 1 else 0
+
+
+def nothing_lost(watch: StatsWatch, devices: list[str], what: str, on_fail) -> None:
+    """Every device's own count of published points reaches the aggregator (asked now, then waited
+    for), with no sequence gap and no Zenoh miss."""
+    own = {d: watch.device_status(d)["points"] for d in devices}
+    wait_until(lambda: all(watch.poll()[d]["points"] >= own[d] for d in devices), 30,
+               f"the aggregator to receive every point the devices published ({what})", on_fail=on_fail)
+    gaps = {d: watch.devices[d]["gaps"] for d in devices if watch.devices[d]["gaps"]}
+    missed = sum((s.get("aggregator") or {}).get("missed", 0) for s in watch.subjects.values())
+    assert not gaps and missed == 0, f"{what}: gaps {gaps}, missed {missed}"
+
+
+# ----------------------------------------------------------------------------- supervisor
+
+
+def test_supervisor_backs_off_and_stops_a_crash_loop(tmp_path):
+    """Real children that exit at once: restarts wait 0.5, 1, 2, 4 s (times given to poll), the
+    back-off starts over after a healthy minute, and the 5th exit within 60 s is a crash loop
+    naming the child and its last line of output."""
+    child = Child("flaky", [sys.executable, "-c", "print('flaky: cannot open /dev/flux'); raise SystemExit(3)"],
+                  log=tmp_path / "flaky.log").start()
+    messages: list[str] = []
+    sup = Supervisor([child], RestartPolicy(), report=messages.append)
+    now = time.monotonic()
+    delays = []
+    with pytest.raises(CrashLoop) as loop:
+        for _ in range(10):
+            child.popen.wait()
+            assert sup.poll(now)                       # the exit is noted ...
+            due = sup.records["flaky"].due
+            delays.append(round(due - now, 3))
+            assert not sup.poll(due - 0.01) and not child.alive()  # ... nothing starts before its time
+            assert sup.poll(due) and sup.status()["flaky"]["state"] in ("running", "exited")
+            now = due
+    assert delays == [0.5, 1.0, 2.0, 4.0], delays
+    assert sup.status()["flaky"]["restarts"] == 4
+    assert str(loop.value) == "flaky exited 5 times within 60 s (exit status 3): flaky: cannot open /dev/flux"
+    assert messages[0] == "flaky exit status 3; starting it again in 0.5 s", messages
+    assert messages[1].startswith("flaky started again (pid ") and messages[1].endswith(", restart 1)"), messages
+
+    # exits a minute apart: never a loop, and each ran a healthy minute, so the back-off starts over
+    sup = Supervisor([child.start()], RestartPolicy(), report=messages.append)
+    base = time.monotonic()
+    for k in range(1, 9):
+        child.popen.wait()
+        t = base + 61.0 * k
+        assert sup.poll(t)
+        assert sup.records["flaky"].due == pytest.approx(t + 0.5)
+        assert sup.poll(t + 0.5)
+    assert sup.status()["flaky"]["restarts"] == 8
+    child.popen.wait()
+
+
+# ----------------------------------------------------------------------------- up
+
+
+def test_up_brings_back_each_killed_part(stack, tmp_path):  # noqa: F811
+    """Under ``up`` (2 emulator processes, 1 subject each), SIGKILL the router, one emulator, the
+    aggregator and the dashboard, one after another: each comes back by itself — points flow
+    again with none lost (router, aggregator), devices online again (emulator), exact frames on
+    the 50 Hz grid resume, the dashboard answers and shows the restart counts (/health,
+    /metrics). Finally the dashboard's port is taken while it restarts: ``up`` stops with one
+    line naming it and the cause, and no child outlives it."""
+    up = Up(stack, tmp_path, "--subjects", "2", "--emulators", "2", "--max-exits", "3")
+    wait_until(lambda: up.status()["state"] == "running", 60, "up to start every part", on_fail=up.logs)
+    watch = StatsWatch(stack.endpoint)
+    frames = Frames(watch.session, ["s01", "s02"])
+    try:
+        def online(subjects=("s01", "s02")) -> bool:
+            mine = [d for d in watch.poll().values() if d["subject"] in subjects]
+            return len(mine) == 10 * len(subjects) and all(d["online"] for d in mine)
+        wait_until(lambda: online() and all(len(v) > 50 for v in frames.poll().values()), 60,
+                   "20 devices online and exact frames of both subjects", on_fail=up.logs)
+        assert http_json(up.url + "/health")[0] == 200
+        devices = sorted(watch.devices)
+
+        # router: clients reconnect; the devices' caches resend what was published meanwhile
+        before = {d: watch.devices[d]["points"] for d in devices}
+        pid, killed = up.kill("router")
+        wait_until(lambda: up.restarted("router", pid) and port_open("127.0.0.1", stack.port), 30,
+                   "the router to be started again", interval=0.01, on_fail=up.logs)
+        listening = time.monotonic()
+        wait_until(lambda: all(watch.poll()[d]["points"] > before[d] for d in devices), 30,
+                   "points of every device after the router restart", interval=0.02, on_fail=up.logs)
+        flowing = time.monotonic()
+        resumed = wait_until(lambda: all(frames.first_after(s, listening) for s in ("s01", "s02"))
+                             and max(frames.first_after(s, listening) for s in ("s01", "s02")), 30,
+                             "exact frames after the router restart", interval=0.02, on_fail=up.logs)
+        nothing_lost(watch, devices, "router restart", up.logs)
+        report("router", "SIGKILL", f"listening again {listening - killed:.2f} s, points of every device "
+               f"{flowing - killed:.2f} s, exact frames {resumed - killed:.2f} s; 0 points lost")
+
+        # one emulator (subject s02): a new stream of the same devices
+        old = {d: watch.devices[d]["stream"] for d in devices if d.startswith("s02/")}
+        last_t = max(frames.poll()["s02"])
+        pid, killed = up.kill("emulator2")
+
+        def new_stream_online() -> bool:
+            now = watch.poll()
+            return all(now[d]["online"] and now[d]["stream"] != old[d] for d in old)
+        wait_until(new_stream_online, 30, "s02's devices online with a new stream", interval=0.02,
+                   on_fail=up.logs)
+        back_online = time.monotonic()
+
+        def s02_frames_after_restart():
+            frames.poll()
+            return next((a for t, a in zip(frames.t["s02"], frames.arrival["s02"]) if t > last_t and a > killed),
+                        None)
+        resumed = wait_until(s02_frames_after_restart, 30, "exact frames of s02's new stream", interval=0.02,
+                             on_fail=up.logs)
+        assert online(["s01"]), "s01 (the other emulator) stays online"
+        report("emulator (10 devices)", "SIGKILL", f"devices online (new stream) {back_online - killed:.2f} s, "
+               f"exact frames {resumed - killed:.2f} s")
+
+        # aggregator: the new one asks the devices for their history
+        last = {s: max(frames.poll()[s]) for s in ("s01", "s02")}
+        n_before = {s: len(frames.t[s]) for s in ("s01", "s02")}
+        pid, killed = up.kill("aggregator")
+        wait_until(lambda: up.restarted("aggregator", pid), 30, "the aggregator to be started again",
+                   interval=0.01, on_fail=up.logs)
+        started = time.monotonic()
+        resumed = wait_until(lambda: all(frames.first_after(s, started) for s in ("s01", "s02"))
+                             and max(frames.first_after(s, started) for s in ("s01", "s02")), 30,
+                             "exact frames from the new aggregator", interval=0.02, on_fail=up.logs)
+        wait_until(lambda: all(max(frames.poll()[s]) > last[s] + 2_000_000 for s in last), 30,
+                   "2 s of frames after the aggregator restart", on_fail=up.logs)
+        nothing_lost(watch, devices, "aggregator restart", up.logs)
+        # frame time as this consumer saw it (not asserted: the new aggregator publishes the frames it
+        # rebuilds from history in one burst, and pose frames are published with Zenoh's default
+        # congestion control, DROP, so a consumer may miss part of the burst on a loaded machine)
+        start = min(min(frames.t[s][n_before[s]:]) - last[s] for s in last) / 1e3
+        hole = max(frames.largest_hole_us(s, last[s] - 1_000_000) for s in last) / 1e3
+        report("aggregator", "SIGKILL", f"exact frames {resumed - killed:.2f} s (the new process started "
+               f"{started - killed:.2f} s after the kill); the first frame after the restart is {start:+.0f} ms "
+               f"from the last one before (history), largest hole in frame time {hole:.0f} ms; 0 points lost")
+        for s, t in frames.poll().items():
+            assert all(x % PERIOD_US == 0 for x in t), f"{s}: exact frames off the 50 Hz grid"
+
+        # dashboard
+        pid, killed = up.kill("dashboard")
+        wait_until(lambda: up.restarted("dashboard", pid) and http_json(up.url + "/health", timeout=1.0)[0] == 200,
+                   30, "the dashboard to answer again", interval=0.01, on_fail=up.logs)
+        report("dashboard", "SIGKILL", f"/health answers 200 {time.monotonic() - killed:.2f} s")
+        restarts = {name: p["restarts"] for name, p in up.status()["parts"].items()}
+        assert restarts == {"router": 1, "emulator1": 0, "emulator2": 1, "aggregator": 1, "dashboard": 1}, restarts
+        health = http_json(up.url + "/health")[1]
+        assert {name: p["restarts"] for name, p in health["parts"].items()} == restarts, health
+        assert health["parts"]["router"] == {"state": "running", "restarts": 1, "last_exit": "killed by SIGKILL"}
+        metrics = http_json(up.url + "/metrics")[1]
+        for name, n in restarts.items():
+            assert f'limbstream_up_restarts_total{{part="{name}"}} {n:.1f}' in metrics, metrics
+        out = "\n".join(up.output())
+        for name in ("router", "emulator2", "aggregator", "dashboard"):
+            assert f"limbstream up: {name} killed by SIGKILL; starting it again in 0.5 s" in out, out
+            assert f"limbstream up: {name} started again (pid " in out, out
+
+        # the dashboard's port taken while it restarts: exits 2 and 3 within 60 s stop everything
+        pids = [p["pid"] for p in up.status()["parts"].values()]
+        port = int(up.http.rsplit(":", 1)[1])
+        os.kill(up.child.pid, signal.SIGSTOP)  # up is paused: it cannot start the dashboard before the port is taken
+        try:
+            up.kill("dashboard")
+            taker = wait_until(lambda: taken_port(port), 10, "the dashboard's port to be free")
+        finally:
+            os.kill(up.child.pid, signal.SIGCONT)
+        with taker:
+            assert up.wait_exit(60) == 1
+    finally:
+        watch.close()
+    lines = [line for line in up.output() if line.startswith("limbstream up:")]
+    assert any(line.startswith("limbstream up: dashboard exited 3 times within 60 s (")
+               and "address already in use" in line and line.endswith("; stopping") for line in lines), \
+        "\n".join(up.output())
+    assert lines[-1] == "limbstream up: stopped"
+    assert all(gone(pid) for pid in pids), [pid for pid in pids if not gone(pid)]
+    assert json.loads(up.status_file.read_text())["state"] == "stopped"
+
+
+@pytest.mark.parametrize("part", ["router", "dashboard", "emulator"])
+def test_up_stops_with_one_line_when_a_part_cannot_start(stack, tmp_path, part):  # noqa: F811
+    """The router's or the dashboard's port is taken by another process, or the emulator's motion
+    file does not exist: ``up`` does not loop, it stops with one line naming the part and the
+    cause (at once, or for the emulator, if it fails only after the dashboard answered, at its
+    second exit: ``--max-exits 2``), and leaves no child behind."""
+    port = stack.port if part == "router" else free_port()
+    http = f"127.0.0.1:{port}" if part == "dashboard" else None
+    source = str(tmp_path / "missing.npz") if part == "emulator" else "generator"
+    with taken_port(port):
+        up = Up(stack, tmp_path, "--subjects", "1", "--source", source, "--max-exits", "2", http=http)
+        assert up.wait_exit(60) == 1
+    lines = [line for line in up.output() if line.startswith("limbstream up:")]
+    assert lines[-1] == "limbstream up: stopped", lines
+    if part == "emulator":
+        cause = f"(exit status 1): limbstream emulate: error: {source}: no such file or folder"
+        assert lines[-2] in (f"limbstream up: emulator failed to start {cause}",
+                             f"limbstream up: emulator exited 2 times within 60 s {cause}; stopping"), lines
+    else:
+        assert len(lines) == 2, lines
+        assert lines[0] == f"limbstream up: {part} cannot start: 127.0.0.1:{port} is already in use by another process"
+    if up.status_file.exists():
+        pids = [p["pid"] for p in json.loads(up.status_file.read_text())["parts"].values()]
+        assert pids and all(gone(pid) for pid in pids)
