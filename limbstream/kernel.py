@@ -3,6 +3,11 @@
 Offline use: :func:`segment` runs a whole stream through one algorithm.
 Streaming use (one device): :class:`Segmenter`. Many devices per tick: :class:`SegmenterBank`.
 
+Live rule (fastSW, ``live_bound_deg`` > 0; docs/kernel.md): every segment point carries a body
+angular rate ``omega`` (rad/s), and a receiver's live view of time t is
+``limbstream.quat.predict(q_point, omega, t - t_point)`` from the newest point it has; the
+kernel keeps every sample within ``live_bound_deg`` of that view.
+
 Time: the kernels take ``uint32`` ticks (microseconds here, ``TICK_HZ``); only ratios of
 time differences enter the SSR, so the unit does not change the result. Seconds are
 converted with :func:`to_ticks`, relative to the first sample, modulo 2**32.
@@ -17,7 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from limbstream import wire
+from limbstream import quat, wire
 
 TICK_HZ = 1_000_000.0
 """Kernel ticks per second used by the bindings (microseconds)."""
@@ -42,9 +47,18 @@ MAX_DIM: int = _lib.fastsw_max_dim()
 
 
 class Settings(ctypes.Structure):
-    """FastswSettings: SSR threshold, max segment length (samples), dimension D."""
+    """FastswSettings: SSR threshold, max segment length (samples), dimension D, live rule bound
+    (degrees; 0 off)."""
 
-    _fields_ = [("threshold", ctypes.c_float), ("max_len", ctypes.c_uint32), ("dim", ctypes.c_uint32)]
+    _fields_ = [("threshold", ctypes.c_float), ("max_len", ctypes.c_uint32), ("dim", ctypes.c_uint32),
+                ("live_bound_deg", ctypes.c_float)]
+
+
+class BatchOut(ctypes.Structure):
+    """FastswBatchOut (fastsw_batch.h): optional per-point outputs of a batch run."""
+
+    _fields_ = [("index", ctypes.c_void_p), ("points", ctypes.c_void_p), ("call", ctypes.c_void_p),
+                ("rates", ctypes.c_void_p)]
 
 
 class Point(ctypes.Structure):
@@ -66,16 +80,19 @@ _lib.fastsw_update.argtypes = [ctypes.c_void_p, ctypes.c_uint32, _f32p, ctypes.P
 _lib.fastsw_update.restype = ctypes.c_int
 _lib.fastsw_flush.argtypes = [ctypes.c_void_p, ctypes.POINTER(Point)]
 _lib.fastsw_flush.restype = ctypes.c_int
-_lib.fastsw_retune.argtypes = [ctypes.c_void_p, ctypes.c_float, ctypes.c_uint32]
-_lib.fastsw_retune.restype = None
-_lib.fastsw_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, _u32p, _sizep]
+_lib.fastsw_retune.argtypes = [ctypes.c_void_p, ctypes.POINTER(Settings)]
+_lib.fastsw_retune.restype = ctypes.c_int
+_lib.fastsw_point_rate.argtypes = [ctypes.c_void_p, _f32p]
+_lib.fastsw_point_rate.restype = None
+_lib.fastsw_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t,
+                                ctypes.POINTER(BatchOut), _sizep]
 _lib.fastsw_segment.restype = ctypes.c_size_t
 _lib.sw_segment.argtypes = [
     ctypes.c_void_p, ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, _u32p, _sizep,
 ]
 _lib.sw_segment.restype = ctypes.c_size_t
 _lib.fastsw_update_many.argtypes = [
-    ctypes.c_void_p, ctypes.c_size_t, _u32p, _f32p, _u8p, ctypes.c_void_p,
+    ctypes.c_void_p, ctypes.c_size_t, _u32p, _f32p, _u8p, ctypes.c_void_p, ctypes.c_void_p,
 ]
 _lib.fastsw_update_many.restype = ctypes.c_size_t
 
@@ -105,6 +122,14 @@ class Segmentation:
         Samples in the input stream (m).
     rejected : int
         Input samples the kernel rejected (non-finite values, time not increasing).
+    omega : (K, 3) float64 or None
+        fastSW: each point's body angular rate, rad/s, the live rule's rate (zero with the rule
+        off, for the first point and for the final flush). None for other algorithms.
+    known_from : (K,) int64 or None
+        fastSW: position of the sample whose update call emitted each point (a receiver knows
+        it from that sample's time on); ``n_samples`` for the final flush. A point closed by
+        the SSR or max_len rule is known from the sample after it, one closed by the live rule
+        from its own. None for other algorithms.
     """
 
     index: np.ndarray | None
@@ -112,6 +137,8 @@ class Segmentation:
     q: np.ndarray
     n_samples: int
     rejected: int = 0
+    omega: np.ndarray | None = None
+    known_from: np.ndarray | None = None
 
     @property
     def icr(self) -> float:
@@ -135,12 +162,35 @@ def to_ticks(t: np.ndarray, t0: float | None = None) -> np.ndarray:
     return (ticks.astype(np.int64) & 0xFFFFFFFF).astype(np.uint32)
 
 
-def make_settings(threshold: float, max_len: int, dim: int) -> Settings:
+LIVE_BOUND = wire.Tunable("live_bound_deg", float, 0.0, 0.0, 180.0, "degrees",
+                          "live rule: largest angle between a sample and the receiver's prediction (0: off)")
+"""The live rule's bound as the binding accepts it (0 and 180: off)."""
+
+
+def make_settings(threshold: float, max_len: int, dim: int, live_bound_deg: float = 0.0) -> Settings:
     """Validated :class:`Settings`; raises ValueError naming the bad argument. The bounds of
-    threshold and max_len are the device tunables' (limbstream.wire.TUNABLES)."""
+    threshold and max_len are the device tunables' (limbstream.wire.TUNABLES), those of
+    live_bound_deg :data:`LIVE_BOUND`'s; the live rule needs dim 4 (quaternions)."""
     if not 1 <= dim <= MAX_DIM:
         raise ValueError(f"dim must be in 1..{MAX_DIM}, got {dim}")
-    return Settings(wire.THRESHOLD.check(threshold), wire.MAX_LEN.check(max_len), int(dim))
+    live = LIVE_BOUND.check(live_bound_deg)
+    if 0.0 < live < 180.0 and dim != 4:
+        raise ValueError(f"live_bound_deg needs quaternion samples (dim 4), got dim {dim}")
+    return Settings(wire.THRESHOLD.check(threshold), wire.MAX_LEN.check(max_len), int(dim), live)
+
+
+def body_rates(y: np.ndarray, rates: np.ndarray) -> np.ndarray:
+    """Kernel rates (value units per tick, tangent to their points) -> body angular rates.
+
+    Parameters
+    ----------
+    y : (K, 4) float, the points; rates : (K, 4) float, their rates per tick.
+
+    Returns
+    -------
+    (K, 3) float64, rad/s: ``2 vec(conj(y) v) TICK_HZ`` (:func:`limbstream.quat.body_rate`).
+    """
+    return quat.body_rate(y, np.asarray(rates, np.float64) * TICK_HZ)
 
 
 def _as_stream(t, q) -> tuple[np.ndarray, np.ndarray]:
@@ -154,7 +204,7 @@ def _as_stream(t, q) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _run_indexed(kernel: Callable, t, q, threshold, max_len) -> Segmentation:
-    """Run an index-returning C batch kernel (fastSW, SW) and gather the original rows."""
+    """Run an index-returning C batch kernel (SW) and gather the original rows."""
     t, q = _as_stream(t, q)
     settings = make_settings(threshold, max_len, q.shape[1])
     ticks = to_ticks(t)
@@ -166,8 +216,22 @@ def _run_indexed(kernel: Callable, t, q, threshold, max_len) -> Segmentation:
     return Segmentation(index, t[index], q[index], len(t), int(rejected.value))
 
 
-def _fastsw(t, q, threshold, max_len) -> Segmentation:
-    return _run_indexed(_lib.fastsw_segment, t, q, threshold, max_len)
+def _fastsw(t, q, threshold, max_len, live_bound_deg: float = 0.0) -> Segmentation:
+    """fastSW (fastsw.h), with each point's rate and the sample it is known from."""
+    t, q = _as_stream(t, q)
+    settings = make_settings(threshold, max_len, q.shape[1], live_bound_deg)
+    m, dim = len(t), q.shape[1]
+    ticks = to_ticks(t)
+    y = np.ascontiguousarray(q, dtype=np.float32)
+    index = np.empty(max(m, 1), np.uint32)
+    call = np.empty(max(m, 1), np.uint32)
+    rates = np.zeros((max(m, 1), dim), np.float32)
+    out = BatchOut(index.ctypes.data, None, call.ctypes.data, rates.ctypes.data)
+    rejected = ctypes.c_size_t(0)
+    k = _lib.fastsw_segment(ctypes.byref(settings), ticks, y, m, ctypes.byref(out), ctypes.byref(rejected))
+    index = index[:k].astype(np.int64)
+    omega = body_rates(y[index], rates[:k]) if dim == 4 else np.zeros((k, 3))
+    return Segmentation(index, t[index], q[index], m, int(rejected.value), omega, call[:k].astype(np.int64))
 
 
 def _sw(t, q, threshold, max_len) -> Segmentation:
@@ -223,7 +287,8 @@ ALGORITHMS: dict[str, Callable[..., Segmentation]] = {
 """Segmentation algorithms by name: (t, q, threshold, max_len) -> Segmentation."""
 
 
-def segment(t, q, threshold: float, max_len: int = 1000, algorithm: str = "fastsw") -> Segmentation:
+def segment(t, q, threshold: float, max_len: int = 1000, algorithm: str = "fastsw",
+            live_bound_deg: float = 0.0) -> Segmentation:
     """Segment one stream offline.
 
     Parameters
@@ -239,6 +304,8 @@ def segment(t, q, threshold: float, max_len: int = 1000, algorithm: str = "fasts
         Most samples one segment covers after its first point (paper: 1000).
     algorithm : {"fastsw", "sw", "cplr", "swing"}
         A key of :data:`ALGORITHMS`.
+    live_bound_deg : float
+        fastSW's live rule: the bound in degrees, 0 (or 180) for off (:data:`LIVE_BOUND`).
 
     Returns
     -------
@@ -248,21 +315,27 @@ def segment(t, q, threshold: float, max_len: int = 1000, algorithm: str = "fasts
         run = ALGORITHMS[algorithm]
     except KeyError:
         raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}") from None
+    if algorithm == "fastsw":
+        return run(t, q, threshold, max_len, live_bound_deg)
+    if LIVE_BOUND.check(live_bound_deg) != 0.0:
+        raise ValueError(f"live_bound_deg is a rule of algorithm 'fastsw', not {algorithm!r}")
     return run(t, q, threshold, max_len)
 
 
 class Segmenter:
     """fastSW on one live stream (one device).
 
-    >>> seg = Segmenter(threshold=1e-2, max_len=25)
+    >>> seg = Segmenter(threshold=1e-2, max_len=25, live_bound_deg=5.0)
     >>> point = seg.update(0.0, [1, 0, 0, 0])   # first sample is a point
+    >>> seg.point_omega()                        # its body rate, rad/s (live rule)
     """
 
-    def __init__(self, threshold: float = 1e-2, max_len: int = 1000, dim: int = 4):
+    def __init__(self, threshold: float = 1e-2, max_len: int = 1000, dim: int = 4, live_bound_deg: float = 0.0):
         self.dim = dim
-        self._settings = make_settings(threshold, max_len, dim)
+        self._settings = make_settings(threshold, max_len, dim, live_bound_deg)
         self._state = ctypes.create_string_buffer(STATE_SIZE)
         self._point = Point()
+        self._rate = np.zeros(MAX_DIM, np.float32)
         self._t0: float | None = None
         _lib.fastsw_init(self._state, ctypes.byref(self._settings))
 
@@ -284,10 +357,20 @@ class Segmenter:
         """End of stream: the last sample as a point, unless it already is one."""
         return self._emit(_lib.fastsw_flush(self._state, ctypes.byref(self._point)))
 
-    def retune(self, threshold: float, max_len: int) -> None:
-        """Change threshold and max segment length from the next sample on."""
-        make_settings(threshold, max_len, self.dim)
-        _lib.fastsw_retune(self._state, float(threshold), int(max_len))
+    def point_omega(self) -> np.ndarray:
+        """(3,) float64 body angular rate (rad/s) of the newest point: what a receiver
+        extrapolates it with (zero with the live rule off)."""
+        _lib.fastsw_point_rate(self._state, self._rate)
+        y = np.array(self._point.y[:4], np.float32)
+        return body_rates(y[None], self._rate[None, :4])[0] if self.dim == 4 else np.zeros(3)
+
+    def retune(self, threshold: float, max_len: int, live_bound_deg: float | None = None) -> None:
+        """Change threshold, max segment length and (unless None) the live bound from the next
+        sample on."""
+        if live_bound_deg is None:
+            live_bound_deg = self._settings.live_bound_deg
+        self._settings = make_settings(threshold, max_len, self.dim, live_bound_deg)
+        _lib.fastsw_retune(self._state, ctypes.byref(self._settings))
 
 
 class SegmenterBank:
@@ -299,30 +382,27 @@ class SegmenterBank:
     ----------
     count : int
         Number of streams.
-    threshold, max_len : scalar or (count,)
+    threshold, max_len, live_bound_deg : scalar or (count,)
         Settings per stream.
     dim : int
         Sample dimension, shared.
     """
 
-    def __init__(self, count: int, threshold=1e-2, max_len=1000, dim: int = 4):
+    def __init__(self, count: int, threshold=1e-2, max_len=1000, dim: int = 4, live_bound_deg=0.0):
         self.count, self.dim = count, dim
         self._states = ctypes.create_string_buffer(STATE_SIZE * max(count, 1))
         self._points = (Point * max(count, 1))()
         self._status = np.zeros(max(count, 1), np.uint8)
-        self._index = np.zeros(count, np.int64)
+        self._rates = np.zeros((max(count, 1), dim), np.float32)
         self._n = count  # streams advanced by the last update
         thresholds = np.broadcast_to(np.asarray(threshold, np.float64), (count,))
         max_lens = np.broadcast_to(np.asarray(max_len, np.int64), (count,))
+        bounds = np.broadcast_to(np.asarray(live_bound_deg, dtype=object), (count,))
+        self._settings = [make_settings(thresholds[k], max_lens[k], dim, bounds[k]) for k in range(count)]
         base = ctypes.addressof(self._states)
-        for k in range(count):
-            settings = make_settings(thresholds[k], max_lens[k], dim)
+        for k, settings in enumerate(self._settings):
             _lib.fastsw_init(base + k * STATE_SIZE, ctypes.byref(settings))
-        point_dtype = np.dtype(
-            {"names": ["index", "t", "y"], "formats": [np.uint32, np.uint32, (np.float32, MAX_DIM)],
-             "offsets": [0, 4, 8], "itemsize": ctypes.sizeof(Point)}
-        )
-        self._point_view = np.frombuffer(self._points, dtype=point_dtype)
+        self._point_view = np.frombuffer(self._points, dtype=_POINT_DTYPE)
 
     def update(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Advance the first n streams by one sample (n = len(ticks) <= count; the others,
@@ -344,7 +424,7 @@ class SegmenterBank:
         n = len(ticks)
         if n > self.count or y.shape != (n, self.dim):
             raise ValueError(f"ticks (n,) and y (n, {self.dim}) with n <= {self.count}; got {ticks.shape}, {y.shape}")
-        _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points)
+        _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points, self._rates.ctypes.data)
         self._n = n
         view = self._point_view[:n]
         return self._status[:n], view["index"], view["y"][:, : self.dim]
@@ -353,13 +433,23 @@ class SegmenterBank:
         """(n,) uint32 ticks of the points returned by the last :meth:`update`."""
         return self._point_view[: self._n]["t"]
 
-    def retune(self, k: int, threshold: float, max_len: int) -> None:
-        """Change one stream's settings from its next sample on."""
-        make_settings(threshold, max_len, self.dim)
-        _lib.fastsw_retune(ctypes.addressof(self._states) + k * STATE_SIZE, float(threshold), int(max_len))
+    def points_omega(self) -> np.ndarray:
+        """(n, 3) float64 body angular rates (rad/s) of the points returned by the last
+        :meth:`update`, where status == POINT (zero with the live rule off)."""
+        n = self._n
+        if self.dim != 4:
+            return np.zeros((n, 3))
+        return body_rates(self._point_view[:n]["y"][:, :4], self._rates[:n])
+
+    def retune(self, k: int, threshold: float, max_len: int, live_bound_deg: float | None = None) -> None:
+        """Change one stream's threshold, max_len and (unless None) live bound from its next sample on."""
+        if live_bound_deg is None:
+            live_bound_deg = self._settings[k].live_bound_deg
+        self._settings[k] = make_settings(threshold, max_len, self.dim, live_bound_deg)
+        _lib.fastsw_retune(ctypes.addressof(self._states) + k * STATE_SIZE, ctypes.byref(self._settings[k]))
 
     def flush(self, k: int) -> tuple[int, int, np.ndarray] | None:
-        """End stream k: (index, tick, y) of its last point, or None."""
+        """End stream k: (index, tick, y) of its last point (held: rate 0), or None."""
         point = Point()
         if _lib.fastsw_flush(ctypes.addressof(self._states) + k * STATE_SIZE, ctypes.byref(point)) != POINT:
             return None

@@ -115,6 +115,49 @@ def conjugate(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def body_rate(q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+    """Body angular rate of a unit quaternion moving at rate qdot: ``2 vec(conj(q) qdot)``.
+
+    Parameters
+    ----------
+    q : (..., 4) unit quaternions; qdot : (..., 4) their time derivatives (per second), tangent
+        to q (qdot . q = 0; a radial part is dropped).
+
+    Returns
+    -------
+    (..., 3) float64 angular rates in q's body frame, rad/s (the inverse of :func:`predict`'s
+    ``qdot = q (0, omega) / 2``).
+    """
+    return 2.0 * multiply(conjugate(q), qdot)[..., 1:]
+
+
+def predict(q: np.ndarray, omega: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """The live view of a segment point: the receiver's prediction of the orientation ``dt``
+    seconds after the point ``q`` whose body angular rate is ``omega`` (docs/kernel.md,
+    "Live rule"; the fastSW kernel checks every sample against exactly this).
+
+    First-order extrapolation along the tangent, normalised:
+    ``normalize(q^ + dt qdot)`` with ``q^ = normalize(q)`` and ``qdot = q^ (0, omega) / 2``.
+    It rotates about ``omega``'s axis by ``2 arctan(|omega| dt / 2)``: the angular rate
+    ``|omega|`` at the point, slowing down as the angle grows; ``omega = 0`` holds the point.
+
+    Parameters
+    ----------
+    q : (N, 4) or (4,) points (scalar-first, any nonzero norm).
+    omega : (N, 3) or (3,) body angular rates, rad/s.
+    dt : (N,) or scalar, seconds after each point (negative: before).
+
+    Returns
+    -------
+    (N, 4) float64 unit quaternions (shapes broadcast).
+    """
+    q_hat = normalize(q)
+    omega = np.asarray(omega, np.float64)
+    pure = np.concatenate([np.zeros(omega.shape[:-1] + (1,)), omega], axis=-1)
+    qdot = 0.5 * multiply(q_hat, pure)
+    return normalize(q_hat + np.asarray(dt, np.float64)[..., None] * qdot)
+
+
 def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate (..., 3) vectors v by (..., 4) unit quaternions q (broadcast)."""
     q = np.asarray(q, np.float64)

@@ -16,7 +16,12 @@ from firmware import FIRMWARE, load_tool, require_tools
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-nm", "arm-none-eabi-objdump", "qemu-system-arm", "make")
 
 FASTSW_MAX_INSTRUCTIONS = 130
-"""Reached maximum of fastsw_update per sample (paper, Table 2: 210)."""
+"""Reached maximum of fastsw_update per sample, live rule off (paper, Table 2: 210)."""
+
+FASTSW_LIVE_MAX_INSTRUCTIONS = 176
+"""Reached maximum with the live rule on, a live close (issue limit: the paper's 210)."""
+LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
+                 "live_reject_nan", "live_reject_time")
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +59,20 @@ def test_fastsw_max_within_ceiling(counts):
         assert len(set(fastsw[branch])) == 1, f"{branch}: counts vary {sorted(set(fastsw[branch]))}"
 
 
+def test_fastsw_live_max_within_ceiling(counts):
+    fastsw = counts["fastsw"]
+    for branch in LIVE_BRANCHES:
+        assert fastsw.get(branch), f"branch {branch} never taken"
+    assert counts["live_max"] <= FASTSW_LIVE_MAX_INSTRUCTIONS <= 210, (
+        f"fastsw_update with the live rule takes up to {counts['live_max']} instructions "
+        f"({counts['live_max_branch']}), ceiling {FASTSW_LIVE_MAX_INSTRUCTIONS}"
+    )
+    for branch in ("live_normal", "live_close", "live_ssr_break", "live_max_len_break"):
+        assert len(set(fastsw[branch])) == 1, f"{branch}: counts vary {sorted(set(fastsw[branch]))}"
+    # the live rule is not free, and the plain rules do not pay for it
+    assert counts["live_max"] > counts["fastsw_max"]
+
+
 def test_sw_cost_is_linear_in_segment_length(counts):
     a, b = counts["sw_a"], counts["sw_b"]
     assert counts["sw_n"][0] == 0 and counts["sw_n"][-1] == 200, counts["sw_n"][:3]
@@ -71,4 +90,6 @@ def test_make_icount_prints_table(build_dir):
     lines = re.findall(r"^fastsw max instructions per sample: (\d+)$", done.stdout, re.MULTILINE)
     assert len(lines) == 1, done.stdout
     assert int(lines[0]) <= FASTSW_MAX_INSTRUCTIONS, done.stdout
+    live = re.findall(r"^fastsw live max instructions per sample: (\d+)$", done.stdout, re.MULTILINE)
+    assert len(live) == 1 and int(live[0]) <= FASTSW_LIVE_MAX_INSTRUCTIONS, done.stdout
     assert "ssr_break" in done.stdout and "least-squares fit" in done.stdout, done.stdout

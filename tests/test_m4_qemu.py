@@ -1,8 +1,9 @@
 """The Cortex-M4 build of the kernels under QEMU (mps2-an386) computes the host's segment points.
 
 The firmware (firmware_c/m4/main.c) streams test vectors through fastSW and SW and prints
-each segment point's index, tick and float bits; the host library streams the same vectors
-through the same C source (ctypes) and must print the same, bit for bit.
+each segment point's index, tick and float bits (and fastSW's rate, with the live rule on or
+off); the host library streams the same vectors through the same C source (ctypes) and must
+print the same, bit for bit.
 """
 from __future__ import annotations
 
@@ -54,13 +55,14 @@ def run_qemu(elf: Path, vector_file: Path | None = None, timeout: float = 60.0) 
 
 
 def parse_points(lines: list[str]) -> dict[tuple[str, int], list[tuple[int, ...]]]:
-    """Console lines -> {(algorithm, case): [(index, tick, y bits..., ), ...] + [(rejected,)]}."""
+    """Console lines -> {(algorithm, case): [(index, tick, y bits..., [rate bits...]), ...]
+    + [(rejected,)]}."""
     result: dict[tuple[str, int], list[tuple[int, ...]]] = {}
     for line in lines:
         parts = line.split()
         if parts and parts[0] == "P":
             result.setdefault((parts[1], int(parts[2])), []).append(
-                (int(parts[3]), int(parts[4]), *(int(h, 16) for h in parts[5:9])))
+                (int(parts[3]), int(parts[4]), *(int(h, 16) for h in parts[5:])))
         elif parts and parts[0] == "R":
             result.setdefault((parts[1], int(parts[2])), []).append((int(parts[3]),))
     return result
@@ -77,19 +79,24 @@ class HostKernels:
             getattr(lib, f"{prefix}_init").argtypes = [ctypes.c_void_p, ctypes.POINTER(kernel.Settings)]
             getattr(lib, f"{prefix}_update").argtypes = [ctypes.c_void_p, ctypes.c_uint32, f32p, point_p]
             getattr(lib, f"{prefix}_flush").argtypes = [ctypes.c_void_p, point_p]
+        lib.fastsw_point_rate.argtypes = [ctypes.c_void_p, f32p]
         self.lib = lib
         self.state = ctypes.create_string_buffer(max(kernel.STATE_SIZE, kernel.SW_STATE_SIZE))
 
     def points(self, algorithm: str, case) -> list[tuple[int, ...]]:
-        """Segment points (index, tick, y bits) and finally (rejected,) of one case."""
+        """Segment points (index, tick, y bits[, rate bits]) and finally (rejected,) of one case."""
         lib, point = self.lib, kernel.Point()
-        settings = kernel.Settings(case.threshold, case.max_len, 4)
+        settings = kernel.Settings(case.threshold, case.max_len, 4, case.live_bound_deg)
         assert getattr(lib, f"{algorithm}_init")(self.state, ctypes.byref(settings)) == 0
         update = getattr(lib, f"{algorithm}_update")
         out, rejected = [], 0
+        rate = np.zeros(4, np.float32)
 
         def emit():
             y = np.array(point.y[:4], np.float32).view(np.uint32)
+            if algorithm == "fastsw":
+                lib.fastsw_point_rate(self.state, rate)
+                y = np.concatenate([y, rate.view(np.uint32)])
             out.append((point.index, point.t, *map(int, y)))
 
         for tick, y in zip(case.ticks, np.ascontiguousarray(case.y, np.float32)):
@@ -122,11 +129,19 @@ def test_default_vectors_bit_identical(build_dir):
     assert lines[-1] == f"done {len(cases)}", lines[-3:]
     m4 = parse_points(lines)
     assert_same(m4, host_points(cases))
-    # the vectors exercise what they claim: breaks, rejections, a point per sample at threshold 0
+    # the vectors exercise what they claim: breaks, rejections, a point per sample at threshold 0,
+    # the live rule's points (nonzero rates, some known from their own sample) where it is on
     fastsw = {k: m4[("fastsw", k)] for k in range(len(cases))}
     assert all(len(p) - 1 >= 4 for p in fastsw.values()), {k: len(p) for k, p in fastsw.items()}
     assert fastsw[5][-1][0] == 4, f"NaN, Inf and 2 time faults expected rejected, got {fastsw[5][-1]}"
+    assert fastsw[12][-1][0] == 4, f"live rule: faults expected rejected, got {fastsw[12][-1]}"
     assert len(fastsw[6]) - 1 == len(cases[6].ticks), "threshold 0: every sample a point"
+    for k, case in enumerate(cases):
+        rated = sum(any(p[6:10]) for p in fastsw[k][:-1])
+        assert (rated > 2) == (case.live_bound_deg > 0), (k, rated)
+    host = HostKernels()
+    plain = {k: host.points("fastsw", vectors.Case(c.threshold, c.max_len, c.ticks, c.y)) for k, c in enumerate(cases)}
+    assert [p[0] for p in fastsw[7]] != [p[0] for p in plain[7]], "the live rule adds points"
 
 
 def test_real_motion_bit_identical(build_dir, cmu_npz, tmp_path):
@@ -139,6 +154,8 @@ def test_real_motion_bit_identical(build_dir, cmu_npz, tmp_path):
     assert_same(m4, host_points(cases))
     n_points = sum(len(p) - 1 for (alg, _), p in m4.items() if alg == "fastsw")
     assert n_points > 10 * len(cases), f"only {n_points} points in {len(cases)} cases"
+    live = [k for k, case in enumerate(cases) if case.live_bound_deg > 0]
+    assert len(live) == len(cases) // 3 and all(any(any(p[6:10]) for p in m4[("fastsw", k)][:-1]) for k in live)
 
 
 def test_bad_vector_file_is_an_error(build_dir, tmp_path):

@@ -5,7 +5,9 @@
  * Calls, in this order, each announced by one line before the call:
  *     K k         icount_probe(k): a known 3 + 3k instructions (checks the counting)
  *     F LABEL     fastsw_update, LABEL the branch it takes:
- *                 first, normal, ssr_break, max_len_break, reject_nan, reject_time,
+ *                 first, normal, ssr_break, max_len_break, reject_nan, reject_time;
+ *                 with the live rule on the same prefixed "live_", and live_close
+ *                 (the live rule makes the sample a segment point);
  *                 or "-" for a look-ahead call on a copy of the state (not counted)
  *     S n         sw_update with n samples buffered since the anchor (n = 0..200),
  *                 or "-" for the stream's first sample (not counted)
@@ -51,7 +53,7 @@ static uint32_t load_case(uint32_t wanted, float *threshold)
     const uint32_t n_cases = read_u32(blob + 4);
     uint32_t k, off = 8u;
     for (k = 0u; k < n_cases; k++) {
-        const uint32_t m = read_u32(blob + off + 8u);
+        const uint32_t m = read_u32(blob + off + 12u);
         if (k == wanted) {
             uint32_t i, n = (m < MAX_SAMPLES) ? m : MAX_SAMPLES;
             union {
@@ -61,15 +63,15 @@ static uint32_t load_case(uint32_t wanted, float *threshold)
             v.u = read_u32(blob + off);
             *threshold = v.f;
             for (i = 0u; i < n; i++) {
-                case_t[i] = read_u32(blob + off + 12u + 4u * i);
+                case_t[i] = read_u32(blob + off + 16u + 4u * i);
             }
             for (i = 0u; i < 4u * n; i++) {
-                v.u = read_u32(blob + off + 12u + 4u * m + 4u * i);
+                v.u = read_u32(blob + off + 16u + 4u * m + 4u * i);
                 case_y[i] = v.f;
             }
             return n;
         }
-        off += 12u + 20u * m;
+        off += 16u + 20u * m;
     }
     return 0u;
 }
@@ -86,29 +88,32 @@ static int non_finite(const float *y)
     return 0;
 }
 
-/** Print "F LABEL" naming the branch the next fastsw_update call takes. */
-static void announce_fastsw(const char *label)
+/** Print "F [live_]LABEL" naming the branch the next fastsw_update call takes. */
+static void announce_fastsw(int live, const char *label)
 {
-    semihost_write0("F ");
+    semihost_write0(live ? "F live_" : "F ");
     semihost_write0(label);
     semihost_write0("\n");
 }
 
 /**
  * Stream case k through fastsw_update (threshold overridden if threshold_or_negative
- * >= 0), announcing each call's branch. Returns 0, or 1 if a status contradicts it.
+ * >= 0; live rule at live_bound_deg, 0 for off), announcing each call's branch.
+ * Returns 0, or 1 if a status contradicts it.
  */
-static int trace_fastsw(uint32_t k, float threshold_or_negative, uint32_t max_len)
+static int trace_fastsw(uint32_t k, float threshold_or_negative, uint32_t max_len, float live_bound_deg)
 {
     FastswSettings settings = fastsw_default_settings;
     FastswState state;
     FastswPoint point;
+    const int live = live_bound_deg > 0.0f;
     uint32_t i, m, since_anchor = 0u, last_t = 0u, started = 0u;
     float threshold = 0.0f;
 
     m = load_case(k, &threshold);
     settings.threshold = (threshold_or_negative >= 0.0f) ? threshold_or_negative : threshold;
     settings.max_len = max_len;
+    settings.live_bound_deg = live_bound_deg;
     if (m == 0u || fastsw_init(&state, &settings) != FASTSW_NONE) {
         return 1;
     }
@@ -125,27 +130,35 @@ static int trace_fastsw(uint32_t k, float threshold_or_negative, uint32_t max_le
         } else if (!started) {
             label = "first";
             expected = FASTSW_POINT;
-        } else if (since_anchor >= settings.max_len) {
+        } else if (!live && since_anchor >= settings.max_len) {
             label = "max_len_break";
             expected = FASTSW_POINT;
         } else {
-            /* SSR decides: ask a copy of the state which way it goes */
+            /* the SSR (and live) rule decides: ask a copy of the state which way it goes */
+            const int full = since_anchor >= settings.max_len;
             FastswState probe = state;
             FastswPoint scratch;
-            announce_fastsw("-"); /* this call is not counted */
+            semihost_write0("F -\n"); /* this call is not counted */
             expected = fastsw_update(&probe, case_t[i], y, &scratch);
-            label = (expected == FASTSW_POINT) ? "ssr_break" : "normal";
+            if (expected == FASTSW_NONE) {
+                label = "normal";
+            } else if (live && scratch.index == i) {
+                label = "close";
+            } else {
+                label = full ? "max_len_break" : "ssr_break";
+            }
         }
-        announce_fastsw(label);
+        announce_fastsw(live, label);
         status = fastsw_update(&state, case_t[i], y, &point);
         if (status != expected) {
             semihost_write0("error: unexpected status\n");
             return 1;
         }
         if (status != FASTSW_REJECTED) {
-            since_anchor = (status == FASTSW_POINT && started) ? 1u : since_anchor + 1u;
-            if (!started) {
-                since_anchor = 0u;
+            if (!started || (status == FASTSW_POINT && point.index == i)) {
+                since_anchor = 0u; /* this sample is the anchor */
+            } else {
+                since_anchor = (status == FASTSW_POINT) ? 1u : since_anchor + 1u;
             }
             started = 1u;
             last_t = case_t[i];
@@ -201,9 +214,12 @@ int main(void)
         semihost_write0(text);
         (void)icount_probe(probe_k[i]);
     }
-    /* default vectors (vectors.py): case 1 threshold 1e-3, case 5 NaN/Inf/time faults */
-    if (trace_fastsw(1u, -1.0f, 1000u) != 0 || trace_fastsw(0u, 1e30f, 7u) != 0 ||
-        trace_fastsw(5u, -1.0f, 1000u) != 0 || trace_sw() != 0) {
+    /* default vectors (vectors.py): case 1 threshold 1e-3, case 5 NaN/Inf/time faults,
+     * then the same with the live rule at 2, 170 and 3 degrees */
+    if (trace_fastsw(1u, -1.0f, 1000u, 0.0f) != 0 || trace_fastsw(0u, 1e30f, 7u, 0.0f) != 0 ||
+        trace_fastsw(5u, -1.0f, 1000u, 0.0f) != 0 || trace_fastsw(1u, -1.0f, 1000u, 2.0f) != 0 ||
+        trace_fastsw(0u, 1e30f, 7u, 170.0f) != 0 || trace_fastsw(5u, -1.0f, 1000u, 3.0f) != 0 ||
+        trace_sw() != 0) {
         return 1;
     }
     semihost_write0("end\n");

@@ -8,8 +8,9 @@
  * (-semihosting-config enable=on,target=native,arg=m4.elf,arg=FILE).
  *
  * Output, one line each:
- *     case K threshold=HEX max_len=N m=M
- *     P ALG K INDEX TICK Y0 Y1 Y2 Y3    (ALG fastsw|sw, Y as hex float32 bits)
+ *     case K threshold=HEX max_len=N live=HEX m=M
+ *     P ALG K INDEX TICK Y0 Y1 Y2 Y3 [R0 R1 R2 R3]
+ *                 (ALG fastsw|sw, Y and fastSW's rate R as hex float32 bits)
  *     R ALG K REJECTED
  *     done N_CASES
  * Exit status 0, or 1 for unreadable vectors / bad settings.
@@ -22,7 +23,7 @@
 #include "sw.h"
 
 #define MAX_SAMPLES 4096u
-#define FILE_CAPACITY (1u << 20)
+#define FILE_CAPACITY (2u << 20)
 
 static uint8_t file_buffer[FILE_CAPACITY] __attribute__((aligned(4)));
 static uint32_t case_t[MAX_SAMPLES];
@@ -97,8 +98,8 @@ static void end_line(uint32_t pos)
     semihost_write0(line);
 }
 
-/** Print one segment point: P ALG K INDEX TICK Y0..Y3. */
-static void print_point(const char *alg, uint32_t k, const FastswPoint *p)
+/** Print one segment point: P ALG K INDEX TICK Y0..Y3, and its rate R0..R3 unless rate is NULL. */
+static void print_point(const char *alg, uint32_t k, const FastswPoint *p, const float *rate)
 {
     uint32_t pos = 0u, d;
     put_str(&pos, "P ");
@@ -112,6 +113,10 @@ static void print_point(const char *alg, uint32_t k, const FastswPoint *p)
     for (d = 0u; d < 4u; d++) {
         put_str(&pos, " ");
         put_hex(&pos, to_bits(p->y[d]));
+    }
+    for (d = 0u; rate != 0 && d < 4u; d++) {
+        put_str(&pos, " ");
+        put_hex(&pos, to_bits(rate[d]));
     }
     end_line(pos);
 }
@@ -134,6 +139,7 @@ static int run_fastsw(uint32_t k, const FastswSettings *settings, uint32_t m)
 {
     FastswState state;
     FastswPoint point;
+    float rate[4];
     uint32_t i, rejected = 0u;
     if (fastsw_init(&state, settings) != FASTSW_NONE) {
         return 1;
@@ -141,13 +147,15 @@ static int run_fastsw(uint32_t k, const FastswSettings *settings, uint32_t m)
     for (i = 0u; i < m; i++) {
         const FastswStatus status = fastsw_update(&state, case_t[i], &case_y[i * 4u], &point);
         if (status == FASTSW_POINT) {
-            print_point("fastsw", k, &point);
+            fastsw_point_rate(&state, rate);
+            print_point("fastsw", k, &point, rate);
         } else if (status == FASTSW_REJECTED) {
             rejected++;
         }
     }
     if (fastsw_flush(&state, &point) == FASTSW_POINT) {
-        print_point("fastsw", k, &point);
+        fastsw_point_rate(&state, rate);
+        print_point("fastsw", k, &point, rate);
     }
     print_rejected("fastsw", k, rejected);
     return 0;
@@ -164,13 +172,13 @@ static int run_sw(uint32_t k, const FastswSettings *settings, uint32_t m)
     for (i = 0u; i < m; i++) {
         const FastswStatus status = sw_update(&sw_state, case_t[i], &case_y[i * 4u], &point);
         if (status == FASTSW_POINT) {
-            print_point("sw", k, &point);
+            print_point("sw", k, &point, 0);
         } else if (status == FASTSW_REJECTED) {
             rejected++;
         }
     }
     if (sw_flush(&sw_state, &point) == FASTSW_POINT) {
-        print_point("sw", k, &point);
+        print_point("sw", k, &point, 0);
     }
     print_rejected("sw", k, rejected);
     return 0;
@@ -180,22 +188,23 @@ static int run_sw(uint32_t k, const FastswSettings *settings, uint32_t m)
 static int run_blob(const uint8_t *blob, uint32_t size)
 {
     uint32_t n_cases, k, off = 8u;
-    if (size < 8u || blob[0] != 'L' || blob[1] != 'S' || blob[2] != 'V' || blob[3] != '1') {
-        semihost_write0("error: not a vector file (magic LSV1)\n");
+    if (size < 8u || blob[0] != 'L' || blob[1] != 'S' || blob[2] != 'V' || blob[3] != '2') {
+        semihost_write0("error: not a vector file (magic LSV2)\n");
         return 1;
     }
     n_cases = read_u32(blob + 4);
     for (k = 0u; k < n_cases; k++) {
         FastswSettings settings = fastsw_default_settings;
         uint32_t m, i, pos = 0u;
-        if (size - off < 12u) {
+        if (size - off < 16u) {
             semihost_write0("error: truncated vector file\n");
             return 1;
         }
         settings.threshold = from_bits(read_u32(blob + off));
         settings.max_len = read_u32(blob + off + 4u);
-        m = read_u32(blob + off + 8u);
-        off += 12u;
+        settings.live_bound_deg = from_bits(read_u32(blob + off + 8u));
+        m = read_u32(blob + off + 12u);
+        off += 16u;
         if (m > MAX_SAMPLES || (size - off) / 20u < m) {
             semihost_write0("error: case too long or truncated\n");
             return 1;
@@ -214,6 +223,8 @@ static int run_blob(const uint8_t *blob, uint32_t size)
         put_hex(&pos, to_bits(settings.threshold));
         put_str(&pos, " max_len=");
         put_dec(&pos, settings.max_len);
+        put_str(&pos, " live=");
+        put_hex(&pos, to_bits(settings.live_bound_deg));
         put_str(&pos, " m=");
         put_dec(&pos, m);
         end_line(pos);

@@ -11,6 +11,13 @@
 /* Largest accepted |y - y_a|^2: keeps |y - y_prev|^2 finite as well. */
 #define FASTSW_NN_LIMIT (FLT_MAX / 16.0f)
 
+/* Keeps a rarely taken path out of its caller (whose registers it would otherwise crowd). */
+#if defined(__GNUC__)
+#define FASTSW_NOINLINE __attribute__((noinline))
+#else
+#define FASTSW_NOINLINE
+#endif
+
 #if defined(FASTSW_FIXED_DIM)
 /** A whole sample value, so that copies compile to load/store-multiple. */
 typedef struct {

@@ -106,7 +106,7 @@ static FastswStatus flush_any(void *state, FastswPoint *point)
 size_t sw_segment(SwState *work, const FastswSettings *settings, const uint32_t *t, const float *y,
                   size_t m, uint32_t *out_index, size_t *rejected)
 {
-    static const FastswKernel kernel = {update_any, flush_any};
+    static const FastswKernel kernel = {update_any, flush_any, NULL};
 
     if (sw_init(work, settings) != FASTSW_NONE) {
         if (rejected != NULL) {
@@ -114,7 +114,10 @@ size_t sw_segment(SwState *work, const FastswSettings *settings, const uint32_t 
         }
         return 0u;
     }
-    return fastsw_run_batch(work, &kernel, FASTSW_DIM(settings), t, y, m, out_index, NULL, rejected);
+    {
+        const FastswBatchOut out = {out_index, NULL, NULL, NULL};
+        return fastsw_run_batch(work, &kernel, FASTSW_DIM(settings), t, y, m, &out, rejected);
+    }
 }
 
 size_t sw_state_size(void)

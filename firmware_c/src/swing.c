@@ -159,7 +159,7 @@ static FastswStatus flush_any(void *state, FastswPoint *point)
 size_t swing_segment(const FastswSettings *settings, const uint32_t *t, const float *y, size_t m,
                     FastswPoint *out, size_t *rejected)
 {
-    static const FastswKernel kernel = {update_any, flush_any};
+    static const FastswKernel kernel = {update_any, flush_any, NULL};
     SwingState state;
 
     if (swing_init(&state, settings) != FASTSW_NONE) {
@@ -168,7 +168,10 @@ size_t swing_segment(const FastswSettings *settings, const uint32_t *t, const fl
         }
         return 0u;
     }
-    return fastsw_run_batch(&state, &kernel, FASTSW_DIM(settings), t, y, m, NULL, out, rejected);
+    {
+        const FastswBatchOut batch = {NULL, out, NULL, NULL};
+        return fastsw_run_batch(&state, &kernel, FASTSW_DIM(settings), t, y, m, &batch, rejected);
+    }
 }
 
 size_t swing_state_size(void)

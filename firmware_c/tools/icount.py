@@ -13,7 +13,8 @@ Usage::
 
     python3 icount.py build/icount.elf [--json]
 
-prints the table and ``fastsw max instructions per sample: N``.
+prints the tables, ``fastsw max instructions per sample: N`` (live rule off) and
+``fastsw live max instructions per sample: N`` (live rule on, every branch).
 """
 from __future__ import annotations
 
@@ -33,6 +34,9 @@ MEASURED = {"icount_probe": "K", "fastsw_update": "F", "sw_update": "S"}
 """Function -> the letter its calls are announced with."""
 
 FASTSW_BRANCHES = ("first", "normal", "ssr_break", "max_len_break", "reject_nan", "reject_time")
+LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
+                 "live_reject_nan", "live_reject_time")
+"""Branches with the live rule on: the plain ones and a live close (the sample becomes a point)."""
 TRACE_LINE = re.compile(r"^Trace \d+: 0x[0-9a-f]+ \[[0-9a-f]+/([0-9a-f]+)/")
 CALL_LINE = re.compile(r"^\s*([0-9a-f]+):\s+(?:[0-9a-f]{4}(?: [0-9a-f]{4})?\s+)?(bl|b\.w|b)\s+[0-9a-f]+ <([^>+]+)>")
 
@@ -150,7 +154,8 @@ def measure(elf: Path) -> dict:
     Returns
     -------
     dict with keys
-        fastsw: {branch: [counts]}, fastsw_min, fastsw_max, fastsw_max_branch,
+        fastsw: {branch: [counts]}, fastsw_min, fastsw_max, fastsw_max_branch (live rule off),
+        live_min, live_max, live_max_branch (live rule on),
         sw_n: (N,) segment lengths, sw_count: (N,) counts, sw_a, sw_b, sw_residual_max,
         probe: [(k, count, expected)].
     """
@@ -167,11 +172,13 @@ def measure(elf: Path) -> dict:
     for label, n in zip(by_letter["F"], counts["fastsw_update"]):
         if label != "-":
             fastsw[label].append(n)
-    absent = [b for b in FASTSW_BRANCHES if b not in fastsw]
+    absent = [b for b in FASTSW_BRANCHES + LIVE_BRANCHES if b not in fastsw]
     if absent:
         raise RuntimeError(f"fastsw branches never taken: {absent}")
     every = [n for branch in FASTSW_BRANCHES for n in fastsw[branch]]
     worst = max(FASTSW_BRANCHES, key=lambda b: max(fastsw[b]))
+    live = [n for branch in LIVE_BRANCHES for n in fastsw[branch]]
+    live_worst = max(LIVE_BRANCHES, key=lambda b: max(fastsw[b]))
     sw = [(int(a), n) for a, n in zip(by_letter["S"], counts["sw_update"]) if a != "-"]
     sw_n = np.array([a for a, _ in sw])
     sw_count = np.array([n for _, n in sw])
@@ -182,7 +189,8 @@ def measure(elf: Path) -> dict:
     probe = [(int(k), n, 3 + 3 * int(k)) for k, n in zip(by_letter["K"], counts["icount_probe"])]
     return {
         "fastsw": dict(fastsw), "fastsw_min": min(every), "fastsw_max": max(every),
-        "fastsw_max_branch": worst, "sw_n": sw_n.tolist(), "sw_count": sw_count.tolist(),
+        "fastsw_max_branch": worst, "live_min": min(live), "live_max": max(live),
+        "live_max_branch": live_worst, "sw_n": sw_n.tolist(), "sw_count": sw_count.tolist(),
         "sw_a": float(a), "sw_b": float(b), "sw_residual_max": float(residual), "probe": probe,
     }
 
@@ -194,8 +202,16 @@ def report(result: dict) -> str:
     for branch in FASTSW_BRANCHES:
         c = result["fastsw"][branch]
         lines.append(f"{branch:<15}{len(c):>7}{min(c):>7}{max(c):>7}")
-    lines.append(f"{'all':<15}{sum(len(c) for c in result['fastsw'].values()):>7}"
+    lines.append(f"{'all':<15}{sum(len(result['fastsw'][b]) for b in FASTSW_BRANCHES):>7}"
                  f"{result['fastsw_min']:>7}{result['fastsw_max']:>7}   max: {result['fastsw_max_branch']}")
+    lines.append("")
+    lines.append("fastsw_update with the live rule on, instructions per call")
+    lines.append(f"{'branch':<20}{'calls':>7}{'min':>7}{'max':>7}")
+    for branch in LIVE_BRANCHES:
+        c = result["fastsw"][branch]
+        lines.append(f"{branch:<20}{len(c):>7}{min(c):>7}{max(c):>7}")
+    lines.append(f"{'all':<20}{sum(len(result['fastsw'][b]) for b in LIVE_BRANCHES):>7}"
+                 f"{result['live_min']:>7}{result['live_max']:>7}   max: {result['live_max_branch']}")
     lines.append("")
     lines.append("sw_update, instructions per call vs samples n in the current segment")
     counts = dict(zip(result["sw_n"], result["sw_count"]))
@@ -206,6 +222,7 @@ def report(result: dict) -> str:
     checks = ", ".join(f"k={k}: {n} (expected {e})" for k, n, e in result["probe"])
     lines.append(f"counting check, icount_probe = 3 + 3k: {checks}")
     lines.append(f"fastsw max instructions per sample: {result['fastsw_max']}")
+    lines.append(f"fastsw live max instructions per sample: {result['live_max']}")
     return "\n".join(lines)
 
 

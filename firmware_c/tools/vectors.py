@@ -2,8 +2,8 @@
 
 Layout (little-endian, every field 4 bytes)::
 
-    "LSV1"  u32 n_cases
-    per case: f32 threshold, u32 max_len, u32 m, u32 ticks[m], f32 y[m][4]
+    "LSV2"  u32 n_cases
+    per case: f32 threshold, u32 max_len, f32 live_bound_deg, u32 m, u32 ticks[m], f32 y[m][4]
 
 The same bytes are either compiled into the firmware as a C header (the default vectors:
 seeded synthetic quaternion streams, so the build does not need the motion data) or read
@@ -23,7 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-MAGIC = b"LSV1"
+MAGIC = b"LSV2"
+HEADER = struct.Struct("<fIfI")
+"""Per-case header: threshold, max_len, live_bound_deg, m."""
 DIM = 4
 TICK_US = 20_000
 """Nominal sample period, microsecond ticks (50 Hz)."""
@@ -39,12 +41,14 @@ class Case:
     max_len : int, samples per segment after its anchor.
     ticks : (m,) uint32, microseconds.
     y : (m, 4) float32, scalar-first quaternions (may hold NaN to test rejection).
+    live_bound_deg : float, the live rule's bound in degrees (0: off).
     """
 
     threshold: float
     max_len: int
     ticks: np.ndarray
     y: np.ndarray
+    live_bound_deg: float = 0.0
 
 
 def random_walk(rng: np.random.Generator, m: int, start_tick: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -73,11 +77,32 @@ def random_walk(rng: np.random.Generator, m: int, start_tick: int = 0) -> tuple[
     return ticks.astype(np.uint32), q.astype(np.float32)
 
 
+def jumpy(rng: np.random.Generator, m: int, every: int = 8, degrees: float = 40.0) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth random walk whose orientation steps by ``degrees`` every ``every`` samples
+    (like the glitches of recorded motion)."""
+    ticks, q = random_walk(rng, m)
+    q = q.astype(np.float64)
+    step = np.radians(degrees) / 2.0
+    offset = np.array([1.0, 0.0, 0.0, 0.0])
+    for i in range(m):
+        if i and i % every == 0:
+            axis = rng.normal(size=3)
+            axis /= np.linalg.norm(axis)
+            jump = np.r_[np.cos(step), np.sin(step) * axis]
+            w0, v0, w1, v1 = jump[0], jump[1:], offset[0], offset[1:]
+            offset = np.r_[w0 * w1 - v0 @ v1, w0 * v1 + w1 * v0 + np.cross(v0, v1)]
+        w0, v0, w1, v1 = offset[0], offset[1:], q[i, 0], q[i, 1:]
+        q[i] = np.r_[w0 * w1 - v0 @ v1, w0 * v1 + w1 * v0 + np.cross(v0, v1)]
+    return ticks, (q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32)
+
+
 def synthetic_cases(seed: int = 2021) -> list[Case]:
     """Default vectors: smooth streams at several thresholds plus every special input.
 
-    Covers SSR breaks, max_len breaks, a NaN and an Inf sample, repeated and
-    decreasing timestamps, and a tick counter that wraps around 2**32.
+    Cases 0-6 (live rule off) cover SSR breaks, max_len breaks, a NaN and an Inf sample,
+    repeated and decreasing timestamps, and a tick counter that wraps around 2**32. Cases
+    7-12 run the live rule: at 2 and 5 degrees, near 180, on a stream that steps by 40
+    degrees every 8 samples (with SSR and with max_len breaks), on the faults.
     """
     rng = np.random.default_rng(seed)
     cases = []
@@ -93,20 +118,31 @@ def synthetic_cases(seed: int = 2021) -> list[Case]:
     bad_ticks[60] = bad_ticks[59] - 5  # negative time step
     cases.append(Case(1e-3, 1000, bad_ticks, bad_q))
     cases.append(Case(0.0, 1000, ticks[:50], q[:50]))  # every sample a point
+    smooth_ticks, smooth_q = cases[0].ticks, cases[0].y
+    cases.append(Case(1e-3, 1000, smooth_ticks, smooth_q, 2.0))  # 7
+    cases.append(Case(1e-2, 25, smooth_ticks, smooth_q, 5.0))  # 8
+    cases.append(Case(1e-2, 25, smooth_ticks, smooth_q, 179.5))  # 9: rule on, hardly ever closes
+    jump_ticks, jump_q = jumpy(rng, 200)
+    cases.append(Case(1e-3, 1000, jump_ticks, jump_q, 5.0))  # 10: SSR breaks at the steps
+    cases.append(Case(1e30, 7, jump_ticks, jump_q, 5.0))  # 11: max_len breaks at the steps
+    cases.append(Case(1e-3, 1000, bad_ticks, bad_q, 3.0))  # 12: faults and wrap-around
     return cases
 
 
 def npz_cases(path: Path, count: int = 400) -> list[Case]:
     """Real vectors: the first ``count`` samples of every segment of every clip in a
-    cmu_10seg_50hz.npz file, at thresholds 1e-3 and 1e-2 (50 Hz -> 20 000 us ticks)."""
+    cmu_10seg_50hz.npz file, at thresholds 1e-3 and 1e-2, the second also with the live
+    rule at 5 degrees and max_len 25 (50 Hz -> 20 000 us ticks)."""
     data = np.load(path)
     cases = []
     for name in sorted(k for k in data.files if k.startswith("clip_")):
         clip = data[name][:count]
         ticks = (np.arange(len(clip)) * TICK_US).astype(np.uint32)
         for s in range(clip.shape[1]):
+            y = np.ascontiguousarray(clip[:, s], np.float32)
             for threshold in (1e-3, 1e-2):
-                cases.append(Case(threshold, 1000, ticks, np.ascontiguousarray(clip[:, s], np.float32)))
+                cases.append(Case(threshold, 1000, ticks, y))
+            cases.append(Case(1e-2, 25, ticks, y, 5.0))
     return cases
 
 
@@ -118,7 +154,7 @@ def pack(cases: list[Case]) -> bytes:
         y = np.asarray(case.y, "<f4")
         if y.shape != (len(ticks), DIM):
             raise ValueError(f"case y must be ({len(ticks)}, {DIM}), got {y.shape}")
-        parts.append(struct.pack("<fII", case.threshold, case.max_len, len(ticks)))
+        parts.append(HEADER.pack(case.threshold, case.max_len, case.live_bound_deg, len(ticks)))
         parts.append(ticks.tobytes())
         parts.append(y.tobytes())
     return b"".join(parts)
