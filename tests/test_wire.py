@@ -51,6 +51,47 @@ def test_c_encoder_and_python_codec_agree_byte_for_byte(stream, seq, index, t_us
 
 
 
+_lib.lsw_encode_point_rate.argtypes = [ctypes.c_char_p, ctypes.c_uint8, ctypes.c_uint16, ctypes.c_uint32,
+                                       ctypes.POINTER(kernel.Point), ctypes.POINTER(ctypes.c_float * 3), ctypes.c_int64]
+_lib.lsw_encode_point_rate.restype = ctypes.c_uint32
+
+
+@settings(max_examples=2000, deadline=None)
+@given(u16, u32, u32, i64, unit_quaternions(), st.integers(0, 255),
+       st.lists(st.floats(width=32, allow_nan=False, allow_infinity=False), min_size=3, max_size=3))
+def test_c_encoder_and_python_codec_agree_on_points_with_a_rate(stream, seq, index, t_us, q, flags, omega):
+    """Segment point v2 (docs/protocol.md): the C and Python encoders write the same 48 bytes."""
+    p = wire.SegmentPoint(stream, seq, index, t_us, tuple(float(v) for v in q), flags, tuple(omega))
+    point = kernel.Point()
+    point.index = p.index
+    for d in range(4):
+        point.y[d] = p.q[d]
+    out = ctypes.create_string_buffer(wire.point.POINT_SIZE_RATE)
+    rate = (ctypes.c_float * 3)(*omega)
+    assert _lib.lsw_encode_point_rate(out, p.flags, p.stream, p.seq, ctypes.byref(point), ctypes.byref(rate),
+                                      p.t_us) == wire.point.POINT_SIZE_RATE == 48
+    encoded = wire.encode_point(p)
+    assert out.raw == encoded
+    assert encoded[0] == wire.point.VERSION_RATE and encoded[36:] == struct.pack("<3f", *omega)
+    assert wire.decode_point(encoded) == p
+
+
+def test_points_with_and_without_a_rate():
+    """A point without a rate is version 1 (36 bytes) and decodes with omega None; bad rates and
+    sizes that do not match the version are refused with a reason."""
+    v1 = wire.encode_point(wire.SegmentPoint(1, 2, 3, 4, (0.0, 1.0, 0.0, 0.0)))
+    assert len(v1) == 36 and v1[0] == 1 and wire.decode_point(v1).omega is None
+    v2 = wire.encode_point(wire.SegmentPoint(1, 2, 3, 4, (0.0, 1.0, 0.0, 0.0), omega=(0.5, -1.0, 2.0)))
+    assert len(v2) == 48 and v2[:36] == bytes([2]) + v1[1:]
+    assert wire.decode_point(v2).omega == (0.5, -1.0, 2.0)
+    for bad, reason in ((v2[:36], "size"), (v1 + bytes(12), "size"), (bytes([3]) + v2[1:], "version"),
+                        (b"", "version"), (v2[:36] + struct.pack("<3f", 0.0, math.nan, 0.0), "non_finite"),
+                        (v2[:36] + struct.pack("<3f", math.inf, 0.0, 0.0), "non_finite")):
+        with pytest.raises(wire.WireError) as err:
+            wire.decode_point(bad)
+        assert err.value.reason == reason, bad
+
+
 def test_point_is_36_bytes_little_endian():
     p = wire.SegmentPoint(0x0102, 0x03040506, 7, 0x1122334455667788, (1.0, 0.0, 0.0, 0.0), wire.FLAG_FINAL)
     raw = wire.encode_point(p)
