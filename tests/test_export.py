@@ -41,13 +41,13 @@ def write_recording(path, q: np.ndarray, skeleton: Skeleton, drop: set[int]) -> 
         t = T0_US + 20_000 * k
         if k not in drop:
             frame = wire.PoseFrame(k, t, wire.KIND_EXACT, 0, q[k].astype(np.float32), joints[k])
-            writer.add("pose", wire.pose_key("s01"), wire.encode_pose(frame), t * 1000 + 400_000_000, t * 1000)
+            writer.add("pose", wire.pose_key("s01"), wire.encode_pose(frame), t * 1000 + 400_000_000)
         if k % 5 == 0:
             live = wire.PoseFrame(k, t, wire.KIND_LIVE, 0, np.tile(np.float32([0, 1, 0, 0]), (10, 1)), joints[0])
-            writer.add("pose", wire.pose_key("s01"), wire.encode_pose(live), t * 1000, t * 1000)
+            writer.add("pose", wire.pose_key("s01"), wire.encode_pose(live), t * 1000)
             other = wire.PoseFrame(k, t, wire.KIND_EXACT, 0, q[0].astype(np.float32), joints[0])
-            writer.add("pose", wire.pose_key("s02"), wire.encode_pose(other), t * 1000, t * 1000)
-    writer.add("pose", wire.pose_key("s01"), b"broken", T0_US * 1000, T0_US * 1000)
+            writer.add("pose", wire.pose_key("s02"), wire.encode_pose(other), t * 1000)
+    writer.add("pose", wire.pose_key("s01"), b"broken", T0_US * 1000)
     writer.close()
 
 

@@ -122,18 +122,13 @@ class Recorder:
             if not tracker.add(value.seq):
                 self.stats.duplicates += 1
                 return
-            publish_ns = value.t_us * 1000
-        elif kind == "raw":
-            publish_ns = int(value.t_us[0]) * 1000
         elif kind == "pose":
             self._count_seq((item.key, value.kind), value.seq)
-            publish_ns = value.t_us * 1000
             if value.kind == wire.KIND_EXACT:
                 self.writer.add_skeleton(item.subject, value, item.received_ns)
-        else:  # stats
+        elif kind == "stats":
             self._count_seq((item.key, -1), value.get("seq"))
-            publish_ns = None
-        self.writer.add(kind, item.key, item.payload, item.received_ns, publish_ns)
+        self.writer.add(kind, item.key, item.payload, item.received_ns)
         self.stats.messages[kind] += 1
 
     def _count_seq(self, stream: tuple[str, int], seq: int | None) -> None:
