@@ -131,6 +131,27 @@ def body_rate(q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
     return 2.0 * multiply(conjugate(q), qdot)[..., 1:]
 
 
+def through_rate(q: np.ndarray, q_to: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """The body angular rate whose :func:`predict` from ``q`` passes through ``q_to`` after ``dt``
+    seconds (negative: before): ``2 vec(d) / (d_w dt)`` with ``d = conj(q) q_to`` (the rate the
+    fastSW live rule gives a point, docs/kernel.md). Zero where the two are half a turn apart
+    (``|d_w| < 1e-6``: no finite rate passes through both) or ``dt`` is 0.
+
+    Parameters
+    ----------
+    q, q_to : (..., 4) unit quaternions; dt : (...) seconds.
+
+    Returns
+    -------
+    (..., 3) float64 rad/s.
+    """
+    d = multiply(conjugate(q), q_to)
+    dt = np.asarray(dt, np.float64)
+    scale = d[..., 0] * dt
+    ok = (np.abs(d[..., 0]) >= 1e-6) & (dt != 0)
+    return np.where(ok[..., None], 2.0 * d[..., 1:] / np.where(ok, scale, 1.0)[..., None], 0.0)
+
+
 def predict(q: np.ndarray, omega: np.ndarray, dt: np.ndarray) -> np.ndarray:
     """The live view of a segment point: the receiver's prediction of the orientation ``dt``
     seconds after the point ``q`` whose body angular rate is ``omega`` (docs/kernel.md,

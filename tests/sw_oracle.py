@@ -72,14 +72,17 @@ def _ssr_breaks(t: np.ndarray, y: np.ndarray, anchor: int, n: int, threshold: fl
 
 
 def live_sliding_window(t: np.ndarray, q: np.ndarray, threshold: float, max_len: int = 1000,
-                        live_bound_deg: float = 0.0, chunk: int = 32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        live_bound_deg: float = 0.0, predictor: str = "rate",
+                        chunk: int = 32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The Sliding Window with the live rule, brute force in float64 (scipy rotations).
 
     For each new sample n: if the SSR or max_len rule breaks, sample n-1 becomes a point with
-    the rate that carries it through sample n; otherwise, if the receiver's view of n (the
-    newest point extrapolated at its rate) is more than live_bound_deg from sample n, sample n
-    becomes a point with the rate that carries it back through sample n-1. (The views of the
-    samples after an anchor are computed ``chunk`` at a time, for speed.)
+    the rate that carries it through sample n; then, if the receiver's view of n (the newest
+    point extrapolated at its rate) is more than live_bound_deg from sample n, sample n becomes
+    a point with the rate that carries it back through sample n-1. (With that rate the view of
+    n after a break is n itself.) ``predictor`` "slope" carries each new point back through the
+    point before instead, "hold" gives it no rate; then a break and a live point can come at the
+    same sample. (The views of the samples after an anchor are computed ``chunk`` at a time.)
 
     Returns
     -------
@@ -97,13 +100,13 @@ def live_sliding_window(t: np.ndarray, q: np.ndarray, threshold: float, max_len:
     errors, first = np.zeros(0), 1
     for n in range(1, len(t)):
         if n - 1 - anchor >= max_len or _ssr_breaks(t, y, anchor, n, threshold):
-            anchor = n - 1
-            axis, rate = _through(rot, anchor, n, t) if live else (np.zeros(3), 0.0)
+            before, anchor = anchor, n - 1
+            axis, rate = (np.zeros(3), 0.0) if not live or predictor == "hold" else \
+                _through(rot, anchor, n if predictor == "rate" else before, t)
             points.append(anchor)
             known.append(n)
             omega.append(axis * rate)
             errors = np.zeros(0)
-            continue
         if not live:
             continue
         if not first <= n < first + len(errors):  # the views of the next samples from this anchor
@@ -112,8 +115,9 @@ def live_sliding_window(t: np.ndarray, q: np.ndarray, threshold: float, max_len:
             turn = Rotation.from_rotvec(axis[None] * (2.0 * np.arctan(rate * (t[span] - t[anchor]) / 2.0))[:, None])
             errors = np.degrees(((rot[anchor] * turn).inv() * rot[span]).magnitude())
         if errors[n - first] > live_bound_deg:
-            anchor = n
-            axis, rate = _through(rot, n, n - 1, t)
+            before, anchor = anchor, n
+            axis, rate = (np.zeros(3), 0.0) if predictor == "hold" else \
+                _through(rot, n, n - 1 if predictor == "rate" else before, t)
             points.append(n)
             known.append(n)
             omega.append(axis * rate)

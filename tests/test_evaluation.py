@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
+from sw_oracle import live_sliding_window, live_view
+
 from limbstream import cli, evaluation, kernel
 from limbstream.sources import load
 
@@ -210,10 +212,10 @@ def test_cli_table_at_icr(cmu_npz, capsys):
     text = capsys.readouterr().out
     assert code == 0, text
     lines = [ln.split() for ln in text.splitlines() if ln.startswith(("fastsw", "cplr"))]
-    assert [(ln[0], ln[1]) for ln in lines] == [
-        (a, f"{c:.2f}") for a in ("fastsw", "cplr") for c in evaluation.ICR_TARGETS
+    assert [(ln[0], ln[1], ln[2]) for ln in lines] == [
+        (a, "0", f"{c:.2f}") for a in ("fastsw", "cplr") for c in evaluation.ICR_TARGETS
     ], text
-    assert 2.2 < float(lines[1][2]) < 2.6, f"fastSW AAD at ICR 0.10: {lines[1]}"
+    assert 2.2 < float(lines[1][3]) < 2.6, f"fastSW AAD at ICR 0.10: {lines[1]}"
 
 
 @pytest.mark.parametrize(
@@ -241,6 +243,130 @@ def test_cli_bad_paths_exit_2(cmu_npz, tmp_path, capsys, argv, message):
     ],
 )
 def test_cli_bad_arguments_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "error" in err and "Traceback" not in err, err
+
+
+# ----------------------------------------------------------------------------- live mode
+
+
+def live_oracle(streams: list[evaluation.Stream], threshold: float, max_len: int, bound: float,
+                predictor: str) -> dict:
+    """Brute force: the oracle's points (tests/sw_oracle.py, scipy rotations) and the live error of
+    every sample from them, pooled; plain rows (bound 0) are plain fastSW's points, held or with
+    the rate through the sample they are emitted at (rate) or the point before (slope)."""
+    errors, n_points, n_samples = [], 0, 0
+    for s in streams:
+        if bound > 0:
+            points, known, omega = live_sliding_window(s.t, s.q, threshold, max_len, bound, predictor)
+        else:
+            points = kernel.segment(s.t, s.q, threshold, max_len).index
+            known = np.r_[0, np.minimum(points[1:] + 1, len(s.t))]
+            omega = np.zeros((len(points), 3))
+            for k in range(1, len(points)):
+                other = known[k] if predictor == "rate" else points[k - 1]  # the sample it passes through
+                if predictor != "hold" and known[k] < len(s.t):
+                    step = (_rotation(s.q[[points[k]]]).inv() * _rotation(s.q[[other]])).as_rotvec()[0]
+                    phi = np.linalg.norm(step)
+                    omega[k] = step / phi * 2 * np.tan(phi / 2) / (s.t[other] - s.t[points[k]])
+        errors.append(live_view(s.t, s.q, points, known, omega))
+        n_points += len(points)
+        n_samples += len(s.t)
+    err = np.concatenate(errors)
+    return {"icr": n_points / n_samples, "live_aad": err.mean(), "live_p99": np.percentile(err, 99),
+            "live_max": err.max()}
+
+
+@pytest.mark.parametrize("predictor", evaluation.PREDICTORS)
+def test_live_rows_match_the_oracle(cmu_motions, predictor):
+    """ICR and live error of every (threshold, bound) row equal the brute-force oracle's: the C
+    kernel for the live rule with ``rate``, simulate_live for ``slope`` and ``hold``, and the
+    plain rules' points with each predictor."""
+    streams = evaluation.streams_of(cmu_motions[1:3])  # two clips, 20 streams
+    rows = evaluation.evaluate(streams, ["fastsw"], [1e-3, 1e-2], 25, [0.0, 5.0, 10.0], predictor)
+    for row in rows:
+        want = live_oracle(streams, row["threshold"], 25, row["live_bound"], predictor)
+        label = f"{predictor} TH={row['threshold']} bound={row['live_bound']}"
+        assert row["predictor"] == predictor and list(row) == list(evaluation.KEYS), label
+        assert row["icr"] == pytest.approx(want["icr"], rel=2e-3), label
+        for field in ("live_aad", "live_p99", "live_max"):
+            assert row[field] == pytest.approx(want[field], rel=2e-3, abs=2e-3), f"{label} {field}"
+        if row["live_bound"] > 0:
+            assert row["live_max"] <= row["live_bound"] + 0.002, label
+
+
+def test_simulated_rate_rule_is_the_kernels(cmu_motions):
+    """simulate_live with the rate predictor (float64) makes the C kernel's points: the slope and
+    hold rows differ from it in the rates only."""
+    same = total = 0
+    for s in evaluation.streams_of(cmu_motions)[::3]:
+        for threshold, bound in ((1e-3, 5.0), (1e-2, 2.0), (1e-2, 10.0)):
+            index, known, omega = evaluation.simulate_live(s.t, s.q, threshold, 25, bound, "rate")
+            got = kernel.segment(s.t, s.q, threshold, 25, live_bound_deg=bound)
+            same += len(np.intersect1d(index, got.index))
+            total += len(np.union1d(index, got.index))
+            if np.array_equal(index, got.index):
+                assert np.array_equal(known, got.known_from)
+                assert np.allclose(omega, got.omega, rtol=1e-3, atol=1e-3)
+    assert same / total >= 0.995, f"{same}/{total}"
+
+
+def test_live_reference_numbers(cmu_motions):
+    """CMU clips, max_len 25, TH 1e-2, live bound 5 degrees, rate: ICR 0.196 and every sample
+    within 5 degrees (brute-force prototype of the rule: 0.198); plain fastSW held: 12.4 deg mean,
+    55 deg p99."""
+    live, plain = evaluation.evaluate(cmu_motions, ["fastsw"], [1e-2], 25, [5.0, 0.0], "rate")
+    assert live["icr"] == pytest.approx(0.1955, abs=0.001) and live["icr"] < 0.198, live
+    assert live["live_max"] <= 5.002 and live["aad"] == pytest.approx(1.14, abs=0.01), live
+    held = evaluation.evaluate(cmu_motions, ["fastsw"], [1e-2], 25, [0.0], "hold")[0]
+    assert held["live_aad"] == pytest.approx(12.4, abs=0.1) and held["live_p99"] == pytest.approx(55.3, abs=0.3), held
+    assert plain["icr"] == held["icr"] and plain["live_p99"] < held["live_p99"], (plain, held)
+
+
+def test_frontier_keeps_the_best_aad_per_icr():
+    rows = [{"icr": icr, "aad": aad, "live_max": mx} for icr, aad, mx in
+            [(0.1, 2.0, 4.0), (0.2, 1.5, 4.9), (0.15, 2.5, 3.0), (0.3, 1.6, 2.0), (0.25, 1.0, 9.0), (0.4, 0.5, 5.0)]]
+    icr, aad = evaluation.frontier(rows, 5.0)
+    assert icr.tolist() == [0.1, 0.2, 0.4] and aad.tolist() == [2.0, 1.5, 0.5]
+    assert evaluation.frontier(rows, None)[0].tolist() == [0.1, 0.2, 0.25, 0.4]
+
+
+def test_cli_live_bounds_json_table_and_frontier(cmu_npz, tmp_path, capsys):
+    out_json, out_png = tmp_path / "live.json", tmp_path / "frontier.png"
+    code = cli.main(["eval", str(cmu_npz), "--live-bound", "0,5", "--max-len", "25", "--thresholds", "1e-2",
+                     "--predictor", "slope", "--json", str(out_json), "--plot", str(out_png)])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    rows = json.loads(out_json.read_text())
+    assert [(r["algorithm"], r["live_bound"], r["predictor"]) for r in rows] == [
+        ("fastsw", 0.0, "slope"), ("fastsw", 5.0, "slope")], rows
+    assert rows[1]["live_max"] <= 5.002 < rows[0]["live_max"], rows
+    assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    code = cli.main(["eval", str(cmu_npz), "--live-bound", "5", "--max-len", "25"])
+    text = capsys.readouterr().out
+    assert code == 0 and "fastsw        5  0.25" in text, text
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["eval", "{npz}", "--live-bound", "5", "--algorithms", "fastsw", "cplr"], "fastsw"),
+])
+def test_cli_live_bound_needs_fastsw(cmu_npz, capsys, argv, message):
+    assert cli.main([a.format(npz=cmu_npz) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert "error" in err and message in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("argv", [
+    ["eval", "x.npz", "--live-bound", "-1"],
+    ["eval", "x.npz", "--live-bound", "200"],
+    ["eval", "x.npz", "--live-bound", "nan"],
+    ["eval", "x.npz", "--live-bound", "five"],
+    ["eval", "x.npz", "--predictor", "gyro"],
+])
+def test_cli_bad_live_arguments_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         cli.main(argv)
     assert exc.value.code == 2

@@ -1,4 +1,5 @@
-"""``limbstream eval``: evaluate segmentation algorithms on motion files (table, JSON rows, Fig. 4 plot).
+"""``limbstream eval``: evaluate segmentation algorithms on motion files (table, JSON rows, Fig. 4 plot;
+with ``--live-bound``, fastSW's live rule and the frontier plot).
 
 The computation is :mod:`limbstream.evaluation`; this module parses, prints and draws.
 """
@@ -14,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import kernel
-from limbstream.evaluation import (ALGORITHMS, MAX_LEN, THRESHOLDS, evaluate, format_table, streams_of,
-                                   write_json)
+from limbstream.evaluation import (ALGORITHMS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate, format_table, frontier,
+                                   streams_of, write_json)
 from limbstream.sources import Motion, MotionFileError, load
 
 
@@ -63,6 +64,53 @@ def plot(
     plt.close(fig)
 
 
+def plot_frontier(rows: Sequence[dict], bounds: Sequence[float], path: str | Path, title: str = "") -> None:
+    """The live frontier as a PNG: for each bound, the best exact AAD at each ICR among the rows
+    whose live error stays within it at every sample, against plain fastSW's AAD curve (left);
+    the live error p99 of the same rows (right)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    plain = sorted((r for r in rows if r["live_bound"] == 0 and r["icr"] > 0), key=lambda r: r["icr"])
+    if plain:
+        left.plot([r["icr"] for r in plain], [r["aad"] for r in plain], "k-", label="plain fastSW (no live bound)")
+        right.plot([r["icr"] for r in plain], [r["live_p99"] for r in plain], "k-", label="plain fastSW")
+    for n, bound in enumerate(b for b in bounds if b > 0):
+        icr, aad = frontier(rows, bound)
+        left.plot(icr, aad, "o-", ms=3, color=f"C{n}", label=f"live error <= {bound:g} deg")
+        own = sorted((r for r in rows if r["live_bound"] == bound and r["icr"] > 0), key=lambda r: r["icr"])
+        right.plot([r["icr"] for r in own], [r["live_p99"] for r in own], "o-", ms=3, color=f"C{n}",
+                   label=f"live rule {bound:g} deg")
+        right.axhline(bound, color=f"C{n}", ls=":", lw=0.8)
+    left.set(xscale="log", yscale="log", xlabel="ICR (segment points / samples)", ylabel="exact AAD (deg)",
+             title="best exact AAD with the live error bounded")
+    right.set(xscale="log", yscale="log", xlabel="ICR (segment points / samples)", ylabel="live error p99 (deg)",
+              title="live error, 99th percentile")
+    for ax in (left, right):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _bound_list(text: str) -> list[float]:
+    values = []
+    for part in (p for p in text.replace(" ", ",").split(",") if p):
+        try:
+            values.append(kernel.LIVE_BOUND.check(float(part)))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"live bound must be degrees in 0..180 (0: the plain rules), got {part!r}") from None
+    if not values:
+        raise argparse.ArgumentTypeError("no live bound given")
+    return values
+
+
 def _algorithm_list(text: str) -> list[str]:
     names = [n for n in text.replace(" ", ",").split(",") if n]
     for n in names:
@@ -105,9 +153,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--algorithms",
         nargs="+",
         type=_algorithm_list,
-        default=[list(ALGORITHMS)],
+        default=None,
         metavar="NAME",
-        help=f"algorithms to compare (default: {' '.join(ALGORITHMS)})",
+        help=f"algorithms to compare (default: {' '.join(ALGORITHMS)}; fastsw with --live-bound)",
+    )
+    parser.add_argument(
+        "--live-bound",
+        type=_bound_list,
+        default=None,
+        metavar="DEG[,DEG...]",
+        help="run fastSW's live rule at these bounds, degrees (0: the plain rules); rows gain the live "
+        "error; --plot draws the live frontier",
+    )
+    parser.add_argument(
+        "--predictor",
+        choices=PREDICTORS,
+        default="rate",
+        help="the points' rates for the live error: rate (the live rule's, through the neighbouring "
+        "sample; the C kernel), slope (the closed segment's) or hold (default rate)",
     )
     parser.add_argument(
         "--thresholds",
@@ -138,7 +201,13 @@ def _fail(message: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """``limbstream eval``: print the ICR table, optionally write JSON rows and the plot."""
-    algorithms = list(dict.fromkeys(n for group in args.algorithms for n in group))
+    if args.algorithms is None:
+        algorithms = ["fastsw"] if args.live_bound is not None else list(ALGORITHMS)
+    else:
+        algorithms = list(dict.fromkeys(n for group in args.algorithms for n in group))
+    bounds = list(dict.fromkeys(args.live_bound)) if args.live_bound is not None else [0.0]
+    if any(b > 0 for b in bounds) and algorithms != ["fastsw"]:
+        return _fail(f"--live-bound is fastSW's rule: use it with --algorithms fastsw, not {' '.join(algorithms)}")
     if "sw" in algorithms and args.max_len > 1000:
         return _fail(f"--max-len for algorithm 'sw' is at most 1000, got {args.max_len}")
     for out, what in ((args.json, "--json"), (args.plot, "--plot")):
@@ -161,30 +230,35 @@ def run(args: argparse.Namespace) -> int:
     n_samples = sum(len(s.t) for s in streams)
 
     start = time.perf_counter()
-    rows = evaluate(streams, algorithms, thresholds, args.max_len)
+    rows = evaluate(streams, algorithms, thresholds, args.max_len, bounds, args.predictor)
     elapsed = time.perf_counter() - start
 
     print(
         f"{len(motions)} motions, {len(streams)} streams, {n_samples} samples; "
-        f"{len(algorithms)} algorithms x {len(thresholds)} thresholds, max_len {args.max_len}: "
-        f"{elapsed:.1f} s"
+        f"{len(algorithms)} algorithms x {len(bounds)} live bounds x {len(thresholds)} thresholds, "
+        f"max_len {args.max_len}, predictor {args.predictor}: {elapsed:.1f} s"
     )
     if args.thresholds is not None:  # explicit thresholds: show every row
         print(
-            f"{'algorithm':<9} {'TH':>9} {'ICR':>7} {'AAD':>7} {'std':>7} {'p99':>7} {'max':>7} "
-            f"{'pt_AAD':>8} {'pt_max':>8}"
+            f"{'algorithm':<9} {'bound':>5} {'TH':>9} {'ICR':>7} {'AAD':>7} {'std':>7} {'p99':>7} {'max':>7} "
+            f"{'pt_AAD':>8} {'pt_max':>8} {'live':>7} {'live99':>7} {'livemax':>7}"
         )
         for r in rows:
             print(
-                f"{r['algorithm']:<9} {r['threshold']:>9.2e} {r['icr']:>7.4f} {r['aad']:>7.3f} {r['std']:>7.3f} "
-                f"{r['p99']:>7.3f} {r['max']:>7.3f} {r['point_aad']:>8.3f} {r['point_max']:>8.3f}"
+                f"{r['algorithm']:<9} {r['live_bound']:>5g} {r['threshold']:>9.2e} {r['icr']:>7.4f} {r['aad']:>7.3f} "
+                f"{r['std']:>7.3f} {r['p99']:>7.3f} {r['max']:>7.3f} {r['point_aad']:>8.3f} {r['point_max']:>8.3f} "
+                f"{r['live_aad']:>7.3f} {r['live_p99']:>7.3f} {r['live_max']:>7.3f}"
             )
     else:
-        print(format_table(rows, algorithms))
+        print(format_table(rows, algorithms, live_bounds=bounds))
     if args.json is not None:
         write_json(rows, args.json)
         print(f"wrote {len(rows)} rows to {args.json}")
     if args.plot is not None:
-        plot(rows, algorithms, args.plot, title=", ".join(str(p) for p in args.paths))
+        title = ", ".join(str(p) for p in args.paths)
+        if args.live_bound is not None:
+            plot_frontier(rows, bounds, args.plot, title=f"{title}, max_len {args.max_len}, predictor {args.predictor}")
+        else:
+            plot(rows, algorithms, args.plot, title=title)
         print(f"wrote {args.plot}")
     return 0
