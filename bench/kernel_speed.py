@@ -1,4 +1,5 @@
-"""Host speed of the C kernels: ns per sample vs average segment length, and binding overhead.
+"""Host speed of the C kernels: ns per sample vs average segment length, the live rule on and
+off, and binding overhead.
 
     python bench/kernel_speed.py            # prints the tables of docs/kernel.md
 
@@ -10,12 +11,14 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
 from limbstream import kernel
 
 THRESHOLD = 1e-3  # far above float32 noise on these lines, far below a knot's SSR
+CMU = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "cmu_10seg_50hz.npz"
 
 
 def piecewise_linear(m: int, length: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -51,6 +54,34 @@ def segment_length_table(m: int, repeats: int) -> list[tuple[int, float, float, 
     return rows
 
 
+def cmu_streams() -> list[tuple[np.ndarray, np.ndarray]]:
+    """(t, q) of every segment of every clip in the shared CMU file (50 Hz), or [] if absent."""
+    if not CMU.exists():
+        return []
+    data = np.load(CMU)
+    return [(np.arange(len(data[k])) * 0.02, data[k][:, s].astype(np.float64))
+            for k in data.files if k.startswith("clip_") for s in range(data[k].shape[1])]
+
+
+def live_table(m: int, repeats: int) -> list[tuple[str, float, float]]:
+    """(setting, ICR, ns/sample) of the C batch kernel (fastsw_segment, indices only) on every CMU
+    stream one after another, repeated to m samples (one call), max_len 25, TH 1e-3."""
+    streams = cmu_streams()
+    q = np.concatenate([q for _, q in streams])
+    q = np.tile(q, (-(-m // len(q)), 1))[:m]
+    t = np.arange(m) * 0.02
+    ticks, y = kernel.to_ticks(t), np.ascontiguousarray(q, np.float32)
+    index = np.empty(m, np.uint32)
+    out = kernel.BatchOut(index.ctypes.data)  # the C kernel alone: indices only
+    rows = []
+    for bound in (0.0, 10.0, 5.0, 2.0):
+        settings = kernel.make_settings(1e-3, 25, 4, bound)
+        icr = kernel._lib.fastsw_segment(settings, ticks, y, m, out, None) / m
+        ns = best_ns(lambda s=settings: kernel._lib.fastsw_segment(s, ticks, y, m, out, None), repeats) / m
+        rows.append(("off" if bound == 0 else f"{bound:g} deg", icr, ns))
+    return rows
+
+
 def overhead_table(m: int) -> list[tuple[str, float]]:
     t, y = piecewise_linear(m, 20)
     y32 = y.astype(np.float32)
@@ -72,10 +103,22 @@ def overhead_table(m: int) -> list[tuple[str, float]]:
             bank.update(np.full(devices, ticks[i], np.uint32), block[i])
 
     per_device = best_ns(banked, 3) / (200 * devices)
+    live_bank = kernel.SegmenterBank(devices, threshold=1e-3, max_len=25, live_bound_deg=5.0)
+    streams = cmu_streams() or [(t, np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1)))]
+    turning = np.stack([streams[k % len(streams)][1][:140] for k in range(devices)], axis=1).astype(np.float32)
+
+    def banked_live():
+        for i in range(140):
+            live_bank.update(np.full(devices, ticks[i], np.uint32), turning[i])
+            live_bank.points_omega()
+
+    per_device_live = best_ns(banked_live, 3) / (140 * devices)
     return [
         ("batch segment(), per sample", batch),
         ("Segmenter.update(), one ctypes call per sample", per_call),
         (f"SegmenterBank.update(), {devices} devices per call, per device", per_device),
+        (f"SegmenterBank.update() + points_omega(), live rule 5 deg, {devices} devices, per device",
+         per_device_live),
     ]
 
 
@@ -93,6 +136,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {length} | {realised:.1f} | {fast:.1f} | {sw:.1f} | {sw / fast:.1f} |")
     at100 = min(rows, key=lambda r: abs(r[1] - 100))
     print(f"\nSW / fastSW at average length {at100[1]:.0f}: {at100[3] / at100[2]:.1f}x\n")
+    print(f"fastSW live rule, C kernel (fastsw_segment), the 60 CMU streams one after another to "
+          f"{args.samples} samples (50 Hz), TH 1e-3, max_len 25\n")
+    print("| live rule | ICR | fastSW ns/sample |")
+    print("|---|---:|---:|")
+    for name, icr, ns in live_table(args.samples, args.repeats):
+        print(f"| {name} | {icr:.3f} | {ns:.1f} |")
+    print()
     print("| Python binding path | ns per sample |")
     print("|---|---:|")
     for name, ns in overhead_table(20_000):

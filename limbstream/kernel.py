@@ -230,7 +230,8 @@ def _fastsw(t, q, threshold, max_len, live_bound_deg: float = 0.0) -> Segmentati
     rejected = ctypes.c_size_t(0)
     k = _lib.fastsw_segment(ctypes.byref(settings), ticks, y, m, ctypes.byref(out), ctypes.byref(rejected))
     index = index[:k].astype(np.int64)
-    omega = body_rates(y[index], rates[:k]) if dim == 4 else np.zeros((k, 3))
+    live = 0.0 < settings.live_bound_deg < 180.0
+    omega = body_rates(y[index], rates[:k]) if live else np.zeros((k, 3))
     return Segmentation(index, t[index], q[index], m, int(rejected.value), omega, call[:k].astype(np.int64))
 
 
@@ -435,11 +436,13 @@ class SegmenterBank:
 
     def points_omega(self) -> np.ndarray:
         """(n, 3) float64 body angular rates (rad/s) of the points returned by the last
-        :meth:`update`, where status == POINT (zero with the live rule off)."""
+        :meth:`update`, where status == POINT (zero elsewhere, and with the live rule off)."""
         n = self._n
-        if self.dim != 4:
-            return np.zeros((n, 3))
-        return body_rates(self._point_view[:n]["y"][:, :4], self._rates[:n])
+        omega = np.zeros((n, 3))
+        rows = np.flatnonzero(self._status[:n] == POINT)
+        if self.dim == 4 and len(rows):
+            omega[rows] = body_rates(self._point_view["y"][rows, :4], self._rates[rows])
+        return omega
 
     def retune(self, k: int, threshold: float, max_len: int, live_bound_deg: float | None = None) -> None:
         """Change one stream's threshold, max_len and (unless None) live bound from its next sample on."""
