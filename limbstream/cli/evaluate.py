@@ -80,16 +80,17 @@ def plot_frontier(rows: Sequence[dict], bounds: Sequence[float], path: str | Pat
         right.plot([r["icr"] for r in plain], [r["live_p99"] for r in plain], "k-", label="plain fastSW")
     for n, bound in enumerate(b for b in bounds if b > 0):
         icr, aad = frontier(rows, bound)
-        left.plot(icr, aad, "o-", ms=3, color=f"C{n}", label=f"live error <= {bound:g} deg")
+        left.plot(icr, aad, ".-", ms=3, color=f"C{n}", label=f"live error <= {bound:g} deg")
         own = sorted((r for r in rows if r["live_bound"] == bound and r["icr"] > 0), key=lambda r: r["icr"])
-        right.plot([r["icr"] for r in own], [r["live_p99"] for r in own], "o-", ms=3, color=f"C{n}",
+        right.plot([r["icr"] for r in own], [r["live_p99"] for r in own], ".-", ms=3, color=f"C{n}",
                    label=f"live rule {bound:g} deg")
         right.axhline(bound, color=f"C{n}", ls=":", lw=0.8)
     left.set(xscale="log", yscale="log", xlabel="ICR (segment points / samples)", ylabel="exact AAD (deg)",
-             title="best exact AAD with the live error bounded")
+             title="best exact AAD with the live error bounded", ylim=(0.1, 5.0))
     right.set(xscale="log", yscale="log", xlabel="ICR (segment points / samples)", ylabel="live error p99 (deg)",
-              title="live error, 99th percentile")
+              title="live error, 99th percentile", ylim=(0.5, 100.0))
     for ax in (left, right):
+        ax.set_xlim(0.08, 0.6)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     if title:
