@@ -480,3 +480,19 @@ def test_live_rule_needs_quaternions_and_fastsw():
     assert kernel._lib.fastsw_init(state, kernel.Settings(1e-3, 25, 3, 0.0)) == 0
     assert kernel._lib.fastsw_retune(state, kernel.Settings(1e-3, 25, 3, 5.0)) == -1
     assert kernel._lib.fastsw_retune(state, kernel.Settings(1e-3, 25, 4, 0.0)) == -1  # dim changed
+
+
+def test_receiver_rate_helpers():
+    """quat.body_rate inverts predict's qdot, through_rate passes predict through its target."""
+    from limbstream import quat
+    rng = np.random.default_rng(5)
+    q = quat.normalize(rng.normal(size=(50, 4)))
+    omega = rng.normal(size=(50, 3))
+    qdot = 0.5 * quat.multiply(q, np.c_[np.zeros(50), omega])
+    assert np.allclose(quat.body_rate(q, qdot), omega)
+    target = quat.normalize(q + rng.normal(scale=0.3, size=(50, 4)))
+    dt = rng.uniform(-0.5, 0.5, 50)
+    assert quat.angle_deg(quat.predict(q, quat.through_rate(q, target, dt), dt), target).max() < 1e-6
+    assert np.all(quat.through_rate(q, target, 0.0) == 0)  # dt 0: no rate
+    half = quat.multiply(q, [0.0, 0.0, 1.0, 0.0])  # half a turn away: no finite rate
+    assert np.abs(quat.through_rate(q, half, 0.1)).max() == 0
