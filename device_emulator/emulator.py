@@ -1,13 +1,20 @@
-"""Emulated IMU devices: each samples its subject's motion in real time, runs the C fastSW
-kernel with its own state, and publishes only its segment points over Zenoh.
+"""Emulated IMU devices: each samples its subject's motion on its own clock, runs the C fastSW
+kernel with its own state, and publishes only its segment points over Zenoh, stamped on the
+common time base (device_emulator/clock.py).
 
-All devices of one process advance together, one tick per sample period, through one
-:class:`limbstream.kernel.SegmenterBank` call; a device whose feed ends (``--once``, clips
-of different lengths) publishes its last point as FINAL then, and nothing after it. Per
-device: an advanced publisher for segment points (cache for recovery, miss detection), a
-liveliness token, a share of one config queryable per subject, and optionally the truth
-tap (raw sample batches).
-Zenoh callbacks are not used: queries go to a FIFO channel read between ticks.
+All devices of one process advance together, one tick at a time, through one
+:class:`limbstream.kernel.SegmenterBank` call. With clocks of their own (``--clock-*``), each
+device samples on its own clock's grid: ticks come at ``rate * (1 + max drift)`` and a device
+whose next sample is not due yet gives the kernel no sample that tick (a NaN row, rejected
+without touching its state; the kernel's index, which counts calls, is mapped back to the
+device's sample number); its sample is the motion at the sample's true instant (SLERP between
+the feed's samples). A device whose feed ends (``--once``, clips of different lengths)
+publishes its last point as FINAL then, and nothing after it. Per device: an advanced publisher
+for segment points (cache for recovery, miss detection), a liveliness token, a share of one
+config queryable per subject, optionally the truth tap (raw sample batches with each sample's
+reference time), and its time exchange. A device whose time base steps (its first sync after
+starting unsynced, or a resync after its holdover that moved more than 128 ms) starts a new
+stream. Zenoh callbacks are not used: queries go to a FIFO channel read between ticks.
 """
 from __future__ import annotations
 
@@ -17,15 +24,19 @@ import math
 import random
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import zenoh
 import zenoh.ext as zext
 
-from limbstream import kernel, wire
+from device_emulator.clock import ClockSettings, DeviceClocks, SyncClient, TimeBase
+from limbstream import kernel, quat, wire
 
 log = logging.getLogger("limbstream.emulator")
+
+RING_MIN = 4
+"""Ticks of samples kept at least (segment points refer to the last one or two)."""
 
 
 @dataclass(frozen=True)
@@ -34,13 +45,17 @@ class EmulatorSettings:
 
     Attributes
     ----------
-    fs : device sample rate, Hz.
+    fs : device sample rate, Hz (of each device's own clock).
     speed : time scale: 1 = real time, 10 = ten times faster (device clocks run faster too).
     config : initial fastSW settings of every device (limbstream.wire.TUNABLES).
     truth : publish raw samples on the truth tap.
     raw_batch : samples per truth-tap message.
     cache : segment points each device keeps for recovery (advanced publisher cache).
     heartbeat_s : miss-detection heartbeat period, seconds.
+    clock : the devices' clocks and their sync.
+    anchor_us : the instant the scaled time base agrees with the host clock (with speed != 1 the
+        time service must use the same); None: the emulator's start.
+    clock_id : distinguishes this process's clock draws from other processes' (first subject).
     """
 
     fs: float = 50.0
@@ -50,6 +65,9 @@ class EmulatorSettings:
     raw_batch: int = 25
     cache: int = 512
     heartbeat_s: float = 0.5
+    clock: ClockSettings = field(default_factory=ClockSettings)
+    anchor_us: float | None = None
+    clock_id: int = 0
 
 
 @dataclass
@@ -65,18 +83,14 @@ class Device:
     seq: int = 0
     points: int = 0
     config: wire.DeviceConfig = wire.DeviceConfig()
-    raw_next: int = 0  # first sample index not yet on the truth tap
-    length: int | None = None  # samples in the device's stream (its feed's), None: endless
+    raw_next: int = 0  # first tick whose sample is not yet on the truth tap
+    length: int | None = None  # feed samples of its clip, None: endless
+    base: int = 0  # sample number of the current stream's sample 0
+    restarts: int = 0  # streams started after the first (time base steps)
 
     @property
     def id(self) -> str:
         return wire.device_id(self.subject, self.segment)
-
-    def status(self, samples: int) -> wire.DeviceStatus:
-        """The device's own view: config and counters (the config queryable's reply);
-        ``samples``: ticks so far (all devices of an emulator sample together until their stream ends)."""
-        samples = samples if self.length is None else min(samples, self.length)
-        return wire.DeviceStatus(self.id, self.config, self.stream, samples, self.points)
 
 
 @dataclass
@@ -106,23 +120,40 @@ class Emulator:
         # longer feeds take the lower slots: the devices still streaming at any tick are a prefix of the bank
         by_length = sorted(feeds, key=lambda subject: -(feeds[subject].length or math.inf))
         self._by_length = [feeds[subject] for subject in by_length]
-        self._ending: dict[int, list[Device]] = {}  # last sample index -> devices whose stream ends there
+        self._feed_slots: list[tuple[int, int]] = []  # (first slot, last slot + 1) of each feed, in slot order
         for subject in by_length:
-            length = feeds[subject].length
+            first = len(self.devices)
             for segment in feeds[subject].segments:
-                d = Device(subject, segment, len(self.devices), random.getrandbits(16),
-                           config=settings.config, length=length)
-                self.devices.append(d)
-                if length is not None:
-                    self._ending.setdefault(length - 1, []).append(d)
-        self.bank = kernel.SegmenterBank(len(self.devices), settings.config.threshold, settings.config.max_len)
-        self.length = max((f.length or 0) for f in feeds.values()) if all(f.length for f in feeds.values()) else None
+                self.devices.append(Device(subject, segment, len(self.devices), random.getrandbits(16),
+                                           config=settings.config, length=feeds[subject].length))
+            self._feed_slots.append((first, len(self.devices)))
+        n = len(self.devices)
+        self.bank = kernel.SegmenterBank(n, settings.config.threshold, settings.config.max_len)
+        self.period_us = 1e6 / settings.fs
+        c = settings.clock
+        self.base = TimeBase(settings.speed, settings.anchor_us)
+        self.clocks = DeviceClocks(n, c, self.period_us, self.base, seed=settings.clock_id)
+        self.modelled = c.modelled
+        # ticks come often enough that no clock needs two samples in one
+        self.tick_us = self.period_us / (1.0 + self.clocks.max_drift)
+        self.sync = SyncClient(session, self.clocks, c, [d.id for d in self.devices]) if c.sync else None
+        self.n = np.zeros(n, np.int64)  # samples each device has taken
+        self.ended = np.zeros(n, bool)  # its stream ended (finite feed)
+        self._m: int | None = None       # see _streaming
+        self._rows: dict[tuple[int, int], np.ndarray] = {}  # see _row
+        # last sample each device may take (a finite feed ends when its clip's true time does)
+        ends = np.array([(d.length - 1) if d.length else -1 for d in self.devices], np.float64)
+        last = np.floor(((ends * self.period_us) * (1.0 + self.clocks.drift) - self.clocks.phase_us) / self.period_us)
+        self.n_last = np.where(ends >= 0, last, np.inf)
         self.tick_stats = TickStats()
-        batch = settings.raw_batch
-        self._ring_t = np.zeros(batch, np.int64)                         # last `batch` sample times
-        self._ring_q = np.zeros((batch, len(self.devices), 4), np.float32)  # and samples of every device
+        ring = max(settings.raw_batch, RING_MIN)
+        self._ring = ring
+        self._ring_n = np.full((ring, n), -1, np.int64)       # sample number taken at each tick (-1: none)
+        self._ring_t = np.zeros((ring, n), np.int64)          # its stamp (common time base), us
+        self._ring_ref = np.zeros((ring, n), np.int64)        # its reference (true) time, us
+        self._ring_q = np.zeros((ring, n, 4), np.float32)     # its value
         self.start_us = 0
-        self.samples = 0
+        self.ticks = 0
         self.finished = threading.Event()
         self._declared = False
 
@@ -157,14 +188,21 @@ class Emulator:
         self._declared = True
 
     def undeclare(self) -> None:
-        """Drop tokens and publishers (devices go offline)."""
+        """Drop tokens and publishers (devices go offline); stop the time exchange."""
+        if self.sync is not None:
+            self.sync.close()
         for d in self.devices:
             for obj in (d.token, d.publisher):
                 if obj is not None:
                     obj.undeclare()
             d.token = d.publisher = None
 
-    # ------------------------------------------------------------------ config
+    # ------------------------------------------------------------------ config and status
+
+    def status(self, d: Device) -> wire.DeviceStatus:
+        """The device's own view: config, counters of its current stream, clock sync."""
+        clock = self.sync.status(d.slot) if self.sync is not None else wire.ClockStatus()
+        return wire.DeviceStatus(d.id, d.config, d.stream, int(self.n[d.slot] - d.base), d.points, clock)
 
     def _answer_queries(self) -> None:
         """Apply config queries that arrived since the last tick (never inside a callback)."""
@@ -186,71 +224,174 @@ class Emulator:
                 self.bank.retune(d.slot, config.threshold, config.max_len)
                 d.config = config
                 log.info("%s: %s", d.id, config)
-            query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(d.status(self.samples)))
+            query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(self.status(d)))
+
+    # ------------------------------------------------------------------ samples
+
+    def _take(self, k: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Which of the first ``m`` devices take a sample at tick k: (slots (j,), their sample
+        numbers (j,), values (j, 4) float32)."""
+        t_k = self.start_us + k * self.tick_us
+        slots = np.arange(m)
+        n = self.n[:m]
+        live = ~self.ended[:m]
+        if not self.modelled:  # every device samples at every tick, on the feed's own grid
+            taken = slots[live]
+            return taken, n[live], np.concatenate([f.sample(k) for f in self._live_feeds(m)])[live]
+        tau = self.clocks.sample_time(n, slots)
+        due = live & (tau <= t_k + 0.5)
+        taken = slots[due]
+        x = (tau[due] - self.start_us) / self.period_us  # position on the feed's grid
+        j0 = max(0, math.floor((t_k - self.tick_us - self.start_us) / self.period_us))
+        j = np.clip(np.floor(x).astype(np.int64), j0, j0 + 1)
+        u = np.clip(x - j, 0.0, 1.0)
+        rows = [self._row(j0 + r, m) for r in range(3)]
+        first = (j == j0)[:, None]
+        a = np.where(first, rows[0][taken], rows[1][taken])
+        b = np.where(first, rows[1][taken], rows[2][taken])
+        q = np.where((u == 0)[:, None], a, quat.slerp(a, b, u).astype(np.float32))
+        return taken, n[due], q
+
+    def _row(self, j: int, m: int) -> np.ndarray:
+        """(m, 4) the feed samples j of the first m devices (finite feeds hold their last one),
+        cached: consecutive ticks ask for overlapping rows."""
+        row = self._rows.get((j, m))
+        if row is None:
+            row = self._rows[j, m] = np.concatenate([
+                f.sample(j if f.length is None else min(j, f.length - 1)) for f in self._live_feeds(m)])
+            for key in [key for key in self._rows if key[0] < j - 2]:
+                del self._rows[key]
+        return row
+
+    def _live_feeds(self, m: int) -> list:
+        return self._by_length[:sum(1 for first, _ in self._feed_slots if first < m)]
+
+    def _streaming(self) -> int:
+        """Slots of the bank still in use: those up to the last feed with a device not ended
+        (recomputed when a stream ends)."""
+        if self._m is None:
+            self._m = 0
+            for first, end in self._feed_slots:
+                if not self.ended[first:end].all():
+                    self._m = end
+        return self._m
 
     # ------------------------------------------------------------------ ticks
 
-    def _publish_points(self, k: int, status: np.ndarray, index: np.ndarray, y: np.ndarray) -> None:
-        period_us = 1e6 / self.settings.fs
-        for slot in np.flatnonzero(status == kernel.POINT):
-            self._publish_point(self.devices[slot], int(index[slot]), y[slot], period_us, 0)
-
-    def _publish_point(self, d: Device, index: int, y: np.ndarray, period_us: float, flags: int) -> None:
-        point = wire.SegmentPoint(d.stream, d.seq, index, self.start_us + round(index * period_us),
+    def _publish_point(self, d: Device, tick: int, y: np.ndarray, flags: int) -> None:
+        """Device d's segment point: the sample it took at ``tick`` (within the ring)."""
+        row = tick % self._ring
+        n = int(self._ring_n[row, d.slot])
+        point = wire.SegmentPoint(d.stream, d.seq, n - d.base, int(self._ring_t[row, d.slot]),
                                   tuple(float(v) for v in y), flags)
         d.publisher.put(wire.encode_point(point))
         d.seq = (d.seq + 1) & 0xFFFFFFFF
         d.points += 1
 
-    def _tap(self, k: int, t_us: int, samples: np.ndarray) -> None:
-        """Truth tap: keep the last raw_batch samples of every streaming device (the first
-        len(samples) slots) in a ring; each publishes its batch when full, staggered over
-        devices so each tick sends a few."""
+    def _tap(self, k: int, m: int) -> None:
+        """Truth tap: each streaming device publishes its samples of the last raw_batch ticks,
+        staggered over devices so each tick sends a few."""
         batch = self.settings.raw_batch
-        self._ring_t[k % batch] = t_us
-        self._ring_q[k % batch, : len(samples)] = samples
-        for slot in range(-(k % batch) % batch, len(samples), batch):  # (k + slot) % batch == 0
-            self._flush_tap(self.devices[slot], k)
+        for slot in range(-(k % batch) % batch, m, batch):  # (k + slot) % batch == 0
+            if not self.ended[slot]:
+                self._flush_tap(self.devices[slot], k)
 
     def _flush_tap(self, d: Device, k: int) -> None:
-        """Publish device d's samples d.raw_next .. k (at most raw_batch, all still in the ring)."""
+        """Publish device d's samples of ticks d.raw_next .. k (all still in the ring)."""
         if k < d.raw_next:
             return
-        rows = np.arange(d.raw_next, k + 1) % self.settings.raw_batch
-        payload = wire.encode_raw(wire.RawBatch(d.stream, d.raw_next, self._ring_t[rows], self._ring_q[rows, d.slot]))
-        self._raw_pubs[d.slot].put(payload)
+        rows = np.arange(d.raw_next, k + 1) % self._ring
+        rows = rows[self._ring_n[rows, d.slot] >= 0]
         d.raw_next = k + 1
+        if len(rows) == 0:
+            return
+        payload = wire.encode_raw(wire.RawBatch(
+            d.stream, int(self._ring_n[rows[0], d.slot] - d.base), self._ring_t[rows, d.slot],
+            self._ring_q[rows, d.slot], self._ring_ref[rows, d.slot]))
+        self._raw_pubs[d.slot].put(payload)
 
     def step(self, k: int) -> None:
-        """Sample k of every device whose stream has not ended: kernel, segment points, truth
-        tap; the end of the streams whose last sample this is; config."""
-        t_us = self.start_us + round(k * 1e6 / self.settings.fs)
-        live = [feed for feed in self._by_length if feed.length is None or k < feed.length]
-        samples = np.concatenate([feed.sample(k) for feed in live])
-        ticks = np.full(len(samples), (t_us - self.start_us) & 0xFFFFFFFF, np.uint32)
-        status, index, y = self.bank.update(ticks, samples)  # the first len(samples) slots
-        self.samples = k + 1
-        self._publish_points(k, status, index, y)
+        """Tick k: the samples due, their stamps, kernel, segment points, truth tap; the end of
+        the streams whose last sample this was; new streams where a time base stepped; config."""
+        m = self._streaming()
+        taken, n, q = self._take(k, m)
+        local = self.clocks.sample_local(n, taken) + self.clocks.jitter(len(taken))
+        stamps = self.sync.stamp(taken, local) if self.sync is not None else local
+        row = k % self._ring
+        self._ring_n[row, :] = -1
+        self._ring_n[row, taken] = n
+        self._ring_t[row, taken] = np.round(stamps).astype(np.int64)
+        self._ring_ref[row, taken] = np.round(self.clocks.sample_time(n, taken)).astype(np.int64)
+        self._ring_q[row, taken] = q
+        if self.sync is not None and self.sync.stepped[taken].any():
+            for slot in taken[self.sync.stepped[taken]]:
+                self._new_stream(self.devices[slot], k)
+        y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept
+        y[taken] = q
+        ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
+                 & 0xFFFFFFFF).astype(np.uint32)
+        status, index, yp = self.bank.update(ticks, y)
+        self.n[taken] += 1
+        self.ticks = k + 1
+        for slot in np.flatnonzero(status == kernel.POINT):
+            self._publish_point(self.devices[slot], int(index[slot]), yp[slot], 0)
         if self.settings.truth:
-            self._tap(k, t_us, samples)
-        for d in self._ending.get(k, ()):
-            self._end(d)
+            self._tap(k, m)
+        for slot in taken[self.n[taken] > self.n_last[taken]]:
+            self._end(self.devices[slot], k)
         self._answer_queries()
 
-    def _end(self, d: Device) -> None:
-        """End device d's stream after its last sample: flush its last point (FINAL) and its truth tap."""
+    def _new_stream(self, d: Device, k: int) -> None:
+        """Device d's time base stepped at tick k: end its stream at its previous sample (FINAL
+        if the kernel holds one to flush) and start a new one from that sample, restamped."""
+        prev = (k - 1) % self._ring
+        if k == 0 or self._ring_n[prev, d.slot] < 0:
+            prev = (k - 2) % self._ring  # the tick before was a skip
+        if self._ring_n[prev, d.slot] < 0:
+            return
+        if self.settings.truth:
+            self._flush_tap(d, k - 1)
         last = self.bank.flush(d.slot)
         if last is not None:
-            self._publish_point(d, last[0], last[2], 1e6 / self.settings.fs, wire.FLAG_FINAL)
+            self._publish_point(d, int(last[0]), last[2], wire.FLAG_FINAL)
+        n_prev = self._ring_n[prev, d.slot]
+        local = self.clocks.sample_local(np.array([n_prev]), np.array([d.slot]))[0]
+        self._ring_t[prev, d.slot] = round(local + self.sync.c[d.slot] - self.sync.b[d.slot] * (
+            self.sync.c_local[d.slot] - local))
+        d.stream, d.seq, d.points, d.base = random.getrandbits(16), 0, 0, int(n_prev)
+        d.restarts += 1
+        d.raw_next = k
+        self._publish_point(d, self._tick_of(prev, k), self._ring_q[prev, d.slot], 0)
+        log.info("%s: time base stepped, new stream %d", d.id, d.stream)
+
+    def _tick_of(self, row: int, k: int) -> int:
+        """The tick (<= k) whose samples ring row ``row`` holds."""
+        return k - ((k - row) % self._ring)
+
+    def _end(self, d: Device, k: int) -> None:
+        """End device d's stream after its last sample (tick k): flush its last point (FINAL)
+        and its truth tap."""
+        last = self.bank.flush(d.slot)
+        if last is not None:
+            self._publish_point(d, int(last[0]), last[2], wire.FLAG_FINAL)
         if self.settings.truth:
-            self._flush_tap(d, self.samples - 1)
+            self._flush_tap(d, k)
+        self.ended[d.slot] = True
+        self._m = None
 
     def finish(self) -> None:
         """End of a finite run: end every stream that has not ended yet."""
-        for d in self.devices:
-            if d.length is None or d.length > self.samples:
-                self._end(d)
+        for slot in np.flatnonzero(~self.ended):
+            self._end(self.devices[slot], self.ticks - 1)
         self.finished.set()
+
+    def start_clocks(self, stop: threading.Event) -> None:
+        """Devices power up: their clocks start; with sync, their first exchanges (waits at most
+        the clock settings' wait_s, less if no time service is reachable)."""
+        self.clocks.boot(self.base.now_us())
+        if self.sync is not None:
+            self.sync.start()
+            self.sync.wait_first(stop)
 
     def run(self, stop: threading.Event, duration_s: float | None = None) -> TickStats:
         """Tick in real time (scaled by speed) until ``stop``, the end of a finite source,
@@ -258,16 +399,17 @@ class Emulator:
         if not self._declared:
             self.declare()
         s = self.settings
-        period = 1.0 / (s.fs * s.speed)
         for feed in self.feeds.values():  # generate every feed's first chunk before the clock starts
             feed.sample(0)
-        self.start_us = int(time.time() * 1e6)
-        n_ticks = self.length
-        if duration_s is not None:
-            n_ticks = min(n_ticks or 1 << 62, int(round(duration_s * s.fs)))
+        if not self.clocks.boot_us:
+            self.start_clocks(stop)
+        period = self.tick_us / 1e6 / s.speed
+        n_ticks = None if duration_s is None else int(round(duration_s * 1e6 / self.tick_us))
         start = time.perf_counter()
+        self.start_us = int(round(self.base.now_us()))
+        self.clocks.start_grid(self.start_us)
         k = 0
-        while not stop.is_set() and (n_ticks is None or k < n_ticks):
+        while not stop.is_set() and (n_ticks is None or k < n_ticks) and not self.ended.all():
             deadline = start + k * period
             now = time.perf_counter()
             if now < deadline:
@@ -279,11 +421,15 @@ class Emulator:
                 self.tick_stats.max_late_s = max(self.tick_stats.max_late_s, now - deadline)
             began = time.perf_counter()
             self.step(k)
+            if self.sync is not None:
+                self.sync.poll()
             self.tick_stats.busy_s += time.perf_counter() - began
             self.tick_stats.ticks += 1
             k += 1
-        if n_ticks is not None and k >= n_ticks:
+        if not stop.is_set() and (self.ended.all() or (n_ticks is not None and k >= n_ticks)):
             self.finish()
-            while not stop.wait(0.05):  # keep serving config queries and the recovery cache
+            while not stop.wait(0.05):  # keep serving config queries, the recovery cache and the exchange
                 self._answer_queries()
+                if self.sync is not None:
+                    self.sync.poll()
         return self.tick_stats

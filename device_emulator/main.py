@@ -8,6 +8,7 @@ import re
 import socket
 import threading
 
+from device_emulator.clock import ClockSettings
 from device_emulator.emulator import Emulator, EmulatorSettings
 from device_emulator.feeds import GeneratorFeed, LoopFeed
 from limbstream.signals import stop_on_signals
@@ -62,8 +63,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
     parser.add_argument("--seed", type=int, default=0, help="generator seed offset")
     parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
+    add_clock_arguments(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
     zconfig.add_arguments(parser)
+
+
+def add_clock_arguments(parser: argparse.ArgumentParser) -> None:
+    """The device clock and time sync flags (shared with ``limbstream up``)."""
+    group = parser.add_argument_group("device clocks (docs/reliability.md, 'Device clocks')")
+    group.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MAX",
+                       help="each device's clock is off by an offset drawn uniform in +-MAX ms (default 0)")
+    group.add_argument("--clock-drift-ppm", type=float, default=0.0, metavar="MAX",
+                       help="each device's clock drifts by a rate drawn uniform in +-MAX ppm (default 0; <= 1000)")
+    group.add_argument("--clock-jitter-us", type=float, default=0.0, metavar="J",
+                       help="every clock read is off by uniform +-J us (default 0; <= 1000)")
+    group.add_argument("--clock-seed", type=int, default=0, help="seed of the clock draws (default 0)")
+    group.add_argument("--no-sync", dest="sync", action="store_false",
+                       help="devices do not synchronise with the time service (they stamp with their own clock)")
+    group.add_argument("--sync-poll-s", type=float, default=64.0,
+                       help="longest interval between a device's time exchanges, device seconds (default 64)")
+    group.add_argument("--sync-holdover-s", type=float, default=300.0,
+                       help="a device without a valid time answer for this long reports itself unsynced (default 300)")
+    group.add_argument("--sync-wait-s", type=float, default=10.0,
+                       help="at start, wait at most this long for the first time answers (default 10)")
+    group.add_argument("--time-anchor", type=float, default=None, metavar="EPOCH_S",
+                       help="with --speed != 1: the instant (Unix seconds) the scaled time agrees with the host "
+                            "clock; the time service needs the same (default: the start)")
+
+
+def clock_settings(args: argparse.Namespace) -> ClockSettings:
+    """ClockSettings from the flags; SystemExit naming a bad one."""
+    checks = [
+        (0 <= args.clock_offset_ms <= 1e7, f"--clock-offset-ms must be in 0..1e7, got {args.clock_offset_ms}"),
+        (0 <= args.clock_drift_ppm <= 1000, f"--clock-drift-ppm must be in 0..1000, got {args.clock_drift_ppm}"),
+        (0 <= args.clock_jitter_us <= 1000, f"--clock-jitter-us must be in 0..1000, got {args.clock_jitter_us}"),
+        (args.sync_poll_s >= 1, f"--sync-poll-s must be >= 1, got {args.sync_poll_s}"),
+        (args.sync_holdover_s > 0, f"--sync-holdover-s must be > 0, got {args.sync_holdover_s}"),
+        (args.sync_wait_s >= 0, f"--sync-wait-s must be >= 0, got {args.sync_wait_s}"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise SystemExit(f"limbstream emulate: error: {message}")
+    return ClockSettings(offset_ms=args.clock_offset_ms, drift_ppm=args.clock_drift_ppm,
+                         jitter_us=args.clock_jitter_us, seed=args.clock_seed, sync=args.sync,
+                         poll_s=args.sync_poll_s, holdover_s=args.sync_holdover_s, wait_s=args.sync_wait_s)
 
 
 def validate(args: argparse.Namespace) -> None:
@@ -88,8 +131,11 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         feeds = build_feeds(args)
     except (MotionFileError, ValueError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
+    clock = clock_settings(args)
     settings = EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
-                                truth=args.truth, raw_batch=args.raw_batch, cache=args.cache)
+                                truth=args.truth, raw_batch=args.raw_batch, cache=args.cache, clock=clock,
+                                anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
+                                clock_id=args.first_subject)
     stop = stop_on_signals(stop)
     session = zconfig.open_session(zconfig.from_args(args), stop)
     if session is None:  # stopped while waiting for the router
@@ -99,8 +145,29 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         emulator.declare()
         print(f"emulating {len(emulator.devices)} devices of {len(feeds)} subjects "
               f"({', '.join(feeds)}) at {args.rate:g} Hz x{args.speed:g}", flush=True)
+        print_clocks(emulator, clock, args.verbose)
+        emulator.start_clocks(stop)
+        if emulator.sync is not None:
+            synced = sum(emulator.sync.synced(d.slot, emulator.clocks.read(d.slot)) for d in emulator.devices)
+            print(f"time sync: {synced}/{len(emulator.devices)} devices synced at start"
+                  + ("" if emulator.sync.service_present() else " (no time service reachable)"), flush=True)
         ticks = emulator.run(stop, args.duration)
         emulator.undeclare()
     late = 100.0 * ticks.late / max(ticks.ticks, 1)
     print(f"emulator: {ticks.ticks} ticks, {late:.2f} % late, busy {ticks.busy_s:.1f} s", flush=True)
+    if emulator.sync is not None:
+        print(f"emulator: {emulator.sync.summary()}", flush=True)
     return 0
+
+
+def print_clocks(emulator: Emulator, clock: ClockSettings, verbose: bool, most: int = 40) -> None:
+    """The clock draws (seeded): every device's with -v or up to ``most`` devices, else a summary."""
+    if not clock.modelled:
+        return
+    lines = emulator.clocks.describe([d.id for d in emulator.devices])
+    print(f"device clocks (--clock-seed {clock.seed}): offsets uniform in +-{clock.offset_ms:g} ms, drifts in "
+          f"+-{clock.drift_ppm:g} ppm, read jitter +-{clock.jitter_us:g} us; sync "
+          f"{'on' if clock.sync else 'off'}", flush=True)
+    shown = lines if verbose or len(lines) <= most else lines[:most] + [f"... ({len(lines) - most} more with -v)"]
+    for line in shown:
+        print(f"  {line}", flush=True)

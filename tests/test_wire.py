@@ -127,7 +127,7 @@ def test_raw_batch_round_trip_and_errors():
     assert back.stream == 7 and back.first_index == 1000
     assert np.array_equal(back.t_us, t) and np.array_equal(back.q, q)
     raw = wire.encode_raw(batch)
-    for bad, reason in ((raw[:-3], "size"), (raw[:10], "size"), (bytes([2]) + raw[1:], "version")):
+    for bad, reason in ((raw[:-3], "size"), (raw[:10], "size"), (bytes([3]) + raw[1:], "version")):
         with pytest.raises(wire.WireError) as err:
             wire.decode_raw(bad)
         assert err.value.reason == reason

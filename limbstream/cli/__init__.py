@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "router": ("limbstream.cli.router", "run a Zenoh router (for one machine, no plugins)"),
     "emulate": ("device_emulator.main", "run emulated IMU devices"),
     "aggregate": ("services.aggregator.main", "run the aggregator (SLERP + fusion)"),
+    "clock": ("services.clock.main", "serve the common time base the devices synchronise to"),
     "dashboard": ("services.dashboard.main", "run the dashboard web service"),
     "watch": ("limbstream.cli.watch", "print a live text view of a subject's pose stream"),
     "eval": ("limbstream.cli.evaluate", "evaluate segmentation algorithms on motion files"),

@@ -10,23 +10,26 @@ module          what it holds
 :mod:`.pose`    pose frame codec (aggregator -> clients)
 :mod:`.fields`  the stats field table; :mod:`.stats` its JSON codec
 :mod:`.config`  device tunables (defaults, bounds), config and status messages
+:mod:`.time`    time exchange codec (device <-> time service)
 ==============  ==============================================================
 
 All binary payloads are little-endian and start with a format version byte. Import the
 package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
 """
 from .body import BONES, JOINTS, SEGMENTS
-from .config import (MAX_LEN, THRESHOLD, TUNABLES, DeviceConfig, DeviceStatus, Tunable, add_arguments,
+from .config import (MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig, DeviceStatus, Tunable, add_arguments,
                      config_from_args, decode_config, decode_status, encode_config, encode_status)
 from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
-from .keys import (DEVICE_KINDS, PREFIX, SUBJECT_KINDS, alive_key, check_chunk, config_key, device_id, device_key,
+from .keys import (DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, check_chunk, config_key, device_id, device_key,
                    device_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
-                   split_device_id, stats_key, subject_key, subject_pattern, subject_selector)
+                   split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import FLAG_FINAL, POINT_SIZE, UNIT_TOLERANCE, VERSION, SegmentPoint, decode_point, encode_point
 from .pose import (FRAME_GAP, FRAME_MISSING, KIND_EXACT, KIND_LIVE, POSE_DTYPE, PoseFrame, PoseFrames,
                    decode_pose, encode_pose)
-from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RawBatch, decode_raw, encode_raw
+from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, decode_raw, encode_raw
 from .stats import decode_stats, encode_stats
+from .time import (MAX_TIME_US, TIME_ANSWER_SIZE, TIME_REQUEST_SIZE, TIME_VERSION, TimeAnswer, TimeRequest,
+                   decode_time_answer, decode_time_request, encode_time_answer, encode_time_request, offset_delay)
 

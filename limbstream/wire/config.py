@@ -17,7 +17,7 @@ import argparse
 import json
 import math
 import numbers
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 from .errors import WireError
 
@@ -162,6 +162,7 @@ class DeviceStatus:
     stream : its stream id.
     samples : samples taken in this stream.
     points : segment points sent in this stream.
+    clock : its clock synchronisation (:class:`ClockStatus`), None if it does not report one.
     """
 
     device: str
@@ -169,15 +170,54 @@ class DeviceStatus:
     stream: int
     samples: int
     points: int
+    clock: ClockStatus | None = None
 
     def as_dict(self) -> dict:
+        clock = {} if self.clock is None else self.clock.as_dict()
         return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
-                "samples": self.samples, "points": self.points}
+                "samples": self.samples, "points": self.points, **clock}
+
+
+@dataclass(frozen=True)
+class ClockStatus:
+    """A device's view of its clock synchronisation (part of its status).
+
+    Attributes
+    ----------
+    clock_offset_ms : its clock minus the common time base as it estimates it, ms (None: no
+        estimate yet, or sync off).
+    sync_rtt_ms : round trip of its last valid time exchange, ms (None: none yet).
+    synced : it stamps on the common time base (a valid answer within its holdover).
+    sync_bad : time answers it discarded, by reason.
+    """
+
+    clock_offset_ms: float | None = None
+    sync_rtt_ms: float | None = None
+    synced: bool = False
+    sync_bad: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
 
 
 def encode_status(status: DeviceStatus) -> bytes:
-    """``{"device", <tunables>..., "stream", "samples", "points"}``."""
+    """``{"device", <tunables>..., "stream", "samples", "points"[, <ClockStatus fields>]}``."""
     return json.dumps(status.as_dict()).encode()
+
+
+def _clock(data: dict) -> ClockStatus | None:
+    """The ClockStatus fields of a status reply (None if it has none); TypeError if one is bad."""
+    if "synced" not in data:
+        return None
+    offset, rtt, synced, bad = (data.get(k) for k in ("clock_offset_ms", "sync_rtt_ms", "synced", "sync_bad"))
+    for name, v in (("clock_offset_ms", offset), ("sync_rtt_ms", rtt)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            raise TypeError(f"{name} must be a finite number or null, got {v!r}")
+    bad = {} if bad is None else bad
+    if not isinstance(synced, bool) or not isinstance(bad, dict) or not all(
+            isinstance(k, str) and isinstance(n, int) and not isinstance(n, bool) for k, n in bad.items()):
+        raise TypeError("synced must be a boolean and sync_bad an object of counts")
+    return ClockStatus(offset, rtt, synced, bad)
 
 
 def decode_status(payload: bytes) -> DeviceStatus:
@@ -190,6 +230,6 @@ def decode_status(payload: bytes) -> DeviceStatus:
         counters = [data[k] for k in ("stream", "samples", "points")]
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in counters):
             raise TypeError(f"stream, samples and points must be integers, got {counters}")
-        return DeviceStatus(str(data["device"]), config, *counters)
+        return DeviceStatus(str(data["device"]), config, *counters, clock=_clock(data))
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

@@ -92,10 +92,21 @@ FIELDS: tuple[StatsField, ...] = (
     _device("stream", int, "the device's current stream id (a new one after a restart)"),
     _device("restarts", int, "new streams seen after the first", metric="limbstream_device_restarts", counter=True),
     _device("final", bool, "the stream ended (its last point carried FINAL)"),
+    _device("clock_offset_ms", float, "device clock minus the common time base, the device's own estimate "
+            "(its status; null without sync)", "ms", chart=True, metric="limbstream_device_clock_offset_milliseconds"),
+    _device("sync_rtt_ms", float, "round trip of the device's last valid time exchange", "ms",
+            metric="limbstream_device_sync_rtt_milliseconds"),
+    _device("synced", bool, "the device stamps on the common time base (a valid time answer within its holdover)",
+            metric="limbstream_device_synced"),
+    _device("sync_bad", dict, "time answers the device discarded, by reason"),
     # ---- per subject
     StatsField("frames", int, "subject", "exact frames published"),
     StatsField("skipped_frames", int, "subject", "frame times skipped (no data could make them)"),
     StatsField("watermark_us", int, "subject", "exact frames are final up to this device time", "us"),
+    StatsField("frame_aad_deg", float, "subject", "mean angle between each exact frame's segments and the truth at "
+               "the frame's reference instant (alignment-aware error; truth tap with reference times; 60 s window)",
+               "deg"),
+    StatsField("frame_error_frames", int, "subject", "exact frames compared with the truth so far"),
     # ---- the aggregator's own loop
     _aggregator("id", str, "host:pid of the aggregator process"),
     _aggregator("subjects", int, "subjects it tracks", metric="limbstream_aggregator_subjects"),

@@ -9,10 +9,13 @@ key                                                     payload                 
 ``limbstream/<subject>/<segment>/config``               queryable: config/status   device
 ``limbstream/<subject>/pose``                           pose frame                 aggregator
 ``limbstream/<subject>/stats``                          stats JSON                 aggregator
+``limbstream/@time``                                    queryable: time exchange   time service
 =====================================================  =========================  ==========
 
 ``<subject>`` and ``<segment>`` are single chunks of letters, digits, ``_``, ``-`` and ``.``.
 Selectors take a subject *pattern*: ``*``, a name, or a name with ``*`` inside (``s0*``).
+The time key's ``@time`` is a verbatim chunk: only ``@time`` itself matches it (``*`` and ``**``
+do not), so no subject can take its place and wildcard queryables never see time queries.
 """
 from __future__ import annotations
 
@@ -25,6 +28,8 @@ DEVICE_KINDS: tuple[str, ...] = ("seg", "raw", "alive", "config")
 """Last chunk of a device key."""
 SUBJECT_KINDS: tuple[str, ...] = ("pose", "stats")
 """Last chunk of a subject key."""
+TIME_CHUNK = "@time"
+"""Second chunk of the time service's key (a verbatim chunk: wildcards never match it)."""
 
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
@@ -86,6 +91,11 @@ def pose_key(subject: str) -> str:
 
 def stats_key(subject: str) -> str:
     return subject_key(subject, "stats")
+
+
+def time_key() -> str:
+    """``limbstream/@time``: the time service's queryable (docs/protocol.md, "Time exchange")."""
+    return f"{PREFIX}/{TIME_CHUNK}"
 
 
 def subject_pattern(text: str) -> str:

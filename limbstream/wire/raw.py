@@ -1,4 +1,10 @@
-"""Truth tap: batches of a device's raw samples (the reference a lab compares against)."""
+"""Truth tap: batches of a device's raw samples (the reference a lab compares against).
+
+Version 2 adds each sample's *reference time*: when the sample was really taken, on the
+reference system's clock (the emulator's true time stands in for an external reference such as
+an optical system). Receivers use it only to measure alignment, never to align. Version 1
+batches (no reference time) are still decoded.
+"""
 from __future__ import annotations
 
 import struct
@@ -7,11 +13,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import WireError
-from .point import VERSION
 
-_RAW_HEADER = struct.Struct("<BBHHHIq")  # version, flags, stream, count, dt_us, first_index, t0_us
+RAW_VERSION = 2
+"""Format version of truth-tap batches written with reference times (1: without)."""
+_HEADER_V1 = struct.Struct("<BBHHHIq")   # version, flags, stream, count, reserved, first_index, t0_us
+_HEADER_V2 = struct.Struct("<BBHHHIqq")  # ... and ref0_us
 RAW_SAMPLE_DTYPE = np.dtype([("dt_us", "<u4"), ("q", "<f4", (4,))])
+RAW_SAMPLE_DTYPE_V2 = np.dtype([("dt_us", "<u4"), ("ref_dt_us", "<u4"), ("q", "<f4", (4,))])
 MAX_RAW_BATCH = 4096
+_LAYOUT = {1: (_HEADER_V1, RAW_SAMPLE_DTYPE), 2: (_HEADER_V2, RAW_SAMPLE_DTYPE_V2)}
 
 
 @dataclass(frozen=True)
@@ -25,44 +35,64 @@ class RawBatch:
     first_index : int
         Sample index of the first sample.
     t_us : (n,) int64
-        Device timestamps, microseconds since the Unix epoch.
+        Device timestamps (as its segment points carry them), microseconds since the Unix epoch.
     q : (n, 4) float32
         Orientations (w, x, y, z).
+    ref_us : (n,) int64 or None
+        Reference times: when each sample was really taken, us since the epoch (version 2;
+        None in a version 1 batch).
     """
 
     stream: int
     first_index: int
     t_us: np.ndarray
     q: np.ndarray
+    ref_us: np.ndarray | None = None
 
 
 def encode_raw(batch: RawBatch) -> bytes:
-    """RawBatch -> header (20 B: u8 version, u8 flags, u16 stream, u16 count, u16 reserved,
-    u32 first_index, i64 t0_us) + count x (u32 dt_us from t0, 4 x f32 q)."""
+    """RawBatch -> bytes. Without reference times, version 1: header (20 B: u8 version, u8 flags,
+    u16 stream, u16 count, u16 reserved, u32 first_index, i64 t0_us) + count x (u32 dt_us from
+    t0, 4 x f32 q). With them, version 2: the same header + i64 ref0_us (28 B), then count x
+    (u32 dt_us, u32 ref_dt_us from ref0, 4 x f32 q)."""
     n = len(batch.t_us)
     if not 0 < n <= MAX_RAW_BATCH:
         raise ValueError(f"raw batch must hold 1..{MAX_RAW_BATCH} samples, got {n}")
     t0 = int(batch.t_us[0])
-    body = np.empty(n, RAW_SAMPLE_DTYPE)
+    if batch.ref_us is None:
+        body = np.empty(n, RAW_SAMPLE_DTYPE)
+        header = _HEADER_V1.pack(1, 0, batch.stream, n, 0, batch.first_index, t0)
+    else:
+        ref0 = int(batch.ref_us[0])
+        body = np.empty(n, RAW_SAMPLE_DTYPE_V2)
+        body["ref_dt_us"] = np.asarray(batch.ref_us, np.int64) - ref0
+        header = _HEADER_V2.pack(2, 0, batch.stream, n, 0, batch.first_index, t0, ref0)
     body["dt_us"] = np.asarray(batch.t_us, np.int64) - t0
     body["q"] = batch.q
-    return _RAW_HEADER.pack(VERSION, 0, batch.stream, n, 0, batch.first_index, t0) + body.tobytes()
+    return header + body.tobytes()
 
 
 def decode_raw(payload: bytes) -> RawBatch:
-    """Bytes -> RawBatch; WireError with reason size / version / non_finite / time_backwards."""
-    if len(payload) < _RAW_HEADER.size:
+    """Bytes (version 1 or 2) -> RawBatch; WireError with reason size / version / non_finite /
+    time_backwards (device or reference times)."""
+    if len(payload) < _HEADER_V1.size:
         raise WireError("size", f"raw batch has {len(payload)} bytes, less than its header")
-    version, _, stream, n, _, first_index, t0 = _RAW_HEADER.unpack_from(payload)
-    if version != VERSION:
-        raise WireError("version", f"raw batch version {version}, expected {VERSION}")
-    expected = _RAW_HEADER.size + n * RAW_SAMPLE_DTYPE.itemsize
+    version = payload[0]
+    if version not in _LAYOUT:
+        raise WireError("version", f"raw batch version {version}, expected 1 or {RAW_VERSION}")
+    header, dtype = _LAYOUT[version]
+    if len(payload) < header.size:
+        raise WireError("size", f"raw batch has {len(payload)} bytes, less than its header")
+    _, _, stream, n, _, first_index, t0, *ref0 = header.unpack_from(payload)
+    expected = header.size + n * dtype.itemsize
     if n == 0 or len(payload) != expected:
         raise WireError("size", f"raw batch of {n} samples has {len(payload)} bytes, expected {expected}")
-    body = np.frombuffer(payload, RAW_SAMPLE_DTYPE, count=n, offset=_RAW_HEADER.size)
+    body = np.frombuffer(payload, dtype, count=n, offset=header.size)
     q = body["q"].copy()
     if not np.all(np.isfinite(q)):
         raise WireError("non_finite", "raw batch has non-finite samples")
-    if n > 1 and np.any(np.diff(body["dt_us"].astype(np.int64)) < 0):
+    dt = body["dt_us"].astype(np.int64)
+    ref = body["ref_dt_us"].astype(np.int64) if ref0 else None
+    if n > 1 and (np.any(np.diff(dt) < 0) or (ref is not None and np.any(np.diff(ref) < 0))):
         raise WireError("time_backwards", "raw batch timestamps go backwards")
-    return RawBatch(stream, first_index, t0 + body["dt_us"].astype(np.int64), q)
+    return RawBatch(stream, first_index, t0 + dt, q, None if ref is None else ref0[0] + ref)

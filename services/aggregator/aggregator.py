@@ -230,7 +230,7 @@ class Aggregator:
             return
         track = self._known(*ids)
         if track is not None:
-            track.config = status.config
+            track.config, track.clock = status.config, status.clock
 
     def drain(self, now: float, budget: int = 100_000) -> int:
         """Move everything waiting in the channels into the tracks. Returns messages handled."""
@@ -296,6 +296,7 @@ class Aggregator:
             self.fusion.advance_clock(now)
         self.fusion.evaluate_truth()
         owners, frames = self.fusion.exact_frames()
+        self.fusion.evaluate_frames()
         for sub, payload in zip(owners, frames.encode()):
             self._publish(sub.name, payload)
         if live:
@@ -309,11 +310,14 @@ class Aggregator:
 
     def subject_stats(self, subject: str, now: float) -> dict:
         sub = self.subjects[subject]
+        frame_aad, frames_compared = self.fusion.frame_error(sub)
         return {
             "devices": self.fusion.device_stats(sub, now),
             "frames": sub.frames,
             "skipped_frames": sub.skipped,
             "watermark_us": self.fusion.watermark(sub),
+            "frame_aad_deg": frame_aad,
+            "frame_error_frames": frames_compared,
         }
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1) -> None:

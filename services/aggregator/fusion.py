@@ -8,6 +8,12 @@ or has ended its stream does not hold the watermark back; its segment is held at
 point and the frame is flagged MISSING. Live frames: at the newest device time seen, every
 segment held at its newest point (a receiver's best guess "now"; its error is reported
 separately). Angular errors are measured at every truth sample once it is final.
+
+Alignment-aware error: when the truth tap carries reference times (the instant each sample was
+really taken), every exact frame at time ``t`` is compared, segment by segment, with the truth
+at reference instant ``t`` (SLERP between the truth samples around it) once the truth of every
+device has passed ``t``: the subject's ``frame_aad_deg``. Device clocks that disagree show up
+here and nowhere else; reference times are used only for this, never to build frames.
 """
 from __future__ import annotations
 
@@ -23,6 +29,9 @@ from services.aggregator.track import DeviceTrack
 
 MAX_FRAMES_PER_CALL = 500
 """Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""
+FRAME_ERROR_WAIT_S = 10.0
+"""An exact frame waits at most this long (frame time behind its subject's newest frame) for the
+truth of its devices to pass it; then it is compared with the truth there is."""
 
 _SEGMENT_INDEX = {name: i for i, name in enumerate(SEGMENTS)}
 _NONE = np.iinfo(np.int64).min
@@ -59,6 +68,9 @@ class Fusion:
         self.truth = TruthQueue()
         self.exact = ErrorRings(error_window)
         self.live = ErrorRings(error_window)
+        self.reference = PointStore(2048)          # truth samples by reference time, per device slot
+        self.frame_errors = ErrorRings(error_window)  # per subject: mean segment error of each frame
+        self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32))
         self.subjects: dict[str, Subject] = {}
         self.tracks: list[DeviceTrack] = []
         self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period
@@ -89,9 +101,11 @@ class Fusion:
             self.next_frame = np.append(self.next_frame, -1)
             self.exact_seq = np.append(self.exact_seq, 0)
             self.live_seq = np.append(self.live_seq, 0)
+            self.frame_errors.ensure(len(self.subjects))
         track = sub.tracks.get(segment)
         if track is None:
             slot = self.store.add_slot()
+            self.reference.add_slot()
             self.exact.ensure(slot + 1)
             self.live.ensure(slot + 1)
             track = sub.tracks[segment] = DeviceTrack(subject, segment, slot)
@@ -119,6 +133,7 @@ class Fusion:
         if state == "new":
             slot = track.slot
             self.store.reset(slot)
+            self.reference.reset(slot)
             self.exact.reset(slot)
             self.live.reset(slot)
             self.generation[slot] = track.generation
@@ -157,6 +172,12 @@ class Fusion:
         self.last_raw_t[track.slot] = track.last_raw_t_us
         self.latest_t[track.slot] = track.latest_t_us
         self.truth.put(track.slot, track.generation, batch.t_us, batch.q)
+        if batch.ref_us is not None:  # reference times: only for the alignment-aware frame error
+            slot = track.slot
+            n = self.reference.n[slot]
+            newer = batch.ref_us > (self.reference.t[slot, n - 1] if n else np.iinfo(np.int64).min)
+            if newer.any():
+                self.reference.extend(slot, batch.ref_us[newer], batch.q[newer])
         return True
 
     def advance_clock(self, now: float) -> None:
@@ -253,6 +274,11 @@ class Fusion:
         per_subject = np.bincount(owner, minlength=len(subjects))
         for i in np.flatnonzero(per_subject):
             subjects[i].frames += int(per_subject[i])
+        with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
+        if with_truth.any():  # frames to compare with the truth at their reference instant
+            po, pt, pq = self._pending
+            self._pending = (np.concatenate([po, owner[with_truth]]), np.concatenate([pt, t_us[with_truth]]),
+                             np.concatenate([pq, q[with_truth].astype(np.float32)]))
         return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
                                                              self.skeleton.positions(q))
 
@@ -276,13 +302,58 @@ class Fusion:
                                                              np.where(missing, wire.FRAME_MISSING, 0), q,
                                                              self.skeleton.positions(q))
 
+    def evaluate_frames(self) -> int:
+        """Alignment-aware error of the exact frames waiting for it: each segment of a frame at
+        ``t`` against its device's truth at reference time ``t``, once every device of the frame
+        with reference times has truth past ``t`` (or the frame waited FRAME_ERROR_WAIT_S).
+        Adds each frame's mean over its compared segments to its subject's window. Returns the
+        frames compared."""
+        owner, t_us, q = self._pending
+        if len(owner) == 0:
+            return 0
+        slots = self.seg_slots[owner]                                   # (P, 10)
+        rows = np.maximum(slots, 0)
+        n = self.reference.n[rows]
+        has = (slots >= 0) & (n > 0)
+        last = self.reference.t[rows, np.maximum(n - 1, 0)]
+        newest = np.full(len(self.subjects), np.iinfo(np.int64).min)
+        np.maximum.at(newest, owner, t_us)
+        waited = newest[owner] - t_us > FRAME_ERROR_WAIT_S * 1e6
+        ready = (~has | (last >= t_us[:, None])).all(axis=1) | waited
+        if not ready.any():
+            return 0
+        first = self.reference.t[rows, 0]
+        use = has & (first <= t_us[:, None]) & ready[:, None]          # segments with truth around t
+        f, s = np.nonzero(use)
+        truth = self.reference.interpolate(slots[f, s], t_us[f])
+        err = quat.angle_deg(q[f, s].astype(np.float64), truth)
+        per_frame = np.bincount(f, err, minlength=len(owner))
+        count = np.bincount(f, minlength=len(owner))
+        done = ready & (count > 0)
+        self.frame_errors.add(owner[done], per_frame[done] / count[done])
+        keep = ~ready
+        self._pending = (owner[keep], t_us[keep], q[keep])
+        return int(done.sum())
+
+    def frame_error(self, sub: Subject) -> tuple[float, int]:
+        """(mean alignment-aware frame error over the window, deg; frames compared so far)."""
+        idx = np.array([sub.index])
+        mean, _, _ = self.frame_errors.summary(idx)
+        return float(mean[0]), int(self.frame_errors.count[sub.index])
+
     def prune(self) -> None:
         """Let every row forget points no frame and no waiting truth sample needs."""
         nf = self.next_frame[self.owner]
         keep = np.where(nf >= 0, np.floor(nf * self.period_us), np.iinfo(np.int64).min).astype(np.int64)
+        frame_keep = keep.copy()
         keep = np.where(self.last_raw_t != _NONE, np.minimum(keep, self.last_raw_t), keep)  # truth still to come
         keep = np.minimum(keep, self.truth.oldest(self.store.size))
         self.store.prune(keep)
+        owner, t_us, _ = self._pending  # reference samples: from the oldest frame still to compare
+        oldest = np.full(len(self.subjects), np.iinfo(np.int64).max)
+        if len(owner):
+            np.minimum.at(oldest, owner, t_us)
+        self.reference.prune(np.minimum(frame_keep, oldest[self.owner]))
 
     # ------------------------------------------------------------------ figures
 

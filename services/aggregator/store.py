@@ -50,6 +50,25 @@ class PointStore:
         self.n[slot] = k + 1
         return forgotten
 
+    def extend(self, slot: int, t_us: np.ndarray, q: np.ndarray) -> int:
+        """Add points (times increasing, after the row's newest) in one go; returns how many old
+        points were forgotten to make room (the oldest half of the row, as often as needed)."""
+        count = len(t_us)
+        if count > self.cap:
+            t_us, q = t_us[-self.cap:], q[-self.cap:]
+            count = self.cap
+        forgotten = 0
+        while self.n[slot] + count > self.cap:
+            drop = max(self.cap // 2, self.n[slot] + count - self.cap)
+            drop = min(drop, int(self.n[slot]))
+            self.shift(slot, drop)
+            forgotten += drop
+        k = self.n[slot]
+        self.t[slot, k:k + count] = t_us
+        self.q[slot, k:k + count] = q
+        self.n[slot] = k + count
+        return forgotten
+
     def contains(self, slot: int, t_us: int) -> bool:
         """True if row ``slot`` holds a point at ``t_us``."""
         return bool(np.any(self.t[slot, : self.n[slot]] == t_us))

@@ -39,6 +39,7 @@ class DeviceTrack:
         self.id = wire.device_id(subject, segment)
         self.online = False
         self.config: wire.DeviceConfig | None = None  # as the device last reported it
+        self.clock: wire.ClockStatus | None = None    # its clock sync, as it last reported it
         self.dropped: collections.Counter = collections.Counter()
         self.restarts = 0
         self.generation = 0
@@ -171,4 +172,5 @@ class DeviceTrack:
             "dropped_by_reason": dict(self.dropped),
             **{name: getattr(self.config, name, None) for name in wire.TUNABLES},
             "stream": self.stream, "restarts": self.restarts, "final": self.final,
+            **(self.clock.as_dict() if self.clock is not None else {}),
         }

@@ -1,0 +1,1 @@
+"""The time service: the common time base of the devices (``limbstream clock``)."""
