@@ -68,8 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     zconfig.add_arguments(parser)
 
 
-def add_clock_arguments(parser: argparse.ArgumentParser) -> None:
-    """The device clock and time sync flags (shared with ``limbstream up``)."""
+def add_clock_arguments(parser: argparse.ArgumentParser, tuning: bool = True) -> None:
+    """The device clock and time sync flags; ``limbstream up`` takes those without ``tuning``
+    (the sync's poll, holdover and wait) and passes them on (:func:`clock_flags`)."""
     group = parser.add_argument_group("device clocks (docs/reliability.md, 'Device clocks')")
     group.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MAX",
                        help="each device's clock is off by an offset drawn uniform in +-MAX ms (default 0)")
@@ -80,6 +81,8 @@ def add_clock_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--clock-seed", type=int, default=0, help="seed of the clock draws (default 0)")
     group.add_argument("--no-sync", dest="sync", action="store_false",
                        help="devices do not synchronise with the time service (they stamp with their own clock)")
+    if not tuning:
+        return
     group.add_argument("--sync-poll-s", type=float, default=64.0,
                        help="longest interval between a device's time exchanges, device seconds (default 64)")
     group.add_argument("--sync-holdover-s", type=float, default=300.0,
@@ -89,6 +92,14 @@ def add_clock_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--time-anchor", type=float, default=None, metavar="EPOCH_S",
                        help="with --speed != 1: the instant (Unix seconds) the scaled time agrees with the host "
                             "clock; the time service needs the same (default: the start)")
+
+
+def clock_flags(args: argparse.Namespace) -> list[str]:
+    """The ``emulate`` arguments that give the clock flags of ``args`` (``add_clock_arguments``
+    without tuning)."""
+    argv = ["--clock-offset-ms", f"{args.clock_offset_ms:g}", "--clock-drift-ppm", f"{args.clock_drift_ppm:g}",
+            "--clock-jitter-us", f"{args.clock_jitter_us:g}", "--clock-seed", str(args.clock_seed)]
+    return argv if args.sync else argv + ["--no-sync"]
 
 
 def clock_settings(args: argparse.Namespace) -> ClockSettings:

@@ -65,7 +65,7 @@ def resolved(*files: str, **extra: str) -> dict:
 def test_compose_file_resolves_with_every_rule_of_the_deployment():
     model = resolved("docker-compose.yml")
     services = model["services"]
-    assert set(services) == {"router", "emulator", "aggregator", "dashboard"}, sorted(services)
+    assert set(services) == {"router", "clock", "emulator", "aggregator", "dashboard"}, sorted(services)
 
     router = services["router"]
     assert re.fullmatch(r"eclipse/zenoh:1\.\d+\.\d+", router["image"]), router["image"]
@@ -73,12 +73,12 @@ def test_compose_file_resolves_with_every_rule_of_the_deployment():
     assert "tcp/0.0.0.0:7447" in router["command"], router["command"]
     assert router["healthcheck"]["test"][0] in ("CMD", "CMD-SHELL"), router["healthcheck"]
 
-    for name in ("emulator", "aggregator", "dashboard"):
+    for name in ("clock", "emulator", "aggregator", "dashboard"):
         service = services[name]
         assert service["environment"]["LIMBSTREAM_ROUTER"] == f"tcp/{ROUTER}", (name, service["environment"])
         assert service["depends_on"]["router"]["condition"] == "service_healthy", (name, service["depends_on"])
         assert "build" in service, name
-        assert service["command"][0] in ("emulate", "aggregate", "dashboard"), service["command"]
+        assert service["command"][0] in ("clock", "emulate", "aggregate", "dashboard"), service["command"]
 
     emulator = services["emulator"]["environment"]
     assert {"LIMBSTREAM_SUBJECTS", "LIMBSTREAM_SOURCE", "LIMBSTREAM_SUBJECT_PREFIX"} <= set(emulator), emulator
@@ -257,7 +257,7 @@ def test_compose_services_run_as_local_processes(image, tmp_path):
     replicas = 2  # as `docker compose up --scale emulator=2`: each container has its own hostname
     try:
         stack.router()  # stands in for eclipse/zenoh (same role: tcp listener, multicast scouting off)
-        for name in ("aggregator", "emulator", "dashboard"):
+        for name in ("clock", "aggregator", "emulator", "dashboard"):
             service = services[name]
             args = [localise(a, stack.port, http_port) for a in service["command"]]
             env = {k: localise(v, stack.port, http_port) for k, v in service["environment"].items()}

@@ -256,7 +256,7 @@ def test_up_brings_back_each_killed_part(stack, tmp_path):  # noqa: F811
                    30, "the dashboard to answer again", interval=0.01, on_fail=up.logs)
         report("dashboard", "SIGKILL", f"/health answers 200 {time.monotonic() - killed:.2f} s")
         restarts = {name: p["restarts"] for name, p in up.status()["parts"].items()}
-        assert restarts == {"router": 1, "emulator1": 0, "emulator2": 1, "aggregator": 1, "dashboard": 1}, restarts
+        assert restarts == {"router": 1, "clock": 0, "emulator1": 0, "emulator2": 1, "aggregator": 1, "dashboard": 1}, restarts
         health = http_json(up.url + "/health")[1]
         assert {name: p["restarts"] for name, p in health["parts"].items()} == restarts, health
         assert health["parts"]["router"] == {"state": "running", "restarts": 1, "last_exit": "killed by SIGKILL"}

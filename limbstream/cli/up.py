@@ -31,6 +31,7 @@ import threading
 import time
 from pathlib import Path
 
+from device_emulator.main import add_clock_arguments, clock_flags
 from limbstream import wire
 from limbstream.cli.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
@@ -53,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
     wire.add_arguments(parser)  # the device tunables, passed on to the emulators
     parser.add_argument("--no-truth", action="store_true", help="devices do not publish the truth tap")
+    add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     parser.add_argument("--max-exits", type=int, default=RestartPolicy.max_exits,
                         help=f"stop everything when one part exits this many times within "
@@ -63,9 +65,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
-    """(name, ``limbstream`` arguments) of the emulators and the aggregator, in start order."""
+    """(name, ``limbstream`` arguments) of the time service, the emulators and the aggregator, in
+    start order."""
     connect = ["--connect", args.router]
     parts = []
+    # a scaled time base (--speed) is shared by the time service and the devices: one anchor
+    anchor = [] if args.speed == 1 else ["--time-anchor", f"{time.time():.3f}"]
+    if args.sync:
+        parts.append(("clock", ["clock", "--speed", str(args.speed), *anchor] + connect))
     per = -(-args.subjects // args.emulators)
     for e in range(args.emulators):
         first = 1 + e * per
@@ -73,7 +80,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         if count <= 0:
             break
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
-                "--speed", str(args.speed), *wire.config_from_args(args).flags()]
+                "--speed", str(args.speed), *wire.config_from_args(args).flags(), *clock_flags(args), *anchor]
         if args.no_truth:
             argv.append("--no-truth")
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
