@@ -3,7 +3,8 @@
     python bench/eval_speed.py [PATH ...]     # default: ../shared/data/cmu_10seg_50hz.npz
 
 Prints, per algorithm, the wall time of 206 thresholds (segmentation in C + vectorised SLERP
-reconstruction and statistics) and the split between the two. Single process.
+reconstruction, live error and statistics) and the split between the two; then the time per
+threshold of fastSW's live rule with the rate (C) and slope (Python) predictors. Single process.
 """
 
 from __future__ import annotations
@@ -44,6 +45,12 @@ def main() -> None:
         grand += total
         print(f"{name:<9} {total:>8.2f} {seg_s:>9.2f} {total - seg_s:>7.2f}")
     print(f"{'all':<9} {grand:>8.2f}")
+    for bound, predictor in ((5.0, "rate"), (5.0, "slope")):
+        start = time.perf_counter()
+        for th in evaluation.THRESHOLDS[::10]:
+            evaluation.evaluate_threshold(pool, "fastsw", th, 25, bound, predictor)
+        per_row = (time.perf_counter() - start) / len(evaluation.THRESHOLDS[::10])
+        print(f"fastsw, live rule {bound:g} deg, predictor {predictor}, max_len 25: {per_row:.2f} s per threshold")
 
 
 if __name__ == "__main__":

@@ -135,6 +135,9 @@ class _Pool:
             self.valid[:, None], self.q / np.where(self.valid, norm, 1.0)[:, None], 0.0
         )
         self.n_samples = int(lengths.sum())
+        self.accepted = np.zeros(self.n_samples, bool)  # what a kernel accepts (time increasing too)
+        for j, s in enumerate(streams):
+            self.accepted[self.start[j] + _accepted(s.t, np.asarray(s.q, np.float64))] = True
 
 
 def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
@@ -293,9 +296,10 @@ def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int
 
 def evaluate_threshold(
     pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound: float = 0.0,
-    predictor: str = "rate",
+    predictor: str = "rate", live: bool = True,
 ) -> dict:
-    """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result.
+    """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result
+    (the live error only if ``live``: it costs about as much as the reconstruction).
 
     Returns
     -------
@@ -310,7 +314,7 @@ def evaluate_threshold(
         if len(stream.t) == 0:
             continue
         index, t_points, q_seg, known, omega = _segment_live(stream, algorithm, threshold, max_len,
-                                                             live_bound, predictor)
+                                                             live_bound, predictor if live else "hold")
         k = len(t_points)
         if k == 0:  # every sample rejected: nothing to rebuild this stream from
             continue
@@ -331,11 +335,11 @@ def evaluate_threshold(
         owners.append(j)
     icr = n_points / pool.n_samples if pool.n_samples else math.nan
     row = {"algorithm": algorithm, "threshold": float(threshold), "live_bound": float(live_bound),
-           "predictor": predictor, "icr": icr}
+           "predictor": predictor if live else None, "icr": icr}
     if not point_key:
         return row | dict.fromkeys(MEASURES, math.nan)
-    live = _live_errors(pool, np.concatenate(live_pos), np.concatenate(live_q), np.concatenate(live_t),
-                        np.concatenate(live_omega), np.concatenate(live_owner))
+    errors = _live_errors(pool, np.concatenate(live_pos), np.concatenate(live_q), np.concatenate(live_t),
+                          np.concatenate(live_omega), np.concatenate(live_owner)) if live else np.zeros(0)
 
     keys = np.concatenate(point_key)
     q_points = np.concatenate(point_q)
@@ -366,20 +370,21 @@ def evaluate_threshold(
         "max": mx,
         "point_aad": float(pdev.mean()) if pdev.size else math.nan,
         "point_max": float(pdev.max()) if pdev.size else math.nan,
-        "live_aad": float(live.mean()) if live.size else math.nan,
-        "live_p99": float(np.percentile(live, 99)) if live.size else math.nan,
-        "live_max": float(live.max()) if live.size else math.nan,
+        "live_aad": float(errors.mean()) if errors.size else math.nan,
+        "live_p99": float(np.percentile(errors, 99)) if errors.size else math.nan,
+        "live_max": float(errors.max()) if errors.size else math.nan,
     }
 
 
 def _live_errors(pool: _Pool, known: np.ndarray, q_points: np.ndarray, t_points: np.ndarray,
                  omega: np.ndarray, owner: np.ndarray) -> np.ndarray:
-    """Live error (degrees) of every valid sample of the pool that has a point known by then.
+    """Live error (degrees) of every sample of the pool a kernel accepts (finite, time increasing)
+    that has a point known by then.
 
     known : (K,) pooled sample positions from which each point is known, by stream then time;
     q_points (K, 4) unit, t_points (K,) seconds (stream time), omega (K, 3) rad/s, owner (K,).
     """
-    position = np.flatnonzero(pool.valid)
+    position = np.flatnonzero(pool.valid & pool.accepted)
     j = np.searchsorted(known, position, side="right") - 1
     stream = pool.stream_of[position]
     ok = (j >= 0) & (owner[np.maximum(j, 0)] == stream)
@@ -393,7 +398,7 @@ def evaluate(
     algorithms: Sequence[str] = ALGORITHMS,
     thresholds: Sequence[float] = THRESHOLDS,
     max_len: int = MAX_LEN,
-    live_bounds: Sequence[float] = (0.0,),
+    live_bounds: Sequence[float] | None = None,
     predictor: str = "rate",
 ) -> list[dict]:
     """Run the protocol: one row per (algorithm, live bound, threshold), in that order.
@@ -405,7 +410,8 @@ def evaluate(
     thresholds : (T,) thresholds, >= 0, each algorithm's own unit.
     max_len : largest segment length, samples.
     live_bounds : fastSW live rule bounds, degrees in [0, 180) (0: the plain rules; a bound
-        above 0 needs algorithms == ["fastsw"]).
+        above 0 needs algorithms == ["fastsw"]); None: the plain rules, and no live error
+        (the ``live_*`` fields are NaN).
     predictor : the points' rates for the live error, one of :data:`PREDICTORS`.
 
     Returns
@@ -422,12 +428,13 @@ def evaluate(
             raise ValueError(f"algorithm must be one of {sorted(kernel.ALGORITHMS)}, got {name!r}")
     if predictor not in PREDICTORS:
         raise ValueError(f"predictor must be one of {', '.join(PREDICTORS)}, got {predictor!r}")
-    for bound in live_bounds:
+    live = live_bounds is not None
+    for bound in live_bounds or ():
         if kernel.LIVE_BOUND.check(bound) > 0 and set(algorithms) != {"fastsw"}:
             raise ValueError(f"a live bound needs algorithms ['fastsw'], got {list(algorithms)}")
     pool = _Pool(streams)
-    return [evaluate_threshold(pool, a, th, max_len, bound, predictor)
-            for a in algorithms for bound in live_bounds for th in thresholds]
+    return [evaluate_threshold(pool, a, th, max_len, bound, predictor, live)
+            for a in algorithms for bound in (live_bounds or (0.0,)) for th in thresholds]
 
 
 def at_icr(

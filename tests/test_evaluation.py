@@ -164,10 +164,15 @@ def test_bad_samples_are_left_out():
     t = streams[0].t.copy()
     t[90] = t[88]
     broken = [evaluation.Stream(t, q, "broken"), streams[1]]
-    row = evaluation.evaluate(broken, ["fastsw", "cplr"], [1e-3])
-    for r in row:
+    rows = evaluation.evaluate(broken, ["fastsw", "cplr"], [1e-3], live_bounds=[0.0])
+    for predictor in evaluation.PREDICTORS:
+        rows += evaluation.evaluate(broken, ["fastsw"], [1e-3], live_bounds=[5.0], predictor=predictor)
+    for r in rows:
         assert all(np.isfinite(r[k]) for k in evaluation.MEASURES), r
         assert 0 < r["icr"] < 1, r
+    assert all(r["live_max"] <= 5.002 for r in rows[2:]), rows[2:]
+    plain = evaluation.evaluate(broken, ["fastsw"], [1e-3])[0]  # no live bounds: no live error
+    assert plain["predictor"] is None and np.isnan(plain["live_aad"]) and plain["icr"] == rows[0]["icr"]
 
 
 def test_thresholds_are_the_papers():

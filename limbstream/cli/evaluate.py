@@ -231,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
     n_samples = sum(len(s.t) for s in streams)
 
     start = time.perf_counter()
-    rows = evaluate(streams, algorithms, thresholds, args.max_len, bounds, args.predictor)
+    rows = evaluate(streams, algorithms, thresholds, args.max_len, args.live_bound and bounds, args.predictor)
     elapsed = time.perf_counter() - start
 
     print(
