@@ -19,7 +19,8 @@ from mcap.writer import Writer
 from stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import quat, wire, zconfig
-from services.outputs.recording import SKELETON_TOPIC, TOPICS, Recording, RecordingError, envelope, open_envelope
+from limbstream.sources.bvh import load_bvh
+from services.outputs.recording import TOPICS, Recording, RecordingError, envelope, open_envelope, skeleton_topic
 from services.outputs.subscription import Subscription
 
 CLIP_SAMPLES = 1146  # first clip of cmu_10seg_50hz.npz (01_01), the one subject s01 streams
@@ -128,7 +129,7 @@ def test_record_then_replay_rebuilds_the_same_frames(stack, watch, cmu_npz, tmp_
     points = sum(d["points"] for d in original)
     assert counts[TOPICS["seg"]] == points, counts
     assert counts[TOPICS["raw"]] >= 10 * CLIP_SAMPLES // 25 and counts[TOPICS["pose"]] > 0, counts
-    assert counts[TOPICS["config"]] >= 10 and counts[SKELETON_TOPIC] > 0, counts
+    assert counts[TOPICS["config"]] >= 10 and counts[skeleton_topic("s01")] > 0, counts
     assert {s.name for s in summary.schemas.values()} >= {"limbstream.seg", "foxglove.SceneUpdate"}
     seg_of = {(e.key, e.payload) for e in Recording(live).entries(["seg", "raw"])}
     assert seg_of == {(e.key, e.payload) for e in Recording(late).entries(["seg", "raw"])}
@@ -157,6 +158,30 @@ def test_record_then_replay_rebuilds_the_same_frames(stack, watch, cmu_npz, tmp_
     frames_sub.close()
     replay.signal(signal.SIGTERM)
     assert replay.popen.wait(20) == 0
+
+    # --loop: every pass a new stream of each device, later in time, rebuilt the same
+    looped = stack.start("replay", "replay", str(live), "--connect", stack.endpoint, "--subject-prefix", "r-l",
+                         "--speed", "10", "--loop")
+
+    def second_pass():
+        mine = [d for k, d in watch.poll().items() if k.startswith("r-ls01/")]
+        return (len(mine) == 10 and all(d["restarts"] >= 1 and d["final"] and d["error_samples"] == CLIP_SAMPLES
+                                        for d in mine) and mine)
+    again = wait_until(second_pass, 60, "a second pass of r-ls01", on_fail=stack.logs)
+    assert abs(pooled_aad(again) - a) < 0.01 and sum(d["points"] for d in again) == points
+    looped.signal(signal.SIGTERM)
+    assert looped.popen.wait(20) == 0
+    # export of the live recording: the recorded exact frames as BVH, read back by limbstream's loader
+    bvh = tmp_path / "s01.bvh"
+    result = subprocess.run([sys.executable, "-m", "limbstream.cli", "export", str(live), "--subject", "s01",
+                             "-o", str(bvh)], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    back = load_bvh(bvh, fs=None, drop_first=False)
+    kept = {f.t_us: f for f in map(wire.decode_pose, (e.payload for e in Recording(live).entries(["pose"])))
+            if f.kind == wire.KIND_EXACT}
+    assert len(back.t) == (max(kept) - min(kept)) // 20_000 + 1 == len(kept)  # no gap in this recording
+    in_file = np.stack([kept[t].q for t in sorted(kept)]).astype(float)
+    assert float(np.max(quat.angle_deg(back.q, in_file))) < 0.01
 
 
 def test_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(stack, tmp_path):  # noqa: F811

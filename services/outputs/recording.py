@@ -3,8 +3,9 @@ and read back by replay and export. Layout in docs/outputs.md.
 
 One channel per key kind (:data:`TOPICS`); each message is an envelope of the key and the wire
 bytes as they came (:func:`envelope`), logged at its receive time. Exact pose frames are also
-written as ``foxglove.SceneUpdate`` skeletons on :data:`SKELETON_TOPIC`, so the Foxglove app
-draws the bodies straight from the file.
+written as ``foxglove.SceneUpdate`` skeletons on ``/<subject>/skeleton`` (:func:`skeleton_topic`,
+the topic ``limbstream foxglove`` uses live), so the Foxglove app draws the bodies straight from
+the file.
 
 Writing is chunked (zstd) and :meth:`RecordingWriter.flush` ends the chunk in progress and
 hands it to the OS: a writer killed at any moment leaves a file readable up to its last
@@ -26,13 +27,18 @@ from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata
 from mcap.stream_reader import StreamReader
 
 from limbstream import wire
+from limbstream.skeleton import Skeleton
 
 KINDS: tuple[str, ...] = ("seg", "raw", "pose", "stats", "config")
 """Key kinds a recording holds, one channel each."""
 TOPICS: dict[str, str] = {kind: f"/limbstream/{kind}" for kind in KINDS}
 """MCAP topic of each kind."""
-SKELETON_TOPIC = "/limbstream/skeleton"
-"""foxglove.SceneUpdate of every exact pose frame (Foxglove's 3-D panel)."""
+
+
+def skeleton_topic(subject: str) -> str:
+    """Topic of a subject's foxglove.SceneUpdate skeletons (one per exact pose frame)."""
+    return f"/{subject}/skeleton"
+
 MESSAGE_ENCODING = "limbstream"
 """Message encoding of the :data:`TOPICS` channels: :func:`envelope`."""
 PROFILE = "limbstream"
@@ -58,7 +64,9 @@ SCHEMAS: dict[str, tuple[str, bytes]] = {
 _LEN = struct.Struct("<H")
 _BONE_INDEX = [wire.JOINTS.index(j) for bone in wire.BONES for j in bone]
 SUBJECT_SPACING_M = 1.0
-"""Skeletons are drawn side by side: the n-th subject seen at x = n * this (metres)."""
+"""Skeletons are drawn side by side, this far apart (metres), as ``limbstream foxglove`` does."""
+_Y_UP_TO_Z_UP = (0.5, 0.5, 0.5, 0.5)  # (x, y, z, w): limbstream's Z, X, Y become world X, Y, Z
+_LEG_M = Skeleton().thigh + Skeleton().shank  # the pelvis above the grid
 
 
 class RecordingError(ValueError):
@@ -126,13 +134,12 @@ class RecordingWriter:
                                                           data=SCHEMAS[kind][1]))
             for kind in KINDS
         }
-        self._skeleton = None
+        self._fm = None
         if skeleton:
             import foxglove.messages as fm
-            from foxglove.channels import SceneUpdateChannel
 
-            self._fm, self._skeleton = fm, SceneUpdateChannel(SKELETON_TOPIC, context=self._context)
-            self._color = fm.Color(r=0.2, g=0.8, b=1.0, a=1.0)
+            self._fm, self._color = fm, fm.Color(r=0.2, g=0.7, b=1.0, a=1.0)
+        self._skeletons: dict[str, tuple] = {}  # subject -> (channel, where its body is drawn)
         self._prefixes: dict[str, bytes] = {}
         self._poses: dict[str, object] = {}  # subject -> where its skeleton is drawn
         self.counts: Counter = Counter()
@@ -148,23 +155,30 @@ class RecordingWriter:
         self.counts[kind] += 1
 
     def add_skeleton(self, subject: str, frame: wire.PoseFrame, log_ns: int) -> None:
-        """``frame`` of ``subject`` as a foxglove.SceneUpdate on :data:`SKELETON_TOPIC`: one entity
-        per subject (id = subject, frame "world", X to the subject's left, Y up as in pose frames),
-        joints joined by a line list of :data:`wire.BONES`, the n-th subject seen drawn at
-        x = n * :data:`SUBJECT_SPACING_M`."""
-        if self._skeleton is None:
+        """``frame`` of ``subject`` as a foxglove.SceneUpdate on :func:`skeleton_topic`: entity
+        ``<subject>`` in frame ``world`` (Z up), a line list of :data:`wire.BONES` between the
+        joints, placed as ``limbstream foxglove`` places subjects: limbstream's body frame turned
+        Z up, the pelvis lifted by the default leg length, the n-th subject seen (from 0)
+        :data:`SUBJECT_SPACING_M` to the right of the one before."""
+        if self._fm is None:
             return
         fm = self._fm
-        pose = self._poses.get(subject)
-        if pose is None:
-            pose = self._poses[subject] = fm.Pose(position=fm.Vector3(x=len(self._poses) * SUBJECT_SPACING_M, y=0.0, z=0.0),
-                                                  orientation=fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
-        sec, nsec = divmod(int(frame.t_us) * 1000, 1_000_000_000)
-        line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineList, thickness=0.03, pose=pose,
+        known = self._skeletons.get(subject)
+        if known is None:
+            from foxglove.channels import SceneUpdateChannel
+
+            x, y, z, w = _Y_UP_TO_Z_UP
+            where = fm.Pose(position=fm.Vector3(x=0.0, y=-SUBJECT_SPACING_M * len(self._skeletons), z=_LEG_M),
+                            orientation=fm.Quaternion(x=x, y=y, z=z, w=w))
+            known = self._skeletons[subject] = (SceneUpdateChannel(skeleton_topic(subject), context=self._context),
+                                                where)
+        channel, where = known
+        line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineList, thickness=0.02, pose=where,
                                 points=[fm.Point3(x=x, y=y, z=z) for x, y, z in frame.joints.tolist()],
                                 indices=_BONE_INDEX, color=self._color)
-        entity = fm.SceneEntity(timestamp=fm.Timestamp(sec=sec, nsec=nsec), frame_id="world", id=subject, lines=[line])
-        self._skeleton.log(fm.SceneUpdate(entities=[entity]), log_time=log_ns)
+        entity = fm.SceneEntity(timestamp=fm.Timestamp(sec=frame.t_us // 1_000_000, nsec=frame.t_us % 1_000_000 * 1000),
+                                frame_id="world", id=subject, lines=[line])
+        channel.log(fm.SceneUpdate(entities=[entity]), log_time=log_ns)
         self.counts["skeleton"] += 1
 
     def flush(self) -> None:
@@ -285,7 +299,7 @@ class Recording:
                         channels[record.id] = topics[record.topic]
                         if until_channel:
                             return
-                    elif record.topic != SKELETON_TOPIC:
+                    elif not record.topic.endswith("/skeleton"):
                         foreign.add(record.topic)
                 elif isinstance(record, Metadata) and record.name == METADATA_NAME:
                     self.metadata = dict(record.metadata)

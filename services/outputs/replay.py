@@ -16,7 +16,7 @@ import collections
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import zenoh
 import zenoh.ext as zext
@@ -121,10 +121,9 @@ class Replayer:
         try:
             if entry.kind == "seg":
                 p = wire.decode_point(entry.payload)
-                return wire.encode_point(wire.SegmentPoint((p.stream + n_pass) & 0xFFFF, p.seq, p.index,
-                                                           p.t_us + shift_us, p.q, p.flags))
+                return wire.encode_point(replace(p, stream=(p.stream + n_pass) & 0xFFFF, t_us=p.t_us + shift_us))
             b = wire.decode_raw(entry.payload)
-            return wire.encode_raw(wire.RawBatch((b.stream + n_pass) & 0xFFFF, b.first_index, b.t_us + shift_us, b.q))
+            return wire.encode_raw(replace(b, stream=(b.stream + n_pass) & 0xFFFF, t_us=b.t_us + shift_us))
         except wire.WireError:
             return entry.payload
 
