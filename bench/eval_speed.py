@@ -48,7 +48,7 @@ def main() -> None:
     for bound, predictor in ((5.0, "rate"), (5.0, "slope")):
         start = time.perf_counter()
         for th in evaluation.THRESHOLDS[::10]:
-            evaluation.evaluate_threshold(pool, "fastsw", th, 25, bound, predictor)
+            evaluation.evaluate_threshold(pool, "fastsw", th, 25, bound, predictor, live=True)
         per_row = (time.perf_counter() - start) / len(evaluation.THRESHOLDS[::10])
         print(f"fastsw, live rule {bound:g} deg, predictor {predictor}, max_len 25: {per_row:.2f} s per threshold")
 

@@ -274,9 +274,9 @@ def _plain_rates(t: np.ndarray, q: np.ndarray, index: np.ndarray, known: np.ndar
 
 
 def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int, live_bound: float,
-                  predictor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  predictor: str | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """One stream: (index, t_points, q_points, known_from, omega) for the row's algorithm,
-    threshold, live bound and predictor."""
+    threshold, live bound and predictor (None: no rates, omega None)."""
     t, q = stream.t, stream.q
     if live_bound > 0 and predictor != "rate":
         index, known, omega = simulate_live(t, q, threshold, max_len, live_bound, predictor)
@@ -290,16 +290,19 @@ def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int
         known = np.minimum(index + 1, len(t))
         if len(known):
             known[0] = index[0]
+    if predictor is None:
+        return index, seg.t, seg.q, known, None
     omega = seg.omega if live_bound > 0 else _plain_rates(t, q, index, known, seg.q, predictor)
     return index, seg.t, seg.q, known, omega
 
 
 def evaluate_threshold(
     pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound: float = 0.0,
-    predictor: str = "rate", live: bool = True,
+    predictor: str = "rate", live: bool = False,
 ) -> dict:
     """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result
-    (the live error only if ``live``: it costs about as much as the reconstruction).
+    (the live error only if ``live``: it costs about as much as the reconstruction; else the
+    ``live_*`` fields are NaN).
 
     Returns
     -------
@@ -313,18 +316,18 @@ def evaluate_threshold(
     for j, stream in enumerate(pool.streams):
         if len(stream.t) == 0:
             continue
-        index, t_points, q_seg, known, omega = _segment_live(stream, algorithm, threshold, max_len,
-                                                             live_bound, predictor if live else "hold")
-        k = len(t_points)
+        index, seg_t, seg_q, known, omega = _segment_live(stream, algorithm, threshold, max_len,
+                                                          live_bound, predictor if live else None)
+        k = len(seg_t)
         if k == 0:  # every sample rejected: nothing to rebuild this stream from
             continue
         n_points += k
-        live_pos.append(pool.start[j] + known)
-        live_q.append(quat.normalize(q_seg))
-        live_t.append(t_points)
-        live_omega.append(omega)
-        live_owner.append(np.full(k, j))
-        seg_t, seg_q = t_points, q_seg
+        if live:
+            live_pos.append(pool.start[j] + known)
+            live_q.append(quat.normalize(seg_q))
+            live_t.append(seg_t)
+            live_omega.append(omega)
+            live_owner.append(np.full(k, j))
         point_dev.append(quat.angle_deg(stream.q[index], seg_q))
         q_points = quat.normalize(seg_q)
         key = seg_t - pool.t0[j] + pool.offset[j]
