@@ -25,7 +25,8 @@ from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELD
 from .keys import (DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, check_chunk, config_key, device_id, device_key,
                    device_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
-from .point import FLAG_FINAL, POINT_SIZE, UNIT_TOLERANCE, VERSION, SegmentPoint, decode_point, encode_point
+from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,
+                    decode_point, encode_point)
 from .pose import (FRAME_GAP, FRAME_MISSING, KIND_EXACT, KIND_LIVE, POSE_DTYPE, PoseFrame, PoseFrames,
                    decode_pose, encode_pose)
 from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, decode_raw, encode_raw
