@@ -36,7 +36,7 @@ from limbstream import wire
 
 log = logging.getLogger("limbstream.emulator.clock")
 
-WINDOW = 64
+WINDOW = 96
 """Exchanges kept per device (the newest)."""
 BURST = 4
 """Exchanges 0.25 s apart when a device starts; it streams once they are in (or after the wait)."""
@@ -46,6 +46,9 @@ MIN_POLL_S = 1.0
 """Poll interval while the measured jitter is high (or after a failure or a held-back answer), s."""
 FAST_JITTER_US = 250.0
 """Above this jitter (weighted residual RMS of the fit) a device polls every MIN_POLL_S."""
+DRIFT_BUDGET_US = 150.0
+"""The interval to the next exchange is at most this over the drift's standard error: what the
+drift estimate's uncertainty may add to the offset before the next answer."""
 MIN_SPREAD_US = 2e6
 """The drift is fitted only once the weighted exchanges span at least this much (std of their
 times), else the previous drift stands."""
@@ -65,6 +68,8 @@ SANE_US = 10e6
 """A synced device discards answers more than 10 s from its estimate (``future`` / ``past``)."""
 MIN_SYNC = 3
 """Valid answers before a device counts as synced."""
+RETRY_S = 8.0
+"""Longest wait before asking again after a query without an answer, device seconds."""
 WORKERS = 4
 """Threads sending time queries (each waits for one answer at a time)."""
 
@@ -196,6 +201,7 @@ class SyncEstimator:
         self.a = self.b = self.ref = 0.0
         self.fitted = False
         self.jitter = math.inf
+        self.drift_se = math.inf  # standard error of b
         self.held: list[tuple[float, float, float]] = []
 
     def __len__(self) -> int:
@@ -253,11 +259,14 @@ class SyncEstimator:
         mx, my = float(w @ x) / sw, float(w @ y) / sw
         sxx = float(w @ (x - mx) ** 2) / sw
         neff = sw * sw / float(w @ w)
-        if len(x) >= 3 and neff >= 3.0 and sxx >= MIN_SPREAD_US ** 2:
+        fitted_b = len(x) >= 3 and neff >= 3.0 and sxx >= MIN_SPREAD_US ** 2
+        if fitted_b:
             self.b = min(MAX_DRIFT, max(-MAX_DRIFT, float(w @ ((x - mx) * (y - my))) / sw / sxx))
         self.a, self.ref = my - self.b * mx, ref
         if len(x) >= 3:
             self.jitter = math.sqrt(float(w @ (y - self.a - self.b * x) ** 2) / sw)
+            if fitted_b:
+                self.drift_se = max(self.jitter, 1.0) / math.sqrt(max(neff - 2.0, 1.0) * sxx)
         self.fitted = True
 
 
@@ -395,9 +404,9 @@ class SyncClient:
 
     def _apply(self, slot: int, rid: int, t1: int, t4: int, payload: bytes | None) -> float:
         """One finished exchange of device ``slot``; returns the device seconds until its next."""
-        if payload is None:
+        if payload is None:  # no answer (or no time service): retry after 1, 2, 4, 8, 8 ... s
             self.lost[slot] += 1
-            self.backoff[slot] = min(2.0 * self.backoff[slot], self.settings.poll_s)
+            self.backoff[slot] = min(2.0 * self.backoff[slot], self.settings.poll_s, 2 * RETRY_S)
             return self.backoff[slot] / 2.0
         self.exchanges += 1
         try:
@@ -436,8 +445,9 @@ class SyncClient:
             return 1.0
         if est.jitter > FAST_JITTER_US:
             self.interval[slot] = MIN_POLL_S
-        else:
-            self.interval[slot] = min(2.0 * self.interval[slot], self.settings.poll_s)
+        else:  # doubling, as long as the drift's uncertainty allows
+            self.interval[slot] = max(MIN_POLL_S, min(2.0 * self.interval[slot], self.settings.poll_s,
+                                                      DRIFT_BUDGET_US / 1e6 / max(est.drift_se, 1e-12)))
         return float(self.interval[slot])
 
     def _reject(self, slot: int, reason: str) -> float:
