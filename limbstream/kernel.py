@@ -162,9 +162,8 @@ def to_ticks(t: np.ndarray, t0: float | None = None) -> np.ndarray:
     return (ticks.astype(np.int64) & 0xFFFFFFFF).astype(np.uint32)
 
 
-LIVE_BOUND = wire.Tunable("live_bound_deg", float, 0.0, 0.0, 180.0, "degrees",
-                          "live rule: largest angle between a sample and the receiver's prediction (0: off)")
-"""The live rule's bound as the binding accepts it (0 and 180: off)."""
+LIVE_BOUND = wire.LIVE_BOUND_DEG
+"""The live rule's bound as the binding accepts it (0 and 180: off): the device tunable."""
 
 
 def make_settings(threshold: float, max_len: int, dim: int, live_bound_deg: float = 0.0) -> Settings:

@@ -76,9 +76,9 @@ def test_rest_refuses_with_the_contract_message():
 @pytest.mark.parametrize("t, value", [c for c in CASES if isinstance(c[1], (int, float)) and not isinstance(c[1], bool)],
                          ids=[i for c, i in zip(CASES, IDS) if isinstance(c[1], (int, float)) and not isinstance(c[1], bool)])
 def test_kernel_binding_refuses_with_the_contract_message(t, value):
-    settings = {"threshold": wire.THRESHOLD.default, "max_len": wire.MAX_LEN.default} | {t.name: value}
+    settings = {name: tunable.default for name, tunable in wire.TUNABLES.items()} | {t.name: value}
     with pytest.raises(ValueError, match=f"^{t.name} must be"):
-        kernel.make_settings(settings["threshold"], settings["max_len"], 4)
+        kernel.make_settings(settings["threshold"], settings["max_len"], 4, settings["live_bound_deg"])
 
 
 def test_a_live_device_refuses_and_keeps_its_config(stack):  # noqa: F811

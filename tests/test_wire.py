@@ -226,16 +226,20 @@ def test_keys_and_bad_chunks():
 
 
 def test_config_validation():
-    assert wire.decode_config(b'{"threshold": 0.01, "max_len": 25}') == wire.DeviceConfig(0.01, 25)
+    assert (wire.decode_config(b'{"threshold": 0.01, "max_len": 25, "live_bound_deg": 5}')
+            == wire.DeviceConfig(0.01, 25, 5.0))
     current = wire.DeviceConfig(0.01, 25)
     assert wire.decode_config(b'{"threshold": 0.5}', current) == wire.DeviceConfig(0.5, 25)
     assert wire.decode_config(b'{"max_len": 7}', current) == wire.DeviceConfig(0.01, 7)
+    assert wire.decode_config(b'{"live_bound_deg": 2.5}', current) == wire.DeviceConfig(0.01, 25, 2.5)
     for bad, words in ((b'{"threshold": -1, "max_len": 25}', "threshold"), (b'{"threshold": 0.1, "max_len": 0}', "max_len"),
                        (b'{"threshold": "x", "max_len": 5}', "threshold"), (b'{"max_len": 5}', "needs"),
                        (b"[]", "object"), (b"\xff", "JSON"), (b'{"max_len": 5.5}', "max_len"),
-                       (b'{"threshold": true}', "threshold"), (b'{"speed": 1}', "unknown"), (b"{}", "some of")):
+                       (b'{"threshold": true}', "threshold"),
+                       (b'{"live_bound_deg": -1}', "live_bound_deg"), (b'{"live_bound_deg": 181}', "live_bound_deg"),
+                       (b'{"live_bound_deg": "5"}', "live_bound_deg"), (b'{"speed": 1}', "unknown"), (b"{}", "some of")):
         with pytest.raises(wire.WireError, match=words):
-            wire.decode_config(bad, current if b"speed" in bad or bad == b"{}" else None)
+            wire.decode_config(bad, current if b"speed" in bad or b"live" in bad or bad == b"{}" else None)
 
 
 def test_subject_patterns_become_key_chunks():

@@ -84,7 +84,10 @@ THRESHOLD = Tunable("threshold", float, 1e-2, 0.0, 1e6, "",
                     "fastSW SSR threshold: largest sum of squared residuals of a segment")
 MAX_LEN = Tunable("max_len", int, 25, 1, 100_000, "samples",
                   "max segment length (a still limb still sends a point this often)")
-TUNABLES: dict[str, Tunable] = {t.name: t for t in (THRESHOLD, MAX_LEN)}
+LIVE_BOUND_DEG = Tunable("live_bound_deg", float, 0.0, 0.0, 180.0, "deg",
+                         "fastSW live rule: largest angle between a sample and the receiver's prediction "
+                         "from the points it has (0 or 180: off)")
+TUNABLES: dict[str, Tunable] = {t.name: t for t in (THRESHOLD, MAX_LEN, LIVE_BOUND_DEG)}
 """Every device setting, by name (DeviceConfig has one attribute per entry)."""
 
 
@@ -94,6 +97,7 @@ class DeviceConfig:
 
     threshold: float = THRESHOLD.default
     max_len: int = MAX_LEN.default
+    live_bound_deg: float = LIVE_BOUND_DEG.default
 
     def validate(self) -> DeviceConfig:
         """Self, with every value checked (ValueError naming the first bad one)."""

@@ -89,6 +89,8 @@ FIELDS: tuple[StatsField, ...] = (
     _device("threshold", float, "fastSW SSR threshold the device runs (asked every 5 s)",
             metric="limbstream_device_threshold"),
     _device("max_len", int, "max segment length the device runs", "samples", metric="limbstream_device_max_len"),
+    _device("live_bound_deg", float, "fastSW live-rule bound the device runs (0: off)", "deg",
+            metric="limbstream_device_live_bound_degrees"),
     _device("stream", int, "the device's current stream id (a new one after a restart)"),
     _device("restarts", int, "new streams seen after the first", metric="limbstream_device_restarts", counter=True),
     _device("final", bool, "the stream ended (its last point carried FINAL)"),
