@@ -308,7 +308,7 @@ def bench_replay(minutes: float, speed: float) -> None:
             while (sample := stats.try_recv()) is not None:
                 latest.update({d["device"]: d for d in wire.decode_stats(sample.payload.to_bytes())["devices"]})
             return len(latest) == 10 and all(d["error_samples"] == m for d in latest.values())
-        wait_until(done, 120, "the aggregator to evaluate every sample", interval=0.2,
+        wait_until(done, 300, "the aggregator to evaluate every sample", interval=0.2,
                    on_fail=lambda: f"\n{[(d['device'], d['error_samples'], d['samples'], d['final']) for d in latest.values()]}")
         session.close()
     devices = list(latest.values())

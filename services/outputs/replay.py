@@ -6,7 +6,8 @@ Each replayed device is declared like an emulated one (device_emulator/emulator.
 advanced publisher with a cache and miss detection for its segment points (congestion control
 BLOCK), one for its truth batches, and a liveliness token. Payloads go out as recorded (the
 aggregator decodes and checks them like any device's). With ``loop``, every later pass is a new
-stream of each device (stream id + pass) with its times shifted past the previous pass.
+stream of each device (stream id + pass) with its times shifted past the previous pass
+(:data:`PASS_GAP_NS` after it).
 Pose frames, stats and config statuses of the recording are not published: the aggregator
 makes its own; replayed devices serve no config queryable.
 """
@@ -24,6 +25,9 @@ import zenoh.ext as zext
 from limbstream import wire
 
 from .recording import Entry, Recording
+
+PASS_GAP_NS = 1_000_000_000
+"""With ``loop``, a pass starts this long (recorded time, ns) after the previous one's last message."""
 
 
 @dataclass(frozen=True)
@@ -168,7 +172,7 @@ class Replayer:
             self.stats.passes += 1
             if t0 is None or not s.loop:
                 break
-            offset_ns += last - t0 + 20_000_000  # the next pass starts one 50 Hz period after this one
+            offset_ns += last - t0 + PASS_GAP_NS  # the next pass starts a second after this one
         stop.wait(s.hold_s)
         self.close()
         return self.stats

@@ -72,6 +72,7 @@ class Item(NamedTuple):
     received_ns: int
 
 
+_MAX_KEYS = 100_000  # parsed keys kept (keys invented by a faulty client cannot grow it further)
 POLL_S = 0.002
 """How often :meth:`Subscription.get` looks at empty channels, seconds."""
 
@@ -116,6 +117,7 @@ class Subscription:
         self.received = 0
         self._subscribers: list[tuple[str, object]] = []
         self._turn = 0  # which channel get() looks at first (each gets its turn)
+        self._keys: dict[str, tuple[str, str | None]] = {}  # valid keys seen, parsed
         try:
             for kind in kinds:
                 self._subscribers.append((kind, self._declare(kind, history)))
@@ -138,13 +140,19 @@ class Subscription:
         self.received += 1
         key = str(sample.key_expr)
         try:
-            if kind in wire.SUBJECT_KINDS:
-                subject, got = wire.parse_subject_key(key)
-                segment = None
-            else:
-                subject, segment, got = wire.parse_device_key(key)
-            if got != kind:
-                raise wire.WireError("key", f"{key!r} is not a {kind} key")
+            ids = self._keys.get(key)
+            if ids is None:
+                if kind in wire.SUBJECT_KINDS:
+                    subject, got = wire.parse_subject_key(key)
+                    segment = None
+                else:
+                    subject, segment, got = wire.parse_device_key(key)
+                if got != kind:
+                    raise wire.WireError("key", f"{key!r} is not a {kind} key")
+                ids = (subject, segment)
+                if len(self._keys) < _MAX_KEYS:
+                    self._keys[key] = ids
+            subject, segment = ids
             payload = sample.payload.to_bytes()
             return Item(kind, subject, segment, _DECODERS[kind](payload), key, payload, received_ns)
         except wire.WireError as exc:
