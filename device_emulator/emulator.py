@@ -128,7 +128,8 @@ class Emulator:
                                            config=settings.config, length=feeds[subject].length))
             self._feed_slots.append((first, len(self.devices)))
         n = len(self.devices)
-        self.bank = kernel.SegmenterBank(n, settings.config.threshold, settings.config.max_len)
+        self.bank = kernel.SegmenterBank(n, settings.config.threshold, settings.config.max_len,
+                                         live_bound_deg=settings.config.live_bound_deg)
         self.period_us = 1e6 / settings.fs
         c = settings.clock
         self.base = TimeBase(settings.speed, settings.anchor_us)
@@ -221,7 +222,7 @@ class Emulator:
                 except wire.WireError as exc:
                     query.reply_err(json.dumps({"error": str(exc)}))
                     return
-                self.bank.retune(d.slot, config.threshold, config.max_len)
+                self.bank.retune(d.slot, config.threshold, config.max_len, config.live_bound_deg)
                 d.config = config
                 log.info("%s: %s", d.id, config)
             query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(self.status(d)))
@@ -278,12 +279,18 @@ class Emulator:
 
     # ------------------------------------------------------------------ ticks
 
-    def _publish_point(self, d: Device, tick: int, y: np.ndarray, flags: int) -> None:
-        """Device d's segment point: the sample it took at ``tick`` (within the ring)."""
+    def _publish_point(self, d: Device, tick: int, y: np.ndarray, flags: int, omega=None) -> None:
+        """Device d's segment point: the sample it took at ``tick`` (within the ring). With the
+        live rule on, the point carries its body rate ``omega`` (3,) rad/s (segment point v2;
+        None: held, rate 0); off, it goes out as version 1 (held)."""
         row = tick % self._ring
         n = int(self._ring_n[row, d.slot])
+        if 0.0 < d.config.live_bound_deg < 180.0:
+            omega = (0.0, 0.0, 0.0) if omega is None else tuple(float(v) for v in omega)
+        else:
+            omega = None
         point = wire.SegmentPoint(d.stream, d.seq, n - d.base, int(self._ring_t[row, d.slot]),
-                                  tuple(float(v) for v in y), flags)
+                                  tuple(float(v) for v in y), flags, omega)
         d.publisher.put(wire.encode_point(point))
         d.seq = (d.seq + 1) & 0xFFFFFFFF
         d.points += 1
@@ -333,8 +340,10 @@ class Emulator:
         status, index, yp = self.bank.update(ticks, y)
         self.n[taken] += 1
         self.ticks = k + 1
-        for slot in np.flatnonzero(status == kernel.POINT):
-            self._publish_point(self.devices[slot], int(index[slot]), yp[slot], 0)
+        emitted = np.flatnonzero(status == kernel.POINT)
+        omega = self.bank.points_omega() if len(emitted) else None
+        for slot in emitted:
+            self._publish_point(self.devices[slot], int(index[slot]), yp[slot], 0, omega[slot])
         if self.settings.truth:
             self._tap(k, m)
         for slot in taken[self.n[taken] > self.n_last[taken]]:
