@@ -126,3 +126,39 @@ def test_lost_points_flag_the_frames_they_span_as_gap():
     t = np.array([f.t_us - T0 for f in frames])
     assert agg.track("s01", SEGMENTS[2]).gaps == 2
     assert np.array_equal(gap, (t > 300_000) & (t < 600_000)), "GAP exactly between the points around the loss"
+
+
+def test_live_frames_extrapolate_open_segments_with_the_point_rate():
+    """Live frames: a segment whose newest point carries a rate (v2) is extrapolated with
+    quat.predict to the subject's device time "now" (newest device time + arrival clock since),
+    a v1 point is held, a segment whose later point is known is exact; the live error per truth
+    sample is the prediction from the points at or before it (0 here for the rate device, the
+    rotation for the held one) and the live stats rows are filled."""
+    from limbstream import quat
+
+    agg, sent = aggregator()
+    online_subject(agg)
+    spin = (0.0, 0.0, 2.0)  # rad/s about z
+    point = wire.SegmentPoint(1, 0, 0, T0, IDENTITY, 0, spin)
+    agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(point), 0.0)
+    for segment in SEGMENTS[1:]:
+        send(agg, segment, range(1), now=0.0)
+    agg.advance(live=True, now=0.1)
+    live = [f for f in sent if f.kind == wire.KIND_LIVE]
+    assert len(live) == 1 and live[0].t_us == T0 + 100_000, "device now: newest time + 100 ms of arrival clock"
+    expected = quat.predict(np.array(IDENTITY), np.array(spin), 0.1)
+    assert quat.angle_deg(live[0].q[0].astype(np.float64), expected) < 1e-3, "extrapolated with its rate"
+    assert quat.angle_deg(live[0].q[1].astype(np.float64), np.array(IDENTITY)) < 1e-6, "v1 point held"
+    turned = quat.predict(np.array(IDENTITY), np.array(spin), 0.05).astype(np.float32)
+    for segment in SEGMENTS[:2]:  # truth at T0 + 50 ms follows the spin
+        batch = wire.RawBatch(1, 2, np.array([T0 + STEP_US // 2]), turned[None, :])
+        agg.on_raw(wire.raw_key("s01", segment), wire.encode_raw(batch), 0.1)
+    for segment in SEGMENTS:  # later points make the truth final, and the segment before them exact
+        send(agg, segment, range(1, 3), now=0.2)
+    agg.advance(live=True, now=0.2)
+    stats = {d["segment"]: d for d in agg.fusion.device_stats(agg.subjects["s01"], 0.2)}
+    assert stats[SEGMENTS[0]]["live_max_deg"] < 1e-3, stats[SEGMENTS[0]]
+    assert abs(stats[SEGMENTS[1]]["live_p50_deg"] - 5.7248) < 0.01, "held: the 0.1 rad turn"
+    assert stats[SEGMENTS[1]]["live_err_deg"] == stats[SEGMENTS[1]]["live_p99_deg"] == stats[SEGMENTS[1]]["live_max_deg"]
+    assert np.isfinite(stats[SEGMENTS[0]]["live_latency_p50_ms"]) and np.isfinite(stats[SEGMENTS[0]]["live_latency_p99_ms"])
+    wire.encode_stats("s01", 0.0, list(stats.values()), {})  # every row declared

@@ -75,9 +75,20 @@ FIELDS: tuple[StatsField, ...] = (
             metric="limbstream_device_p99_degrees"),
     _device("max_deg", float, "largest such deviation (60 s window)", "deg", chart=True,
             metric="limbstream_device_max_degrees"),
-    _device("live_err_deg", float, "mean error of holding the newest segment point known at each truth sample "
-            "(60 s window)", "deg",
+    _device("live_err_deg", float, "mean live-view error: the newest segment point at or before each truth "
+            "sample, extrapolated to it with its rate (held without one), against the sample (60 s window)", "deg",
             chart=True, metric="limbstream_device_live_error_degrees"),
+    _device("live_p50_deg", float, "median of that live-view error (60 s window)", "deg",
+            metric="limbstream_device_live_p50_degrees"),
+    _device("live_p99_deg", float, "99th percentile of that live-view error (60 s window)", "deg", chart=True,
+            metric="limbstream_device_live_p99_degrees"),
+    _device("live_max_deg", float, "largest live-view error (60 s window)", "deg",
+            metric="limbstream_device_live_max_degrees"),
+    _device("live_latency_p50_ms", float, "median live latency: live frame publication (wall clock) minus the "
+            "device time the frame shows (last 3000 live frames)", "ms",
+            metric="limbstream_device_live_latency_p50_milliseconds"),
+    _device("live_latency_p99_ms", float, "99th percentile of that live latency", "ms", chart=True,
+            metric="limbstream_device_live_latency_p99_milliseconds"),
     _device("aad_all_deg", float, "average angular deviation of exact frames since the stream began", "deg"),
     _device("error_samples", int, "truth samples compared since the stream began"),
     _device("watermark_lag_s", float, "device time since its newest segment point", "s", chart=True,

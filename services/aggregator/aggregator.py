@@ -35,7 +35,7 @@ class AggregatorSettings:
     ----------
     subjects : key-chunk patterns of the subjects this instance serves (``*`` = all), e.g. ("s0*",).
     rate : exact frame rate, Hz.
-    live_rate : live frame rate, Hz (0 = none).
+    live_rate : live frame rate, Hz (0 = none); the devices' sample rate by default.
     tick_s : loop period, seconds.
     stats_period_s : stats message period, seconds.
     history : segment points per device to ask for when joining late.
@@ -49,7 +49,7 @@ class AggregatorSettings:
 
     subjects: tuple[str, ...] = ("*",)
     rate: float = 50.0
-    live_rate: float = 10.0
+    live_rate: float = 50.0
     tick_s: float = 0.02
     stats_period_s: float = 1.0
     history: int = 512
@@ -300,7 +300,7 @@ class Aggregator:
         for sub, payload in zip(owners, frames.encode()):
             self._publish(sub.name, payload)
         if live:
-            owners, live_frames = self.fusion.live_frames()
+            owners, live_frames = self.fusion.live_frames(self.fusion.clock if now is None else now, time.time())
             for sub, payload in zip(owners, live_frames.encode()):
                 self._publish(sub.name, payload)
         if prune:
@@ -359,8 +359,10 @@ class Aggregator:
             with self.lock:
                 self.drain(now)
                 live = s.live_rate > 0 and now >= next_live
-                if live:
-                    next_live = now + 1.0 / s.live_rate
+                if live:  # on a fixed schedule (no drift); after a stall, from now on
+                    next_live += 1.0 / s.live_rate
+                    if next_live <= now:
+                        next_live = now + 1.0 / s.live_rate
                 if live or now >= next_frames:
                     prune = now >= next_prune
                     self.advance(live, prune, now)

@@ -5,9 +5,13 @@ Exact frames lie on a fixed grid (multiples of the output period in device time)
 emitted once every active device of the subject has a segment point at or after the frame
 time (the watermark), so the SLERP reconstruction in them is final. A device that is offline
 or has ended its stream does not hold the watermark back; its segment is held at its last
-point and the frame is flagged MISSING. Live frames: at the newest device time seen, every
-segment held at its newest point (a receiver's best guess "now"; its error is reported
-separately). Angular errors are measured at every truth sample once it is final.
+point and the frame is flagged MISSING. Live frames: at each subject's device time "now" (the
+newest device time seen, advanced by the arrival clock since it arrived), every segment exact
+(SLERP) where a point at or after that time is known, else its newest point extrapolated with
+the point's body rate (``quat.predict``: the prediction the device's live rule keeps within
+``live_bound_deg``; a point without a rate is held). Angular errors are measured at every truth
+sample once it is final: the exact reconstruction's, and the live view's (the newest point at or
+before the sample extrapolated to it: what a live frame at that instant showed).
 
 Alignment-aware error: when the truth tap carries reference times (the instant each sample was
 really taken), every exact frame at time ``t`` is compared, segment by segment, with the truth
@@ -68,6 +72,7 @@ class Fusion:
         self.truth = TruthQueue()
         self.exact = ErrorRings(error_window)
         self.live = ErrorRings(error_window)
+        self.latency = ErrorRings(error_window)     # live frame publish time - frame time, ms
         self.reference = PointStore(2048)          # truth samples by reference time, per device slot
         self.frame_errors = ErrorRings(error_window)  # per subject: mean segment error of each frame
         self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32))
@@ -84,6 +89,7 @@ class Fusion:
         self.active = np.zeros(0, bool)           # online and its stream not ended
         self.generation = np.zeros(0, np.int64)   # stream generation (truth samples of older ones are dropped)
         self.latest_t = np.zeros(0, np.int64)     # newest device time of a point or truth sample, or _NONE
+        self.latest_arrival = np.zeros(0)         # arrival clock (s) when latest_t arrived
         self.last_raw_t = np.zeros(0, np.int64)   # newest truth sample time, _NONE before one
         self.settled = np.zeros(0, bool)          # DeviceTrack.settled, refreshed for the _unsettled ones
         self._unsettled: set[DeviceTrack] = set()
@@ -108,6 +114,7 @@ class Fusion:
             self.reference.add_slot()
             self.exact.ensure(slot + 1)
             self.live.ensure(slot + 1)
+            self.latency.ensure(slot + 1)
             track = sub.tracks[segment] = DeviceTrack(subject, segment, slot)
             self.tracks.append(track)
             self.owner = np.append(self.owner, sub.index)
@@ -115,6 +122,7 @@ class Fusion:
             self.active = np.append(self.active, False)
             self.generation = np.append(self.generation, 0)
             self.latest_t = np.append(self.latest_t, _NONE)
+            self.latest_arrival = np.append(self.latest_arrival, np.nan)
             self.last_raw_t = np.append(self.last_raw_t, _NONE)
             self.settled = np.append(self.settled, True)
             self._view = None
@@ -136,6 +144,7 @@ class Fusion:
             self.reference.reset(slot)
             self.exact.reset(slot)
             self.live.reset(slot)
+            self.latency.reset(slot)
             self.generation[slot] = track.generation
             self.latest_t[slot] = self.last_raw_t[slot] = _NONE
             self._unsettled.add(track)
@@ -150,17 +159,18 @@ class Fusion:
         slot = track.slot
         how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(slot, t_us))
         if how == "append":
-            forgotten = self.store.append(slot, p.t_us, p.q)
+            forgotten = self.store.append(slot, p.t_us, p.q, p.omega)
             if forgotten:
                 track.dropped["buffer_full"] += forgotten
             self.active[slot] = track.online and not track.final
             if track.gap_spans:
                 self._gappy.add(track)
-        elif how == "insert" and not self.store.insert(slot, p.t_us, p.q):
+        elif how == "insert" and not self.store.insert(slot, p.t_us, p.q, p.omega):
             track.dropped["buffer_full"] += 1
         if how is None:
             return False
         self.latest_t[slot] = track.latest_t_us
+        self.latest_arrival[slot] = track.latest_arrival
         self._view = None
         return True
 
@@ -171,6 +181,7 @@ class Fusion:
             return False
         self.last_raw_t[track.slot] = track.last_raw_t_us
         self.latest_t[track.slot] = track.latest_t_us
+        self.latest_arrival[track.slot] = track.latest_arrival
         self.truth.put(track.slot, track.generation, batch.t_us, batch.q)
         if batch.ref_us is not None:  # reference times: only for the alignment-aware frame error
             slot = track.slot
@@ -190,8 +201,9 @@ class Fusion:
     # ------------------------------------------------------------------ errors
 
     def evaluate_truth(self) -> int:
-        """Angular error of the exact reconstruction and of holding the last point, at every truth
-        sample whose reconstruction became final. Returns how many samples."""
+        """Angular error of the exact reconstruction and of the live view (the newest point at or
+        before the sample, extrapolated to it), at every truth sample whose reconstruction became
+        final. Returns how many samples."""
         slots, t_us, truth, overflow = self.truth.take_ready(self._device_view()[0], self.generation)
         for slot in overflow:
             self.tracks[slot].dropped["raw_overflow"] += 1
@@ -201,7 +213,7 @@ class Fusion:
         slots, t_us, truth = slots[~before], t_us[~before], truth[~before]
         if len(slots):
             self.exact.add(slots, quat.angle_deg(self.store.interpolate(slots, t_us), truth))
-            self.live.add(slots, quat.angle_deg(self.store.held(slots, t_us), truth))
+            self.live.add(slots, quat.angle_deg(self.store.predicted(slots, t_us), truth))
         return len(slots)
 
     # ------------------------------------------------------------------ frames
@@ -282,21 +294,35 @@ class Fusion:
         return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
                                                              self.skeleton.positions(q))
 
-    def live_frames(self) -> tuple[list[Subject], wire.PoseFrames]:
-        """One frame per subject at its newest device time, every segment held at its newest point."""
+    def live_frames(self, now: float | None = None, wall: float | None = None) -> tuple[list[Subject], wire.PoseFrames]:
+        """One frame per subject at its device time "now": the newest device time of its devices,
+        each advanced by the arrival clock ``now`` (s) since it arrived. Every segment is exact
+        where a point at or after that time is known, else predicted from its newest point (an
+        offline or ended device is held at its newest point). ``wall`` (s since the epoch, the
+        publication time): each device of a frame records ``wall`` - frame time as its live
+        latency (ms)."""
         slots = self.seg_slots
         valid = slots >= 0
-        has_points = valid & (self.store.n[np.maximum(slots, 0)] > 0)
-        latest = np.where(has_points, self.latest_t[np.maximum(slots, 0)], _NONE).max(axis=1, initial=_NONE)
+        rows = np.maximum(slots, 0)
+        has_points = valid & (self.store.n[rows] > 0)
+        ahead = 0.0 if now is None else np.maximum(np.nan_to_num(now - self.latest_arrival[rows]), 0.0)
+        device_now = np.where(has_points, self.latest_t[rows] + np.round(ahead * 1e6).astype(np.int64), _NONE)
+        latest = device_now.max(axis=1, initial=_NONE)
         index = np.flatnonzero(latest != _NONE)
         if len(index) == 0:
             return [], wire.PoseFrames.empty(wire.KIND_LIVE)
-        t_us, slots, valid = latest[index], slots[index], valid[index]
+        t_us, slots, valid, has_points = latest[index], slots[index], valid[index], has_points[index]
+        at = np.broadcast_to(t_us[:, None], slots.shape)[valid]
+        held = ~self.active[slots[valid]]  # offline or ended: held at its newest point
+        at = np.where(held, np.minimum(at, self.store.last_t()[slots[valid]]), at)
         q = np.tile(IDENTITY, (len(index), len(SEGMENTS), 1))
-        q[valid] = self.store.held(slots[valid], np.broadcast_to(t_us[:, None] + 1, slots.shape)[valid])
+        q[valid] = self.store.live(slots[valid], at)
         missing = (~valid | ~self.online[np.maximum(slots, 0)]).any(axis=1)
         seq = self.live_seq[index].copy()
         self.live_seq[index] += 1
+        if wall is not None:
+            f, s = np.nonzero(has_points)
+            self.latency.add(slots[f, s], (wall * 1e6 - t_us[f]) / 1e3)
         subjects = list(self.subjects.values())
         return [subjects[i] for i in index], wire.PoseFrames(seq, t_us, wire.KIND_LIVE,
                                                              np.where(missing, wire.FRAME_MISSING, 0), q,
@@ -361,11 +387,16 @@ class Fusion:
         tracks = [sub.tracks[name] for name in sorted(sub.tracks)]
         slots = np.array([t.slot for t in tracks], np.int64)
         aad, p99, mx = self.exact.summary(slots)
-        live, _, _ = self.live.summary(slots)
+        live, live_p99, live_max = self.live.summary(slots)
+        live_p50 = self.live.quantile(slots, 0.5)
+        lat_p50, lat_p99 = self.latency.quantile(slots, 0.5), self.latency.quantile(slots, 0.99)
         count = self.exact.count[slots]
         aad_all = np.where(count > 0, self.exact.total[slots] / np.maximum(count, 1), np.nan)
         return [t.stats(now, (float(aad[i]), float(p99[i]), float(mx[i]), float(live[i]), float(aad_all[i]),
-                              int(count[i]))) for i, t in enumerate(tracks)]
+                              int(count[i])),
+                        {"live_p50_deg": float(live_p50[i]), "live_p99_deg": float(live_p99[i]),
+                         "live_max_deg": float(live_max[i]), "live_latency_p50_ms": float(lat_p50[i]),
+                         "live_latency_p99_ms": float(lat_p99[i])}) for i, t in enumerate(tracks)]
 
     def watermark(self, sub: Subject) -> int | None:
         wm = self._device_view()[1]

@@ -15,13 +15,15 @@ IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
 class PointStore:
-    """Segment points per device slot: times ``t`` (slots, cap) int64 us and orientations
-    ``q`` (slots, cap, 4) float32; row ``d`` holds ``n[d]`` points, oldest first."""
+    """Segment points per device slot: times ``t`` (slots, cap) int64 us, orientations
+    ``q`` (slots, cap, 4) float32 and body rates ``w`` (slots, cap, 3) float32 rad/s (zero for a
+    point without a rate: held); row ``d`` holds ``n[d]`` points, oldest first."""
 
     def __init__(self, cap: int = 1024, slots: int = 64):
         self.cap = cap
         self.t = np.zeros((slots, cap), np.int64)
         self.q = np.zeros((slots, cap, 4), np.float32)
+        self.w = np.zeros((slots, cap, 3), np.float32)
         self.n = np.zeros(slots, np.int64)
         self.size = 0
 
@@ -31,6 +33,7 @@ class PointStore:
             grow = len(self.n)
             self.t = np.concatenate([self.t, np.zeros((grow, self.cap), np.int64)])
             self.q = np.concatenate([self.q, np.zeros((grow, self.cap, 4), np.float32)])
+            self.w = np.concatenate([self.w, np.zeros((grow, self.cap, 3), np.float32)])
             self.n = np.concatenate([self.n, np.zeros(grow, np.int64)])
         self.size += 1
         return self.size - 1
@@ -38,8 +41,9 @@ class PointStore:
     def reset(self, slot: int) -> None:
         self.n[slot] = 0
 
-    def append(self, slot: int, t_us: int, q) -> int:
-        """Add a point (times must increase); returns how many old points were forgotten to make room."""
+    def append(self, slot: int, t_us: int, q, omega=None) -> int:
+        """Add a point (times must increase) with its body rate ``omega`` (3,) rad/s (None: held);
+        returns how many old points were forgotten to make room."""
         forgotten = 0
         if self.n[slot] == self.cap:  # consumers stalled far behind: forget the oldest half
             forgotten = self.cap // 2
@@ -47,6 +51,7 @@ class PointStore:
         k = self.n[slot]
         self.t[slot, k] = t_us
         self.q[slot, k] = q
+        self.w[slot, k] = 0.0 if omega is None else omega
         self.n[slot] = k + 1
         return forgotten
 
@@ -66,6 +71,7 @@ class PointStore:
         k = self.n[slot]
         self.t[slot, k:k + count] = t_us
         self.q[slot, k:k + count] = q
+        self.w[slot, k:k + count] = 0.0
         self.n[slot] = k + count
         return forgotten
 
@@ -73,16 +79,19 @@ class PointStore:
         """True if row ``slot`` holds a point at ``t_us``."""
         return bool(np.any(self.t[slot, : self.n[slot]] == t_us))
 
-    def insert(self, slot: int, t_us: int, q) -> bool:
-        """Add an older point in time order; False (not stored) if the row is full."""
+    def insert(self, slot: int, t_us: int, q, omega=None) -> bool:
+        """Add an older point (body rate ``omega``, None: held) in time order; False (not stored)
+        if the row is full."""
         n = self.n[slot]
         if n == self.cap:
             return False
         k = int(np.searchsorted(self.t[slot, :n], t_us))
         self.t[slot, k + 1: n + 1] = self.t[slot, k:n].copy()
         self.q[slot, k + 1: n + 1] = self.q[slot, k:n].copy()
+        self.w[slot, k + 1: n + 1] = self.w[slot, k:n].copy()
         self.t[slot, k] = t_us
         self.q[slot, k] = q
+        self.w[slot, k] = 0.0 if omega is None else omega
         self.n[slot] = n + 1
         return True
 
@@ -91,6 +100,7 @@ class PointStore:
         n = self.n[slot]
         self.t[slot, : n - k] = self.t[slot, k:n]
         self.q[slot, : n - k] = self.q[slot, k:n]
+        self.w[slot, : n - k] = self.w[slot, k:n]
         self.n[slot] = n - k
 
     def last_t(self) -> np.ndarray:
@@ -131,6 +141,31 @@ class PointStore:
         q0 /= np.linalg.norm(q0, axis=1, keepdims=True)
         q1 /= np.linalg.norm(q1, axis=1, keepdims=True)
         out[have] = quat.slerp(q0, q1, u)
+        return out
+
+    def predicted(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+        """(Q, 4) float64: what a receiver knowing only the points of row ``slots[i]`` at or before
+        ``t_us[i]`` shows then: the newest of them extrapolated with its rate
+        (:func:`limbstream.quat.predict`, the prediction the device's live rule bounds; rate 0
+        holds it); identity for a row without such a point."""
+        out = np.tile(IDENTITY, (len(slots), 1))
+        k = self.locate(slots, t_us)
+        have = k >= 0
+        s, j = slots[have], k[have]
+        if len(s):
+            dt = (t_us[have] - self.t[s, j]) / 1e6
+            out[have] = quat.predict(self.q[s, j].astype(np.float64), self.w[s, j].astype(np.float64), dt)
+        return out
+
+    def live(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+        """(Q, 4) float64 live view of row ``slots[i]`` at ``t_us[i]``: SLERP between points where
+        a point at or after the time is known (exact), else :meth:`predicted` from the newest point."""
+        n = self.n[slots]
+        last = self.t[slots, np.maximum(n - 1, 0)]
+        inside = (n > 0) & (t_us <= last)
+        out = self.predicted(slots, t_us)
+        if inside.any():
+            out[inside] = self.interpolate(slots[inside], t_us[inside])
         return out
 
     def held(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
@@ -232,6 +267,14 @@ class ErrorRings:
         self.values[slots, (self.count[slots] + rank) % self.window] = errors
         np.add.at(self.count, slots, 1)
         np.add.at(self.total, slots, errors)
+
+    def quantile(self, slots: np.ndarray, p: float) -> np.ndarray:
+        """(slots,) the ``p`` quantile (0..1, lower order statistic) of each row's window, NaN for
+        empty rows."""
+        v = np.sort(self.values[slots], axis=1)  # NaN (unused) sorts last
+        n = np.minimum(self.count[slots], self.window)
+        out = v[np.arange(len(slots)), np.floor(p * (np.maximum(n, 1) - 1)).astype(np.int64)]
+        return np.where(n == 0, np.nan, out)
 
     def summary(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(mean, p99, max) over each row's window, NaN for empty rows."""

@@ -144,10 +144,12 @@ class DeviceTrack:
         """Per time: inside a span whose points were lost."""
         return [any(t0 < t < t1 for t0, t1 in self.gap_spans) for t in t_us]
 
-    def stats(self, now: float, errors: tuple[float, float, float, float, float, int]) -> dict:
+    def stats(self, now: float, errors: tuple[float, float, float, float, float, int],
+              live_view: dict | None = None) -> dict:
         """The device entry of a stats message (the device fields of limbstream.wire.fields).
 
-        ``errors``: (aad, p99, max, live mean, aad since the stream began, samples compared).
+        ``errors``: (aad, p99, max, live mean, aad since the stream began, samples compared);
+        ``live_view``: the live-view figures (live_p50_deg ... live_latency_p99_ms).
         """
         while self.arrivals and self.arrivals[0][0] < now - RATE_WINDOW_S:
             self.arrivals.popleft()
@@ -167,7 +169,7 @@ class DeviceTrack:
             "msgs_per_s": len(self.arrivals) / span,
             "bytes_per_s": sum(b for _, b in self.arrivals) / span,
             "aad_deg": aad, "p99_deg": p99, "max_deg": mx, "live_err_deg": live,
-            "aad_all_deg": aad_all, "error_samples": compared,
+            "aad_all_deg": aad_all, "error_samples": compared, **(live_view or {}),
             "watermark_lag_s": lag, "gaps": self.gaps, "dropped": sum(self.dropped.values()),
             "dropped_by_reason": dict(self.dropped),
             **{name: getattr(self.config, name, None) for name in wire.TUNABLES},
