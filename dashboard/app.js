@@ -15,6 +15,7 @@ const state = {
   selected: null,
   skeleton: null,
   figures: new Map(),           // subject -> Figure
+  subjects: new Map(),          // subject -> its latest /api/subjects entry (frame error)
   charts: null,
 };
 
@@ -95,7 +96,7 @@ function renderTotals() {
 function renderTable() {
   const body = $("devices-body");
   if (!state.devices.length) {
-    body.innerHTML = '<tr class="empty-row"><td colspan="12">Waiting for device statistics…</td></tr>';
+    body.innerHTML = '<tr class="empty-row"><td colspan="13">Waiting for device statistics…</td></tr>';
     return;
   }
   const maxRate = Math.max(1, ...state.devices.map((d) => d.msgs_per_s || 0));
@@ -105,7 +106,10 @@ function renderTable() {
     if (d.subject !== subject) {
       subject = d.subject;
       const n = state.devices.filter((x) => x.subject === subject);
-      rows.push(`<tr class="subject-row"><td colspan="12">${esc(subject)} · ${n.filter((x) => x.online).length}/${n.length} online</td></tr>`);
+      const s = state.subjects.get(subject);
+      const frameErr = s && s.frame_aad_deg !== null && s.frame_aad_deg !== undefined
+        ? ` · <span class="frame-err" title="mean angle between exact frames and the truth at each frame's reference instant (60 s)">frame error ${fmt(s.frame_aad_deg)}°</span>` : "";
+      rows.push(`<tr class="subject-row" data-subject="${esc(subject)}"><td colspan="13">${esc(subject)} · ${n.filter((x) => x.online).length}/${n.length} online${frameErr}</td></tr>`);
     }
     const dot = d.stale ? (d.alive ? "on" : "stale") : (d.online ? "on" : "off");
     const stateText = d.online ? "online" : (d.stale && !d.alive ? "no data" : "offline");
@@ -125,10 +129,24 @@ function renderTable() {
       `<td class="num">${fmt(d.watermark_lag_s)}</td>` +
       `<td class="num${d.gaps ? " warn" : ""}">${d.gaps ?? "–"}</td>` +
       `<td class="num${d.dropped ? " bad" : ""}">${d.dropped ?? "–"}</td>` +
+      clockCell(d) +
       `<td class="num">${d.threshold === null || d.threshold === undefined ? "–" : Number(d.threshold).toPrecision(3)}</td>` +
       `</tr>`);
   }
   body.innerHTML = rows.join("");
+}
+
+function clockCell(d) {  // the device's own clock offset estimate and whether it is synced
+  if (d.synced === null || d.synced === undefined) return '<td class="num clock">–</td>';
+  const rtt = d.sync_rtt_ms === null || d.sync_rtt_ms === undefined ? "" : `, round trip ${fmt(d.sync_rtt_ms)} ms`;
+  if (d.clock_offset_ms === null || d.clock_offset_ms === undefined) {
+    return `<td class="num clock warn" data-synced="false" title="not synchronised to the time service">no sync</td>`;
+  }
+  const sign = d.clock_offset_ms > 0 ? "+" : "";
+  const text = `${sign}${fmt(d.clock_offset_ms, 1)} ms`;
+  return d.synced
+    ? `<td class="num clock" data-synced="true" title="clock minus the common time base${rtt}">${text}</td>`
+    : `<td class="num clock warn" data-synced="false" title="unsynced: last estimate${rtt}">${text} ⚠</td>`;
 }
 
 function syncSelects() {
@@ -334,6 +352,7 @@ class Figure {
 async function refreshSubjects() {
   let subjects;
   try { subjects = await api("/api/subjects"); } catch (_) { return; }
+  state.subjects = new Map(subjects.map((s) => [s.subject, s]));
   const container = $("skeletons");
   const withPose = subjects.filter((s) => s.pose).slice(0, MAX_FIGURES);
   for (const s of withPose) {

@@ -52,7 +52,8 @@ SKELETONS_DRAWN = """(n) => {
 def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
     chromium = require_chromium()
     stack.router()
-    stack.emulator(SUBJECTS, 1.0)
+    stack.start("clock", "clock", "--connect", stack.endpoint)
+    stack.emulator(SUBJECTS, 1.0, "--clock-offset-ms", "2000", "--clock-drift-ppm", "100")
     stack.aggregator()
     url = stack.dashboard(env={"LIMBSTREAM_API_TOKEN": TOKEN, "LIMBSTREAM_MODE": "production"})
     n_devices = SUBJECTS * 10
@@ -81,6 +82,11 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
             page.wait_for_function("() => document.querySelector('#tot-agg').dataset.load > 0", timeout=10_000)
             load = float(page.get_attribute("#tot-agg", "data-load"))
             assert 0 < load < 1 and " % · " in page.text_content("#tot-agg"), page.text_content("#tot-agg")
+            # each device's clock column: synced, its offset estimate; each subject's frame error
+            page.wait_for_function("""(n) => [...document.querySelectorAll('#devices-body td.clock[data-synced="true"]')]
+                .filter(c => / ms$/.test(c.textContent)).length === n""", arg=n_devices, timeout=20_000)
+            page.wait_for_function("(n) => document.querySelectorAll('#devices-body .frame-err').length === n",
+                                   arg=SUBJECTS, timeout=20_000)
             # charts got data for the selected device
             page.wait_for_function("() => document.querySelectorAll('#chart-icr .u-over').length === 1", timeout=10_000)
 

@@ -92,7 +92,11 @@ class TimeService:
         for t in threads:
             t.start()
         try:
-            stop.wait()
+            last = 0
+            while not stop.wait(10.0):  # a count every 10 s (INFO: -v)
+                log.info("answered %d time requests (%d in the last 10 s), refused %d",
+                         self.stats.answered, self.stats.answered - last, self.stats.bad)
+                last = self.stats.answered
         finally:
             stop.set()
             with self._cond:

@@ -45,7 +45,7 @@ class PoseSummary(BaseModel):
     age_s: float
 
 
-class Subject(BaseModel):
+class _SubjectSummary(BaseModel):
     subject: str
     devices: int
     online: int
@@ -53,6 +53,11 @@ class Subject(BaseModel):
     bytes_per_s: float
     stats_age_s: float | None
     pose: PoseSummary | None
+
+
+Subject = _from_fields(
+    "Subject", "One subject: its devices and latest pose, plus the subject fields of the stats contract "
+    "(limbstream.wire.fields; null until the aggregator reports).", wire.SUBJECT_FIELDS, __base__=_SubjectSummary)
 
 
 class Pose(BaseModel):

@@ -177,6 +177,7 @@ class LiveState:
         self.alive: set[str] = set()
         self.poses: dict[str, dict[int, PoseEntry]] = {}
         self.stats_times: dict[str, float] = {}
+        self.subject_stats: dict[str, dict] = {}  # the subject fields of each subject's latest stats
         self.aggregators: dict[str, AggregatorEntry] = {}
         self.clients: dict[str, set[PoseClient]] = {}
         self.received = Counter()
@@ -230,6 +231,7 @@ class LiveState:
             self.errors[getattr(exc, "reason", "stats")] += 1
             return
         self.stats_times[subject] = rx
+        self.subject_stats[subject] = {f.name: _clean(data.get(f.name)) for f in wire.SUBJECT_FIELDS}
         self._count_missed(subject, "stats", data.get("seq"))
         self._apply_aggregator(data.get("aggregator"), subject, rx)
         for d in data["devices"]:
@@ -400,6 +402,7 @@ class LiveState:
                     "seq": pose.frame.seq, "t": pose.frame.t_us / 1e6,
                     "kind": "live" if pose.frame.kind == wire.KIND_LIVE else "exact",
                     "age_s": round(now - pose.rx, 3)},
+                **self.subject_stats.get(name, {}),
             })
         return out
 
