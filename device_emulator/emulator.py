@@ -24,7 +24,7 @@ import math
 import random
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import zenoh
@@ -87,6 +87,7 @@ class Device:
     length: int | None = None  # feed samples of its clip, None: endless
     base: int = 0  # sample number of the current stream's sample 0
     restarts: int = 0  # streams started after the first (time base steps)
+    last_point: wire.SegmentPoint | None = None  # the newest point published
 
     @property
     def id(self) -> str:
@@ -294,6 +295,19 @@ class Emulator:
         d.publisher.put(wire.encode_point(point))
         d.seq = (d.seq + 1) & 0xFFFFFFFF
         d.points += 1
+        d.last_point = point
+
+    def _publish_final(self, d: Device) -> None:
+        """End device d's stream: flush its last point (FINAL), or, when its last sample already
+        went out as a point (the live rule closed it), repeat that point with FINAL as the end
+        marker (the next sequence number; docs/protocol.md)."""
+        last = self.bank.flush(d.slot)
+        if last is not None:
+            self._publish_point(d, int(last[0]), last[2], wire.FLAG_FINAL)
+        elif d.last_point is not None and d.last_point.stream == d.stream:
+            point = replace(d.last_point, seq=d.seq, flags=wire.FLAG_FINAL)
+            d.publisher.put(wire.encode_point(point))
+            d.seq = (d.seq + 1) & 0xFFFFFFFF
 
     def _tap(self, k: int, m: int) -> None:
         """Truth tap: each streaming device publishes its samples of the last raw_batch ticks,
@@ -360,9 +374,7 @@ class Emulator:
             return
         if self.settings.truth:
             self._flush_tap(d, k - 1)
-        last = self.bank.flush(d.slot)
-        if last is not None:
-            self._publish_point(d, int(last[0]), last[2], wire.FLAG_FINAL)
+        self._publish_final(d)
         n_prev = self._ring_n[prev, d.slot]
         local = self.clocks.sample_local(np.array([n_prev]), np.array([d.slot]))[0]
         self._ring_t[prev, d.slot] = round(local + self.sync.c[d.slot] - self.sync.b[d.slot] * (
@@ -380,9 +392,7 @@ class Emulator:
     def _end(self, d: Device, k: int) -> None:
         """End device d's stream after its last sample (tick k): flush its last point (FINAL)
         and its truth tap."""
-        last = self.bank.flush(d.slot)
-        if last is not None:
-            self._publish_point(d, int(last[0]), last[2], wire.FLAG_FINAL)
+        self._publish_final(d)
         if self.settings.truth:
             self._flush_tap(d, k)
         self.ended[d.slot] = True

@@ -165,6 +165,8 @@ class Fusion:
             self.active[slot] = track.online and not track.final
             if track.gap_spans:
                 self._gappy.add(track)
+        elif how == "final":
+            self.active[slot] = False
         elif how == "insert" and not self.store.insert(slot, p.t_us, p.q, p.omega):
             track.dropped["buffer_full"] += 1
         if how is None:

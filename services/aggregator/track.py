@@ -85,7 +85,8 @@ class DeviceTrack:
                      stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
         """Sequence and time checks of a point of the current stream. Returns "append" (newest
         point), "insert" (an earlier point of the stream's start arriving late, e.g. history),
-        or None when it is dropped (counted by reason). ``stored(t_us)``: a point with that
+        "final" (the newest point repeated with FINAL: the stream ends, no new point), or None
+        when it is dropped (counted by reason). ``stored(t_us)``: a point with that
         time is already kept."""
         if not 0 <= p.t_us < MAX_T_US:
             self.dropped["time_range"] += 1
@@ -98,6 +99,12 @@ class DeviceTrack:
                 return "insert"
             self.dropped["duplicate"] += 1
             return None
+        if (p.flags & wire.FLAG_FINAL and p.seq == self.next_seq and p.t_us == self.last_t_us
+                and p.index == self.last_index):  # the newest point repeated as the stream's end marker
+            self.next_seq, self.final = p.seq + 1, True
+            self._count(p, nbytes, now)
+            self.points -= 1
+            return "final"
         if self.last_t_us is not None and (p.t_us <= self.last_t_us or p.index <= self.last_index):
             self.dropped["time_backwards"] += 1
             return None
