@@ -107,7 +107,7 @@ def test_malformed_segment_point_is_counted_and_dropped(stack, watch):  # noqa: 
     wait_until(lambda: watch.poll().get("s01/hip", {}).get("points", 0) > 2, 60, "s01/hip points",
                on_fail=stack.logs)
     key = wire.seg_key("s01", "hip")
-    for payload in (b"garbage", b"\x01" * 36, wire.encode_point(wire.SegmentPoint(1, 0, 0, 0, (0.5, 0, 0, 0)))):
+    for payload in (b"\x01garbage", b"\x01" * 36, wire.encode_point(wire.SegmentPoint(1, 0, 0, 0, (0.5, 0, 0, 0)))):
         watch.session.put(key, payload)
     watch.session.put("limbstream/s01/seg", b"bad key")
     points = watch.devices["s01/hip"]["points"]
