@@ -197,17 +197,19 @@ def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list
     return events, m
 
 
-def bench_aggregator_core(subject_counts: list[int], seconds: float) -> None:
-    """The aggregator's own work without Zenoh: replayed messages, frames built and encoded,
-    stats encoded once a second; CPU per second of stream = load at real time."""
+def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: float = 50.0) -> None:
+    """The aggregator's own work without Zenoh: replayed messages, frames built and encoded (live
+    frames at ``live_rate`` Hz, a divisor of 50), stats encoded once a second; CPU per second of
+    stream = load at real time."""
+    every = max(1, round(50.0 / live_rate))
     print(f"\n### Aggregator core, replayed messages ({seconds:g} s of stream, 50 Hz, truth tap on, "
-          "frames and stats encoded, not sent)\n")
+          f"live frames at {50.0 / every:g} Hz, frames and stats encoded, not sent)\n")
     print("| subjects | devices | points/s | truth samples/s | frames/s | CPU per second of stream | "
           "subjects at 100 % of one core |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for subjects in subject_counts:
         events, m = replay_events(subjects, seconds)
-        agg = Aggregator(None, AggregatorSettings(live_rate=10.0))
+        agg = Aggregator(None, AggregatorSettings(live_rate=50.0 / every))
         agg._publish = lambda subject, payload: None
         for name in (f"s{s + 1:03d}" for s in range(subjects)):
             for seg in SEGMENTS:
@@ -224,7 +226,7 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float) -> None:
                 else:
                     agg.on_raw(key, payload, now)
                 i += 1
-            if k % 5 == 0:  # live frames at 10 Hz
+            if k % every == 0:  # live frames
                 agg.advance(True, prune=k % 25 == 0, now=now)
             else:
                 agg.advance(False, prune=False, now=now)
@@ -303,13 +305,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--devices", default="500,1000,2000,3000", help="emulator rows (device counts)")
     parser.add_argument("--subjects", default="20,100,200", help="aggregator rows (subject counts)")
     parser.add_argument("--no-truth", action="store_true", help="emulator rows without the truth tap")
+    parser.add_argument("--live-rate", type=float, default=50.0, help="core rows: live frame rate, Hz (50, 25, 10, ...)")
     args = parser.parse_args(argv)
     if args.what in ("emulator", "all"):
         bench_emulator([int(n) for n in args.devices.split(",")], args.seconds, not args.no_truth)
     if args.what in ("aggregator", "all"):
         bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds)
     if args.what in ("core", "all"):
-        bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds)
+        bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds, args.live_rate)
     if args.what in ("latency", "all"):
         for max_len in (25, 1000):
             bench_latency(args.seconds, 2, max_len)

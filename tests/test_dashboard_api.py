@@ -281,8 +281,8 @@ def test_config_is_forwarded_and_confirmed(client, pub):
         announce(client, pub, "ctlG", "hip")
         r = client.put("/api/devices/ctlG/hip/config", json={"threshold": 0.05, "max_len": 10}, headers=AUTH)
         assert r.status_code == 200, r.text
-        assert r.json() == {"device": "x/hip", "threshold": 0.05, "max_len": 10, "stream": 7, "samples": 10,
-                            "points": 1}
+        assert r.json() == {"device": "x/hip", "threshold": 0.05, "max_len": 10, "live_bound_deg": 0.0, "stream": 7,
+                            "samples": 10, "points": 1}
         assert device.config == wire.DeviceConfig(0.05, 10)
         r = client.put("/api/devices/ctlG/hip/config", json={"threshold": 0.002}, headers=AUTH)
         assert r.status_code == 200 and r.json()["max_len"] == 10 and r.json()["threshold"] == 0.002, r.text
