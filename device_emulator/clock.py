@@ -44,8 +44,9 @@ FILL = 8
 """Exchanges 1 s apart until the window holds this many (then the interval doubles)."""
 MIN_POLL_S = 1.0
 """Poll interval while the measured jitter is high (or after a failure or a held-back answer), s."""
-FAST_JITTER_US = 250.0
-"""Above this jitter (weighted residual RMS of the fit) a device polls every MIN_POLL_S."""
+OFFSET_SE_US = 250.0
+"""While the offset's standard error (jitter over the square root of the exchanges' effective
+number) exceeds this, a device polls every MIN_POLL_S (a jittery path needs many exchanges)."""
 DRIFT_BUDGET_US = 150.0
 """The interval to the next exchange is at most this over the drift's standard error: what the
 drift estimate's uncertainty may add to the offset before the next answer."""
@@ -70,7 +71,7 @@ MIN_SYNC = 3
 """Valid answers before a device counts as synced."""
 RETRY_S = 8.0
 """Longest wait before asking again after a query without an answer, device seconds."""
-WORKERS = 4
+WORKERS = 2
 """Threads sending time queries (each waits for one answer at a time)."""
 
 
@@ -95,8 +96,8 @@ class ClockSettings:
     jitter_us: float = 0.0
     seed: int = 0
     sync: bool = True
-    poll_s: float = 64.0
-    holdover_s: float = 300.0
+    poll_s: float = 512.0
+    holdover_s: float = 600.0
     wait_s: float = 10.0
     timeout_s: float = 1.0
 
@@ -201,7 +202,8 @@ class SyncEstimator:
         self.a = self.b = self.ref = 0.0
         self.fitted = False
         self.jitter = math.inf
-        self.drift_se = math.inf  # standard error of b
+        self.drift_se = math.inf   # standard error of b
+        self.offset_se = math.inf  # standard error of the line at the newest exchange, us
         self.held: list[tuple[float, float, float]] = []
 
     def __len__(self) -> int:
@@ -265,6 +267,7 @@ class SyncEstimator:
         self.a, self.ref = my - self.b * mx, ref
         if len(x) >= 3:
             self.jitter = math.sqrt(float(w @ (y - self.a - self.b * x) ** 2) / sw)
+            self.offset_se = max(self.jitter, 1.0) / math.sqrt(max(neff - 2.0, 1.0))
             if fitted_b:
                 self.drift_se = max(self.jitter, 1.0) / math.sqrt(max(neff - 2.0, 1.0) * sxx)
         self.fitted = True
@@ -305,7 +308,8 @@ class SyncClient:
         self.backoff = np.full(n, MIN_POLL_S)
         self.interval = np.full(n, MIN_POLL_S)
         self.exchanges = 0
-        self.busy_s = 0.0                      # time the tick loop spent on sync results
+        self.busy_s = 0.0                      # time the tick loop spent on sync (results, stamps), s
+        self._worker_cpu = [0.0] * WORKERS     # CPU time of each worker thread, s
         self._ids = np.zeros(n, np.int64)      # id of each device's request in flight
         self._heap: list[tuple[float, int]] = []
         self._cond = threading.Condition()
@@ -319,15 +323,18 @@ class SyncClient:
     def start(self) -> None:
         """Declare the querier, start the workers and schedule every device's first burst,
         spread over the first second."""
+        # remote only: the time service is another process, and a session holding thousands of
+        # publishers (each with its cache's queryable) would otherwise match every query against
+        # them (~300 us of CPU per query and per matching check, instead of ~40 and ~1)
         self.querier = self.session.declare_querier(
             wire.time_key(), target=zenoh.QueryTarget.BEST_MATCHING, consolidation=zenoh.ConsolidationMode.NONE,
-            timeout=self.settings.timeout_s)
+            timeout=self.settings.timeout_s, allowed_destination=zenoh.Locality.REMOTE)
         now = time.monotonic()
         rng = random.Random(self.settings.seed)
         for slot in range(len(self.names)):
             self._schedule(slot, now + rng.uniform(0.0, 1.0))
         for i in range(WORKERS):
-            t = threading.Thread(target=self._work, name=f"time-sync-{i}", daemon=True)
+            t = threading.Thread(target=self._work, args=(i,), name=f"time-sync-{i}", daemon=True)
             t.start()
             self._threads.append(t)
 
@@ -361,30 +368,34 @@ class SyncClient:
                 self._cond.wait(self._heap[0][0] - now if self._heap else 0.5)
         return None
 
-    def _work(self) -> None:
+    def _work(self, worker: int) -> None:
         """Worker: one exchange at a time; the answer's arrival is stamped as soon as recv
         returns. Results go to a deque the tick loop reads."""
         while (slot := self._next()) is not None:
-            rid = int(self._ids[slot] + 1) & 0xFFFFFFFF
-            self._ids[slot] = rid
-            if not self.querier.matching_status.matching:  # no time service: no query sent
-                self._results.append((slot, rid, 0, 0, None))
-                continue
-            t1 = self.clocks.read(slot)
-            replies = self.querier.get(zenoh.handlers.FifoChannel(4),
-                                       payload=wire.encode_time_request(wire.TimeRequest(rid, t1)))
-            answer = None
-            try:
-                while answer is None:
-                    reply = replies.recv()
-                    t4 = self.clocks.read(slot)
-                    answer = reply.ok.payload.to_bytes() if reply.ok is not None else None
-                    if answer is None:  # an error reply (timeout, refused): the query is over
-                        break
-            except zenoh.ZError:  # the query ended without an answer
-                pass
-            del replies  # later replies (another service) are dropped with the channel
-            self._results.append((slot, rid, t1, t4 if answer is not None else 0, answer))
+            began = time.thread_time()
+            self._exchange(slot)
+            self._worker_cpu[worker] += time.thread_time() - began
+
+    def _exchange(self, slot: int) -> None:
+        """One exchange of device ``slot`` (worker thread)."""
+        rid = int(self._ids[slot] + 1) & 0xFFFFFFFF
+        self._ids[slot] = rid
+        if not self.querier.matching_status.matching:  # no time service: no query sent
+            self._results.append((slot, rid, 0, 0, None))
+            return
+        t1 = self.clocks.read(slot)
+        replies = self.querier.get(zenoh.handlers.FifoChannel(4),
+                                   payload=wire.encode_time_request(wire.TimeRequest(rid, t1)))
+        answer, t4 = None, 0
+        try:
+            reply = replies.recv()
+            t4 = self.clocks.read(slot)
+            if reply.ok is not None:  # (an error reply: timeout, refused)
+                answer = reply.ok.payload.to_bytes()
+        except zenoh.ZError:  # the query ended without an answer
+            pass
+        del replies  # later replies (another service) are dropped with the channel
+        self._results.append((slot, rid, t1, t4, answer))
 
     # ------------------------------------------------------------------ tick loop
 
@@ -443,7 +454,7 @@ class SyncClient:
             return 0.25
         if n < FILL:
             return 1.0
-        if est.jitter > FAST_JITTER_US:
+        if est.offset_se > OFFSET_SE_US:
             self.interval[slot] = MIN_POLL_S
         else:  # doubling, as long as the drift's uncertainty allows
             self.interval[slot] = max(MIN_POLL_S, min(2.0 * self.interval[slot], self.settings.poll_s,
@@ -480,17 +491,33 @@ class SyncClient:
     def stamp(self, slots: np.ndarray, local_us: np.ndarray) -> np.ndarray:
         """Common-time stamps of samples taken at local times ``local_us`` by devices ``slots``
         (each once, times increasing per device), us float64; sets :attr:`stepped`."""
-        a, b, ref = self.a[slots], self.b[slots], self.ref[slots]
-        target = a + b * (local_us - ref)
-        c, at = self.c[slots], self.c_local[slots]
-        dt = np.where(np.isnan(at), 0.0, local_us - at)
-        pred = c + b * dt
-        step = self.step[slots] | np.isnan(at)
-        new = np.where(step, target, pred + np.clip(target - pred, -SLEW * dt, SLEW * dt))
-        new = np.where(self.ever[slots], new, 0.0)  # never synced: the device's own clock
-        self.c[slots], self.c_local[slots] = new, local_us
-        self.stepped[slots] = self.step[slots] & ~np.isnan(at)
-        self.step[slots] = False
+        began = time.perf_counter()
+        stamps = self._stamp(slots, local_us)
+        self.busy_s += time.perf_counter() - began
+        return stamps
+
+    def _stamp(self, slots: np.ndarray, local_us: np.ndarray) -> np.ndarray:
+        idx = slice(0, len(slots)) if len(slots) and slots[-1] == len(slots) - 1 else slots  # all: views
+        b, at = self.b[idx], self.c_local[idx]
+        with np.errstate(invalid="ignore"):
+            dt = local_us - at                      # NaN: the device's first stamp
+            pred = self.c[idx] + b * dt
+            target = self.a[idx] + b * (local_us - self.ref[idx])
+            limit = SLEW * dt
+            new = pred + np.clip(target - pred, -limit, limit)
+        first = np.isnan(at)
+        step = self.step[idx]
+        if step.any() or first.any():
+            jump = step | first
+            new[jump] = target[jump]
+            self.stepped[idx] = step & ~first
+            self.step[idx] = False
+        elif self.stepped.any():
+            self.stepped[idx] = False
+        ever = self.ever[idx]
+        if not ever.all():
+            new[~ever] = 0.0  # never synced: the device's own clock
+        self.c[idx], self.c_local[idx] = new, local_us
         return local_us + new
 
     def status(self, slot: int) -> wire.ClockStatus:
@@ -509,4 +536,5 @@ class SyncClient:
         for c in self.bad:
             bad.update(c)
         return (f"time sync: {self.exchanges} answers, {int(self.lost.sum())} lost, discarded "
-                f"{dict(bad) or 0}, {int(np.sum(self.valid >= MIN_SYNC))}/{len(self.names)} devices synced")
+                f"{dict(bad) or 0}, {int(np.sum(self.valid >= MIN_SYNC))}/{len(self.names)} devices synced; "
+                f"CPU: workers {sum(self._worker_cpu):.2f} s, tick loop {self.busy_s:.2f} s")

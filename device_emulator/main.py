@@ -83,10 +83,10 @@ def add_clock_arguments(parser: argparse.ArgumentParser, tuning: bool = True) ->
                        help="devices do not synchronise with the time service (they stamp with their own clock)")
     if not tuning:
         return
-    group.add_argument("--sync-poll-s", type=float, default=64.0,
-                       help="longest interval between a device's time exchanges, device seconds (default 64)")
-    group.add_argument("--sync-holdover-s", type=float, default=300.0,
-                       help="a device without a valid time answer for this long reports itself unsynced (default 300)")
+    group.add_argument("--sync-poll-s", type=float, default=512.0,
+                       help="longest interval between a device's time exchanges, device seconds (default 512)")
+    group.add_argument("--sync-holdover-s", type=float, default=600.0,
+                       help="a device without a valid time answer for this long reports itself unsynced (default 600)")
     group.add_argument("--sync-wait-s", type=float, default=10.0,
                        help="at start, wait at most this long for the first time answers (default 10)")
     group.add_argument("--time-anchor", type=float, default=None, metavar="EPOCH_S",

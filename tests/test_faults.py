@@ -278,8 +278,8 @@ def test_short_soak(tmp_path):
 def test_clock_offset_misalignment_is_measured(source, request):
     """Frames are aligned on device timestamps, so a device whose clock is off by ``o`` shows its
     limb as it was ``o`` earlier (or later). This measures the resulting limb error (documented in
-    docs/reliability.md): the aggregator does not correct clock offsets, devices must share a
-    clock (NTP/PTP, or the base station's time stamped into the device's stream)."""
+    docs/reliability.md): what devices without time sync cost (tests/test_clock.py measures the
+    sync and the frame error it leaves)."""
     if source == "generator":
         q = GeneratorSource(seed=1, fs=50.0).chunk(0, 50 * 120)[1]
         clips = [q]
@@ -291,7 +291,7 @@ def test_clock_offset_misalignment_is_measured(source, request):
         err = np.concatenate([quat.angle_deg(c[k:].reshape(-1, 4), c[:-k].reshape(-1, 4)) for c in clips])
         rows.append((offset_ms, err.mean(), np.percentile(err, 99)))
         report(f"device clock offset {offset_ms} ms ({source})", "each limb vs the same limb shifted by the offset",
-               "not detected (no common clock)", "n/a (synchronise clocks)",
+               "frame_aad_deg (truth tap with reference times)", "time sync (tests/test_clock.py)",
                f"limb error mean {err.mean():.1f} deg, p99 {np.percentile(err, 99):.1f} deg")
     means = [r[1] for r in rows]
     assert means[0] < means[1] < means[2], rows  # grows with the offset: a real, measured limitation
