@@ -391,6 +391,79 @@ def test_sse_streams_frames(client, pub):
     assert [e["seq"] for e in events] == [3] and events[0]["subject"] == "sseL", r.text
 
 
+def test_pose_streams_filter_by_kind(client, pub):
+    """``?kind=live|exact`` on the WebSocket and SSE streams: only frames of that kind (the page
+    draws live frames by default); an unknown kind is refused."""
+    stop = threading.Event()
+
+    def publish():  # exact and live frames interleaved, as an aggregator sends them
+        seq = 0
+        while not stop.is_set() and seq < 3000:
+            pub.put(wire.pose_key("kindN"), wire.encode_pose(pose_frame(seq)))
+            pub.put(wire.pose_key("kindN"), wire.encode_pose(pose_frame(seq, wire.KIND_LIVE)))
+            seq += 1
+            stop.wait(0.005)
+
+    publisher = threading.Thread(target=publish, daemon=True)
+    publisher.start()
+    try:
+        wait_until(lambda: client.get("/api/subjects/kindN/pose?kind=live").status_code == 200
+                   and client.get("/api/subjects/kindN/pose?kind=exact").status_code == 200, 10, "both kinds")
+        for kind in ("live", "exact"):
+            with client.websocket_connect(f"/ws/pose/kindN?kind={kind}") as ws:
+                frames = [json.loads(ws.receive_text()) for _ in range(20)]
+            assert {f["kind"] for f in frames} == {kind}, [f["kind"] for f in frames]
+            seqs = [f["seq"] for f in frames]
+            assert seqs == sorted(seqs) and len(set(seqs)) == 20, seqs
+            r = client.get("/sse/pose/kindN", params={"kind": kind, "limit": 5})
+            events = [json.loads(line[6:]) for line in r.text.splitlines() if line.startswith("data: ")]
+            assert r.status_code == 200 and len(events) == 5 and {e["kind"] for e in events} == {kind}, r.text
+        with client.websocket_connect("/ws/pose/kindN") as ws:  # auto: exact frames while they come
+            assert json.loads(ws.receive_text())["kind"] == "exact"
+    finally:
+        stop.set()
+        publisher.join()
+    r = client.get("/sse/pose/kindN", params={"kind": "sideways", "limit": 1})
+    assert r.status_code == 422 and "kind" in r.text, r.text
+    with pytest.raises(WebSocketDisconnect) as info, client.websocket_connect("/ws/pose/kindN?kind=sideways") as ws:
+        ws.receive_text()
+    assert info.value.code == 1008, info.value
+
+
+def test_exact_latency_is_measured_per_subject():
+    """Frame time -> received, over each subject's last exact frames; live frames do not count."""
+    state = LiveState()
+    t0 = 1_800_000_000.0
+    for i in range(200):  # latencies 100, 101, ..., 299 ms
+        frame = wire.PoseFrame(i, int((t0 + i * 0.02) * 1e6), wire.KIND_EXACT, 0, pose_frame(i).q,
+                               pose_frame(i).joints)
+        state.apply_pose(wire.pose_key("latO"), wire.encode_pose(frame), rx=t0 + i * 0.02 + (100 + i) / 1e3)
+        live = wire.PoseFrame(i, int((t0 + i * 0.02) * 1e6), wire.KIND_LIVE, 0, frame.q, frame.joints)
+        state.apply_pose(wire.pose_key("latO"), wire.encode_pose(live), rx=t0 + 60.0)
+    view = {s["subject"]: s for s in state.subject_views()}["latO"]
+    assert math.isclose(view["exact_latency_p50_ms"], 200.0, abs_tol=1.01), view
+    assert math.isclose(view["exact_latency_p99_ms"], 298.0, abs_tol=1.01), view
+    state.apply_pose(wire.pose_key("liveOnlyO"), wire.encode_pose(pose_frame(1, wire.KIND_LIVE)))
+    view = {s["subject"]: s for s in state.subject_views()}["liveOnlyO"]
+    assert view["exact_latency_p50_ms"] is None and view["exact_latency_p99_ms"] is None, view
+
+
+def test_subjects_carry_the_exact_latency(client, pub):
+    def publish():
+        frame = pose_frame(0)
+        now_us = int((time.time() - 0.3) * 1e6)  # a frame 300 ms old when sent
+        pub.put(wire.pose_key("latP"), wire.encode_pose(wire.PoseFrame(0, now_us, wire.KIND_EXACT, 0, frame.q,
+                                                                        frame.joints)))
+
+    def measured():
+        s = {s["subject"]: s for s in client.get("/api/subjects").json()}.get("latP")
+        return s is not None and s["exact_latency_p50_ms"] is not None
+
+    publish_until(client, publish, measured, "latP's exact latency")
+    s = {s["subject"]: s for s in client.get("/api/subjects").json()}["latP"]
+    assert 300 <= s["exact_latency_p50_ms"] <= s["exact_latency_p99_ms"] < 3000, s
+
+
 def test_slow_client_skips_frames_without_stalling_others():
     state = LiveState(ws_queue=4)
     slow, fast = state.add_client("s", "exact"), state.add_client("s", "exact")
@@ -428,20 +501,30 @@ def test_subscribe_pose_and_watch_command(router, pub):
         subscribe_pose(zconfig.ZenohSettings(connect=(router,)), "bad/subject", on_frame)
     text = render("watchM", pose_frame(5), 50.0)
     assert "watchM  exact #5" in text and "l_wrist" in text and "°" in text, text
+    assert render("watchM", pose_frame(6, wire.KIND_LIVE), 50.0).startswith("watchM  live #6")
 
-    proc = subprocess.Popen([sys.executable, "-m", "limbstream.cli", "watch", "watchM", "--connect", router,
-                             "--count", "2", "--timeout", "20", "--refresh", "20"], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        seq = 10
-        while proc.poll() is None and seq < 3000:
-            pub.put(wire.pose_key("watchM"), wire.encode_pose(pose_frame(seq)))
-            seq += 1
-            time.sleep(0.01)  # publishing rate of the stand-in aggregator, not a synchronisation
-        out, err = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, err
-    assert "watchM  exact #" in out and "frames/s" in out and "joints (m, Y up)" in out, out
+    def watch(*flags: str) -> str:
+        """Run ``limbstream watch watchM`` while exact and live frames come interleaved."""
+        proc = subprocess.Popen([sys.executable, "-m", "limbstream.cli", "watch", "watchM", "--connect", router,
+                                 "--count", "3", "--timeout", "20", "--refresh", "20", *flags], cwd=ROOT,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            seq = 10
+            while proc.poll() is None and seq < 3000:
+                pub.put(wire.pose_key("watchM"), wire.encode_pose(pose_frame(seq)))
+                pub.put(wire.pose_key("watchM"), wire.encode_pose(pose_frame(seq, wire.KIND_LIVE)))
+                seq += 1
+                time.sleep(0.01)  # publishing rate of the stand-in aggregator, not a synchronisation
+            out, err = proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        assert proc.returncode == 0, err
+        assert "frames/s" in out and "joints (m, Y up)" in out, out
+        return out
+
+    headers = [line for line in watch().splitlines() if line.startswith("watchM  ")]
+    assert headers and all(h.startswith("watchM  live #") for h in headers), headers  # live by default
+    headers = [line for line in watch("--kind", "exact").splitlines() if line.startswith("watchM  ")]
+    assert headers and all(h.startswith("watchM  exact #") for h in headers), headers

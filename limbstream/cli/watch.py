@@ -1,6 +1,9 @@
 """``limbstream watch <subject>``: a live text view of a subject's pose stream, straight from
 Zenoh through the outputs' subscription (:mod:`services.outputs.subscription`, which also
-holds :func:`subscribe_pose` for Python programs)."""
+holds :func:`subscribe_pose` for Python programs). It shows live frames (``--kind live``, the
+default: the aggregator's frames at the devices' "now"), exact frames (``--kind exact``: final,
+behind by up to the max segment length) or both (``--kind any``); the header line names the
+kind of the frame shown."""
 from __future__ import annotations
 
 import argparse
@@ -34,8 +37,9 @@ def render(subject: str, frame: wire.PoseFrame, rate_hz: float) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", help="subject key chunk, e.g. s01")
-    parser.add_argument("--kind", choices=tuple(KINDS), default="exact",
-                        help="which frames to show (default exact)")
+    parser.add_argument("--kind", choices=tuple(KINDS), default="live",
+                        help="which frames to show: live (default; at the devices' now), exact (final, "
+                             "behind by up to the max segment length) or any")
     parser.add_argument("--refresh", type=float, default=5.0, help="screen updates per second (default 5)")
     parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,

@@ -53,6 +53,10 @@ class _SubjectSummary(BaseModel):
     bytes_per_s: float
     stats_age_s: float | None
     pose: PoseSummary | None
+    exact_latency_p50_ms: float | None = Field(
+        None, description="median exact-frame latency: the time this service received each of the subject's last "
+        "500 exact frames minus the frame's time (device time; same clock and --speed 1 assumed), ms")
+    exact_latency_p99_ms: float | None = Field(None, description="99th percentile of that latency, ms")
 
 
 Subject = _from_fields(

@@ -22,6 +22,8 @@ HISTORY_FIELDS = wire.HISTORY_FIELDS
 """Per-device series kept for the charts (plus the stats time ``t``): the charted stats fields."""
 
 KINDS = {"exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
+LATENCY_FRAMES = 500
+"""Exact frames per subject the exact-frame latency is taken over (10 s at 50 Hz)."""
 
 
 class Inbox:
@@ -178,6 +180,7 @@ class LiveState:
         self.poses: dict[str, dict[int, PoseEntry]] = {}
         self.stats_times: dict[str, float] = {}
         self.subject_stats: dict[str, dict] = {}  # the subject fields of each subject's latest stats
+        self.exact_latency: dict[str, deque[float]] = {}  # ms, frame time -> received, last exact frames
         self.aggregators: dict[str, AggregatorEntry] = {}
         self.clients: dict[str, set[PoseClient]] = {}
         self.received = Counter()
@@ -305,6 +308,11 @@ class LiveState:
             slots = self.poses[subject] = {}
         self._count_missed(subject, "pose_live" if frame.kind == wire.KIND_LIVE else "pose_exact", frame.seq)
         entry = slots[frame.kind] = PoseEntry(frame, rx)
+        if frame.kind == wire.KIND_EXACT:
+            lat = self.exact_latency.get(subject)
+            if lat is None:
+                lat = self.exact_latency[subject] = deque(maxlen=LATENCY_FRAMES)
+            lat.append(1e3 * rx - frame.t_us / 1e3)
         clients = self.clients.get(subject)
         if clients:
             kind = self.auto_kind(subject)
@@ -402,9 +410,20 @@ class LiveState:
                     "seq": pose.frame.seq, "t": pose.frame.t_us / 1e6,
                     "kind": "live" if pose.frame.kind == wire.KIND_LIVE else "exact",
                     "age_s": round(now - pose.rx, 3)},
+                **self.exact_latency_view(name),
                 **self.subject_stats.get(name, {}),
             })
         return out
+
+    def exact_latency_view(self, subject: str) -> dict:
+        """``exact_latency_p50_ms``, ``exact_latency_p99_ms``: frame time -> received here, over
+        the subject's last :data:`LATENCY_FRAMES` exact frames (None before the first)."""
+        lat = self.exact_latency.get(subject)
+        if not lat:
+            return {"exact_latency_p50_ms": None, "exact_latency_p99_ms": None}
+        xs = sorted(lat)
+        pick = lambda q: round(xs[min(len(xs) - 1, int(q * len(xs)))], 1)  # noqa: E731 - nearest rank
+        return {"exact_latency_p50_ms": pick(0.5), "exact_latency_p99_ms": pick(0.99)}
 
     # ------------------------------------------------------------------ clients
 
