@@ -1,5 +1,6 @@
 /* limbstream dashboard page: polls the REST API for device stats and history, draws each
- * subject's skeleton from its WebSocket pose stream. No build step; uPlot is vendored. */
+ * subject's skeleton from its WebSocket pose stream (live or exact frames, the page's toggle:
+ * /ws/pose/<subject>?kind=live|exact). No build step; uPlot is vendored. */
 "use strict";
 
 const MAX_FIGURES = 12;          // skeleton cards (one WebSocket each)
@@ -9,6 +10,8 @@ const HISTORY_EVERY_MS = 2000;
 const COLORS = { left: "#5aa9ff", right: "#ff8a5b", mid: "#dce3ea", accent: "#3fc1c9",
                  warn: "#f5c451", muted: "#8593a3", grid: "#26303b" };
 
+const KIND_KEY = "limbstream-pose-kind";  // localStorage: the figures' frame kind
+
 const $ = (id) => document.getElementById(id);
 const state = {
   devices: [],
@@ -17,6 +20,7 @@ const state = {
   figures: new Map(),           // subject -> Figure
   subjects: new Map(),          // subject -> its latest /api/subjects entry (frame error)
   charts: null,
+  kind: localStorage.getItem(KIND_KEY) === "exact" ? "exact" : "live",   // frames the figures draw
 };
 
 // ------------------------------------------------------------------ helpers
@@ -31,6 +35,30 @@ function fmtBig(v) {
   if (Math.abs(v) >= 1e6) return (v / 1e6).toFixed(2) + " M";
   if (Math.abs(v) >= 1e4) return (v / 1e3).toFixed(1) + " k";
   return Number(v).toFixed(v < 100 ? 1 : 0);
+}
+
+function fmtDeg(v) {  // 5 -> "5°", 2.5 -> "2.5°" (a setting: no trailing zeros)
+  return `${Number(v.toFixed(1))}°`;
+}
+
+function median(xs) {
+  const s = [...xs].sort((a, b) => a - b);
+  const m = s.length >> 1;
+  return s.length % 2 ? s[m] : (s[m - 1] + s[m]) / 2;
+}
+
+function known(xs) {
+  return xs.filter((v) => v !== null && v !== undefined && Number.isFinite(v));
+}
+
+// p50 and p99 in the header: median of the p50s, largest p99 (ms)
+function showLatency(el, p50s, p99s) {
+  const a = known(p50s), b = known(p99s);
+  if (!a.length || !b.length) { el.textContent = "–"; el.dataset.p50 = ""; el.dataset.p99 = ""; return; }
+  const p50 = median(a), p99 = Math.max(...b);
+  el.textContent = `${fmt(p50, 0)} / ${fmt(p99, 0)} ms`;
+  el.dataset.p50 = p50;
+  el.dataset.p99 = p99;
 }
 
 function esc(s) {
@@ -91,6 +119,23 @@ function renderTotals() {
   $("tot-icr").textContent = fmt(mean("icr"), 3);
   const aad = mean("aad_deg");
   $("tot-aad").textContent = aad === null ? "–" : `${fmt(aad, 2)}°`;
+  const fresh = ds.filter((d) => !d.stale);
+  showLatency($("tot-lat-live"), fresh.map((d) => d.live_latency_p50_ms), fresh.map((d) => d.live_latency_p99_ms));
+}
+
+function renderExactLatency() {  // from /api/subjects: measured by the dashboard per subject
+  const ss = [...state.subjects.values()];
+  showLatency($("tot-lat-exact"), ss.map((s) => s.exact_latency_p50_ms), ss.map((s) => s.exact_latency_p99_ms));
+}
+
+function liveCell(d) {  // live p99 / the device's live-rule bound
+  const p99 = d.live_p99_deg === null || d.live_p99_deg === undefined ? "–" : `${fmt(d.live_p99_deg, 1)}°`;
+  const b = d.live_bound_deg;
+  const bound = b === null || b === undefined ? "–" : (b === 0 || b >= 180 ? "off" : fmtDeg(b));
+  const over = b > 0 && b < 180 && d.live_p99_deg > b + 0.05 ? " bad" : "";
+  const tip = `live-view error p99 ${fmt(d.live_p99_deg)}°, mean ${fmt(d.live_err_deg)}°, max ${fmt(d.live_max_deg)}° ` +
+    `(60 s); live bound ${bound}; live latency p50 ${fmt(d.live_latency_p50_ms, 1)} ms, p99 ${fmt(d.live_latency_p99_ms, 1)} ms`;
+  return `<td class="num live${over}" title="${esc(tip)}">${p99} / ${bound}</td>`;
 }
 
 function renderTable() {
@@ -125,7 +170,7 @@ function renderTable() {
       `<td class="num">${fmt(d.icr, 3)}</td>` +
       `<td class="num">${fmt(d.aad_deg)}</td>` +
       `<td class="num">${fmt(d.p99_deg)}</td>` +
-      `<td class="num">${fmt(d.live_err_deg)}</td>` +
+      liveCell(d) +
       `<td class="num">${fmt(d.watermark_lag_s)}</td>` +
       `<td class="num${d.gaps ? " warn" : ""}">${d.gaps ?? "–"}</td>` +
       `<td class="num${d.dropped ? " bad" : ""}">${d.dropped ?? "–"}</td>` +
@@ -204,7 +249,8 @@ function initCharts() {
       (u, min, max) => [0, Math.max(1, (max || 0) * 1.25)]),
     icr: makeChart($("chart-icr"), [["ICR", COLORS.left]],
       (u, min, max) => [0, Math.max(0.05, (max || 0) * 1.2)]),
-    err: makeChart($("chart-err"), [["AAD", COLORS.accent], ["p99", COLORS.warn, [4, 3]], ["live", COLORS.right]],
+    err: makeChart($("chart-err"), [["AAD", COLORS.accent], ["p99", COLORS.warn, [4, 3]], ["live", COLORS.right],
+                                    ["live p99", COLORS.right, [4, 3]]],
       (u, min, max) => [0, Math.max(1, (max || 0) * 1.1)]),
   };
   new ResizeObserver(() => {
@@ -225,7 +271,7 @@ async function refreshHistory() {
   if (id !== state.selected) return;
   state.charts.rate.setData([h.t, h.msgs_per_s]);
   state.charts.icr.setData([h.t, h.icr]);
-  state.charts.err.setData([h.t, h.aad_deg, h.p99_deg, h.live_err_deg]);
+  state.charts.err.setData([h.t, h.aad_deg, h.p99_deg, h.live_err_deg, h.live_p99_deg]);
 }
 
 // ------------------------------------------------------------------ skeletons
@@ -249,6 +295,7 @@ class Figure {
     this.canvas = card.querySelector("canvas");
     this.caption = card.querySelector(".cap span");
     this.canvas.dataset.frames = "0";
+    this.kind = state.kind;
     this.bindDrag();
     this.connect();
   }
@@ -267,20 +314,30 @@ class Figure {
 
   connect() {
     const proto = location.protocol === "https:" ? "wss" : "ws";
-    const ws = new WebSocket(`${proto}://${location.host}/ws/pose/${encodeURIComponent(this.subject)}`);
+    const ws = new WebSocket(`${proto}://${location.host}/ws/pose/${encodeURIComponent(this.subject)}` +
+                             `?kind=${this.kind}`);
     this.ws = ws;
     ws.onmessage = (ev) => {
+      if (ws !== this.ws) return;                // a stream of the kind before a switch
       this.frame = JSON.parse(ev.data);
       this.received += 1;
       this.dirty = true;
       this.retry = 500;
     };
     ws.onclose = () => {
-      if (this.closed) return;
+      if (this.closed || ws !== this.ws) return;
       this.caption.textContent = "reconnecting…";
-      setTimeout(() => this.connect(), this.retry);
+      setTimeout(() => { if (ws === this.ws && !this.closed) this.connect(); }, this.retry);
       this.retry = Math.min(this.retry * 2, 5000);
     };
+  }
+
+  setKind(kind) {  // a new stream of the other kind; the figure holds its frame until one comes
+    if (kind === this.kind) return;
+    this.kind = kind;
+    const old = this.ws;
+    this.connect();
+    old.close();
   }
 
   close() {
@@ -343,6 +400,7 @@ class Figure {
     }
     this.drawn += 1;
     this.canvas.dataset.frames = String(this.drawn);
+    this.canvas.dataset.kind = f.kind;        // of the frame drawn last
     this.card.classList.toggle("flag-missing", f.missing || f.gap);
     const flags = f.missing ? " · missing" : f.gap ? " · gap" : "";
     this.caption.textContent = `${f.kind} #${f.seq}${flags}`;
@@ -353,6 +411,7 @@ async function refreshSubjects() {
   let subjects;
   try { subjects = await api("/api/subjects"); } catch (_) { return; }
   state.subjects = new Map(subjects.map((s) => [s.subject, s]));
+  renderExactLatency();
   const container = $("skeletons");
   const withPose = subjects.filter((s) => s.pose).slice(0, MAX_FIGURES);
   for (const s of withPose) {
@@ -387,6 +446,13 @@ async function refreshParts() {  // restart counts when `limbstream up` runs the
 function animate() {
   for (const fig of state.figures.values()) fig.draw();
   requestAnimationFrame(animate);
+}
+
+function setKind(kind) {  // the toggle: frames every figure draws, remembered for the next visit
+  state.kind = kind;
+  localStorage.setItem(KIND_KEY, kind);
+  $("skeletons").dataset.kind = kind;
+  for (const fig of state.figures.values()) fig.setKind(kind);
 }
 
 // ------------------------------------------------------------------ control
@@ -448,6 +514,11 @@ async function start() {
   $("control").addEventListener("submit", applyConfig);
   $("chart-device").addEventListener("change", (e) => selectDevice(e.target.value));
   $("chart-window").addEventListener("change", refreshHistory);
+  for (const input of document.querySelectorAll('input[name="pose-kind"]')) {
+    input.checked = input.value === state.kind;
+    input.addEventListener("change", () => { if (input.checked) setKind(input.value); });
+  }
+  $("skeletons").dataset.kind = state.kind;
   $("devices-body").addEventListener("click", (e) => {
     const tr = e.target.closest("tr.device");
     if (tr) selectDevice(tr.dataset.device);

@@ -47,6 +47,38 @@ SKELETONS_DRAWN = """(n) => {
   });
 }"""
 
+LIVE_CELLS = r"""([sel, bound]) => {
+  const cells = [...document.querySelectorAll(sel + ' td.live')];
+  return cells.length > 0 && cells.every(c => {
+    const [p99, b] = c.textContent.split(' / ');
+    return /^\d+(\.\d)?°$/.test(p99) && b === bound;
+  });
+}"""
+
+FIGURES_OF_KIND = """([kind, after]) => {
+  const canvases = [...document.querySelectorAll('.skeleton canvas')];
+  return canvases.length > 0 && canvases.every(c => c.dataset.kind === kind && Number(c.dataset.frames) > (after[c.closest('.skeleton').dataset.subject] ?? 0));
+}"""
+
+FRAMES_DRAWN = """() => Object.fromEntries([...document.querySelectorAll('.skeleton')]
+  .map(s => [s.dataset.subject, Number(s.querySelector('canvas').dataset.frames)]))"""
+
+
+def latency(page, which: str) -> tuple[float, float, str]:
+    """(p50, p99, text) of a header latency: ``exact`` or ``live``."""
+    page.wait_for_function(f"() => Number(document.querySelector('#tot-lat-{which}').dataset.p50) > 0",
+                           timeout=20_000)
+    el = page.query_selector(f"#tot-lat-{which}")
+    return float(el.get_attribute("data-p50")), float(el.get_attribute("data-p99")), el.text_content()
+
+
+def switch_kind(page, kind: str) -> None:
+    """Click the figures' toggle; every figure then draws new frames of that kind."""
+    drawn = page.evaluate(FRAMES_DRAWN)
+    page.click(f"#kind-toggle label:has(input[value={kind}])")
+    page.wait_for_function(FIGURES_OF_KIND, arg=[kind, drawn], timeout=15_000)
+    assert page.get_attribute("#skeletons", "data-kind") == kind
+
 
 @pytest.mark.slow
 def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
@@ -90,9 +122,32 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
             # charts got data for the selected device
             page.wait_for_function("() => document.querySelectorAll('#chart-icr .u-over').length === 1", timeout=10_000)
 
+            # live column: each device's live p99 and its live-rule bound (off: the default)
+            page.wait_for_function(LIVE_CELLS, arg=["#devices-body", "off"], timeout=20_000)
+            assert "bound" in page.get_attribute("#devices th[title*='live']", "title")
+            # header: exact-frame and live-frame latency; live frames come far sooner
+            exact50, exact99, exact_text = latency(page, "exact")
+            live50, live99, live_text = latency(page, "live")
+            assert exact_text.endswith(" ms") and live_text.endswith(" ms"), (exact_text, live_text)
+            assert 0 < exact50 <= exact99 and 0 < live50 <= live99, (exact_text, live_text)
+            assert live50 < exact50, (live_text, exact_text)
+            # the figures draw live frames by default; the toggle switches them and is remembered
+            assert page.get_attribute("#skeletons", "data-kind") == "live"
+            assert page.is_checked("#kind-toggle input[value=live]")
+            page.wait_for_function(FIGURES_OF_KIND, arg=["live", {}], timeout=15_000)
+            switch_kind(page, "exact")
+            assert page.evaluate("() => localStorage.getItem('limbstream-pose-kind')") == "exact"
+            page.reload()
+            page.wait_for_function(SKELETONS_DRAWN, arg=SUBJECTS, timeout=30_000)
+            page.wait_for_function(FIGURES_OF_KIND, arg=["exact", {}], timeout=15_000)
+            assert page.is_checked("#kind-toggle input[value=exact]")
+            switch_kind(page, "live")
+            page.wait_for_function(ROWS_READY, arg=n_devices, timeout=30_000)
+
             # threshold control: a wrong token is refused, the right one is confirmed by every device
             page.select_option("#ctl-target", "subject:s01")
             page.fill("#ctl-threshold", "0.02")
+            page.fill("#ctl-live_bound_deg", "5")
             page.fill("#ctl-token", "wrong")
             page.click("#ctl-apply")
             page.wait_for_function("() => /403/.test(document.querySelector('#ctl-result').textContent)",
@@ -103,12 +158,15 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
                                    timeout=20_000)
             outcome = page.text_content("#ctl-result")
             assert "confirmed by 10/10" in outcome, (outcome, stack.logs())
-            assert "threshold 0.02" in page.text_content("#ctl-result")
+            assert "threshold 0.02" in outcome and "live bound deg 5" in outcome, outcome
             wait_until(lambda: all(d["threshold"] == 0.02 for d in http_json(url + "/api/devices")[1]
                                    if d["subject"] == "s01"), 20, "aggregator reporting the new threshold",
                        interval=0.2, on_fail=stack.logs)
             page.wait_for_function("""() => [...document.querySelectorAll('#devices-body tr[data-device^="s01/"]')]
                 .every(r => r.lastElementChild.textContent === '0.0200')""", timeout=10_000)
+            # the live column shows the new bound of s01's devices; s02's stay off
+            page.wait_for_function(LIVE_CELLS, arg=['#devices-body tr[data-device^="s01/"]', "5°"], timeout=20_000)
+            page.wait_for_function(LIVE_CELLS, arg=['#devices-body tr[data-device^="s02/"]', "off"], timeout=5_000)
             page.screenshot(path=str(ARTIFACTS / "dashboard.png"), full_page=True)
         finally:
             browser.close()
