@@ -2,7 +2,7 @@
 
 ``cost``: two stacks side by side, each an emulator process of ``--devices`` devices (no truth
 tap) and its own router, one with the time exchange (and a time service), one without; the CPU
-of every process over ``--measure`` seconds after ``--warmup`` (the devices' poll intervals have
+of every process in ``--windows`` (seconds after the emulators start: while the devices' poll intervals grow, and once
 grown by then) and the exchanges answered per second. The sync's cost is the difference
 (emulator and router) plus the time service.
 
@@ -12,7 +12,7 @@ ppm without sync), the same motion each time; the subjects' alignment-aware fram
 (``frame_aad_deg``, 60 s window) over device time, and for the synced run each sample's
 timestamp error against its reference time.
 
-    python bench/clock_sync.py cost                   # 2 x 2,000 devices, 3 + 2 minutes
+    python bench/clock_sync.py cost                   # 2 x 2,000 devices, 25 minutes
     python bench/clock_sync.py hour                   # 1 hour at --speed 20 (about 3.5 min per setup)
 """
 from __future__ import annotations
@@ -69,44 +69,43 @@ def cost(args) -> int:
             stacks[name]["emulator"] = launcher.start(
                 f"emulate{name}", "emulate", "--connect", stacks[name]["endpoint"], "--subjects",
                 str(args.devices // 10), "--no-truth", *(["--sync-poll-s", f"{args.poll:g}"] if sync else ["--no-sync"]))
-        time.sleep(args.warmup)
         procs = {(n, k): p for n, st in stacks.items() for k, p in st.items() if k != "endpoint" and p is not None}
-        before = {k: cpu_s(p.pid) for k, p in procs.items()}
-        t0, wall0 = time.monotonic(), time.time()
-        time.sleep(args.measure)
-        after = {k: cpu_s(p.pid) for k, p in procs.items()}
-        span, wall1 = time.monotonic() - t0, time.time()
+        started, samples = time.monotonic(), []  # (window, cpu before, cpu after, wall0, wall1, span)
+        for lo, hi in args.windows:
+            time.sleep(max(0.0, started + lo - time.monotonic()))
+            before, t0, wall0 = {k: cpu_s(p.pid) for k, p in procs.items()}, time.monotonic(), time.time()
+            time.sleep(max(0.0, started + hi - time.monotonic()))
+            after = {k: cpu_s(p.pid) for k, p in procs.items()}
+            samples.append(((lo, hi), before, after, wall0, time.time(), time.monotonic() - t0))
         for st in stacks.values():
             st["emulator"].signal(15)
         for st in stacks.values():
             st["emulator"].popen.wait(60)
         texts = {n: Path(st["emulator"].log).read_text() for n, st in stacks.items()}
-        text = texts["A"]
-        counts = [c for c in answered(Path(stacks["A"]["clock"].log)) if wall0 - 1 <= c[0] <= wall1 + 1]
-    cpu = {k: 100 * (after[k] - before[k]) / span for k in after}
-    rate = (counts[-1][1] - counts[0][1]) / max(counts[-1][0] - counts[0][0], 1) if len(counts) >= 2 else 0.0
+        counts_all = answered(Path(stacks["A"]["clock"].log))
     late = {n: re.search(r"emulator: \d+ ticks, ([\d.]+) % late", t) for n, t in texts.items()}
     late = {n: m[1] if m else "?" for n, m in late.items()}
-    started = re.search(r"time sync: (\d+)/(\d+) devices synced at start", text)
-    inside = re.search(r"CPU: workers ([\d.]+) s, tick loop ([\d.]+) s", text)
     print(f"\n{args.devices} devices per emulator process; A with sync (--sync-poll-s {args.poll:g}), B without, "
-          f"side by side; CPU over "
-          f"{args.measure:g} s after a {args.warmup:g} s warm-up (% of one core)\n")
-    print("| stack | emulator | time service | router | exchanges/s | per device | late ticks (whole run) |")
-    print("|---|---|---|---|---|---|---|")
-    print(f"| A (sync) | {cpu['A', 'emulator']:.1f} | {cpu['A', 'clock']:.2f} | {cpu['A', 'router']:.2f} | {rate:.1f} | "
-          f"{rate / args.devices:.4f} /s | {late['A']} % |")
-    print(f"| B | {cpu['B', 'emulator']:.1f} | – | {cpu['B', 'router']:.2f} | – | – | {late['B']} % |")
-    extra = cpu["A", "emulator"] - cpu["B", "emulator"] + cpu["A", "router"] - cpu["B", "router"]
-    total = extra + cpu["A", "clock"]
-    print(f"\nsync costs {total:.2f} % of a core for {args.devices} devices: emulator {cpu['A', 'emulator'] - cpu['B', 'emulator']:+.2f}, "
-          f"router {cpu['A', 'router'] - cpu['B', 'router']:+.2f}, time service {cpu['A', 'clock']:.2f}; "
-          f"{1e4 * total / max(rate, 1e-9):.0f} us per exchange")
+          f"side by side; CPU in % of one core per window (seconds after the emulators started); late ticks over "
+          f"the whole run: A {late['A']} %, B {late['B']} %\n")
+    print("| window | emulator A / B | router A / B | time service | exchanges/s | per device | sync's cost | per exchange |")
+    print("|---|---|---|---|---|---|---|---|")
+    for (lo, hi), before, after, wall0, wall1, span in samples:
+        cpu = {k: 100 * (after[k] - before[k]) / span for k in after}
+        counts = [c for c in counts_all if wall0 - 1 <= c[0] <= wall1 + 1]
+        rate = (counts[-1][1] - counts[0][1]) / max(counts[-1][0] - counts[0][0], 1) if len(counts) >= 2 else 0.0
+        total = (cpu["A", "emulator"] - cpu["B", "emulator"] + cpu["A", "router"] - cpu["B", "router"]
+                 + cpu["A", "clock"])
+        print(f"| {lo:g}-{hi:g} s | {cpu['A', 'emulator']:.1f} / {cpu['B', 'emulator']:.1f} | "
+              f"{cpu['A', 'router']:.2f} / {cpu['B', 'router']:.2f} | {cpu['A', 'clock']:.2f} | {rate:.1f} | "
+              f"{rate / args.devices:.4f} /s | {total:.2f} % | {1e4 * total / max(rate, 1e-9):.0f} us |")
+    inside = re.search(r"CPU: workers ([\d.]+) s, tick loop ([\d.]+) s", texts["A"])
     if inside:
-        print(f"emulator A's own accounting over its whole run (start included): worker threads {inside[1]} s, "
+        print(f"\nemulator A's own accounting over its whole run (start included): worker threads {inside[1]} s, "
               f"tick loop (results, stamps) {inside[2]} s")
-    if started:
-        print(started[0])
+    synced = re.search(r"time sync: (\d+)/(\d+) devices synced at start", texts["A"])
+    if synced:
+        print(synced[0])
     return 0
 
 
@@ -198,15 +197,25 @@ def hour(args) -> int:
     return 0
 
 
+def windows(text: str) -> list[tuple[float, float]]:
+    """``"180:300,1200:1500"`` -> [(180, 300), (1200, 1500)] (increasing, not overlapping)."""
+    spans = [tuple(float(x) for x in part.split(":")) for part in text.split(",")]
+    flat = [x for span in spans for x in span]
+    if any(len(span) != 2 for span in spans) or flat != sorted(flat) or len(set(flat)) != len(flat):
+        raise argparse.ArgumentTypeError(f"windows must be increasing LO:HI pairs, got {text!r}")
+    return spans
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="what", required=True)
     c = sub.add_parser("cost", help="CPU of the time exchange")
     c.add_argument("--devices", type=int, default=2000, help="devices in the emulator process (default 2000)")
-    c.add_argument("--warmup", type=float, default=180.0, help="seconds before measuring (default 180)")
-    c.add_argument("--measure", type=float, default=120.0, help="seconds measured (default 120)")
-    c.add_argument("--poll", type=float, default=256.0,
-                   help="the devices' --sync-poll-s (default 256, as deployed; a short one measures the cost "
+    c.add_argument("--windows", type=windows, default=windows("180:300,1200:1500"),
+                   help="measuring windows, seconds after the emulators start (default 180:300,1200:1500: "
+                        "while the poll intervals grow, and settled)")
+    c.add_argument("--poll", type=float, default=512.0,
+                   help="the devices' --sync-poll-s (default 512, the emulator's; a short one measures the cost "
                         "per exchange with more exchanges)")
     h = sub.add_parser("hour", help="frame error over a long run, per clock setup")
     h.add_argument("--hours", type=float, default=1.0, help="device time per setup, hours (default 1)")
