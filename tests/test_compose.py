@@ -80,6 +80,11 @@ def test_compose_file_resolves_with_every_rule_of_the_deployment():
         assert "build" in service, name
         assert service["command"][0] in ("clock", "emulate", "aggregate", "dashboard"), service["command"]
 
+    live = wire.DeviceConfig(**wire.LIVE_MODE)  # live mode on, as under `limbstream up`
+    command = services["emulator"]["command"]
+    given = {f: float(command[command.index(f) + 1]) for f in ("--live-bound-deg", "--threshold")}
+    assert given == {"--live-bound-deg": live.live_bound_deg, "--threshold": live.threshold}, command
+
     emulator = services["emulator"]["environment"]
     assert {"LIMBSTREAM_SUBJECTS", "LIMBSTREAM_SOURCE", "LIMBSTREAM_SUBJECT_PREFIX"} <= set(emulator), emulator
     assert emulator["LIMBSTREAM_SUBJECT_PREFIX"] == "auto", "scaled replicas need distinct subject names"

@@ -7,6 +7,7 @@ from the SIGKILL to the part being back) that docs/reliability.md collects:
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import signal
@@ -124,6 +125,28 @@ def nothing_lost(watch: StatsWatch, devices: list[str], what: str, on_fail) -> N
     assert not gaps and missed == 0, f"{what}: gaps {gaps}, missed {missed}"
 
 
+# ----------------------------------------------------------------------------- plan
+
+
+def test_up_runs_live_mode_unless_told_otherwise():
+    """``up``'s emulators get wire.LIVE_MODE; any tunable flag given to ``up`` wins."""
+    from limbstream.cli import up as up_cli
+
+    def emulator_config(*argv: str) -> wire.DeviceConfig:
+        parser = argparse.ArgumentParser()
+        up_cli.add_arguments(parser)
+        args = parser.parse_args(["--no-sync", *argv])
+        [emulate] = [a for name, a in up_cli.plan(args) if name == "emulator"]
+        sub = argparse.ArgumentParser()
+        wire.add_arguments(sub)
+        known, _ = sub.parse_known_args(emulate)
+        return wire.config_from_args(known)
+
+    assert emulator_config() == wire.DeviceConfig(**wire.LIVE_MODE)
+    off = emulator_config("--live-bound-deg", "0", "--threshold", "0.01")
+    assert (off.live_bound_deg, off.threshold) == (0.0, 0.01)
+
+
 # ----------------------------------------------------------------------------- supervisor
 
 
@@ -187,6 +210,9 @@ def test_up_brings_back_each_killed_part(stack, tmp_path):  # noqa: F811
                    "20 devices online and exact frames of both subjects", on_fail=up.logs)
         assert http_json(up.url + "/health")[0] == 200
         devices = sorted(watch.devices)
+        live = wire.DeviceConfig(**wire.LIVE_MODE)  # up's devices run live mode by default
+        settings = {(watch.devices[d]["live_bound_deg"], watch.devices[d]["threshold"]) for d in devices}
+        assert settings == {(live.live_bound_deg, live.threshold)}, settings
 
         # router: clients reconnect; the devices' caches resend what was published meanwhile
         before = {d: watch.devices[d]["points"] for d in devices}

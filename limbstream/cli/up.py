@@ -52,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--http", default="127.0.0.1:8000", help="dashboard address (default 127.0.0.1:8000)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
-    wire.add_arguments(parser)  # the device tunables, passed on to the emulators
+    # the device tunables, passed on to the emulators; live mode on by default (wire.LIVE_MODE)
+    wire.add_arguments(parser, defaults=wire.LIVE_MODE)
     parser.add_argument("--no-truth", action="store_true", help="devices do not publish the truth tap")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")

@@ -17,8 +17,9 @@ All binary payloads are little-endian and start with a format version byte. Impo
 package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
 """
 from .body import BONES, JOINTS, SEGMENTS
-from .config import (LIVE_BOUND_DEG, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig, DeviceStatus, Tunable, add_arguments,
-                     config_from_args, decode_config, decode_status, encode_config, encode_status)
+from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
+                     DeviceStatus, Tunable, add_arguments, config_from_args, decode_config, decode_status,
+                     encode_config, encode_status)
 from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
