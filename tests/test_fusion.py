@@ -162,3 +162,45 @@ def test_live_frames_extrapolate_open_segments_with_the_point_rate():
     assert stats[SEGMENTS[1]]["live_err_deg"] == stats[SEGMENTS[1]]["live_p99_deg"] == stats[SEGMENTS[1]]["live_max_deg"]
     assert np.isfinite(stats[SEGMENTS[0]]["live_latency_p50_ms"]) and np.isfinite(stats[SEGMENTS[0]]["live_latency_p99_ms"])
     wire.encode_stats("s01", 0.0, list(stats.values()), {})  # every row declared
+
+
+def test_live_frames_stop_extrapolating_a_device_that_went_silent():
+    """An online device whose points stop: its newest point is extrapolated for at most its
+    max segment length (max_len samples at the frame rate, by then it has sent a point) plus
+    OVERDUE_GRACE_S; later live frames hold it at that point and are flagged MISSING. The horizon
+    follows the max_len the device reports."""
+    from limbstream import quat
+    from services.aggregator.fusion import OVERDUE_GRACE_S
+
+    agg, sent = aggregator()
+    online_subject(agg)
+    spin = (0.0, 0.0, 2.0)  # rad/s about z
+    point = wire.SegmentPoint(1, 0, 0, T0, IDENTITY, 0, spin)
+    agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(point), 0.0)
+    for segment in SEGMENTS[1:]:
+        send(agg, segment, range(1), now=0.0)
+    horizon_s = wire.MAX_LEN.default / AggregatorSettings().rate + OVERDUE_GRACE_S
+
+    def newest_live() -> wire.PoseFrame:
+        return [f for f in sent if f.kind == wire.KIND_LIVE][-1]
+
+    agg.advance(live=True, now=0.5)  # within the horizon: extrapolated, not flagged
+    frame = newest_live()
+    assert (frame.t_us - T0) / 1e6 < horizon_s and not frame.flags & wire.FRAME_MISSING
+    assert quat.angle_deg(frame.q[0].astype(np.float64), quat.predict(np.array(IDENTITY), np.array(spin), 0.5)) < 1e-3
+
+    for segment in SEGMENTS[1:]:  # the others go on; segment 0 is silent
+        send(agg, segment, range(1, 11), now=1.0)
+    agg.advance(live=True, now=1.0)
+    frame = newest_live()
+    assert (frame.t_us - T0) / 1e6 > horizon_s
+    assert frame.flags & wire.FRAME_MISSING, "overdue device flagged"
+    assert quat.angle_deg(frame.q[0].astype(np.float64), np.array(IDENTITY)) < 1e-6, "held at its newest point"
+
+    track = agg.subjects["s01"].tracks[SEGMENTS[0]]
+    agg.fusion.set_config(track, wire.DeviceConfig(max_len=100))  # 2 s segments: not overdue yet
+    agg.advance(live=True, now=1.0)
+    frame = newest_live()
+    assert not frame.flags & wire.FRAME_MISSING
+    expected = quat.predict(np.array(IDENTITY), np.array(spin), (frame.t_us - T0) / 1e6)
+    assert quat.angle_deg(frame.q[0].astype(np.float64), expected) < 1e-3

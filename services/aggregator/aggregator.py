@@ -230,7 +230,8 @@ class Aggregator:
             return
         track = self._known(*ids)
         if track is not None:
-            track.config, track.clock = status.config, status.clock
+            self.fusion.set_config(track, status.config)
+            track.clock = status.clock
 
     def drain(self, now: float, budget: int = 100_000) -> int:
         """Move everything waiting in the channels into the tracks. Returns messages handled."""

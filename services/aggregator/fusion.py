@@ -37,6 +37,12 @@ FRAME_ERROR_WAIT_S = 10.0
 """An exact frame waits at most this long (frame time behind its subject's newest frame) for the
 truth of its devices to pass it; then it is compared with the truth there is."""
 
+OVERDUE_GRACE_S = 0.25
+"""A live frame extrapolates an active device's newest point for at most its max segment length
+(``max_len`` samples at the frame rate: by then the device has sent its next point) plus this
+much for transport; a device silent for longer is overdue: held at its newest point, frame
+flagged MISSING."""
+
 _SEGMENT_INDEX = {name: i for i, name in enumerate(SEGMENTS)}
 _NONE = np.iinfo(np.int64).min
 
@@ -91,6 +97,7 @@ class Fusion:
         self.latest_t = np.zeros(0, np.int64)     # newest device time of a point or truth sample, or _NONE
         self.latest_arrival = np.zeros(0)         # arrival clock (s) when latest_t arrived
         self.last_raw_t = np.zeros(0, np.int64)   # newest truth sample time, _NONE before one
+        self.horizon_us = np.zeros(0, np.int64)   # longest extrapolation of the newest point (OVERDUE_GRACE_S)
         self.settled = np.zeros(0, bool)          # DeviceTrack.settled, refreshed for the _unsettled ones
         self._unsettled: set[DeviceTrack] = set()
         self._gappy: set[DeviceTrack] = set()     # tracks with lost points (frames in those spans: GAP)
@@ -124,11 +131,20 @@ class Fusion:
             self.latest_t = np.append(self.latest_t, _NONE)
             self.latest_arrival = np.append(self.latest_arrival, np.nan)
             self.last_raw_t = np.append(self.last_raw_t, _NONE)
+            self.horizon_us = np.append(self.horizon_us, self._horizon_us(wire.MAX_LEN.default))
             self.settled = np.append(self.settled, True)
             self._view = None
             if segment in _SEGMENT_INDEX:
                 self.seg_slots[sub.index, _SEGMENT_INDEX[segment]] = slot
         return track
+
+    def _horizon_us(self, max_len: int) -> int:
+        return int(max_len * self.period_us + OVERDUE_GRACE_S * 1e6)
+
+    def set_config(self, track: DeviceTrack, config: wire.DeviceConfig) -> None:
+        """The settings the device reports it runs (its max_len sets its live horizon)."""
+        track.config = config
+        self.horizon_us[track.slot] = self._horizon_us(config.max_len)
 
     def set_online(self, track: DeviceTrack, online: bool) -> None:
         """The device's liveliness token appeared (True) or vanished (False)."""
@@ -300,7 +316,8 @@ class Fusion:
         """One frame per subject at its device time "now": the newest device time of its devices,
         each advanced by the arrival clock ``now`` (s) since it arrived. Every segment is exact
         where a point at or after that time is known, else predicted from its newest point (an
-        offline or ended device is held at its newest point). ``wall`` (s since the epoch, the
+        offline or ended device, or one silent for longer than its horizon, OVERDUE_GRACE_S, is
+        held at its newest point, frame flagged MISSING). ``wall`` (s since the epoch, the
         publication time): each device of a frame records ``wall`` - frame time as its live
         latency (ms)."""
         slots = self.seg_slots
@@ -315,11 +332,15 @@ class Fusion:
             return [], wire.PoseFrames.empty(wire.KIND_LIVE)
         t_us, slots, valid, has_points = latest[index], slots[index], valid[index], has_points[index]
         at = np.broadcast_to(t_us[:, None], slots.shape)[valid]
-        held = ~self.active[slots[valid]]  # offline or ended: held at its newest point
-        at = np.where(held, np.minimum(at, self.store.last_t()[slots[valid]]), at)
+        last_t = self.store.last_t()[slots[valid]]
+        overdue = np.zeros(slots.shape, bool)
+        since = np.where(has_points[valid], at - np.maximum(last_t, 0), 0)
+        overdue[valid] = since > self.horizon_us[slots[valid]]  # silent too long: no guess
+        held = ~self.active[slots[valid]] | overdue[valid]  # offline, ended or overdue: held
+        at = np.where(held, np.minimum(at, last_t), at)
         q = np.tile(IDENTITY, (len(index), len(SEGMENTS), 1))
         q[valid] = self.store.live(slots[valid], at)
-        missing = (~valid | ~self.online[np.maximum(slots, 0)]).any(axis=1)
+        missing = (~valid | ~self.online[np.maximum(slots, 0)] | overdue).any(axis=1)
         seq = self.live_seq[index].copy()
         self.live_seq[index] += 1
         if wall is not None:
