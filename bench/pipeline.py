@@ -101,17 +101,19 @@ def start_sink(router: Router) -> Child:
     return sink
 
 
-def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
+def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[float] = (0.0,)) -> None:
+    """One row per device count and live bound (``live_bound_deg`` of every device, 0: rule off)."""
     print(f"\n### Devices per emulator process ({seconds:g} s at 50 Hz each, truth tap {'on' if truth else 'off'},"
           " router and a subscriber taking everything in their own processes)\n")
-    print("| devices | ticks | late ticks | busy (of 1 core) | emulator CPU | router CPU | points/s |")
-    print("|---:|---:|---:|---:|---:|---:|---:|")
-    for n in counts:
+    print("| devices | live bound | ticks | late ticks | busy (of 1 core) | emulator CPU | router CPU | points/s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for n, bound in ((n, b) for n in counts for b in bounds):
         with Router() as router:
             sink = start_sink(router)
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
-            emulator = Emulator(session, feeds, EmulatorSettings(truth=truth))
+            config = wire.DeviceConfig(live_bound_deg=bound).validate()
+            emulator = Emulator(session, feeds, EmulatorSettings(truth=truth, config=config))
             emulator.declare()
             stop = threading.Event()
             timer = threading.Timer(seconds, stop.set)
@@ -123,7 +125,7 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
             emulator.undeclare()
             session.close()
             stop_all([sink])
-        print(f"| {n} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
+        print(f"| {n} | {bound:g} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
               f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {100 * rcpu / seconds:.0f} % | "
               f"{points / seconds:.0f} |")
 
@@ -131,16 +133,25 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool) -> None:
 # ----------------------------------------------------------------------------- aggregator
 
 
-def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
-    print(f"\n### One aggregator process ({seconds:g} s; devices in a separate emulator process, 50 Hz, truth tap on)\n")
+def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = False, live_rate: float = 0.0) -> None:
+    """With ``record``, a ``limbstream record`` process takes everything (so the frames and stats
+    leave the aggregator's session, with its congestion control) and says what it missed."""
+    consumer = f"; live frames at {live_rate:g} Hz; a `limbstream record` process takes everything" if record else ""
+    print(f"\n### One aggregator process ({seconds:g} s; devices in a separate emulator process, 50 Hz, truth tap on"
+          f"{consumer})\n")
     print("| subjects | devices | points/s in | frames/s out | expected frames/s | late ticks | "
-          "aggregator CPU | emulator CPU | router CPU | max drained per tick | gaps | dropped |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "aggregator CPU | emulator CPU | router CPU | max drained per tick | gaps | dropped |"
+          + (" recorder: missing pose frames / stats |" if record else ""))
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|" + ("---:|" if record else ""))
     for subjects in subject_counts:
         with Router() as router:
+            if record:
+                rec = router.start("record", "record", str(Path(router.launcher.logdir) / "bench.mcap"),
+                                   "--connect", router.endpoint)
+                wait_until(lambda rec=rec: "recording" in "\n".join(rec.tail()), 60, "the recorder to start")
             emu = start_emulator_process(router, subjects)
             session = client(router.endpoint)
-            agg = Aggregator(session, AggregatorSettings(live_rate=0.0))
+            agg = Aggregator(session, AggregatorSettings(live_rate=live_rate))
             agg.open()
             stop = threading.Event()
             thread = threading.Thread(target=agg.run, args=(stop,))
@@ -166,10 +177,15 @@ def bench_aggregator(subject_counts: list[int], seconds: float) -> None:
             agg.close()
             session.close()
             stop_all([emu])
+            missed = ""
+            if record:
+                stop_all([rec])
+                summary = json.loads(next(x for x in rec.tail() if x.startswith("record: "))[8:])
+                missed = f" {summary['missing']['pose']:,} / {summary['missing']['stats']:,} |"
         print(f"| {subjects} | {10 * subjects} | {points / wall:.0f} | {frames / wall:.0f} | {50 * subjects} | "
               f"{100 * late / max(ticks, 1):.2f} % | {100 * cpu / wall:.0f} % | {100 * ecpu / wall:.0f} % | "
               f"{100 * rcpu / wall:.0f} % | {agg.loop.max_backlog} | {gaps} | "
-              f"{dropped} |")
+              f"{dropped} |{missed}")
 
 
 def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list, int]:
@@ -305,12 +321,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--devices", default="500,1000,2000,3000", help="emulator rows (device counts)")
     parser.add_argument("--subjects", default="20,100,200", help="aggregator rows (subject counts)")
     parser.add_argument("--no-truth", action="store_true", help="emulator rows without the truth tap")
-    parser.add_argument("--live-rate", type=float, default=50.0, help="core rows: live frame rate, Hz (50, 25, 10, ...)")
+    parser.add_argument("--live-bound-deg", default="0", help="emulator rows: live bounds of the devices (0: rule off)")
+    parser.add_argument("--live-rate", type=float, default=50.0,
+                        help="core rows, and aggregator rows with --record: live frame rate, Hz (50, 25, 10, ...)")
+    parser.add_argument("--record", action="store_true",
+                        help="aggregator rows: a `limbstream record` process subscribes to everything")
     args = parser.parse_args(argv)
     if args.what in ("emulator", "all"):
-        bench_emulator([int(n) for n in args.devices.split(",")], args.seconds, not args.no_truth)
+        bench_emulator([int(n) for n in args.devices.split(",")], args.seconds, not args.no_truth,
+                       [float(b) for b in args.live_bound_deg.split(",")])
     if args.what in ("aggregator", "all"):
-        bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds)
+        bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds, args.record,
+                         args.live_rate if args.record else 0.0)
     if args.what in ("core", "all"):
         bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds, args.live_rate)
     if args.what in ("latency", "all"):

@@ -3,7 +3,8 @@ kernel with its own state, and publishes only its segment points over Zenoh, sta
 common time base (device_emulator/clock.py).
 
 All devices of one process advance together, one tick at a time, through one
-:class:`limbstream.kernel.SegmenterBank` call. With clocks of their own (``--clock-*``), each
+:class:`limbstream.kernel.SegmenterBank` call, which also returns the segment points emitted as
+their wire messages, encoded in C (published as they are). With clocks of their own (``--clock-*``), each
 device samples on its own clock's grid: ticks come at ``rate * (1 + max drift)`` and a device
 whose next sample is not due yet gives the kernel no sample that tick (a NaN row, rejected
 without touching its state; the kernel's index, which counts calls, is mapped back to the
@@ -72,22 +73,20 @@ class EmulatorSettings:
 
 @dataclass
 class Device:
-    """Book-keeping of one emulated device (the kernel state lives in the bank)."""
+    """Book-keeping of one emulated device (the kernel state and the wire fields of its points,
+    stream id, next sequence number and base, live in the bank: ``bank.stream[slot]`` ...)."""
 
     subject: str
     segment: str
     slot: int
-    stream: int
     publisher: object = None
     token: object = None
-    seq: int = 0
     points: int = 0
     config: wire.DeviceConfig = wire.DeviceConfig()
     raw_next: int = 0  # first tick whose sample is not yet on the truth tap
     length: int | None = None  # feed samples of its clip, None: endless
-    base: int = 0  # sample number of the current stream's sample 0
     restarts: int = 0  # streams started after the first (time base steps)
-    last_point: wire.SegmentPoint | None = None  # the newest point published
+    last: bytes | None = None  # the newest segment point published in the current stream
 
     @property
     def id(self) -> str:
@@ -125,12 +124,16 @@ class Emulator:
         for subject in by_length:
             first = len(self.devices)
             for segment in feeds[subject].segments:
-                self.devices.append(Device(subject, segment, len(self.devices), random.getrandbits(16),
-                                           config=settings.config, length=feeds[subject].length))
+                self.devices.append(Device(subject, segment, len(self.devices), config=settings.config,
+                                           length=feeds[subject].length))
             self._feed_slots.append((first, len(self.devices)))
         n = len(self.devices)
+        ring = max(settings.raw_batch, RING_MIN)
+        # the bank encodes the points: it holds each device's stream id, sequence number, base and
+        # the ring of sample numbers and stamps they refer to
         self.bank = kernel.SegmenterBank(n, settings.config.threshold, settings.config.max_len,
-                                         live_bound_deg=settings.config.live_bound_deg)
+                                         live_bound_deg=settings.config.live_bound_deg, ring=ring)
+        self.bank.stream[:n] = [random.getrandbits(16) for _ in range(n)]
         self.period_us = 1e6 / settings.fs
         c = settings.clock
         self.base = TimeBase(settings.speed, settings.anchor_us)
@@ -148,10 +151,9 @@ class Emulator:
         last = np.floor(((ends * self.period_us) * (1.0 + self.clocks.drift) - self.clocks.phase_us) / self.period_us)
         self.n_last = np.where(ends >= 0, last, np.inf)
         self.tick_stats = TickStats()
-        ring = max(settings.raw_batch, RING_MIN)
         self._ring = ring
-        self._ring_n = np.full((ring, n), -1, np.int64)       # sample number taken at each tick (-1: none)
-        self._ring_t = np.zeros((ring, n), np.int64)          # its stamp (common time base), us
+        self._ring_n = self.bank.sample                       # sample number taken at each tick (-1: none)
+        self._ring_t = self.bank.t_us                         # its stamp (common time base), us
         self._ring_ref = np.zeros((ring, n), np.int64)        # its reference (true) time, us
         self._ring_q = np.zeros((ring, n, 4), np.float32)     # its value
         self.start_us = 0
@@ -204,7 +206,9 @@ class Emulator:
     def status(self, d: Device) -> wire.DeviceStatus:
         """The device's own view: config, counters of its current stream, clock sync."""
         clock = self.sync.status(d.slot) if self.sync is not None else wire.ClockStatus()
-        return wire.DeviceStatus(d.id, d.config, d.stream, int(self.n[d.slot] - d.base), d.points, clock)
+        b = self.bank
+        return wire.DeviceStatus(d.id, d.config, int(b.stream[d.slot]), int(self.n[d.slot] - b.base[d.slot]),
+                                 d.points, clock)
 
     def _answer_queries(self) -> None:
         """Apply config queries that arrived since the last tick (never inside a callback)."""
@@ -280,22 +284,29 @@ class Emulator:
 
     # ------------------------------------------------------------------ ticks
 
-    def _publish_point(self, d: Device, tick: int, y: np.ndarray, flags: int, omega=None) -> None:
-        """Device d's segment point: the sample it took at ``tick`` (within the ring). With the
-        live rule on, the point carries its body rate ``omega`` (3,) rad/s (segment point v2;
-        None: held, rate 0); off, it goes out as version 1 (held)."""
-        row = tick % self._ring
-        n = int(self._ring_n[row, d.slot])
-        if 0.0 < d.config.live_bound_deg < 180.0:
-            omega = (0.0, 0.0, 0.0) if omega is None else tuple(float(v) for v in omega)
-        else:
-            omega = None
-        point = wire.SegmentPoint(d.stream, d.seq, n - d.base, int(self._ring_t[row, d.slot]),
-                                  tuple(float(v) for v in y), flags, omega)
-        d.publisher.put(wire.encode_point(point))
-        d.seq = (d.seq + 1) & 0xFFFFFFFF
+    def _publish_points(self, slots: np.ndarray, payload: bytes, ends: np.ndarray) -> None:
+        """The segment points of a tick, as the bank encoded them (message i of device slots[i]
+        is payload[ends[i - 1]:ends[i]])."""
+        start = 0
+        for slot, end in zip(slots.tolist(), ends.tolist()):
+            d = self.devices[slot]
+            d.last = payload[start:end]
+            d.publisher.put(d.last)
+            d.points += 1
+            start = end
+
+    def _publish_held(self, d: Device, tick: int, y: np.ndarray, flags: int) -> None:
+        """Device d's segment point outside the bank's update (a flushed point, a new stream's
+        first point): the sample it took at ``tick`` (within the ring), held (rate 0: version 2
+        with the live rule on, version 1 off)."""
+        b, row = self.bank, tick % self._ring
+        point = wire.SegmentPoint(int(b.stream[d.slot]), int(b.seq[d.slot]),
+                                  int(self._ring_n[row, d.slot] - b.base[d.slot]), int(self._ring_t[row, d.slot]),
+                                  tuple(float(v) for v in y), flags, (0.0, 0.0, 0.0) if b.live(d.slot) else None)
+        d.last = wire.encode_point(point)
+        d.publisher.put(d.last)
+        b.seq[d.slot] = (int(b.seq[d.slot]) + 1) & 0xFFFFFFFF
         d.points += 1
-        d.last_point = point
 
     def _publish_final(self, d: Device) -> None:
         """End device d's stream: flush its last point (FINAL), or, when its last sample already
@@ -303,11 +314,11 @@ class Emulator:
         marker (the next sequence number; docs/protocol.md)."""
         last = self.bank.flush(d.slot)
         if last is not None:
-            self._publish_point(d, int(last[0]), last[2], wire.FLAG_FINAL)
-        elif d.last_point is not None and d.last_point.stream == d.stream:
-            point = replace(d.last_point, seq=d.seq, flags=wire.FLAG_FINAL)
+            self._publish_held(d, int(last[0]), last[2], wire.FLAG_FINAL)
+        elif d.last is not None:
+            point = replace(wire.decode_point(d.last), seq=int(self.bank.seq[d.slot]), flags=wire.FLAG_FINAL)
             d.publisher.put(wire.encode_point(point))
-            d.seq = (d.seq + 1) & 0xFFFFFFFF
+            self.bank.seq[d.slot] = (int(self.bank.seq[d.slot]) + 1) & 0xFFFFFFFF
 
     def _tap(self, k: int, m: int) -> None:
         """Truth tap: each streaming device publishes its samples of the last raw_batch ticks,
@@ -327,7 +338,8 @@ class Emulator:
         if len(rows) == 0:
             return
         payload = wire.encode_raw(wire.RawBatch(
-            d.stream, int(self._ring_n[rows[0], d.slot] - d.base), self._ring_t[rows, d.slot],
+            int(self.bank.stream[d.slot]), int(self._ring_n[rows[0], d.slot] - self.bank.base[d.slot]),
+            self._ring_t[rows, d.slot],
             self._ring_q[rows, d.slot], self._ring_ref[rows, d.slot]))
         self._raw_pubs[d.slot].put(payload)
 
@@ -351,13 +363,9 @@ class Emulator:
         y[taken] = q
         ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
                  & 0xFFFFFFFF).astype(np.uint32)
-        status, index, yp = self.bank.update(ticks, y)
+        self._publish_points(*self.bank.update_wire(ticks, y))
         self.n[taken] += 1
         self.ticks = k + 1
-        emitted = np.flatnonzero(status == kernel.POINT)
-        omega = self.bank.points_omega() if len(emitted) else None
-        for slot in emitted:
-            self._publish_point(self.devices[slot], int(index[slot]), yp[slot], 0, omega[slot])
         if self.settings.truth:
             self._tap(k, m)
         for slot in taken[self.n[taken] > self.n_last[taken]]:
@@ -379,11 +387,13 @@ class Emulator:
         local = self.clocks.sample_local(np.array([n_prev]), np.array([d.slot]))[0]
         self._ring_t[prev, d.slot] = round(local + self.sync.c[d.slot] - self.sync.b[d.slot] * (
             self.sync.c_local[d.slot] - local))
-        d.stream, d.seq, d.points, d.base = random.getrandbits(16), 0, 0, int(n_prev)
+        b = self.bank
+        b.stream[d.slot], b.seq[d.slot], b.base[d.slot] = random.getrandbits(16), 0, n_prev
+        d.points, d.last = 0, None
         d.restarts += 1
         d.raw_next = k
-        self._publish_point(d, self._tick_of(prev, k), self._ring_q[prev, d.slot], 0)
-        log.info("%s: time base stepped, new stream %d", d.id, d.stream)
+        self._publish_held(d, self._tick_of(prev, k), self._ring_q[prev, d.slot], 0)
+        log.info("%s: time base stepped, new stream %d", d.id, b.stream[d.slot])
 
     def _tick_of(self, row: int, k: int) -> int:
         """The tick (<= k) whose samples ring row ``row`` holds."""

@@ -96,6 +96,21 @@ _lib.fastsw_update_many.argtypes = [
 ]
 _lib.fastsw_update_many.restype = ctypes.c_size_t
 
+
+
+class BankWire(ctypes.Structure):
+    """LswBankWire (lsw_bank.h): pointers to the wire fields of a bank's streams."""
+
+    _fields_ = [("stream", ctypes.c_void_p), ("seq", ctypes.c_void_p), ("base", ctypes.c_void_p),
+                ("sample", ctypes.c_void_p), ("t_us", ctypes.c_void_p), ("rate", ctypes.c_void_p),
+                ("ring", ctypes.c_uint32), ("stride", ctypes.c_uint32)]
+
+
+_lib.lsw_bank_update.argtypes = [
+    ctypes.c_void_p, ctypes.c_size_t, _u32p, _f32p, _u8p, ctypes.c_void_p, ctypes.c_void_p,
+    ctypes.POINTER(BankWire), ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+]
+_lib.lsw_bank_update.restype = ctypes.c_size_t
 _lib.cplr_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
 _lib.cplr_segment.restype = ctypes.c_size_t
 _lib.swing_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
@@ -176,6 +191,11 @@ def make_settings(threshold: float, max_len: int, dim: int, live_bound_deg: floa
     if 0.0 < live < 180.0 and dim != 4:
         raise ValueError(f"live_bound_deg needs quaternion samples (dim 4), got dim {dim}")
     return Settings(wire.THRESHOLD.check(threshold), wire.MAX_LEN.check(max_len), int(dim), live)
+
+
+def live_rule(settings: Settings) -> bool:
+    """Whether the kernel runs the live rule with these settings (bound in (0, 180) as float32)."""
+    return 0.0 < settings.live_bound_deg < 180.0
 
 
 def body_rates(y: np.ndarray, rates: np.ndarray) -> np.ndarray:
@@ -386,9 +406,21 @@ class SegmenterBank:
         Settings per stream.
     dim : int
         Sample dimension, shared.
+    ring : int
+        With ring >= 1, :meth:`update_wire` encodes the points as segment point messages
+        (docs/protocol.md) in the same C call; the caller keeps their wire fields in these arrays
+        (written in place, never rebound):
+
+        - ``stream`` (count,) uint16: each stream's id;
+        - ``seq`` (count,) uint32: the sequence number of its next message (advanced per point);
+        - ``base`` (count,) int64: the sample number of its sample 0;
+        - ``sample`` (ring, count) int64: the sample number each stream took at update call c,
+          in row c % ring (the kernel's point index counts update calls);
+        - ``t_us`` (ring, count) int64: that sample's device time, microseconds since the epoch.
     """
 
-    def __init__(self, count: int, threshold=1e-2, max_len=1000, dim: int = 4, live_bound_deg=0.0):
+    def __init__(self, count: int, threshold=1e-2, max_len=1000, dim: int = 4, live_bound_deg=0.0,
+                 ring: int = 0):
         self.count, self.dim = count, dim
         self._states = ctypes.create_string_buffer(STATE_SIZE * max(count, 1))
         self._points = (Point * max(count, 1))()
@@ -403,6 +435,21 @@ class SegmenterBank:
         for k, settings in enumerate(self._settings):
             _lib.fastsw_init(base + k * STATE_SIZE, ctypes.byref(settings))
         self._point_view = np.frombuffer(self._points, dtype=_POINT_DTYPE)
+        size = max(count, 1)
+        self._live = np.array([live_rule(st) for st in self._settings] or [0], np.uint8)
+        if ring >= 1:
+            self.stream = np.zeros(size, np.uint16)
+            self.seq = np.zeros(size, np.uint32)
+            self.base = np.zeros(size, np.int64)
+            self.sample = np.full((ring, size), -1, np.int64)
+            self.t_us = np.zeros((ring, size), np.int64)
+            self._out = np.zeros(size * wire.POINT_SIZE_RATE, np.uint8)
+            self._slots = np.zeros(size, np.uint32)
+            self._ends = np.zeros(size, np.uint32)
+            self._wire = BankWire(*(a.ctypes.data for a in (self.stream, self.seq, self.base, self.sample,
+                                                             self.t_us, self._live)), ring, size)
+        else:
+            self._wire = None
 
     def update(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Advance the first n streams by one sample (n = len(ticks) <= count; the others,
@@ -429,6 +476,42 @@ class SegmenterBank:
         view = self._point_view[:n]
         return self._status[:n], view["index"], view["y"][:, : self.dim]
 
+    def update_wire(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, bytes, np.ndarray]:
+        """:meth:`update`, and every point emitted as its segment point message (flags 0), encoded
+        by the C encoder in the same call (lsw_bank.h): version 2 with its body rate where the
+        stream's live rule is on, else version 1; each stream's ``seq`` advances by one per point.
+        Needs ``ring`` >= 1.
+
+        Parameters
+        ----------
+        ticks : (n,) uint32, kernel ticks (microseconds).
+        y : (n, D) float32 samples.
+
+        Returns
+        -------
+        slots : (K,) uint32 the streams that emitted a point, increasing.
+        payload : bytes, the K messages back to back.
+        ends : (K,) uint32 offset in payload just after each message
+            (message i is ``payload[ends[i - 1]:ends[i]]``, from 0 for i = 0).
+        """
+        if self._wire is None:
+            raise ValueError("update_wire needs a bank made with ring >= 1")
+        ticks = np.ascontiguousarray(ticks, np.uint32)
+        y = np.ascontiguousarray(y, np.float32)
+        n = len(ticks)
+        if n > self.count or y.shape != (n, self.dim):
+            raise ValueError(f"ticks (n,) and y (n, {self.dim}) with n <= {self.count}; got {ticks.shape}, {y.shape}")
+        k = _lib.lsw_bank_update(self._states, n, ticks, y, self._status, self._points, self._rates.ctypes.data,
+                                 ctypes.byref(self._wire), self._out.ctypes.data, self._slots.ctypes.data,
+                                 self._ends.ctypes.data)
+        self._n = n
+        end = int(self._ends[k - 1]) if k else 0
+        return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()
+
+    def live(self, k: int) -> bool:
+        """Whether stream k runs the live rule (its points then carry a rate: version 2)."""
+        return bool(self._live[k])
+
     def points_t(self) -> np.ndarray:
         """(n,) uint32 ticks of the points returned by the last :meth:`update`."""
         return self._point_view[: self._n]["t"]
@@ -448,6 +531,7 @@ class SegmenterBank:
         if live_bound_deg is None:
             live_bound_deg = self._settings[k].live_bound_deg
         self._settings[k] = make_settings(threshold, max_len, self.dim, live_bound_deg)
+        self._live[k] = live_rule(self._settings[k])
         _lib.fastsw_retune(ctypes.addressof(self._states) + k * STATE_SIZE, ctypes.byref(self._settings[k]))
 
     def flush(self, k: int) -> tuple[int, int, np.ndarray] | None:
