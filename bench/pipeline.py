@@ -105,8 +105,8 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
     """One row per device count and live bound (``live_bound_deg`` of every device, 0: rule off)."""
     print(f"\n### Devices per emulator process ({seconds:g} s at 50 Hz each, truth tap {'on' if truth else 'off'},"
           " router and a subscriber taking everything in their own processes)\n")
-    print("| devices | live bound | ticks | late ticks | busy (of 1 core) | emulator CPU | router CPU | points/s |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| devices | live bound | ticks | late ticks | busy (of 1 core) | emulator CPU | CPU per tick | router CPU | points/s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, bound in ((n, b) for n in counts for b in bounds):
         with Router() as router:
             sink = start_sink(router)
@@ -126,7 +126,8 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
             session.close()
             stop_all([sink])
         print(f"| {n} | {bound:g} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
-              f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {100 * rcpu / seconds:.0f} % | "
+              f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {1e3 * cpu / max(ticks.ticks, 1):.2f} ms | "
+              f"{100 * rcpu / seconds:.0f} % | "
               f"{points / seconds:.0f} |")
 
 

@@ -77,9 +77,27 @@ def device_events(name: str, q: np.ndarray, stream: int, truth: bool, start_us: 
 # ----------------------------------------------------------------------------- recorder keeps up
 
 
-def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, block_all: bool) -> None:
-    """Child process: what ``subjects`` subjects and their aggregator put on the router, in real time."""
+QOS_MODES = ("deployed", "block", "drop")
+"""Publisher options of the recorder rows: ``deployed`` zconfig.QOS (what the devices and the
+aggregator use), ``block`` BLOCK for every message, ``drop`` BLOCK for segment points and DROP for
+the rest (the policy before zconfig.QOS)."""
+
+
+def publisher_qos(kind: str, payload: bytes, mode: str) -> dict:
+    """declare_publisher options of a message of ``kind`` (seg, raw, pose, stats) under ``mode``."""
     import zenoh
+
+    if mode == "block":
+        return {"congestion_control": zenoh.CongestionControl.BLOCK}
+    if mode == "drop":
+        return {"congestion_control": zenoh.CongestionControl.BLOCK if kind == "seg" else zenoh.CongestionControl.DROP}
+    if kind == "pose":
+        kind = "pose_live" if wire.decode_pose(payload).kind == wire.KIND_LIVE else "pose_exact"
+    return zconfig.publisher_options(kind)
+
+
+def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, qos: str) -> None:
+    """Child process: what ``subjects`` subjects and their aggregator put on the router, in real time."""
 
     m = int(seconds * FS)
     body = Skeleton()
@@ -102,12 +120,14 @@ def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, bl
             events.append((k, "stats", wire.stats_key(name), wire.encode_stats(name, k / FS, devices, seq=k // 50)))
     events.sort(key=lambda e: e[0])
     session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-    pubs = {}
-    for _, kind, key, _ in events:
-        if key not in pubs:
-            block = zenoh.CongestionControl.BLOCK if kind == "seg" or block_all else zenoh.CongestionControl.DROP
-            pubs[key] = session.declare_publisher(key, congestion_control=block)
-    probes = [pubs[wire.pose_key(f"s{s + 1:03d}")] for s in range(subjects)]
+    pubs, which, by_key = {}, [], {}  # publishers by (key, options); each event's; one per key
+    for _, kind, key, payload in events:
+        options = publisher_qos(kind, payload, qos)
+        name = (key, tuple(sorted((k, int(v)) for k, v in options.items())))
+        if name not in pubs:
+            pubs[name] = by_key[key] = session.declare_publisher(key, **options)
+        which.append(pubs[name])
+    probes = [by_key[wire.pose_key(f"s{s + 1:03d}")] for s in range(subjects)]
     deadline = time.monotonic() + 60
     while not all(p.matching_status.matching for p in probes) and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -123,7 +143,7 @@ def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, bl
             late += 1
         while i < len(events) and events[i][0] <= k:
             _, kind, key, payload = events[i]
-            pubs[key].put(payload)
+            which[i].put(payload)
             sent[kind] += 1
             i += 1
     time.sleep(0.5)
@@ -133,11 +153,11 @@ def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, bl
 
 
 def run_publisher(launcher: Launcher, endpoint: str, subjects: int, seconds: float, truth: bool,
-                  block_all: bool) -> dict:
+                  qos: str) -> dict:
     """Start the publisher child, wait until it has sent everything; its report (``sent`` by kind,
     ``late_ticks``); ``started``: time.monotonic() when it began publishing."""
     pub = launcher.start("publisher", "publish", endpoint, str(subjects), str(seconds), str(int(truth)),
-                         str(int(block_all)), command=(sys.executable, os.path.abspath(__file__)))
+                         qos, command=(sys.executable, os.path.abspath(__file__)))
     wait_until(lambda: "publishing" in "\n".join(pub.tail()), 600, "the publisher to start", interval=0.05)
     started = time.monotonic()
     wait_until(lambda: not pub.alive(), seconds + 120, "the publisher to finish", interval=0.2)
@@ -145,7 +165,7 @@ def run_publisher(launcher: Launcher, endpoint: str, subjects: int, seconds: flo
     return {**report, "started": started, "total": sum(report["sent"].values())}
 
 
-def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, block_all: bool) -> int:
+def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, qos: str) -> int:
     """Messages a subscriber that only empties Zenoh's channels misses of the same traffic (the
     baseline: what the publisher and router lose on the way, whoever listens)."""
     import zenoh
@@ -163,7 +183,7 @@ def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, block_all:
                 got[0] += sum(1 for sub in subs for _ in iter(sub.try_recv, None))
         thread = threading.Thread(target=empty)
         thread.start()
-        report = run_publisher(launcher, endpoint, subjects, seconds, truth, block_all)
+        report = run_publisher(launcher, endpoint, subjects, seconds, truth, qos)
         time.sleep(2.0)  # what is still on its way
         stop.set()
         thread.join()
@@ -171,8 +191,9 @@ def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, block_all:
     return report["total"] - got[0]
 
 
-def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, block_all: bool) -> None:
-    how = "BLOCK for every message" if block_all else "BLOCK for segment points, DROP for the rest, as deployed"
+def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, qos: str) -> None:
+    how = {"block": "BLOCK for every message", "drop": "BLOCK for segment points, DROP for the rest",
+           "deployed": "zconfig.QOS, as deployed"}[qos]
     print(f"\n### One recorder ({seconds:g} s of traffic per row; truth tap {'on' if truth else 'off'}; congestion "
           f"control {how}; publisher and router in their own processes)\n")
     print("| subjects | devices | messages/s | sent | recorded | not recorded | same traffic, missed by a do-nothing "
@@ -190,7 +211,7 @@ def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, block
             thread = threading.Thread(target=recorder.run, args=(stop,))
             thread.start()
             cpu0 = cpu_now()
-            report = run_publisher(launcher, endpoint, subjects, seconds, truth, block_all)
+            report = run_publisher(launcher, endpoint, subjects, seconds, truth, qos)
             total = report["total"]
 
             def settled(recorder=recorder, total=total, previous=[-1]):  # noqa: B006 - the last count seen
@@ -204,7 +225,7 @@ def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, block
             recorder.close()
             session.close()
             summary = recorder.summary()
-        baseline = do_nothing_subscriber(subjects, seconds, truth, block_all)
+        baseline = do_nothing_subscriber(subjects, seconds, truth, qos)
         recorded = sum(summary["messages"].values())
         print(f"| {subjects} | {10 * subjects} | {total / seconds:,.0f} | {total:,} | {recorded:,} | {total - recorded:,} | "
               f"{baseline:,} | {100 * cpu / wall:.0f} % | {summary['max_batch']:,} | "
@@ -327,22 +348,23 @@ def bench_replay(minutes: float, speed: float) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "publish":  # the publisher child process
-        publisher_main(argv[1], int(argv[2]), float(argv[3]), bool(int(argv[4])), bool(int(argv[5])))
+        publisher_main(argv[1], int(argv[2]), float(argv[3]), bool(int(argv[4])), argv[5])
         return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("recorder", "size", "replay", "all"))
     parser.add_argument("--subjects", default="20,200", help="recorder rows (subject counts)")
     parser.add_argument("--seconds", type=float, default=20.0, help="traffic per recorder row / size recording, s")
     parser.add_argument("--no-truth", action="store_true", help="recorder rows without truth batches")
-    parser.add_argument("--block", action="store_true",
-                        help="recorder rows: every message with congestion control BLOCK (nothing dropped on the way)")
+    parser.add_argument("--qos", choices=QOS_MODES, default="deployed",
+                        help="recorder rows: publisher options (deployed: zconfig.QOS; block: BLOCK for every message; "
+                             "drop: BLOCK for points, DROP for the rest, the policy before zconfig.QOS)")
     parser.add_argument("--size-subjects", type=int, default=2, help="subjects of the size recording")
     parser.add_argument("--source", default="generator", help="motion of the size recording (emulate --source)")
     parser.add_argument("--minutes", type=float, default=60.0, help="length of the replayed recording")
     parser.add_argument("--speed", type=float, default=20.0, help="replay speed")
     args = parser.parse_args(argv)
     if args.what in ("recorder", "all"):
-        bench_recorder([int(n) for n in args.subjects.split(",")], args.seconds, not args.no_truth, args.block)
+        bench_recorder([int(n) for n in args.subjects.split(",")], args.seconds, not args.no_truth, args.qos)
     if args.what in ("size", "all"):
         bench_size(args.seconds, args.size_subjects, args.source)
     if args.what in ("replay", "all"):

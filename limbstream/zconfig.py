@@ -1,8 +1,9 @@
-"""Zenoh configuration, one place: every process builds its ``zenoh.Config`` here.
+"""Zenoh configuration, one place: every process builds its ``zenoh.Config`` here, and every
+publisher takes its congestion control, priority and express flag from :data:`QOS`.
 
 Multicast scouting is always off (endpoints are explicit; Docker carries no multicast).
 Clients retry the router forever with a short back-off, so they survive router restarts
-and may start before the router (ZENOH_NOTES: back ~0.3 s after the router returns).
+and may start before the router (back ~0.3 s after the router returns).
 """
 from __future__ import annotations
 
@@ -20,6 +21,54 @@ ROUTER_ENV = "LIMBSTREAM_ROUTER"
 """Environment variable naming the router endpoint(s), comma-separated."""
 CONFIG_ENV = "LIMBSTREAM_ZENOH_CONFIG"
 """Environment variable naming a JSON file of extra Zenoh settings (TLS, auth)."""
+
+
+@dataclass(frozen=True)
+class Qos:
+    """How one kind of message is published (Zenoh publisher options).
+
+    Attributes
+    ----------
+    congestion_control : BLOCK waits (up to Zenoh's ``wait_before_close``, 5 s) when a link's
+        queue of this priority is full; DROP gives up after ``wait_before_drop`` (1 ms).
+    priority : Zenoh priority; every priority has its own queue on every link, so a blocked
+        queue of one priority does not hold back messages of another.
+    express : sent at once, not batched with the messages that follow.
+    """
+
+    congestion_control: zenoh.CongestionControl
+    priority: zenoh.Priority
+    express: bool = False
+
+    def options(self) -> dict:
+        """Keyword arguments of ``declare_publisher`` / ``declare_advanced_publisher``."""
+        return {"congestion_control": self.congestion_control, "priority": self.priority, "express": self.express}
+
+
+_BLOCK, _DROP = zenoh.CongestionControl.BLOCK, zenoh.CongestionControl.DROP
+QOS: dict[str, Qos] = {
+    # the record: frames, replay and recordings are rebuilt from them; never dropped
+    "seg": Qos(_BLOCK, zenoh.Priority.DATA),
+    # truth batches: the evaluation's record, recovered from the device's cache like points
+    "raw": Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+    # final frames: recorders and the dashboard's history keep them, incl. the burst after a restart
+    "pose_exact": Qos(_BLOCK, zenoh.Priority.DATA),
+    # superseded 20 ms later: never wait for them; their own queue, ahead of the bulk. Not express:
+    # the frames of all subjects leave in one burst per tick, and batching (at most 1 ms) sends
+    # them in a few writes instead of one per frame
+    "pose_live": Qos(_DROP, zenoh.Priority.INTERACTIVE_HIGH),
+    # once a second per subject; the dashboard's history and recordings keep them
+    "stats": Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+}
+"""Publisher options per message kind (docs/protocol.md, "Congestion control and priority")."""
+
+
+def publisher_options(kind: str) -> dict:
+    """``declare_publisher`` keyword arguments for ``kind`` (a key of :data:`QOS`)."""
+    try:
+        return QOS[kind].options()
+    except KeyError:
+        raise ValueError(f"message kind must be one of {tuple(QOS)}, got {kind!r}") from None
 
 
 @dataclass(frozen=True)

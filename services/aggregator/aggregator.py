@@ -19,12 +19,14 @@ from dataclasses import dataclass, field
 import zenoh
 import zenoh.ext as zext
 
-from limbstream import heap, wire
+from limbstream import heap, wire, zconfig
 from limbstream.skeleton import Skeleton
 from services.aggregator.fusion import Fusion, Subject
 from services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
+
+_POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
 
 @dataclass(frozen=True)
@@ -112,7 +114,7 @@ class Aggregator:
         self.bad_keys: collections.Counter = collections.Counter()
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
         self.loop = LoopStats()
-        self._pubs: dict[str, zenoh.Publisher] = {}  # by key expression (pose and stats of each subject)
+        self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
         self._config_replies: list = []
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
         self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
@@ -280,14 +282,15 @@ class Aggregator:
     # ------------------------------------------------------------------ output
 
     def _publish(self, subject: str, payload: bytes) -> None:
-        """An encoded pose frame of ``subject``."""
-        self._publisher(wire.pose_key(subject)).put(payload)
+        """An encoded pose frame of ``subject``: exact and live frames share the key, not the QoS."""
+        kind = "pose_live" if payload[_POSE_KIND_BYTE] == wire.KIND_LIVE else "pose_exact"
+        self._publisher(wire.pose_key(subject), kind).put(payload)
 
-    def _publisher(self, key: str) -> zenoh.Publisher:
-        """The publisher of ``key``, declared on first use."""
-        pub = self._pubs.get(key)
+    def _publisher(self, key: str, kind: str) -> zenoh.Publisher:
+        """The publisher of ``key`` for messages of ``kind`` (zconfig.QOS), declared on first use."""
+        pub = self._pubs.get((key, kind))
         if pub is None:
-            pub = self._pubs[key] = self.session.declare_publisher(key)
+            pub = self._pubs[key, kind] = self.session.declare_publisher(key, **zconfig.publisher_options(kind))
         return pub
 
     def advance(self, live: bool, prune: bool = True, now: float | None = None) -> int:
@@ -334,7 +337,7 @@ class Aggregator:
             snapshot["aggregator"] = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {
                 "bad_keys": dict(self.bad_keys)}
             payload = wire.encode_stats(sub.name, wall, devices, snapshot, seq=self.stats_seq[sub.name])
-            self._publisher(wire.stats_key(sub.name)).put(payload)
+            self._publisher(wire.stats_key(sub.name), "stats").put(payload)
             self.stats_seq[sub.name] += 1
         if part == parts - 1:
             self.loop.end_round(now)

@@ -3,17 +3,23 @@ their keys, at the recorded receive times scaled by a speed — so an aggregator
 same frames.
 
 Each replayed device is declared like an emulated one (device_emulator/emulator.py): an
-advanced publisher with a cache and miss detection for its segment points (congestion control
-BLOCK), one for its truth batches, and a liveliness token. Payloads go out as recorded (the
-aggregator decodes and checks them like any device's). With ``loop``, every later pass is a new
-stream of each device (stream id + pass) with its times shifted past the previous pass
-(:data:`PASS_GAP_NS` after it).
+advanced publisher with a cache and miss detection for its segment points, one for its truth
+batches (publisher options from zconfig.QOS), a liveliness token, and a config queryable per
+subject. Payloads go out as recorded (the aggregator decodes and checks them like any device's).
+With ``loop``, every later pass is a new stream of each device (stream id + pass) with its times
+shifted past the previous pass (:data:`PASS_GAP_NS` after it).
+
 Pose frames, stats and config statuses of the recording are not published: the aggregator
-makes its own; replayed devices serve no config queryable.
+makes its own. A config query is answered with the device's status (``wire.DeviceStatus``):
+its settings as the recording last gave them up to the replayed moment (its recorded config
+status, else the tunables of its stats row), its stream, samples and points as replayed. A
+query that changes settings gets an error reply (:data:`FIXED`): the points were made with the
+recorded settings.
 """
 from __future__ import annotations
 
 import collections
+import json
 import threading
 import time
 from collections.abc import Callable
@@ -22,12 +28,16 @@ from dataclasses import dataclass, field, replace
 import zenoh
 import zenoh.ext as zext
 
-from limbstream import wire
+from limbstream import wire, zconfig
 
 from .recording import Entry, Recording
 
 PASS_GAP_NS = 1_000_000_000
 """With ``loop``, a pass starts this long (recorded time, ns) after the previous one's last message."""
+FIXED = "replayed device: settings are fixed by the recording"
+"""Error reply to a config query that would change a replayed device's settings."""
+QUERY_POLL_S = 0.02
+"""Config queries are answered within this long, seconds."""
 
 
 @dataclass(frozen=True)
@@ -55,12 +65,26 @@ class ReplaySettings:
 
 
 @dataclass
+class ReplayedDevice:
+    """What a replayed device says in its status (see the module docstring)."""
+
+    config: wire.DeviceConfig | None = None  # None: the recording has not given its settings (yet)
+    clock: wire.ClockStatus | None = None
+    from_status: bool = False  # config taken from a recorded status (stats rows then no longer count)
+    stream: int = 0
+    samples: int = 0
+    points: int = 0
+
+
+@dataclass
 class ReplayStats:
     """Counters of a replay."""
 
     published: collections.Counter = field(default_factory=collections.Counter)  # by kind
     passes: int = 0
-    undecodable: collections.Counter = field(default_factory=collections.Counter)  # published as recorded
+    # refused by the contract, by kind and reason: points and truth are published as recorded all the
+    # same, config statuses and stats are not used
+    undecodable: collections.Counter = field(default_factory=collections.Counter)
     skipped: collections.Counter = field(default_factory=collections.Counter)  # keys outside the grammar
     recorded_s: float = 0.0  # recorded time covered so far (receive times), s
 
@@ -73,6 +97,9 @@ class Replayer:
         self.stats = ReplayStats()
         self._publishers: dict[tuple[str, str], object] = {}  # (key, kind) -> advanced publisher
         self._tokens: dict[str, object] = {}  # alive key -> liveliness token
+        self._queryables: dict[str, zenoh.Queryable] = {}  # subject (renamed) -> its config queryable
+        self._state: dict[str, ReplayedDevice] = collections.defaultdict(ReplayedDevice)  # by device id
+        self._next_answer = 0.0
         self.devices: set[str] = set()
 
     # ------------------------------------------------------------------ devices
@@ -94,27 +121,104 @@ class Replayer:
 
     def _declare(self, subject: str, segment: str, kind: str, key: str) -> None:
         s = self.settings
-        if kind == "seg":
-            pub = zext.declare_advanced_publisher(
-                self.session, key, cache=zext.CacheConfig(max_samples=s.cache),
-                sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s), publisher_detection=True,
-                congestion_control=zenoh.CongestionControl.BLOCK)
-        else:
-            pub = zext.declare_advanced_publisher(
-                self.session, key, cache=zext.CacheConfig(max_samples=64),
-                sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s), publisher_detection=True)
+        pub = zext.declare_advanced_publisher(
+            self.session, key, cache=zext.CacheConfig(max_samples=s.cache if kind == "seg" else 64),
+            sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s), publisher_detection=True,
+            **zconfig.publisher_options(kind))
         self._publishers[(key, kind)] = pub
         alive = wire.alive_key(subject, segment)
         if alive not in self._tokens:
             self._tokens[alive] = self.session.liveliness().declare_token(alive)
             self.devices.add(wire.device_id(subject, segment))
+        if subject not in self._queryables:
+            self._queryables[subject] = self.session.declare_queryable(
+                wire.device_selector("config", subject), zenoh.handlers.FifoChannel(1024))
 
     def close(self) -> None:
         """Devices go offline: tokens and publishers undeclared."""
-        for entity in list(self._tokens.values()) + list(self._publishers.values()):
+        for entity in [*self._tokens.values(), *self._publishers.values(), *self._queryables.values()]:
             entity.undeclare()
         self._tokens.clear()
         self._publishers.clear()
+        self._queryables.clear()
+
+    # ------------------------------------------------------------------ config queries
+
+    def _renamed(self, did: str) -> str | None:
+        """A recorded device id with the subject prefix, or None if it is not one."""
+        try:
+            subject, segment = wire.split_device_id(did)
+            return wire.device_id(self.settings.subject_prefix + subject, segment)
+        except ValueError:
+            return None
+
+    def _absorb(self, entry: Entry) -> None:
+        """A recorded config status or stats message: the settings its devices ran (not published)."""
+        try:
+            if entry.kind == "config":
+                status = wire.decode_status(entry.payload)
+                subject, segment, _ = wire.parse_device_key(entry.key)
+                did = self._renamed(wire.device_id(subject, segment))
+                if did is not None:
+                    state = self._state[did]
+                    state.config, state.clock, state.from_status = status.config, status.clock, True
+                return
+            for row in wire.decode_stats(entry.payload)["devices"]:
+                did = self._renamed(row.get("device", ""))
+                if did is not None and not self._state[did].from_status:
+                    self._state[did].config = wire.DeviceConfig(
+                        **{name: t.check(row[name]) for name, t in wire.TUNABLES.items()})
+        except wire.WireError as exc:
+            self.stats.undecodable[f"{entry.kind}_{exc.reason}"] += 1
+        except (ValueError, KeyError, TypeError):  # a stats row without valid tunables
+            self.stats.undecodable[f"{entry.kind}_row"] += 1
+
+    def _replayed(self, key: str, payload: bytes) -> None:
+        """A segment point went out on ``key``: the device's stream, samples and points."""
+        try:
+            point = wire.decode_point(payload)
+            subject, segment, _ = wire.parse_device_key(key)
+        except wire.WireError:
+            return
+        state = self._state[wire.device_id(subject, segment)]
+        if point.stream != state.stream:
+            state.stream, state.points = point.stream, 0
+        state.samples, state.points = point.index + 1, state.points + 1
+
+    def answer_queries(self) -> None:
+        """Answer the config queries that arrived (status, or :data:`FIXED` for a change)."""
+        for subject, queryable in list(self._queryables.items()):
+            while (query := queryable.try_recv()) is not None:
+                if query.payload is not None and query.payload.to_bytes():
+                    query.reply_err(json.dumps({"error": FIXED}))
+                    continue
+                for did in sorted(d for d in self.devices if wire.split_device_id(d)[0] == subject):
+                    key = wire.config_key(*wire.split_device_id(did))
+                    if not zenoh.KeyExpr(key).intersects(query.key_expr):
+                        continue
+                    state = self._state[did]
+                    if state.config is None:
+                        query.reply_err(json.dumps({"error": f"replayed device {did}: the recording holds no "
+                                                             f"settings of it (yet)"}))
+                        continue
+                    status = wire.DeviceStatus(did, state.config, state.stream, state.samples, state.points,
+                                               state.clock)
+                    query.reply(key, wire.encode_status(status))
+
+    def _wait(self, stop: threading.Event, seconds: float) -> bool:
+        """Wait ``seconds`` (True if ``stop`` was set meanwhile), answering config queries every
+        :data:`QUERY_POLL_S` at most."""
+        end = time.monotonic() + seconds
+        while True:
+            now = time.monotonic()
+            if now >= self._next_answer:
+                self.answer_queries()
+                self._next_answer = now + QUERY_POLL_S
+            left = end - now
+            if left <= 0:
+                return stop.is_set()
+            if stop.wait(min(left, max(self._next_answer - now, 0.0))):
+                return True
 
     # ------------------------------------------------------------------ passes
 
@@ -143,7 +247,7 @@ class Replayer:
         """Publish pass after pass (one without ``loop``) until the end or ``stop``; then hold the
         devices online for ``hold_s`` and take them offline."""
         s = self.settings
-        kinds = ("seg", "raw") if s.truth else ("seg",)
+        kinds = ("seg", "raw", "config", "stats") if s.truth else ("seg", "config", "stats")
         start = time.monotonic()
         offset_ns = 0  # recorded time of the passes before this one
         next_progress = start + progress_s
@@ -151,19 +255,25 @@ class Replayer:
             t0 = last = None
             n_pass = self.stats.passes
             for entry in self.recording.entries(kinds):
+                if entry.kind in ("config", "stats"):  # taken when read: they do not set the pace
+                    if n_pass == 0:
+                        self._absorb(entry)
+                    continue
                 if t0 is None:
                     t0 = entry.log_ns
                 last = max(last or entry.log_ns, entry.log_ns)
                 due = start + (offset_ns + entry.log_ns - t0) / 1e9 / s.speed
-                wait = due - time.monotonic()
-                if wait > 0 and stop.wait(wait):
+                if self._wait(stop, due - time.monotonic()):
                     break
                 key = self._target(entry)
                 if key is None:
                     continue
                 if n_pass == 0:
                     self._check(entry)
-                self._publishers[(key, entry.kind)].put(self._payload(entry, n_pass, offset_ns // 1000))
+                payload = self._payload(entry, n_pass, offset_ns // 1000)
+                self._publishers[(key, entry.kind)].put(payload)
+                if entry.kind == "seg":
+                    self._replayed(key, payload)
                 self.stats.published[entry.kind] += 1
                 self.stats.recorded_s = (offset_ns + entry.log_ns - t0) / 1e9
                 if on_progress is not None and time.monotonic() >= next_progress:
@@ -173,7 +283,7 @@ class Replayer:
             if t0 is None or not s.loop:
                 break
             offset_ns += last - t0 + PASS_GAP_NS  # the next pass starts a second after this one
-        stop.wait(s.hold_s)
+        self._wait(stop, s.hold_s)
         self.close()
         return self.stats
 
