@@ -140,9 +140,11 @@ def test_foxglove_serves_skeletons_and_stats(stack):
     for log_time, msg in got["/s01/skeleton"]:
         (entity,) = msg.entities
         assert entity.id == "s01" and entity.frame_id == "s01"
-        points = np.array([[p.x, p.y, p.z] for p in entity.lines[0].points])
+        line = entity.lines[0]
+        points = np.array([[p.x, p.y, p.z] for p in line.points])[list(line.indices)]  # indexed line list
         want = joints[sent[log_time // 1000]][[wire.JOINTS.index(j) for pair in wire.BONES for j in pair]]
         assert np.array_equal(points, want.astype(np.float64))
+        assert len(entity.spheres) == len(wire.JOINTS)
     for _, msg in got["/s01/stats"]:
         assert set(msg["devices"]) == set(wire.SEGMENTS)
         assert msg["devices"]["l_shank"]["icr"] == pytest.approx(0.1)

@@ -3,6 +3,7 @@ processes on loopback (tests/stack.py) and the mcap library reading the files ba
 from __future__ import annotations
 
 import collections
+import json
 import os
 import signal
 import socket
@@ -20,6 +21,7 @@ from stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (
 
 from limbstream import quat, wire, zconfig
 from limbstream.sources.bvh import load_bvh
+from services.outputs.replay import FIXED
 from services.outputs.recording import (TOPICS, Recording, RecordingError, RecordingWriter, envelope, open_envelope,
                                         skeleton_topic)
 from services.outputs.subscription import Subscription
@@ -268,6 +270,59 @@ def test_a_broken_recording_replays_into_an_aggregator_that_counts_and_drops(sta
     log = replay.log.read_text()
     assert "refused by the contract" in log and "seg_version" in log and "seg_key" in log, log
     assert all(c.alive() for c in stack.procs if c.name != "replay"), stack.logs()
+
+
+def test_replayed_devices_answer_status_with_the_recorded_settings_and_refuse_changes(stack, tmp_path):  # noqa: F811
+    """A replayed device answers a config query with the settings the recording gave it up to the
+    replayed moment (its recorded status; else its stats row) and its stream and points as
+    replayed; one the recording says nothing of answers with an error; a change is refused."""
+    path = tmp_path / "settings.mcap"
+    t0, s = 1_800_000_000_000_000, 1_000_000_000  # device time (us); one second of receive time (ns)
+    messages = []  # (receive time, kind, key, payload), written in receive order as a recorder does
+    for k in range(10):  # a point per second from three devices
+        for segment in ("hip", "neck", "l_shank"):
+            point = wire.SegmentPoint(7, k, 50 * k, t0 + 1_000_000 * k, (1.0, 0.0, 0.0, 0.0))
+            messages.append((s + k * s, "seg", wire.seg_key("s01", segment), wire.encode_point(point)))
+    clock = wire.ClockStatus(1.5, 0.4, True, {})
+    for at, threshold in ((0, 0.005), (int(7.5 * s), 0.007)):  # the hip's status, changed after 7.5 s
+        status = wire.DeviceStatus("s01/hip", wire.DeviceConfig(threshold=threshold, max_len=30), 7, 0, 0, clock)
+        messages.append((s + at, "config", wire.config_key("s01", "hip"), wire.encode_status(status)))
+    row = {"device": "s01/neck", "segment": "neck", "threshold": 0.02, "max_len": 40, "live_bound_deg": 5.0}
+    messages.append((s + 1, "stats", wire.stats_key("s01"), wire.encode_stats("s01", 1.0, [row])))
+    writer = RecordingWriter(path, skeleton=False)
+    for log_ns, kind, key, payload in sorted(messages, key=lambda m: m[0]):
+        writer.add(kind, key, payload, log_ns)
+    writer.close()
+    stack.router()
+    stack.start("replay", "replay", str(path), "--connect", stack.endpoint, "--subject-prefix", "r-", "--hold", "30")
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
+    try:
+        def ask(key: str, payload: bytes | None = None) -> dict[str, dict]:
+            """{device or "error": answer} of a get on ``key``."""
+            out = {}
+            for reply in session.get(key, payload=payload, timeout=5.0):
+                if reply.ok is not None:
+                    out[wire.parse_device_key(str(reply.ok.key_expr))[1]] = wire.decode_status(reply.ok.payload.to_bytes())
+                else:
+                    out.setdefault("error", []).append(json.loads(reply.err.payload.to_bytes())["error"])
+            return out
+        every = wire.device_selector("config", "r-s01")
+        first = wait_until(lambda: (a := ask(every)) and {"hip", "neck"} <= set(a) and a, 20,
+                           "the replayed devices to answer", on_fail=stack.logs)
+        hip, neck = first["hip"], first["neck"]
+        assert hip.device == "r-s01/hip" and hip.config == wire.DeviceConfig(threshold=0.005, max_len=30), hip
+        assert hip.stream == 7 and hip.points >= 1 and hip.samples == 50 * (hip.points - 1) + 1 and hip.clock == clock
+        assert neck.config == wire.DeviceConfig(threshold=0.02, max_len=40, live_bound_deg=5.0), neck
+        assert first["error"] == ["replayed device r-s01/l_shank: the recording holds no settings of it (yet)"], first
+        # a change is refused, and changes nothing
+        refused = ask(wire.config_key("r-s01", "hip"), wire.encode_config({"threshold": 0.1}))
+        assert refused == {"error": [FIXED]}, refused
+        # the recorded change at 8 s, and every point replayed
+        later = wait_until(lambda: (a := ask(wire.config_key("r-s01", "hip"))) and a["hip"].points == 10 and a, 30,
+                           "the hip's last point replayed", on_fail=stack.logs)["hip"]
+        assert later.config.threshold == 0.007 and later.samples == 451, later
+    finally:
+        session.close()
 
 
 # ----------------------------------------------------------------------------- bad input

@@ -47,7 +47,7 @@ _Y_UP_TO_Z_UP = (0.5, 0.5, 0.5, 0.5)  # (x, y, z, w): 120 deg about (1, 1, 1); x
 _LEG_M = Skeleton().thigh + Skeleton().shank
 _J = {name: i for i, name in enumerate(wire.JOINTS)}
 _ORIGINS = [(i, seg, _J[SEGMENT_ORIGIN[seg]]) for i, seg in enumerate(wire.SEGMENTS)]
-_BONE_ROWS = [(_J[a], _J[b]) for a, b in wire.BONES]
+_BONE_INDEX = [_J[j] for bone in wire.BONES for j in bone]  # line list: joint indices, two per bone
 _BONE_COLOR = Color(r=0.2, g=0.7, b=1.0, a=1.0)
 _JOINT_COLOR = Color(r=1.0, g=0.6, b=0.1, a=1.0)
 _JOINT_SIZE = Vector3(x=0.05, y=0.05, z=0.05)
@@ -68,10 +68,9 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
     slot : the subject's place in the row (0, 1, ...), :data:`SPACING_M` apart.
     """
     stamp = _stamp(frame.t_us)
-    x, y, z, w = _Y_UP_TO_Z_UP
+    translation, rotation = _placement(slot)
     out = [FrameTransform(timestamp=stamp, parent_frame_id="world", child_frame_id=subject,
-                          translation=Vector3(x=0.0, y=-SPACING_M * slot, z=_LEG_M),
-                          rotation=Quaternion(x=x, y=y, z=z, w=w))]
+                          translation=translation, rotation=rotation)]
     q, joints = frame.q.tolist(), frame.joints.tolist()
     for i, seg, j in _ORIGINS:
         (qw, qx, qy, qz), (px, py, pz) = q[i], joints[j]
@@ -81,16 +80,40 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
     return FrameTransforms(transforms=out)
 
 
-def scene_update(subject: str, frame: wire.PoseFrame) -> SceneUpdate:
-    """The skeleton of ``frame`` as one entity in frame ``subject``: bones and joints."""
+def _placement(slot: int) -> tuple[Vector3, Quaternion]:
+    x, y, z, w = _Y_UP_TO_Z_UP
+    return Vector3(x=0.0, y=-SPACING_M * slot, z=_LEG_M), Quaternion(x=x, y=y, z=z, w=w)
+
+
+def placement(slot: int) -> Pose:
+    """Where the body frame of the ``slot``-th subject (from 0) sits in ``world``: turned Z up, the
+    pelvis lifted by the default leg length, :data:`SPACING_M` to the right of the one before."""
+    position, orientation = _placement(slot)
+    return Pose(position=position, orientation=orientation)
+
+
+def scene_update(subject: str, frame: wire.PoseFrame, placed: Pose | None = None) -> SceneUpdate:
+    """The skeleton of ``frame`` as one entity ``subject``: a line list of :data:`wire.BONES`
+    between the 15 joints (indexed) and, live, a sphere per joint.
+
+    Live (``placed`` None) the entity is in frame ``subject``, which ``/<s>/tf`` places. A
+    recording has no transforms, so there (``placed``: :func:`placement`) the entity is in frame
+    ``world`` with the lines at ``placed``, without spheres (each would need its own pose). The
+    recorder writes one per exact frame: this builder is its cost per frame (docs/benchmarks.md).
+    """
     joints = frame.joints.tolist()
     points = [Point3(x=x, y=y, z=z) for x, y, z in joints]
-    lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
-                          points=[points[k] for pair in _BONE_ROWS for k in pair])
-    spheres = [SpherePrimitive(pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY),
-                               size=_JOINT_SIZE, color=_JOINT_COLOR) for x, y, z in joints]
-    entity = SceneEntity(timestamp=_stamp(frame.t_us), frame_id=subject, id=subject, frame_locked=True,
-                         lines=[lines], spheres=spheres)
+    if placed is None:
+        lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
+                              points=points, indices=_BONE_INDEX)
+        spheres = [SpherePrimitive(pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY),
+                                   size=_JOINT_SIZE, color=_JOINT_COLOR) for x, y, z in joints]
+        entity = SceneEntity(timestamp=_stamp(frame.t_us), frame_id=subject, id=subject, frame_locked=True,
+                             lines=[lines], spheres=spheres)
+    else:
+        lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
+                              points=points, indices=_BONE_INDEX, pose=placed)
+        entity = SceneEntity(timestamp=_stamp(frame.t_us), frame_id="world", id=subject, lines=[lines])
     return SceneUpdate(entities=[entity])
 
 

@@ -27,7 +27,6 @@ from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata
 from mcap.stream_reader import StreamReader
 
 from limbstream import wire
-from limbstream.skeleton import Skeleton
 
 KINDS: tuple[str, ...] = ("seg", "raw", "pose", "stats", "config")
 """Key kinds a recording holds, one channel each."""
@@ -62,11 +61,6 @@ SCHEMAS: dict[str, tuple[str, bytes]] = {
 :data:`MESSAGE_ENCODING`)."""
 
 _LEN = struct.Struct("<H")
-_BONE_INDEX = [wire.JOINTS.index(j) for bone in wire.BONES for j in bone]
-SUBJECT_SPACING_M = 1.0
-"""Skeletons are drawn side by side, this far apart (metres), as ``limbstream foxglove`` does."""
-_Y_UP_TO_Z_UP = (0.5, 0.5, 0.5, 0.5)  # (x, y, z, w): limbstream's Z, X, Y become world X, Y, Z
-_LEG_M = Skeleton().thigh + Skeleton().shank  # the pelvis above the grid
 
 
 class RecordingError(ValueError):
@@ -134,11 +128,11 @@ class RecordingWriter:
                                                           data=SCHEMAS[kind][1]))
             for kind in KINDS
         }
-        self._fm = None
+        self._fox = None
         if skeleton:
-            import foxglove.messages as fm
+            from services.outputs import foxglove as fox
 
-            self._fm, self._color = fm, fm.Color(r=0.2, g=0.7, b=1.0, a=1.0)
+            self._fox = fox
         self._skeletons: dict[str, tuple] = {}  # subject -> (channel, where its body is drawn)
         self._prefixes: dict[str, bytes] = {}
         self._poses: dict[str, object] = {}  # subject -> where its skeleton is drawn
@@ -155,30 +149,20 @@ class RecordingWriter:
         self.counts[kind] += 1
 
     def add_skeleton(self, subject: str, frame: wire.PoseFrame, log_ns: int) -> None:
-        """``frame`` of ``subject`` as a foxglove.SceneUpdate on :func:`skeleton_topic`: entity
-        ``<subject>`` in frame ``world`` (Z up), a line list of :data:`wire.BONES` between the
-        joints, placed as ``limbstream foxglove`` places subjects: limbstream's body frame turned
-        Z up, the pelvis lifted by the default leg length, the n-th subject seen (from 0)
-        :data:`SUBJECT_SPACING_M` to the right of the one before."""
-        if self._fm is None:
+        """``frame`` of ``subject`` as a foxglove.SceneUpdate on :func:`skeleton_topic`, built as
+        ``limbstream foxglove`` builds it (``services.outputs.foxglove.scene_update``), in frame
+        ``world``, placed as that output places subjects: the n-th subject seen here (from 0) in
+        slot n."""
+        if self._fox is None:
             return
-        fm = self._fm
         known = self._skeletons.get(subject)
         if known is None:
             from foxglove.channels import SceneUpdateChannel
 
-            x, y, z, w = _Y_UP_TO_Z_UP
-            where = fm.Pose(position=fm.Vector3(x=0.0, y=-SUBJECT_SPACING_M * len(self._skeletons), z=_LEG_M),
-                            orientation=fm.Quaternion(x=x, y=y, z=z, w=w))
             known = self._skeletons[subject] = (SceneUpdateChannel(skeleton_topic(subject), context=self._context),
-                                                where)
+                                                self._fox.placement(len(self._skeletons)))
         channel, where = known
-        line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineList, thickness=0.02, pose=where,
-                                points=[fm.Point3(x=x, y=y, z=z) for x, y, z in frame.joints.tolist()],
-                                indices=_BONE_INDEX, color=self._color)
-        entity = fm.SceneEntity(timestamp=fm.Timestamp(sec=frame.t_us // 1_000_000, nsec=frame.t_us % 1_000_000 * 1000),
-                                frame_id="world", id=subject, lines=[line])
-        channel.log(fm.SceneUpdate(entities=[entity]), log_time=log_ns)
+        channel.log(self._fox.scene_update(subject, frame, where), log_time=log_ns)
         self.counts["skeleton"] += 1
 
     def flush(self) -> None:
