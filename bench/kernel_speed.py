@@ -2,6 +2,7 @@
 off, and binding overhead.
 
     python bench/kernel_speed.py            # prints the tables of docs/kernel.md
+    python bench/kernel_speed.py --points   # only the cost of encoding a segment point (emulator)
 
 Single core, batch API (limbstream.kernel.segment), piecewise-linear test signals whose
 segments have a known length, so the realised average segment length is printed next to
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from limbstream import kernel
+from limbstream import kernel, wire
 
 THRESHOLD = 1e-3  # far above float32 noise on these lines, far below a knot's SSR
 CMU = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "cmu_10seg_50hz.npz"
@@ -122,11 +123,73 @@ def overhead_table(m: int) -> list[tuple[str, float]]:
     ]
 
 
+def point_cost_table(devices: int = 2000, ticks: int = 20, repeats: int = 5) -> list[tuple[str, float, float]]:
+    """ns per segment point of the emulator's per-tick path, live rule off and on (5 deg):
+    (path, ns off, ns on). Threshold 0 makes every sample a point, so one tick of ``devices``
+    devices gives ``devices`` points; the bank's update alone is subtracted."""
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(ticks, devices, 4))
+    q = (q / np.linalg.norm(q, axis=2, keepdims=True)).astype(np.float32)
+    out = {}
+    for bound in (0.0, 5.0):
+        bank = kernel.SegmenterBank(devices, threshold=0.0, max_len=25, live_bound_deg=bound, ring=4)
+        clock = iter(range(1 << 30))
+
+        def bare():
+            bank.update(np.full(devices, next(clock) * 20_000, np.uint32), q[0])
+
+        def python_encoder():  # the emulator's path before the bank encoded: a SegmentPoint per point
+            i = next(clock)
+            status, index, y = bank.update(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
+            omega = bank.points_omega()
+            for k in np.flatnonzero(status == kernel.POINT):
+                rate = tuple(float(v) for v in omega[k]) if bound else None
+                wire.encode_point(wire.SegmentPoint(1, 2, int(index[k]), 4, tuple(float(v) for v in y[k]), 0, rate))
+
+        def c_encoder():
+            i = next(clock)
+            bank.update_wire(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
+
+        def c_encoder_sliced():  # and the emulator's slice per point
+            i = next(clock)
+            slots, payload, ends = bank.update_wire(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
+            start = 0
+            for _, end in zip(slots.tolist(), ends.tolist()):
+                payload[start:end]
+                start = end
+
+        def per_tick(fn):
+            def run():
+                for _ in range(ticks):
+                    fn()
+            return best_ns(run, repeats) / ticks
+
+        base = per_tick(bare)
+        for name, fn in (("wire.encode_point(SegmentPoint(...)) per point (before)", python_encoder),
+                         ("SegmenterBank.update_wire(), C encoder", c_encoder),
+                         ("update_wire() + a bytes slice per point (the emulator now)", c_encoder_sliced)):
+            out.setdefault(name, []).append((per_tick(fn) - base) / devices)
+    return [(name, off, on) for name, (off, on) in out.items()]
+
+
+def print_point_costs() -> None:
+    print("Segment point encoding, emulator path, 2000 devices per tick, ns per point "
+          "(beyond SegmenterBank.update())\n")
+    print("| path | live rule off (v1) | live rule 5 deg (v2) |")
+    print("|---|---:|---:|")
+    for name, off, on in point_cost_table():
+        print(f"| {name} | {off:.0f} | {on:.0f} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=200_000, help="samples per stream")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--points", action="store_true", help="only the segment point encoding table")
     args = parser.parse_args(argv)
+    if args.points:
+        print_point_costs()
+        return 0
 
     rows = segment_length_table(args.samples, args.repeats)
     print(f"Host speed, batch API, {args.samples} samples, D = 4, single core (ns per sample)\n")
@@ -147,6 +210,8 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---:|")
     for name, ns in overhead_table(20_000):
         print(f"| {name} | {ns:.0f} |")
+    print()
+    print_point_costs()
     return 0
 
 
