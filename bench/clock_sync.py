@@ -101,8 +101,11 @@ def cost(args) -> int:
               f"{rate / args.devices:.4f} /s | {total:.2f} % | {1e4 * total / max(rate, 1e-9):.0f} us |")
     inside = re.search(r"CPU: workers ([\d.]+) s, tick loop ([\d.]+) s", texts["A"])
     if inside:
-        print(f"\nemulator A's own accounting over its whole run (start included): worker threads {inside[1]} s, "
-              f"tick loop (results, stamps) {inside[2]} s")
+        run_s = args.windows[-1][1]
+        print(f"\nemulator A's own CPU accounting over its whole run ({run_s:g} s, start included): exchange "
+              f"worker threads {inside[1]} s ({100 * float(inside[1]) / run_s:.2f} % of a core), tick loop's "
+              f"share (applying answers, stamping in the common time base) {inside[2]} s "
+              f"({100 * float(inside[2]) / run_s:.2f} %); Zenoh's own threads are in the process CPU only")
     synced = re.search(r"time sync: (\d+)/(\d+) devices synced at start", texts["A"])
     if synced:
         print(synced[0])

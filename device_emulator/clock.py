@@ -308,7 +308,7 @@ class SyncClient:
         self.backoff = np.full(n, MIN_POLL_S)
         self.interval = np.full(n, MIN_POLL_S)
         self.exchanges = 0
-        self.busy_s = 0.0                      # time the tick loop spent on sync (results, stamps), s
+        self.busy_s = 0.0                      # CPU time the tick loop spent on sync (results, stamps), s
         self._worker_cpu = [0.0] * WORKERS     # CPU time of each worker thread, s
         self._ids = np.zeros(n, np.int64)      # id of each device's request in flight
         self._heap: list[tuple[float, int]] = []
@@ -402,7 +402,7 @@ class SyncClient:
     def poll(self) -> int:
         """Apply the exchanges finished since the last call (tick loop, between ticks).
         Returns how many."""
-        began = time.perf_counter()
+        began = time.thread_time()
         done = 0
         speed = self.clocks.base.speed
         while self._results:
@@ -410,7 +410,7 @@ class SyncClient:
             done += 1
             delay_s = self._apply(slot, rid, t1, t4, answer)
             self._schedule(slot, time.monotonic() + delay_s / speed)
-        self.busy_s += time.perf_counter() - began
+        self.busy_s += time.thread_time() - began
         return done
 
     def _apply(self, slot: int, rid: int, t1: int, t4: int, payload: bytes | None) -> float:
@@ -491,9 +491,9 @@ class SyncClient:
     def stamp(self, slots: np.ndarray, local_us: np.ndarray) -> np.ndarray:
         """Common-time stamps of samples taken at local times ``local_us`` by devices ``slots``
         (each once, times increasing per device), us float64; sets :attr:`stepped`."""
-        began = time.perf_counter()
+        began = time.thread_time()
         stamps = self._stamp(slots, local_us)
-        self.busy_s += time.perf_counter() - began
+        self.busy_s += time.thread_time() - began
         return stamps
 
     def _stamp(self, slots: np.ndarray, local_us: np.ndarray) -> np.ndarray:
