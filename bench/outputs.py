@@ -54,8 +54,9 @@ class PosePublisher:
         self.joints = Skeleton().positions(self.q)
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
         self.subjects = subjects
-        self.pose = [self.session.declare_publisher(wire.pose_key(s)) for s in subjects]
-        self.stats = [self.session.declare_publisher(wire.stats_key(s)) for s in subjects]
+        live, stats = zconfig.publisher_options("pose_live"), zconfig.publisher_options("stats")  # as the aggregator
+        self.pose = [self.session.declare_publisher(wire.pose_key(s), **live) for s in subjects]
+        self.stats = [self.session.declare_publisher(wire.stats_key(s), **stats) for s in subjects]
         self.frames = self.late = 0
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
