@@ -32,7 +32,7 @@ import zenoh
 import zenoh.ext as zext
 
 from device_emulator.clock import ClockSettings, DeviceClocks, SyncClient, TimeBase
-from limbstream import kernel, quat, wire
+from limbstream import kernel, quat, wire, zconfig
 
 log = logging.getLogger("limbstream.emulator")
 
@@ -172,7 +172,7 @@ class Emulator:
                 cache=zext.CacheConfig(max_samples=s.cache),
                 sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s),
                 publisher_detection=True,
-                congestion_control=zenoh.CongestionControl.BLOCK,  # never drop a point under load
+                **zconfig.publisher_options("seg"),  # never drop a point under load
             )
             d.token = self.session.liveliness().declare_token(wire.alive_key(d.subject, d.segment))
         # the truth tap is recoverable too (cache: 64 batches, 32 s at 50 Hz), so a router restart or a
@@ -180,7 +180,8 @@ class Emulator:
         self._raw_pubs = (
             {d.slot: zext.declare_advanced_publisher(
                 self.session, wire.raw_key(d.subject, d.segment), cache=zext.CacheConfig(max_samples=64),
-                sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s), publisher_detection=True)
+                sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s), publisher_detection=True,
+                **zconfig.publisher_options("raw"))
              for d in self.devices}
             if s.truth else {}
         )

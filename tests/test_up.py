@@ -211,6 +211,8 @@ def test_up_brings_back_each_killed_part(stack, tmp_path):  # noqa: F811
         assert http_json(up.url + "/health")[0] == 200
         devices = sorted(watch.devices)
         live = wire.DeviceConfig(**wire.LIVE_MODE)  # up's devices run live mode by default
+        wait_until(lambda: all(watch.poll()[d]["threshold"] is not None for d in devices), 30,
+                   "the aggregator to learn every device's settings (config poll)", on_fail=up.logs)
         settings = {(watch.devices[d]["live_bound_deg"], watch.devices[d]["threshold"]) for d in devices}
         assert settings == {(live.live_bound_deg, live.threshold)}, settings
 
