@@ -451,6 +451,15 @@ class SegmenterBank:
         else:
             self._wire = None
 
+    def _samples(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """``ticks`` and ``y`` as the C calls take them, checked against the bank; and n."""
+        ticks = np.ascontiguousarray(ticks, np.uint32)
+        y = np.ascontiguousarray(y, np.float32)
+        n = len(ticks)
+        if n > self.count or y.shape != (n, self.dim):
+            raise ValueError(f"ticks (n,) and y (n, {self.dim}) with n <= {self.count}; got {ticks.shape}, {y.shape}")
+        return ticks, y, n
+
     def update(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Advance the first n streams by one sample (n = len(ticks) <= count; the others,
         e.g. streams that have ended, are left as they are).
@@ -466,11 +475,7 @@ class SegmenterBank:
         index : (n,) uint32 sample index of each stream's point (where status == POINT).
         y : (n, D) float32 value of each stream's point (where status == POINT).
         """
-        ticks = np.ascontiguousarray(ticks, np.uint32)
-        y = np.ascontiguousarray(y, np.float32)
-        n = len(ticks)
-        if n > self.count or y.shape != (n, self.dim):
-            raise ValueError(f"ticks (n,) and y (n, {self.dim}) with n <= {self.count}; got {ticks.shape}, {y.shape}")
+        ticks, y, n = self._samples(ticks, y)
         _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points, self._rates.ctypes.data)
         self._n = n
         view = self._point_view[:n]
@@ -496,11 +501,7 @@ class SegmenterBank:
         """
         if self._wire is None:
             raise ValueError("update_wire needs a bank made with ring >= 1")
-        ticks = np.ascontiguousarray(ticks, np.uint32)
-        y = np.ascontiguousarray(y, np.float32)
-        n = len(ticks)
-        if n > self.count or y.shape != (n, self.dim):
-            raise ValueError(f"ticks (n,) and y (n, {self.dim}) with n <= {self.count}; got {ticks.shape}, {y.shape}")
+        ticks, y, n = self._samples(ticks, y)
         k = _lib.lsw_bank_update(self._states, n, ticks, y, self._status, self._points, self._rates.ctypes.data,
                                  ctypes.byref(self._wire), self._out.ctypes.data, self._slots.ctypes.data,
                                  self._ends.ctypes.data)

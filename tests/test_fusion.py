@@ -128,6 +128,21 @@ def test_lost_points_flag_the_frames_they_span_as_gap():
     assert np.array_equal(gap, (t > 300_000) & (t < 600_000)), "GAP exactly between the points around the loss"
 
 
+SPIN = (0.0, 0.0, 2.0)  # rad/s about z
+
+
+def spinning_subject() -> tuple[Aggregator, list[wire.PoseFrame]]:
+    """An online subject at T0, arrived at 0: the first segment's point (v2) spins at SPIN, the
+    others are v1 points at rest."""
+    agg, sent = aggregator()
+    online_subject(agg)
+    point = wire.SegmentPoint(1, 0, 0, T0, IDENTITY, 0, SPIN)
+    agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(point), 0.0)
+    for segment in SEGMENTS[1:]:
+        send(agg, segment, range(1), now=0.0)
+    return agg, sent
+
+
 def test_live_frames_extrapolate_open_segments_with_the_point_rate():
     """Live frames: a segment whose newest point carries a rate (v2) is extrapolated with
     quat.predict to the subject's device time "now" (newest device time + arrival clock since),
@@ -136,13 +151,8 @@ def test_live_frames_extrapolate_open_segments_with_the_point_rate():
     rotation for the held one) and the live stats rows are filled."""
     from limbstream import quat
 
-    agg, sent = aggregator()
-    online_subject(agg)
-    spin = (0.0, 0.0, 2.0)  # rad/s about z
-    point = wire.SegmentPoint(1, 0, 0, T0, IDENTITY, 0, spin)
-    agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(point), 0.0)
-    for segment in SEGMENTS[1:]:
-        send(agg, segment, range(1), now=0.0)
+    agg, sent = spinning_subject()
+    spin = SPIN
     agg.advance(live=True, now=0.1)
     live = [f for f in sent if f.kind == wire.KIND_LIVE]
     assert len(live) == 1 and live[0].t_us == T0 + 100_000, "device now: newest time + 100 ms of arrival clock"
@@ -172,13 +182,8 @@ def test_live_frames_stop_extrapolating_a_device_that_went_silent():
     from limbstream import quat
     from services.aggregator.fusion import OVERDUE_GRACE_S
 
-    agg, sent = aggregator()
-    online_subject(agg)
-    spin = (0.0, 0.0, 2.0)  # rad/s about z
-    point = wire.SegmentPoint(1, 0, 0, T0, IDENTITY, 0, spin)
-    agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(point), 0.0)
-    for segment in SEGMENTS[1:]:
-        send(agg, segment, range(1), now=0.0)
+    agg, sent = spinning_subject()
+    spin = SPIN
     horizon_s = wire.MAX_LEN.default / AggregatorSettings().rate + OVERDUE_GRACE_S
 
     def newest_live() -> wire.PoseFrame:
