@@ -123,53 +123,56 @@ def overhead_table(m: int) -> list[tuple[str, float]]:
     ]
 
 
+def point_costs(bound: float, q: np.ndarray, repeats: int) -> dict[str, float]:
+    """ns per segment point of each encoding path, beyond SegmenterBank.update(), with live bound
+    ``bound``; q (ticks, devices, 4) float32 samples, every one a point (threshold 0)."""
+    ticks, devices = q.shape[:2]
+    bank = kernel.SegmenterBank(devices, threshold=0.0, max_len=25, live_bound_deg=bound, ring=4)
+    clock = iter(range(1 << 30))
+
+    def bare():
+        bank.update(np.full(devices, next(clock) * 20_000, np.uint32), q[0])
+
+    def python_encoder():  # the emulator's path before the bank encoded: a SegmentPoint per point
+        i = next(clock)
+        status, index, y = bank.update(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
+        omega = bank.points_omega()
+        for k in np.flatnonzero(status == kernel.POINT):
+            rate = tuple(float(v) for v in omega[k]) if bound else None
+            wire.encode_point(wire.SegmentPoint(1, 2, int(index[k]), 4, tuple(float(v) for v in y[k]), 0, rate))
+
+    def c_encoder():
+        i = next(clock)
+        bank.update_wire(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
+
+    def c_encoder_sliced():  # and the emulator's slice per point
+        i = next(clock)
+        slots, payload, ends = bank.update_wire(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
+        start = 0
+        for _, end in zip(slots.tolist(), ends.tolist()):
+            payload[start:end]
+            start = end
+
+    def per_tick(fn) -> float:
+        def run():
+            for _ in range(ticks):
+                fn()
+        return best_ns(run, repeats) / ticks
+
+    base = per_tick(bare)
+    return {name: (per_tick(fn) - base) / devices for name, fn in (
+        ("wire.encode_point(SegmentPoint(...)) per point (before)", python_encoder),
+        ("SegmenterBank.update_wire(), C encoder", c_encoder),
+        ("update_wire() + a bytes slice per point (the emulator now)", c_encoder_sliced))}
+
+
 def point_cost_table(devices: int = 2000, ticks: int = 20, repeats: int = 5) -> list[tuple[str, float, float]]:
-    """ns per segment point of the emulator's per-tick path, live rule off and on (5 deg):
-    (path, ns off, ns on). Threshold 0 makes every sample a point, so one tick of ``devices``
-    devices gives ``devices`` points; the bank's update alone is subtracted."""
+    """ns per segment point of the emulator's per-tick path: (path, live rule off, live rule 5 deg)."""
     rng = np.random.default_rng(1)
     q = rng.normal(size=(ticks, devices, 4))
     q = (q / np.linalg.norm(q, axis=2, keepdims=True)).astype(np.float32)
-    out = {}
-    for bound in (0.0, 5.0):
-        bank = kernel.SegmenterBank(devices, threshold=0.0, max_len=25, live_bound_deg=bound, ring=4)
-        clock = iter(range(1 << 30))
-
-        def bare():
-            bank.update(np.full(devices, next(clock) * 20_000, np.uint32), q[0])
-
-        def python_encoder():  # the emulator's path before the bank encoded: a SegmentPoint per point
-            i = next(clock)
-            status, index, y = bank.update(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
-            omega = bank.points_omega()
-            for k in np.flatnonzero(status == kernel.POINT):
-                rate = tuple(float(v) for v in omega[k]) if bound else None
-                wire.encode_point(wire.SegmentPoint(1, 2, int(index[k]), 4, tuple(float(v) for v in y[k]), 0, rate))
-
-        def c_encoder():
-            i = next(clock)
-            bank.update_wire(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
-
-        def c_encoder_sliced():  # and the emulator's slice per point
-            i = next(clock)
-            slots, payload, ends = bank.update_wire(np.full(devices, i * 20_000, np.uint32), q[i % ticks])
-            start = 0
-            for _, end in zip(slots.tolist(), ends.tolist()):
-                payload[start:end]
-                start = end
-
-        def per_tick(fn):
-            def run():
-                for _ in range(ticks):
-                    fn()
-            return best_ns(run, repeats) / ticks
-
-        base = per_tick(bare)
-        for name, fn in (("wire.encode_point(SegmentPoint(...)) per point (before)", python_encoder),
-                         ("SegmenterBank.update_wire(), C encoder", c_encoder),
-                         ("update_wire() + a bytes slice per point (the emulator now)", c_encoder_sliced)):
-            out.setdefault(name, []).append((per_tick(fn) - base) / devices)
-    return [(name, off, on) for name, (off, on) in out.items()]
+    off, on = point_costs(0.0, q, repeats), point_costs(5.0, q, repeats)
+    return [(name, off[name], on[name]) for name in off]
 
 
 def print_point_costs() -> None:
