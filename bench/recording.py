@@ -6,7 +6,7 @@
 
 recorder: a publisher process sends what 200 subjects put on the router — every device's
 segment points and truth batches (generator motion through the C kernel), every subject's exact
-(50 Hz) and live (10 Hz) pose frames and stats (1 Hz) — in real time; the recorder (services/
+(50 Hz) and live (50 Hz; 10 Hz with ``--traffic plain``) pose frames and stats (1 Hz) — in real time; the recorder (services/
 outputs/record.py) runs in this process, so its CPU is this process's. Dropped = sent - recorded.
 
 size: the real chain (emulator, aggregator, `limbstream record`) for a while; the recording's
@@ -52,15 +52,20 @@ def cpu_now() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def device_events(name: str, q: np.ndarray, stream: int, truth: bool, start_us: int = START_US) -> list:
+def device_events(name: str, q: np.ndarray, stream: int, truth: bool, start_us: int = START_US,
+                  traffic: str = "live") -> list:
     """(tick when sent, kind, key, payload) of the 10 devices of subject ``name`` for motion q (m, 10, 4):
     a segment point is sent one sample after its own, a truth batch every 25 samples (devices
-    staggered over the 25 ticks), as emulated devices do; the last point of each stream is FINAL."""
+    staggered over the 25 ticks), as emulated devices do; the last point of each stream is FINAL.
+    ``traffic``: the devices' settings, "live" (wire.LIVE_MODE, as under `limbstream up`) or
+    "plain" (fastSW's defaults: TH 1e-2, live rule off)."""
+    settings = wire.DeviceConfig(**wire.LIVE_MODE) if traffic == "live" else wire.DeviceConfig()
     m = len(q)
     t = np.arange(m) / FS
     events = []
     for j, seg in enumerate(SEGMENTS):
-        index = kernel.segment(t, q[:, j], 1e-2, 25).index
+        index = kernel.segment(t, q[:, j], settings.threshold, settings.max_len,
+                               live_bound_deg=settings.live_bound_deg).index
         for n, idx in enumerate(index):
             last = n == len(index) - 1 and idx == m - 1
             p = wire.SegmentPoint(stream, n, int(idx), start_us + int(idx) * 20_000, tuple(map(float, q[idx, j])),
@@ -96,7 +101,7 @@ def publisher_qos(kind: str, payload: bytes, mode: str) -> dict:
     return zconfig.publisher_options(kind)
 
 
-def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, qos: str) -> None:
+def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, qos: str, traffic: str) -> None:
     """Child process: what ``subjects`` subjects and their aggregator put on the router, in real time."""
 
     m = int(seconds * FS)
@@ -105,8 +110,8 @@ def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, qo
     for s in range(subjects):
         name = f"s{s + 1:03d}"
         q = GeneratorSource(s + 1, FS).chunk(0, m)[1].astype(np.float32)
-        events += device_events(name, q, s, truth)
-        for kind, every in ((wire.KIND_EXACT, 1), (wire.KIND_LIVE, 5)):
+        events += device_events(name, q, s, truth, traffic=traffic)
+        for kind, every in ((wire.KIND_EXACT, 1), (wire.KIND_LIVE, 1 if traffic == "live" else 5)):
             ticks = np.arange(0, m, every)
             frames = wire.PoseFrames(np.arange(len(ticks)), START_US + ticks * 20_000, kind, np.zeros(len(ticks), int),
                                      q[ticks], body.positions(q[ticks]))
@@ -153,11 +158,11 @@ def publisher_main(endpoint: str, subjects: int, seconds: float, truth: bool, qo
 
 
 def run_publisher(launcher: Launcher, endpoint: str, subjects: int, seconds: float, truth: bool,
-                  qos: str) -> dict:
+                  qos: str, traffic: str) -> dict:
     """Start the publisher child, wait until it has sent everything; its report (``sent`` by kind,
     ``late_ticks``); ``started``: time.monotonic() when it began publishing."""
     pub = launcher.start("publisher", "publish", endpoint, str(subjects), str(seconds), str(int(truth)),
-                         qos, command=(sys.executable, os.path.abspath(__file__)))
+                         qos, traffic, command=(sys.executable, os.path.abspath(__file__)))
     wait_until(lambda: "publishing" in "\n".join(pub.tail()), 600, "the publisher to start", interval=0.05)
     started = time.monotonic()
     wait_until(lambda: not pub.alive(), seconds + 120, "the publisher to finish", interval=0.2)
@@ -165,7 +170,7 @@ def run_publisher(launcher: Launcher, endpoint: str, subjects: int, seconds: flo
     return {**report, "started": started, "total": sum(report["sent"].values())}
 
 
-def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, qos: str) -> int:
+def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, qos: str, traffic: str) -> int:
     """Messages a subscriber that only empties Zenoh's channels misses of the same traffic (the
     baseline: what the publisher and router lose on the way, whoever listens)."""
     import zenoh
@@ -183,7 +188,7 @@ def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, qos: str) 
                 got[0] += sum(1 for sub in subs for _ in iter(sub.try_recv, None))
         thread = threading.Thread(target=empty)
         thread.start()
-        report = run_publisher(launcher, endpoint, subjects, seconds, truth, qos)
+        report = run_publisher(launcher, endpoint, subjects, seconds, truth, qos, traffic)
         time.sleep(2.0)  # what is still on its way
         stop.set()
         thread.join()
@@ -191,10 +196,10 @@ def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, qos: str) 
     return report["total"] - got[0]
 
 
-def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, qos: str) -> None:
+def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, qos: str, traffic: str) -> None:
     how = {"block": "BLOCK for every message", "drop": "BLOCK for segment points, DROP for the rest",
            "deployed": "zconfig.QOS, as deployed"}[qos]
-    print(f"\n### One recorder ({seconds:g} s of traffic per row; truth tap {'on' if truth else 'off'}; congestion "
+    print(f"\n### One recorder ({seconds:g} s of {traffic} traffic per row; truth tap {'on' if truth else 'off'}; congestion "
           f"control {how}; publisher and router in their own processes)\n")
     print("| subjects | devices | messages/s | sent | recorded | not recorded | same traffic, missed by a do-nothing "
           "subscriber | recorder CPU (of one core) | most messages in one pass | MB/s written | publisher late ticks |")
@@ -211,7 +216,7 @@ def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, qos: 
             thread = threading.Thread(target=recorder.run, args=(stop,))
             thread.start()
             cpu0 = cpu_now()
-            report = run_publisher(launcher, endpoint, subjects, seconds, truth, qos)
+            report = run_publisher(launcher, endpoint, subjects, seconds, truth, qos, traffic)
             total = report["total"]
 
             def settled(recorder=recorder, total=total, previous=[-1]):  # noqa: B006 - the last count seen
@@ -225,7 +230,7 @@ def bench_recorder(subject_counts: list[int], seconds: float, truth: bool, qos: 
             recorder.close()
             session.close()
             summary = recorder.summary()
-        baseline = do_nothing_subscriber(subjects, seconds, truth, qos)
+        baseline = do_nothing_subscriber(subjects, seconds, truth, qos, traffic)
         recorded = sum(summary["messages"].values())
         print(f"| {subjects} | {10 * subjects} | {total / seconds:,.0f} | {total:,} | {recorded:,} | {total - recorded:,} | "
               f"{baseline:,} | {100 * cpu / wall:.0f} % | {summary['max_batch']:,} | "
@@ -293,7 +298,7 @@ def write_long_recording(path: Path, minutes: float, seed: int = 7) -> Motion:
     writer = RecordingWriter(path, {"subjects": "s01", "truth": "true", "made_by": "bench/recording.py"},
                              skeleton=False)
     log0 = START_US * 1000
-    for tick, kind, key, payload in sorted(device_events("s01", q.astype(np.float32), 1, True), key=lambda e: e[0]):
+    for tick, kind, key, payload in sorted(device_events("s01", q.astype(np.float32), 1, True, traffic="plain"), key=lambda e: e[0]):
         log_ns = log0 + tick * 20_000_000 + 5_000_000  # 5 ms after the sample that closes it
         writer.add(kind, key, payload, log_ns)
     writer.close()
@@ -348,7 +353,7 @@ def bench_replay(minutes: float, speed: float) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "publish":  # the publisher child process
-        publisher_main(argv[1], int(argv[2]), float(argv[3]), bool(int(argv[4])), argv[5])
+        publisher_main(argv[1], int(argv[2]), float(argv[3]), bool(int(argv[4])), argv[5], argv[6])
         return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("recorder", "size", "replay", "all"))
@@ -358,13 +363,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--qos", choices=QOS_MODES, default="deployed",
                         help="recorder rows: publisher options (deployed: zconfig.QOS; block: BLOCK for every message; "
                              "drop: BLOCK for points, DROP for the rest, the policy before zconfig.QOS)")
+    parser.add_argument("--traffic", choices=("live", "plain"), default="live",
+                        help="recorder rows: live (default, as `limbstream up`: devices in live mode, "
+                             "wire.LIVE_MODE, live frames 50 Hz) or plain (TH 1e-2, live rule off, live frames 10 Hz)")
     parser.add_argument("--size-subjects", type=int, default=2, help="subjects of the size recording")
     parser.add_argument("--source", default="generator", help="motion of the size recording (emulate --source)")
     parser.add_argument("--minutes", type=float, default=60.0, help="length of the replayed recording")
     parser.add_argument("--speed", type=float, default=20.0, help="replay speed")
     args = parser.parse_args(argv)
     if args.what in ("recorder", "all"):
-        bench_recorder([int(n) for n in args.subjects.split(",")], args.seconds, not args.no_truth, args.qos)
+        bench_recorder([int(n) for n in args.subjects.split(",")], args.seconds, not args.no_truth, args.qos,
+                       args.traffic)
     if args.what in ("size", "all"):
         bench_size(args.seconds, args.size_subjects, args.source)
     if args.what in ("replay", "all"):
