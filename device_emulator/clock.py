@@ -300,6 +300,7 @@ class SyncClient:
         self.ever = np.zeros(n, bool)          # was synced once (stamps follow the line from then on)
         self.step = np.zeros(n, bool)          # the next stamp sets c to the line (no slew)
         self.stepped = np.zeros(n, bool)       # the last stamp of the device was a step
+        self._steady = False                   # every device stamps on its line (see _stamp)
         self.valid = np.zeros(n, np.int64)     # valid answers
         self.last_valid = np.full(n, -np.inf)  # local time of the last valid answer
         self.rtt_us = np.full(n, np.nan)
@@ -442,6 +443,7 @@ class SyncClient:
         self.rtt_us[slot] = (t4 - t1) - (answer.t3_us - answer.t2_us)
         self.last_valid[slot] = t4
         self.a[slot], self.b[slot], self.ref[slot] = est.a, est.b, est.ref
+        self._steady = False
         self.have[slot] = True
         if not was_synced and self.synced(slot, t4):  # acquired, or reacquired after the holdover
             if not self.ever[slot]:
@@ -498,6 +500,10 @@ class SyncClient:
 
     def _stamp(self, slots: np.ndarray, local_us: np.ndarray) -> np.ndarray:
         idx = slice(0, len(slots)) if len(slots) and slots[-1] == len(slots) - 1 else slots  # all: views
+        if self._steady:  # no slew, step or new line since every device's correction met its line
+            new = self.a[idx] + self.b[idx] * (local_us - self.ref[idx])
+            self.c[idx], self.c_local[idx] = new, local_us
+            return local_us + new
         b, at = self.b[idx], self.c_local[idx]
         with np.errstate(invalid="ignore"):
             dt = local_us - at                      # NaN: the device's first stamp
@@ -518,6 +524,9 @@ class SyncClient:
         if not ever.all():
             new[~ever] = 0.0  # never synced: the device's own clock
         self.c[idx], self.c_local[idx] = new, local_us
+        # every device met its line (no slew left): it stays on it until a line changes
+        self._steady = (isinstance(idx, slice) and len(slots) == len(self.c) and bool(ever.all())
+                        and not self.stepped.any() and bool(np.all(np.abs(target - pred) <= limit)))
         return local_us + new
 
     def status(self, slot: int) -> wire.ClockStatus:
