@@ -485,12 +485,7 @@ class SegmenterBank:
         """:meth:`update`, and every point emitted as its segment point message (flags 0), encoded
         by the C encoder in the same call (lsw_bank.h): version 2 with its body rate where the
         stream's live rule is on, else version 1; each stream's ``seq`` advances by one per point.
-        Needs ``ring`` >= 1.
-
-        Parameters
-        ----------
-        ticks : (n,) uint32, kernel ticks (microseconds).
-        y : (n, D) float32 samples.
+        Needs ``ring`` >= 1. Parameters as :meth:`update`.
 
         Returns
         -------
