@@ -94,9 +94,9 @@ LIVE_MODE: dict[str, float] = {"live_bound_deg": 5.0, "threshold": 9e-4}
 """The settings ``limbstream up`` and the compose deployment give devices (the other entry points
 keep the plain fastSW defaults above): the live rule on at 5 degrees and a tighter SSR threshold.
 Chosen from the live frontier (docs/evaluation.md, "Live mode"): on CMU at max_len 25 this is
-ICR 0.2085, exact AAD 0.80 deg and every live sample within 5 deg; with the live rule on, most
-points are live-rule closes, so the tighter threshold costs few points (generator motion: ICR
-0.123 -> 0.135) and cuts the exact error by 40 % (1.09 -> 0.67 deg)."""
+ICR 0.2085, exact AAD 0.80 deg and every live sample within 5 deg; with the live rule on, the
+tighter threshold costs few points (generator motion: ICR 0.123 -> 0.135) and cuts the exact
+error by 40 % (1.09 -> 0.67 deg)."""
 
 
 @dataclass(frozen=True)
