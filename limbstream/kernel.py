@@ -97,7 +97,6 @@ _lib.fastsw_update_many.argtypes = [
 _lib.fastsw_update_many.restype = ctypes.c_size_t
 
 
-
 class BankWire(ctypes.Structure):
     """LswBankWire (lsw_bank.h): pointers to the wire fields of a bank's streams."""
 
@@ -111,6 +110,7 @@ _lib.lsw_bank_update.argtypes = [
     ctypes.POINTER(BankWire), ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
 ]
 _lib.lsw_bank_update.restype = ctypes.c_size_t
+
 _lib.cplr_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
 _lib.cplr_segment.restype = ctypes.c_size_t
 _lib.swing_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
@@ -249,8 +249,7 @@ def _fastsw(t, q, threshold, max_len, live_bound_deg: float = 0.0) -> Segmentati
     rejected = ctypes.c_size_t(0)
     k = _lib.fastsw_segment(ctypes.byref(settings), ticks, y, m, ctypes.byref(out), ctypes.byref(rejected))
     index = index[:k].astype(np.int64)
-    live = 0.0 < settings.live_bound_deg < 180.0
-    omega = body_rates(y[index], rates[:k]) if live else np.zeros((k, 3))
+    omega = body_rates(y[index], rates[:k]) if live_rule(settings) else np.zeros((k, 3))
     return Segmentation(index, t[index], q[index], m, int(rejected.value), omega, call[:k].astype(np.int64))
 
 
