@@ -103,16 +103,14 @@ def scene_update(subject: str, frame: wire.PoseFrame, placed: Pose | None = None
     """
     joints = frame.joints.tolist()
     points = [Point3(x=x, y=y, z=z) for x, y, z in joints]
+    lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
+                          points=points, indices=_BONE_INDEX, **({} if placed is None else {"pose": placed}))
     if placed is None:
-        lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
-                              points=points, indices=_BONE_INDEX)
         spheres = [SpherePrimitive(pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY),
                                    size=_JOINT_SIZE, color=_JOINT_COLOR) for x, y, z in joints]
         entity = SceneEntity(timestamp=_stamp(frame.t_us), frame_id=subject, id=subject, frame_locked=True,
                              lines=[lines], spheres=spheres)
     else:
-        lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
-                              points=points, indices=_BONE_INDEX, pose=placed)
         entity = SceneEntity(timestamp=_stamp(frame.t_us), frame_id="world", id=subject, lines=[lines])
     return SceneUpdate(entities=[entity])
 
