@@ -97,6 +97,25 @@ def test_history_arriving_after_live_points_completes_the_stream():
     assert agg.fusion.exact.count[late.slot] == 1, "the truth sample is judged against the full stream"
 
 
+def test_truth_arriving_before_its_streams_first_point_is_kept_for_it():
+    """Truth and points travel on different keys: a truth batch may come first. It waits for its
+    stream's first point and is then judged; truth of a stream that has ended is dropped."""
+    agg, _ = aggregator()
+    online_subject(agg)
+    track = agg.track("s01", SEGMENTS[0])
+    truth(agg, SEGMENTS[0], 1, now=0.0)                    # stream 1, before any of its points
+    assert not track.dropped and len(track.held_raw) == 1
+    send(agg, SEGMENTS[0], range(11), now=0.0)
+    agg.advance(live=False, now=0.1)
+    assert not track.dropped and not track.held_raw, dict(track.dropped)
+    assert agg.fusion.exact.count[track.slot] == 1, "the early truth sample is judged"
+
+    restarted = wire.SegmentPoint(2, 0, 0, T0 + 20 * STEP_US, IDENTITY)  # the device rebooted: stream 2
+    agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(restarted), 0.2)
+    truth(agg, SEGMENTS[0], 2, now=0.2)                    # a late batch of stream 1
+    assert track.dropped == {"raw_other_stream": 1} and not track.held_raw, dict(track.dropped)
+
+
 def test_offline_device_does_not_hold_frames_back_and_they_are_flagged():
     agg, sent = aggregator()
     online_subject(agg)

@@ -152,7 +152,7 @@ class Fusion:
         self.active[track.slot] = online and not track.final
         self._view = None
 
-    def _stream(self, track: DeviceTrack, stream: int) -> bool:
+    def _stream(self, track: DeviceTrack, stream: int, now: float) -> bool:
         state = track.check_stream(stream)
         if state == "new":
             slot = track.slot
@@ -165,12 +165,14 @@ class Fusion:
             self.latest_t[slot] = self.last_raw_t[slot] = _NONE
             self._unsettled.add(track)
             self._gappy.discard(track)
+            for batch in track.take_held_raw():  # truth that came before the stream's first point
+                self.add_raw(track, batch, now)
         return state != "stale"
 
     def add_point(self, track: DeviceTrack, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
         """A decoded segment point; False if dropped (counted on the track)."""
         self.advance_clock(now)
-        if not self._stream(track, p.stream):
+        if not self._stream(track, p.stream, now):
             return False
         slot = track.slot
         how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(slot, t_us))
@@ -193,7 +195,8 @@ class Fusion:
         return True
 
     def add_raw(self, track: DeviceTrack, batch: wire.RawBatch, now: float) -> bool:
-        """A decoded truth-tap batch; False if dropped (counted)."""
+        """A decoded truth-tap batch; False if dropped (counted) or held until the first point of
+        its stream arrives."""
         self.advance_clock(now)
         if not track.accept_raw(batch, now):
             return False

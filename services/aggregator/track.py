@@ -19,6 +19,10 @@ aggregator, which may arrive after live points) are still taken in, seconds."""
 RATE_WINDOW_S = 5.0
 """Sliding window of the data-rate figures, seconds (arrival time)."""
 
+HELD_RAW = 16
+"""Truth batches of a stream whose first point has not arrived yet, kept per device until it
+does (truth and points travel on different keys, so either may come first)."""
+
 MAX_T_US = 2**53
 """Device timestamps must lie in [0, 2**53) us (year 2255): frame times and SLERP run in
 float64, exact below 2**53. Others are dropped as ``time_range`` (a point near the int64 limit
@@ -45,6 +49,7 @@ class DeviceTrack:
         self.generation = 0
         self._retired: collections.deque = collections.deque(maxlen=16)
         self.stream: int | None = None
+        self.held_raw: collections.deque = collections.deque()  # truth batches of a stream to come
         self.reset_stream()
 
     def reset_stream(self) -> None:
@@ -131,10 +136,18 @@ class DeviceTrack:
             return True
         return len(self.early) >= self.first_seq or now - self.first_arrival >= HISTORY_GRACE_S
 
-    def accept_raw(self, batch: wire.RawBatch, now: float) -> bool:
+    def accept_raw(self, batch: wire.RawBatch, now: float) -> bool | None:
+        """True if the batch is taken, None if it is held until its stream's first point
+        arrives (:meth:`take_held_raw`), False if it is dropped (counted)."""
         if batch.stream != self.stream:
-            self.dropped["raw_other_stream"] += 1
-            return False
+            if batch.stream in self._retired:
+                self.dropped["raw_other_stream"] += 1
+                return False
+            if len(self.held_raw) == HELD_RAW:
+                self.held_raw.popleft()
+                self.dropped["raw_other_stream"] += 1
+            self.held_raw.append(batch)
+            return None
         if not 0 <= int(batch.t_us[0]) <= int(batch.t_us[-1]) < MAX_T_US:  # (wrapped int64 fails too)
             self.dropped["raw_time_range"] += 1
             return False
@@ -142,6 +155,14 @@ class DeviceTrack:
         self.last_raw_t_us = max(self.last_raw_t_us or 0, int(batch.t_us[-1]))
         self.see(int(batch.t_us[-1]), now)
         return True
+
+    def take_held_raw(self) -> list[wire.RawBatch]:
+        """The held truth batches of the current stream (to take in now); others are dropped."""
+        mine = [b for b in self.held_raw if b.stream == self.stream]
+        if len(mine) < len(self.held_raw):
+            self.dropped["raw_other_stream"] += len(self.held_raw) - len(mine)
+        self.held_raw.clear()
+        return mine
 
     def see(self, t_us: int, now: float) -> None:
         if self.latest_t_us is None or t_us >= self.latest_t_us:
