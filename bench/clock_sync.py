@@ -12,8 +12,15 @@ ppm without sync), the same motion each time; the subjects' alignment-aware fram
 (``frame_aad_deg``, 60 s window) over device time, and for the synced run each sample's
 timestamp error against its reference time.
 
+``stamp``: the CPU of stamping one tick's samples on the common time base (one C call for all
+devices, as the emulator does), warm (back-to-back calls) and after a 2 ms sleep (as in the
+emulator, whose tick loop sleeps between ticks: caches and predictors are cold), next to an
+empty call, a bare ``numpy`` allocation of the same size and numpy's ``.ctypes.data`` (what a
+ctypes call's array argument costs unless its address is taken once) for scale.
+
     python bench/clock_sync.py cost                   # 2 x 2,000 devices, 25 minutes
     python bench/clock_sync.py hour                   # 1 hour at --speed 20 (about 3.5 min per setup)
+    python bench/clock_sync.py stamp                  # a few seconds
 """
 from __future__ import annotations
 
@@ -53,6 +60,15 @@ def answered(log: Path) -> list[tuple[float, int]]:
     return out
 
 
+def sync_cpu(log: Path) -> list[tuple[float, float, float]]:
+    """(log time, worker CPU s, tick-loop CPU s) so far, from an emulator's -v sync lines."""
+    out = []
+    pattern = r"^(\S+ \S+) limbstream\.emulator\.clock time sync: .*CPU: workers ([\d.]+) s, tick loop ([\d.]+) s"
+    for m in re.finditer(pattern, log.read_text(), re.M):
+        out.append((time.mktime(time.strptime(m[1].split(",")[0], "%Y-%m-%d %H:%M:%S")), float(m[2]), float(m[3])))
+    return out
+
+
 def cost(args) -> int:
     """Two independent stacks side by side over the same minutes, so that both see the same load
     from the rest of the machine: A (router, time service, emulator with sync) and B (router,
@@ -64,11 +80,17 @@ def cost(args) -> int:
             router = launcher.router(endpoint)
             clock = launcher.start(f"clock{name}", "clock", "--connect", endpoint, "-v") if sync else None
             stacks[name] = {"router": router, "clock": clock, "endpoint": endpoint}
-        time.sleep(1.0)
+        # the processes' own floor before any device exists: what a Zenoh session costs idle
+        time.sleep(5.0)
+        idle_procs = {(n, k): p for n, st in stacks.items() for k, p in st.items() if k in ("router", "clock") and p}
+        before, t0 = {k: cpu_s(p.pid) for k, p in idle_procs.items()}, time.monotonic()
+        time.sleep(args.idle)
+        idle = {k: 100 * (cpu_s(p.pid) - before[k]) / (time.monotonic() - t0) for k, p in idle_procs.items()}
         for name, sync in (("A", True), ("B", False)):
             stacks[name]["emulator"] = launcher.start(
                 f"emulate{name}", "emulate", "--connect", stacks[name]["endpoint"], "--subjects",
-                str(args.devices // 10), "--no-truth", *(["--sync-poll-s", f"{args.poll:g}"] if sync else ["--no-sync"]))
+                str(args.devices // 10), "--no-truth",
+                *(["--sync-poll-s", f"{args.poll:g}", "-v"] if sync else ["--no-sync"]))
         procs = {(n, k): p for n, st in stacks.items() for k, p in st.items() if k != "endpoint" and p is not None}
         started, samples = time.monotonic(), []  # (window, cpu before, cpu after, wall0, wall1, span)
         for lo, hi in args.windows:
@@ -83,13 +105,15 @@ def cost(args) -> int:
             st["emulator"].popen.wait(60)
         texts = {n: Path(st["emulator"].log).read_text() for n, st in stacks.items()}
         counts_all = answered(Path(stacks["A"]["clock"].log))
+        inside_all = sync_cpu(Path(stacks["A"]["emulator"].log))
     late = {n: re.search(r"emulator: \d+ ticks, ([\d.]+) % late", t) for n, t in texts.items()}
     late = {n: m[1] if m else "?" for n, m in late.items()}
     print(f"\n{args.devices} devices per emulator process; A with sync (--sync-poll-s {args.poll:g}), B without, "
           f"side by side; CPU in % of one core per window (seconds after the emulators started); late ticks over "
           f"the whole run: A {late['A']} %, B {late['B']} %\n")
-    print("| window | emulator A / B | router A / B | time service | exchanges/s | per device | sync's cost | per exchange |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| window | emulator A / B | router A / B | time service | exchanges/s | per device | sync's cost "
+          "| per exchange | A's sync threads + tick loop |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for (lo, hi), before, after, wall0, wall1, span in samples:
         cpu = {k: 100 * (after[k] - before[k]) / span for k in after}
         counts = [c for c in counts_all if wall0 - 1 <= c[0] <= wall1 + 1]
@@ -98,18 +122,32 @@ def cost(args) -> int:
                  + cpu["A", "clock"])
         print(f"| {lo:g}-{hi:g} s | {cpu['A', 'emulator']:.1f} / {cpu['B', 'emulator']:.1f} | "
               f"{cpu['A', 'router']:.2f} / {cpu['B', 'router']:.2f} | {cpu['A', 'clock']:.2f} | {rate:.1f} | "
-              f"{rate / args.devices:.4f} /s | {total:.2f} % | {1e4 * total / max(rate, 1e-9):.0f} us |")
-    inside = re.search(r"CPU: workers ([\d.]+) s, tick loop ([\d.]+) s", texts["A"])
+              f"{rate / args.devices:.4f} /s | {total:.2f} % | {1e4 * total / max(rate, 1e-9):.0f} us | "
+              f"{inside_window(inside_all, wall0, wall1)} |")
+    print(f"\nbefore the emulators started ({args.idle:g} s, no device): time service {idle['A', 'clock']:.2f} %, "
+          f"router A / B {idle['A', 'router']:.2f} / {idle['B', 'router']:.2f} % (a Zenoh session's own floor; "
+          f"the time service's is paid once per deployment, whatever the number of devices)")
+    inside = re.findall(r"CPU: workers ([\d.]+) s, tick loop ([\d.]+) s", texts["A"])
     if inside:
+        workers, tick = (float(x) for x in inside[-1])  # the summary at exit
         run_s = args.windows[-1][1]
         print(f"\nemulator A's own CPU accounting over its whole run ({run_s:g} s, start included): exchange "
-              f"worker threads {inside[1]} s ({100 * float(inside[1]) / run_s:.2f} % of a core), tick loop's "
-              f"share (applying answers, stamping in the common time base) {inside[2]} s "
-              f"({100 * float(inside[2]) / run_s:.2f} %); Zenoh's own threads are in the process CPU only")
+              f"worker threads {workers:.2f} s ({100 * workers / run_s:.2f} % of a core), tick loop's "
+              f"share (applying answers, stamping in the common time base) {tick:.2f} s "
+              f"({100 * tick / run_s:.2f} %); Zenoh's own threads are in the process CPU only")
     synced = re.search(r"time sync: (\d+)/(\d+) devices synced at start", texts["A"])
     if synced:
         print(synced[0])
     return 0
+
+
+def inside_window(lines: list[tuple[float, float, float]], wall0: float, wall1: float) -> str:
+    """Emulator A's own sync CPU between its log lines nearest inside [wall0, wall1], % of a core."""
+    inside = [x for x in lines if wall0 - 1 <= x[0] <= wall1 + 1]
+    if len(inside) < 2 or inside[-1][0] <= inside[0][0]:
+        return "?"
+    (t0, w0, k0), (t1, w1, k1) = inside[0], inside[-1]
+    return f"{100 * (w1 - w0) / (t1 - t0):.2f} + {100 * (k1 - k0) / (t1 - t0):.2f} %"
 
 
 class Watch:
@@ -200,6 +238,44 @@ def hour(args) -> int:
     return 0
 
 
+def per_call(f, sleep_s: float, calls: int = 500) -> float:
+    """Thread CPU of ``f(k)`` per call, us, each call after a ``sleep_s`` sleep (0: back to back)."""
+    total = 0.0
+    for k in range(calls):
+        if sleep_s:
+            time.sleep(sleep_s)
+        began = time.thread_time()
+        f(k)
+        total += time.thread_time() - began
+    return 1e6 * total / calls
+
+
+def stamp_row(n: int) -> str:
+    """One table row: stamping ``n`` devices, warm and after a 2 ms sleep, with references."""
+    from device_emulator.clock import SLEW
+    from limbstream.kernel import Stamper
+    st = Stamper(n, SLEW)
+    st.ever[:], st.a[:], st.b[:], st.ref[:] = True, 1000.0, 50e-6, 1e9
+    slots, local = np.arange(n), np.full(n, 1e9)
+    st.stamp(slots, local)
+    warm = per_call(lambda k: st.stamp(slots, local + (k + 1) * 20_000.0), 0.0, 5000)
+    cold = per_call(lambda k: st.stamp(slots, local + (k + 5001) * 20_000.0), 0.002)
+    empty = per_call(lambda k: None, 0.002)
+    alloc = per_call(lambda k: np.empty(n), 0.002)
+    address = per_call(lambda k: local.ctypes.data, 0.002)
+    return f"| {n:,} | {warm:.1f} us | {cold:.1f} us | {empty:.1f} us | {alloc:.1f} us | {address:.1f} us |"
+
+
+def stamp(args) -> int:
+    """Thread CPU per call of the stamper, warm and after a sleep, us."""
+    print("| devices | stamp, warm | stamp, after 2 ms sleep | nothing, after sleep | np.empty(devices), after sleep "
+          "| an array's .ctypes.data, after sleep |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    for n in args.devices:
+        print(stamp_row(n))
+    return 0
+
+
 def windows(text: str) -> list[tuple[float, float]]:
     """``"180:300,1200:1500"`` -> [(180, 300), (1200, 1500)] (increasing, not overlapping)."""
     spans = [tuple(float(x) for x in part.split(":")) for part in text.split(",")]
@@ -217,6 +293,8 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--windows", type=windows, default=windows("180:300,1200:1500"),
                    help="measuring windows, seconds after the emulators start (default 180:300,1200:1500: "
                         "while the poll intervals grow, and settled)")
+    c.add_argument("--idle", type=float, default=30.0,
+                   help="seconds measured before the emulators start (default 30): the processes' idle floor")
     c.add_argument("--poll", type=float, default=512.0,
                    help="the devices' --sync-poll-s (default 512, the emulator's; a short one measures the cost "
                         "per exchange with more exchanges)")
@@ -227,8 +305,10 @@ def main(argv: list[str] | None = None) -> int:
     h.add_argument("--source", default="generator", help="motion source (default generator)")
     h.add_argument("--setups", nargs="+", default=list(SETUPS), choices=list(SETUPS),
                    help="clock setups to run (default all)")
+    st = sub.add_parser("stamp", help="CPU of stamping one tick's samples")
+    st.add_argument("--devices", type=int, nargs="+", default=[200, 2000, 20000], help="devices per call")
     args = parser.parse_args(argv)
-    return cost(args) if args.what == "cost" else hour(args)
+    return {"cost": cost, "hour": hour, "stamp": stamp}[args.what](args)
 
 
 if __name__ == "__main__":

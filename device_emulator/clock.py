@@ -12,7 +12,7 @@ exchange"; docs/reliability.md, "Device clocks").
 - :class:`SyncClient`: the exchanges of all devices of one emulator: two worker threads send the
   time queries and stamp the answers (the tick loop never calls Zenoh and never waits); the tick
   loop takes the results between ticks, updates the estimators and stamps samples on the
-  common time base with a bounded slew.
+  common time base with a bounded slew (in C: :class:`limbstream.kernel.Stamper`).
 
 Times are microseconds. "True" time is the emulation's time base (host clock, scaled by
 ``--speed`` around ``anchor``); it is what the time service serves and what the truth tap's
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
-from limbstream import wire
+from limbstream import kernel, wire
 
 log = logging.getLogger("limbstream.emulator.clock")
 
@@ -73,6 +73,8 @@ RETRY_S = 8.0
 """Longest wait before asking again after a query without an answer, device seconds."""
 WORKERS = 2
 """Threads sending time queries (each waits for one answer at a time)."""
+LOG_EVERY_S = 30.0
+"""Interval of the INFO line with the sync's counters and CPU so far (emulate -v), wall seconds."""
 
 
 @dataclass(frozen=True)
@@ -294,13 +296,15 @@ class SyncClient:
         n = len(names)
         self.session, self.clocks, self.settings, self.names = session, clocks, settings, names
         self.est = [SyncEstimator() for _ in range(n)]
-        self.a, self.b, self.ref = np.zeros(n), np.zeros(n), np.zeros(n)  # the estimators' lines
-        self.c, self.c_local = np.zeros(n), np.full(n, np.nan)            # stamping correction, at local time
+        # the estimators' lines (a, b, ref), the stamping correction c at device time c_local, and
+        # per device: ever (synced once: stamps follow the line from then on), step (the next
+        # stamp sets c to the line, no slew), stepped (its last stamp was a step)
+        self.stamper = kernel.Stamper(n, SLEW)
+        st = self.stamper
+        self.a, self.b, self.ref, self.c, self.c_local = st.a, st.b, st.ref, st.c, st.c_local
+        self.ever, self.step, self.stepped = st.ever, st.step, st.stepped
+        self.steps = 0                         # stamps of the last stamp() call that were steps
         self.have = np.zeros(n, bool)          # the line exists (one valid answer)
-        self.ever = np.zeros(n, bool)          # was synced once (stamps follow the line from then on)
-        self.step = np.zeros(n, bool)          # the next stamp sets c to the line (no slew)
-        self.stepped = np.zeros(n, bool)       # the last stamp of the device was a step
-        self._steady = False                   # every device stamps on its line (see _stamp)
         self.valid = np.zeros(n, np.int64)     # valid answers
         self.last_valid = np.full(n, -np.inf)  # local time of the last valid answer
         self.rtt_us = np.full(n, np.nan)
@@ -310,6 +314,7 @@ class SyncClient:
         self.interval = np.full(n, MIN_POLL_S)
         self.exchanges = 0
         self.busy_s = 0.0                      # CPU time the tick loop spent on sync (results, stamps), s
+        self._log_at = time.monotonic() + LOG_EVERY_S
         self._worker_cpu = [0.0] * WORKERS     # CPU time of each worker thread, s
         self._ids = np.zeros(n, np.int64)      # id of each device's request in flight
         self._heap: list[tuple[float, int]] = []
@@ -403,15 +408,19 @@ class SyncClient:
     def poll(self) -> int:
         """Apply the exchanges finished since the last call (tick loop, between ticks).
         Returns how many."""
-        began = time.thread_time()
         done = 0
-        speed = self.clocks.base.speed
-        while self._results:
-            slot, rid, t1, t4, answer = self._results.popleft()
-            done += 1
-            delay_s = self._apply(slot, rid, t1, t4, answer)
-            self._schedule(slot, time.monotonic() + delay_s / speed)
-        self.busy_s += time.thread_time() - began
+        if self._results:
+            began = time.thread_time()
+            speed = self.clocks.base.speed
+            while self._results:
+                slot, rid, t1, t4, answer = self._results.popleft()
+                done += 1
+                delay_s = self._apply(slot, rid, t1, t4, answer)
+                self._schedule(slot, time.monotonic() + delay_s / speed)
+            self.busy_s += time.thread_time() - began
+        if time.monotonic() >= self._log_at:
+            self._log_at += LOG_EVERY_S
+            log.info("%s", self.summary())
         return done
 
     def _apply(self, slot: int, rid: int, t1: int, t4: int, payload: bytes | None) -> float:
@@ -443,7 +452,6 @@ class SyncClient:
         self.rtt_us[slot] = (t4 - t1) - (answer.t3_us - answer.t2_us)
         self.last_valid[slot] = t4
         self.a[slot], self.b[slot], self.ref[slot] = est.a, est.b, est.ref
-        self._steady = False
         self.have[slot] = True
         if not was_synced and self.synced(slot, t4):  # acquired, or reacquired after the holdover
             if not self.ever[slot]:
@@ -492,42 +500,12 @@ class SyncClient:
 
     def stamp(self, slots: np.ndarray, local_us: np.ndarray) -> np.ndarray:
         """Common-time stamps of samples taken at local times ``local_us`` by devices ``slots``
-        (each once, times increasing per device), us float64; sets :attr:`stepped`."""
+        (each once, times increasing per device), us float64; sets :attr:`stepped` and
+        :attr:`steps` (how many stepped; :class:`limbstream.kernel.Stamper`, one C call)."""
         began = time.thread_time()
-        stamps = self._stamp(slots, local_us)
+        stamps, self.steps = self.stamper.stamp(slots, local_us)
         self.busy_s += time.thread_time() - began
         return stamps
-
-    def _stamp(self, slots: np.ndarray, local_us: np.ndarray) -> np.ndarray:
-        idx = slice(0, len(slots)) if len(slots) and slots[-1] == len(slots) - 1 else slots  # all: views
-        if self._steady:  # no slew, step or new line since every device's correction met its line
-            new = self.a[idx] + self.b[idx] * (local_us - self.ref[idx])
-            self.c[idx], self.c_local[idx] = new, local_us
-            return local_us + new
-        b, at = self.b[idx], self.c_local[idx]
-        with np.errstate(invalid="ignore"):
-            dt = local_us - at                      # NaN: the device's first stamp
-            pred = self.c[idx] + b * dt
-            target = self.a[idx] + b * (local_us - self.ref[idx])
-            limit = SLEW * dt
-            new = pred + np.clip(target - pred, -limit, limit)
-        first = np.isnan(at)
-        step = self.step[idx]
-        if step.any() or first.any():
-            jump = step | first
-            new[jump] = target[jump]
-            self.stepped[idx] = step & ~first
-            self.step[idx] = False
-        elif self.stepped.any():
-            self.stepped[idx] = False
-        ever = self.ever[idx]
-        if not ever.all():
-            new[~ever] = 0.0  # never synced: the device's own clock
-        self.c[idx], self.c_local[idx] = new, local_us
-        # every device met its line (no slew left): it stays on it until a line changes
-        self._steady = (isinstance(idx, slice) and len(slots) == len(self.c) and bool(ever.all())
-                        and not self.stepped.any() and bool(np.all(np.abs(target - pred) <= limit)))
-        return local_us + new
 
     def status(self, slot: int) -> wire.ClockStatus:
         """Device ``slot``'s own report of its sync (its status)."""

@@ -357,7 +357,7 @@ class Emulator:
         self._ring_t[row, taken] = np.round(stamps).astype(np.int64)
         self._ring_ref[row, taken] = np.round(self.clocks.sample_time(n, taken)).astype(np.int64)
         self._ring_q[row, taken] = q
-        if self.sync is not None and self.sync.stepped[taken].any():
+        if self.sync is not None and self.sync.steps:
             for slot in taken[self.sync.stepped[taken]]:
                 self._new_stream(self.devices[slot], k)
         y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept

@@ -1,7 +1,8 @@
 """Python binding of the C kernels in ``firmware_c/`` (built into ``limbstream._kernels``).
 
 Offline use: :func:`segment` runs a whole stream through one algorithm.
-Streaming use (one device): :class:`Segmenter`. Many devices per tick: :class:`SegmenterBank`.
+Streaming use (one device): :class:`Segmenter`. Many devices per tick: :class:`SegmenterBank`,
+and their samples' common-time stamps: :class:`Stamper`.
 
 Live rule (fastSW, ``live_bound_deg`` > 0; docs/kernel.md): every segment point carries a body
 angular rate ``omega`` (rad/s), and a receiver's live view of time t is
@@ -116,8 +117,56 @@ _lib.cplr_segment.restype = ctypes.c_size_t
 _lib.swing_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
 _lib.swing_segment.restype = ctypes.c_size_t
 
+
+
+class _Sync(ctypes.Structure):
+    """LswSync (lsw_clock.h)."""
+
+    _fields_ = [(name, ctypes.c_void_p) for name in ("a", "b", "ref", "c", "c_local", "step", "ever", "stepped")] + [
+        ("slew", ctypes.c_double)]
+
+
+_lib.lsw_stamp.argtypes = [ctypes.POINTER(_Sync), ctypes.c_size_t, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+_lib.lsw_stamp.restype = ctypes.c_size_t
+
 STATE_SIZE: int = _lib.fastsw_state_size()
 SW_STATE_SIZE: int = _lib.sw_state_size()
+
+
+class Stamper:
+    """Common-time stamps of ``n`` devices' samples with a bounded slew (lsw_clock.h), one C call
+    per tick. The caller sets each device's line (``a``, ``b``, ``ref``), ``step`` and ``ever``;
+    the stamps keep ``c``, ``c_local`` and ``stepped``.
+
+    Attributes
+    ----------
+    a, b, ref : (n,) float64 the line: correction ``a + b * (L - ref)`` at device time L (us).
+    c, c_local : (n,) float64 correction of each device's last stamp and its device time (NaN: none yet).
+    step : (n,) bool the next stamp sets c to the line at once.
+    ever : (n,) bool synced once (else a stamp is the device's own time).
+    stepped : (n,) bool the device's last stamp was a step.
+    """
+
+    def __init__(self, n: int, slew: float):
+        self.a, self.b, self.ref, self.c = (np.zeros(n) for _ in range(4))
+        self.c_local = np.full(n, np.nan)
+        self.step, self.ever, self.stepped = (np.zeros(n, bool) for _ in range(3))
+        arrays = (self.a, self.b, self.ref, self.c, self.c_local, self.step, self.ever, self.stepped)
+        self._sync = ctypes.pointer(_Sync(*(x.ctypes.data for x in arrays), slew))
+        # the call's arguments, in buffers whose addresses are taken once (numpy's .ctypes costs
+        # tens of microseconds per tick when the tick loop wakes with cold caches)
+        self._slots, self._local, self._out = np.zeros(n, np.int64), np.zeros(n), np.zeros(n)
+        self._ptrs = tuple(x.ctypes.data for x in (self._slots, self._local, self._out))
+
+    def stamp(self, slots: np.ndarray, local_us: np.ndarray) -> tuple[np.ndarray, int]:
+        """Stamps of samples taken at device times ``local_us`` (K,) float64 us by devices ``slots``
+        (K,) (each once, its times increasing over calls): (K,) float64 us (a view, valid until
+        the next call), and how many of them were steps (``stepped`` tells which)."""
+        k = len(slots)
+        self._slots[:k] = slots
+        self._local[:k] = local_us
+        steps = _lib.lsw_stamp(self._sync, k, *self._ptrs)
+        return self._out[:k], int(steps)
 
 
 @dataclass(frozen=True)
@@ -425,6 +474,7 @@ class SegmenterBank:
         self._points = (Point * max(count, 1))()
         self._status = np.zeros(max(count, 1), np.uint8)
         self._rates = np.zeros((max(count, 1), dim), np.float32)
+        self._rates_ptr = self._rates.ctypes.data
         self._n = count  # streams advanced by the last update
         thresholds = np.broadcast_to(np.asarray(threshold, np.float64), (count,))
         max_lens = np.broadcast_to(np.asarray(max_len, np.int64), (count,))
@@ -447,6 +497,9 @@ class SegmenterBank:
             self._ends = np.zeros(size, np.uint32)
             self._wire = BankWire(*(a.ctypes.data for a in (self.stream, self.seq, self.base, self.sample,
                                                              self.t_us, self._live)), ring, size)
+            # addresses taken once (numpy's .ctypes costs tens of microseconds per call when the
+            # tick loop wakes with cold caches)
+            self._wire_ptrs = (ctypes.pointer(self._wire), *(a.ctypes.data for a in (self._out, self._slots, self._ends)))
         else:
             self._wire = None
 
@@ -475,7 +528,7 @@ class SegmenterBank:
         y : (n, D) float32 value of each stream's point (where status == POINT).
         """
         ticks, y, n = self._samples(ticks, y)
-        _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points, self._rates.ctypes.data)
+        _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points, self._rates_ptr)
         self._n = n
         view = self._point_view[:n]
         return self._status[:n], view["index"], view["y"][:, : self.dim]
@@ -496,9 +549,8 @@ class SegmenterBank:
         if self._wire is None:
             raise ValueError("update_wire needs a bank made with ring >= 1")
         ticks, y, n = self._samples(ticks, y)
-        k = _lib.lsw_bank_update(self._states, n, ticks, y, self._status, self._points, self._rates.ctypes.data,
-                                 ctypes.byref(self._wire), self._out.ctypes.data, self._slots.ctypes.data,
-                                 self._ends.ctypes.data)
+        k = _lib.lsw_bank_update(self._states, n, ticks, y, self._status, self._points, self._rates_ptr,
+                                 *self._wire_ptrs)
         self._n = n
         end = int(self._ends[k - 1]) if k else 0
         return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()

@@ -22,7 +22,7 @@ from stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
 from device_emulator.clock import (JUMP_CONFIRM, SLEW, ClockSettings, DeviceClocks, SyncClient, SyncEstimator,
                                    TimeBase)
-from limbstream import wire, zconfig
+from limbstream import kernel, wire, zconfig
 
 T0 = 1_800_000_000_000_000  # us
 
@@ -181,6 +181,29 @@ def test_first_sync_of_a_streaming_device_is_a_step_and_holdover_expiry_unsyncs(
     assert abs(s[-1] - T[-1]) < 300 and c.synced(0, local(T[-1]))
     assert not c.synced(0, local(T0 + 40e6))  # 35 s without an answer > 30 s holdover
     assert c.status(0).clock_offset_ms is not None
+
+
+def test_stamper_steps_slews_and_leaves_unsynced_devices_on_their_own_clock():
+    """One C call stamps devices in every state: first stamp (on its line), a pending step, a
+    slew-limited move towards a new line, on its line, and never synced (its own clock)."""
+    st = kernel.Stamper(5, SLEW)
+    st.ever[:4] = True
+    st.a[:] = 1000.0
+    st.b[:] = 50e-6
+    st.ref[:] = 1e9
+    local = np.full(5, 1e9)
+    first, steps = st.stamp(np.arange(5), local)
+    assert np.array_equal(first, np.r_[np.full(4, 1e9 + 1000.0), 1e9]) and steps == 0 and not st.stepped.any()
+    st.a[1] = st.a[2] = 5000.0   # new lines 4 ms away: device 1 steps, device 2 slews
+    st.step[1] = True
+    dt = 20_000.0
+    out, steps = st.stamp(np.array([4, 3, 2, 1, 0]), local + dt)   # any order of slots
+    drift = 50e-6 * dt
+    assert out[3] == 1e9 + dt + 5000.0 + drift and steps == 1 and st.stepped[1] and not st.step[1], "a step"
+    assert out[2] == 1e9 + dt + 1000.0 + drift + SLEW * dt, "the slew is bounded"
+    assert out[4] == out[1] == 1e9 + dt + 1000.0 + drift and out[0] == 1e9 + dt, (out, "on its line; own clock")
+    later, steps = st.stamp(np.array([1]), local[:1] + 2 * dt)
+    assert steps == 0 and not st.stepped[1] and later[0] == 1e9 + 2 * dt + 5000.0 + 50e-6 * 2 * dt
 
 
 # ----------------------------------------------------------------------------- emulator, no network
