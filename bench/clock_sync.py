@@ -52,21 +52,21 @@ SETUPS = {
 }
 
 
+def log_time(stamp: str) -> float:
+    """A log line's time (``%(asctime)s``, local time, to the second), s since the epoch."""
+    return time.mktime(time.strptime(stamp.split(",")[0], "%Y-%m-%d %H:%M:%S"))
+
+
 def answered(log: Path) -> list[tuple[float, int]]:
     """(log time, answered so far) from a time service's -v lines."""
-    out = []
-    for m in re.finditer(r"^(\S+ \S+) limbstream\.clock answered (\d+)", log.read_text(), re.M):
-        out.append((time.mktime(time.strptime(m[1].split(",")[0], "%Y-%m-%d %H:%M:%S")), int(m[2])))
-    return out
+    return [(log_time(m[1]), int(m[2]))
+            for m in re.finditer(r"^(\S+ \S+) limbstream\.clock answered (\d+)", log.read_text(), re.M)]
 
 
 def sync_cpu(log: Path) -> list[tuple[float, float, float]]:
     """(log time, worker CPU s, tick-loop CPU s) so far, from an emulator's -v sync lines."""
-    out = []
     pattern = r"^(\S+ \S+) limbstream\.emulator\.clock time sync: .*CPU: workers ([\d.]+) s, tick loop ([\d.]+) s"
-    for m in re.finditer(pattern, log.read_text(), re.M):
-        out.append((time.mktime(time.strptime(m[1].split(",")[0], "%Y-%m-%d %H:%M:%S")), float(m[2]), float(m[3])))
-    return out
+    return [(log_time(m[1]), float(m[2]), float(m[3])) for m in re.finditer(pattern, log.read_text(), re.M)]
 
 
 def cost(args) -> int:

@@ -118,7 +118,6 @@ _lib.swing_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_
 _lib.swing_segment.restype = ctypes.c_size_t
 
 
-
 class _Sync(ctypes.Structure):
     """LswSync (lsw_clock.h)."""
 
