@@ -4,7 +4,7 @@ PYTHON ?= python3
 PYTEST_ARGS ?=
 STAMP := build/.installed
 
-.PHONY: install run test icount bench m4 clean
+.PHONY: install run test test-fast icount bench m4 clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.h firmware_c/include/*.h)
 	$(PYTHON) -m pip install -e '.[test]'
@@ -17,6 +17,10 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(PYTHON) -m pytest $(PYTEST_ARGS)
+
+# the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root)
+test-fast: $(STAMP)
+	$(PYTHON) -m pytest -m "not (e2e or qemu or browser or root or slow)" $(PYTEST_ARGS)
 
 icount:
 	$(MAKE) -C firmware_c icount

@@ -21,6 +21,13 @@ ctypes call's array argument costs unless its address is taken once) for scale.
     python bench/clock_sync.py cost                   # 2 x 2,000 devices, 25 minutes
     python bench/clock_sync.py hour                   # 1 hour at --speed 20 (about 3.5 min per setup)
     python bench/clock_sync.py stamp                  # a few seconds
+    python bench/clock_sync.py outage                 # 10 outages, about 3 minutes
+
+``outage``: router, aggregator, one emulator (``--subjects`` subjects, clocks +-1 s / +-100 ppm,
+holdover 4 s) and a time service; the service is stopped until every device reports itself
+unsynced, then a new service process is started: the table gives, per outage, when the new
+process's queryable was reachable and when every device reported itself synced again (from the
+aggregator's 1 Hz stats, so to within a second), both from the new process's launch.
 """
 from __future__ import annotations
 
@@ -285,6 +292,60 @@ def windows(text: str) -> list[tuple[float, float]]:
     return spans
 
 
+def outage(args) -> int:
+    with tempfile.TemporaryDirectory(prefix="clock-outage-") as tmp, Launcher(logdir=Path(tmp)) as launcher:
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        launcher.router(endpoint)
+        launcher.start("aggregate", "aggregate", "--connect", endpoint)
+        clock = launcher.start("clock", "clock", "--connect", endpoint)
+        session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+        stats = session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(1 << 12))
+        service = session.declare_querier(wire.time_key(), allowed_destination=zenoh.Locality.REMOTE)
+        launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(args.subjects), "--no-truth",
+                       "--clock-offset-ms", "1000", "--clock-drift-ppm", "100", "--sync-holdover-s", "4")
+        devices = 10 * args.subjects
+        synced: dict[str, bool] = {}
+
+        def wait(predicate, timeout: float, what: str) -> float:
+            """Poll the stats until ``predicate()``; the monotonic time it first held."""
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                while (s := stats.try_recv()) is not None:
+                    for d in wire.decode_stats(s.payload.to_bytes())["devices"]:
+                        synced[d["device"]] = bool(d["synced"] and d["online"])
+                if predicate():
+                    return time.monotonic()
+                time.sleep(0.02)
+            raise SystemExit(f"timed out waiting for {what}")
+
+        def all_synced() -> bool:
+            return len(synced) == devices and all(synced.values())
+
+        wait(all_synced, 60, "the first sync")
+        rows = []
+        for k in range(args.outages):
+            clock.signal(15)
+            clock.popen.wait(10)
+            wait(lambda: len(synced) == devices and not any(synced.values()), 60, "every device unsynced")
+            launched = time.monotonic()
+            clock = launcher.start("clock", "clock", "--connect", endpoint)
+            reachable = wait(lambda: bool(service.matching_status.matching), 30, "the service's queryable")
+            back = wait(all_synced, 60, "every device synced again")
+            rows.append((reachable - launched, back - launched))
+            print(f"outage {k + 1}: service reachable {rows[-1][0]:.2f} s, all {devices} devices synced "
+                  f"{rows[-1][1]:.2f} s after the launch", flush=True)
+        session.close()
+    reach, back = np.array(rows).T
+    print(f"\n{len(rows)} outages, {devices} devices (holdover 4 s); seconds from the new time-service "
+          f"process's launch (stats are 1 Hz: 'synced' to within 1 s)\n")
+    print("| | p50 | max |\n|---|---|---|")
+    print(f"| service queryable reachable | {np.median(reach):.2f} | {reach.max():.2f} |")
+    print(f"| every device synced | {np.median(back):.2f} | {back.max():.2f} |")
+    print(f"| every device synced, after reachable | {np.median(back - reach):.2f} | {(back - reach).max():.2f} |")
+    print(f"\nwithin 3 s of the launch: {int(np.sum(back <= 3.0))} of {len(rows)}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="what", required=True)
@@ -307,8 +368,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="clock setups to run (default all)")
     st = sub.add_parser("stamp", help="CPU of stamping one tick's samples")
     st.add_argument("--devices", type=int, nargs="+", default=[200, 2000, 20000], help="devices per call")
+    o = sub.add_parser("outage", help="time from a time service's return to every device synced")
+    o.add_argument("--outages", type=int, default=10, help="outages (default 10)")
+    o.add_argument("--subjects", type=int, default=1, help="subjects of the emulator (default 1)")
     args = parser.parse_args(argv)
-    return {"cost": cost, "hour": hour, "stamp": stamp}[args.what](args)
+    return {"cost": cost, "hour": hour, "stamp": stamp, "outage": outage}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,9 @@ exchange"; docs/reliability.md, "Device clocks").
 - :class:`SyncClient`: the exchanges of all devices of one emulator: two worker threads send the
   time queries and stamp the answers (the tick loop never calls Zenoh and never waits); the tick
   loop takes the results between ticks, updates the estimators and stamps samples on the
-  common time base with a bounded slew (in C: :class:`limbstream.kernel.Stamper`).
+  common time base with a bounded slew (in C: :class:`limbstream.kernel.Stamper`). The
+  querier's matching listener tells when a time service becomes reachable: every device then
+  exchanges within RESUME_SPREAD_S, whatever its poll interval had grown to.
 
 Times are microseconds. "True" time is the emulation's time base (host clock, scaled by
 ``--speed`` around ``anchor``); it is what the time service serves and what the truth tap's
@@ -71,6 +73,10 @@ MIN_SYNC = 3
 """Valid answers before a device counts as synced."""
 RETRY_S = 8.0
 """Longest wait before asking again after a query without an answer, device seconds."""
+RESUME_SPREAD_S = 0.5
+"""When the time service becomes reachable (its queryable matches), every device exchanges
+within this, each at its own fixed offset in [0, this), so that thousands of devices do not
+storm the service at once, wall seconds."""
 WORKERS = 2
 """Threads sending time queries (each waits for one answer at a time)."""
 LOG_EVERY_S = 30.0
@@ -317,12 +323,17 @@ class SyncClient:
         self._log_at = time.monotonic() + LOG_EVERY_S
         self._worker_cpu = [0.0] * WORKERS     # CPU time of each worker thread, s
         self._ids = np.zeros(n, np.int64)      # id of each device's request in flight
+        self.sent_at = np.full(n, -np.inf)     # monotonic time each device last sent a query, s
+        self.resumes: list[float] = []         # monotonic times a time service became reachable, s
+        self._resume_at: float | None = None   # set by the matching listener (Zenoh thread)
+        self._offset_s = np.random.default_rng(settings.seed).uniform(0.0, RESUME_SPREAD_S, n)
         self._heap: list[tuple[float, int]] = []
         self._cond = threading.Condition()
         self._results: collections.deque = collections.deque()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.querier = None
+        self.listener = None
 
     # ------------------------------------------------------------------ threads
 
@@ -335,6 +346,7 @@ class SyncClient:
         self.querier = self.session.declare_querier(
             wire.time_key(), target=zenoh.QueryTarget.BEST_MATCHING, consolidation=zenoh.ConsolidationMode.NONE,
             timeout=self.settings.timeout_s, allowed_destination=zenoh.Locality.REMOTE)
+        self.listener = self.querier.declare_matching_listener(self._on_matching)
         now = time.monotonic()
         rng = random.Random(self.settings.seed)
         for slot in range(len(self.names)):
@@ -350,6 +362,9 @@ class SyncClient:
             self._cond.notify_all()
         for t in self._threads:
             t.join(timeout=2.0)
+        if self.listener is not None:
+            self.listener.undeclare()
+            self.listener = None
         if self.querier is not None:
             self.querier.undeclare()
             self.querier = None
@@ -357,6 +372,22 @@ class SyncClient:
     def service_present(self) -> bool:
         """A time service's queryable is reachable now."""
         return self.querier is not None and bool(self.querier.matching_status.matching)
+
+    def _on_matching(self, status: zenoh.MatchingStatus) -> None:
+        """Matching listener (Zenoh thread): hand the event to the workers, nothing more."""
+        if status.matching:
+            with self._cond:
+                self._resume_at = time.monotonic()
+                self._cond.notify()
+
+    def _resume(self) -> None:
+        """A time service became reachable: every device waiting for its next exchange has it
+        within RESUME_SPREAD_S of that instant (worker thread, lock held). Devices whose exchange
+        is under way are rescheduled the same way when its result comes (:meth:`poll`)."""
+        seen, self._resume_at = self._resume_at, None
+        self.resumes.append(seen)
+        self._heap = [(min(due, seen + self._offset_s[slot]), slot) for due, slot in self._heap]
+        heapq.heapify(self._heap)
 
     def _schedule(self, slot: int, wall: float) -> None:
         with self._cond:
@@ -368,6 +399,8 @@ class SyncClient:
         """The next device due (waits), or None when stopping."""
         with self._cond:
             while not self._stop.is_set():
+                if self._resume_at is not None:
+                    self._resume()
                 now = time.monotonic()
                 if self._heap and self._heap[0][0] <= now:
                     return heapq.heappop(self._heap)[1]
@@ -390,6 +423,7 @@ class SyncClient:
             self._results.append((slot, rid, 0, 0, None))
             return
         t1 = self.clocks.read(slot)
+        self.sent_at[slot] = time.monotonic()
         replies = self.querier.get(zenoh.handlers.FifoChannel(4),
                                    payload=wire.encode_time_request(wire.TimeRequest(rid, t1)))
         answer, t4 = None, 0
@@ -415,8 +449,10 @@ class SyncClient:
             while self._results:
                 slot, rid, t1, t4, answer = self._results.popleft()
                 done += 1
-                delay_s = self._apply(slot, rid, t1, t4, answer)
-                self._schedule(slot, time.monotonic() + delay_s / speed)
+                due = time.monotonic() + self._apply(slot, rid, t1, t4, answer) / speed
+                if self.resumes and self.resumes[-1] > self.sent_at[slot]:  # the service came back meanwhile
+                    due = min(due, self.resumes[-1] + self._offset_s[slot])
+                self._schedule(slot, due)
             self.busy_s += time.thread_time() - began
         if time.monotonic() >= self._log_at:
             self._log_at += LOG_EVERY_S
@@ -469,7 +505,9 @@ class SyncClient:
         else:  # doubling, as long as the drift's uncertainty allows
             self.interval[slot] = max(MIN_POLL_S, min(2.0 * self.interval[slot], self.settings.poll_s,
                                                       DRIFT_BUDGET_US / 1e6 / max(est.drift_se, 1e-12)))
-        return float(self.interval[slot])
+        # at the latest when the holdover ends: past it, a device polls at the short back-off
+        # (1, 2, 4, 8 s) whatever its interval had grown to
+        return float(min(self.interval[slot], self.settings.holdover_s))
 
     def _reject(self, slot: int, reason: str) -> float:
         self.bad[slot][reason] += 1

@@ -42,3 +42,15 @@ def cmu_bvh_dir() -> Path:
 @pytest.fixture(scope="session")
 def xsens_dir() -> Path:
     return require_data("xsens_opensense")
+
+
+LANES = {"stack": "e2e", "watch": "e2e", "netns": "root"}
+"""Test lanes by the fixtures a test uses: real processes and a router (``stack``) are ``e2e``;
+network namespaces are ``root``. Other lanes (qemu, browser, slow) are marked where the test is."""
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        for fixture, lane in LANES.items():
+            if fixture in getattr(item, "fixturenames", ()):
+                item.add_marker(lane)

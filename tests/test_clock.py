@@ -20,8 +20,8 @@ import pytest
 import zenoh
 from stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
-from device_emulator.clock import (JUMP_CONFIRM, SLEW, ClockSettings, DeviceClocks, SyncClient, SyncEstimator,
-                                   TimeBase)
+from device_emulator.clock import (JUMP_CONFIRM, RESUME_SPREAD_S, RETRY_S, SLEW, ClockSettings, DeviceClocks,
+                                   SyncClient, SyncEstimator, TimeBase)
 from limbstream import kernel, wire, zconfig
 
 T0 = 1_800_000_000_000_000  # us
@@ -204,6 +204,17 @@ def test_stamper_steps_slews_and_leaves_unsynced_devices_on_their_own_clock():
     assert out[4] == out[1] == 1e9 + dt + 1000.0 + drift and out[0] == 1e9 + dt, (out, "on its line; own clock")
     later, steps = st.stamp(np.array([1]), local[:1] + 2 * dt)
     assert steps == 0 and not st.stepped[1] and later[0] == 1e9 + 2 * dt + 5000.0 + 50e-6 * 2 * dt
+
+
+def test_past_its_holdover_a_device_polls_at_the_short_back_off():
+    """However long a device's poll interval grew, its next exchange is due by the end of its
+    holdover, and while no answer comes it asks again after 1, 2, 4, 8, 8 ... s."""
+    c = client(holdover_s=4.0, poll_s=512.0)
+    delays = [c._apply(0, i + 1, round(t1), round(t4), wire.encode_time_answer(wire.TimeAnswer(i + 1, round(t1), round(t2), round(t3))))
+              for i, (t1, t2, t3, t4) in enumerate(exchanges(lambda T: T, lambda T: T, 24, 0.0))]
+    assert max(delays) <= 4.0 and delays[-1] == 4.0, delays
+    lost = [c._apply(0, 99, 0, 0, None) for _ in range(6)]
+    assert lost == [1.0, 2.0, 4.0, RETRY_S, RETRY_S, RETRY_S], lost
 
 
 # ----------------------------------------------------------------------------- emulator, no network
@@ -473,3 +484,80 @@ def test_late_service_steps_to_a_new_stream_and_loss_unsyncs_after_holdover(stac
         assert 3.5 < unsynced < 12, unsynced
     finally:
         taps.close()
+
+
+def live_client(endpoint: str, n: int, **settings) -> SyncClient:
+    """A SyncClient of ``n`` devices on its own client session, started (workers running)."""
+    cs = ClockSettings(**settings)
+    base = TimeBase()
+    clocks = DeviceClocks(n, cs, 20_000.0, base)
+    clocks.boot(base.now_us())
+    clocks.start_grid(base.now_us())
+    c = SyncClient(zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,))), clocks, cs,
+                   [f"s01/d{i}" for i in range(n)])
+    c.start()
+    return c
+
+
+def polled(c: SyncClient, predicate):
+    """A wait_until predicate that first lets ``c`` take its results in (the tick loop's part)."""
+    return lambda: c.poll() >= 0 and predicate()
+
+
+def test_a_returning_time_service_is_asked_at_once_whatever_the_poll_interval(stack):  # noqa: F811
+    """The resync by its cause: when the querier's matching listener sees a time service again,
+    every device sends its exchange within RESUME_SPREAD_S (plus the workers' turn), also devices
+    whose next exchange was 500 s away."""
+    stack.router()
+    n = 40
+    clock = stack.start("clock", "clock", "--connect", stack.endpoint)
+    c = live_client(stack.endpoint, n)
+    try:
+        wait_until(polled(c, c.ready), 30, "first burst", on_fail=stack.logs)
+        wait_until(polled(c, lambda: len(c._heap) == n), 10, "no exchange under way")
+        with c._cond:  # what long-settled devices look like: the next exchange minutes away
+            c._heap = [(time.monotonic() + 500.0, slot) for _, slot in c._heap]
+        clock.signal(15)
+        clock.popen.wait(10)
+        wait_until(polled(c, lambda: not c.service_present()), 20, "the service gone")
+        resumes = len(c.resumes)
+        before = c.valid.copy()
+        stack.start("clock", "clock", "--connect", stack.endpoint)
+        wait_until(polled(c, lambda: len(c.resumes) > resumes and np.all(c.sent_at > c.resumes[-1])), 30,
+                   "every device asked the returned service", on_fail=stack.logs)
+        late = float(np.max(c.sent_at - c.resumes[-1]))
+        wait_until(polled(c, lambda: np.all(c.valid > before)), 10, "every device answered")
+        report("time service returns", f"{n} devices, next exchange 500 s away; service stopped and started",
+               f"matching seen -> every device's exchange sent within {late:.3f} s")
+        assert late < 2 * RESUME_SPREAD_S, late
+    finally:
+        c.close()
+        c.session.close()
+
+
+def test_a_flapping_service_makes_no_device_step(stack):  # noqa: F811
+    """A service that comes and goes, again and again, down each time until every device is past
+    its holdover (1 s) and unsynced: devices resync each time it is back, onto the same line: no
+    step, no new stream."""
+    stack.router()
+    n = 10
+    service = RogueService(stack.endpoint)
+    c = live_client(stack.endpoint, n, holdover_s=1.0)
+    try:
+        wait_until(polled(c, lambda: np.all(c.valid >= 3)), 30, "first sync")
+        c.stamp(np.arange(n), np.array([c.clocks.read(s) for s in range(n)], float))  # the first step, taken
+        assert not c.step.any()
+        for cycle in range(4):
+            service.close()
+            wait_until(polled(c, lambda: not any(c.synced(s, c.clocks.read(s)) for s in range(n))), 10,
+                       "every device past its holdover")
+            valid = c.valid.copy()
+            service = RogueService(stack.endpoint)
+            wait_until(polled(c, lambda v=valid: np.all(c.valid >= v + 1)), 10, f"resync {cycle}")
+            assert all(c.synced(s, c.clocks.read(s)) for s in range(n))
+            assert not c.step.any(), f"cycle {cycle}: a device stepped"
+        assert len(c.resumes) >= 4
+    finally:
+        c.close()
+        c.session.close()
+        service.close()

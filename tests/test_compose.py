@@ -20,6 +20,7 @@ import os
 import re
 import shutil
 import subprocess
+import sysconfig
 import sys
 import venv
 from pathlib import Path
@@ -211,8 +212,13 @@ def image(tmp_path_factory) -> dict:
     (wheel,) = wheels.glob("limbstream-*.whl")
 
     env_dir = tmp / "venv"
-    venv.create(env_dir, system_site_packages=True, with_pip=False)
+    venv.create(env_dir, with_pip=False)
     python = env_dir / "bin" / "python"
+    # the dependencies are this environment's (a virtual one or not), the package only the wheel's:
+    # a path entry processes no .pth file there, so this environment's editable install stays out
+    site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+    Path(site, "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     res = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps",
                           "--no-index", str(wheel)], check=False, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"installing {wheel.name} failed:\n{res.stdout}\n{res.stderr}"
@@ -230,6 +236,7 @@ def image(tmp_path_factory) -> dict:
     return {"bin": env_dir / "bin", "env": env, "python": python, "home": tmp}
 
 
+@pytest.mark.e2e
 def test_installed_wheel_runs_outside_the_source_tree(image):
     probe = ("import limbstream, services, device_emulator, numpy as np\n"
              "from limbstream.kernel import segment\n"
@@ -254,6 +261,7 @@ def localise(value: str, router_port: int, http_port: int) -> str:
     return value.replace("0.0.0.0:8000", f"127.0.0.1:{http_port}").replace("127.0.0.1:8000", f"127.0.0.1:{http_port}")
 
 
+@pytest.mark.e2e
 def test_compose_services_run_as_local_processes(image, tmp_path):
     services = resolved("docker-compose.yml")["services"]
     stack = Stack(tmp_path, launcher=(str(image["bin"] / "limbstream"),), cwd=image["home"],

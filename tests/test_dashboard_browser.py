@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 from stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
 
+pytestmark = pytest.mark.browser
+
 CHROMIUM = os.environ.get("LIMBSTREAM_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
     "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -212,6 +212,7 @@ def test_cli_writes_table_json_and_plot(cmu_npz, tmp_path, capsys):
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_cli_table_at_icr(cmu_npz, capsys):
     code = cli.main(["eval", str(cmu_npz), "--algorithms", "fastsw,cplr", "--max-len", "1000"])
     text = capsys.readouterr().out
@@ -339,6 +340,7 @@ def test_frontier_keeps_the_best_aad_per_icr():
     assert evaluation.frontier(rows, None)[0].tolist() == [0.1, 0.2, 0.25, 0.4]
 
 
+@pytest.mark.slow
 def test_cli_live_bounds_json_table_and_frontier(cmu_npz, tmp_path, capsys):
     out_json, out_png = tmp_path / "live.json", tmp_path / "frontier.png"
     code = cli.main(["eval", str(cmu_npz), "--live-bound", "0,5", "--max-len", "25", "--thresholds", "1e-2",

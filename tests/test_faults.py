@@ -259,6 +259,8 @@ def test_cut_link_between_device_host_and_router(stack, netns):  # noqa: F811
 # ----------------------------------------------------------------------------- load
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_short_soak(tmp_path):
     """bench/soak.py at CI size (200 devices, 60 s, small recovery caches so they fill during the
     warm-up): memory flat, no late ticks, nothing dropped, missed or lost. The 2,000-device,

@@ -13,6 +13,8 @@ import pytest
 
 from firmware import FIRMWARE, load_tool, require_tools
 
+pytestmark = pytest.mark.qemu
+
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-nm", "arm-none-eabi-objdump", "qemu-system-arm", "make")
 
 FASTSW_MAX_INSTRUCTIONS = 130

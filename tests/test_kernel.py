@@ -75,6 +75,7 @@ def all_streams(cmu_npz, xio_dir):
     return cmu_streams(cmu_npz) + xio_streams(xio_dir) + synthetic_streams()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algorithm", ["fastsw", "sw"])
 def test_equals_brute_force_sliding_window(all_streams, algorithm):
     same, total, offenders = compare_with_oracle(all_streams, algorithm)
@@ -281,6 +282,7 @@ def first_divergence_is_a_tie(t, q, threshold, max_len, eps, got, want, want_kno
     return f"at sample {call}: SSR {ssr_value:.6g} (TH {threshold:g}), live error {err:.6f} (bound {eps:g})"
 
 
+@pytest.mark.slow
 def test_live_rule_equals_oracle(live_streams):
     """The kernel's points, the samples they are known from and their rates equal the brute-force
     float64 oracle's on every stream x threshold x bound; where a run differs, its first

@@ -21,6 +21,8 @@ from limbstream import kernel
 from conftest import ROOT
 from firmware import FIRMWARE, load_tool, require_tools
 
+pytestmark = pytest.mark.qemu
+
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-objdump", "qemu-system-arm", "make")
 FUSED = re.compile(r"\bv(fma|fms|fnma|fnms)\.f32\b")
 
