@@ -209,7 +209,7 @@ class Emulator:
         clock = self.sync.status(d.slot) if self.sync is not None else wire.ClockStatus()
         b = self.bank
         return wire.DeviceStatus(d.id, d.config, int(b.stream[d.slot]), int(self.n[d.slot] - b.base[d.slot]),
-                                 d.points, clock)
+                                 d.points, clock, self.feeds[d.subject].rest_pose)
 
     def _answer_queries(self) -> None:
         """Apply config queries that arrived since the last tick (never inside a callback)."""

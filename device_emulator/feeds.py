@@ -7,6 +7,8 @@ continuous across chunks.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from limbstream import quat
@@ -20,7 +22,7 @@ def resample(motion: Motion, fs: float) -> Motion:
         return motion
     t = motion.t[0] + np.arange(int(np.floor((motion.t[-1] - motion.t[0]) * fs)) + 1) / fs
     q = np.stack([quat.interpolate(motion.t, motion.q[:, s], t) for s in range(motion.q.shape[1])], axis=1)
-    return Motion(t, q, motion.segments, motion.name)
+    return dataclasses.replace(motion, t=t, q=q)
 
 
 class LoopFeed:
@@ -38,6 +40,7 @@ class LoopFeed:
         self.motion = resample(motion, fs)
         self.q = self.motion.q.astype(np.float32)
         self.segments = self.motion.segments
+        self.rest_pose = self.motion.rest_pose
         self.length = len(self.q) if once else None
 
     def sample(self, k: int) -> np.ndarray:
@@ -55,6 +58,7 @@ class GeneratorFeed:
     """
 
     CHUNK_S = 10.0
+    rest_pose = "standing"
 
     def __init__(self, seed: int, fs: float, noise_deg: float = 0.0):
         self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg)

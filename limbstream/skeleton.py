@@ -2,9 +2,10 @@
 
 Each segment's bone points along a fixed direction of its own frame; with every segment
 orientation at identity the body stands in its rest pose (Y up, X to the subject's left).
-Two rest poses cover the sources: ``"standing"`` (arms hanging: the built-in generator and
-IMU recordings) and ``"tpose"`` (arms out along +-X: BVH clips). No sensor on the trunk, so
-the spine follows the hip (pelvis) segment.
+Two rest poses cover the sources (``wire.REST_POSES``): ``"standing"`` (arms hanging: the
+built-in generator and IMU recordings) and ``"tpose"`` (arms out along +-X: BVH clips). The rest
+pose is a property of the data: motion sources know theirs, devices announce it, pose frames
+carry it. No sensor on the trunk, so the spine follows the hip (pelvis) segment.
 """
 from __future__ import annotations
 
@@ -12,9 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from limbstream import quat
-from limbstream.sources import SEGMENTS
-from limbstream.wire import JOINTS
+from limbstream import quat, wire
+from limbstream.wire import JOINTS, SEGMENTS
 
 _S = {name: i for i, name in enumerate(SEGMENTS)}
 _J = {name: i for i, name in enumerate(JOINTS)}
@@ -22,7 +22,8 @@ _J = {name: i for i, name in enumerate(JOINTS)}
 
 @dataclass(frozen=True)
 class Skeleton:
-    """Bone lengths in metres (defaults: an adult of about 1.75 m) and the rest pose."""
+    """Bone lengths in metres (defaults: an adult of about 1.75 m) and the default rest pose
+    (of orientations that do not say theirs)."""
 
     thigh: float = 0.45
     shank: float = 0.43
@@ -35,18 +36,19 @@ class Skeleton:
     rest_pose: str = "standing"
 
     def __post_init__(self):
-        if self.rest_pose not in ("standing", "tpose"):
-            raise ValueError(f"rest_pose must be 'standing' or 'tpose', got {self.rest_pose!r}")
+        wire.check_rest_pose(self.rest_pose)
         for name in ("thigh", "shank", "upperarm", "lowerarm", "spine", "neck", "hip_width", "shoulder_width"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"bone length {name} must be > 0 m, got {getattr(self, name)}")
 
-    def positions(self, q: np.ndarray) -> np.ndarray:
+    def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None) -> np.ndarray:
         """Joint positions, pelvis at the origin.
 
         Parameters
         ----------
         q : (..., 10, 4) segment orientations, SEGMENTS order, scalar-first.
+        tpose : (...) bool or a bool: the orientations refer to the T-pose (else to the standing
+            rest pose); None: the skeleton's ``rest_pose``.
 
         Returns
         -------
@@ -65,6 +67,9 @@ class Skeleton:
             return out[..., _J[joint], :]
 
         down = np.array([0.0, -1.0, 0.0])
+        if tpose is None:
+            tpose = self.rest_pose == "tpose"
+        tpose = np.asarray(tpose, bool)[..., None]  # (..., 1)
         hip = seg("hip")
         put("neck_base", quat.rotate(hip, [0.0, self.spine, 0.0]))
         put("head", get("neck_base") + quat.rotate(seg("neck"), [0.0, self.neck, 0.0]))
@@ -72,7 +77,7 @@ class Skeleton:
             put(f"{side}_hip", quat.rotate(hip, [lateral * self.hip_width / 2, 0.0, 0.0]))
             put(f"{side}_knee", get(f"{side}_hip") + quat.rotate(seg(f"{side}_thigh"), down * self.thigh))
             put(f"{side}_ankle", get(f"{side}_knee") + quat.rotate(seg(f"{side}_shank"), down * self.shank))
-            arm = down if self.rest_pose == "standing" else np.array([lateral, 0.0, 0.0])
+            arm = np.where(tpose, np.array([lateral, 0.0, 0.0]), down)
             put(f"{side}_shoulder", get("neck_base") + quat.rotate(hip, [lateral * self.shoulder_width / 2, -0.05, 0.0]))
             put(f"{side}_elbow", get(f"{side}_shoulder") + quat.rotate(seg(f"{side}_upperarm"), arm * self.upperarm))
             put(f"{side}_wrist", get(f"{side}_elbow") + quat.rotate(seg(f"{side}_lowerarm"), arm * self.lowerarm))

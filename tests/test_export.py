@@ -118,7 +118,8 @@ def test_rest_pose_and_body_come_from_the_frames():
     q = np.tile([1.0, 0, 0, 0], (10, 1))
     q[wire.SEGMENTS.index("l_upperarm")] = [np.cos(0.3), 0, 0, np.sin(0.3)]
     for body in (Skeleton(), Skeleton(thigh=0.5, upperarm=0.33, rest_pose="tpose")):
-        frame = wire.PoseFrame(0, 0, wire.KIND_EXACT, 0, q.astype(np.float32), body.positions(q))
+        flags = wire.rest_pose_flag(body.rest_pose)  # the rest pose travels in the frame's flags
+        frame = wire.PoseFrame(0, 0, wire.KIND_EXACT, flags, q.astype(np.float32), body.positions(q))
         got = skeleton_of(frame)
         assert got.rest_pose == body.rest_pose and got.thigh == pytest.approx(body.thigh, abs=1e-5)
         assert got.upperarm == pytest.approx(body.upperarm, abs=1e-5)

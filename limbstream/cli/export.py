@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from limbstream import wire
 from services.outputs.export import FORMATS, ExportError, export, read_take
 
 PROG = "limbstream export"
@@ -20,9 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", choices=FORMATS, default=None,
                         help="output format (default: from OUT's extension)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT", help="file to write (replaced if it exists)")
-    parser.add_argument("--rest-pose", choices=("standing", "tpose"), default=None,
-                        help="rest pose of a motion file's body (default: tpose for .bvh, standing otherwise; "
-                             "recordings: the aggregator's, read from the frames)")
+    parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=None,
+                        help="override the input's rest pose (default: the data's own: tpose for BVH and npz "
+                             "without a rest_pose entry, standing for IMU files; recordings: their frames' flags)")
 
 
 def fail(message: str) -> int:

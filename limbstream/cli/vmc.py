@@ -16,8 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="subject to send, e.g. s01; repeat it with one --to each for several")
     parser.add_argument("--to", action="append", default=[],
                         help="HOST:PORT of the VMC receiver (VSeeFace, Warudo ... listen on 39539)")
-    parser.add_argument("--rest-pose", choices=("standing", "tpose"), default="standing",
-                        help="the aggregator's skeleton rest pose (its --rest-pose; default standing)")
+    parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=None,
+                        help="override the rest pose the pose frames carry in their flags (default: theirs)")
     parser.add_argument("--wait", type=float, default=30.0,
                         help="exit with an error if a subject sends no pose frame within this many "
                              "seconds (0: wait forever; default 30)")

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from limbstream import wire
 from limbstream.wire.body import SEGMENTS  # noqa: F401  (re-exported: the 10-IMU layout)
 
 
@@ -46,18 +47,23 @@ class Motion:
         Segment names (see :data:`SEGMENTS`).
     name : str
         Where it came from (file stem, clip or generator name).
+    rest_pose : str
+        What identity orientations mean (``wire.REST_POSES``): ``tpose`` for BVH clips and the
+        files converted from them, ``standing`` for the generator and IMU recordings.
     """
 
     t: np.ndarray
     q: np.ndarray
     segments: tuple[str, ...]
     name: str = ""
+    rest_pose: str = wire.DEFAULT_REST_POSE
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:
             raise ValueError(f"Motion needs t (m,) and q (m, S, 4); got {self.t.shape}, {self.q.shape}")
         if self.q.shape[1] != len(self.segments):
             raise ValueError(f"{len(self.segments)} segment names for {self.q.shape[1]} streams")
+        wire.check_rest_pose(self.rest_pose)
 
     @property
     def fs(self) -> float:
@@ -69,14 +75,22 @@ class Motion:
         return self.q[:, self.segments.index(name), :]
 
 
+NPZ_REST_POSE = "tpose"
+"""The rest pose of an npz motion file without a ``rest_pose`` entry: the format began as BVH clips
+converted to global segment orientations (identity = the BVH's T-pose); limbstream always writes
+the entry."""
+
+
 def load_npz(path: str | Path) -> list[Motion]:
-    """All clips of a ``cmu_10seg_50hz.npz``-style file (``clip_<name>`` arrays, ``fs``, ``segment_names``)."""
+    """All clips of a ``cmu_10seg_50hz.npz``-style file (``clip_<name>`` arrays, ``fs``,
+    ``segment_names``, optional ``rest_pose``: a 0-d string, :data:`NPZ_REST_POSE` if absent)."""
     path = Path(path)
     try:
         data = np.load(path, allow_pickle=False)
         names = tuple(str(s) for s in data["segment_names"])
         fs = float(data["fs"])
         clips = [k for k in data.files if k.startswith("clip_")]
+        rest_pose = wire.check_rest_pose(str(data["rest_pose"])) if "rest_pose" in data.files else NPZ_REST_POSE
     except (OSError, KeyError, ValueError) as exc:
         raise MotionFileError(f"{path}: not a limbstream npz motion file ({exc})") from exc
     if not clips:
@@ -86,7 +100,7 @@ def load_npz(path: str | Path) -> list[Motion]:
         q = np.asarray(data[key], np.float64)
         if q.ndim != 3 or q.shape[1:] != (len(names), 4):
             raise MotionFileError(f"{path}: {key} has shape {q.shape}, expected (m, {len(names)}, 4)")
-        motions.append(Motion(np.arange(len(q)) / fs, q, names, key[len("clip_"):]))
+        motions.append(Motion(np.arange(len(q)) / fs, q, names, key[len("clip_"):], rest_pose))
     return motions
 
 

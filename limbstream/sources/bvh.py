@@ -376,6 +376,6 @@ def load_bvh(
     q = q[first:]
     t = np.arange(len(q)) * clip.frame_time
     if fs is None:
-        return Motion(t, quat.continuous(q), segments, clip.path.stem)
+        return Motion(t, quat.continuous(q), segments, clip.path.stem, "tpose")
     t, q = resample(t, q, fs)
-    return Motion(t, q, segments, clip.path.stem)
+    return Motion(t, q, segments, clip.path.stem, "tpose")

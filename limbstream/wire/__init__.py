@@ -16,7 +16,7 @@ module          what it holds
 All binary payloads are little-endian and start with a format version byte. Import the
 package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
 """
-from .body import BONES, JOINTS, SEGMENTS
+from .body import BONES, DEFAULT_REST_POSE, JOINTS, REST_POSES, SEGMENTS, check_rest_pose
 from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
                      DeviceStatus, Tunable, add_arguments, config_from_args, decode_config, decode_status,
                      encode_config, encode_status)
@@ -28,8 +28,8 @@ from .keys import (DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, c
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,
                     decode_point, encode_point)
-from .pose import (FRAME_GAP, FRAME_MISSING, KIND_EXACT, KIND_LIVE, POSE_DTYPE, PoseFrame, PoseFrames,
-                   decode_pose, encode_pose)
+from .pose import (FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE, PoseFrame, PoseFrames,
+                   decode_pose, encode_pose, frame_rest_pose, rest_pose_flag)
 from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, decode_raw, encode_raw
 from .stats import decode_stats, encode_stats
 from .time import (MAX_TIME_US, TIME_ANSWER_SIZE, TIME_REQUEST_SIZE, TIME_VERSION, TimeAnswer, TimeRequest,

@@ -23,3 +23,18 @@ BONES: tuple[tuple[str, str], ...] = (
     ("neck_base", "r_shoulder"), ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"),
 )
 """Lines a client draws between joints."""
+
+REST_POSES: tuple[str, ...] = ("standing", "tpose")
+"""What identity segment orientations mean, the body's **rest pose**: ``standing`` (arms hanging
+along -Y: the built-in generator and IMU recordings) or ``tpose`` (arms out along +-X: BVH clips
+and files converted from them). Every motion source knows its own; devices announce it in their
+status, pose frames in their flags (docs/protocol.md, "Rest pose")."""
+DEFAULT_REST_POSE = "standing"
+"""The rest pose of data that does not say (a device status without the field)."""
+
+
+def check_rest_pose(name: str) -> str:
+    """``name`` if it is one of REST_POSES, else ValueError with the choices."""
+    if name not in REST_POSES:
+        raise ValueError(f"rest pose must be one of {', '.join(REST_POSES)}, got {name!r}")
+    return name

@@ -19,6 +19,7 @@ import math
 import numbers
 from dataclasses import asdict, dataclass, field, fields, replace
 
+from .body import DEFAULT_REST_POSE, check_rest_pose
 from .errors import WireError
 
 
@@ -175,6 +176,7 @@ class DeviceStatus:
     samples : samples taken in this stream.
     points : segment points sent in this stream.
     clock : its clock synchronisation (:class:`ClockStatus`), None if it does not report one.
+    rest_pose : what identity orientations of its data mean (wire.REST_POSES).
     """
 
     device: str
@@ -183,11 +185,12 @@ class DeviceStatus:
     samples: int
     points: int
     clock: ClockStatus | None = None
+    rest_pose: str = DEFAULT_REST_POSE
 
     def as_dict(self) -> dict:
         clock = {} if self.clock is None else self.clock.as_dict()
         return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
-                "samples": self.samples, "points": self.points, **clock}
+                "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose}
 
 
 @dataclass(frozen=True)
@@ -242,6 +245,7 @@ def decode_status(payload: bytes) -> DeviceStatus:
         counters = [data[k] for k in ("stream", "samples", "points")]
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in counters):
             raise TypeError(f"stream, samples and points must be integers, got {counters}")
-        return DeviceStatus(str(data["device"]), config, *counters, clock=_clock(data))
+        return DeviceStatus(str(data["device"]), config, *counters, clock=_clock(data),
+                            rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)))
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

@@ -14,6 +14,19 @@ FRAME_GAP = 0x01
 """Pose frame flag: a device's sequence gap affects this frame (reconstruction may be wrong)."""
 FRAME_MISSING = 0x02
 """Pose frame flag: some segment has no data (offline device); its orientation is held or identity."""
+FRAME_TPOSE = 0x04
+"""Pose frame flag: the orientations refer to the ``tpose`` rest pose (clear: ``standing``;
+wire.REST_POSES)."""
+
+
+def frame_rest_pose(flags: int) -> str:
+    """The rest pose a pose frame's orientations refer to, from its flags."""
+    return "tpose" if flags & FRAME_TPOSE else "standing"
+
+
+def rest_pose_flag(rest_pose: str) -> int:
+    """The pose-frame flag bits of ``rest_pose``."""
+    return FRAME_TPOSE if rest_pose == "tpose" else 0
 
 POSE_DTYPE = np.dtype([("version", "u1"), ("kind", "u1"), ("flags", "u1"), ("n_segments", "u1"),
                        ("seq", "<u4"), ("t_us", "<i8"), ("q", "<f4", (len(SEGMENTS), 4)),

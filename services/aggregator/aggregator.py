@@ -183,6 +183,7 @@ class Aggregator:
                 self.bad_keys["too_many_devices"] += 1
                 return None
             track = self.track(*ids)
+            self._ask_status(*ids)  # its settings and rest pose, before the next poll
         if reason is not None:
             track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
         return track
@@ -233,6 +234,7 @@ class Aggregator:
         track = self._known(*ids)
         if track is not None:
             self.fusion.set_config(track, status.config)
+            self.fusion.set_rest_pose(track.subject, status.rest_pose)
             track.clock = status.clock
 
     def drain(self, now: float, budget: int = 100_000) -> int:
@@ -271,6 +273,13 @@ class Aggregator:
         self.loop.max_backlog = max(self.loop.max_backlog, handled)
         self.loop.recent_backlog = max(self.loop.recent_backlog, handled)
         return handled
+
+    def _ask_status(self, subject: str, segment: str) -> None:
+        """Ask one device for its status (the answer arrives in a channel, read by drain; no
+        session: an aggregator fed by hand, nothing to ask)."""
+        if self.session is not None:
+            self._config_replies.append(
+                self.session.get(wire.config_key(subject, segment), zenoh.handlers.FifoChannel(4), timeout=2.0))
 
     def poll_configs(self) -> None:
         """Ask every device for its config (answers arrive in a channel, read by drain)."""

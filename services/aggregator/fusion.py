@@ -27,7 +27,7 @@ import numpy as np
 
 from limbstream import quat, wire
 from limbstream.skeleton import Skeleton
-from limbstream.sources import SEGMENTS
+from limbstream.wire import SEGMENTS
 from services.aggregator.store import IDENTITY, ErrorRings, PointStore, TruthQueue
 from services.aggregator.track import DeviceTrack
 
@@ -55,6 +55,7 @@ class Subject:
         self.tracks: dict[str, DeviceTrack] = {}
         self.frames = 0
         self.skipped = 0
+        self.rest_pose: str | None = None  # as its devices announce it (None: not yet heard)
 
 
 class Fusion:
@@ -89,6 +90,7 @@ class Fusion:
         self.next_frame = np.zeros(0, np.int64)  # grid index of each subject's next exact frame, -1 unset
         self.exact_seq = np.zeros(0, np.int64)
         self.live_seq = np.zeros(0, np.int64)
+        self.rest_flag = np.zeros(0, np.uint8)   # per subject: pose-frame flag bits of its rest pose
         # per device slot, kept current as messages arrive, so a tick reads them without a loop
         self.owner = np.zeros(0, np.int64)        # subject index
         self.online = np.zeros(0, bool)           # liveliness token present
@@ -114,6 +116,7 @@ class Fusion:
             self.next_frame = np.append(self.next_frame, -1)
             self.exact_seq = np.append(self.exact_seq, 0)
             self.live_seq = np.append(self.live_seq, 0)
+            self.rest_flag = np.append(self.rest_flag, np.uint8(wire.rest_pose_flag(self.skeleton.rest_pose)))
             self.frame_errors.ensure(len(self.subjects))
         track = sub.tracks.get(segment)
         if track is None:
@@ -145,6 +148,13 @@ class Fusion:
         """The settings the device reports it runs (its max_len sets its live horizon)."""
         track.config = config
         self.horizon_us[track.slot] = self._horizon_us(config.max_len)
+
+    def set_rest_pose(self, subject: str, rest_pose: str) -> None:
+        """The rest pose a subject's devices announce: its frames' skeleton and flag from now on."""
+        sub = self.subjects[subject]
+        if sub.rest_pose != rest_pose:
+            sub.rest_pose = rest_pose
+            self.rest_flag[sub.index] = wire.rest_pose_flag(rest_pose)
 
     def set_online(self, track: DeviceTrack, online: bool) -> None:
         """The device's liveliness token appeared (True) or vanished (False)."""
@@ -303,7 +313,8 @@ class Fusion:
             mine = owner == self.owner[track.slot]
             if mine.any():
                 gap[mine] |= track.in_gap(t_us[mine])
-        flags = np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0)
+        rest = self.rest_flag[owner]
+        flags = np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | rest
         per_subject = np.bincount(owner, minlength=len(subjects))
         for i in np.flatnonzero(per_subject):
             subjects[i].frames += int(per_subject[i])
@@ -313,7 +324,7 @@ class Fusion:
             self._pending = (np.concatenate([po, owner[with_truth]]), np.concatenate([pt, t_us[with_truth]]),
                              np.concatenate([pq, q[with_truth].astype(np.float32)]))
         return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
-                                                             self.skeleton.positions(q))
+                                                             self.skeleton.positions(q, rest != 0))
 
     def live_frames(self, now: float | None = None, wall: float | None = None) -> tuple[list[Subject], wire.PoseFrames]:
         """One frame per subject at its device time "now": the newest device time of its devices,
@@ -350,9 +361,10 @@ class Fusion:
             f, s = np.nonzero(has_points)
             self.latency.add(slots[f, s], (wall * 1e6 - t_us[f]) / 1e3)
         subjects = list(self.subjects.values())
+        rest = self.rest_flag[index]
         return [subjects[i] for i in index], wire.PoseFrames(seq, t_us, wire.KIND_LIVE,
-                                                             np.where(missing, wire.FRAME_MISSING, 0), q,
-                                                             self.skeleton.positions(q))
+                                                             np.where(missing, wire.FRAME_MISSING, 0) | rest, q,
+                                                             self.skeleton.positions(q, rest != 0))
 
     def evaluate_frames(self) -> int:
         """Alignment-aware error of the exact frames waiting for it: each segment of a frame at

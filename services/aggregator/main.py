@@ -22,8 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="build exact frames at most every this many s (0: every tick)")
     parser.add_argument("--history", type=int, default=512, help="segment points per device fetched when joining")
     parser.add_argument("--error-window", type=float, default=60.0, help="angular-error window, s (default 60)")
-    parser.add_argument("--rest-pose", choices=("standing", "tpose"), default="standing",
-                        help="skeleton rest pose: standing (generator, IMU files) or tpose (BVH)")
+    parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=wire.DEFAULT_REST_POSE,
+                        help="rest pose of subjects whose devices do not announce theirs (devices say it in their "
+                             "status: standing for the generator and IMU files, tpose for BVH)")
     for bone, default in (("thigh", 0.45), ("shank", 0.43), ("upperarm", 0.30), ("lowerarm", 0.27),
                           ("spine", 0.50), ("neck", 0.22)):
         parser.add_argument(f"--{bone}", type=float, default=default, help=f"{bone} length, m (default {default})")

@@ -70,24 +70,21 @@ class Take:
 # ----------------------------------------------------------------------------- sources
 
 
-def skeleton_of(frame: wire.PoseFrame) -> Skeleton:
+def skeleton_of(frame: wire.PoseFrame, rest_pose: str | None = None) -> Skeleton:
     """The body an aggregator used for ``frame``: bone lengths from its joint positions, rest pose
-    from the upper arm's direction in its own segment frame (down: standing; sideways: T-pose)."""
+    from its flags (``rest_pose``: an override)."""
     j = {name: np.asarray(frame.joints[i], np.float64) for i, name in enumerate(wire.JOINTS)}
-    s = {name: np.asarray(frame.q[i], np.float64) for i, name in enumerate(wire.SEGMENTS)}
 
     def length(a: str, b: str) -> float:
         return float(np.linalg.norm(j[a] - j[b]))
-    arm = quat.rotate(quat.conjugate(s["l_upperarm"]), j["l_elbow"] - j["l_shoulder"])
-    rest = "tpose" if abs(arm[0]) > abs(arm[1]) else "standing"
     return Skeleton(thigh=length("l_knee", "l_hip"), shank=length("l_ankle", "l_knee"),
                     upperarm=length("l_elbow", "l_shoulder"), lowerarm=length("l_wrist", "l_elbow"),
                     spine=length("neck_base", "pelvis"), neck=length("head", "neck_base"),
                     hip_width=length("l_hip", "r_hip"), shoulder_width=length("l_shoulder", "r_shoulder"),
-                    rest_pose=rest)
+                    rest_pose=rest_pose or wire.frame_rest_pose(frame.flags))
 
 
-def from_recording(recording: Recording, subject: str | None) -> Take:
+def from_recording(recording: Recording, subject: str | None, rest_pose: str | None = None) -> Take:
     """The exact pose frames of ``subject`` in ``recording`` on their frame grid (the median step);
     a grid point without a recorded frame repeats the frame before (``filled``).
 
@@ -126,7 +123,7 @@ def from_recording(recording: Recording, subject: str | None) -> Take:
     take = Take(subject, period, times[0] + grid * period, np.stack([f.q for f in chosen]).astype(np.float64),
                 np.stack([f.joints for f in chosen]), np.array([f.seq for f in chosen]),
                 np.array([f.flags for f in chosen]) | np.where(filled, wire.FRAME_GAP, 0), filled,
-                skeleton_of(chosen[0]))
+                skeleton_of(chosen[0], rest_pose))
     if filled.any():
         take.notes.append(f"{int(filled.sum())} of {len(grid)} frames were not recorded: each repeats the frame "
                           f"before (flag GAP; npz 'filled')")
@@ -167,7 +164,7 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
             lacking.append(seg)
             if parent is not None:
                 q[:, i] = q[:, wire.SEGMENTS.index(parent)]
-    skeleton = Skeleton(rest_pose=rest_pose or ("tpose" if path.suffix.lower() == ".bvh" else "standing"))
+    skeleton = Skeleton(rest_pose=rest_pose or motion.rest_pose)
     n = len(t)
     take = Take(motion.name or path.stem, int(round(1e6 / FS)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
                 skeleton.positions(q), np.arange(n), np.full(n, wire.FRAME_MISSING if lacking else 0),
@@ -188,7 +185,7 @@ def read_take(path: str | Path, subject: str | None, rest_pose: str | None = Non
     path = Path(path)
     try:
         if path.suffix.lower() == ".mcap":
-            return from_recording(Recording(path), subject)
+            return from_recording(Recording(path), subject, rest_pose)
         return from_motion(load(path), subject, path, rest_pose)
     except (RecordingError, MotionFileError) as exc:
         raise ExportError(str(exc)) from None
@@ -304,11 +301,12 @@ def write_csv(take: Take, path: Path) -> None:
 
 
 def write_npz(take: Take, path: Path) -> None:
-    """``clip_<name>`` (F, 10, 4), ``fs``, ``segment_names`` (what ``load_npz`` reads) and the frame
-    details: ``t_us``, ``joints``, ``seq``, ``flags``, ``filled``."""
+    """``clip_<name>`` (F, 10, 4), ``fs``, ``segment_names``, ``rest_pose`` (what ``load_npz`` reads)
+    and the frame details: ``t_us``, ``joints``, ``seq``, ``flags``, ``filled``."""
     with open(path, "wb") as f:
         np.savez_compressed(f, **{f"clip_{take.name}": take.q}, fs=np.float64(1e6 / take.period_us),
-                            segment_names=np.array(wire.SEGMENTS), t_us=take.t_us, joints=take.joints,
+                            segment_names=np.array(wire.SEGMENTS), rest_pose=np.array(take.skeleton.rest_pose),
+                            t_us=take.t_us, joints=take.joints,
                             seq=take.seq, flags=take.flags, filled=take.filled)
 
 

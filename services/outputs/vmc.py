@@ -168,11 +168,12 @@ class VmcEncoder:
 
     Parameters
     ----------
-    rest_pose : the aggregator's skeleton rest pose (``standing`` or ``tpose``).
+    rest_pose : override of the rest pose the frames carry in their flags (None: theirs).
     """
 
-    def __init__(self, rest_pose: str = "standing"):
-        rest_offsets(rest_pose)  # ValueError on a bad name
+    def __init__(self, rest_pose: str | None = None):
+        if rest_pose is not None:
+            rest_offsets(rest_pose)  # ValueError on a bad name
         self.rest_pose = rest_pose
         bundle = OscBundleBuilder(IMMEDIATELY)
         messages = [self._message("/VMC/Ext/Root/Pos", "root", [0.0] * 6 + [1.0])]
@@ -211,7 +212,7 @@ class VmcEncoder:
         """The bundle of ``frame`` (about 1.6 kB); ``local``: its :func:`local_rotations` if
         already computed. ValueError on a zero-norm quaternion."""
         if local is None:
-            local = local_rotations(frame.q, self.rest_pose)
+            local = local_rotations(frame.q, self.rest_pose or wire.frame_rest_pose(frame.flags))
         self._floats[self._rot] = local[:, [1, 2, 3, 0]]
         self._ints[self._tracking] = 0 if frame.flags & wire.FRAME_MISSING else 1
         if self.t0_us is None:
@@ -249,10 +250,10 @@ class VmcSender:
     Parameters
     ----------
     targets : subject -> (host, port).
-    rest_pose : the aggregator's skeleton rest pose.
+    rest_pose : override of the rest pose the frames carry in their flags (None: theirs).
     """
 
-    def __init__(self, targets: dict[str, tuple[str, int]], rest_pose: str = "standing"):
+    def __init__(self, targets: dict[str, tuple[str, int]], rest_pose: str | None = None):
         self.targets = dict(targets)
         self.rest_pose = rest_pose
         self.encoders = {s: VmcEncoder(rest_pose) for s in targets}
@@ -266,10 +267,15 @@ class VmcSender:
         todo = [(s, f) for s, f in items if s in self.encoders and self.kinds.wanted(s, f, now)]
         if not todo:
             return 0
-        try:
-            local = local_rotations(np.stack([f.q for _, f in todo]), self.rest_pose)
-        except ValueError:  # a bad frame among them: one by one, so only it is refused
-            local = [None] * len(todo)
+        rest = [self.rest_pose or wire.frame_rest_pose(f.flags) for _, f in todo]
+        local: list = [None] * len(todo)
+        for pose in set(rest):  # one vectorised call per rest pose
+            rows = [i for i, r in enumerate(rest) if r == pose]
+            try:
+                for i, value in zip(rows, local_rotations(np.stack([todo[i][1].q for i in rows]), pose)):
+                    local[i] = value
+            except ValueError:  # a bad frame among them: one by one, so only it is refused
+                pass
         sent = 0
         for (subject, frame), rows in zip(todo, local):
             try:
