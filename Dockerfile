@@ -12,12 +12,13 @@ RUN apt-get update \
     && apt-get install -y --no-install-recommends gcc libc6-dev \
     && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
-COPY pyproject.toml setup.py README.md ./
+COPY pyproject.toml setup.py README.md LICENSE ./
 COPY firmware_c/include firmware_c/include
 COPY firmware_c/src firmware_c/src
 COPY limbstream limbstream
 COPY device_emulator device_emulator
 COPY services services
+COPY dashboard dashboard
 RUN pip wheel --no-cache-dir --wheel-dir /wheels .
 
 FROM ${PYTHON_IMAGE} AS runtime
@@ -25,10 +26,8 @@ RUN useradd --create-home --uid 10001 --user-group limbstream
 COPY --from=build /wheels /wheels
 RUN pip install --no-cache-dir --no-index --find-links /wheels limbstream \
     && rm -rf /wheels
-COPY dashboard /opt/limbstream/dashboard
 ENV PYTHONUNBUFFERED=1 \
-    PYTHONDONTWRITEBYTECODE=1 \
-    LIMBSTREAM_STATIC_DIR=/opt/limbstream/dashboard
+    PYTHONDONTWRITEBYTECODE=1
 USER limbstream
 WORKDIR /home/limbstream
 EXPOSE 8000

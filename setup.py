@@ -1,4 +1,6 @@
-"""Builds the C kernels (firmware_c/) into limbstream/_kernels*.so on pip install.
+"""Builds the C kernels (firmware_c/) into limbstream/_kernels*.so on pip install, and maps the
+repository's part folders into the one import package: services/ -> limbstream.services,
+device_emulator/ -> limbstream.device_emulator, dashboard/ (the page) -> limbstream.dashboard.
 
 The library has no Python API of its own: limbstream.kernel loads it with ctypes.
 The compile flags are the ones the Cortex-M4 build uses for its arithmetic
@@ -6,11 +8,18 @@ The compile flags are the ones the Cortex-M4 build uses for its arithmetic
 """
 from glob import glob
 
-from setuptools import Extension, setup
+from setuptools import Extension, find_packages, setup
 
 KERNEL_CFLAGS = ["-std=c99", "-O3", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra"]
 
+PARTS = ("services", "device_emulator", "dashboard")
+"""Folders of the repository that install as subpackages of limbstream."""
+PACKAGES = find_packages(include=["limbstream", "limbstream.*"]) + [
+    f"limbstream.{name}" for part in PARTS for name in find_packages(include=[part, f"{part}.*"])]
+
 setup(
+    packages=PACKAGES,
+    package_dir={f"limbstream.{part}": part for part in PARTS},
     ext_modules=[
         Extension(
             "limbstream._kernels",

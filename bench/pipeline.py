@@ -26,13 +26,13 @@ import zenoh
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
-from device_emulator.feeds import GeneratorFeed  # noqa: E402
-from device_emulator.main import subject_names  # noqa: E402
+from limbstream.device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
+from limbstream.device_emulator.feeds import GeneratorFeed  # noqa: E402
+from limbstream.device_emulator.main import subject_names  # noqa: E402
 from limbstream import wire, zconfig  # noqa: E402
 from limbstream.cli.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
 from limbstream.sources import SEGMENTS  # noqa: E402
-from services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
 
 
 class Router:

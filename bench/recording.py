@@ -40,8 +40,8 @@ from limbstream.cli.launch import Launcher, free_port, wait_until  # noqa: E402
 from limbstream.skeleton import Skeleton  # noqa: E402
 from limbstream.sources import SEGMENTS, Motion  # noqa: E402
 from limbstream.sources.generator import GeneratorSource  # noqa: E402
-from services.outputs.record import Recorder  # noqa: E402
-from services.outputs.recording import KINDS, Recording, RecordingWriter  # noqa: E402
+from limbstream.services.outputs.record import Recorder  # noqa: E402
+from limbstream.services.outputs.recording import KINDS, Recording, RecordingWriter  # noqa: E402
 
 FS = 50.0
 START_US = 1_800_000_000_000_000

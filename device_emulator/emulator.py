@@ -31,7 +31,7 @@ import numpy as np
 import zenoh
 import zenoh.ext as zext
 
-from device_emulator.clock import ClockSettings, DeviceClocks, SyncClient, TimeBase
+from limbstream.device_emulator.clock import ClockSettings, DeviceClocks, SyncClient, TimeBase
 from limbstream import kernel, quat, wire, zconfig
 
 log = logging.getLogger("limbstream.emulator")

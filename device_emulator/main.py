@@ -8,9 +8,9 @@ import re
 import socket
 import threading
 
-from device_emulator.clock import ClockSettings
-from device_emulator.emulator import Emulator, EmulatorSettings
-from device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.device_emulator.clock import ClockSettings
+from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
+from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
 from limbstream.signals import stop_on_signals
 from limbstream import wire, zconfig
 from limbstream.sources import MotionFileError, load

@@ -1,3 +1,7 @@
 """limbstream: live full-body motion capture over Zenoh from IMUs that send only segment points."""
+from importlib.metadata import PackageNotFoundError, version
 
-__version__ = "0.1.0"
+try:
+    __version__ = version("limbstream")
+except PackageNotFoundError:  # run from a checkout that was never installed
+    __version__ = "0+unknown"

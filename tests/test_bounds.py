@@ -13,8 +13,8 @@ from stack import stack, wait_until  # noqa: F401  (the fixture)
 
 from limbstream import kernel, wire, zconfig
 from limbstream.cli import up
-from services.dashboard.app import create_app
-from services.dashboard.settings import DashboardSettings
+from limbstream.services.dashboard.app import create_app
+from limbstream.services.dashboard.settings import DashboardSettings
 
 
 def bad_values(t: wire.Tunable) -> list:

@@ -20,7 +20,7 @@ import pytest
 import zenoh
 from stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
-from device_emulator.clock import (JUMP_CONFIRM, RESUME_SPREAD_S, RETRY_S, SLEW, ClockSettings, DeviceClocks,
+from limbstream.device_emulator.clock import (JUMP_CONFIRM, RESUME_SPREAD_S, RETRY_S, SLEW, ClockSettings, DeviceClocks,
                                    SyncClient, SyncEstimator, TimeBase)
 from limbstream import kernel, wire, zconfig
 
@@ -223,8 +223,8 @@ def test_past_its_holdover_a_device_polls_at_the_short_back_off():
 def test_devices_sample_on_their_own_clock_grid(tmp_path):
     """A fast clock takes more samples than a slow one; stamps increase; each sample's stamp
     minus its reference time is the clock's error (no sync)."""
-    from device_emulator.emulator import Emulator, EmulatorSettings
-    from device_emulator.feeds import GeneratorFeed
+    from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
+    from limbstream.device_emulator.feeds import GeneratorFeed
 
     session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
     try:

@@ -238,7 +238,9 @@ def image(tmp_path_factory) -> dict:
 
 @pytest.mark.e2e
 def test_installed_wheel_runs_outside_the_source_tree(image):
-    probe = ("import limbstream, services, device_emulator, numpy as np\n"
+    probe = ("import limbstream, limbstream.services as services, limbstream.device_emulator as device_emulator\n"
+             "import importlib.util, numpy as np\n"
+             "assert all(importlib.util.find_spec(m) is None for m in ('services', 'device_emulator', 'dashboard'))\n"
              "from limbstream.kernel import segment\n"
              "t = np.arange(200, dtype=np.uint32) * 20000\n"
              "q = np.tile([1.0, 0.0, 0.0, 0.0], (200, 1)).astype(np.float32)\n"

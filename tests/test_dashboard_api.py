@@ -18,10 +18,10 @@ from starlette.websockets import WebSocketDisconnect
 
 from limbstream import wire, zconfig
 from limbstream.cli.watch import render, subscribe_pose
-from services.dashboard.app import create_app
-from services.dashboard.main import parse_http
-from services.dashboard.settings import DashboardSettings
-from services.dashboard.state import LiveState
+from limbstream.services.dashboard.app import create_app
+from limbstream.services.dashboard.main import parse_http
+from limbstream.services.dashboard.settings import DashboardSettings
+from limbstream.services.dashboard.state import LiveState
 
 TOKEN = "test-token-123"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -12,8 +12,8 @@ from stack import free_port, http_json, wait_until
 from test_dashboard_api import Device, device_stats, pose_frame
 
 from limbstream import wire, zconfig
-from services.dashboard.app import create_app
-from services.dashboard.settings import DashboardSettings
+from limbstream.services.dashboard.app import create_app
+from limbstream.services.dashboard.settings import DashboardSettings
 
 schemathesis = pytest.importorskip("schemathesis")
 

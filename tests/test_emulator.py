@@ -6,8 +6,8 @@ import argparse
 import numpy as np
 import pytest
 
-from device_emulator import main as emulate
-from device_emulator.feeds import GeneratorFeed, LoopFeed, resample
+from limbstream.device_emulator import main as emulate
+from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed, resample
 from limbstream import kernel, quat
 from limbstream.sources import Motion
 from limbstream.sources.generator import GeneratorSource

@@ -14,8 +14,8 @@ from limbstream import quat, wire
 from limbstream.skeleton import Skeleton
 from limbstream.sources import load, load_npz
 from limbstream.sources.bvh import load_bvh, parse_bvh
-from services.outputs.export import BVH_JOINTS, ROTATION_CHANNELS, csv_header, skeleton_of
-from services.outputs.recording import RecordingWriter
+from limbstream.services.outputs.export import BVH_JOINTS, ROTATION_CHANNELS, csv_header, skeleton_of
+from limbstream.services.outputs.recording import RecordingWriter
 
 T0_US = 1_700_000_000_000_000
 

@@ -20,7 +20,7 @@ from limbstream import wire, zconfig
 from limbstream.cli import main
 from limbstream.skeleton import Skeleton
 from limbstream.sources import generator
-from services.outputs import foxglove as fox
+from limbstream.services.outputs import foxglove as fox
 from stack import free_port
 
 SUBPROTOCOL = "foxglove.sdk.v1"

@@ -6,8 +6,8 @@ import numpy as np
 
 from limbstream import wire
 from limbstream.sources import SEGMENTS
-from services.aggregator.aggregator import Aggregator, AggregatorSettings
-from services.aggregator.track import HISTORY_GRACE_S
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+from limbstream.services.aggregator.track import HISTORY_GRACE_S
 
 T0 = 1_700_000_000_000_000
 STEP_US = 100_000  # one segment point every 100 ms
@@ -199,7 +199,7 @@ def test_live_frames_stop_extrapolating_a_device_that_went_silent():
     OVERDUE_GRACE_S; later live frames hold it at that point and are flagged MISSING. The horizon
     follows the max_len the device reports."""
     from limbstream import quat
-    from services.aggregator.fusion import OVERDUE_GRACE_S
+    from limbstream.services.aggregator.fusion import OVERDUE_GRACE_S
 
     agg, sent = spinning_subject()
     spin = SPIN

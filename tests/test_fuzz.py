@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from limbstream import quat, wire
 from limbstream.sources import SEGMENTS
-from services.aggregator.aggregator import Aggregator, AggregatorSettings, snapshot
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings, snapshot
 
 SEED = 20240607
 CASES: dict[str, int] = {}

@@ -1,5 +1,6 @@
-"""The import layers hold: the core library (limbstream, less limbstream.cli) imports nothing
-above it; the parts (device_emulator, services) import the core only; only limbstream.cli starts
+"""The import layers hold: the core library (limbstream, less limbstream.cli and the parts)
+imports nothing above it; the parts (device_emulator, services: limbstream.device_emulator and
+limbstream.services once installed) import the core only; only limbstream.cli starts
 them (by module name). Read from the source, so a string import cannot hide a cycle."""
 from __future__ import annotations
 
@@ -8,12 +9,12 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-UPPER = {"core": ("limbstream.cli", "services", "device_emulator"), "parts": ("limbstream.cli",)}
+UPPER = {"core": ("limbstream.cli", "limbstream.services", "limbstream.device_emulator"), "parts": ("limbstream.cli",)}
 
 
 def imported(path: Path) -> set[str]:
     """Modules a file imports, by import statements and by names in strings that look like a
-    module path (``importlib.import_module("services.x")``)."""
+    module path (``importlib.import_module("limbstream.services.x")``)."""
     tree = ast.parse(path.read_text(), str(path))
     names = set()
     for node in ast.walk(tree):

@@ -21,10 +21,10 @@ from stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (
 
 from limbstream import quat, wire, zconfig
 from limbstream.sources.bvh import load_bvh
-from services.outputs.replay import FIXED
-from services.outputs.recording import (TOPICS, Recording, RecordingError, RecordingWriter, envelope, open_envelope,
+from limbstream.services.outputs.replay import FIXED
+from limbstream.services.outputs.recording import (TOPICS, Recording, RecordingError, RecordingWriter, envelope, open_envelope,
                                         skeleton_topic)
-from services.outputs.subscription import Subscription
+from limbstream.services.outputs.subscription import Subscription
 
 CLIP_SAMPLES = 1146  # first clip of cmu_10seg_50hz.npz (01_01), the one subject s01 streams
 

@@ -16,8 +16,8 @@ from scipy.spatial.transform import Rotation
 from limbstream import quat, wire, zconfig
 from limbstream.cli import main
 from limbstream.sources import generator
-from services.outputs import vmc
-from services.outputs.kinds import LiveFirst
+from limbstream.services.outputs import vmc
+from limbstream.services.outputs.kinds import LiveFirst
 from stack import wait_until
 
 PARENT = {  # Unity's humanoid hierarchy (the bones sent)

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from limbstream import wire
-from services.outputs.export import FORMATS, ExportError, export, read_take
+from limbstream.services.outputs.export import FORMATS, ExportError, export, read_take
 
 PROG = "limbstream export"
 

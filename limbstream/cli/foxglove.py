@@ -1,5 +1,5 @@
 """``limbstream foxglove``: the live pose and stats for the Foxglove app over its WebSocket
-protocol (:mod:`services.outputs.foxglove`, docs/outputs.md)."""
+protocol (:mod:`limbstream.services.outputs.foxglove`, docs/outputs.md)."""
 from __future__ import annotations
 
 import argparse
@@ -7,8 +7,8 @@ import sys
 
 from limbstream import wire, zconfig
 from limbstream.signals import stop_on_signals
-from services.outputs.foxglove import FoxgloveOutput
-from services.outputs.subscription import Subscription
+from limbstream.services.outputs.foxglove import FoxgloveOutput
+from limbstream.services.outputs.subscription import Subscription
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

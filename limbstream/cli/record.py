@@ -10,9 +10,9 @@ import threading
 
 from limbstream import wire, zconfig
 from limbstream.signals import stop_on_signals
-from services.outputs.record import Recorder, summary_line
-from services.outputs.recording import RecordingError, RecordingWriter
-from services.outputs.subscription import open_session
+from limbstream.services.outputs.record import Recorder, summary_line
+from limbstream.services.outputs.recording import RecordingError, RecordingWriter
+from limbstream.services.outputs.subscription import open_session
 
 PROG = "limbstream record"
 

@@ -9,9 +9,9 @@ import threading
 
 from limbstream import wire, zconfig
 from limbstream.signals import stop_on_signals
-from services.outputs.recording import Recording, RecordingError
-from services.outputs.replay import Replayer, ReplaySettings
-from services.outputs.subscription import open_session
+from limbstream.services.outputs.recording import Recording, RecordingError
+from limbstream.services.outputs.replay import Replayer, ReplaySettings
+from limbstream.services.outputs.subscription import open_session
 
 PROG = "limbstream replay"
 

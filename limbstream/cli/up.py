@@ -31,7 +31,7 @@ import threading
 import time
 from pathlib import Path
 
-from device_emulator.main import add_clock_arguments, clock_flags
+from limbstream.device_emulator.main import add_clock_arguments, clock_flags
 from limbstream import wire
 from limbstream.cli.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
@@ -131,7 +131,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     status_file = args.status_file.resolve()
     launcher = Launcher()
     supervisor = Supervisor(launcher.children, RestartPolicy(max_exits=args.max_exits), report=say)
-    dashboard = not args.no_dashboard and importlib.util.find_spec("services.dashboard.main") is not None
+    dashboard = not args.no_dashboard and importlib.util.find_spec("limbstream.services.dashboard.main") is not None
     signal.signal(signal.SIGTERM, _abort_start)  # while starting, Ctrl-C or SIGTERM abort the start
     try:
         try:

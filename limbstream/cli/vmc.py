@@ -1,5 +1,5 @@
 """``limbstream vmc --subject s01 --to 127.0.0.1:39539``: a subject's pose as the VMC protocol
-(OSC over UDP) for avatar apps (:mod:`services.outputs.vmc`, docs/outputs.md)."""
+(OSC over UDP) for avatar apps (:mod:`limbstream.services.outputs.vmc`, docs/outputs.md)."""
 from __future__ import annotations
 
 import argparse
@@ -7,8 +7,8 @@ import sys
 
 from limbstream import wire, zconfig
 from limbstream.signals import stop_on_signals
-from services.outputs import vmc
-from services.outputs.subscription import Subscription
+from limbstream.services.outputs import vmc
+from limbstream.services.outputs.subscription import Subscription
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,5 +1,5 @@
 """``limbstream watch <subject>``: a live text view of a subject's pose stream, straight from
-Zenoh through the outputs' subscription (:mod:`services.outputs.subscription`, which also
+Zenoh through the outputs' subscription (:mod:`limbstream.services.outputs.subscription`, which also
 holds :func:`subscribe_pose` for Python programs). It shows live frames (``--kind live``, the
 default: the aggregator's frames at the devices' "now"), exact frames (``--kind exact``: final,
 behind by up to the max segment length) or both (``--kind any``); the header line names the
@@ -12,7 +12,7 @@ import time
 
 from limbstream import quat, wire, zconfig
 from limbstream.sources import SEGMENTS
-from services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
+from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
 
 KINDS = {"any": None, "exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
 SHOWN_JOINTS = ("head", "l_wrist", "r_wrist", "l_ankle", "r_ankle")

@@ -105,7 +105,7 @@ class DeviceConfig:
     """Settings a device applies (one attribute per :data:`TUNABLES` entry)."""
 
     threshold: float = THRESHOLD.default
-    max_len: int = MAX_LEN.default
+    max_len: int = int(MAX_LEN.default)
     live_bound_deg: float = LIVE_BOUND_DEG.default
 
     def validate(self) -> DeviceConfig:
@@ -242,10 +242,10 @@ def decode_status(payload: bytes) -> DeviceStatus:
         if not isinstance(data, dict):
             raise TypeError("a device status must be an object")
         config = DeviceConfig(**{name: TUNABLES[name].check(data[name]) for name in TUNABLES})
-        counters = [data[k] for k in ("stream", "samples", "points")]
-        if not all(isinstance(v, int) and not isinstance(v, bool) for v in counters):
-            raise TypeError(f"stream, samples and points must be integers, got {counters}")
-        return DeviceStatus(str(data["device"]), config, *counters, clock=_clock(data),
+        stream, samples, points = (data[k] for k in ("stream", "samples", "points"))
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (stream, samples, points)):
+            raise TypeError(f"stream, samples and points must be integers, got {[stream, samples, points]}")
+        return DeviceStatus(str(data["device"]), config, stream, samples, points, clock=_clock(data),
                             rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)))
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

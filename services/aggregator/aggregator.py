@@ -21,8 +21,8 @@ import zenoh.ext as zext
 
 from limbstream import heap, wire, zconfig
 from limbstream.skeleton import Skeleton
-from services.aggregator.fusion import Fusion, Subject
-from services.aggregator.track import DeviceTrack
+from limbstream.services.aggregator.fusion import Fusion, Subject
+from limbstream.services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
 

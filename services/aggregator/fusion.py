@@ -28,8 +28,8 @@ import numpy as np
 from limbstream import quat, wire
 from limbstream.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
-from services.aggregator.store import IDENTITY, ErrorRings, PointStore, TruthQueue
-from services.aggregator.track import DeviceTrack
+from limbstream.services.aggregator.store import IDENTITY, ErrorRings, PointStore, TruthQueue
+from limbstream.services.aggregator.track import DeviceTrack
 
 MAX_FRAMES_PER_CALL = 500
 """Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""

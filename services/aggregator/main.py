@@ -8,7 +8,7 @@ import threading
 from limbstream.signals import stop_on_signals
 from limbstream import wire, zconfig
 from limbstream.skeleton import Skeleton
-from services.aggregator.aggregator import Aggregator, AggregatorSettings
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

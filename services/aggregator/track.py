@@ -2,7 +2,7 @@
 
 A :class:`DeviceTrack` checks each decoded segment point against the stream so far (new
 stream, sequence gap, duplicate, time going backwards) before its point goes into the shared
-:class:`~services.aggregator.store.PointStore` row of the device (``slot``).
+:class:`~limbstream.services.aggregator.store.PointStore` row of the device (``slot``).
 """
 from __future__ import annotations
 

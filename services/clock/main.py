@@ -7,7 +7,7 @@ import threading
 
 from limbstream import wire, zconfig
 from limbstream.signals import stop_on_signals
-from services.clock.service import ClockServiceSettings, TimeService
+from limbstream.services.clock.service import ClockServiceSettings, TimeService
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

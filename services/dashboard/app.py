@@ -14,6 +14,8 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
+import limbstream
+
 from .metrics import build_registry
 from .routes import devices, live, ops, subjects
 from .settings import DashboardSettings
@@ -73,7 +75,7 @@ def create_app(settings: DashboardSettings | None = None, session: zenoh.Session
     session : an open Zenoh session to use instead of opening one (left open on shutdown).
     """
     settings = settings or DashboardSettings()
-    app = FastAPI(title="limbstream dashboard", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="limbstream dashboard", version=limbstream.__version__, lifespan=lifespan,
                   description="Live device statistics, pose streams and device control of limbstream.")
     app.state.settings = settings
     app.state.session = session

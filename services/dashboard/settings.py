@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import secrets
+import importlib.resources
 from pathlib import Path
 from typing import Literal
 
@@ -16,8 +17,9 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from limbstream import zconfig
 
-DASHBOARD_DIR = Path(__file__).resolve().parents[2] / "dashboard"
-"""The web page (index.html, app.js, style.css, vendor/) served at ``/``."""
+DASHBOARD_DIR = Path(str(importlib.resources.files("limbstream.dashboard")))
+"""The web page (index.html, app.js, style.css, vendor/) served at ``/``: the package data of
+limbstream.dashboard (the repository's dashboard/ folder)."""
 
 
 class DashboardSettings(BaseSettings):

@@ -20,7 +20,7 @@ become world X, Y, Z), lifts the pelvis to the default leg length so the feet to
 and places the n-th subject seen (from 0) :data:`SPACING_M` to the right of the one before.
 ``<s>/<segment>`` sits at the joint where the segment starts (``l_thigh`` at ``l_hip``) and has
 the pose frame's global segment orientation, unchanged. Frames shown: live ones first
-(:mod:`services.outputs.kinds`). Messages are built only for topics a client subscribed to.
+(:mod:`limbstream.services.outputs.kinds`). Messages are built only for topics a client subscribed to.
 """
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ from foxglove.messages import (Color, FrameTransform, FrameTransforms, LinePrimi
 
 from limbstream import wire
 from limbstream.skeleton import Skeleton
-from services.outputs.kinds import LiveFirst
-from services.outputs.subscription import Item
+from limbstream.services.outputs.kinds import LiveFirst
+from limbstream.services.outputs.subscription import Item
 
 SPACING_M = 1.0
 """Distance between neighbouring subjects in the world frame, metres."""

@@ -130,7 +130,7 @@ class RecordingWriter:
         }
         self._fox = None
         if skeleton:
-            from services.outputs import foxglove as fox
+            from limbstream.services.outputs import foxglove as fox
 
             self._fox = fox
         self._skeletons: dict[str, tuple] = {}  # subject -> (channel, where its body is drawn)
@@ -150,7 +150,7 @@ class RecordingWriter:
 
     def add_skeleton(self, subject: str, frame: wire.PoseFrame, log_ns: int) -> None:
         """``frame`` of ``subject`` as a foxglove.SceneUpdate on :func:`skeleton_topic`, built as
-        ``limbstream foxglove`` builds it (``services.outputs.foxglove.scene_update``), in frame
+        ``limbstream foxglove`` builds it (``limbstream.services.outputs.foxglove.scene_update``), in frame
         ``world``, placed as that output places subjects: the n-th subject seen here (from 0) in
         slot n."""
         if self._fox is None:

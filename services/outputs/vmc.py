@@ -36,8 +36,8 @@ from pythonosc.osc_message_builder import OscMessageBuilder
 
 from limbstream import quat, wire
 from limbstream.skeleton import Skeleton
-from services.outputs.kinds import LiveFirst
-from services.outputs.subscription import Subscription
+from limbstream.services.outputs.kinds import LiveFirst
+from limbstream.services.outputs.subscription import Subscription
 
 _SEG = {name: i for i, name in enumerate(wire.SEGMENTS)}
 _ROOT = len(wire.SEGMENTS)  # index of the identity row (the avatar root) in the global table
@@ -245,7 +245,7 @@ class VmcCounters:
 
 class VmcSender:
     """Sends the pose frames of some subjects, each to its own UDP target, one bundle per frame
-    of the kind :class:`~services.outputs.kinds.LiveFirst` picks.
+    of the kind :class:`~limbstream.services.outputs.kinds.LiveFirst` picks.
 
     Parameters
     ----------

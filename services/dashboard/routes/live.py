@@ -34,7 +34,7 @@ def origin_allowed(origin: str | None, host: str | None, allowed: list[str]) -> 
 @router.websocket("/ws/pose/{subject}")
 async def ws_pose(websocket: WebSocket, subject: str, live: LiveDep, settings: SettingsDep,
                   kind: PoseKind = "auto") -> None:
-    """JSON pose frames of ``subject`` (:class:`~services.dashboard.models.Pose`), as they come."""
+    """JSON pose frames of ``subject`` (:class:`~limbstream.services.dashboard.models.Pose`), as they come."""
     try:
         wire.check_chunk(subject, "subject")
     except ValueError:

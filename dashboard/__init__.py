@@ -1,0 +1,1 @@
+"""The web page (static files: index.html, app.js, style.css, vendor/), served by limbstream.services.dashboard."""
