@@ -402,7 +402,7 @@ class Fusion:
     def frame_error(self, sub: Subject) -> tuple[float, int]:
         """(mean alignment-aware frame error over the window, deg; frames compared so far)."""
         idx = np.array([sub.index])
-        mean, _, _ = self.frame_errors.summary(idx)
+        mean, _ = self.frame_errors.summary(idx)
         return float(mean[0]), int(self.frame_errors.count[sub.index])
 
     def prune(self) -> None:
@@ -424,10 +424,9 @@ class Fusion:
     def device_stats(self, sub: Subject, now: float) -> list[dict]:
         tracks = [sub.tracks[name] for name in sorted(sub.tracks)]
         slots = np.array([t.slot for t in tracks], np.int64)
-        aad, p99, mx = self.exact.summary(slots)
-        live, live_p99, live_max = self.live.summary(slots)
-        live_p50 = self.live.quantile(slots, 0.5)
-        lat_p50, lat_p99 = self.latency.quantile(slots, 0.5), self.latency.quantile(slots, 0.99)
+        aad, mx, p99 = self.exact.summary(slots, (0.99,))
+        live, live_max, live_p50, live_p99 = self.live.summary(slots, (0.5, 0.99))
+        _, _, lat_p50, lat_p99 = self.latency.summary(slots, (0.5, 0.99))
         count = self.exact.count[slots]
         aad_all = np.where(count > 0, self.exact.total[slots] / np.maximum(count, 1), np.nan)
         return [t.stats(now, (float(aad[i]), float(p99[i]), float(mx[i]), float(live[i]), float(aad_all[i]),
