@@ -111,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="emulator --cache: points per device kept for recovery (default 512); the "
                              "caches fill during warm-up (~150 s at 512), so short runs use less")
     parser.add_argument("--truth", action="store_true", help="also stream the truth tap (raw samples)")
+    parser.add_argument("--live-rate", type=float, default=0.0,
+                        help="the aggregator's live frames per second and subject (default 0: off; make run: 50)")
     parser.add_argument("--warmup", type=float, default=None,
                         help="warm-up, s, before the RSS baseline (default: 30 %% of the run, at most "
                              "180 s: the recovery caches fill first)")
@@ -130,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     launcher = Launcher(workdir)
     launcher.router(endpoint)
-    launcher.start("aggregator", "aggregate", "--connect", endpoint, "--live-rate", "0",
+    launcher.start("aggregator", "aggregate", "--connect", endpoint, "--live-rate", f"{args.live_rate:g}",
                    "--frame-batch", str(args.frame_batch))
     share, first = [subjects // args.procs + (i < subjects % args.procs) for i in range(args.procs)], 1
     emulators = []

@@ -35,6 +35,8 @@ from limbstream.device_emulator.clock import ClockSettings, DeviceClocks, SyncCl
 from limbstream import kernel, quat, wire, zconfig
 
 log = logging.getLogger("limbstream.emulator")
+QUERIES_PER_TICK = 10
+"""Config queries a tick answers at most (each answers one subject's devices: 10 replies)."""
 
 RING_MIN = 4
 """Ticks of samples kept at least (segment points refer to the last one or two)."""
@@ -211,11 +213,14 @@ class Emulator:
         return wire.DeviceStatus(d.id, d.config, int(b.stream[d.slot]), int(self.n[d.slot] - b.base[d.slot]),
                                  d.points, clock, self.feeds[d.subject].rest_pose)
 
-    def _answer_queries(self) -> None:
-        """Apply config queries that arrived since the last tick (never inside a callback)."""
+    def _answer_queries(self, budget: int = QUERIES_PER_TICK) -> None:
+        """Apply config queries that arrived since the last tick (never inside a callback), at
+        most ``budget`` of them: an aggregator's status poll asks every subject at once, and
+        answering 100 subjects' devices in one tick would make it late; the rest wait a tick."""
         for queryable, devices in self._queries:
-            while (query := queryable.try_recv()) is not None:
+            while budget > 0 and (query := queryable.try_recv()) is not None:
                 self._answer(query, devices)
+                budget -= 1
 
     def _answer(self, query: zenoh.Query, devices: dict) -> None:
         """Apply and answer one query on a subject's queryable; ``devices``: its {config key: Device}."""

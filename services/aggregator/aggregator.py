@@ -25,6 +25,9 @@ from limbstream.services.aggregator.fusion import Fusion, Subject
 from limbstream.services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
+STATUSES_PER_TICK = 100
+"""Device status replies a tick takes in at most: a poll of 2,000 devices answers within a few
+milliseconds, and decoding all of them in one tick would make it late; the rest wait a tick."""
 
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
@@ -260,14 +263,15 @@ class Aggregator:
             log.warning("zenoh reports %d segment points missed for good (%d in all)",
                         self._missed_unlogged, self.loop.missed)
             self._missed_unlogged, self._next_miss_log = 0, now + 5.0
-        open_replies = []
+        open_replies, statuses = [], STATUSES_PER_TICK
         for replies in self._config_replies:
             try:
-                while (reply := replies.try_recv()) is not None:
+                while statuses > 0 and (reply := replies.try_recv()) is not None:
+                    statuses -= 1
                     if reply.ok is not None:
                         self.on_config(str(reply.ok.key_expr), reply.ok.payload.to_bytes())
                 open_replies.append(replies)
-            except zenoh.ZError:  # the query is complete: its channel is closed
+            except zenoh.ZError:  # the query is complete and its channel empty
                 pass
         self._config_replies = open_replies
         self.loop.max_backlog = max(self.loop.max_backlog, handled)

@@ -1,0 +1,123 @@
+"""Performance regression check: the same benchmarks for two git revisions, back to back on
+this machine, and the ratios HEAD / baseline.
+
+Each revision is checked out in a temporary worktree and installed (its C kernel built) into a
+virtual environment of its own that borrows this environment's dependencies; then, per
+revision, in turn: the soak (``bench/soak.py``, shortened), the aggregator core bench
+(``bench/pipeline.py core``) and the emulator bench (``bench/pipeline.py emulator``). Run it
+before resolving any change that touches the device, router or aggregator path
+(docs/benchmarks.md, "Regression check").
+
+    python bench/regress.py --base edac059            # HEAD vs edac059, about 12 minutes
+    python bench/regress.py --base main --head HEAD --soak-minutes 1 --devices 1000
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import sysconfig
+import tempfile
+import venv
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def install(rev: str, where: Path) -> Path:
+    """Check ``rev`` out at ``where`` and install it into ``where/.venv``; returns its python."""
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-f", str(where), rev], check=True,
+                   capture_output=True)
+    venv.create(where / ".venv", with_pip=False)
+    python = where / ".venv" / "bin" / "python"
+    site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+    Path(site, "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")  # this env's dependencies
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps",
+                    "--no-build-isolation", "-e", str(where)], check=True, capture_output=True)
+    return python
+
+
+def run(python: Path, cwd: Path, *args: str) -> str:
+    out = subprocess.run([str(python), *args], cwd=cwd, capture_output=True, text=True, timeout=3600)
+    if out.returncode not in (0, 1):
+        raise SystemExit(f"{' '.join(args)} failed in {cwd}:\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}")
+    return out.stdout
+
+
+def table_row(text: str, column: str, value: str) -> dict[str, float]:
+    """The row of a printed markdown table whose ``column`` is ``value``: {header: number} (the
+    leading number of each cell; units and % dropped)."""
+    header: list[str] = []
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if column in cells:
+            header = cells
+        elif header and len(cells) >= len(header) and cells[header.index(column)] == value:
+            out = {}
+            for name, cell in zip(header, cells):
+                m = re.match(r"-?[\d.]+", cell.replace(",", ""))
+                if m:
+                    out[name] = float(m[0])
+            return out
+    return {}
+
+
+def numbers(python: Path, cwd: Path, args) -> dict[str, float]:
+    """The figures compared, from one revision's runs."""
+    fig: dict[str, float] = {}
+    soak_json = cwd / "soak.json"
+    run(python, cwd, "bench/soak.py", "--devices", str(args.devices), "--minutes", f"{args.soak_minutes:g}",
+        "--json", str(soak_json))
+    soak = json.loads(soak_json.read_text())
+    r = soak["results"]
+    fig["soak: emulator late ticks %"] = r["emulator late ticks %"]
+    fig["soak: aggregator late ticks % after warm-up"] = r["aggregator late ticks % after warm-up"]
+    fig["soak: aggregator busy %"] = r["aggregator busy % of wall time (main loop)"]
+    fig["soak: aggregator CPU %"] = soak["cpu"].get("aggregator", float("nan"))
+    fig["soak: emulators CPU %"] = sum(v for k, v in soak["cpu"].items() if k.startswith("emulator"))
+    fig["soak: router CPU %"] = soak["cpu"].get("router", float("nan"))
+    fig["soak: aggregator RSS after warm-up MiB"] = max(soak["rss"]["aggregator"])
+    fig["soak: aggregator max backlog"] = r["aggregator max backlog overall"]
+    core = table_row(run(python, cwd, "bench/pipeline.py", "core", "--subjects", "200", "--seconds",
+                         f"{args.seconds:g}"), "subjects", "200")
+    fig["core bench, 200 subjects: CPU per second of stream"] = core.get("CPU per second of stream", float("nan"))
+    emu = table_row(run(python, cwd, "bench/pipeline.py", "emulator", "--devices", "2000", "--seconds",
+                        f"{args.seconds:g}"), "devices", "2000")
+    for name in ("late ticks", "emulator CPU", "router CPU"):
+        fig[f"emulator bench, 2,000 devices: {name} %"] = emu.get(name, float("nan"))
+    return fig
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--base", required=True, help="baseline revision (e.g. a tag, edac059, main)")
+    parser.add_argument("--head", default="HEAD", help="revision to check (default HEAD)")
+    parser.add_argument("--devices", type=int, default=2000, help="soak devices (default 2000)")
+    parser.add_argument("--soak-minutes", type=float, default=3.0, help="soak duration (default 3)")
+    parser.add_argument("--seconds", type=float, default=20.0, help="per pipeline bench row (default 20)")
+    args = parser.parse_args(argv)
+    results = {}
+    with tempfile.TemporaryDirectory(prefix="limbstream-regress-") as tmp:
+        try:
+            pythons = {rev: install(rev, Path(tmp) / name) for rev, name in ((args.base, "base"), (args.head, "head"))}
+            for rev, name in ((args.base, "base"), (args.head, "head")):
+                print(f"running {rev} ...", flush=True)
+                results[rev] = numbers(pythons[rev], Path(tmp) / name, args)
+        finally:
+            for name in ("base", "head"):
+                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(Path(tmp) / name)],
+                               capture_output=True)
+    base, head = results[args.base], results[args.head]
+    print(f"\n| measure | {args.base} | {args.head} | ratio |\n|---|---|---|---|")
+    for key in base:
+        b, h = base[key], head.get(key, float("nan"))
+        ratio = h / b if b else float("nan")
+        print(f"| {key} | {b:.3g} | {h:.3g} | {ratio:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
