@@ -1,4 +1,4 @@
-"""Live mode through a real router, against the truth tap (issue 11).
+"""Live mode through a real router, against the truth tap.
 
 Starts a router, an aggregator (live frames at 50 Hz) and one emulator per live bound (subject
 s01 runs the first bound, s02 the second, ...), all streaming the same motion once in real time

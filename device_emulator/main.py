@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import re
 import socket
 import threading
 
@@ -23,7 +22,7 @@ def host_prefix(hostname: str | None = None) -> str:
     characters not allowed in a key chunk become ``-``.
     """
     hostname = hostname or os.environ.get("HOSTNAME") or socket.gethostname()
-    return re.sub(r"[^A-Za-z0-9_.\-]", "-", hostname) + "-s"
+    return wire.to_chunk(hostname) + "-s"
 
 
 def subject_names(count: int, first: int = 1, prefix: str = "s") -> list[str]:

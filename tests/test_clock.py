@@ -1,4 +1,4 @@
-"""Device clocks and their synchronisation (issue 13; docs/reliability.md, "Device clocks").
+"""Device clocks and their synchronisation (docs/reliability.md, "Device clocks").
 
 Codec and estimator tests run without a network; the rest runs the real router, time service,
 emulators and aggregator on loopback and measures each sample's timestamp against its

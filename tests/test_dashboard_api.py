@@ -202,7 +202,7 @@ def test_latest_pose_and_kinds(client, pub):
     assert got["seq"] == 7 and got["kind"] == "exact" and got["t"] == expected["t"], got
     for joint, xyz in expected["joints"].items():
         assert np.allclose(got["joints"][joint], xyz, atol=1e-4), (joint, got["joints"][joint], xyz)
-    assert client.get("/api/subjects/poseC/pose?kind=auto").json()["kind"] == "exact"
+    assert client.get("/api/subjects/poseC/pose?kind=auto").json()["kind"] == "live"  # wire.auto_kind: live came
     assert client.get("/api/subjects/poseC/pose?kind=live").json()["seq"] == 8
     assert client.get("/api/subjects/poseC/pose?kind=sideways").status_code == 422
     skeleton = client.get("/api/skeleton").json()
@@ -418,8 +418,8 @@ def test_pose_streams_filter_by_kind(client, pub):
             r = client.get("/sse/pose/kindN", params={"kind": kind, "limit": 5})
             events = [json.loads(line[6:]) for line in r.text.splitlines() if line.startswith("data: ")]
             assert r.status_code == 200 and len(events) == 5 and {e["kind"] for e in events} == {kind}, r.text
-        with client.websocket_connect("/ws/pose/kindN") as ws:  # auto: exact frames while they come
-            assert json.loads(ws.receive_text())["kind"] == "exact"
+        with client.websocket_connect("/ws/pose/kindN") as ws:  # auto: live frames while they come
+            assert json.loads(ws.receive_text())["kind"] == "live"
     finally:
         stop.set()
         publisher.join()

@@ -21,7 +21,7 @@ FASTSW_MAX_INSTRUCTIONS = 130
 """Reached maximum of fastsw_update per sample, live rule off (paper, Table 2: 210)."""
 
 FASTSW_LIVE_MAX_INSTRUCTIONS = 176
-"""Reached maximum with the live rule on, a live close (issue limit: the paper's 210)."""
+"""Reached maximum with the live rule on, a live close (the bound: the paper's 210)."""
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
                  "live_reject_nan", "live_reject_time")
 

@@ -1,4 +1,4 @@
-"""Live mode end to end (issue 11): a CMU clip streamed through a real router by real emulators
+"""Live mode end to end: a CMU clip streamed through a real router by real emulators
 (one with fastSW's live rule, one without) into a real aggregator; its per-device live figures,
 measured against the truth tap, show the bound the devices keep."""
 from __future__ import annotations

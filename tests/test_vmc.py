@@ -93,7 +93,9 @@ def test_conjugate_is_the_inverse():
 
 
 def test_live_frames_first():
-    rule = LiveFirst(window_s=1.0)
+    """The contract's one frame-kind rule (wire.auto_kind, window wire.AUTO_LIVE_WINDOW_S = 1 s)."""
+    assert wire.AUTO_LIVE_WINDOW_S == 1.0
+    rule = LiveFirst()
     q = np.tile([1, 0, 0, 0], (10, 1)).astype(np.float32)
     exact = wire.PoseFrame(0, 0, wire.KIND_EXACT, 0, q)
     live = wire.PoseFrame(0, 0, wire.KIND_LIVE, 0, q)

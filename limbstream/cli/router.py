@@ -13,8 +13,8 @@ from limbstream.signals import stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--listen", default="tcp/127.0.0.1:7447",
-                        help="endpoint(s) to listen on, comma-separated (default tcp/127.0.0.1:7447)")
+    parser.add_argument("--listen", default=zconfig.DEFAULT_ROUTER,
+                        help=f"endpoint(s) to listen on, comma-separated (default {zconfig.DEFAULT_ROUTER})")
     parser.add_argument("--connect", default="", help="other routers to mesh with, comma-separated")
     parser.add_argument("--zenoh-config", default=os.environ.get(zconfig.CONFIG_ENV, ""),
                         help=f"JSON file of extra zenoh settings: TLS, auth, ACL (env {zconfig.CONFIG_ENV})")

@@ -32,14 +32,13 @@ import time
 from pathlib import Path
 
 from limbstream.device_emulator.main import add_clock_arguments, clock_flags
-from limbstream import wire
+from limbstream import wire, zconfig
 from limbstream.cli.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
+from limbstream.services.dashboard.supervision import STATUS_ENV  # the status file's path, for the dashboard
 from limbstream.signals import stop_on_signals
 
 TOKEN_ENV = "LIMBSTREAM_API_TOKEN"
-STATUS_ENV = "LIMBSTREAM_UP_STATUS"
-"""Environment variable with the status file's path, set for the dashboard."""
 ROUTER_TIMEOUT_S = 15.0
 DASHBOARD_TIMEOUT_S = 30.0
 POLL_S = 0.1
@@ -48,7 +47,7 @@ POLL_S = 0.1
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--subjects", type=int, default=2, help="subjects to emulate (10 IMUs each), default 2")
     parser.add_argument("--source", default="generator", help="'generator' (default) or a motion file/folder")
-    parser.add_argument("--router", default="tcp/127.0.0.1:7447", help="router endpoint (default tcp/127.0.0.1:7447)")
+    parser.add_argument("--router", default=zconfig.DEFAULT_ROUTER, help=f"router endpoint (default {zconfig.DEFAULT_ROUTER})")
     parser.add_argument("--http", default="127.0.0.1:8000", help="dashboard address (default 127.0.0.1:8000)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")

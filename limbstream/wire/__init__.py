@@ -23,13 +23,13 @@ from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, Cl
 from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
-from .keys import (DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, check_chunk, config_key, device_id, device_key,
+from .keys import (CHUNK_PATTERN, DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, check_chunk, to_chunk, config_key, device_id, device_key,
                    device_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,
                     decode_point, encode_point)
-from .pose import (FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE, PoseFrame, PoseFrames,
-                   decode_pose, encode_pose, frame_rest_pose, rest_pose_flag)
+from .pose import (AUTO_LIVE_WINDOW_S, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
+                   PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, rest_pose_flag)
 from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, decode_raw, encode_raw
 from .stats import decode_stats, encode_stats
 from .time import (MAX_TIME_US, TIME_ANSWER_SIZE, TIME_REQUEST_SIZE, TIME_VERSION, TimeAnswer, TimeRequest,

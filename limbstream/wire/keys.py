@@ -31,7 +31,14 @@ SUBJECT_KINDS: tuple[str, ...] = ("pose", "stats")
 TIME_CHUNK = "@time"
 """Second chunk of the time service's key (a verbatim chunk: wildcards never match it)."""
 
-_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+CHUNK_PATTERN = r"^[A-Za-z0-9_.\-]+$"
+"""A key chunk (subject or segment name): letters, digits, '_', '-', '.'."""
+_CHUNK = re.compile(CHUNK_PATTERN)
+
+
+def to_chunk(text: str) -> str:
+    """``text`` with every character a key chunk does not allow replaced by ``-``."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "-", text)
 
 
 def check_chunk(name: str, what: str = "name") -> str:

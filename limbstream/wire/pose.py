@@ -19,6 +19,18 @@ FRAME_TPOSE = 0x04
 wire.REST_POSES)."""
 
 
+AUTO_LIVE_WINDOW_S = 1.0
+"""The one frame-kind rule (``kind=auto``: the dashboard's pose streams, Foxglove, VMC): a
+subject's live frames while one of them came within this many seconds, else its exact frames.
+Live frames are current (exact frames are final but about 0.4 s late); exact frames stand in for
+a subject whose aggregator publishes no live frames (``--live-rate 0``) or stopped."""
+
+
+def auto_kind(since_live_s: float) -> int:
+    """The kind ``kind=auto`` shows, seconds after a subject's newest live frame (inf: none yet)."""
+    return KIND_LIVE if since_live_s < AUTO_LIVE_WINDOW_S else KIND_EXACT
+
+
 def frame_rest_pose(flags: int) -> str:
     """The rest pose a pose frame's orientations refer to, from its flags."""
     return "tpose" if flags & FRAME_TPOSE else "standing"

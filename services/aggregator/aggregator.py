@@ -44,7 +44,7 @@ class AggregatorSettings:
     tick_s : loop period, seconds.
     stats_period_s : stats message period, seconds.
     history : segment points per device to ask for when joining late.
-    error_window_s : angular-error window, seconds of samples at 50 Hz.
+    error_window_s : angular-error window, seconds (of samples and frames at ``rate``).
     config_poll_s : how often device configs (threshold) are queried, seconds.
     trim_s : how often freed heap memory is given back to the OS, seconds (limbstream.heap).
     max_devices : most devices tracked; messages of further devices are counted and dropped.
@@ -112,7 +112,7 @@ class Aggregator:
     def __init__(self, session: zenoh.Session, settings: AggregatorSettings):
         self.session, self.settings = session, settings
         self.fusion = Fusion(settings.rate, settings.skeleton, capacity=max(1024, 2 * settings.history),
-                             error_window=int(settings.error_window_s * 50))
+                             error_window=int(settings.error_window_s * settings.rate))
         self.subjects: dict[str, Subject] = self.fusion.subjects
         self.bad_keys: collections.Counter = collections.Counter()
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject

@@ -278,8 +278,11 @@ class Fusion:
         and the subject of each."""
         _, wm, stale = self._device_view()
         subjects = list(self.subjects.values())
-        for sub in subjects:  # a subject's first frame: where every device it has is covered
-            if self.next_frame[sub.index] < 0 and wm[sub.index] != _NONE:
+        for sub in subjects:  # a subject's first frame: where every device it has is covered,
+            # once every one of them settled (its history in, or its grace period over: a device
+            # whose history is still on its way would otherwise start the frames at its live points)
+            if self.next_frame[sub.index] < 0 and wm[sub.index] != _NONE and all(
+                    self.settled[t.slot] for t in sub.tracks.values()):
                 first = max(self.store.first_t(t.slot) or 0 for t in sub.tracks.values())
                 self.next_frame[sub.index] = math.ceil(first / self.period_us)
         last_k = np.where(wm != _NONE, np.floor(wm / self.period_us), -1).astype(np.int64)

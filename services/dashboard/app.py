@@ -30,7 +30,7 @@ async def lifespan(app: FastAPI):
     answers 503 meanwhile), subscribe, and close everything on shutdown."""
     settings: DashboardSettings = app.state.settings
     state = LiveState(settings.history_seconds, settings.max_devices, settings.max_subjects,
-                      settings.stale_after_s, settings.live_kind_window_s, settings.ws_queue)
+                      settings.stale_after_s, settings.ws_queue)
     app.state.live = state
     app.state.registry = build_registry(state)
     app.state.up = UpStatus.from_env()

@@ -8,10 +8,12 @@ from fastapi import Depends, HTTPException, Path
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.requests import HTTPConnection
 
+from limbstream import wire
+
 from .settings import DashboardSettings
 from .state import LiveState
 
-CHUNK = r"^[A-Za-z0-9_.\-]+$"
+CHUNK = wire.CHUNK_PATTERN
 
 
 async def _settings(conn: HTTPConnection) -> DashboardSettings:

@@ -2,7 +2,7 @@
 
 Secrets have no defaults. In ``development`` mode a missing API token is generated at start
 (and printed by ``limbstream dashboard``); in ``production`` mode a missing token disables
-the control endpoints (503 with a message naming ``LIMBSTREAM_API_TOKEN``).
+the control endpoints (403 with a message naming ``LIMBSTREAM_API_TOKEN``).
 """
 from __future__ import annotations
 
@@ -51,8 +51,6 @@ class DashboardSettings(BaseSettings):
         Frames queued per WebSocket/SSE client; a slow client skips the oldest.
     ws_send_timeout_s : float
         A client whose single send blocks longer than this is disconnected.
-    live_kind_window_s : float
-        ``kind=auto`` streams exact frames if one arrived within this window, else live frames.
     """
 
     model_config = SettingsConfigDict(env_prefix="LIMBSTREAM_", extra="ignore")
@@ -72,7 +70,6 @@ class DashboardSettings(BaseSettings):
     config_timeout_s: float = Field(2.0, gt=0, le=60)
     ws_queue: int = Field(16, ge=1, le=1024)
     ws_send_timeout_s: float = Field(5.0, gt=0)
-    live_kind_window_s: float = Field(2.0, gt=0)
     static_dir: Path = DASHBOARD_DIR
 
     @field_validator("api_token")

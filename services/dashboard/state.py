@@ -162,18 +162,15 @@ class LiveState:
     history_seconds : seconds of history kept per device.
     max_devices, max_subjects : bounds on tracked devices / subjects.
     stale_after_s : age (s) beyond which a device's stats count as stale.
-    live_kind_window_s : ``auto`` clients get exact frames if one arrived within this window,
-        else live frames.
     ws_queue : per-client queue length.
     """
 
     def __init__(self, history_seconds: int = 900, max_devices: int = 10_000, max_subjects: int = 1_000,
-                 stale_after_s: float = 5.0, live_kind_window_s: float = 2.0, ws_queue: int = 16):
+                 stale_after_s: float = 5.0, ws_queue: int = 16):
         self.history_seconds = history_seconds
         self.max_devices = max_devices
         self.max_subjects = max_subjects
         self.stale_after_s = stale_after_s
-        self.live_kind_window_s = live_kind_window_s
         self.ws_queue = ws_queue
         self.devices: dict[str, DeviceEntry] = {}
         self.alive: set[str] = set()
@@ -239,9 +236,7 @@ class LiveState:
         self._apply_aggregator(data.get("aggregator"), subject, rx)
         for d in data["devices"]:
             try:
-                device = str(d["device"])
-                dev_subject, segment = device.split("/")
-                wire.device_id(dev_subject, segment)
+                dev_subject, segment = wire.split_device_id(d["device"])
             except (ValueError, TypeError):
                 self.errors["stats_device"] += 1
                 continue
@@ -333,7 +328,7 @@ class LiveState:
         self._next_seq[key] = seq + 1
 
     def _entry(self, subject: str, segment: str) -> DeviceEntry | None:
-        did = f"{subject}/{segment}"
+        did = wire.device_id(subject, segment)
         entry = self.devices.get(did)
         if entry is None:
             if len(self.devices) >= self.max_devices:
@@ -345,11 +340,9 @@ class LiveState:
     # ------------------------------------------------------------------ reads
 
     def auto_kind(self, subject: str) -> int:
-        """Exact frames (final, full rate) if one arrived recently, else live frames."""
-        exact = self.poses.get(subject, {}).get(wire.KIND_EXACT)
-        if exact is not None and time.time() - exact.rx <= self.live_kind_window_s:
-            return wire.KIND_EXACT
-        return wire.KIND_LIVE
+        """The kind ``kind=auto`` shows now: the contract's one rule (``wire.auto_kind``)."""
+        live = self.poses.get(subject, {}).get(wire.KIND_LIVE)
+        return wire.auto_kind(math.inf if live is None else time.time() - live.rx)
 
     def latest_pose(self, subject: str, kind: str = "auto") -> PoseEntry | None:
         slots = self.poses.get(subject, {})

@@ -6,6 +6,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Request
 
+from limbstream import wire
+
 from ..deps import LiveDep, SegmentPath, SettingsDep, SubjectPath, TokenDep
 from ..models import ConfigUpdate, DeviceConfig, DeviceHistory, DeviceStats
 from ..zenoh_io import ConfigError, query_config
@@ -16,7 +18,7 @@ NOT_FOUND = {404: {"description": "unknown device"}}
 
 
 def _known(live, subject: str, segment: str) -> str:
-    did = f"{subject}/{segment}"
+    did = wire.device_id(subject, segment)
     if did not in live.devices:
         raise HTTPException(404, f"unknown device {did!r}")
     return did
