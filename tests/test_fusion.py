@@ -22,10 +22,10 @@ def aggregator() -> tuple[Aggregator, list[wire.PoseFrame]]:
     return agg, sent
 
 
-def send(agg: Aggregator, segment: str, seqs, now: float, subject: str = "s01") -> None:
+def send(agg: Aggregator, segment: str, seqs, now: float, subject: str = "s01", stream: int = 1) -> None:
     """Segment points of sequence numbers ``seqs`` (point k at T0 + k * 100 ms), arriving at ``now``."""
     for k in seqs:
-        point = wire.SegmentPoint(1, k, 5 * k, T0 + k * STEP_US, IDENTITY)
+        point = wire.SegmentPoint(stream, k, 5 * k, T0 + k * STEP_US, IDENTITY)
         agg.on_point(wire.seg_key(subject, segment), wire.encode_point(point), now)
 
 
@@ -60,6 +60,25 @@ def test_online_device_without_points_does_not_stall_its_subject():
         send(agg, segment, range(11), now=0.0)
     agg.advance(live=False, now=0.0)
     assert len(exact(sent)) == 51 and all(f.flags & wire.FRAME_MISSING for f in exact(sent))
+
+
+def test_a_device_whose_stream_keeps_restarting_holds_a_subjects_first_frame_one_grace_period_at_most():
+    """The first frame waits for every device's history, but a device that restarts its stream
+    (seq 5 first, history pending) every 0.3 s must not keep the nine others from ever starting."""
+    agg, sent = aggregator()
+    online_subject(agg)
+    for step in range(8):
+        now = 0.3 * step
+        for segment in SEGMENTS[:-1]:
+            send(agg, segment, range(3 * step, 3 * step + 3), now=now)
+        send(agg, SEGMENTS[-1], range(5, 8), now=now, stream=100 + step)
+        agg.advance(live=False, now=now)
+        if now < HISTORY_GRACE_S:
+            assert not exact(sent), f"{now:.1f} s: still within the grace period, history may come"
+    frames = exact(sent)
+    assert frames and frames[0].t_us == T0, "the first frame at the start of the nine clean streams"
+    before = [f for f in frames if f.t_us < T0 + 5 * STEP_US]
+    assert before and all(f.flags & wire.FRAME_MISSING for f in before), "before its first point: flagged"
 
 
 def truth(agg: Aggregator, segment: str, k: int, now: float) -> None:

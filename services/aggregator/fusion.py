@@ -29,7 +29,7 @@ from limbstream import quat, wire
 from limbstream.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
 from limbstream.services.aggregator.store import IDENTITY, ErrorRings, PointStore, TruthQueue
-from limbstream.services.aggregator.track import DeviceTrack
+from limbstream.services.aggregator.track import HISTORY_GRACE_S, DeviceTrack
 
 MAX_FRAMES_PER_CALL = 500
 """Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""
@@ -56,6 +56,7 @@ class Subject:
         self.frames = 0
         self.skipped = 0
         self.rest_pose: str | None = None  # as its devices announce it (None: not yet heard)
+        self.waiting_since: float | None = None  # arrival clock (s) when its first frame could start
 
 
 class Fusion:
@@ -280,10 +281,17 @@ class Fusion:
         subjects = list(self.subjects.values())
         for sub in subjects:  # a subject's first frame: where every device it has is covered,
             # once every one of them settled (its history in, or its grace period over: a device
-            # whose history is still on its way would otherwise start the frames at its live points)
-            if self.next_frame[sub.index] < 0 and wm[sub.index] != _NONE and all(
-                    self.settled[t.slot] for t in sub.tracks.values()):
-                first = max(self.store.first_t(t.slot) or 0 for t in sub.tracks.values())
+            # whose history is still on its way would otherwise start the frames at its live
+            # points), and at the latest one grace period after it could first start (a device
+            # whose stream keeps restarting must not hold the others back)
+            if self.next_frame[sub.index] >= 0 or wm[sub.index] == _NONE:
+                continue
+            if sub.waiting_since is None:
+                sub.waiting_since = self.clock
+            if (all(self.settled[t.slot] for t in sub.tracks.values())
+                    or self.clock - sub.waiting_since >= HISTORY_GRACE_S):
+                ready = [t for t in sub.tracks.values() if self.settled[t.slot]] or sub.tracks.values()
+                first = max(self.store.first_t(t.slot) or 0 for t in ready)
                 self.next_frame[sub.index] = math.ceil(first / self.period_us)
         last_k = np.where(wm != _NONE, np.floor(wm / self.period_us), -1).astype(np.int64)
         count = np.where(self.next_frame >= 0, last_k - self.next_frame + 1, 0)
@@ -309,8 +317,10 @@ class Fusion:
         valid = slots >= 0
         q[valid] = self.store.interpolate(slots[valid], np.broadcast_to(t_us[:, None], slots.shape)[valid])
         last = self.store.last_t()
-        beyond = valid & (last[np.maximum(slots, 0)] < t_us[:, None])
-        missing = (stale[owner] & beyond).any(axis=1) | (~valid).any(axis=1)
+        rows = np.maximum(slots, 0)
+        beyond = valid & (last[rows] < t_us[:, None])
+        before = valid & (self.store.n[rows] > 0) & (self.store.t[rows, 0] > t_us[:, None])
+        missing = ((stale[owner] & beyond) | before).any(axis=1) | (~valid).any(axis=1)
         gap = np.zeros(total, bool)
         for track in self._gappy:
             mine = owner == self.owner[track.slot]
