@@ -46,7 +46,7 @@ import numpy as np  # noqa: E402
 import zenoh  # noqa: E402
 
 from limbstream import wire, zconfig  # noqa: E402
-from limbstream.cli.launch import Launcher, free_port  # noqa: E402
+from limbstream.launch import Launcher, free_port  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "bench"))
 from soak import cpu_s  # noqa: E402
@@ -259,7 +259,7 @@ def per_call(f, sleep_s: float, calls: int = 500) -> float:
 
 def stamp_row(n: int) -> str:
     """One table row: stamping ``n`` devices, warm and after a 2 ms sleep, with references."""
-    from limbstream.device_emulator.clock import SLEW
+    from limbstream.device_emulator.sync_client import SLEW
     from limbstream.kernel import Stamper
     st = Stamper(n, SLEW)
     st.ever[:], st.a[:], st.b[:], st.ref[:] = True, 1000.0, 50e-6, 1e9

@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from limbstream.cli.launch import Launcher, free_port, wait_until  # noqa: E402
+from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
 
 
 def pct(values, q) -> float:

@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 import zenoh  # noqa: E402
 
 from limbstream import wire, zconfig  # noqa: E402
-from limbstream.cli.launch import Launcher, free_port, wait_until  # noqa: E402
+from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
 
 
 def main() -> int:

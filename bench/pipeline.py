@@ -30,7 +30,7 @@ from limbstream.device_emulator.emulator import Emulator, EmulatorSettings  # no
 from limbstream.device_emulator.feeds import GeneratorFeed  # noqa: E402
 from limbstream.device_emulator.main import subject_names  # noqa: E402
 from limbstream import wire, zconfig  # noqa: E402
-from limbstream.cli.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
+from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
 from limbstream.sources import SEGMENTS  # noqa: E402
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
 

@@ -36,7 +36,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from limbstream import evaluation, kernel, wire, zconfig  # noqa: E402
-from limbstream.cli.launch import Launcher, free_port, wait_until  # noqa: E402
+from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
 from limbstream.skeleton import Skeleton  # noqa: E402
 from limbstream.sources import SEGMENTS, Motion  # noqa: E402
 from limbstream.sources.generator import GeneratorSource  # noqa: E402

@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 import zenoh  # noqa: E402
 
 from limbstream import wire, zconfig  # noqa: E402
-from limbstream.cli.launch import Launcher, free_port, stop_all  # noqa: E402
+from limbstream.launch import Launcher, free_port, stop_all  # noqa: E402
 
 SEGMENTS_PER_SUBJECT = 10
 GRACE_S = 20.0  # emulators of 1,000 devices take a while to stop

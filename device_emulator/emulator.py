@@ -1,6 +1,6 @@
 """Emulated IMU devices: each samples its subject's motion on its own clock, runs the C fastSW
 kernel with its own state, and publishes only its segment points over Zenoh, stamped on the
-common time base (device_emulator/clock.py).
+common time base (device_emulator/sync_client.py).
 
 All devices of one process advance together, one tick at a time, through one
 :class:`limbstream.kernel.SegmenterBank` call, which also returns the segment points emitted as
@@ -31,7 +31,8 @@ import numpy as np
 import zenoh
 import zenoh.ext as zext
 
-from limbstream.device_emulator.clock import ClockSettings, DeviceClocks, SyncClient, TimeBase
+from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks, TimeBase
+from limbstream.device_emulator.sync_client import SyncClient
 from limbstream import kernel, quat, wire, zconfig
 
 log = logging.getLogger("limbstream.emulator")

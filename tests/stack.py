@@ -1,5 +1,5 @@
 """Start the real live system as subprocesses for end-to-end tests, with the launcher of
-``limbstream up`` (limbstream/cli/launch.py).
+``limbstream up`` (limbstream/launch.py).
 
 Usage in a test module::
 
@@ -28,15 +28,15 @@ import pytest
 import zenoh
 
 from limbstream import wire, zconfig
-from limbstream.cli import launch
-from limbstream.cli.launch import Child, free_port  # noqa: F401  (re-exported for the tests)
+from limbstream import launch
+from limbstream.launch import Child, free_port  # noqa: F401  (re-exported for the tests)
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def wait_until(predicate, timeout: float, what: str, interval: float = 0.05, on_fail=None):
     """Poll ``predicate()`` until it returns a truthy value (returned) or fail naming ``what``
-    (:func:`limbstream.cli.launch.wait_until`, failing as an assertion)."""
+    (:func:`limbstream.launch.wait_until`, failing as an assertion)."""
     try:
         return launch.wait_until(predicate, timeout, what, interval, on_fail)
     except TimeoutError as exc:

@@ -20,8 +20,9 @@ import pytest
 import zenoh
 from stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
-from limbstream.device_emulator.clock import (JUMP_CONFIRM, RESUME_SPREAD_S, RETRY_S, SLEW, ClockSettings, DeviceClocks,
-                                   SyncClient, SyncEstimator, TimeBase)
+from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks, TimeBase
+from limbstream.device_emulator.sync_client import RESUME_SPREAD_S, RETRY_S, SLEW, SyncClient
+from limbstream.timesync import JUMP_CONFIRM, SyncEstimator
 from limbstream import kernel, wire, zconfig
 
 T0 = 1_800_000_000_000_000  # us

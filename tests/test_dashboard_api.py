@@ -19,7 +19,7 @@ from starlette.websockets import WebSocketDisconnect
 from limbstream import wire, zconfig
 from limbstream.cli.watch import render, subscribe_pose
 from limbstream.services.dashboard.app import create_app
-from limbstream.services.dashboard.main import parse_http
+from limbstream.cli.dashboard import parse_http
 from limbstream.services.dashboard.settings import DashboardSettings
 from limbstream.services.dashboard.state import LiveState
 

@@ -6,7 +6,7 @@ import argparse
 import numpy as np
 import pytest
 
-from limbstream.device_emulator import main as emulate
+from limbstream.cli import emulate
 from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed, resample
 from limbstream import kernel, quat
 from limbstream.sources import Motion

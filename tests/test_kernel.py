@@ -224,7 +224,7 @@ def test_bank_equals_independent_streams():
 def test_retune_changes_segmentation_from_next_sample():
     t = np.arange(400) * 0.02
     q = random_walk_quaternions(400, 9)
-    seg = Segmenter(threshold=1e3)
+    seg = Segmenter(threshold=1e3, max_len=1000)
     early = sum(seg.update(ti, qi) is not None for ti, qi in zip(t[:200], q[:200]))
     seg.retune(1e-6, 1000)
     late = sum(seg.update(ti, qi) is not None for ti, qi in zip(t[200:], q[200:]))
@@ -498,3 +498,10 @@ def test_receiver_rate_helpers():
     assert np.all(quat.through_rate(q, target, 0.0) == 0)  # dt 0: no rate
     half = quat.multiply(q, [0.0, 0.0, 1.0, 0.0])  # half a turn away: no finite rate
     assert np.abs(quat.through_rate(q, half, 0.1)).max() == 0
+
+
+def test_the_bindings_struct_copies_have_the_c_sizes():
+    """The load-time check compares what the C library reports (lsw_abi.h) with the ctypes copies."""
+    structs = (kernel.Settings, kernel.Point, kernel.BatchOut, kernel.BankWire)
+    assert [kernel._lib.lsw_abi_size(k) for k in range(len(structs))] == [ctypes.sizeof(s) for s in structs]
+    assert kernel._lib.lsw_abi_size(99) == 0, "an unknown struct has no size"

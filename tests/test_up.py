@@ -22,7 +22,7 @@ import zenoh
 from stack import StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire
-from limbstream.cli.launch import Child, ChildExited, CrashLoop, RestartPolicy, Supervisor, port_open
+from limbstream.launch import Child, ChildExited, CrashLoop, RestartPolicy, Supervisor, port_open
 
 PERIOD_US = 20_000  # exact frames at 50 Hz
 

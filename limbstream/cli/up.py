@@ -1,7 +1,7 @@
 """``limbstream up``: the whole live system on this machine, one command.
 
 Starts a Zenoh router, emulated devices, the aggregator and the dashboard as child processes
-(:mod:`limbstream.cli.launch`), forwards their output, prints what runs and where to look, and
+(:mod:`limbstream.launch`), forwards their output, prints what runs and where to look, and
 keeps them running: a part that exits is started again after a back-off (0.5 s, doubling up
 to 10 s, back to 0.5 s after a minute of health); one that exits ``--max-exits`` times within
 60 s, or fails while the system starts, stops everything with a one-line error naming it.
@@ -31,9 +31,9 @@ import threading
 import time
 from pathlib import Path
 
-from limbstream.device_emulator.main import add_clock_arguments, clock_flags
+from limbstream.cli.emulate import add_clock_arguments, clock_flags
 from limbstream import wire, zconfig
-from limbstream.cli.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
+from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
 from limbstream.services.dashboard.supervision import STATUS_ENV  # the status file's path, for the dashboard
 from limbstream.signals import stop_on_signals

@@ -9,15 +9,7 @@ point and the frame is flagged MISSING. Live frames: at each subject's device ti
 newest device time seen, advanced by the arrival clock since it arrived), every segment exact
 (SLERP) where a point at or after that time is known, else its newest point extrapolated with
 the point's body rate (``quat.predict``: the prediction the device's live rule keeps within
-``live_bound_deg``; a point without a rate is held). Angular errors are measured at every truth
-sample once it is final: the exact reconstruction's, and the live view's (the newest point at or
-before the sample extrapolated to it: what a live frame at that instant showed).
-
-Alignment-aware error: when the truth tap carries reference times (the instant each sample was
-really taken), every exact frame at time ``t`` is compared, segment by segment, with the truth
-at reference instant ``t`` (SLERP between the truth samples around it) once the truth of every
-device has passed ``t``: the subject's ``frame_aad_deg``. Device clocks that disagree show up
-here and nowhere else; reference times are used only for this, never to build frames.
+``live_bound_deg``; a point without a rate is held). Scoring against the truth tap: :mod:`.scoring`.
 """
 from __future__ import annotations
 
@@ -25,18 +17,15 @@ import math
 
 import numpy as np
 
-from limbstream import quat, wire
+from limbstream import wire
 from limbstream.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
-from limbstream.services.aggregator.store import IDENTITY, ErrorRings, PointStore, TruthQueue
+from limbstream.services.aggregator.scoring import Scoring
+from limbstream.services.aggregator.store import IDENTITY, PointStore
 from limbstream.services.aggregator.track import HISTORY_GRACE_S, DeviceTrack
 
 MAX_FRAMES_PER_CALL = 500
 """Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""
-FRAME_ERROR_WAIT_S = 10.0
-"""An exact frame waits at most this long (frame time behind its subject's newest frame) for the
-truth of its devices to pass it; then it is compared with the truth there is."""
-
 OVERDUE_GRACE_S = 0.25
 """A live frame extrapolates an active device's newest point for at most its max segment length
 (``max_len`` samples at the frame rate: by then the device has sent its next point) plus this
@@ -59,7 +48,7 @@ class Subject:
         self.waiting_since: float | None = None  # arrival clock (s) when its first frame could start
 
 
-class Fusion:
+class Fusion(Scoring):
     """Tracks, stores and frame builder of all subjects of one aggregator.
 
     Parameters
@@ -77,13 +66,7 @@ class Fusion:
         self.skeleton = skeleton
         self.max_backlog = int(max_backlog_s * rate)
         self.store = PointStore(capacity)
-        self.truth = TruthQueue()
-        self.exact = ErrorRings(error_window)
-        self.live = ErrorRings(error_window)
-        self.latency = ErrorRings(error_window)     # live frame publish time - frame time, ms
-        self.reference = PointStore(2048)          # truth samples by reference time, per device slot
-        self.frame_errors = ErrorRings(error_window)  # per subject: mean segment error of each frame
-        self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32))
+        self._init_scoring(error_window)
         self.subjects: dict[str, Subject] = {}
         self.tracks: list[DeviceTrack] = []
         self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period
@@ -118,14 +101,11 @@ class Fusion:
             self.exact_seq = np.append(self.exact_seq, 0)
             self.live_seq = np.append(self.live_seq, 0)
             self.rest_flag = np.append(self.rest_flag, np.uint8(wire.rest_pose_flag(self.skeleton.rest_pose)))
-            self.frame_errors.ensure(len(self.subjects))
+            self._add_subject_scores(len(self.subjects))
         track = sub.tracks.get(segment)
         if track is None:
             slot = self.store.add_slot()
-            self.reference.add_slot()
-            self.exact.ensure(slot + 1)
-            self.live.ensure(slot + 1)
-            self.latency.ensure(slot + 1)
+            self._add_device_scores(slot)
             track = sub.tracks[segment] = DeviceTrack(subject, segment, slot)
             self.tracks.append(track)
             self.owner = np.append(self.owner, sub.index)
@@ -168,10 +148,7 @@ class Fusion:
         if state == "new":
             slot = track.slot
             self.store.reset(slot)
-            self.reference.reset(slot)
-            self.exact.reset(slot)
-            self.live.reset(slot)
-            self.latency.reset(slot)
+            self._reset_scores(slot)
             self.generation[slot] = track.generation
             self.latest_t[slot] = self.last_raw_t[slot] = _NONE
             self._unsettled.add(track)
@@ -214,13 +191,7 @@ class Fusion:
         self.last_raw_t[track.slot] = track.last_raw_t_us
         self.latest_t[track.slot] = track.latest_t_us
         self.latest_arrival[track.slot] = track.latest_arrival
-        self.truth.put(track.slot, track.generation, batch.t_us, batch.q)
-        if batch.ref_us is not None:  # reference times: only for the alignment-aware frame error
-            slot = track.slot
-            n = self.reference.n[slot]
-            newer = batch.ref_us > (self.reference.t[slot, n - 1] if n else np.iinfo(np.int64).min)
-            if newer.any():
-                self.reference.extend(slot, batch.ref_us[newer], batch.q[newer])
+        self._take_truth(track.slot, track.generation, batch)
         return True
 
     def advance_clock(self, now: float) -> None:
@@ -229,24 +200,6 @@ class Fusion:
             self.clock = now
             if self._unsettled:
                 self._view = None
-
-    # ------------------------------------------------------------------ errors
-
-    def evaluate_truth(self) -> int:
-        """Angular error of the exact reconstruction and of the live view (the newest point at or
-        before the sample, extrapolated to it), at every truth sample whose reconstruction became
-        final. Returns how many samples."""
-        slots, t_us, truth, overflow = self.truth.take_ready(self._device_view()[0], self.generation)
-        for slot in overflow:
-            self.tracks[slot].dropped["raw_overflow"] += 1
-        before = t_us < self.store.t[slots, 0]  # older than the stream's first point known: no reconstruction
-        for slot in slots[before]:
-            self.tracks[slot].dropped["raw_before_first_point"] += 1
-        slots, t_us, truth = slots[~before], t_us[~before], truth[~before]
-        if len(slots):
-            self.exact.add(slots, quat.angle_deg(self.store.interpolate(slots, t_us), truth))
-            self.live.add(slots, quat.angle_deg(self.store.predicted(slots, t_us), truth))
-        return len(slots)
 
     # ------------------------------------------------------------------ frames
 
@@ -331,11 +284,7 @@ class Fusion:
         per_subject = np.bincount(owner, minlength=len(subjects))
         for i in np.flatnonzero(per_subject):
             subjects[i].frames += int(per_subject[i])
-        with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
-        if with_truth.any():  # frames to compare with the truth at their reference instant
-            po, pt, pq = self._pending
-            self._pending = (np.concatenate([po, owner[with_truth]]), np.concatenate([pt, t_us[with_truth]]),
-                             np.concatenate([pq, q[with_truth].astype(np.float32)]))
+        self._score_later(owner, t_us, q)
         return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
                                                              self.skeleton.positions(q, rest != 0))
 
@@ -379,45 +328,6 @@ class Fusion:
                                                              np.where(missing, wire.FRAME_MISSING, 0) | rest, q,
                                                              self.skeleton.positions(q, rest != 0))
 
-    def evaluate_frames(self) -> int:
-        """Alignment-aware error of the exact frames waiting for it: each segment of a frame at
-        ``t`` against its device's truth at reference time ``t``, once every device of the frame
-        with reference times has truth past ``t`` (or the frame waited FRAME_ERROR_WAIT_S).
-        Adds each frame's mean over its compared segments to its subject's window. Returns the
-        frames compared."""
-        owner, t_us, q = self._pending
-        if len(owner) == 0:
-            return 0
-        slots = self.seg_slots[owner]                                   # (P, 10)
-        rows = np.maximum(slots, 0)
-        n = self.reference.n[rows]
-        has = (slots >= 0) & (n > 0)
-        last = self.reference.t[rows, np.maximum(n - 1, 0)]
-        newest = np.full(len(self.subjects), np.iinfo(np.int64).min)
-        np.maximum.at(newest, owner, t_us)
-        waited = newest[owner] - t_us > FRAME_ERROR_WAIT_S * 1e6
-        ready = (~has | (last >= t_us[:, None])).all(axis=1) | waited
-        if not ready.any():
-            return 0
-        first = self.reference.t[rows, 0]
-        use = has & (first <= t_us[:, None]) & ready[:, None]          # segments with truth around t
-        f, s = np.nonzero(use)
-        truth = self.reference.interpolate(slots[f, s], t_us[f])
-        err = quat.angle_deg(q[f, s].astype(np.float64), truth)
-        per_frame = np.bincount(f, err, minlength=len(owner))
-        count = np.bincount(f, minlength=len(owner))
-        done = ready & (count > 0)
-        self.frame_errors.add(owner[done], per_frame[done] / count[done])
-        keep = ~ready
-        self._pending = (owner[keep], t_us[keep], q[keep])
-        return int(done.sum())
-
-    def frame_error(self, sub: Subject) -> tuple[float, int]:
-        """(mean alignment-aware frame error over the window, deg; frames compared so far)."""
-        idx = np.array([sub.index])
-        mean, _ = self.frame_errors.summary(idx)
-        return float(mean[0]), int(self.frame_errors.count[sub.index])
-
     def prune(self) -> None:
         """Let every row forget points no frame and no waiting truth sample needs."""
         nf = self.next_frame[self.owner]
@@ -426,11 +336,7 @@ class Fusion:
         keep = np.where(self.last_raw_t != _NONE, np.minimum(keep, self.last_raw_t), keep)  # truth still to come
         keep = np.minimum(keep, self.truth.oldest(self.store.size))
         self.store.prune(keep)
-        owner, t_us, _ = self._pending  # reference samples: from the oldest frame still to compare
-        oldest = np.full(len(self.subjects), np.iinfo(np.int64).max)
-        if len(owner):
-            np.minimum.at(oldest, owner, t_us)
-        self.reference.prune(np.minimum(frame_keep, oldest[self.owner]))
+        self._prune_reference(frame_keep)
 
     # ------------------------------------------------------------------ figures
 

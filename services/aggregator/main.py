@@ -1,62 +1,17 @@
-"""``limbstream aggregate``: run the aggregator for a set of subjects."""
+"""Run one aggregator until stopped (what ``limbstream aggregate`` starts)."""
 from __future__ import annotations
 
-import argparse
-import logging
 import threading
 
+from limbstream import zconfig
 from limbstream.signals import stop_on_signals
-from limbstream import wire, zconfig
-from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--subjects", default="*",
-                        help="comma-separated subject key chunks or patterns this instance serves "
-                             "(default '*': all; e.g. 's0*' or 's01,s02' to shard)")
-    parser.add_argument("--rate", type=float, default=50.0, help="exact frame rate, Hz (default 50)")
-    parser.add_argument("--live-rate", type=float, default=50.0, help="live frame rate, Hz (0: none; default 50, the devices' rate)")
-    parser.add_argument("--tick", type=float, default=0.02, help="loop period, s (default 0.02)")
-    parser.add_argument("--frame-batch", type=float, default=0.0,
-                        help="build exact frames at most every this many s (0: every tick)")
-    parser.add_argument("--history", type=int, default=512, help="segment points per device fetched when joining")
-    parser.add_argument("--error-window", type=float, default=60.0, help="angular-error window, s (default 60)")
-    parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=wire.DEFAULT_REST_POSE,
-                        help="rest pose of subjects whose devices do not announce theirs (devices say it in their "
-                             "status: standing for the generator and IMU files, tpose for BVH)")
-    for bone, default in (("thigh", 0.45), ("shank", 0.43), ("upperarm", 0.30), ("lowerarm", 0.27),
-                          ("spine", 0.50), ("neck", 0.22)):
-        parser.add_argument(f"--{bone}", type=float, default=default, help=f"{bone} length, m (default {default})")
-    parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
-
-
-def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
-    """AggregatorSettings from the flags; SystemExit with a clear message on bad values."""
-    try:
-        patterns = tuple(p.strip() for p in args.subjects.split(",") if p.strip())
-        for p in patterns:
-            wire.subject_pattern(p)  # ValueError naming a bad one
-        skeleton = Skeleton(thigh=args.thigh, shank=args.shank, upperarm=args.upperarm, lowerarm=args.lowerarm,
-                            spine=args.spine, neck=args.neck, rest_pose=args.rest_pose)
-        if not (args.rate > 0 and args.tick > 0 and args.live_rate >= 0 and args.history >= 1
-                and args.frame_batch >= 0):
-            raise ValueError("--rate and --tick must be > 0, --live-rate, --frame-batch >= 0, --history >= 1")
-    except ValueError as exc:
-        raise SystemExit(f"limbstream aggregate: error: {exc}") from None
-    return AggregatorSettings(subjects=patterns or ("*",), rate=args.rate, live_rate=args.live_rate,
-                              tick_s=args.tick, history=args.history, error_window_s=args.error_window,
-                              frame_batch_s=args.frame_batch,
-                              skeleton=skeleton)
-
-
-def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(asctime)s %(name)s %(message)s")
-    settings = settings_from_args(args)
+def run(settings: AggregatorSettings, zenoh: zconfig.ZenohSettings, stop: threading.Event | None = None) -> int:
+    """Open the session (waiting for the router), aggregate until ``stop`` or a signal; exit code."""
     stop = stop_on_signals(stop)
-    session = zconfig.open_session(zconfig.from_args(args), stop)
+    session = zconfig.open_session(zenoh, stop)
     if session is None:  # stopped while waiting for the router
         return 0
     with session:

@@ -1,45 +1,33 @@
-"""Device clocks and their synchronisation to the time service (docs/protocol.md, "Time
-exchange"; docs/reliability.md, "Device clocks").
+"""The time exchanges of an emulator's devices with the time service (docs/protocol.md, "Time
+exchange") and the stamps they give.
 
-- :class:`DeviceClocks`: every emulated device's own clock, vectorised: a fixed offset drawn
-  uniform in +-MAX, a drift drawn uniform in +-MAX ppm (seeded), optional read jitter uniform
-  in +-J. A device samples on its own clock's grid (a random phase after boot), so a fast clock
-  takes more samples than a slow one.
-- :class:`SyncEstimator`: one device's SNTP-style estimator: a sliding window of four-timestamp
-  exchanges, weighted by their round trip (the shortest round trips carry the smallest
-  asymmetry), fitted with a line (offset and drift); answers inconsistent with that line are
-  held back until three agree (a service clock jump), then followed.
-- :class:`SyncClient`: the exchanges of all devices of one emulator: two worker threads send the
-  time queries and stamp the answers (the tick loop never calls Zenoh and never waits); the tick
-  loop takes the results between ticks, updates the estimators and stamps samples on the
-  common time base with a bounded slew (in C: :class:`limbstream.kernel.Stamper`). The
-  querier's matching listener tells when a time service becomes reachable: every device then
-  exchanges within RESUME_SPREAD_S, whatever its poll interval had grown to.
+:class:`SyncClient`: two worker threads send the time queries and stamp the answers (the tick
+loop never calls Zenoh and never waits); the tick loop takes the results between ticks, updates
+each device's :class:`limbstream.timesync.SyncEstimator` and stamps samples on the common time
+base with a bounded slew (in C: :class:`limbstream.kernel.Stamper`). The querier's matching
+listener tells when a time service becomes reachable: every device then exchanges within
+RESUME_SPREAD_S, whatever its poll interval had grown to.
 
-Times are microseconds. "True" time is the emulation's time base (host clock, scaled by
-``--speed`` around ``anchor``); it is what the time service serves and what the truth tap's
-reference times carry.
+Times are microseconds.
 """
 from __future__ import annotations
 
 import collections
 import heapq
 import logging
-import math
 import random
 import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import zenoh
 
 from limbstream import kernel, wire
+from limbstream.timesync import SyncEstimator
+from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks
 
 log = logging.getLogger("limbstream.emulator.clock")
 
-WINDOW = 96
-"""Exchanges kept per device (the newest)."""
 BURST = 4
 """Exchanges 0.25 s apart when a device starts; it streams once they are in (or after the wait)."""
 FILL = 8
@@ -52,23 +40,11 @@ number) exceeds this, a device polls every MIN_POLL_S (a jittery path needs many
 DRIFT_BUDGET_US = 150.0
 """The interval to the next exchange is at most this over the drift's standard error: what the
 drift estimate's uncertainty may add to the offset before the next answer."""
-MIN_SPREAD_US = 2e6
-"""The drift is fitted only once the weighted exchanges span at least this much (std of their
-times), else the previous drift stands."""
-MAX_DRIFT = 2e-3
-"""Largest drift a fit may report (2000 ppm); beyond it is treated as noise (clipped)."""
 SLEW = 500e-6
 """Largest rate at which a synced device's correction may change beyond its estimated drift
 (500 ppm, 0.5 ms per second): a service clock jump is followed this slowly."""
 STEP_US = 128_000.0
 """A device resyncing after its holdover expired steps (new stream) if its estimate moved more."""
-JUMP_FLOOR_US = 1000.0
-"""An answer is held back as a possible service jump when its offset is further from the fit
-than half its round-trip excess plus max(4 x jitter, this)."""
-JUMP_CONFIRM = 3
-"""Held-back answers that must agree before the device follows a service jump."""
-SANE_US = 10e6
-"""A synced device discards answers more than 10 s from its estimate (``future`` / ``past``)."""
 MIN_SYNC = 3
 """Valid answers before a device counts as synced."""
 RETRY_S = 8.0
@@ -81,204 +57,6 @@ WORKERS = 2
 """Threads sending time queries (each waits for one answer at a time)."""
 LOG_EVERY_S = 30.0
 """Interval of the INFO line with the sync's counters and CPU so far (emulate -v), wall seconds."""
-
-
-@dataclass(frozen=True)
-class ClockSettings:
-    """Clocks and sync of one emulator.
-
-    Attributes
-    ----------
-    offset_ms, drift_ppm : each device's offset and drift are drawn uniform in +- these.
-    jitter_us : every clock read is off by uniform +- this (stamps and exchange times).
-    seed : seed of the draws (with the first subject number: distinct per emulator process).
-    sync : run the time exchange (else devices stamp with their own clock).
-    poll_s : longest interval between exchanges, device seconds.
-    holdover_s : a device without a valid answer for this long reports itself unsynced.
-    wait_s : at start, wait this long (wall seconds) at most for the first exchanges.
-    timeout_s : a time query without an answer for this long counts as lost (wall seconds).
-    """
-
-    offset_ms: float = 0.0
-    drift_ppm: float = 0.0
-    jitter_us: float = 0.0
-    seed: int = 0
-    sync: bool = True
-    poll_s: float = 512.0
-    holdover_s: float = 600.0
-    wait_s: float = 10.0
-    timeout_s: float = 1.0
-
-    @property
-    def modelled(self) -> bool:
-        """Devices have clocks of their own (not the emulation's true clock)."""
-        return self.offset_ms > 0 or self.drift_ppm > 0 or self.jitter_us > 0
-
-
-class TimeBase:
-    """The emulation's true time: ``anchor + speed * (host clock - anchor)``, us.
-
-    Parameters
-    ----------
-    speed : time scale (1: the host clock).
-    anchor_us : the instant the scaled time agrees with the host clock (processes that share a
-        time base at speed != 1 must share it), us since the epoch; None: now.
-    """
-
-    def __init__(self, speed: float = 1.0, anchor_us: float | None = None):
-        self.speed = float(speed)
-        self.anchor_us = float(time.time_ns() / 1e3 if anchor_us is None else anchor_us)
-
-    def now_us(self) -> float:
-        return self.anchor_us + self.speed * (time.time_ns() / 1e3 - self.anchor_us)
-
-
-class DeviceClocks:
-    """The local clocks of ``n`` devices: ``local(T) = T + offset + drift * (T - boot)``.
-
-    Attributes
-    ----------
-    offset_us, drift, phase_us : (n,) float64: offset at boot (us), drift (fraction), phase of
-        the sampling grid after boot (us, in [0, period)).
-    boot_us : true time of boot (set by :meth:`boot`).
-    """
-
-    def __init__(self, n: int, settings: ClockSettings, period_us: float, base: TimeBase, seed: int = 0):
-        rng = np.random.default_rng([settings.seed, seed])
-        self.settings, self.period_us, self.base = settings, float(period_us), base
-        self.offset_us = rng.uniform(-1, 1, n) * settings.offset_ms * 1e3
-        self.drift = rng.uniform(-1, 1, n) * settings.drift_ppm * 1e-6
-        self.phase_us = rng.uniform(0, period_us, n) if settings.modelled else np.zeros(n)
-        self.max_drift = settings.drift_ppm * 1e-6
-        self.boot_us = self.grid_us = 0.0
-        self.grid_local = np.zeros(n)
-        self._jitter = random.Random(settings.seed)
-
-    def boot(self, true_us: float) -> None:
-        """The devices power up at true time ``true_us`` (their drift counts from then)."""
-        self.boot_us = float(true_us)
-
-    def start_grid(self, true_us: float) -> None:
-        """The devices start sampling at true time ``true_us``: sample 0 of each is taken at its
-        first grid point after it (its phase)."""
-        self.grid_us = float(true_us)
-        self.grid_local = self.local(self.grid_us)
-
-    def local(self, true_us, slots=slice(None)) -> np.ndarray:
-        """Local clocks of ``slots`` at true time(s) ``true_us`` (no jitter), us."""
-        return true_us + self.offset_us[slots] + self.drift[slots] * (true_us - self.boot_us)
-
-    def jitter(self, n: int) -> np.ndarray:
-        j = self.settings.jitter_us
-        return np.zeros(n) if j <= 0 else np.random.default_rng(self._jitter.getrandbits(64)).uniform(-j, j, n)
-
-    def read(self, slot: int) -> int:
-        """Device ``slot`` reads its clock now (with jitter), us (any thread)."""
-        t = self.base.now_us()
-        j = self.settings.jitter_us
-        noise = self._jitter.uniform(-j, j) if j > 0 else 0.0
-        return int(round(t + self.offset_us[slot] + self.drift[slot] * (t - self.boot_us) + noise))
-
-    def sample_time(self, n: np.ndarray, slots) -> np.ndarray:
-        """True time at which sample ``n`` of each device is taken: its local grid point
-        (:meth:`sample_local`) mapped back to true time, us."""
-        return self.grid_us + (self.phase_us[slots] + n * self.period_us) / (1.0 + self.drift[slots])
-
-    def sample_local(self, n: np.ndarray, slots) -> np.ndarray:
-        """Local time of sample ``n``: ``local(grid start) + phase + n * period``, us."""
-        return self.grid_local[slots] + self.phase_us[slots] + n * self.period_us
-
-    def describe(self, names: list[str]) -> list[str]:
-        return [f"clock {name}: offset {o / 1e3:+.3f} ms, drift {d * 1e6:+.2f} ppm"
-                for name, o, d in zip(names, self.offset_us, self.drift)]
-
-
-class SyncEstimator:
-    """One device's estimate of the common time base from its exchanges.
-
-    The correction ``service - local`` at local time ``L`` is ``a + b * (L - ref)``. Each
-    exchange gives the offset at its midpoint, off by at most half its round-trip excess
-    over the shortest one seen; a weighted least-squares line through the window
-    (weights 1 / (eps^2 + (excess / 2)^2), eps the floor of that bound) gives ``a`` and the
-    drift ``b``.
-    """
-
-    def __init__(self, window: int = WINDOW):
-        self.x = collections.deque(maxlen=window)      # midpoint, local us
-        self.theta = collections.deque(maxlen=window)  # offset, us
-        self.delay = collections.deque(maxlen=window)  # round trip, us
-        self.a = self.b = self.ref = 0.0
-        self.fitted = False
-        self.jitter = math.inf
-        self.drift_se = math.inf   # standard error of b
-        self.offset_se = math.inf  # standard error of the line at the newest exchange, us
-        self.held: list[tuple[float, float, float]] = []
-
-    def __len__(self) -> int:
-        return len(self.x)
-
-    def predict(self, local_us: float) -> float:
-        return self.a + self.b * (local_us - self.ref)
-
-    def add(self, t1: float, t2: float, t3: float, t4: float) -> str:
-        """Take one exchange. Returns ``ok``, ``held`` (inconsistent with the fit: a possible
-        service jump, not used yet), ``jump`` (JUMP_CONFIRM such answers agree: the window starts
-        over from them), or a discard reason: ``negative_rtt``, ``future``, ``past``."""
-        theta, delay = wire.offset_delay(t1, t2, t3, t4)
-        if delay < 0:
-            return "negative_rtt"
-        x = (t1 + t4) / 2.0
-        if self.fitted:
-            residual = theta - self.predict(x)
-            if abs(residual) > SANE_US:
-                return "future" if residual > 0 else "past"
-            allowed = (delay - min(self.delay)) / 2.0 + max(4.0 * self.jitter, JUMP_FLOOR_US)
-            if abs(residual) > allowed:
-                self.held.append((x, theta, delay))
-                if len(self.held) < JUMP_CONFIRM:
-                    return "held"
-                shifted = [th - self.b * (hx - x) for hx, th, _ in self.held]
-                if max(shifted) - min(shifted) > max(4.0 * self.jitter, JUMP_FLOOR_US):
-                    self.held = self.held[1:]
-                    return "held"
-                self.x.clear(), self.theta.clear(), self.delay.clear()
-                for hx, th, d in self.held:
-                    self._append(hx, th, d)
-                self.held = []
-                self._fit()
-                return "jump"
-        self.held = []
-        self._append(x, theta, delay)
-        self._fit()
-        return "ok"
-
-    def _append(self, x: float, theta: float, delay: float) -> None:
-        self.x.append(x)
-        self.theta.append(theta)
-        self.delay.append(delay)
-
-    def _fit(self) -> None:
-        ref = self.x[-1]
-        x = np.fromiter(self.x, float, len(self.x)) - ref
-        y = np.fromiter(self.theta, float, len(self.x))
-        excess = np.fromiter(self.delay, float, len(self.x))
-        excess -= excess.min()
-        eps = max(25.0, float(np.partition(excess, len(excess) // 4)[len(excess) // 4]) / 2.0)
-        w = 1.0 / (eps * eps + (excess / 2.0) ** 2)
-        sw = w.sum()
-        mx, my = float(w @ x) / sw, float(w @ y) / sw
-        sxx = float(w @ (x - mx) ** 2) / sw
-        neff = sw * sw / float(w @ w)
-        fitted_b = len(x) >= 3 and neff >= 3.0 and sxx >= MIN_SPREAD_US ** 2
-        if fitted_b:
-            self.b = min(MAX_DRIFT, max(-MAX_DRIFT, float(w @ ((x - mx) * (y - my))) / sw / sxx))
-        self.a, self.ref = my - self.b * mx, ref
-        if len(x) >= 3:
-            self.jitter = math.sqrt(float(w @ (y - self.a - self.b * x) ** 2) / sw)
-            self.offset_se = max(self.jitter, 1.0) / math.sqrt(max(neff - 2.0, 1.0))
-            if fitted_b:
-                self.drift_se = max(self.jitter, 1.0) / math.sqrt(max(neff - 2.0, 1.0) * sxx)
-        self.fitted = True
 
 
 class SyncClient:

@@ -1,0 +1,23 @@
+/**
+ * @file lsw_abi.h
+ * @brief Sizes of the structs the host bindings mirror (limbstream/kernel/_lib.py), so that a
+ * binding whose copy of a struct drifted from the C declaration fails at load, not in a call.
+ */
+#ifndef LSW_ABI_H
+#define LSW_ABI_H
+
+#include <stddef.h>
+
+/** Structs whose size the bindings check. */
+typedef enum {
+    LSW_ABI_SETTINGS = 0,  /**< FastswSettings */
+    LSW_ABI_POINT = 1,     /**< FastswPoint */
+    LSW_ABI_BATCH_OUT = 2, /**< FastswBatchOut */
+    LSW_ABI_BANK_WIRE = 3, /**< LswBankWire */
+    LSW_ABI_SYNC = 4,      /**< LswSync */
+} LswAbiStruct;
+
+/** sizeof the struct ``which``; 0 for an unknown one. */
+size_t lsw_abi_size(int which);
+
+#endif

@@ -1,0 +1,134 @@
+"""``limbstream emulate``: the flags of emulated IMU devices (subjects x segments) in one
+process (the part: :mod:`limbstream.device_emulator.main`)."""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import threading
+
+from limbstream import wire, zconfig
+from limbstream.device_emulator import main as emulator
+from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device_emulator.emulator import EmulatorSettings
+from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.device_emulator.main import subject_names
+from limbstream.sources import MotionFileError, load
+
+
+def build_feeds(args: argparse.Namespace) -> dict:
+    """{subject: feed} from --source: the generator (seed = subject number) or a motion file."""
+    names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
+    if args.source == "generator":
+        return {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
+                for i, name in enumerate(names)}
+    motions = load(args.source)
+    return {name: LoopFeed(motions[i % len(motions)], args.rate, once=args.once) for i, name in enumerate(names)}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    env = os.environ.get
+    parser.add_argument("--subjects", type=int, default=env("LIMBSTREAM_SUBJECTS", "2"),
+                        help="number of subjects (10 IMUs each; env LIMBSTREAM_SUBJECTS, default 2)")
+    parser.add_argument("--first-subject", type=int, default=1, help="number of the first subject (s01 = 1)")
+    parser.add_argument("--subject-prefix", default=env("LIMBSTREAM_SUBJECT_PREFIX", "s"),
+                        help="subject name prefix (env LIMBSTREAM_SUBJECT_PREFIX; default s: s01, s02, ...); "
+                             "'auto' = '<hostname>-s', distinct for each scaled container")
+    parser.add_argument("--source", default=env("LIMBSTREAM_SOURCE", "generator"),
+                        help="'generator' (built-in, default) or a motion file/folder (.npz, .bvh, .csv, .txt) "
+                             "(env LIMBSTREAM_SOURCE)")
+    parser.add_argument("--once", action="store_true", help="play a file source once, then flush and idle")
+    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
+    parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = real time)")
+    wire.add_arguments(parser)  # --threshold, --max-len: the device tunables
+    parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
+    parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
+    parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
+    parser.add_argument("--seed", type=int, default=0, help="generator seed offset")
+    parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
+    add_clock_arguments(parser)
+    parser.add_argument("-v", "--verbose", action="store_true")
+    zconfig.add_arguments(parser)
+
+
+def add_clock_arguments(parser: argparse.ArgumentParser, tuning: bool = True) -> None:
+    """The device clock and time sync flags; ``limbstream up`` takes those without ``tuning``
+    (the sync's poll, holdover and wait) and passes them on (:func:`clock_flags`)."""
+    group = parser.add_argument_group("device clocks (docs/reliability.md, 'Device clocks')")
+    group.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MAX",
+                       help="each device's clock is off by an offset drawn uniform in +-MAX ms (default 0)")
+    group.add_argument("--clock-drift-ppm", type=float, default=0.0, metavar="MAX",
+                       help="each device's clock drifts by a rate drawn uniform in +-MAX ppm (default 0; <= 1000)")
+    group.add_argument("--clock-jitter-us", type=float, default=0.0, metavar="J",
+                       help="every clock read is off by uniform +-J us (default 0; <= 1000)")
+    group.add_argument("--clock-seed", type=int, default=0, help="seed of the clock draws (default 0)")
+    group.add_argument("--no-sync", dest="sync", action="store_false",
+                       help="devices do not synchronise with the time service (they stamp with their own clock)")
+    if not tuning:
+        return
+    group.add_argument("--sync-poll-s", type=float, default=512.0,
+                       help="longest interval between a device's time exchanges, device seconds (default 512)")
+    group.add_argument("--sync-holdover-s", type=float, default=600.0,
+                       help="a device without a valid time answer for this long reports itself unsynced (default 600)")
+    group.add_argument("--sync-wait-s", type=float, default=10.0,
+                       help="at start, wait at most this long for the first time answers (default 10)")
+    group.add_argument("--time-anchor", type=float, default=None, metavar="EPOCH_S",
+                       help="with --speed != 1: the instant (Unix seconds) the scaled time agrees with the host "
+                            "clock; the time service needs the same (default: the start)")
+
+
+def clock_flags(args: argparse.Namespace) -> list[str]:
+    """The ``emulate`` arguments that give the clock flags of ``args`` (``add_clock_arguments``
+    without tuning)."""
+    argv = ["--clock-offset-ms", f"{args.clock_offset_ms:g}", "--clock-drift-ppm", f"{args.clock_drift_ppm:g}",
+            "--clock-jitter-us", f"{args.clock_jitter_us:g}", "--clock-seed", str(args.clock_seed)]
+    return argv if args.sync else argv + ["--no-sync"]
+
+
+def clock_settings(args: argparse.Namespace) -> ClockSettings:
+    """ClockSettings from the flags; SystemExit naming a bad one."""
+    checks = [
+        (0 <= args.clock_offset_ms <= 1e7, f"--clock-offset-ms must be in 0..1e7, got {args.clock_offset_ms}"),
+        (0 <= args.clock_drift_ppm <= 1000, f"--clock-drift-ppm must be in 0..1000, got {args.clock_drift_ppm}"),
+        (0 <= args.clock_jitter_us <= 1000, f"--clock-jitter-us must be in 0..1000, got {args.clock_jitter_us}"),
+        (args.sync_poll_s >= 1, f"--sync-poll-s must be >= 1, got {args.sync_poll_s}"),
+        (args.sync_holdover_s > 0, f"--sync-holdover-s must be > 0, got {args.sync_holdover_s}"),
+        (args.sync_wait_s >= 0, f"--sync-wait-s must be >= 0, got {args.sync_wait_s}"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise SystemExit(f"limbstream emulate: error: {message}")
+    return ClockSettings(offset_ms=args.clock_offset_ms, drift_ppm=args.clock_drift_ppm,
+                         jitter_us=args.clock_jitter_us, seed=args.clock_seed, sync=args.sync,
+                         poll_s=args.sync_poll_s, holdover_s=args.sync_holdover_s, wait_s=args.sync_wait_s)
+
+
+def validate(args: argparse.Namespace) -> None:
+    """Clear errors for bad flag values (SystemExit with a message)."""
+    checks = [
+        (args.subjects >= 1, f"--subjects must be >= 1, got {args.subjects}"),
+        (args.rate > 0, f"--rate must be > 0, got {args.rate}"),
+        (args.speed > 0, f"--speed must be > 0, got {args.speed}"),
+        (1 <= args.raw_batch <= wire.MAX_RAW_BATCH, f"--raw-batch must be in 1..{wire.MAX_RAW_BATCH}"),
+        (args.cache >= 1, f"--cache must be >= 1, got {args.cache}"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise SystemExit(f"limbstream emulate: error: {message}")
+
+
+def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(message)s")
+    validate(args)
+    try:
+        feeds = build_feeds(args)
+    except (MotionFileError, ValueError) as exc:
+        raise SystemExit(f"limbstream emulate: error: {exc}") from None
+    settings = EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
+                                truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
+                                clock=clock_settings(args),
+                                anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
+                                clock_id=args.first_subject)
+    return emulator.run(feeds, settings, zconfig.from_args(args), args.duration, args.verbose, stop)

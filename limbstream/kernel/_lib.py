@@ -1,0 +1,191 @@
+"""Declarations of the C kernels' library (``limbstream._kernels``, built from ``firmware_c/``):
+its functions' signatures, the structs the bindings share with it (their sizes checked against
+the library's at import), and the conversions every binding uses (seconds to ticks, settings,
+body rates)."""
+from __future__ import annotations
+
+import ctypes
+import importlib.machinery
+from pathlib import Path
+
+import numpy as np
+
+from limbstream import quat, wire
+
+TICK_HZ = 1_000_000.0
+"""Kernel ticks per second used by the bindings (microseconds)."""
+
+NONE, POINT, REJECTED = 0, 1, 2
+"""FastswStatus values (fastsw.h)."""
+
+
+def _load_library() -> ctypes.CDLL:
+    here = Path(__file__).resolve().parent.parent  # limbstream/
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        candidate = here / f"_kernels{suffix}"
+        if candidate.exists():
+            return ctypes.CDLL(str(candidate))
+    raise ImportError(
+        f"limbstream C kernels not built in {here}: run `pip install -e .` in the repository"
+    )
+
+
+_lib = _load_library()
+MAX_DIM: int = _lib.fastsw_max_dim()
+
+
+class Settings(ctypes.Structure):
+    """FastswSettings: SSR threshold, max segment length (samples), dimension D, live rule bound
+    (degrees; 0 off)."""
+
+    _fields_ = [("threshold", ctypes.c_float), ("max_len", ctypes.c_uint32), ("dim", ctypes.c_uint32),
+                ("live_bound_deg", ctypes.c_float)]
+
+
+class BatchOut(ctypes.Structure):
+    """FastswBatchOut (fastsw_batch.h): optional per-point outputs of a batch run."""
+
+    _fields_ = [("index", ctypes.c_void_p), ("points", ctypes.c_void_p), ("call", ctypes.c_void_p),
+                ("rates", ctypes.c_void_p)]
+
+
+class Point(ctypes.Structure):
+    """FastswPoint: a segment point (sample index, tick, value)."""
+
+    _fields_ = [("index", ctypes.c_uint32), ("t", ctypes.c_uint32), ("y", ctypes.c_float * MAX_DIM)]
+
+
+_u32p = np.ctypeslib.ndpointer(np.uint32, flags="C_CONTIGUOUS")
+_f32p = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")
+_u8p = np.ctypeslib.ndpointer(np.uint8, flags="C_CONTIGUOUS")
+_sizep = ctypes.POINTER(ctypes.c_size_t)
+
+_lib.fastsw_state_size.restype = ctypes.c_size_t
+_lib.sw_state_size.restype = ctypes.c_size_t
+_lib.fastsw_init.argtypes = [ctypes.c_void_p, ctypes.POINTER(Settings)]
+_lib.fastsw_init.restype = ctypes.c_int
+_lib.fastsw_update.argtypes = [ctypes.c_void_p, ctypes.c_uint32, _f32p, ctypes.POINTER(Point)]
+_lib.fastsw_update.restype = ctypes.c_int
+_lib.fastsw_flush.argtypes = [ctypes.c_void_p, ctypes.POINTER(Point)]
+_lib.fastsw_flush.restype = ctypes.c_int
+_lib.fastsw_retune.argtypes = [ctypes.c_void_p, ctypes.POINTER(Settings)]
+_lib.fastsw_retune.restype = ctypes.c_int
+_lib.fastsw_point_rate.argtypes = [ctypes.c_void_p, _f32p]
+_lib.fastsw_point_rate.restype = None
+_lib.fastsw_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t,
+                                ctypes.POINTER(BatchOut), _sizep]
+_lib.fastsw_segment.restype = ctypes.c_size_t
+_lib.sw_segment.argtypes = [
+    ctypes.c_void_p, ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, _u32p, _sizep,
+]
+_lib.sw_segment.restype = ctypes.c_size_t
+_lib.fastsw_update_many.argtypes = [
+    ctypes.c_void_p, ctypes.c_size_t, _u32p, _f32p, _u8p, ctypes.c_void_p, ctypes.c_void_p,
+]
+_lib.fastsw_update_many.restype = ctypes.c_size_t
+
+
+class BankWire(ctypes.Structure):
+    """LswBankWire (lsw_bank.h): pointers to the wire fields of a bank's streams."""
+
+    _fields_ = [("stream", ctypes.c_void_p), ("seq", ctypes.c_void_p), ("base", ctypes.c_void_p),
+                ("sample", ctypes.c_void_p), ("t_us", ctypes.c_void_p), ("rate", ctypes.c_void_p),
+                ("ring", ctypes.c_uint32), ("stride", ctypes.c_uint32)]
+
+
+_lib.lsw_bank_update.argtypes = [
+    ctypes.c_void_p, ctypes.c_size_t, _u32p, _f32p, _u8p, ctypes.c_void_p, ctypes.c_void_p,
+    ctypes.POINTER(BankWire), ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+]
+_lib.lsw_bank_update.restype = ctypes.c_size_t
+
+_lib.cplr_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
+_lib.cplr_segment.restype = ctypes.c_size_t
+_lib.swing_segment.argtypes = [ctypes.POINTER(Settings), _u32p, _f32p, ctypes.c_size_t, ctypes.c_void_p, _sizep]
+_lib.swing_segment.restype = ctypes.c_size_t
+
+
+class _Sync(ctypes.Structure):
+    """LswSync (lsw_clock.h)."""
+
+    _fields_ = [(name, ctypes.c_void_p) for name in ("a", "b", "ref", "c", "c_local", "step", "ever", "stepped")] + [
+        ("slew", ctypes.c_double)]
+
+
+_lib.lsw_stamp.argtypes = [ctypes.POINTER(_Sync), ctypes.c_size_t, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+_lib.lsw_stamp.restype = ctypes.c_size_t
+
+STATE_SIZE: int = _lib.fastsw_state_size()
+SW_STATE_SIZE: int = _lib.sw_state_size()
+
+_POINT_DTYPE = np.dtype(
+    {"names": ["index", "t", "y"], "formats": [np.uint32, np.uint32, (np.float32, MAX_DIM)],
+     "offsets": [0, 4, 8], "itemsize": ctypes.sizeof(Point)}
+)
+"""numpy layout of :class:`Point` (FastswPoint)."""
+
+
+def _check_abi() -> None:
+    """Each struct copied here has the size the C library was built with (lsw_abi.h): a copy
+    that drifted from its declaration fails here, at import, instead of corrupting memory."""
+    _lib.lsw_abi_size.argtypes = [ctypes.c_int]
+    _lib.lsw_abi_size.restype = ctypes.c_size_t
+    for which, struct in enumerate((Settings, Point, BatchOut, BankWire, _Sync)):
+        size = _lib.lsw_abi_size(which)
+        if size != ctypes.sizeof(struct):
+            raise ImportError(f"limbstream C kernels: {struct.__name__} is {size} bytes in C, "
+                              f"{ctypes.sizeof(struct)} in the binding: rebuild with `pip install -e .`")
+
+
+_check_abi()
+
+
+def to_ticks(t: np.ndarray, t0: float | None = None) -> np.ndarray:
+    """Seconds -> uint32 kernel ticks relative to ``t0`` (default: ``t[0]``), modulo 2**32.
+
+    Parameters
+    ----------
+    t : (m,) float64, seconds.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.size == 0:
+        return np.zeros(0, np.uint32)
+    origin = t[0] if t0 is None else t0
+    ticks = np.round((t - origin) * TICK_HZ)
+    ticks = np.where(np.isfinite(ticks), ticks, 0.0)
+    return (ticks.astype(np.int64) & 0xFFFFFFFF).astype(np.uint32)
+
+
+LIVE_BOUND = wire.LIVE_BOUND_DEG
+"""The live rule's bound as the binding accepts it (0 and 180: off): the device tunable."""
+
+
+def make_settings(threshold: float, max_len: int, dim: int, live_bound_deg: float = 0.0) -> Settings:
+    """Validated :class:`Settings`; raises ValueError naming the bad argument. The bounds of
+    threshold and max_len are the device tunables' (limbstream.wire.TUNABLES), those of
+    live_bound_deg :data:`LIVE_BOUND`'s; the live rule needs dim 4 (quaternions)."""
+    if not 1 <= dim <= MAX_DIM:
+        raise ValueError(f"dim must be in 1..{MAX_DIM}, got {dim}")
+    live = LIVE_BOUND.check(live_bound_deg)
+    if 0.0 < live < 180.0 and dim != 4:
+        raise ValueError(f"live_bound_deg needs quaternion samples (dim 4), got dim {dim}")
+    return Settings(wire.THRESHOLD.check(threshold), wire.MAX_LEN.check(max_len), int(dim), live)
+
+
+def live_rule(settings: Settings) -> bool:
+    """Whether the kernel runs the live rule with these settings (bound in (0, 180) as float32)."""
+    return 0.0 < settings.live_bound_deg < 180.0
+
+
+def body_rates(y: np.ndarray, rates: np.ndarray) -> np.ndarray:
+    """Kernel rates (value units per tick, tangent to their points) -> body angular rates.
+
+    Parameters
+    ----------
+    y : (K, 4) float, the points; rates : (K, 4) float, their rates per tick.
+
+    Returns
+    -------
+    (K, 3) float64, rad/s: ``2 vec(conj(y) v) TICK_HZ`` (:func:`limbstream.quat.body_rate`).
+    """
+    return quat.body_rate(y, np.asarray(rates, np.float64) * TICK_HZ)
