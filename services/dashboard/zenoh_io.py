@@ -1,4 +1,4 @@
-"""The dashboard's Zenoh side: subscriptions that feed the :class:`~.state.Inbox`, and the
+"""The dashboard's Zenoh side: subscriptions that feed the :class:`~.inbox.Inbox`, and the
 device-config query.
 
 Nothing here opens a session at import time; :func:`open_bridge` runs in the app lifespan.
@@ -12,7 +12,7 @@ import zenoh
 
 from limbstream import wire, zconfig
 
-from .state import Inbox
+from .inbox import Inbox
 
 STATS_SELECTOR = wire.subject_selector("stats")
 POSE_SELECTOR = wire.subject_selector("pose")

@@ -1,43 +1,16 @@
-"""Offline evaluation of the segmentation algorithms: the fastSW paper's protocol (Sect. 6, Fig. 4).
-
-Every segment stream of every motion is segmented at each threshold; the streams are rebuilt by
-SLERP between their (normalised) segment points and compared with the original samples:
-
-- ``icr``: segment points / samples over all streams (paper, eq. 1);
-- ``aad``, ``std``, ``p99``, ``max``: angular deviation (eq. 2) of the reconstruction at every
-  original timestamp, pooled over all streams (AAD, eq. 3; Fig. 4 left);
-- ``point_aad``, ``point_max``: deviation of the segment points themselves from the original
-  samples at their timestamps (Fig. 4 right): zero for fastSW and SW, whose points are samples;
-  not for CPLR and the Swing filter, whose points are extrapolated.
-- ``live_aad``, ``live_p99``, ``live_max``: the live error at every sample (docs/evaluation.md,
-  "Live mode"): the receiver's view of the sample's time, made from the points it has by then
-  (the newest one extrapolated at its rate, :func:`limbstream.quat.predict`), against the
-  sample. A point is known from the update call that emitted it (``Segmentation.known_from``):
-  one closed by the SSR or max_len rule from the sample after it, one closed by fastSW's live
-  rule (``live_bound`` > 0) from its own. ``predictor`` names the points' rates: ``rate`` (the
-  live rule's own: through the neighbouring sample), ``slope`` (the closed segment's slope,
-  through the point before) or ``hold`` (none). fastSW's live rule with ``rate`` is the C
-  kernel; with ``slope`` or ``hold`` it is :func:`simulate_live` (float64).
-
-Thresholds mean different things per algorithm (an SSR bound for fastsw, sw and cplr, a
-largest absolute deviation per component for swing), so algorithms are compared at equal ICR:
-:func:`at_icr` interpolates each measure at given ICRs.
-
-Command line: ``limbstream eval`` (:mod:`limbstream.cli.evaluate`).
-"""
-
+"""The threshold sweep of the paper's protocol: every stream segmented at each threshold, rebuilt
+by SLERP and compared with its samples (the measures: :mod:`limbstream.evaluation`)."""
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from limbstream import kernel, quat
 from limbstream.sources import Motion
+from limbstream.evaluation.live_model import _accepted, _segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
 """The paper's sweep: 0 and 205 log-spaced values from 1e-6 to 1e3 (206 thresholds)."""
@@ -145,155 +118,6 @@ def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
     if dev.size == 0:
         return (math.nan,) * 4
     return float(dev.mean()), float(dev.std()), float(np.percentile(dev, 99)), float(dev.max())
-
-
-def _accepted(t: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Positions of the samples a kernel accepts: finite values, time after the last accepted."""
-    ok = np.isfinite(q).all(axis=1) & np.isfinite(t)
-    keep, last = [], -math.inf
-    for i in np.flatnonzero(ok):
-        if t[i] > last:
-            keep.append(i)
-            last = t[i]
-    return np.asarray(keep, np.int64)
-
-
-def _through(y: np.ndarray, t: np.ndarray, p: int, r: int) -> np.ndarray:
-    """(3,) body rate carrying sample p through sample r (:func:`limbstream.quat.through_rate`)."""
-    return quat.through_rate(y[p], y[r], t[r] - t[p])
-
-
-def simulate_live(
-    t: np.ndarray, q: np.ndarray, threshold: float, max_len: int, live_bound: float, predictor: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """fastSW with its live rule and any predictor, float64 (the C kernel has ``rate`` only).
-
-    The rules of ``limbstream.kernel`` (docs/kernel.md): running sums, the SSR and max_len
-    rules close a segment at sample n-1, the live rule at sample n when the receiver's view of n
-    (newest point extrapolated by :func:`limbstream.quat.predict`) is more than ``live_bound``
-    degrees from it. A new point's rate: ``rate``, through the next sample (SSR/max_len) or the
-    one before (live); ``slope``, through the previous point; ``hold``, none. With ``slope`` and
-    ``hold`` the view of sample n after a break at n-1 can miss it: then n is a point as well
-    (two points known from the same sample). Rejected samples as the kernel's.
-
-    Parameters
-    ----------
-    t : (m,) seconds; q : (m, 4) quaternions; threshold, max_len: the SSR rules;
-    live_bound : degrees, 0 for off; predictor : one of :data:`PREDICTORS`.
-
-    Returns
-    -------
-    index, known_from : (K,) int64 sample positions (known_from = m for the final flush);
-    omega : (K, 3) float64 rad/s.
-    """
-    t = np.asarray(t, np.float64)
-    y = np.asarray(q, np.float64)
-    keep = _accepted(t, y)
-    if len(keep) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-    live = 0.0 < live_bound < 180.0
-    cos2 = math.cos(math.radians(live_bound) / 2.0) ** 2
-    rows = y.tolist()
-    a = prev = int(keep[0])
-    points, known, omega = [a], [a], [np.zeros(3)]
-    syy = stt = 0.0
-    sty = [0.0, 0.0, 0.0, 0.0]
-    count = 0
-    w = np.zeros(3)
-
-    def view_of(anchor: int, rate: np.ndarray) -> tuple[list, list]:
-        """Normalised anchor and its tangent qdot = q (0, rate) / 2 (quat.predict's terms)."""
-        base = quat.normalize(y[anchor])
-        qdot = 0.5 * quat.multiply(base, np.r_[0.0, rate])
-        return base.tolist(), qdot.tolist()
-
-    base, qdot = view_of(a, w)
-    for n in keep[1:].tolist():
-        ya, yv = rows[a], rows[n]
-        yn = [yv[d] - ya[d] for d in range(4)]
-        tn = t[n] - t[a]
-        nn, tt = sum(v * v for v in yn), tn * tn
-        dot = sum(yn[d] * sty[d] for d in range(4))
-        if count >= max_len or (tt * syy - 2.0 * tn * dot) + nn * stt > threshold * tt:
-            old, a = a, prev
-            w = (_through(y, t, a, n) if predictor == "rate" else
-                 _through(y, t, a, old) if predictor == "slope" else np.zeros(3)) if live else np.zeros(3)
-            points.append(a)
-            known.append(n)
-            omega.append(w)
-            base, qdot = view_of(a, w)
-            ya = rows[a]
-            yn = [yv[d] - ya[d] for d in range(4)]
-            tn = t[n] - t[a]
-            nn, tt = sum(v * v for v in yn), tn * tn
-            syy = stt = 0.0
-            sty = [0.0, 0.0, 0.0, 0.0]
-            count = 0
-        if live:
-            pv = [base[d] + tn * qdot[d] for d in range(4)]
-            py = sum(pv[d] * yv[d] for d in range(4))
-            if py * py < cos2 * sum(v * v for v in pv) * sum(v * v for v in yv):
-                old, a = a, n
-                w = (_through(y, t, n, prev) if predictor == "rate" else
-                     _through(y, t, n, old) if predictor == "slope" else np.zeros(3))
-                points.append(n)
-                known.append(n)
-                omega.append(w)
-                base, qdot = view_of(a, w)
-                syy = stt = 0.0
-                sty = [0.0, 0.0, 0.0, 0.0]
-                count = 0
-                prev = n
-                continue
-        syy += nn
-        stt += tt
-        sty = [sty[d] + tn * yn[d] for d in range(4)]
-        count += 1
-        prev = n
-    if prev != a:
-        points.append(prev)
-        known.append(len(t))
-        omega.append(np.zeros(3))
-    return np.asarray(points, np.int64), np.asarray(known, np.int64), np.asarray(omega, np.float64)
-
-
-def _plain_rates(t: np.ndarray, q: np.ndarray, index: np.ndarray, known: np.ndarray, q_points: np.ndarray,
-                 predictor: str) -> np.ndarray:
-    """(K, 3) rates a receiver would give points made without the live rule: ``rate``, through
-    the sample the point was emitted at (the next one); ``slope``, through the point before;
-    ``hold``, none. The first point and a final flush are held."""
-    omega = np.zeros((len(index), 3))
-    if predictor == "rate":
-        inner = (known > index) & (known < len(t))
-        nxt = known[inner]
-        omega[inner] = quat.through_rate(q_points[inner], q[nxt], t[nxt] - t[index[inner]])
-    elif predictor == "slope" and len(index) > 1:
-        omega[1:] = quat.through_rate(q_points[1:], q_points[:-1], t[index[:-1]] - t[index[1:]])
-        omega[known >= len(t)] = 0.0
-    return np.nan_to_num(omega, nan=0.0)
-
-
-def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int, live_bound: float,
-                  predictor: str | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """One stream: (index, t_points, q_points, known_from, omega) for the row's algorithm,
-    threshold, live bound and predictor (None: no rates, omega None)."""
-    t, q = stream.t, stream.q
-    if live_bound > 0 and predictor != "rate":
-        index, known, omega = simulate_live(t, q, threshold, max_len, live_bound, predictor)
-        return index, t[index], q[index], known, omega
-    if algorithm == "fastsw":
-        seg = kernel.segment(t, q, threshold, max_len, live_bound_deg=live_bound)
-        index, known = seg.index, seg.known_from
-    else:
-        seg = kernel.ALGORITHMS[algorithm](t, q, threshold, max_len)
-        index = seg.index if seg.index is not None else np.searchsorted(t, seg.t)
-        known = np.minimum(index + 1, len(t))
-        if len(known):
-            known[0] = index[0]
-    if predictor is None:
-        return index, seg.t, seg.q, known, None
-    omega = seg.omega if live_bound > 0 else _plain_rates(t, q, index, known, seg.q, predictor)
-    return index, seg.t, seg.q, known, omega
 
 
 def evaluate_threshold(
@@ -490,56 +314,3 @@ def at_icr(
         row["threshold"] = th
         out.append(row)
     return out
-
-
-def format_table(
-    rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] = ICR_TARGETS,
-    live_bounds: Sequence[float] = (0.0,),
-) -> str:
-    """The comparison table (measures at the target ICRs, per algorithm and live bound) as
-    aligned text."""
-    head = (f"{'algorithm':<9} {'bound':>5} {'ICR':>5} {'AAD':>7} {'p99':>7} {'max':>7} {'pt_AAD':>8} "
-            f"{'pt_max':>8} {'live':>7} {'live99':>7}  {'~TH':>9}")
-    lines = [head, "-" * len(head)]
-    for a in algorithms:
-        for bound in live_bounds:
-            for r in at_icr(rows, a, targets, live_bound=bound):
-                lines.append(
-                    f"{a:<9} {bound:>5g} {r['icr']:>5.2f} {r['aad']:>7.2f} {r['p99']:>7.2f} {r['max']:>7.2f} "
-                    f"{r['point_aad']:>8.3f} {r['point_max']:>8.3f} {r['live_aad']:>7.2f} {r['live_p99']:>7.2f}  "
-                    f"{r['threshold']:>9.2e}"
-                )
-    lines.append(
-        "(angles in degrees; pt_ = segment points vs. the samples at their timestamps; live = live"
-        " error, mean and p99; bound = live rule bound, 0 off; ~TH = interpolated threshold)"
-    )
-    return "\n".join(lines)
-
-
-def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
-    """The best exact AAD at each ICR among rows whose live error stays within ``bound`` degrees
-    at every sample (``live_max <= bound + tolerance``; None: every row): the rows not beaten by
-    another with lower or equal ICR and lower AAD.
-
-    Returns
-    -------
-    icr, aad : (F,) float64, ICR increasing, AAD decreasing.
-    """
-    ok = [r for r in rows if np.isfinite(r["icr"]) and np.isfinite(r["aad"])
-          and (bound is None or r["live_max"] <= bound + tolerance)]
-    ok.sort(key=lambda r: (r["icr"], r["aad"]))
-    icr, aad = [], []
-    for r in ok:
-        if not aad or r["aad"] < aad[-1]:
-            icr.append(r["icr"])
-            aad.append(r["aad"])
-    return np.array(icr), np.array(aad)
-
-
-def write_json(rows: Sequence[dict], path: str | Path) -> None:
-    """All rows as a JSON list of objects with the :data:`KEYS`; NaN becomes null."""
-    clean = [
-        {k: (None if isinstance(r[k], float) and not math.isfinite(r[k]) else r[k]) for k in KEYS}
-        for r in rows
-    ]
-    Path(path).write_text(json.dumps(clean, indent=1) + "\n")
