@@ -43,7 +43,7 @@ def main() -> int:
         launcher.router(endpoint)
         launcher.start("aggregator", "aggregate", "--connect", endpoint, "--live-rate", "50")
         session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        sub = session.declare_subscriber("limbstream/*/stats", zenoh.handlers.FifoChannel(4096))
+        sub = session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(4096))
         probes = [session.declare_publisher(wire.seg_key(f"s{i + 1:02d}", "hip")) for i in range(len(bounds))]
         wait_until(lambda: all(p.matching_status.matching for p in probes), 30, "the aggregator's subscriptions",
                    on_fail=launcher.logs)

@@ -82,7 +82,7 @@ SINK = """
 import sys, time, zenoh
 from limbstream import zconfig
 s = zconfig.open_session(zconfig.ZenohSettings(connect=(sys.argv[1],)))
-subs = [s.declare_subscriber(k, zenoh.handlers.FifoChannel(1 << 16)) for k in ("limbstream/*/*/seg", "limbstream/*/*/raw")]
+subs = [s.declare_subscriber(k, zenoh.handlers.FifoChannel(1 << 16)) for k in (wire.device_selector("seg"), wire.device_selector("raw"))]
 print("ready", flush=True)
 while True:
     got = 0
@@ -259,16 +259,19 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
 # ----------------------------------------------------------------------------- latency
 
 
-def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
-    """Arrival of each segment point vs arrival of the first exact frame at or after its time."""
+def bench_latency(seconds: float, subjects: int, max_len: int, live: bool = False) -> None:
+    """Arrival of each segment point vs arrival of the first exact frame at or after its time;
+    ``live``: the devices as ``limbstream up`` runs them (TH 9e-4, live bound 5 deg), and the live
+    frames' latency (publication - the device time they show) besides."""
+    extra = ("--threshold", "9e-4", "--live-bound-deg", "5") if live else ()
     with Router() as router:
-        emu = start_emulator_process(router, subjects, "--max-len", str(max_len))
+        emu = start_emulator_process(router, subjects, "--max-len", str(max_len), *extra)
         agg = router.start("aggregator", "aggregate", "--connect", router.endpoint)
         session = client(router.endpoint)
-        seg = session.declare_subscriber("limbstream/s01/*/seg", zenoh.handlers.FifoChannel(1 << 16))
-        pose = session.declare_subscriber("limbstream/s01/pose", zenoh.handlers.FifoChannel(1 << 16))
-        stats = session.declare_subscriber("limbstream/s01/stats", zenoh.handlers.FifoChannel(1024))
-        points, frames, last_stats = [], [], None
+        seg = session.declare_subscriber(wire.device_selector("seg", "s01"), zenoh.handlers.FifoChannel(1 << 16))
+        pose = session.declare_subscriber(wire.pose_key("s01"), zenoh.handlers.FifoChannel(1 << 16))
+        stats = session.declare_subscriber(wire.stats_key("s01"), zenoh.handlers.FifoChannel(1024))
+        points, frames, live_lag, last_stats = [], [], [], None
         end = time.monotonic() + seconds + 5
         while time.monotonic() < end:
             now = time.monotonic()
@@ -278,6 +281,8 @@ def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
                 f = wire.decode_pose(s.payload.to_bytes())
                 if f.kind == wire.KIND_EXACT:
                     frames.append((f.t_us, now, time.time()))
+                else:
+                    live_lag.append(time.time() - f.t_us / 1e6)
             while (s := stats.try_recv()) is not None:
                 last_stats = json.loads(s.payload.to_bytes())
             time.sleep(0.001)  # poll period of this measuring client (1 ms resolution)
@@ -301,7 +306,8 @@ def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
     devices = last_stats["devices"] if last_stats else []
     bps = np.mean([d["bytes_per_s"] for d in devices]) if devices else float("nan")
     mps = np.mean([d["msgs_per_s"] for d in devices]) if devices else float("nan")
-    print(f"\n### Latency ({seconds:g} s, {subjects} subjects, max segment length {max_len}, 50 Hz)\n")
+    mode = "live mode: TH 9e-4, live bound 5 deg" if live else "live rule off"
+    print(f"\n### Latency ({seconds:g} s, {subjects} subjects, max segment length {max_len}, 50 Hz, {mode})\n")
     print("| measure | p50 | p99 | max |")
     print("|---|---:|---:|---:|")
     for name, lat in (("segment point arrival -> first exact frame using it", first),
@@ -309,15 +315,20 @@ def bench_latency(seconds: float, subjects: int, max_len: int) -> None:
         print(f"| {name} (ms) | {np.percentile(lat, 50):.1f} | {np.percentile(lat, 99):.1f} | {lat.max():.1f} |")
     print(f"| frame time -> frame arrival, i.e. sample to exact frame (ms) | {np.percentile(sample_lag, 50):.1f} | "
           f"{np.percentile(sample_lag, 99):.1f} | {sample_lag.max():.1f} |")
-    every = 50 * wire.POINT_SIZE
+    if live_lag:
+        lag = np.array(live_lag[len(live_lag) // 5:]) * 1e3
+        print(f"| frame time -> live frame arrival (ms) | {np.percentile(lag, 50):.1f} | "
+              f"{np.percentile(lag, 99):.1f} | {lag.max():.1f} |")
+    size = wire.POINT_SIZE_RATE if live else wire.POINT_SIZE
+    every = 50 * size
     print(f"\nData rate per device: {mps:.2f} msgs/s, {bps:.0f} B/s of segment points; streaming every sample "
-          f"in the same 36-byte message would be {every} B/s ({every / bps:.1f}x more); SlimeVR's 31-byte "
+          f"in the same {size}-byte message would be {every} B/s ({every / bps:.1f}x more); SlimeVR's 31-byte "
           f"packets at 100 Hz: 3100 B/s.")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("emulator", "aggregator", "core", "latency", "all"))
+    parser.add_argument("what", choices=("emulator", "aggregator", "core", "latency", "live-latency", "all"))
     parser.add_argument("--seconds", type=float, default=20.0, help="measuring time per row")
     parser.add_argument("--devices", default="500,1000,2000,3000", help="emulator rows (device counts)")
     parser.add_argument("--subjects", default="20,100,200", help="aggregator rows (subject counts)")
@@ -339,6 +350,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.what in ("latency", "all"):
         for max_len in (25, 1000):
             bench_latency(args.seconds, 2, max_len)
+        bench_latency(args.seconds, 2, 25, live=True)
+    if args.what == "live-latency":
+        bench_latency(args.seconds, 2, 25, live=True)
     return 0
 
 

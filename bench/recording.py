@@ -180,7 +180,7 @@ def do_nothing_subscriber(subjects: int, seconds: float, truth: bool, qos: str, 
         launcher.router(endpoint)
         session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
         subs = [session.declare_subscriber(sel, zenoh.handlers.FifoChannel(1 << 18))
-                for sel in ("limbstream/*/*/seg", "limbstream/*/*/raw", "limbstream/*/pose", "limbstream/*/stats")]
+                for sel in (wire.device_selector("seg"), wire.device_selector("raw"), wire.subject_selector("pose"), wire.subject_selector("stats"))]
         got, stop = [0], threading.Event()
 
         def empty():

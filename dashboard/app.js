@@ -201,6 +201,26 @@ function syncSelects() {
   const subjects = [...new Set(state.devices.map((d) => d.subject))];
   const targets = subjects.map((s) => [`subject:${s}`, `all devices of ${s}`]).concat(ids.map((id) => [id, id]));
   fillSelect($("ctl-target"), targets, null);
+  showCurrent();
+}
+
+// Each tunable input shows, as its placeholder, what the selected devices run now (their stats):
+// one value, or the range when they differ; the contract's default only before any stats.
+function showCurrent() {
+  const target = $("ctl-target").value;
+  const devices = target.startsWith("subject:")
+    ? state.devices.filter((d) => d.subject === target.slice(8))
+    : state.devices.filter((d) => d.device === target);
+  for (const t of state.tunables || []) {
+    const values = devices.map((d) => d[t.name]).filter((v) => typeof v === "number");
+    const input = $(`ctl-${t.name}`);
+    if (!values.length) {
+      input.placeholder = `default ${t.default}`;
+      continue;
+    }
+    const lo = Math.min(...values), hi = Math.max(...values);
+    input.placeholder = lo === hi ? `now ${lo}` : `now ${lo} to ${hi}`;
+  }
 }
 
 function fillSelect(select, options, value) {
@@ -512,6 +532,7 @@ async function applyConfig(ev) {
 async function start() {
   $("ctl-token").value = sessionStorage.getItem("limbstream-token") || "";
   $("control").addEventListener("submit", applyConfig);
+  $("ctl-target").addEventListener("change", showCurrent);
   $("chart-device").addEventListener("change", (e) => selectDevice(e.target.value));
   $("chart-window").addEventListener("change", refreshHistory);
   for (const input of document.querySelectorAll('input[name="pose-kind"]')) {

@@ -135,7 +135,7 @@ class StatsWatch:
 
     def __init__(self, endpoint: str):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.sub = self.session.declare_subscriber("limbstream/*/stats", zenoh.handlers.FifoChannel(4096))
+        self.sub = self.session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(4096))
         self.devices: dict[str, dict] = {}
         self.subjects: dict[str, dict] = {}
 

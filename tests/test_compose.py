@@ -254,6 +254,32 @@ def test_installed_wheel_runs_outside_the_source_tree(image):
     assert int(n_points) >= 2, res.stdout
 
 
+@pytest.mark.e2e
+def test_installed_wheel_runs_up_from_another_directory(image, tmp_path):
+    """What a user gets from ``pip install limbstream-*.whl``: ``limbstream up`` run outside any
+    checkout serves the page and its scripts from the installed package and streams two subjects."""
+    stack = Stack(tmp_path, launcher=(str(image["bin"] / "limbstream"),), cwd=image["home"], base_env=clean_env())
+    http = f"127.0.0.1:{free_port()}"
+    url = f"http://{http}"
+    try:
+        stack.start("up", "up", "--router", f"tcp/127.0.0.1:{stack.port}", "--http", http, "--subjects", "2")
+
+        def streaming():
+            status, subjects = http_json(url + "/api/subjects")
+            return status == 200 and len(subjects) == 2 and all(
+                s["pose"] is not None and s["online"] == 10 for s in subjects) and subjects
+        subjects = wait_until(streaming, 90, "two subjects streaming through the installed up",
+                              interval=0.2, on_fail=stack.logs)
+        assert sorted(s["subject"] for s in subjects) == ["s01", "s02"], subjects
+        status, page = http_json(url + "/")
+        assert status == 200 and "app.js" in str(page), f"{status}: {str(page)[:200]}"
+        for asset in ("/static/app.js", "/static/style.css"):
+            status, body = http_json(url + asset)
+            assert status == 200 and len(str(body)) > 1000, (asset, status)
+    finally:
+        stack.stop()
+
+
 # ----------------------------------------------------------------------------- smoke test
 
 
@@ -292,7 +318,7 @@ def test_compose_services_run_as_local_processes(image, tmp_path):
         expected = {f"emulator-{k + 1}-s{i + 1:02d}" for k in range(replicas) for i in range(per_replica)}
         session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
         try:
-            sub = session.declare_subscriber("limbstream/*/pose", zenoh.handlers.FifoChannel(1 << 14))
+            sub = session.declare_subscriber(wire.subject_selector("pose"), zenoh.handlers.FifoChannel(1 << 14))
             frames: dict[str, list] = {}
 
             def flowing():

@@ -146,8 +146,11 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
             switch_kind(page, "live")
             page.wait_for_function(ROWS_READY, arg=n_devices, timeout=30_000)
 
-            # threshold control: a wrong token is refused, the right one is confirmed by every device
+            # threshold control: the inputs show what the selected devices run now, not the defaults
             page.select_option("#ctl-target", "subject:s01")
+            running = {d["threshold"] for d in http_json(url + "/api/devices")[1] if d["subject"] == "s01"}
+            assert page.get_attribute("#ctl-threshold", "placeholder") == f"now {running.pop():g}" and not running
+            # a wrong token is refused, the right one is confirmed by every device
             page.fill("#ctl-threshold", "0.02")
             page.fill("#ctl-live_bound_deg", "5")
             page.fill("#ctl-token", "wrong")
@@ -169,6 +172,12 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
             # the live column shows the new bound of s01's devices; s02's stay off
             page.wait_for_function(LIVE_CELLS, arg=['#devices-body tr[data-device^="s01/"]', "5°"], timeout=20_000)
             page.wait_for_function(LIVE_CELLS, arg=['#devices-body tr[data-device^="s02/"]', "off"], timeout=5_000)
+            # ... and the control form shows the new values for s01, s02's own for s02
+            page.wait_for_function("() => document.querySelector('#ctl-live_bound_deg').placeholder === 'now 5'",
+                                   timeout=10_000)
+            assert page.get_attribute("#ctl-threshold", "placeholder") == "now 0.02"
+            page.select_option("#ctl-target", "subject:s02")
+            assert page.get_attribute("#ctl-live_bound_deg", "placeholder") == "now 0"
             page.screenshot(path=str(ARTIFACTS / "dashboard.png"), full_page=True)
         finally:
             browser.close()

@@ -26,7 +26,7 @@ class Watch:
 
     def __init__(self, endpoint: str):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.sub = self.session.declare_subscriber("limbstream/s01/stats", zenoh.handlers.FifoChannel(4096))
+        self.sub = self.session.declare_subscriber(wire.stats_key("s01"), zenoh.handlers.FifoChannel(4096))
         self.devices: dict[str, dict] = {}
         self.extra: dict = {}
         self.undecodable = 0

@@ -17,8 +17,8 @@ class Tap:
 
     def __init__(self, endpoint: str):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.poses = self.session.declare_subscriber("limbstream/*/pose", zenoh.handlers.FifoChannel(1 << 15))
-        self.stats_sub = self.session.declare_subscriber("limbstream/*/stats", zenoh.handlers.FifoChannel(4096))
+        self.poses = self.session.declare_subscriber(wire.subject_selector("pose"), zenoh.handlers.FifoChannel(1 << 15))
+        self.stats_sub = self.session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(4096))
         self.frames: dict[str, list[wire.PoseFrame]] = {}
         self.stats: dict[str, dict] = {}
 
