@@ -80,7 +80,7 @@ def cpu_now() -> float:
 
 SINK = """
 import sys, time, zenoh
-from limbstream import zconfig
+from limbstream import wire, zconfig
 s = zconfig.open_session(zconfig.ZenohSettings(connect=(sys.argv[1],)))
 subs = [s.declare_subscriber(k, zenoh.handlers.FifoChannel(1 << 16)) for k in (wire.device_selector("seg"), wire.device_selector("raw"))]
 print("ready", flush=True)

@@ -36,7 +36,7 @@ def install(rev: str, where: Path) -> Path:
                           check=True, capture_output=True, text=True).stdout.strip()
     Path(site, "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")  # this env's dependencies
     subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps",
-                    "--no-build-isolation", "-e", str(where)], check=True, capture_output=True)
+                    "-e", str(where)], check=True, capture_output=True)
     return python
 
 
@@ -81,9 +81,11 @@ def numbers(python: Path, cwd: Path, args) -> dict[str, float]:
     fig["soak: router CPU %"] = soak["cpu"].get("router", float("nan"))
     fig["soak: aggregator RSS after warm-up MiB"] = max(soak["rss"]["aggregator"])
     fig["soak: aggregator max backlog"] = r["aggregator max backlog overall"]
+    # the same live frame rate on both sides: revisions before --live-rate fixed 10 Hz in this bench
+    rate = ("--live-rate", f"{args.core_live_rate:g}") if "--live-rate" in (cwd / "bench/pipeline.py").read_text() else ()
     core = table_row(run(python, cwd, "bench/pipeline.py", "core", "--subjects", "200", "--seconds",
-                         f"{args.seconds:g}"), "subjects", "200")
-    fig["core bench, 200 subjects: CPU per second of stream"] = core.get("CPU per second of stream", float("nan"))
+                         f"{args.seconds:g}", *rate), "subjects", "200")
+    fig[f"core bench, 200 subjects, live frames at {args.core_live_rate:g} Hz: CPU per second of stream"] = core.get("CPU per second of stream", float("nan"))
     emu = table_row(run(python, cwd, "bench/pipeline.py", "emulator", "--devices", "2000", "--seconds",
                         f"{args.seconds:g}"), "devices", "2000")
     for name in ("late ticks", "emulator CPU", "router CPU"):
@@ -98,6 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--devices", type=int, default=2000, help="soak devices (default 2000)")
     parser.add_argument("--soak-minutes", type=float, default=3.0, help="soak duration (default 3)")
     parser.add_argument("--seconds", type=float, default=20.0, help="per pipeline bench row (default 20)")
+    parser.add_argument("--core-live-rate", type=float, default=10.0,
+                        help="live frame rate of the core bench, Hz (default 10: the rate revisions without "
+                             "its --live-rate flag used)")
     args = parser.parse_args(argv)
     results = {}
     with tempfile.TemporaryDirectory(prefix="limbstream-regress-") as tmp:
