@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import kernel
-from limbstream.evaluation import (ALGORITHMS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate, format_table, frontier,
+from limbstream.calibration import CalibrationError, SensorModel
+from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate, format_table, frontier,
                                    streams_of, write_json)
 from limbstream.sources import Motion, MotionFileError, load
 
@@ -187,6 +188,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=MAX_LEN,
         help=f"largest segment length, samples (default {MAX_LEN})",
     )
+    sensors = parser.add_argument_group("sensors (docs/evaluation.md, 'Calibration'; default: perfect sensors)")
+    sensors.add_argument("--mounting-deg", type=float, default=0.0, metavar="MAX",
+                         help="each sensor sits on its segment turned by a random rotation of angle <= MAX")
+    sensors.add_argument("--heading-deg", type=float, default=0.0, metavar="MAX",
+                         help="each sensor's world frame is turned about the vertical by a uniform +-MAX")
+    sensors.add_argument("--yaw-drift-dps", type=float, default=0.0, metavar="MAX",
+                         help="... and that heading drifts at a uniform +-MAX deg/s")
+    sensors.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
+    sensors.add_argument("--calibration", choices=[",".join(p) or "none" for p in CALIBRATIONS],
+                         default="rest,mounting",
+                         help="with a sensor model: the calibration before body_aad (default rest,mounting)")
     parser.add_argument(
         "--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here"
     )
@@ -224,31 +236,43 @@ def run(args: argparse.Namespace) -> int:
             return _fail(str(exc))
         except OSError as exc:
             return _fail(f"{path}: {exc}")
-    streams = streams_of(motions)
+    try:
+        sensors = SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
+    except ValueError as exc:
+        return _fail(str(exc))
+    poses = () if args.calibration == "none" else tuple(args.calibration.split(","))
+    streams = streams_of(motions, sensors)
     if not streams:
         return _fail(f"no motion streams in {' '.join(map(str, args.paths))}")
     thresholds = THRESHOLDS if args.thresholds is None else np.asarray(args.thresholds, np.float64)
     n_samples = sum(len(s.t) for s in streams)
 
     start = time.perf_counter()
-    rows = evaluate(streams, algorithms, thresholds, args.max_len, args.live_bound and bounds, args.predictor)
+    try:
+        rows = evaluate(streams, algorithms, thresholds, args.max_len, args.live_bound and bounds, args.predictor,
+                        poses)
+    except CalibrationError as exc:
+        return _fail(f"calibration refused: {exc}")
     elapsed = time.perf_counter() - start
 
     print(
         f"{len(motions)} motions, {len(streams)} streams, {n_samples} samples; "
         f"{len(algorithms)} algorithms x {len(bounds)} live bounds x {len(thresholds)} thresholds, "
         f"max_len {args.max_len}, predictor {args.predictor}: {elapsed:.1f} s"
+        + (f"; sensors: mounting <= {sensors.mounting_deg:g} deg, heading +-{sensors.heading_deg:g} deg, "
+           f"yaw drift +-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}, "
+           f"calibration {args.calibration}" if sensors.on else "")
     )
     if args.thresholds is not None:  # explicit thresholds: show every row
         print(
             f"{'algorithm':<9} {'bound':>5} {'TH':>9} {'ICR':>7} {'AAD':>7} {'std':>7} {'p99':>7} {'max':>7} "
-            f"{'pt_AAD':>8} {'pt_max':>8} {'live':>7} {'live99':>7} {'livemax':>7}"
+            f"{'pt_AAD':>8} {'pt_max':>8} {'live':>7} {'live99':>7} {'livemax':>7} {'body':>7}"
         )
         for r in rows:
             print(
                 f"{r['algorithm']:<9} {r['live_bound']:>5g} {r['threshold']:>9.2e} {r['icr']:>7.4f} {r['aad']:>7.3f} "
                 f"{r['std']:>7.3f} {r['p99']:>7.3f} {r['max']:>7.3f} {r['point_aad']:>8.3f} {r['point_max']:>8.3f} "
-                f"{r['live_aad']:>7.3f} {r['live_p99']:>7.3f} {r['live_max']:>7.3f}"
+                f"{r['live_aad']:>7.3f} {r['live_p99']:>7.3f} {r['live_max']:>7.3f} {r['body_aad']:>7.3f}"
             )
     else:
         print(format_table(rows, algorithms, live_bounds=bounds))

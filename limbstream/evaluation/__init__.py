@@ -9,6 +9,10 @@ SLERP between their (normalised) segment points and compared with the original s
 - ``point_aad``, ``point_max``: deviation of the segment points themselves from the original
   samples at their timestamps (Fig. 4 right): zero for fastSW and SW, whose points are samples;
   not for CPLR and the Swing filter, whose points are extrapolated.
+- ``body_aad`` (with a sensor model, ``--mounting-deg`` ...): the calibrated reconstruction
+  against the segments' true orientations, over the motion after the calibration script
+  (:mod:`limbstream.calibration`); ``aad`` stays the compression error (against what the
+  sensors reported), as in the paper.
 - ``live_aad``, ``live_p99``, ``live_max``: the live error at every sample (docs/evaluation.md,
   "Live mode"): the receiver's view of the sample's time, made from the points it has by then
   (the newest one extrapolated at its rate, :func:`limbstream.quat.predict`), against the
@@ -30,10 +34,10 @@ from __future__ import annotations
 
 from limbstream.evaluation.live_model import simulate_live
 from limbstream.evaluation.report import format_table, frontier, write_json
-from limbstream.evaluation.sweep import (ALGORITHMS, ICR_TARGETS, KEYS, MAX_LEN, MEASURES, PREDICTORS, THRESHOLDS,
+from limbstream.evaluation.sweep import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, KEYS, MAX_LEN, MEASURES, PREDICTORS, THRESHOLDS,
                                          Stream, at_icr, evaluate, evaluate_threshold, streams_of)
 from limbstream.evaluation.sweep import _Pool  # noqa: F401  (the tests' pooled streams)
 
-__all__ = ["ALGORITHMS", "ICR_TARGETS", "KEYS", "MAX_LEN", "MEASURES", "PREDICTORS", "THRESHOLDS", "Stream",
+__all__ = ["ALGORITHMS", "CALIBRATIONS", "ICR_TARGETS", "KEYS", "MAX_LEN", "MEASURES", "PREDICTORS", "THRESHOLDS", "Stream",
            "at_icr", "evaluate", "evaluate_threshold", "format_table", "frontier", "simulate_live", "streams_of",
            "write_json"]

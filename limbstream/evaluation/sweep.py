@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from limbstream import kernel, quat
+from limbstream import calibration, kernel, quat
 from limbstream.sources import Motion
 from limbstream.evaluation.live_model import _accepted, _segment_live
 
@@ -23,6 +23,10 @@ ICR_TARGETS: tuple[float, ...] = (0.05, 0.10, 0.25, 0.50)
 
 ALGORITHMS: tuple[str, ...] = ("fastsw", "sw", "cplr", "swing")
 """Algorithms evaluated by default (keys of :data:`limbstream.kernel.ALGORITHMS`)."""
+
+CALIBRATIONS: tuple[tuple[str, ...], ...] = ((), ("rest",), ("rest", "mounting"))
+"""The calibrations ``body_aad`` can be measured after: none, the rest pose alone, rest and
+mounting pose (:mod:`limbstream.calibration`)."""
 
 PREDICTORS: tuple[str, ...] = ("rate", "slope", "hold")
 """The rates a receiver extrapolates points with (live error); ``rate`` is fastSW's live rule's."""
@@ -42,6 +46,7 @@ KEYS: tuple[str, ...] = (
     "live_aad",
     "live_p99",
     "live_max",
+    "body_aad",
 )
 """Fields of one result row, in output order."""
 
@@ -57,19 +62,35 @@ class Stream:
     ----------
     t : (m,) float64 seconds, increasing.
     q : (m, 4) float64 scalar-first quaternions (may hold non-finite rows: those are
-        rejected by the kernels and left out of the deviation statistics).
+        rejected by the kernels and left out of the deviation statistics): what the device
+        compresses, its sensor's readings.
     name : str, "<motion>/<segment>".
+    truth : (m, 4) float64 or None: the segment's true orientations when they differ from its
+        sensor's readings (a sensor model, :mod:`limbstream.calibration`); the stream then starts
+        with the calibration script, whose still windows are ``rest`` and ``mounting`` (sample
+        slices; ``pose`` (4,): the segment in the mounting pose) and whose motion starts at
+        sample ``motion_from``.
     """
 
     t: np.ndarray
     q: np.ndarray
     name: str
+    truth: np.ndarray | None = None
+    rest: slice | None = None
+    mounting: slice | None = None
+    pose: np.ndarray | None = None
+    motion_from: int = 0
 
 
-def streams_of(motions: Iterable[Motion]) -> list[Stream]:
-    """Every segment stream of every motion (S streams per motion)."""
+def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None) -> list[Stream]:
+    """Every segment stream of every motion (S streams per motion); with a sensor model that is
+    on, each motion preceded by the calibration script and seen through its sensors (drawn per
+    motion)."""
     out = []
-    for motion in motions:
+    for i, motion in enumerate(motions):
+        if sensors is not None and sensors.on:
+            out.extend(_sensor_streams(motion, sensors, i))
+            continue
         for s, segment in enumerate(motion.segments):
             out.append(
                 Stream(
@@ -79,6 +100,20 @@ def streams_of(motions: Iterable[Motion]) -> list[Stream]:
                 )
             )
     return out
+
+
+def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int) -> list[Stream]:
+    """A motion's streams as its sensors report them, after the calibration script."""
+    t = np.asarray(motion.t, np.float64)
+    fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else 50.0
+    q, rest, mounting = calibration.with_script(motion.q, fs, motion.segments)
+    start = len(q) - len(t)
+    t = np.concatenate([t[0] - np.arange(start, 0, -1) / fs, t]) if len(t) else np.arange(len(q)) / fs
+    draws = sensors.draw(len(motion.segments), stream=index)
+    pose = calibration.mounting_pose(motion.segments)
+    return [Stream(t, draws.report(s, t - t[0], q[:, s]), f"{motion.name}/{segment}", truth=q[:, s], rest=rest,
+                   mounting=mounting, pose=pose[s], motion_from=start)
+            for s, segment in enumerate(motion.segments)]
 
 
 class _Pool:
@@ -122,11 +157,12 @@ def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
 
 def evaluate_threshold(
     pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound: float = 0.0,
-    predictor: str = "rate", live: bool = False,
+    predictor: str = "rate", live: bool = False, poses: Sequence[str] = CALIBRATIONS[-1],
 ) -> dict:
     """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result
     (the live error only if ``live``: it costs about as much as the reconstruction; else the
-    ``live_*`` fields are NaN).
+    ``live_*`` fields are NaN). Streams with a truth (a sensor model) are calibrated from their
+    reconstruction with ``poses`` (one of :data:`CALIBRATIONS`) for ``body_aad``.
 
     Returns
     -------
@@ -188,6 +224,7 @@ def evaluate_threshold(
     recon = quat.slerp(q_points[k], q_points[k + 1], u)
     dev = quat.angle_deg(pool.q_unit[mask], recon)
     aad, std, p99, mx = _stats(dev)
+    body = _body_errors(pool, mask, recon, poses)
     pdev = np.concatenate(point_dev)
     pdev = pdev[np.isfinite(pdev)]
     return row | {
@@ -200,7 +237,30 @@ def evaluate_threshold(
         "live_aad": float(errors.mean()) if errors.size else math.nan,
         "live_p99": float(np.percentile(errors, 99)) if errors.size else math.nan,
         "live_max": float(errors.max()) if errors.size else math.nan,
+        "body_aad": float(body.mean()) if body.size else math.nan,
     }
+
+
+def _body_errors(pool: _Pool, mask: np.ndarray, recon: np.ndarray, poses: Sequence[str]) -> np.ndarray:
+    """Angle (degrees) between each motion sample's calibrated reconstruction and its segment's
+    true orientation, for the streams with a truth; the calibration is made from the
+    reconstruction in the script's still windows, as the system would (CalibrationError if it
+    cannot be)."""
+    if not any(s.truth is not None for s in pool.streams):
+        return np.zeros(0)
+    rec = np.full((pool.n_samples, 4), np.nan)
+    rec[mask] = recon
+    out = []
+    for j, s in enumerate(pool.streams):
+        if s.truth is None:
+            continue
+        r = rec[pool.start[j]:pool.start[j + 1]]
+        cal = (calibration.calibrate(r, s.rest, s.mounting if "mounting" in poses else None, s.pose, s.name)
+               if "rest" in poses else calibration.Calibration.none())
+        motion, truth = r[s.motion_from:], s.truth[s.motion_from:]
+        ok = np.isfinite(motion).all(axis=1) & np.isfinite(truth).all(axis=1)
+        out.append(quat.angle_deg(cal.apply(motion[ok]), truth[ok]))
+    return np.concatenate(out)
 
 
 def _live_errors(pool: _Pool, known: np.ndarray, q_points: np.ndarray, t_points: np.ndarray,
@@ -227,6 +287,7 @@ def evaluate(
     max_len: int = MAX_LEN,
     live_bounds: Sequence[float] | None = None,
     predictor: str = "rate",
+    poses: Sequence[str] = CALIBRATIONS[-1],
 ) -> list[dict]:
     """Run the protocol: one row per (algorithm, live bound, threshold), in that order.
 
@@ -240,6 +301,7 @@ def evaluate(
         above 0 needs algorithms == ["fastsw"]); None: the plain rules, and no live error
         (the ``live_*`` fields are NaN).
     predictor : the points' rates for the live error, one of :data:`PREDICTORS`.
+    poses : the calibration before ``body_aad`` (streams with a truth), one of :data:`CALIBRATIONS`.
 
     Returns
     -------
@@ -260,7 +322,9 @@ def evaluate(
         if kernel.LIVE_BOUND.check(bound) > 0 and set(algorithms) != {"fastsw"}:
             raise ValueError(f"a live bound needs algorithms ['fastsw'], got {list(algorithms)}")
     pool = _Pool(streams)
-    return [evaluate_threshold(pool, a, th, max_len, bound, predictor, live)
+    if tuple(poses) not in CALIBRATIONS:
+        raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {tuple(poses)}")
+    return [evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses)
             for a in algorithms for bound in (live_bounds or (0.0,)) for th in thresholds]
 
 

@@ -1,0 +1,250 @@
+"""Real sensors and the calibration that undoes them (docs/evaluation.md, "Calibration").
+
+Sensor model. A strapped IMU reports, instead of its segment's orientation ``q`` (world <-
+segment, the skeleton's frame: Y up), ``yaw(h + r t) * q * m``:
+
+- ``m``: the mounting, the sensor's rotation on its segment (segment <- sensor), a random
+  rotation of angle <= ``mounting_deg`` about a random axis;
+- ``h``: its heading, the sensor's world frame turned about the vertical by a uniform
+  +-``heading_deg`` (no magnetometer: headings are arbitrary);
+- ``r``: its yaw drift, a uniform +-``yaw_drift_dps`` degrees per second (gyro bias).
+
+Calibration script. A subject whose sensors are modelled begins with the rest pose (every
+segment at identity: standing, or the T-pose for BVH) held still for :data:`REST_S`, then the
+mounting pose (:data:`MOUNTING_PITCH_DEG`: every segment turned forward about the lateral axis)
+held still for :data:`MOUNTING_S`, then the motion; the poses are joined by :data:`MOVE_S` of
+SLERP.
+
+Calibration, per device, a correction ``corrected = g * sensor * c``:
+
+- ``rest`` (full reset, one still rest pose ``S0 = yaw(h) m``): ``c = S0^-1``, ``g`` = identity.
+  Right for a device whose heading is 0; otherwise each orientation comes out conjugated by its
+  heading: one pose cannot tell heading from the mounting's turn about the vertical.
+- ``mounting`` (a second still pose of known orientation ``P``): the rest-corrected reading is
+  ``yaw(h) P yaw(-h)``, whose rotation axis is ``P``'s turned by ``h`` about the vertical: that
+  gives ``h``, and then ``g = yaw(-h)``, ``c = S0^-1 yaw(h)`` undo both.
+- ``yaw`` (heading only, in the rest pose at any later time): the heading again from the
+  mounting found before.
+
+Quaternions are scalar-first (w, x, y, z), times seconds.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from limbstream import quat
+from limbstream.wire import SEGMENTS
+
+VERTICAL = np.array([0.0, 1.0, 0.0])
+"""The world's up axis (the skeleton's Y)."""
+LATERAL = np.array([1.0, 0.0, 0.0])
+"""The subject's left in the rest pose (the skeleton's X): the mounting pose's turning axis."""
+
+REST_S = 3.0
+"""The rest pose is held still this long at the start of the calibration script, s."""
+MOUNTING_S = 2.0
+"""... then the mounting pose, s."""
+MOVE_S = 0.5
+"""Each move between poses (rest -> mounting -> the motion's first frame), SLERP, s."""
+STILL_MARGIN_S = 0.25
+"""The still windows used by calibration leave this much out at each end, s."""
+STILL_DEG = 2.0
+"""A calibration is refused when a device turned more than this within its still window, deg."""
+
+MOUNTING_PITCH_DEG = {"hip": 30.0, "neck": 30.0, "l_thigh": 60.0, "r_thigh": 60.0, "l_shank": 30.0,
+                      "r_shank": 30.0, "l_upperarm": 60.0, "r_upperarm": 60.0, "l_lowerarm": 90.0,
+                      "r_lowerarm": 90.0}
+"""The mounting pose: each segment turned forward from its rest orientation about the lateral
+axis by this much, degrees (a bow with bent knees and the arms raised forward; the pose must
+turn every segment about a horizontal axis, or its heading cannot be told)."""
+
+
+class CalibrationError(ValueError):
+    """A calibration that cannot be made (device not still, bad samples): the sentence says why."""
+
+
+def axis_angle(axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+    """(..., 4) rotation by ``angle_rad`` (...) about unit ``axis`` (..., 3) or (3,)."""
+    half = 0.5 * np.asarray(angle_rad, np.float64)
+    axis = np.asarray(axis, np.float64)
+    return np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis], axis=-1)
+
+
+def yaw(angle_rad: np.ndarray) -> np.ndarray:
+    """(..., 4) rotation about the vertical by ``angle_rad`` (...)."""
+    return axis_angle(VERTICAL, angle_rad)
+
+
+def yaw_of(q: np.ndarray) -> np.ndarray:
+    """(...) the turn about the vertical of rotations ``q`` (..., 4) (twist of a swing-twist
+    decomposition), radians in (-pi, pi]."""
+    q = np.asarray(q, np.float64)
+    return 2.0 * np.arctan2(q[..., 2], q[..., 0])
+
+
+def mounting_pose(segments=SEGMENTS) -> np.ndarray:
+    """(S, 4) each segment's orientation in the mounting pose (a segment not in
+    :data:`MOUNTING_PITCH_DEG`, e.g. a foot, turns 30 degrees)."""
+    # turning forward: the bone of a hanging limb (-Y) moves towards the subject's front (+Z)
+    return axis_angle(LATERAL, -np.radians([MOUNTING_PITCH_DEG.get(s, 30.0) for s in segments]))
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Bounds of the sensor errors (all 0: perfect sensors, the sensor reports its segment)."""
+
+    mounting_deg: float = 0.0
+    heading_deg: float = 0.0
+    yaw_drift_dps: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self):
+        for name, high in (("mounting_deg", 180.0), ("heading_deg", 180.0), ("yaw_drift_dps", 10.0)):
+            value = getattr(self, name)
+            if not 0.0 <= value <= high:
+                raise ValueError(f"{name} must be in 0..{high:g}, got {value}")
+
+    @property
+    def on(self) -> bool:
+        return self.mounting_deg > 0 or self.heading_deg > 0 or self.yaw_drift_dps > 0
+
+    def draw(self, n: int, stream: int = 0) -> Sensors:
+        """The errors of ``n`` sensors (seeded by ``seed`` and ``stream``)."""
+        rng = np.random.default_rng([self.seed, stream])
+        axis = rng.normal(size=(n, 3))
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        angle = np.radians(self.mounting_deg) * rng.uniform(0.0, 1.0, n)
+        heading = np.radians(self.heading_deg) * rng.uniform(-1.0, 1.0, n)
+        drift = np.radians(self.yaw_drift_dps) * rng.uniform(-1.0, 1.0, n)
+        return Sensors(axis_angle(axis, angle), heading, drift)
+
+
+@dataclass(frozen=True)
+class Sensors:
+    """Drawn sensor errors: ``mounting`` (n, 4), ``heading`` (n,) rad, ``drift`` (n,) rad/s."""
+
+    mounting: np.ndarray
+    heading: np.ndarray
+    drift: np.ndarray
+
+    def report(self, k: int, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(m, 4) what sensor ``k`` reports for its segment's orientations ``q`` (m, 4) at times
+        ``t`` (m,) s (from the sensor's start)."""
+        h = yaw(self.heading[k] + self.drift[k] * np.asarray(t, np.float64))
+        return quat.multiply(quat.multiply(h, np.asarray(q, np.float64)), self.mounting[k])
+
+
+def with_script(q: np.ndarray, fs: float, segments=SEGMENTS) -> tuple[np.ndarray, slice, slice]:
+    """A motion's orientations ``q`` (m, S, 4) of ``segments`` preceded by the calibration script
+    at ``fs`` Hz.
+
+    Returns
+    -------
+    q : (n, S, 4) the script, then the motion (its first sample at index ``n - m``).
+    rest, mounting : the still windows (the rest and mounting pose held, less
+        :data:`STILL_MARGIN_S` each side), as sample slices.
+    """
+    q = np.asarray(q, np.float64)
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(segments), 1))
+    pose = mounting_pose(segments)
+    n_rest, n_mount, n_move = (max(1, round(s * fs)) for s in (REST_S, MOUNTING_S, MOVE_S))
+    u = np.repeat((np.arange(1, n_move + 1) / (n_move + 1))[:, None], len(segments), axis=1)  # (moves, S)
+    parts = [np.broadcast_to(identity, (n_rest, *identity.shape)),
+             quat.slerp(identity[None], pose[None], u),
+             np.broadcast_to(pose, (n_mount, *pose.shape)),
+             quat.slerp(pose[None], quat.normalize(q[:1]), u),
+             q]
+    margin = round(STILL_MARGIN_S * fs)
+    rest = slice(margin, n_rest - margin)
+    start = n_rest + n_move
+    mounting = slice(start + margin, start + n_mount - margin)
+    return np.concatenate([np.asarray(p, np.float64) for p in parts]), rest, mounting
+
+
+def still_mean(q: np.ndarray, what: str) -> np.ndarray:
+    """(4,) the mean of a still window's orientations ``q`` (k, 4); CalibrationError (naming
+    ``what``) if a sample is not a finite unit quaternion, or the device turned more than
+    :data:`STILL_DEG` within it."""
+    q = np.asarray(q, np.float64)
+    if len(q) == 0:
+        raise CalibrationError(f"{what}: no samples in the still window")
+    norm = np.linalg.norm(q, axis=1)
+    if not (np.all(np.isfinite(q)) and np.all(np.abs(norm - 1.0) < 1e-2)):
+        raise CalibrationError(f"{what}: a sample in the still window is not a unit quaternion")
+    q = q * np.where(q @ q[0] < 0, -1.0, 1.0)[:, None]  # one hemisphere
+    mean = quat.normalize(q.mean(axis=0))
+    turned = float(quat.angle_deg(q, np.broadcast_to(mean, q.shape)).max())
+    if turned > STILL_DEG:
+        raise CalibrationError(f"{what}: not still (turned {turned:.1f} deg within the pose, "
+                               f"at most {STILL_DEG:g} allowed)")
+    return mean
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """One device's correction ``g * sensor * c`` (each (4,)), what it was made from (``poses``)
+    and its estimate of the sensor's mounting (segment <- sensor, (4,)) and heading (rad)."""
+
+    g: np.ndarray
+    c: np.ndarray
+    poses: tuple[str, ...]
+    mounting: np.ndarray
+    heading: float
+
+    def apply(self, q: np.ndarray) -> np.ndarray:
+        """(m, 4) the segment orientations of sensor readings ``q`` (m, 4)."""
+        return quat.multiply(quat.multiply(self.g, np.asarray(q, np.float64)), self.c)
+
+    @staticmethod
+    def none() -> Calibration:
+        identity = np.array([1.0, 0.0, 0.0, 0.0])
+        return Calibration(identity, identity, (), identity, 0.0)
+
+    @staticmethod
+    def rest(s0: np.ndarray) -> Calibration:
+        """Full reset from the still rest-pose reading ``s0`` (4,): heading taken as 0."""
+        s0 = quat.normalize(np.asarray(s0, np.float64))
+        return Calibration(np.array([1.0, 0.0, 0.0, 0.0]), quat.conjugate(s0), ("rest",), s0, 0.0)
+
+    def with_mounting(self, reading: np.ndarray, pose: np.ndarray) -> Calibration:
+        """Resolve the heading from a still reading ``reading`` (4,) of the known pose ``pose``
+        (4,) (after :meth:`rest`); CalibrationError if the pose turns about the vertical only."""
+        seen = self.apply(np.asarray(reading, np.float64)[None])[0]  # yaw(h) pose yaw(-h)
+        want, got = _horizontal_axis(pose), _horizontal_axis(seen)
+        if want is None or got is None:
+            raise CalibrationError("mounting: the pose turned the device about the vertical only; "
+                                   "its heading cannot be told")
+        h = math.atan2(want[0] * got[1] - want[1] * got[0], want @ got)  # turn from want to got
+        s0 = self.mounting  # the rest reading yaw(h) m
+        mounting = quat.multiply(yaw(-h), s0)
+        return Calibration(yaw(-h), quat.conjugate(mounting), self.poses + ("mounting",), mounting, h)
+
+    def with_yaw(self, reading: np.ndarray) -> Calibration:
+        """Heading reset from a still rest-pose reading ``reading`` (4,) later on, keeping the
+        mounting found before."""
+        heading_rot = quat.multiply(quat.normalize(np.asarray(reading, np.float64)), quat.conjugate(self.mounting))
+        h = float(yaw_of(heading_rot))
+        return Calibration(yaw(-h), quat.conjugate(self.mounting), self.poses + ("yaw",), self.mounting, h)
+
+
+def _horizontal_axis(q: np.ndarray) -> np.ndarray | None:
+    """The horizontal direction (x, z) of rotation ``q``'s axis, sign fixed by a positive angle;
+    None if the rotation is (nearly) about the vertical or none."""
+    q = np.asarray(q, np.float64)
+    v = q[1:] * (1.0 if q[0] >= 0 else -1.0)  # sin(angle / 2) * axis, angle in [0, pi]
+    flat = np.array([v[2], v[0]])  # (z, x): angles measured from +Z towards +X, as yaw turns Z
+    norm = float(np.linalg.norm(flat))
+    return None if norm < math.sin(math.radians(5.0) / 2) else flat / norm
+
+
+def calibrate(q: np.ndarray, rest: slice, mounting: slice | None, pose: np.ndarray | None,
+              what: str = "device") -> Calibration:
+    """A device's calibration from its readings ``q`` (m, 4) in the still windows: ``rest``
+    (rest pose) and, if given, ``mounting`` (the known ``pose`` (4,))."""
+    cal = Calibration.rest(still_mean(q[rest], f"{what}, rest pose"))
+    if mounting is not None:
+        cal = cal.with_mounting(still_mean(q[mounting], f"{what}, mounting pose"), pose)
+    return cal
