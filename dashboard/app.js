@@ -158,13 +158,17 @@ function renderTable() {
     }
     const dot = d.stale ? (d.alive ? "on" : "stale") : (d.online ? "on" : "off");
     const stateText = d.online ? "online" : (d.stale && !d.alive ? "no data" : "offline");
+    // calibration (sensor model on): calibrated, or refused with its reason
+    const cal = d.calibrated
+      ? ` <span class="cal ok" title="calibrated ${fmt(d.calibration_age_s, 0)} s ago">cal</span>`
+      : (d.calibration_refused ? ` <span class="cal bad" title="${esc(d.calibration_refused)}">uncal</span>` : "");
     const width = Math.round(36 * (d.msgs_per_s || 0) / maxRate);
     const sel = d.device === state.selected ? " selected" : "";
     rows.push(
-      `<tr class="device${sel}" data-device="${esc(d.device)}" data-online="${d.online}" ` +
+      `<tr class="device${sel}" data-device="${esc(d.device)}" data-online="${d.online}" data-calibrated="${!!d.calibrated}" ` +
       `data-rate="${d.msgs_per_s ?? ""}" data-icr="${d.icr ?? ""}">` +
       `<td>${esc(d.segment)}</td>` +
-      `<td><span class="dot ${dot}"></span>${stateText}</td>` +
+      `<td><span class="dot ${dot}"></span>${stateText}${cal}</td>` +
       `<td class="num"><span class="bar" style="width:${width}px"></span>${fmt(d.msgs_per_s, 1)}</td>` +
       `<td class="num">${fmtBig(d.bytes_per_s)}</td>` +
       `<td class="num">${fmt(d.icr, 3)}</td>` +

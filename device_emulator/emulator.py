@@ -34,6 +34,7 @@ import zenoh.ext as zext
 from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device_emulator.sync_client import SyncClient
 from limbstream import kernel, quat, wire, zconfig
+from limbstream.calibration import SensorModel
 
 log = logging.getLogger("limbstream.emulator")
 QUERIES_PER_TICK = 10
@@ -60,6 +61,9 @@ class EmulatorSettings:
     anchor_us : the instant the scaled time base agrees with the host clock (with speed != 1 the
         time service must use the same); None: the emulator's start.
     clock_id : distinguishes this process's clock draws from other processes' (first subject).
+    sensors : the sensors' errors (mounting, heading, drift; limbstream.calibration): on, each
+        device compresses what its sensor reports while its truth tap carries the segment's true
+        orientation.
     """
 
     fs: float = 50.0
@@ -70,6 +74,7 @@ class EmulatorSettings:
     cache: int = 512
     heartbeat_s: float = 0.5
     clock: ClockSettings = field(default_factory=ClockSettings)
+    sensors: SensorModel = field(default_factory=SensorModel)
     anchor_us: float | None = None
     clock_id: int = 0
 
@@ -154,6 +159,7 @@ class Emulator:
         last = np.floor(((ends * self.period_us) * (1.0 + self.clocks.drift) - self.clocks.phase_us) / self.period_us)
         self.n_last = np.where(ends >= 0, last, np.inf)
         self.tick_stats = TickStats()
+        self.sensors = settings.sensors.draw(n, stream=settings.clock_id) if settings.sensors.on else None
         self._ring = ring
         self._ring_n = self.bank.sample                       # sample number taken at each tick (-1: none)
         self._ring_t = self.bank.t_us                         # its stamp (common time base), us
@@ -367,7 +373,7 @@ class Emulator:
             for slot in taken[self.sync.stepped[taken]]:
                 self._new_stream(self.devices[slot], k)
         y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept
-        y[taken] = q
+        y[taken] = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.fs, q)
         ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
                  & 0xFFFFFFFF).astype(np.uint32)
         self._publish_points(*self.bank.update_wire(ticks, y))

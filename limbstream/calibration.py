@@ -105,7 +105,7 @@ class SensorModel:
         for name, high in (("mounting_deg", 180.0), ("heading_deg", 180.0), ("yaw_drift_dps", 10.0)):
             value = getattr(self, name)
             if not 0.0 <= value <= high:
-                raise ValueError(f"{name} must be in 0..{high:g}, got {value}")
+                raise ValueError(f"--{name.replace('_', '-')} must be in 0..{high:g}, got {value}")
 
     @property
     def on(self) -> bool:
@@ -122,6 +122,29 @@ class SensorModel:
         return Sensors(axis_angle(axis, angle), heading, drift)
 
 
+def add_arguments(parser) -> None:
+    """The sensor model's flags (``emulate``, ``up``, ``eval``)."""
+    group = parser.add_argument_group("sensors (docs/evaluation.md, 'Calibration'; default: perfect sensors)")
+    group.add_argument("--mounting-deg", type=float, default=0.0, metavar="MAX",
+                       help="each sensor sits on its segment turned by a random rotation of angle <= MAX")
+    group.add_argument("--heading-deg", type=float, default=0.0, metavar="MAX",
+                       help="each sensor's world frame is turned about the vertical by a uniform +-MAX")
+    group.add_argument("--yaw-drift-dps", type=float, default=0.0, metavar="MAX",
+                       help="... and that heading drifts at a uniform +-MAX deg/s")
+    group.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
+
+
+def from_args(args) -> SensorModel:
+    """The SensorModel of the flags (ValueError naming a bad one)."""
+    return SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
+
+
+def flags(model: SensorModel) -> list[str]:
+    """The flags that give ``model`` (for a child process)."""
+    return ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
+            "--yaw-drift-dps", f"{model.yaw_drift_dps:g}", "--sensor-seed", str(model.seed)]
+
+
 @dataclass(frozen=True)
 class Sensors:
     """Drawn sensor errors: ``mounting`` (n, 4), ``heading`` (n,) rad, ``drift`` (n,) rad/s."""
@@ -129,6 +152,12 @@ class Sensors:
     mounting: np.ndarray
     heading: np.ndarray
     drift: np.ndarray
+
+    def report_many(self, sensors: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(j, 4) float32 what sensors ``sensors`` (j,) report at times ``t`` (j,) s for their
+        segments' orientations ``q`` (j, 4) (one sample each)."""
+        h = yaw(self.heading[sensors] + self.drift[sensors] * np.asarray(t, np.float64))
+        return quat.multiply(quat.multiply(h, np.asarray(q, np.float64)), self.mounting[sensors]).astype(np.float32)
 
     def report(self, k: int, t: np.ndarray, q: np.ndarray) -> np.ndarray:
         """(m, 4) what sensor ``k`` reports for its segment's orientations ``q`` (m, 4) at times
@@ -162,6 +191,29 @@ def with_script(q: np.ndarray, fs: float, segments=SEGMENTS) -> tuple[np.ndarray
     start = n_rest + n_move
     mounting = slice(start + margin, start + n_mount - margin)
     return np.concatenate([np.asarray(p, np.float64) for p in parts]), rest, mounting
+
+
+class ScriptedFeed:
+    """A feed (``segments``, ``sample(k) -> (S, 4)``, ``length``, ``rest_pose``) that starts
+    with the calibration script: at the start of an endless feed (the generator), before every
+    pass of a looped or finite one (a file)."""
+
+    def __init__(self, feed, fs: float, loop_length: int | None = None):
+        self.feed, self.segments, self.rest_pose = feed, feed.segments, feed.rest_pose
+        script, _, _ = with_script(np.asarray(feed.sample(0), np.float64)[None], fs, feed.segments)
+        self.script = script[:-1].astype(np.float32)  # without the motion's first sample itself
+        self.loop = loop_length  # samples per pass of a looped feed (None: endless or finite)
+        n = len(self.script)
+        self.length = None if feed.length is None else feed.length + n
+
+    def sample(self, k: int) -> np.ndarray:
+        n = len(self.script)
+        if self.loop is not None:
+            k_pass, k = divmod(k, self.loop + n)
+            return self.script[k] if k < n else self.feed.sample(k_pass * self.loop + k - n)
+        if self.length is not None and not 0 <= k < self.length:
+            raise IndexError(f"sample {k} of a {self.length}-sample stream")
+        return self.script[k] if k < n else self.feed.sample(k - n)
 
 
 def still_mean(q: np.ndarray, what: str) -> np.ndarray:

@@ -76,7 +76,7 @@ def test_calibration_is_refused_with_a_reason():
         cal.calibrate(broken, rest, None, None, "hip")
     with pytest.raises(cal.CalibrationError, match="about the vertical only"):
         cal.Calibration.rest(reading[rest.start]).with_mounting(reading[rest.start], cal.yaw(0.7))
-    with pytest.raises(ValueError, match="mounting_deg"):
+    with pytest.raises(ValueError, match="--mounting-deg"):
         cal.SensorModel(mounting_deg=-1)
 
 
@@ -95,3 +95,76 @@ def test_evaluation_measures_the_body_error_after_calibration():
     assert full["body_aad"] <= ideal["aad"] + 0.3, (full["body_aad"], ideal["aad"])
     assert none["body_aad"] >= 10.0 and rest_only["body_aad"] > full["body_aad"] + 1.0, (none, rest_only)
     assert full["aad"] == rest_only["aad"] == none["aad"], "aad stays the compression error"
+
+
+# ----------------------------------------------------------------------------- in the aggregator
+
+
+def feed_aggregator(agg, reading: np.ndarray, t0_us: int, stream: int, segment: str, first_seq: int = 0,
+                    step: int = 5) -> None:
+    """Every ``step``-th reading of one device as a segment point (its own samples: no
+    compression error), each arriving as it is taken."""
+    from limbstream import wire
+    for j, k in enumerate(range(0, len(reading), step)):
+        p = wire.SegmentPoint(stream, first_seq + j, k, t0_us + round(k * 1e6 / FS), tuple(reading[k]))
+        agg.on_point(wire.seg_key("s01", segment), wire.encode_point(p), now=k / FS)
+        if j % 10 == 0:
+            agg.advance(live=False, now=k / FS)
+
+
+def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_one_without():
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+    agg = Aggregator(None, AggregatorSettings(calibrate_on_start=True))
+    agg._publish = lambda subject, payload: None
+    t, q, rest, mounting, start = scripted(12.0)
+    sensors = cal.SensorModel(mounting_deg=90, heading_deg=180, seed=5).draw(len(SEGMENTS))
+    k = SEGMENTS.index("r_upperarm")
+    reading = sensors.report(k, t, q[:, k])
+    t0 = 1_700_000_000_000_000
+    feed_aggregator(agg, reading, t0, 1, "r_upperarm")
+    track = agg.track("s01", "r_upperarm")
+    fusion = agg.fusion
+    figures = fusion.calibration_figures(track.slot, fusion.clock)
+    assert figures["calibrated"] and figures["calibration_refused"] is None, figures
+    n = fusion.store.n[track.slot]
+    stored_t = (fusion.store.t[track.slot, :n] - t0) / 1e6
+    idx = np.round(stored_t * FS).astype(int)
+    err = quat.angle_deg(fusion.store.q[track.slot, :n].astype(np.float64), q[idx, k])
+    assert err.max() < 0.05, f"stored points against the true segment: max {err.max():.3f} deg"
+    # the device restarts mid-motion: a new stream that does not begin with the script
+    feed_aggregator(agg, reading[start:], t0 + 60_000_000, 2, "r_upperarm")
+    figures = fusion.calibration_figures(track.slot, fusion.clock)
+    assert not figures["calibrated"] and "not still" in figures["calibration_refused"], figures
+    # a device whose stream's start never comes (joined late, no history): refused once settled
+    late = agg.track("s01", "l_thigh")
+    feed_aggregator(agg, reading[start:], t0, 3, "l_thigh", first_seq=40)
+    assert "never arrived" in fusion.calibration_figures(late.slot, fusion.clock)["calibration_refused"]
+
+
+@pytest.mark.e2e
+def test_up_with_real_sensors_calibrates_every_device_and_the_body_error_stays_small(stack):  # noqa: F811
+    """Emulated sensors strapped at up to 90 deg, headings anywhere: the aggregator calibrates
+    every device from the script its stream begins with, and the subject's frames match the true
+    segments (frame_aad_deg) as with perfect sensors."""
+    from stack import StatsWatch, wait_until
+
+    stack.router()
+    stack.emulator(1, 1.0, "--mounting-deg", "90", "--heading-deg", "180", "--threshold", "9e-4",
+                   "--live-bound-deg", "5")
+    stack.aggregator("--calibrate-on-start")
+    watch = StatsWatch(stack.endpoint)
+    try:
+        def calibrated():
+            devices = watch.poll()
+            return len(devices) == 10 and all(d["calibrated"] for d in devices.values())
+        wait_until(calibrated, 60, "all 10 devices calibrated", interval=0.2, on_fail=stack.logs)
+
+        def compared():
+            watch.poll()
+            s = watch.subjects.get("s01", {})
+            return (s.get("frame_error_frames") or 0) >= 500 and s
+        subject = wait_until(compared, 60, "500 frames compared with the truth", interval=0.2, on_fail=stack.logs)
+    finally:
+        watch.close()
+    assert subject["frame_aad_deg"] <= 1.2, subject["frame_aad_deg"]
+    assert all(d["calibration_refused"] is None and d["calibration_age_s"] >= 0 for d in watch.devices.values())

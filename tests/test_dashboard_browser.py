@@ -111,6 +111,9 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
             assert {r[0] for r in rows} == devices and len(devices) == n_devices, (rows, devices)
             for device, rate, icr, online in rows:
                 assert rate > 0 and 0 < icr <= 1 and online == "true", (device, rate, icr, online)
+            # perfect sensors: nothing to calibrate, no device shown calibrated or refused
+            assert page.eval_on_selector_all("#devices-body tr.device", "rs => rs.filter(r => "
+                                             "r.dataset.calibrated !== 'false' || r.querySelector('.cal')).length") == 0
             assert page.text_content("#tot-online") == f"{n_devices} / {n_devices}"
             # the aggregator's own load, as it reports it in its stats
             page.wait_for_function("() => document.querySelector('#tot-agg').dataset.load > 0", timeout=10_000)
@@ -183,3 +186,24 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
             browser.close()
     assert not errors, errors
     assert (ARTIFACTS / "dashboard.png").stat().st_size > 20_000
+
+
+def test_page_shows_each_devices_calibration(stack):  # noqa: F811
+    """Sensors strapped at up to 90 deg: the aggregator calibrates every device from its stream's
+    calibration script and the page marks each row calibrated."""
+    chromium = require_chromium()
+    stack.router()
+    stack.emulator(1, 1.0, "--mounting-deg", "90", "--heading-deg", "180")
+    stack.aggregator("--calibrate-on-start")
+    url = stack.dashboard()
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page()
+            page.goto(url + "/")
+            page.wait_for_function("""() => [...document.querySelectorAll('#devices-body tr.device')]
+                .filter(r => r.dataset.calibrated === 'true' && r.querySelector('.cal.ok')).length === 10""",
+                                   timeout=60_000)
+            assert "calibrated" in page.get_attribute("#devices-body tr.device .cal.ok", "title")
+        finally:
+            browser.close()

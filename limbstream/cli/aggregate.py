@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for bone, default in (("thigh", 0.45), ("shank", 0.43), ("upperarm", 0.30), ("lowerarm", 0.27),
                           ("spine", 0.50), ("neck", 0.22)):
         parser.add_argument(f"--{bone}", type=float, default=default, help=f"{bone} length, m (default {default})")
+    parser.add_argument("--calibrate-on-start", action="store_true",
+                        help="calibrate each new stream from the calibration script it begins with (devices "
+                             "with a sensor model: emulate --mounting-deg ...; docs/evaluation.md, 'Calibration')")
     parser.add_argument("-v", "--verbose", action="store_true")
     zconfig.add_arguments(parser)
 
@@ -48,7 +51,7 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
         raise SystemExit(f"limbstream aggregate: error: {exc}") from None
     return AggregatorSettings(subjects=patterns or ("*",), rate=args.rate, live_rate=args.live_rate,
                               tick_s=args.tick, history=args.history, error_window_s=args.error_window,
-                              frame_batch_s=args.frame_batch,
+                              frame_batch_s=args.frame_batch, calibrate_on_start=args.calibrate_on_start,
                               skeleton=skeleton)
 
 

@@ -7,7 +7,7 @@ import logging
 import os
 import threading
 
-from limbstream import wire, zconfig
+from limbstream import calibration, wire, zconfig
 from limbstream.device_emulator import main as emulator
 from limbstream.device_emulator.device_clocks import ClockSettings
 from limbstream.device_emulator.emulator import EmulatorSettings
@@ -16,14 +16,20 @@ from limbstream.device_emulator.main import subject_names
 from limbstream.sources import MotionFileError, load
 
 
-def build_feeds(args: argparse.Namespace) -> dict:
-    """{subject: feed} from --source: the generator (seed = subject number) or a motion file."""
+def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
+    """{subject: feed} from --source: the generator (seed = subject number) or a motion file;
+    ``scripted``: each begins with the calibration script (limbstream.calibration)."""
     names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
     if args.source == "generator":
-        return {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
-                for i, name in enumerate(names)}
-    motions = load(args.source)
-    return {name: LoopFeed(motions[i % len(motions)], args.rate, once=args.once) for i, name in enumerate(names)}
+        feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
+                 for i, name in enumerate(names)}
+    else:
+        motions = load(args.source)
+        feeds = {name: LoopFeed(motions[i % len(motions)], args.rate, once=args.once) for i, name in enumerate(names)}
+    if not scripted:
+        return feeds
+    return {name: calibration.ScriptedFeed(f, args.rate, None if f.length is not None or not hasattr(f, "q")
+                                           else len(f.q)) for name, f in feeds.items()}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="generator seed offset")
     parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
     add_clock_arguments(parser)
+    calibration.add_arguments(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
     zconfig.add_arguments(parser)
 
@@ -123,12 +130,13 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
                         format="%(asctime)s %(name)s %(message)s")
     validate(args)
     try:
-        feeds = build_feeds(args)
+        sensors = calibration.from_args(args)
+        feeds = build_feeds(args, scripted=sensors.on)
     except (MotionFileError, ValueError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     settings = EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
                                 truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
                                 clock=clock_settings(args),
                                 anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
-                                clock_id=args.first_subject)
+                                clock_id=args.first_subject, sensors=sensors)
     return emulator.run(feeds, settings, zconfig.from_args(args), args.duration, args.verbose, stop)

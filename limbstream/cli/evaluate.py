@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import kernel
-from limbstream.calibration import CalibrationError, SensorModel
+from limbstream import calibration
+from limbstream.calibration import CalibrationError
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate, format_table, frontier,
                                    streams_of, write_json)
 from limbstream.sources import Motion, MotionFileError, load
@@ -188,15 +189,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=MAX_LEN,
         help=f"largest segment length, samples (default {MAX_LEN})",
     )
-    sensors = parser.add_argument_group("sensors (docs/evaluation.md, 'Calibration'; default: perfect sensors)")
-    sensors.add_argument("--mounting-deg", type=float, default=0.0, metavar="MAX",
-                         help="each sensor sits on its segment turned by a random rotation of angle <= MAX")
-    sensors.add_argument("--heading-deg", type=float, default=0.0, metavar="MAX",
-                         help="each sensor's world frame is turned about the vertical by a uniform +-MAX")
-    sensors.add_argument("--yaw-drift-dps", type=float, default=0.0, metavar="MAX",
-                         help="... and that heading drifts at a uniform +-MAX deg/s")
-    sensors.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
-    sensors.add_argument("--calibration", choices=[",".join(p) or "none" for p in CALIBRATIONS],
+    calibration.add_arguments(parser)
+    parser.add_argument("--calibration", choices=[",".join(p) or "none" for p in CALIBRATIONS],
                          default="rest,mounting",
                          help="with a sensor model: the calibration before body_aad (default rest,mounting)")
     parser.add_argument(
@@ -237,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             return _fail(f"{path}: {exc}")
     try:
-        sensors = SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
+        sensors = calibration.from_args(args)
     except ValueError as exc:
         return _fail(str(exc))
     poses = () if args.calibration == "none" else tuple(args.calibration.split(","))

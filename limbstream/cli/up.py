@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 from limbstream.cli.emulate import add_clock_arguments, clock_flags
-from limbstream import wire, zconfig
+from limbstream import calibration, wire, zconfig
 from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
 from limbstream.services.dashboard.supervision import STATUS_ENV  # the status file's path, for the dashboard
@@ -55,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     wire.add_arguments(parser, defaults=wire.LIVE_MODE)
     parser.add_argument("--no-truth", action="store_true", help="devices do not publish the truth tap")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
+    calibration.add_arguments(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     parser.add_argument("--max-exits", type=int, default=RestartPolicy.max_exits,
                         help=f"stop everything when one part exits this many times within "
@@ -68,6 +69,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     """(name, ``limbstream`` arguments) of the time service, the emulators and the aggregator, in
     start order."""
     connect = ["--connect", args.router]
+    sensors = calibration.from_args(args)
     parts = []
     # a scaled time base (--speed) is shared by the time service and the devices: one anchor
     anchor = [] if args.speed == 1 else ["--time-anchor", f"{time.time():.3f}"]
@@ -83,8 +85,10 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
                 "--speed", str(args.speed), *wire.config_from_args(args).flags(), *clock_flags(args), *anchor]
         if args.no_truth:
             argv.append("--no-truth")
+        if sensors.on:
+            argv += calibration.flags(sensors)
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
-    parts.append(("aggregator", ["aggregate"] + connect))
+    parts.append(("aggregator", ["aggregate", *(["--calibrate-on-start"] if sensors.on else [])] + connect))
     return parts
 
 
@@ -120,6 +124,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         split_endpoint(args.http)
         if args.subjects < 1 or args.emulators < 1 or args.max_exits < 1:
             raise ValueError("--subjects, --emulators and --max-exits must be >= 1")
+        calibration.from_args(args)  # ValueError naming a bad sensor bound
     except ValueError as exc:
         print(f"limbstream up: error: {exc}", file=sys.stderr)
         return 2

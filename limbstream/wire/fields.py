@@ -102,6 +102,10 @@ FIELDS: tuple[StatsField, ...] = (
     _device("max_len", int, "max segment length the device runs", "samples", metric="limbstream_device_max_len"),
     _device("live_bound_deg", float, "fastSW live-rule bound the device runs (0: off)", "deg",
             metric="limbstream_device_live_bound_degrees"),
+    _device("calibrated", bool, "the device's readings are corrected to its segment's orientation (a calibration "
+            "of its current stream; aggregate --calibrate-on-start)", metric="limbstream_device_calibrated"),
+    _device("calibration_age_s", float, "time since that calibration (null: none)", "s"),
+    _device("calibration_refused", str, "why the stream's calibration was refused (null: it was not)"),
     _device("stream", int, "the device's current stream id (a new one after a restart)"),
     _device("restarts", int, "new streams seen after the first", metric="limbstream_device_restarts", counter=True),
     _device("final", bool, "the stream ended (its last point carried FINAL)"),

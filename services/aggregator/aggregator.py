@@ -48,6 +48,8 @@ class AggregatorSettings:
     config_poll_s : how often device configs (threshold) are queried, seconds.
     trim_s : how often freed heap memory is given back to the OS, seconds (limbstream.heap).
     max_devices : most devices tracked; messages of further devices are counted and dropped.
+    calibrate_on_start : calibrate each new stream from its calibration script
+        (services/aggregator/calibrating.py; devices with a sensor model).
     frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
         covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
     """
@@ -64,6 +66,7 @@ class AggregatorSettings:
     frame_batch_s: float = 0.0
     max_devices: int = 10_000
     skeleton: Skeleton = Skeleton()
+    calibrate_on_start: bool = False
 
 
 @dataclass
@@ -112,7 +115,8 @@ class Aggregator:
     def __init__(self, session: zenoh.Session, settings: AggregatorSettings):
         self.session, self.settings = session, settings
         self.fusion = Fusion(settings.rate, settings.skeleton, capacity=max(1024, 2 * settings.history),
-                             error_window=int(settings.error_window_s * settings.rate))
+                             error_window=int(settings.error_window_s * settings.rate),
+                             calibrate_on_start=settings.calibrate_on_start)
         self.subjects: dict[str, Subject] = self.fusion.subjects
         self.bad_keys: collections.Counter = collections.Counter()
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
@@ -311,6 +315,7 @@ class Aggregator:
         ``now``: the arrival clock of the messages (perf_counter), if time went on without any."""
         if now is not None:
             self.fusion.advance_clock(now)
+        self.fusion.calibrate_ready()
         self.fusion.evaluate_truth()
         owners, frames = self.fusion.exact_frames()
         self.fusion.evaluate_frames()

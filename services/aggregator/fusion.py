@@ -20,6 +20,7 @@ import numpy as np
 from limbstream import wire
 from limbstream.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
+from limbstream.services.aggregator.calibrating import Calibrating
 from limbstream.services.aggregator.scoring import Scoring
 from limbstream.services.aggregator.store import IDENTITY, PointStore
 from limbstream.services.aggregator.track import HISTORY_GRACE_S, DeviceTrack
@@ -48,7 +49,7 @@ class Subject:
         self.waiting_since: float | None = None  # arrival clock (s) when its first frame could start
 
 
-class Fusion(Scoring):
+class Fusion(Scoring, Calibrating):
     """Tracks, stores and frame builder of all subjects of one aggregator.
 
     Parameters
@@ -61,12 +62,13 @@ class Fusion(Scoring):
     """
 
     def __init__(self, rate: float, skeleton: Skeleton, capacity: int = 1024, error_window: int = 3000,
-                 max_backlog_s: float = 60.0):
+                 max_backlog_s: float = 60.0, calibrate_on_start: bool = False):
         self.period_us = 1e6 / rate
         self.skeleton = skeleton
         self.max_backlog = int(max_backlog_s * rate)
         self.store = PointStore(capacity)
         self._init_scoring(error_window)
+        self._init_calibration(calibrate_on_start)
         self.subjects: dict[str, Subject] = {}
         self.tracks: list[DeviceTrack] = []
         self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period
@@ -149,6 +151,7 @@ class Fusion(Scoring):
             slot = track.slot
             self.store.reset(slot)
             self._reset_scores(slot)
+            self._new_stream_calibration(slot)
             self.generation[slot] = track.generation
             self.latest_t[slot] = self.last_raw_t[slot] = _NONE
             self._unsettled.add(track)
@@ -164,8 +167,11 @@ class Fusion(Scoring):
             return False
         slot = track.slot
         how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(slot, t_us))
+        if how is not None:
+            self._first_sample(slot, p.seq, p.t_us)
+        q, omega = self._corrected(slot, p.q, p.omega)
         if how == "append":
-            forgotten = self.store.append(slot, p.t_us, p.q, p.omega)
+            forgotten = self.store.append(slot, p.t_us, q, omega)
             if forgotten:
                 track.dropped["buffer_full"] += forgotten
             self.active[slot] = track.online and not track.final
@@ -173,7 +179,7 @@ class Fusion(Scoring):
                 self._gappy.add(track)
         elif how == "final":
             self.active[slot] = False
-        elif how == "insert" and not self.store.insert(slot, p.t_us, p.q, p.omega):
+        elif how == "insert" and not self.store.insert(slot, p.t_us, q, omega):
             track.dropped["buffer_full"] += 1
         if how is None:
             return False
@@ -335,6 +341,7 @@ class Fusion(Scoring):
         frame_keep = keep.copy()
         keep = np.where(self.last_raw_t != _NONE, np.minimum(keep, self.last_raw_t), keep)  # truth still to come
         keep = np.minimum(keep, self.truth.oldest(self.store.size))
+        keep = self._calibration_keep(keep)
         self.store.prune(keep)
         self._prune_reference(frame_keep)
 
@@ -352,7 +359,8 @@ class Fusion(Scoring):
                               int(count[i])),
                         {"live_p50_deg": float(live_p50[i]), "live_p99_deg": float(live_p99[i]),
                          "live_max_deg": float(live_max[i]), "live_latency_p50_ms": float(lat_p50[i]),
-                         "live_latency_p99_ms": float(lat_p99[i])}) for i, t in enumerate(tracks)]
+                         "live_latency_p99_ms": float(lat_p99[i])} | self.calibration_figures(t.slot, self.clock))
+                for i, t in enumerate(tracks)]
 
     def watermark(self, sub: Subject) -> int | None:
         wm = self._device_view()[1]

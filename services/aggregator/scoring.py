@@ -63,7 +63,10 @@ class Scoring:
         self.latency.reset(slot)
 
     def _take_truth(self, slot: int, generation: int, batch: wire.RawBatch) -> None:
-        """A truth-tap batch of the device's current stream ``generation``."""
+        """A truth-tap batch of the device's current stream ``generation`` (not compared before
+        the device is calibrated, when calibrations are made)."""
+        if self.calibrate_on_start and slot not in self.calibrations:
+            return
         self.truth.put(slot, generation, batch.t_us, batch.q)
         if batch.ref_us is not None:  # reference times: only for the alignment-aware frame error
             n = self.reference.n[slot]
