@@ -160,7 +160,7 @@ function renderTable() {
     const stateText = d.online ? "online" : (d.stale && !d.alive ? "no data" : "offline");
     // calibration (sensor model on): calibrated, or refused with its reason
     const cal = d.calibrated
-      ? ` <span class="cal ok" title="calibrated ${fmt(d.calibration_age_s, 0)} s ago">cal</span>`
+      ? ` <span class="cal ok" title="calibrated ${fmt(d.calibration_age_s, 0)} s ago, heading drift ${fmt(d.heading_drift_dps, 3)} deg/s compensated">cal</span>`
       : (d.calibration_refused ? ` <span class="cal bad" title="${esc(d.calibration_refused)}">uncal</span>` : "");
     const width = Math.round(36 * (d.msgs_per_s || 0) / maxRate);
     const sel = d.device === state.selected ? " selected" : "";
@@ -531,12 +531,45 @@ async function applyConfig(ev) {
   }
 }
 
+// A countdown to get into the pose, then POST /api/subjects/{s}/calibrate (the API token above).
+const CAL_COUNTDOWN_S = 3;
+
+async function calibrate() {
+  const target = $("ctl-target").value;
+  const subject = target.startsWith("subject:") ? target.slice(8) : target.split("/")[0];
+  const pose = $("cal-pose").value;
+  const result = $("cal-result");
+  const token = $("ctl-token").value.trim();
+  $("cal-go").disabled = true;
+  result.className = "result";
+  for (let left = CAL_COUNTDOWN_S; left > 0; left--) {
+    result.textContent = `${subject}: get into the ${pose} pose, ${left}…`;
+    await new Promise((done) => setTimeout(done, 1000));
+  }
+  result.textContent = `${subject}: hold the ${pose} pose still…`;
+  try {
+    const r = await api(`/api/subjects/${encodeURIComponent(subject)}/calibrate`, {
+      method: "POST",
+      headers: { "Content-Type": "application/json", Authorization: `Bearer ${token}` },
+      body: JSON.stringify({ pose }),
+    });
+    result.className = "result ok";
+    result.textContent = `${subject}: ${Object.keys(r.devices).length} devices calibrated (${pose})`;
+  } catch (e) {
+    result.className = "result err";
+    result.textContent = `${subject}: ${e.message}`;
+  } finally {
+    $("cal-go").disabled = false;
+  }
+}
+
 // ------------------------------------------------------------------ start
 
 async function start() {
   $("ctl-token").value = sessionStorage.getItem("limbstream-token") || "";
   $("control").addEventListener("submit", applyConfig);
   $("ctl-target").addEventListener("change", showCurrent);
+  $("cal-go").addEventListener("click", calibrate);
   $("chart-device").addEventListener("change", (e) => selectDevice(e.target.value));
   $("chart-window").addEventListener("change", refreshHistory);
   for (const input of document.querySelectorAll('input[name="pose-kind"]')) {

@@ -238,17 +238,37 @@ def still_mean(q: np.ndarray, what: str) -> np.ndarray:
 @dataclass(frozen=True)
 class Calibration:
     """One device's correction ``g * sensor * c`` (each (4,)), what it was made from (``poses``)
-    and its estimate of the sensor's mounting (segment <- sensor, (4,)) and heading (rad)."""
+    and its estimate of the sensor's mounting (segment <- sensor, (4,)) and heading (rad) at device
+    time ``t_ref`` (s).
+
+    Drift compensation: ``drift`` (rad/s) is the heading's rate learned from the last two heading
+    measurements (a rest calibration or a yaw reset, then a yaw reset); given device times, the
+    correction follows the heading ``heading + drift * (t - t_ref)`` instead of holding it
+    (SlimeVR's server learns the same from successive resets)."""
 
     g: np.ndarray
     c: np.ndarray
     poses: tuple[str, ...]
     mounting: np.ndarray
     heading: float
+    drift: float = 0.0
+    t_ref: float = 0.0
 
-    def apply(self, q: np.ndarray) -> np.ndarray:
-        """(m, 4) the segment orientations of sensor readings ``q`` (m, 4)."""
-        return quat.multiply(quat.multiply(self.g, np.asarray(q, np.float64)), self.c)
+    def _g(self, t) -> np.ndarray:
+        """(4,) or (m, 4) the left factor at device times ``t`` (m,) s (None: at ``t_ref``)."""
+        if t is None or self.drift == 0.0:
+            return self.g
+        return yaw(-(self.heading + self.drift * (np.asarray(t, np.float64) - self.t_ref)))
+
+    def apply(self, q: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
+        """(m, 4) the segment orientations of sensor readings ``q`` (m, 4) taken at device times
+        ``t`` (m,) s (needed for drift compensation only)."""
+        return quat.multiply(quat.multiply(self._g(t), np.asarray(q, np.float64)), self.c)
+
+    def undo(self, q: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
+        """(m, 4) the sensor readings of corrected orientations ``q`` (m, 4) at device times ``t``."""
+        return quat.multiply(quat.multiply(quat.conjugate(self._g(t)), np.asarray(q, np.float64)),
+                             quat.conjugate(self.c))
 
     @staticmethod
     def none() -> Calibration:
@@ -256,14 +276,22 @@ class Calibration:
         return Calibration(identity, identity, (), identity, 0.0)
 
     @staticmethod
-    def rest(s0: np.ndarray) -> Calibration:
-        """Full reset from the still rest-pose reading ``s0`` (4,): heading taken as 0."""
+    def rest(s0: np.ndarray, t: float = 0.0) -> Calibration:
+        """Full reset from the still rest-pose reading ``s0`` (4,) at device time ``t`` s: heading
+        taken as 0."""
         s0 = quat.normalize(np.asarray(s0, np.float64))
-        return Calibration(np.array([1.0, 0.0, 0.0, 0.0]), quat.conjugate(s0), ("rest",), s0, 0.0)
+        return Calibration(np.array([1.0, 0.0, 0.0, 0.0]), quat.conjugate(s0), ("rest",), s0, 0.0, 0.0, float(t))
 
     def with_mounting(self, reading: np.ndarray, pose: np.ndarray) -> Calibration:
         """Resolve the heading from a still reading ``reading`` (4,) of the known pose ``pose``
-        (4,) (after :meth:`rest`); CalibrationError if the pose turns about the vertical only."""
+        (4,), after a rest calibration (and any since); CalibrationError if the pose turns about
+        the vertical only. The heading found is the one at the rest reading (``t_ref`` stays):
+        the mounting pose only tells heading from mounting."""
+        if "rest" not in self.poses:
+            raise CalibrationError("mounting: calibrate the rest pose first")
+        if self.poses != ("rest",):  # start again from the rest reading this calibration implies
+            base = Calibration.rest(quat.multiply(yaw(self.heading), self.mounting), self.t_ref)
+            return base.with_mounting(reading, pose)
         seen = self.apply(np.asarray(reading, np.float64)[None])[0]  # yaw(h) pose yaw(-h)
         want, got = _horizontal_axis(pose), _horizontal_axis(seen)
         if want is None or got is None:
@@ -272,14 +300,25 @@ class Calibration:
         h = math.atan2(want[0] * got[1] - want[1] * got[0], want @ got)  # turn from want to got
         s0 = self.mounting  # the rest reading yaw(h) m
         mounting = quat.multiply(yaw(-h), s0)
-        return Calibration(yaw(-h), quat.conjugate(mounting), self.poses + ("mounting",), mounting, h)
+        return Calibration(yaw(-h), quat.conjugate(mounting), self.poses + ("mounting",), mounting, h, 0.0, self.t_ref)
 
-    def with_yaw(self, reading: np.ndarray) -> Calibration:
-        """Heading reset from a still rest-pose reading ``reading`` (4,) later on, keeping the
-        mounting found before."""
+    def with_yaw(self, reading: np.ndarray, t: float | None = None, learn_drift: bool = True) -> Calibration:
+        """Heading reset from a still rest-pose reading ``reading`` (4,) at device time ``t`` s,
+        keeping the mounting found before; with ``t`` (and ``learn_drift``) the drift is learned
+        from the heading measured at ``t_ref`` and this one (unwrapped about the heading the
+        current drift predicts, so that long intervals keep whole turns)."""
         heading_rot = quat.multiply(quat.normalize(np.asarray(reading, np.float64)), quat.conjugate(self.mounting))
         h = float(yaw_of(heading_rot))
-        return Calibration(yaw(-h), quat.conjugate(self.mounting), self.poses + ("yaw",), self.mounting, h)
+        drift, t_ref = self.drift, self.t_ref
+        if t is not None:
+            t = float(t)
+            dt = t - self.t_ref
+            if learn_drift and dt > 0:
+                predicted = self.heading + self.drift * dt
+                drift = (predicted + math.remainder(h - predicted, math.tau) - self.heading) / dt
+            t_ref = t
+        return Calibration(yaw(-h), quat.conjugate(self.mounting), self.poses + ("yaw",), self.mounting, h,
+                           drift if learn_drift else 0.0, t_ref)
 
 
 def _horizontal_axis(q: np.ndarray) -> np.ndarray | None:
@@ -293,10 +332,16 @@ def _horizontal_axis(q: np.ndarray) -> np.ndarray | None:
 
 
 def calibrate(q: np.ndarray, rest: slice, mounting: slice | None, pose: np.ndarray | None,
-              what: str = "device") -> Calibration:
-    """A device's calibration from its readings ``q`` (m, 4) in the still windows: ``rest``
-    (rest pose) and, if given, ``mounting`` (the known ``pose`` (4,))."""
-    cal = Calibration.rest(still_mean(q[rest], f"{what}, rest pose"))
+              what: str = "device", t: np.ndarray | None = None) -> Calibration:
+    """A device's calibration from its readings ``q`` (m, 4) in the still windows: ``rest`` (rest
+    pose) and, if given, ``mounting`` (the known ``pose`` (4,)); ``t`` (m,) their device times, s
+    (the heading's time for drift compensation later; None: unknown)."""
+    cal = Calibration.rest(still_mean(q[rest], f"{what}, rest pose"), _middle(t, rest))
     if mounting is not None:
         cal = cal.with_mounting(still_mean(q[mounting], f"{what}, mounting pose"), pose)
     return cal
+
+
+def _middle(t: np.ndarray | None, window: slice) -> float:
+    """The device time (s) in the middle of a still window (0 without times)."""
+    return 0.0 if t is None else float(np.mean(np.asarray(t, np.float64)[window]))

@@ -2,12 +2,16 @@
 on exact readings, and through fastSW in the offline evaluation."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
+from stack import StatsWatch, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 from limbstream import calibration as cal
 from limbstream import quat
 from limbstream.evaluation import evaluate, streams_of
+from limbstream.launch import stop_all
 from limbstream.sources.generator import generate
 from limbstream.wire import SEGMENTS
 
@@ -60,6 +64,35 @@ def test_a_yaw_reset_follows_a_drifting_heading():
     # which the mounting estimate keeps
     assert stale > 10.0 and fresh < 0.5, (stale, fresh)
     assert reset.poses == ("rest", "mounting", "yaw")
+
+
+def test_yaw_resets_learn_the_drift_and_compensate_it():
+    t, q, rest, mounting, start = scripted(20.0)
+    sensors = cal.SensorModel(mounting_deg=60, heading_deg=90, yaw_drift_dps=0.3, seed=5).draw(len(SEGMENTS))
+    identity = np.array([[1.0, 0.0, 0.0, 0.0]])
+    for k in range(len(SEGMENTS)):
+        reading = sensors.report(k, t, q[:, k])
+        c = cal.calibrate(reading, rest, mounting, cal.mounting_pose()[k], SEGMENTS[k], t=t)
+        assert c.drift == 0.0 and c.t_ref == pytest.approx(t[rest].mean())
+        for when in (120.0, 240.0):  # yaw resets in the rest pose
+            c = c.with_yaw(sensors.report(k, np.array([when]), identity)[0], when)
+        assert np.degrees(c.drift) == pytest.approx(np.degrees(sensors.drift[k]), abs=1e-6), SEGMENTS[k]
+        later = 360.0 + t  # the motion again, two minutes after the last reset
+        now = sensors.report(k, later, q[:, k])
+        held = quat.angle_deg(c.apply(now[start:]), q[start:, k])  # no times: the heading held
+        followed = quat.angle_deg(c.apply(now[start:], later[start:]), q[start:, k])
+        if abs(np.degrees(sensors.drift[k])) > 0.05:
+            assert held.mean() > 5.0, (SEGMENTS[k], held.mean())
+        # not exact: the mounting estimate keeps the heading's drift between the rest and the
+        # mounting pose (0.3 deg/s x 3 s at most)
+        assert followed.max() < 1.0, (SEGMENTS[k], followed.max())
+    # wrapped headings: a drift that turned more than half a turn between two resets
+    fast = cal.SensorModel(heading_deg=0, yaw_drift_dps=5.0, seed=1).draw(1)
+    c = cal.Calibration.rest(fast.report(0, np.array([0.0]), identity)[0], 0.0)
+    c = c.with_yaw(fast.report(0, np.array([30.0]), identity)[0], 30.0)
+    for when in (90.0, 150.0):  # 60 s apart: up to 300 deg between them, unwrapped by the prediction
+        c = c.with_yaw(fast.report(0, np.array([when]), identity)[0], when)
+    assert c.drift == pytest.approx(fast.drift[0], abs=1e-9)
 
 
 def test_calibration_is_refused_with_a_reason():
@@ -124,7 +157,7 @@ def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_o
     feed_aggregator(agg, reading, t0, 1, "r_upperarm")
     track = agg.track("s01", "r_upperarm")
     fusion = agg.fusion
-    figures = fusion.calibration_figures(track.slot, fusion.clock)
+    figures = fusion.calibration_figures(track.slot)
     assert figures["calibrated"] and figures["calibration_refused"] is None, figures
     n = fusion.store.n[track.slot]
     stored_t = (fusion.store.t[track.slot, :n] - t0) / 1e6
@@ -133,12 +166,12 @@ def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_o
     assert err.max() < 0.05, f"stored points against the true segment: max {err.max():.3f} deg"
     # the device restarts mid-motion: a new stream that does not begin with the script
     feed_aggregator(agg, reading[start:], t0 + 60_000_000, 2, "r_upperarm")
-    figures = fusion.calibration_figures(track.slot, fusion.clock)
+    figures = fusion.calibration_figures(track.slot)
     assert not figures["calibrated"] and "not still" in figures["calibration_refused"], figures
     # a device whose stream's start never comes (joined late, no history): refused once settled
     late = agg.track("s01", "l_thigh")
     feed_aggregator(agg, reading[start:], t0, 3, "l_thigh", first_seq=40)
-    assert "never arrived" in fusion.calibration_figures(late.slot, fusion.clock)["calibration_refused"]
+    assert "never arrived" in fusion.calibration_figures(late.slot)["calibration_refused"]
 
 
 @pytest.mark.e2e
@@ -146,8 +179,6 @@ def test_up_with_real_sensors_calibrates_every_device_and_the_body_error_stays_s
     """Emulated sensors strapped at up to 90 deg, headings anywhere: the aggregator calibrates
     every device from the script its stream begins with, and the subject's frames match the true
     segments (frame_aad_deg) as with perfect sensors."""
-    from stack import StatsWatch, wait_until
-
     stack.router()
     stack.emulator(1, 1.0, "--mounting-deg", "90", "--heading-deg", "180", "--threshold", "9e-4",
                    "--live-bound-deg", "5")
@@ -168,3 +199,140 @@ def test_up_with_real_sensors_calibrates_every_device_and_the_body_error_stays_s
         watch.close()
     assert subject["frame_aad_deg"] <= 1.2, subject["frame_aad_deg"]
     assert all(d["calibration_refused"] is None and d["calibration_age_s"] >= 0 for d in watch.devices.values())
+
+
+@pytest.mark.e2e
+def test_calibrations_outlive_the_aggregator_in_their_file(stack, tmp_path):  # noqa: F811
+    """A restarted aggregator whose history fetch no longer reaches the streams' start: without
+    the calibration file every device is refused ('never arrived'); with it every device is
+    calibrated at once and the body error stays small."""
+
+    path = tmp_path / "calibrations.json"
+    stack.router()
+    stack.emulator(1, 1.0, "--mounting-deg", "90", "--heading-deg", "180")
+    first = stack.aggregator("--calibrate-on-start", "--calibration-file", str(path))
+    watch = StatsWatch(stack.endpoint)
+
+    def all_devices(predicate, what):
+        def check():
+            devices = watch.poll()
+            return len(devices) == 10 and all(predicate(d) for d in devices.values())
+        wait_until(check, 60, what, interval=0.2, on_fail=stack.logs)
+
+    try:
+        all_devices(lambda d: d["calibrated"], "all 10 devices calibrated")
+        assert len(json.loads(path.read_text())) == 10
+        stop_all([first])
+        watch.devices.clear()
+        # history of 8 points per device (about 1.5 s): the scripts are out of reach
+        blind = stack.aggregator("--calibrate-on-start", "--history", "8")
+        all_devices(lambda d: "never arrived" in (d["calibration_refused"] or ""), "10 devices refused")
+        stop_all([blind])
+        watch.devices.clear()
+        stack.aggregator("--calibrate-on-start", "--history", "8", "--calibration-file", str(path))
+        all_devices(lambda d: d["calibrated"] and d["calibration_age_s"] > 0, "10 devices calibrated from the file")
+        watch.subjects.clear()
+
+        def compared():
+            watch.poll()
+            s = watch.subjects.get("s01", {})
+            return (s.get("frame_error_frames") or 0) >= 200 and s
+        subject = wait_until(compared, 60, "200 frames compared", interval=0.2, on_fail=stack.logs)
+    finally:
+        watch.close()
+    assert subject["frame_aad_deg"] <= 1.2, subject["frame_aad_deg"]
+
+
+def poses_file(path, hold_s: float = 15.0) -> None:
+    """A motion file: rest pose, mounting pose, rest pose, each held ``hold_s``, 1 s moves between."""
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))
+    pose = cal.mounting_pose()
+    hold, move = round(hold_s * FS), round(FS)
+    u = np.repeat((np.arange(1, move + 1) / (move + 1))[:, None], len(SEGMENTS), axis=1)
+    q = np.concatenate([np.broadcast_to(identity, (hold, *identity.shape)), quat.slerp(identity[None], pose[None], u),
+                        np.broadcast_to(pose, (hold, *pose.shape)), quat.slerp(pose[None], identity[None], u),
+                        np.broadcast_to(identity, (hold, *identity.shape))])
+    np.savez(path, clip_poses=q, fs=FS, segment_names=np.array(SEGMENTS), rest_pose=np.array("standing"))
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("drift_dps", [0.0, 0.3])
+def test_calibration_on_request_from_rest_api_and_command(stack, tmp_path, drift_dps):  # noqa: F811
+    """The subject holds the rest pose, the mounting pose, the rest pose again: calibrations asked
+    over REST (rest, mounting) and by `limbstream calibrate` (yaw) find every sensor's true
+    heading (without drift) and the yaw reset its heading's drift; the wrong pose, an unknown
+    subject or pose are refused with their reason."""
+    import subprocess
+    import sys
+
+    import zenoh
+
+    from limbstream import wire, zconfig
+    from stack import http_json
+
+    path = tmp_path / "poses.npz"
+    poses_file(path)
+    stack.router()
+    stack.emulator(1, 1.0, "--source", str(path), "--mounting-deg", "90", "--heading-deg", "180",
+                   "--yaw-drift-dps", f"{drift_dps:g}", "--no-sync")
+    stack.aggregator()
+    url = stack.dashboard(env={"LIMBSTREAM_API_TOKEN": "t0ken"})
+    auth = {"Authorization": "Bearer t0ken"}
+    truth_pose = cal.mounting_pose()[SEGMENTS.index("l_thigh")]
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
+    raw = session.declare_subscriber(wire.raw_key("s01", "l_thigh"), zenoh.handlers.FifoChannel(4096))
+    seen = {"t0": None, "t": None, "q": None}
+
+    def holding(target, after_s):
+        """The subject has held ``target`` (the l_thigh truth) for 0.5 s, ``after_s`` into its stream."""
+        while (sample := raw.try_recv()) is not None:
+            batch = wire.decode_raw(sample.payload.to_bytes())
+            seen["t0"] = seen["t0"] or int(batch.t_us[0])
+            seen["t"], seen["q"] = batch.t_us, batch.q
+        if seen["q"] is None or (seen["t"][-1] - seen["t0"]) / 1e6 < after_s:
+            return False
+        recent = seen["q"][-min(len(seen["q"]), 25):].astype(np.float64)
+        return bool(quat.angle_deg(recent, np.broadcast_to(target, recent.shape)).max() < 0.1)
+
+    def post(pose, subject="s01"):
+        return http_json(f"{url}/api/subjects/{subject}/calibrate", method="POST", body={"pose": pose},
+                         headers=auth, timeout=20)
+
+    # the emulator's draws (process seed 1: its first subject), to compare the estimates with
+    drawn = cal.SensorModel(90, 180, drift_dps).draw(len(SEGMENTS), stream=1)
+
+    def headings_right(answer):
+        got = np.radians([answer["devices"][f"s01/{s}"]["heading_deg"] for s in SEGMENTS])
+        err = np.degrees(np.abs(np.angle(np.exp(1j * (got - drawn.heading)))))
+        return err.max()
+    try:
+        wait_until(lambda: holding([1.0, 0.0, 0.0, 0.0], 7.0), 60, "the subject in the rest pose", interval=0.1,
+                   on_fail=stack.logs)
+        assert post("rest", "nobody")[0] == 404
+        assert post("sideways")[0] == 422
+        status, answer = post("rest")
+        assert status == 200 and len(answer["devices"]) == 10, answer
+        status, answer = post("mounting")  # still in the rest pose: nothing tells the heading
+        assert status == 409 and "about the vertical only" in answer["detail"], answer
+        wait_until(lambda: holding(truth_pose, 0.0), 60, "the mounting pose", interval=0.1, on_fail=stack.logs)
+        status, answer = post("mounting")
+        assert status == 200, answer
+        if not drift_dps:  # (with drift: the heading at the rest request, some seconds in)
+            assert headings_right(answer) < 0.5, answer
+        wait_until(lambda: holding([1.0, 0.0, 0.0, 0.0], 30.0), 60, "the rest pose again", interval=0.1,
+                   on_fail=stack.logs)
+        out = subprocess.run([sys.executable, "-m", "limbstream.cli", "calibrate", "s01", "--pose", "yaw",
+                              "--connect", stack.endpoint], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0 and "10 devices calibrated (yaw)" in out.stdout, out.stdout + out.stderr
+        want = dict(zip((f"s01/{s}" for s in SEGMENTS), np.degrees(drawn.drift)))
+
+        def drift_learned():
+            devices = {d["device"]: d for d in http_json(url + "/api/devices")[1]}
+            return len(devices) == 10 and all(
+                d["calibrated"] and d["heading_drift_dps"] is not None and abs(d["heading_drift_dps"] - want[i]) < 0.02
+                for i, d in devices.items()) and devices
+        devices = wait_until(drift_learned, 10, "each sensor's drift in the stats", interval=0.2,
+                             on_fail=lambda: print(http_json(url + "/api/devices")[1], want))
+    finally:
+        session.close()
+    assert all(d["calibrated"] for d in devices.values()), devices

@@ -190,12 +190,13 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
 
 def test_page_shows_each_devices_calibration(stack):  # noqa: F811
     """Sensors strapped at up to 90 deg: the aggregator calibrates every device from its stream's
-    calibration script and the page marks each row calibrated."""
+    calibration script and the page marks each row calibrated; its Calibrate button counts down
+    and asks for a calibration, which a moving subject gets refused, with the reason shown."""
     chromium = require_chromium()
     stack.router()
     stack.emulator(1, 1.0, "--mounting-deg", "90", "--heading-deg", "180")
     stack.aggregator("--calibrate-on-start")
-    url = stack.dashboard()
+    url = stack.dashboard(env={"LIMBSTREAM_API_TOKEN": TOKEN})
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
         try:
@@ -205,5 +206,14 @@ def test_page_shows_each_devices_calibration(stack):  # noqa: F811
                 .filter(r => r.dataset.calibrated === 'true' && r.querySelector('.cal.ok')).length === 10""",
                                    timeout=60_000)
             assert "calibrated" in page.get_attribute("#devices-body tr.device .cal.ok", "title")
+            page.fill("#ctl-token", TOKEN)
+            page.select_option("#ctl-target", "subject:s01")
+            page.select_option("#cal-pose", "rest")
+            page.click("#cal-go")
+            page.wait_for_function("() => /get into the rest pose/.test(document.querySelector('#cal-result').textContent)",
+                                   timeout=5_000)
+            page.wait_for_function("() => /409/.test(document.querySelector('#cal-result').textContent)",
+                                   timeout=30_000)
+            assert "not still" in page.text_content("#cal-result"), page.text_content("#cal-result")
         finally:
             browser.close()

@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "aggregate": ("limbstream.cli.aggregate", "run the aggregator (SLERP + fusion)"),
     "clock": ("limbstream.cli.clock", "serve the common time base the devices synchronise to"),
     "dashboard": ("limbstream.cli.dashboard", "run the dashboard web service"),
+    "calibrate": ("limbstream.cli.calibrate", "calibrate a subject's devices from the pose it holds"),
     "watch": ("limbstream.cli.watch", "print a live text view of a subject's pose stream"),
     "eval": ("limbstream.cli.evaluate", "evaluate segmentation algorithms on motion files"),
     "record": ("limbstream.cli.record", "record what crosses the router to an MCAP file"),

@@ -32,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibrate-on-start", action="store_true",
                         help="calibrate each new stream from the calibration script it begins with (devices "
                              "with a sensor model: emulate --mounting-deg ...; docs/evaluation.md, 'Calibration')")
+    parser.add_argument("--calibration-file", default="", metavar="PATH",
+                        help="keep the devices' calibrations in this JSON file, so that a restarted aggregator "
+                             "has them (default: not kept)")
     parser.add_argument("-v", "--verbose", action="store_true")
     zconfig.add_arguments(parser)
 
@@ -52,6 +55,7 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
     return AggregatorSettings(subjects=patterns or ("*",), rate=args.rate, live_rate=args.live_rate,
                               tick_s=args.tick, history=args.history, error_window_s=args.error_window,
                               frame_batch_s=args.frame_batch, calibrate_on_start=args.calibrate_on_start,
+                              calibration_file=args.calibration_file,
                               skeleton=skeleton)
 
 

@@ -88,7 +88,10 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         if sensors.on:
             argv += calibration.flags(sensors)
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
-    parts.append(("aggregator", ["aggregate", *(["--calibrate-on-start"] if sensors.on else [])] + connect))
+    calibrations = ["--calibrate-on-start"] if sensors.on else []
+    if sensors.on and args.status_file is not None:  # kept beside the status file: they outlive a restart
+        calibrations += ["--calibration-file", str(Path(args.status_file).with_name("calibrations.json"))]
+    parts.append(("aggregator", ["aggregate", *calibrations] + connect))
     return parts
 
 

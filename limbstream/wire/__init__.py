@@ -11,11 +11,14 @@ module          what it holds
 :mod:`.fields`  the stats field table; :mod:`.stats` its JSON codec
 :mod:`.config`  device tunables (defaults, bounds), config and status messages
 :mod:`.time`    time exchange codec (device <-> time service)
+:mod:`.calibrate` calibration requests (client -> aggregator) and answers
 ==============  ==============================================================
 
 All binary payloads are little-endian and start with a format version byte. Import the
 package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
 """
+from .calibrate import (CALIBRATION_HOLD_S, CALIBRATION_POSES, CalibrateAnswer, decode_calibrate_answer,
+                        decode_calibrate_request, encode_calibrate_answer, encode_calibrate_request)
 from .body import BONES, DEFAULT_REST_POSE, JOINTS, REST_POSES, SEGMENTS, check_rest_pose
 from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
                      DeviceStatus, Tunable, add_arguments, config_from_args, decode_config, decode_status,
@@ -23,7 +26,7 @@ from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, Cl
 from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
-from .keys import (CHUNK_PATTERN, DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, check_chunk, to_chunk, config_key, device_id, device_key,
+from .keys import (CHUNK_PATTERN, DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
                    device_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,

@@ -106,6 +106,8 @@ FIELDS: tuple[StatsField, ...] = (
             "of its current stream; aggregate --calibrate-on-start)", metric="limbstream_device_calibrated"),
     _device("calibration_age_s", float, "time since that calibration (null: none)", "s"),
     _device("calibration_refused", str, "why the stream's calibration was refused (null: it was not)"),
+    _device("heading_drift_dps", float, "the sensor heading's drift learned from the last two heading measurements "
+            "(rest or yaw reset, then a yaw reset) and compensated (null: not calibrated)", "deg/s"),
     _device("stream", int, "the device's current stream id (a new one after a restart)"),
     _device("restarts", int, "new streams seen after the first", metric="limbstream_device_restarts", counter=True),
     _device("final", bool, "the stream ended (its last point carried FINAL)"),

@@ -26,7 +26,7 @@ from .errors import WireError
 PREFIX = "limbstream"
 DEVICE_KINDS: tuple[str, ...] = ("seg", "raw", "alive", "config")
 """Last chunk of a device key."""
-SUBJECT_KINDS: tuple[str, ...] = ("pose", "stats")
+SUBJECT_KINDS: tuple[str, ...] = ("pose", "stats", "calibrate")
 """Last chunk of a subject key."""
 TIME_CHUNK = "@time"
 """Second chunk of the time service's key (a verbatim chunk: wildcards never match it)."""
@@ -98,6 +98,11 @@ def pose_key(subject: str) -> str:
 
 def stats_key(subject: str) -> str:
     return subject_key(subject, "stats")
+
+
+def calibrate_key(subject: str) -> str:
+    """``limbstream/<subject>/calibrate``: the queryable of the aggregator serving the subject."""
+    return subject_key(subject, "calibrate")
 
 
 def time_key() -> str:

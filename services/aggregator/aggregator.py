@@ -50,6 +50,7 @@ class AggregatorSettings:
     max_devices : most devices tracked; messages of further devices are counted and dropped.
     calibrate_on_start : calibrate each new stream from its calibration script
         (services/aggregator/calibrating.py; devices with a sensor model).
+    calibration_file : where calibrations are kept, so that they outlive this process ("": not kept).
     frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
         covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
     """
@@ -67,6 +68,7 @@ class AggregatorSettings:
     max_devices: int = 10_000
     skeleton: Skeleton = Skeleton()
     calibrate_on_start: bool = False
+    calibration_file: str = ""
 
 
 @dataclass
@@ -116,11 +118,14 @@ class Aggregator:
         self.session, self.settings = session, settings
         self.fusion = Fusion(settings.rate, settings.skeleton, capacity=max(1024, 2 * settings.history),
                              error_window=int(settings.error_window_s * settings.rate),
-                             calibrate_on_start=settings.calibrate_on_start)
+                             calibrate_on_start=settings.calibrate_on_start,
+                             calibration_file=settings.calibration_file)
         self.subjects: dict[str, Subject] = self.fusion.subjects
         self.bad_keys: collections.Counter = collections.Counter()
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
         self.loop = LoopStats()
+        self._calibrating: list = []  # (query, CalibrationRequest) under way
+        self._calibrate_qs: list = []
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
         self._config_replies: list = []
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
@@ -132,6 +137,7 @@ class Aggregator:
     def open(self) -> None:
         s = self.settings
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []
+        self._calibrate_qs: list = []
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
                 self.session, wire.device_selector("seg", pattern), zenoh.handlers.FifoChannel(1 << 16),
@@ -147,9 +153,15 @@ class Aggregator:
                 recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
             self._alive_subs.append(self.session.liveliness().declare_subscriber(
                 wire.device_selector("alive", pattern), zenoh.handlers.FifoChannel(1 << 14), history=True))
+            self._calibrate_qs.append(self.session.declare_queryable(
+                wire.subject_selector("calibrate", pattern), zenoh.handlers.FifoChannel(256)))
 
     def close(self) -> None:
-        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs):
+        for query, _ in self._calibrating:
+            with query:
+                query.reply_err("the aggregator is stopping")
+        self._calibrating = []
+        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs, self._calibrate_qs):
             for entity in group:
                 entity.undeclare()
         for pub in self._pubs.values():
@@ -330,6 +342,37 @@ class Aggregator:
         self.loop.frames += len(frames)
         return len(frames)
 
+    def serve_calibrations(self) -> None:
+        """Take calibration requests in; answer those whose pose hold is complete (each tick)."""
+        wall = time.time()
+        for queryable in self._calibrate_qs:
+            while (query := queryable.try_recv()) is not None:
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                try:
+                    subject, _ = wire.parse_subject_key(str(query.key_expr))
+                    req = self.fusion.start_request(subject, wire.decode_calibrate_request(payload), wall)
+                except (wire.WireError, ValueError) as exc:
+                    with query:
+                        query.reply_err(str(exc))
+                    continue
+                if isinstance(req, str):
+                    self._answer(query, wire.CalibrateAnswer(False, req))
+                else:
+                    self._calibrating.append((query, req))
+        still = []
+        for query, req in self._calibrating:
+            answer = self.fusion.finish_request(req, wall)
+            if answer is None:
+                still.append((query, req))
+            else:
+                self._answer(query, answer)
+        self._calibrating = still
+
+    @staticmethod
+    def _answer(query, answer: wire.CalibrateAnswer) -> None:
+        with query:
+            query.reply(query.key_expr, wire.encode_calibrate_answer(answer))
+
     def subject_stats(self, subject: str, now: float) -> dict:
         sub = self.subjects[subject]
         frame_aad, frames_compared = self.fusion.frame_error(sub)
@@ -391,6 +434,7 @@ class Aggregator:
                     next_frames = now + s.frame_batch_s
                     next_prune = now + 0.5 if prune else next_prune
                 self.publish_stats(now, k % stats_parts, stats_parts)
+                self.serve_calibrations()
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s

@@ -62,13 +62,13 @@ class Fusion(Scoring, Calibrating):
     """
 
     def __init__(self, rate: float, skeleton: Skeleton, capacity: int = 1024, error_window: int = 3000,
-                 max_backlog_s: float = 60.0, calibrate_on_start: bool = False):
+                 max_backlog_s: float = 60.0, calibrate_on_start: bool = False, calibration_file: str = ""):
         self.period_us = 1e6 / rate
         self.skeleton = skeleton
         self.max_backlog = int(max_backlog_s * rate)
         self.store = PointStore(capacity)
         self._init_scoring(error_window)
-        self._init_calibration(calibrate_on_start)
+        self._init_calibration(calibrate_on_start, calibration_file)
         self.subjects: dict[str, Subject] = {}
         self.tracks: list[DeviceTrack] = []
         self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period
@@ -169,7 +169,7 @@ class Fusion(Scoring, Calibrating):
         how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(slot, t_us))
         if how is not None:
             self._first_sample(slot, p.seq, p.t_us)
-        q, omega = self._corrected(slot, p.q, p.omega)
+        q, omega = self._corrected(slot, p.q, p.omega, p.t_us)
         if how == "append":
             forgotten = self.store.append(slot, p.t_us, q, omega)
             if forgotten:
@@ -359,7 +359,7 @@ class Fusion(Scoring, Calibrating):
                               int(count[i])),
                         {"live_p50_deg": float(live_p50[i]), "live_p99_deg": float(live_p99[i]),
                          "live_max_deg": float(live_max[i]), "live_latency_p50_ms": float(lat_p50[i]),
-                         "live_latency_p99_ms": float(lat_p99[i])} | self.calibration_figures(t.slot, self.clock))
+                         "live_latency_p99_ms": float(lat_p99[i])} | self.calibration_figures(t.slot))
                 for i, t in enumerate(tracks)]
 
     def watermark(self, sub: Subject) -> int | None:

@@ -151,3 +151,20 @@ class Health(BaseModel):
     devices: int
     uptime_s: float
     control: bool = Field(description="whether device control is enabled (an API token is set)")
+
+
+class CalibrateRequest(BaseModel):
+    """A calibration of a subject's devices from the pose it holds now (limbstream.wire.calibrate)."""
+
+    model_config = ConfigDict(extra="forbid")
+    pose: Literal["rest", "mounting", "yaw"] = Field(
+        description="rest: full reset in the rest pose; mounting: the mounting pose, after rest; yaw: heading "
+                    "only, in the rest pose")
+
+
+class CalibrateResult(BaseModel):
+    """The calibration made: per device id its poses and heading estimate (degrees)."""
+
+    subject: str
+    pose: str
+    devices: dict[str, dict]

@@ -109,3 +109,18 @@ def query_config(session: zenoh.Session, subject: str, segment: str, update: dic
     if broken:
         raise ConfigError(502, f"device {subject}/{segment} answered with a bad config: {'; '.join(broken)}")
     raise ConfigError(504, f"device {subject}/{segment} did not confirm within {timeout_s:g} s")
+
+
+def query_calibrate(session: zenoh.Session, subject: str, pose: str, timeout_s: float) -> wire.CalibrateAnswer:
+    """Ask the aggregator serving ``subject`` to calibrate its devices from ``pose`` (blocking:
+    run it in a worker thread). Raises :class:`ConfigError`: 504 (no aggregator answered within
+    ``timeout_s``), 502 (an error or a bad answer)."""
+    replies = session.get(wire.calibrate_key(subject), payload=wire.encode_calibrate_request(pose), timeout=timeout_s)
+    for reply in replies:
+        if reply.ok is None:
+            raise ConfigError(502, f"the aggregator failed the calibration: {reply.err.payload.to_string()}")
+        try:
+            return wire.decode_calibrate_answer(reply.ok.payload.to_bytes())
+        except wire.WireError as exc:
+            raise ConfigError(502, str(exc)) from None
+    raise ConfigError(504, f"no aggregator serving {subject} answered within {timeout_s:g} s")

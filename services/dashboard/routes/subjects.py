@@ -1,14 +1,19 @@
 """``/api/subjects``: subjects, their latest pose frame and the skeleton to draw."""
 from __future__ import annotations
 
+import asyncio
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Query
+from fastapi import APIRouter, HTTPException, Query, Request
 
 from limbstream import wire
 
-from ..deps import LiveDep, SubjectPath
-from ..models import Pose, PoseKind, Skeleton, Subject
+from ..deps import LiveDep, SubjectPath, TokenDep
+from ..models import CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject
+from ..zenoh_io import ConfigError, query_calibrate
+
+CALIBRATE_TIMEOUT_S = wire.CALIBRATION_HOLD_S + 8.0
+"""How long a calibration request waits for the aggregator's answer, s."""
 
 router = APIRouter(prefix="/api", tags=["subjects"])
 
@@ -34,3 +39,25 @@ async def latest_pose(subject: SubjectPath, live: LiveDep,
 async def skeleton() -> dict:
     """Joint names (order of pose frames) and the bones to draw between them."""
     return {"joints": list(wire.JOINTS), "bones": [list(b) for b in wire.BONES]}
+
+
+@router.post("/subjects/{subject}/calibrate", response_model=CalibrateResult, dependencies=[TokenDep],
+             responses={401: {"description": "no bearer token"}, 403: {"description": "bad token or control disabled"},
+                        404: {"description": "unknown subject"},
+                        409: {"description": "refused: the reason (not still, a device missing, ...)"},
+                        502: {"description": "the aggregator failed"}, 504: {"description": "no aggregator answered"}})
+async def calibrate(subject: SubjectPath, body: CalibrateRequest, request: Request, live: LiveDep) -> dict:
+    """Calibrate every device of a subject from the pose it holds for the next second (hold it
+    still). All devices or none; the previous calibrations stay when refused."""
+    if subject not in {e.subject for e in live.devices.values()}:
+        raise HTTPException(404, f"unknown subject {subject!r}")
+    bridge = request.app.state.bridge
+    if bridge is None:
+        raise HTTPException(503, "not connected to Zenoh yet")
+    try:
+        answer = await asyncio.to_thread(query_calibrate, bridge.session, subject, body.pose, CALIBRATE_TIMEOUT_S)
+    except ConfigError as exc:
+        raise HTTPException(exc.status, exc.message) from None
+    if not answer.ok:
+        raise HTTPException(409, answer.reason)
+    return {"subject": subject, "pose": body.pose, "devices": answer.devices}
