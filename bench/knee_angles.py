@@ -12,6 +12,11 @@ perpendicular to it (the subject's forward), both in degrees; printed as the 2nd
 percentiles and the range.
 
     python bench/knee_angles.py ../shared/data/xio_lower_body --up z
+    python bench/knee_angles.py ../shared/data/xsens_opensense --up z --names opensense
+
+The Xsens MTw files name their sensors by serial number only; ``--names opensense`` maps those of
+OpenSim's OpenSense example (the assignment of OpenSim's own example and test code: 00B4227C right
+femur, 00B4227D right tibia, 00B421EE left femur, 00B421ED left tibia, 00B42279 pelvis).
 """
 from __future__ import annotations
 
@@ -27,6 +32,11 @@ sys.path.insert(0, str(ROOT))
 
 from limbstream import calibration, quat  # noqa: E402
 from limbstream.sources import load  # noqa: E402
+from limbstream.sources.imu_files import load_xsens_folder  # noqa: E402
+
+NAMES = {"opensense": {"00B4227C": "r_thigh", "00B4227D": "r_shank", "00B421EE": "l_thigh",
+                       "00B421ED": "l_shank", "00B42279": "hip"}}
+"""Sensor file stem -> segment, per recording whose files carry no segment names."""
 
 UP = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
 
@@ -46,9 +56,9 @@ def knee_angles(thigh: np.ndarray, shank: np.ndarray, up: np.ndarray) -> tuple[n
     return flexion, v @ forward, tilt
 
 
-def knee_table(path: str, up: np.ndarray, still_s: float = 1.0) -> str:
-    """The table of one recording's knees (markdown)."""
-    (motion,) = load(path)
+def knee_table(path: str, up: np.ndarray, still_s: float = 1.0, names: dict[str, str] | None = None) -> str:
+    """The table of one recording's knees (markdown); ``names``: an Xsens folder's stem -> segment."""
+    (motion,) = [load_xsens_folder(path, names)] if names else load(path)
     fs = 1.0 / float(np.median(np.diff(motion.t)))
     still = slice(0, round(still_s * fs))
     cal = {s: calibration.calibrate(motion.q[:, k], still, None, None, s) for k, s in enumerate(motion.segments)}
@@ -72,8 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("path", help="a recording with l_/r_thigh and l_/r_shank sensors (e.g. x-IMU3 lower body)")
     parser.add_argument("--up", choices=sorted(UP), default="z", help="the recording's up axis (x-IMU3: z)")
     parser.add_argument("--still-s", type=float, default=1.0, help="the still rest pose at the start, s (default 1)")
+    parser.add_argument("--names", choices=sorted(NAMES), help="segment names of an Xsens folder's sensors")
     args = parser.parse_args(argv)
-    print(knee_table(args.path, UP[args.up], args.still_s))
+    print(knee_table(args.path, UP[args.up], args.still_s, NAMES.get(args.names)))
     return 0
 
 
