@@ -243,6 +243,37 @@ def test_calibrations_outlive_the_aggregator_in_their_file(stack, tmp_path):  # 
     assert subject["frame_aad_deg"] <= 1.2, subject["frame_aad_deg"]
 
 
+def test_the_subjects_facing_is_fitted_at_calibration_and_the_frames_scored_after_it():
+    """The truth's world is turned 40 deg about the vertical from the one the calibration finds
+    (a reference system whose forward is not the subject's): once every device is calibrated, the
+    subject's facing is fitted from the first frames compared, and the frame error is then the
+    reconstruction's alone."""
+    from limbstream import wire
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+    agg = Aggregator(None, AggregatorSettings(calibrate_on_start=True))
+    agg._publish = lambda subject, payload: None
+    for segment in SEGMENTS:
+        agg.on_alive(wire.alive_key("s01", segment), True)
+    t, q, rest, mounting, start = scripted(16.0)
+    sensors = cal.SensorModel(mounting_deg=90, heading_deg=180, seed=4).draw(len(SEGMENTS))
+    readings = [sensors.report(k, t, q[:, k]) for k in range(len(SEGMENTS))]
+    truth = quat.multiply(cal.yaw(np.radians(40.0)), q)  # (n, 10, 4) in the truth's world
+    t0, step = 1_700_000_000_000_000, 5
+    t_us = t0 + np.round(t * 1e6).astype(np.int64)
+    for j, k in enumerate(range(0, len(t), step)):
+        for s, segment in enumerate(SEGMENTS):
+            agg.on_point(wire.seg_key("s01", segment),
+                         wire.encode_point(wire.SegmentPoint(1, j, k, int(t_us[k]), tuple(readings[s][k]))), k / FS)
+            rows = slice(k, min(k + step, len(t)))
+            batch = wire.RawBatch(1, k, t_us[rows], truth[rows, s].astype(np.float32), t_us[rows])
+            agg.on_raw(wire.raw_key("s01", segment), wire.encode_raw(batch), k / FS)
+        agg.advance(live=False, now=k / FS)
+    stats = agg.subject_stats("s01", len(t) / FS)
+    assert all(d["calibrated"] for d in stats["devices"]), stats["devices"]
+    assert stats["facing_deg"] == pytest.approx(40.0, abs=0.5), stats["facing_deg"]
+    assert stats["frame_error_frames"] >= 100 and stats["frame_aad_deg"] < 1.0, stats
+
+
 def poses_file(path, hold_s: float = 15.0) -> None:
     """A motion file: rest pose, mounting pose, rest pose, each held ``hold_s``, 1 s moves between."""
     identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))

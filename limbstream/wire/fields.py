@@ -126,6 +126,8 @@ FIELDS: tuple[StatsField, ...] = (
                "the frame's reference instant (alignment-aware error; truth tap with reference times; the aggregator's error window, --error-window)",
                "deg"),
     StatsField("frame_error_frames", int, "subject", "exact frames compared with the truth so far"),
+    StatsField("facing_deg", float, "subject", "the turn about the vertical from the calibrated frames to the truth's "
+               "world, fitted from the first frames compared after the subject's calibration (0: none fitted)", "deg"),
     # ---- the aggregator's own loop
     _aggregator("id", str, "host:pid of the aggregator process"),
     _aggregator("subjects", int, "subjects it tracks", metric="limbstream_aggregator_subjects"),

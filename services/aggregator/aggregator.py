@@ -383,6 +383,7 @@ class Aggregator:
             "watermark_us": self.fusion.watermark(sub),
             "frame_aad_deg": frame_aad,
             "frame_error_frames": frames_compared,
+            "facing_deg": self.fusion.facing_deg(sub),
         }
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1) -> None:

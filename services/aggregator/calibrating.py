@@ -120,6 +120,7 @@ class Calibrating:
                                               float(saved["heading"]), float(saved.get("drift", 0.0)),
                                               float(saved.get("t_ref", 0.0)))
                 self.calibrations[slot], self.calibrated_at[slot] = cal, float(saved["made_at"])
+                self._calibration_changed(slot)
                 return
             except (KeyError, TypeError, ValueError) as exc:
                 log.warning("saved calibration of %s ignored: %s", track.id, exc)
@@ -131,6 +132,7 @@ class Calibrating:
         track = self.tracks[slot]
         self.calibrations[slot] = cal
         self.calibrated_at[slot] = time.time()
+        self._calibration_changed(slot)
         self.calibration_refused.pop(slot, None)
         self._awaiting.pop(slot, None)
         self._view = None
@@ -140,6 +142,13 @@ class Calibrating:
                                      "poses": list(cal.poses), "drift": cal.drift, "t_ref": cal.t_ref,
                                      "made_at": self.calibrated_at[slot]}
             self._dirty = True
+
+    def _calibration_changed(self, slot: int) -> None:
+        """A device's calibration changed: once its subject's devices are all calibrated, its
+        facing is fitted again (:mod:`.scoring`)."""
+        sub = self.subjects[self.tracks[slot].subject]
+        if all(t.slot in self.calibrations for t in sub.tracks.values()):
+            self._fit_facing(sub.index)
 
     def _first_sample(self, slot: int, seq: int, t_us: int) -> None:
         """A point arrived; the one of sequence number 0 fixes the stream's script times."""

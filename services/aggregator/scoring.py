@@ -9,16 +9,22 @@ kept apart from frame building (:mod:`.fusion`), which never reads the truth.
   with the truth at reference instant ``t`` (SLERP between the truth samples around it) once
   the truth of every device has passed ``t``: the subject's ``frame_aad_deg``. Device clocks
   that disagree show up here and nowhere else.
+- Facing: calibrated sensors know the body but not which way it faces in the truth's world
+  (without a magnetometer, nothing can). When a subject's devices are all calibrated (again),
+  one rotation about the vertical per subject is fitted from the first FACING_FIT_FRAMES frames
+  compared (the circular mean of the turn from frame to truth over their segments), those frames
+  are not scored, and every later frame is compared after that rotation.
 
 Errors are degrees, times microseconds.
 """
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from limbstream import quat, wire
+from limbstream import calibration, quat, wire
 from limbstream.wire import SEGMENTS
 from limbstream.services.aggregator.store import ErrorRings, PointStore, TruthQueue
 
@@ -28,6 +34,10 @@ if TYPE_CHECKING:
 FRAME_ERROR_WAIT_S = 10.0
 """An exact frame waits at most this long (frame time behind its subject's newest frame) for the
 truth of its devices to pass it; then it is compared with the truth there is."""
+
+
+FACING_FIT_FRAMES = 50
+"""Frames (a second at 50 Hz) a subject's facing is fitted from after its calibration."""
 
 
 class Scoring:
@@ -43,11 +53,21 @@ class Scoring:
         self.latency = ErrorRings(error_window)
         self.reference = PointStore(2048)          # truth samples by reference time, per device slot
         self.frame_errors = ErrorRings(error_window)
+        self.facing = np.zeros((0, 4))                  # per subject: truth <- frames, a turn about the vertical
+        self._facing_fit: dict[int, list[float]] = {}  # subject index -> [sum sin, sum cos, frames]
         # exact frames waiting for the truth: (subject index,), (time us,), (frame, 10, 4) float32
         self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32))
 
     def _add_subject_scores(self, subjects: int) -> None:
         self.frame_errors.ensure(subjects)
+        grown = np.zeros((subjects, 4))
+        grown[:, 0] = 1.0
+        grown[: len(self.facing)] = self.facing
+        self.facing = grown
+
+    def _fit_facing(self, subject: int) -> None:
+        """Fit the subject's facing again from the next frames compared (a calibration changed)."""
+        self._facing_fit[subject] = [0.0, 0.0, 0.0]
 
     def _add_device_scores(self, slot: int) -> None:
         self.reference.add_slot()
@@ -124,14 +144,42 @@ class Scoring:
         use = has & (first <= t_us[:, None]) & ready[:, None]          # segments with truth around t
         f, s = np.nonzero(use)
         truth = self.reference.interpolate(slots[f, s], t_us[f])
-        err = quat.angle_deg(q[f, s].astype(np.float64), truth)
-        per_frame = np.bincount(f, err, minlength=len(owner))
+        frames = q[f, s].astype(np.float64)
         count = np.bincount(f, minlength=len(owner))
         done = ready & (count > 0)
+        if self._facing_fit:
+            done &= ~self._fitting(owner, f, frames, truth, done)
+        err = quat.angle_deg(quat.multiply(self.facing[owner[f]], frames), truth)
+        per_frame = np.bincount(f, err, minlength=len(owner))
         self.frame_errors.add(owner[done], per_frame[done] / count[done])
         keep = ~ready
         self._pending = (owner[keep], t_us[keep], q[keep])
         return int(done.sum())
+
+    def _fitting(self, owner: np.ndarray, f: np.ndarray, frames: np.ndarray, truth: np.ndarray,
+                 done: np.ndarray) -> np.ndarray:
+        """Take the compared frames ``done`` (P,) of subjects whose facing is being fitted into
+        their fits (segments: frame index ``f`` (k,), orientations ``frames``, ``truth`` (k, 4));
+        returns which frames went into a fit (P,), not to be scored."""
+        fitting = np.array([o in self._facing_fit for o in owner]) & done
+        if not fitting.any():
+            return fitting
+        turn = calibration.yaw_of(quat.multiply(truth, quat.conjugate(frames)))  # (k,) rad
+        for sub in np.unique(owner[fitting]):
+            mine = fitting & (owner == sub)
+            take = mine[f]
+            fit = self._facing_fit[int(sub)]
+            fit[0] += float(np.sin(turn[take]).sum())
+            fit[1] += float(np.cos(turn[take]).sum())
+            fit[2] += int(mine.sum())
+            if fit[2] >= FACING_FIT_FRAMES:
+                self.facing[sub] = calibration.yaw(math.atan2(fit[0], fit[1]))
+                del self._facing_fit[int(sub)]
+        return fitting
+
+    def facing_deg(self, sub: Subject) -> float:
+        """The subject's fitted facing (truth <- frames, about the vertical), degrees."""
+        return math.degrees(float(calibration.yaw_of(self.facing[sub.index])))
 
     def frame_error(self, sub: Subject) -> tuple[float, int]:
         """(mean alignment-aware frame error over the window, deg; frames compared so far)."""
