@@ -354,8 +354,8 @@ def outage(args) -> int:
         session.close()
     reach, own_s, stats_s = np.array(rows).T
     print(f"\n{len(rows)} outages, {devices} devices (holdover 4 s); seconds from the new time-service "
-          f"process's launch (devices' own status asked every 50 ms; the aggregator's stats take the devices' "
-          f"status every 5 s)\n")
+          f"process's launch (devices' own status asked every 50 ms; the aggregator asks an unsynced device's "
+          f"subject every 1 s, stats every 1 s)\n")
     print("| | p50 | max |\n|---|---|---|")
     for name, v in (("service queryable reachable", reach), ("every device synced (its own status)", own_s),
                     ("every device synced (aggregator stats)", stats_s)):

@@ -28,6 +28,9 @@ log = logging.getLogger("limbstream.aggregator")
 STATUSES_PER_TICK = 100
 """Device status replies a tick takes in at most: a poll of 2,000 devices answers within a few
 milliseconds, and decoding all of them in one tick would make it late; the rest wait a tick."""
+UNSYNCED_POLL_S = 1.0
+"""A subject with a device that last reported itself not synced is asked for its statuses this
+often instead of every config_poll_s: the stats show a resync within about a second."""
 
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
@@ -301,6 +304,16 @@ class Aggregator:
             self._config_replies.append(
                 self.session.get(wire.config_key(subject, segment), zenoh.handlers.FifoChannel(4), timeout=2.0))
 
+    def poll_unsynced(self) -> int:
+        """Ask the subjects with an online device that last said it is not synced for their
+        statuses again; returns how many subjects were asked."""
+        subjects = {t.subject for t in self.fusion.tracks
+                    if t.online and t.clock is not None and not t.clock.synced}
+        for subject in subjects:
+            self._config_replies.append(self.session.get(
+                wire.device_selector("config", subject), zenoh.handlers.FifoChannel(64), timeout=2.0))
+        return len(subjects)
+
     def poll_configs(self) -> None:
         """Ask every device for its config (answers arrive in a channel, read by drain)."""
         self._config_replies += [
@@ -411,6 +424,7 @@ class Aggregator:
         s = self.settings
         start = time.perf_counter()
         next_live = next_config = next_frames = next_prune = next_trim = start
+        next_unsynced = start + UNSYNCED_POLL_S
         stats_parts = max(1, round(s.stats_period_s / s.tick_s))  # one stats round per period
         k = 0
         while not stop.is_set():
@@ -439,6 +453,10 @@ class Aggregator:
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s
+                next_unsynced = now + UNSYNCED_POLL_S
+            elif now >= next_unsynced:
+                self.poll_unsynced()
+                next_unsynced = now + UNSYNCED_POLL_S
             elif now >= next_trim:
                 heap.release_free_heap()
                 next_trim = now + s.trim_s
