@@ -29,8 +29,10 @@ STATUSES_PER_TICK = 100
 """Device status replies a tick takes in at most: a poll of 2,000 devices answers within a few
 milliseconds, and decoding all of them in one tick would make it late; the rest wait a tick."""
 UNSYNCED_POLL_S = 1.0
-"""A subject with a device that last reported itself not synced is asked for its statuses this
-often instead of every config_poll_s: the stats show a resync within about a second."""
+"""For RESYNC_WATCH_S after the time service (re)appears, a subject with a device that last
+reported itself not synced is asked for its statuses this often instead of every config_poll_s:
+the stats show the devices' resync within about a second."""
+RESYNC_WATCH_S = 10.0
 
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
@@ -131,6 +133,7 @@ class Aggregator:
         self._calibrate_qs: list = []
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
         self._config_replies: list = []
+        self._time_service = None     # the time service's presence (a querier's matching listener)
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
         self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
         self._missed_unlogged, self._next_miss_log = 0, 0.0
@@ -158,6 +161,9 @@ class Aggregator:
                 wire.device_selector("alive", pattern), zenoh.handlers.FifoChannel(1 << 14), history=True))
             self._calibrate_qs.append(self.session.declare_queryable(
                 wire.subject_selector("calibrate", pattern), zenoh.handlers.FifoChannel(256)))
+        # the time service's return: devices resync at once; their stats should follow
+        self._time_querier = self.session.declare_querier(wire.time_key(), allowed_destination=zenoh.Locality.REMOTE)
+        self._time_service = self._time_querier.declare_matching_listener(zenoh.handlers.FifoChannel(16))
 
     def close(self) -> None:
         for query, _ in self._calibrating:
@@ -167,6 +173,9 @@ class Aggregator:
         for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs, self._calibrate_qs):
             for entity in group:
                 entity.undeclare()
+        if self._time_service is not None:
+            self._time_service.undeclare()
+            self._time_querier.undeclare()
         for pub in self._pubs.values():
             pub.undeclare()
 
@@ -304,6 +313,13 @@ class Aggregator:
             self._config_replies.append(
                 self.session.get(wire.config_key(subject, segment), zenoh.handlers.FifoChannel(4), timeout=2.0))
 
+    def time_service_returned(self) -> bool:
+        """Whether the time service appeared since the last call (its matching status changed)."""
+        returned = False
+        while self._time_service is not None and (status := self._time_service.try_recv()) is not None:
+            returned |= status.matching
+        return returned
+
     def poll_unsynced(self) -> int:
         """Ask the subjects with an online device that last said it is not synced for their
         statuses again; returns how many subjects were asked."""
@@ -425,6 +441,7 @@ class Aggregator:
         start = time.perf_counter()
         next_live = next_config = next_frames = next_prune = next_trim = start
         next_unsynced = start + UNSYNCED_POLL_S
+        watch_until = start  # the stats follow devices resyncing until then
         stats_parts = max(1, round(s.stats_period_s / s.tick_s))  # one stats round per period
         k = 0
         while not stop.is_set():
@@ -455,7 +472,10 @@ class Aggregator:
                 next_config = now + s.config_poll_s
                 next_unsynced = now + UNSYNCED_POLL_S
             elif now >= next_unsynced:
-                self.poll_unsynced()
+                if self.time_service_returned():
+                    watch_until = now + RESYNC_WATCH_S
+                if now < watch_until:
+                    self.poll_unsynced()
                 next_unsynced = now + UNSYNCED_POLL_S
             elif now >= next_trim:
                 heap.release_free_heap()
