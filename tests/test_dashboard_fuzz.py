@@ -22,12 +22,15 @@ TOKEN = "fuzz-token"
 
 @pytest.fixture(scope="module")
 def served():
-    """A router, a publisher with one answering device and one subject's frames, and the
-    dashboard served by uvicorn on a free port (in a thread)."""
+    """A router, a publisher with one answering device, one subject's frames and its calibrate
+    queryable (as the contract describes the aggregator's: this one refuses, the subject is not
+    complete), and the dashboard served by uvicorn on a free port (in a thread)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zconfig.open_session(zconfig.ZenohSettings(mode="router", connect=(), listen=(endpoint,)))
     pub = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
     device = Device(pub, "s01", "hip")
+    refusal = wire.encode_calibrate_answer(wire.CalibrateAnswer(False, "s01: device(s) missing: l_shank"))
+    calibrate = pub.declare_queryable(wire.calibrate_key("s01"), lambda q: q.reply(q.key_expr, refusal))
     port = free_port()
     app = create_app(DashboardSettings(router=endpoint, api_token=TOKEN, config_timeout_s=1.0))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
@@ -47,6 +50,7 @@ def served():
         server.should_exit = True
         thread.join(10)
         device.queryable.undeclare()
+        calibrate.undeclare()
         pub.close()
         router.close()
 

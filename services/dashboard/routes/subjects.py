@@ -42,10 +42,11 @@ async def skeleton() -> dict:
 
 
 @router.post("/subjects/{subject}/calibrate", response_model=CalibrateResult, dependencies=[TokenDep],
-             responses={401: {"description": "no bearer token"}, 403: {"description": "bad token or control disabled"},
-                        404: {"description": "unknown subject"},
+             responses={400: {"description": "the body is not decodable JSON"}, 401: {"description": "no bearer token"},
+                        403: {"description": "bad token or control disabled"}, 404: {"description": "unknown subject"},
                         409: {"description": "refused: the reason (not still, a device missing, ...)"},
-                        502: {"description": "the aggregator failed"}, 504: {"description": "no aggregator answered"}})
+                        502: {"description": "the aggregator failed"},
+                        503: {"description": "not connected to Zenoh yet"}, 504: {"description": "no aggregator answered"}})
 async def calibrate(subject: SubjectPath, body: CalibrateRequest, request: Request, live: LiveDep) -> dict:
     """Calibrate every device of a subject from the pose it holds for the next second (hold it
     still). All devices or none; the previous calibrations stay when refused."""
