@@ -237,22 +237,42 @@ def still_mean(q: np.ndarray, what: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Calibration:
-    """One device's correction ``g * sensor * c`` (each (4,)), what it was made from (``poses``)
-    and its estimate of the sensor's mounting (segment <- sensor, (4,)) and heading (rad) at device
-    time ``t_ref`` (s).
+    """One device's correction ``g * sensor * c`` (each (4,): ``g`` turns the heading back,
+    ``c`` undoes the mounting), what it was made from (``poses``) and its estimate of the sensor's
+    mounting (segment <- sensor, (4,)) and heading (rad) at device time ``t_ref`` (s).
 
     Drift compensation: ``drift`` (rad/s) is the heading's rate learned from the last two heading
     measurements (a rest calibration or a yaw reset, then a yaw reset); given device times, the
     correction follows the heading ``heading + drift * (t - t_ref)`` instead of holding it
     (SlimeVR's server learns the same from successive resets)."""
 
-    g: np.ndarray
-    c: np.ndarray
     poses: tuple[str, ...]
     mounting: np.ndarray
     heading: float
     drift: float = 0.0
     t_ref: float = 0.0
+
+    @property
+    def g(self) -> np.ndarray:
+        return yaw(-self.heading)
+
+    @property
+    def c(self) -> np.ndarray:
+        return quat.conjugate(self.mounting)
+
+    def as_dict(self) -> dict:
+        """The calibration as JSON-ready values (:meth:`from_dict` reads them back)."""
+        return {"poses": list(self.poses), "mounting": np.asarray(self.mounting).tolist(),
+                "heading": self.heading, "drift": self.drift, "t_ref": self.t_ref}
+
+    @staticmethod
+    def from_dict(data: dict) -> Calibration:
+        """The calibration of :meth:`as_dict`'s values; KeyError, TypeError or ValueError if bad."""
+        mounting = np.array(data["mounting"], np.float64)
+        if mounting.shape != (4,) or not np.isfinite(mounting).all():
+            raise ValueError(f"mounting must be 4 finite numbers, got {data['mounting']!r}")
+        return Calibration(tuple(str(p) for p in data["poses"]), quat.normalize(mounting), float(data["heading"]),
+                           float(data.get("drift", 0.0)), float(data.get("t_ref", 0.0)))
 
     def _g(self, t) -> np.ndarray:
         """(4,) or (m, 4) the left factor at device times ``t`` (m,) s (None: at ``t_ref``)."""
@@ -272,15 +292,14 @@ class Calibration:
 
     @staticmethod
     def none() -> Calibration:
-        identity = np.array([1.0, 0.0, 0.0, 0.0])
-        return Calibration(identity, identity, (), identity, 0.0)
+        return Calibration((), np.array([1.0, 0.0, 0.0, 0.0]), 0.0)
 
     @staticmethod
     def rest(s0: np.ndarray, t: float = 0.0) -> Calibration:
         """Full reset from the still rest-pose reading ``s0`` (4,) at device time ``t`` s: heading
         taken as 0."""
         s0 = quat.normalize(np.asarray(s0, np.float64))
-        return Calibration(np.array([1.0, 0.0, 0.0, 0.0]), quat.conjugate(s0), ("rest",), s0, 0.0, 0.0, float(t))
+        return Calibration(("rest",), s0, 0.0, 0.0, float(t))
 
     def with_mounting(self, reading: np.ndarray, pose: np.ndarray) -> Calibration:
         """Resolve the heading from a still reading ``reading`` (4,) of the known pose ``pose``
@@ -300,7 +319,7 @@ class Calibration:
         h = math.atan2(want[0] * got[1] - want[1] * got[0], want @ got)  # turn from want to got
         s0 = self.mounting  # the rest reading yaw(h) m
         mounting = quat.multiply(yaw(-h), s0)
-        return Calibration(yaw(-h), quat.conjugate(mounting), self.poses + ("mounting",), mounting, h, 0.0, self.t_ref)
+        return Calibration(self.poses + ("mounting",), mounting, h, 0.0, self.t_ref)
 
     def with_yaw(self, reading: np.ndarray, t: float | None = None, learn_drift: bool = True) -> Calibration:
         """Heading reset from a still rest-pose reading ``reading`` (4,) at device time ``t`` s,
@@ -317,8 +336,7 @@ class Calibration:
                 predicted = self.heading + self.drift * dt
                 drift = (predicted + math.remainder(h - predicted, math.tau) - self.heading) / dt
             t_ref = t
-        return Calibration(yaw(-h), quat.conjugate(self.mounting), self.poses + ("yaw",), self.mounting, h,
-                           drift if learn_drift else 0.0, t_ref)
+        return Calibration(self.poses + ("yaw",), self.mounting, h, drift if learn_drift else 0.0, t_ref)
 
 
 def _horizontal_axis(q: np.ndarray) -> np.ndarray | None:

@@ -174,6 +174,15 @@ def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_o
     assert "never arrived" in fusion.calibration_figures(late.slot)["calibration_refused"]
 
 
+def frames_compared(watch: StatsWatch, n: int, on_fail) -> dict:
+    """s01's stats once at least ``n`` of its exact frames were compared with the truth."""
+    def compared():
+        watch.poll()
+        s = watch.subjects.get("s01", {})
+        return (s.get("frame_error_frames") or 0) >= n and s
+    return wait_until(compared, 60, f"{n} frames of s01 compared with the truth", interval=0.2, on_fail=on_fail)
+
+
 @pytest.mark.e2e
 def test_up_with_real_sensors_calibrates_every_device_and_the_body_error_stays_small(stack):  # noqa: F811
     """Emulated sensors strapped at up to 90 deg, headings anywhere: the aggregator calibrates
@@ -190,11 +199,7 @@ def test_up_with_real_sensors_calibrates_every_device_and_the_body_error_stays_s
             return len(devices) == 10 and all(d["calibrated"] for d in devices.values())
         wait_until(calibrated, 60, "all 10 devices calibrated", interval=0.2, on_fail=stack.logs)
 
-        def compared():
-            watch.poll()
-            s = watch.subjects.get("s01", {})
-            return (s.get("frame_error_frames") or 0) >= 500 and s
-        subject = wait_until(compared, 60, "500 frames compared with the truth", interval=0.2, on_fail=stack.logs)
+        subject = frames_compared(watch, 500, stack.logs)
     finally:
         watch.close()
     assert subject["frame_aad_deg"] <= 1.2, (subject["frame_aad_deg"], subject["facing_deg"])
@@ -236,11 +241,7 @@ def test_calibrations_outlive_the_aggregator_in_their_file(stack, tmp_path):  # 
         all_devices(lambda d: d["calibrated"] and d["calibration_age_s"] > 0, "10 devices calibrated from the file")
         watch.subjects.clear()
 
-        def compared():
-            watch.poll()
-            s = watch.subjects.get("s01", {})
-            return (s.get("frame_error_frames") or 0) >= 200 and s
-        subject = wait_until(compared, 60, "200 frames compared", interval=0.2, on_fail=stack.logs)
+        subject = frames_compared(watch, 200, stack.logs)
     finally:
         watch.close()
     assert subject["frame_aad_deg"] <= 1.2, (subject["frame_aad_deg"], subject["facing_deg"])

@@ -8,10 +8,6 @@ import time
 
 from limbstream import wire, zconfig
 
-TIMEOUT_S = wire.CALIBRATION_HOLD_S + 8.0
-"""How long to wait for the aggregator's answer after the countdown, s."""
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", help="the subject, e.g. s01")
     parser.add_argument("--pose", choices=wire.CALIBRATION_POSES, required=True,
@@ -37,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"hold the {args.pose} pose still for {wire.CALIBRATION_HOLD_S:g} s", flush=True)
     session = zconfig.open_session(zconfig.from_args(args))
     try:
-        replies = list(session.get(key, payload=wire.encode_calibrate_request(args.pose), timeout=TIMEOUT_S))
+        replies = list(session.get(key, payload=wire.encode_calibrate_request(args.pose), timeout=wire.CALIBRATION_ANSWER_TIMEOUT_S))
     finally:
         session.close()
     if not replies:

@@ -17,7 +17,7 @@ module          what it holds
 All binary payloads are little-endian and start with a format version byte. Import the
 package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
 """
-from .calibrate import (CALIBRATION_HOLD_S, CALIBRATION_POSES, CalibrateAnswer, decode_calibrate_answer,
+from .calibrate import (CALIBRATION_ANSWER_TIMEOUT_S, CALIBRATION_HOLD_S, CALIBRATION_POSES, CalibrateAnswer, decode_calibrate_answer,
                         decode_calibrate_request, encode_calibrate_answer, encode_calibrate_request)
 from .body import BONES, DEFAULT_REST_POSE, JOINTS, REST_POSES, SEGMENTS, check_rest_pose
 from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,

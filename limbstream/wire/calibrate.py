@@ -15,6 +15,10 @@ in the rest pose (limbstream.calibration)."""
 CALIBRATION_HOLD_S = 1.0
 """The subject holds the pose this long from the request on (device time): the still window."""
 
+CALIBRATION_ANSWER_TIMEOUT_S = CALIBRATION_HOLD_S + 8.0
+"""How long a client waits for the aggregator's answer to a request, s (the hold, the points'
+way to the aggregator, and its own wait for them)."""
+
 
 def encode_calibrate_request(pose: str) -> bytes:
     if pose not in CALIBRATION_POSES:

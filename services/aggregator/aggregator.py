@@ -143,7 +143,6 @@ class Aggregator:
     def open(self) -> None:
         s = self.settings
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []
-        self._calibrate_qs: list = []
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
                 self.session, wire.device_selector("seg", pattern), zenoh.handlers.FifoChannel(1 << 16),

@@ -115,10 +115,7 @@ class Calibrating:
         saved = self._saved.get(track.id)
         if saved is not None and saved.get("stream") == track.stream:
             try:
-                cal = calibration.Calibration(np.array(saved["g"], float), np.array(saved["c"], float),
-                                              tuple(saved["poses"]), np.array(saved["mounting"], float),
-                                              float(saved["heading"]), float(saved.get("drift", 0.0)),
-                                              float(saved.get("t_ref", 0.0)))
+                cal = calibration.Calibration.from_dict(saved)
                 self.calibrations[slot], self.calibrated_at[slot] = cal, float(saved["made_at"])
                 self._calibration_changed(slot)
                 return
@@ -137,10 +134,7 @@ class Calibrating:
         self._awaiting.pop(slot, None)
         self._view = None
         if self.calibration_file is not None:
-            self._saved[track.id] = {"stream": track.stream, "g": cal.g.tolist(), "c": cal.c.tolist(),
-                                     "mounting": cal.mounting.tolist(), "heading": cal.heading,
-                                     "poses": list(cal.poses), "drift": cal.drift, "t_ref": cal.t_ref,
-                                     "made_at": self.calibrated_at[slot]}
+            self._saved[track.id] = {"stream": track.stream, "made_at": self.calibrated_at[slot]} | cal.as_dict()
             self._dirty = True
 
     def _calibration_changed(self, slot: int) -> None:

@@ -161,7 +161,7 @@ class Scoring:
         """Take the compared frames ``done`` (P,) of subjects whose facing is being fitted into
         their fits (segments: frame index ``f`` (k,), orientations ``frames``, ``truth`` (k, 4));
         returns which frames went into a fit (P,), not to be scored."""
-        fitting = np.array([o in self._facing_fit for o in owner]) & done
+        fitting = np.isin(owner, list(self._facing_fit)) & done
         if not fitting.any():
             return fitting
         turn = calibration.yaw_of(quat.multiply(truth, quat.conjugate(frames)))  # (k,) rad

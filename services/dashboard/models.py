@@ -157,7 +157,7 @@ class CalibrateRequest(BaseModel):
     """A calibration of a subject's devices from the pose it holds now (limbstream.wire.calibrate)."""
 
     model_config = ConfigDict(extra="forbid")
-    pose: Literal["rest", "mounting", "yaw"] = Field(
+    pose: Literal[wire.CALIBRATION_POSES] = Field(
         description="rest: full reset in the rest pose; mounting: the mounting pose, after rest; yaw: heading "
                     "only, in the rest pose")
 

@@ -12,9 +12,6 @@ from ..deps import LiveDep, SubjectPath, TokenDep
 from ..models import CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject
 from ..zenoh_io import ConfigError, query_calibrate
 
-CALIBRATE_TIMEOUT_S = wire.CALIBRATION_HOLD_S + 8.0
-"""How long a calibration request waits for the aggregator's answer, s."""
-
 router = APIRouter(prefix="/api", tags=["subjects"])
 
 
@@ -56,7 +53,8 @@ async def calibrate(subject: SubjectPath, body: CalibrateRequest, request: Reque
     if bridge is None:
         raise HTTPException(503, "not connected to Zenoh yet")
     try:
-        answer = await asyncio.to_thread(query_calibrate, bridge.session, subject, body.pose, CALIBRATE_TIMEOUT_S)
+        answer = await asyncio.to_thread(query_calibrate, bridge.session, subject, body.pose,
+                                          wire.CALIBRATION_ANSWER_TIMEOUT_S)
     except ConfigError as exc:
         raise HTTPException(exc.status, exc.message) from None
     if not answer.ok:
