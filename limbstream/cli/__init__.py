@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "router": ("limbstream.cli.router", "run a Zenoh router (for one machine, no plugins)"),
     "emulate": ("limbstream.cli.emulate", "run emulated IMU devices"),
     "aggregate": ("limbstream.cli.aggregate", "run the aggregator (SLERP + fusion)"),
+    "gateway": ("limbstream.cli.gateway", "bridge devices that cannot speak Zenoh (SlimeVR trackers, a serial link)"),
     "clock": ("limbstream.cli.clock", "serve the common time base the devices synchronise to"),
     "dashboard": ("limbstream.cli.dashboard", "run the dashboard web service"),
     "calibrate": ("limbstream.cli.calibrate", "calibrate a subject's devices from the pose it holds"),
