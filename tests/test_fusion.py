@@ -2,12 +2,15 @@
 become final, what holds them back, and what they are flagged with."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from limbstream import wire
 from limbstream.sources import SEGMENTS
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
-from limbstream.services.aggregator.track import HISTORY_GRACE_S
+from limbstream.services.aggregator.fusion import FIRST_FRAME_WAIT_S
+from limbstream.services.aggregator.track import HISTORY_WAIT_S
 
 T0 = 1_700_000_000_000_000
 STEP_US = 100_000  # one segment point every 100 ms
@@ -67,18 +70,39 @@ def test_a_device_whose_stream_keeps_restarting_holds_a_subjects_first_frame_one
     (seq 5 first, history pending) every 0.3 s must not keep the nine others from ever starting."""
     agg, sent = aggregator()
     online_subject(agg)
-    for step in range(8):
+    for step in range(math.ceil(FIRST_FRAME_WAIT_S / 0.3) + 2):
         now = 0.3 * step
         for segment in SEGMENTS[:-1]:
             send(agg, segment, range(3 * step, 3 * step + 3), now=now)
         send(agg, SEGMENTS[-1], range(5, 8), now=now, stream=100 + step)
         agg.advance(live=False, now=now)
-        if now < HISTORY_GRACE_S:
-            assert not exact(sent), f"{now:.1f} s: still within the grace period, history may come"
+        if now < FIRST_FRAME_WAIT_S:
+            assert not exact(sent), f"{now:.1f} s: still within the wait, history may come"
     frames = exact(sent)
     assert frames and frames[0].t_us == T0, "the first frame at the start of the nine clean streams"
     before = [f for f in frames if f.t_us < T0 + 5 * STEP_US]
     assert before and all(f.flags & wire.FRAME_MISSING for f in before), "before its first point: flagged"
+
+
+def test_a_late_joined_stream_settles_when_its_history_query_ends_and_then_takes_no_earlier_point():
+    """A stream first seen at seq 3 waits for its start; the end of the aggregator's query of
+    the device's cache settles it at once (not after HISTORY_WAIT_S): frames start, and an
+    earlier point arriving after that is a duplicate, not a change to frames already out."""
+    agg, sent = aggregator()
+    online_subject(agg)
+    for segment in SEGMENTS[:-1]:
+        send(agg, segment, range(11), now=0.0)
+    late = agg.track("s01", SEGMENTS[-1])
+    send(agg, SEGMENTS[-1], range(3, 11), now=0.0)
+    agg.advance(live=False, now=0.1)
+    assert late.wants_history() and not exact(sent), "its start may still come"
+    send(agg, SEGMENTS[-1], range(1, 3), now=0.2)  # part of its start, from the cache
+    agg.fusion.history_done(late)                  # the query ended: seq 0 is not in the cache
+    agg.advance(live=False, now=0.2)
+    assert not late.wants_history() and exact(sent), "settled: frames start"
+    assert exact(sent)[0].t_us == T0 + STEP_US, "at the first point of the stream that came"
+    send(agg, SEGMENTS[-1], [0], now=0.3)
+    assert late.dropped == {"duplicate": 1}, dict(late.dropped)
 
 
 def truth(agg: Aggregator, segment: str, k: int, now: float) -> None:
@@ -98,7 +122,7 @@ def test_truth_before_a_late_joiners_first_point_waits_for_its_history_grace():
     truth(agg, SEGMENTS[-1], 1, now=0.0)
     agg.advance(live=False, now=0.5)
     assert not late.dropped and agg.fusion.exact.count[late.slot] == 0, "must wait for the history"
-    agg.advance(live=False, now=HISTORY_GRACE_S + 0.01)  # time passes, no message
+    agg.advance(live=False, now=HISTORY_WAIT_S + 0.01)  # time passes, no message
     assert late.dropped == {"raw_before_first_point": 1}, dict(late.dropped)
 
 

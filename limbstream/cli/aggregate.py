@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tick", type=float, default=0.02, help="loop period, s (default 0.02)")
     parser.add_argument("--frame-batch", type=float, default=0.0,
                         help="build exact frames at most every this many s (0: every tick)")
-    parser.add_argument("--history", type=int, default=512, help="segment points per device fetched when joining")
+    parser.add_argument("--history", type=int, default=512, help="segment points per device fetched when joining (default 512)")
     parser.add_argument("--error-window", type=float, default=60.0, help="angular-error window, s (default 60)")
     parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=wire.DEFAULT_REST_POSE,
                         help="rest pose of subjects whose devices do not announce theirs (devices say it in their "

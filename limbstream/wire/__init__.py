@@ -27,7 +27,7 @@ from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
 from .keys import (CHUNK_PATTERN, DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
-                   device_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
+                   device_selector, history_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,
                     decode_point, encode_point)

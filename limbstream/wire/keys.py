@@ -105,6 +105,16 @@ def calibrate_key(subject: str) -> str:
     return subject_key(subject, "calibrate")
 
 
+def history_selector(subject: str, segment: str, most: int, sn: tuple[int, int] | None = None) -> str:
+    """A device's cached segment points (Zenoh's advanced publisher answers queries on
+    ``<seg key>/@adv/**``): the newest ``most`` of them, or, with ``sn`` = (first, last), those
+    its publisher sent with Zenoh's own sequence numbers first..last (``_sn``, inclusive)."""
+    selector = f"{seg_key(subject, segment)}/@adv/**"
+    if sn is None:
+        return f"{selector}?_max={int(most)}"
+    return f"{selector}?_sn={max(0, int(sn[0]))}..{int(sn[1])}"
+
+
 def time_key() -> str:
     """``limbstream/@time``: the time service's queryable (docs/protocol.md, "Time exchange")."""
     return f"{PREFIX}/{TIME_CHUNK}"

@@ -22,7 +22,7 @@ import zenoh.ext as zext
 from limbstream import heap, wire, zconfig
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.fusion import Fusion, Subject
-from limbstream.services.aggregator.track import DeviceTrack
+from limbstream.services.aggregator.track import HISTORY_WAIT_S, DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
 STATUSES_PER_TICK = 100
@@ -133,6 +133,9 @@ class Aggregator:
         self._calibrate_qs: list = []
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
         self._config_replies: list = []
+        self._history_replies: list = []  # (track, its stream's generation, reply channel)
+        self._history_due: dict = {}      # {track: Zenoh sequence numbers (first, newest) received}
+        self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
         self._time_service = None     # the time service's presence (a querier's matching listener)
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
         self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
@@ -142,7 +145,6 @@ class Aggregator:
 
     def open(self) -> None:
         s = self.settings
-        self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
                 self.session, wire.device_selector("seg", pattern), zenoh.handlers.FifoChannel(1 << 16),
@@ -218,8 +220,9 @@ class Aggregator:
             track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
         return track
 
-    def on_point(self, key: str, payload: bytes, now: float) -> None:
-        """A segment point message (decoded, validated, counted)."""
+    def on_point(self, key: str, payload: bytes, now: float, sample: zenoh.Sample | None = None) -> None:
+        """A segment point message (decoded, validated, counted); ``sample``: the Zenoh sample
+        that carried it (its source sequence number bounds a history query)."""
         ids = self._parse_key(key, "seg")
         if ids is None:
             return
@@ -230,6 +233,62 @@ class Aggregator:
             return
         track = self._device(ids, "seg", None)
         if track is not None and self.fusion.add_point(track, point, len(payload), now):
+            self.loop.points += 1
+            if self.session is not None and track.wants_history():
+                info = sample.source_info if sample is not None else None
+                first, _ = self._history_due.get(track, (None, None))
+                sn = None if info is None else info.source_sn
+                self._history_due[track] = (sn if first is None else first, sn)
+
+    def _ask_history(self) -> None:
+        """Ask the caches of the devices whose streams began, as received in this drain, after
+        their start, for the points before. Zenoh's history for a joining subscriber brings each
+        device's newest ``history`` points before its live ones, but not always (a publisher it
+        found late, or answers late under load), and a subject's frames begin where its devices'
+        streams begin. So the query asks for what is missing of the ``history`` points before
+        the newest one received (Zenoh's sequence numbers: nothing when Zenoh's history came),
+        and its end, an event, settles the stream (tests/test_history.py)."""
+        for track, (first, newest) in self._history_due.items():
+            track.history = "asked"
+            if first == 0:  # its publisher's first sample: nothing before it
+                self.fusion.history_done(track)
+                continue
+            span = None if first is None else (newest - self.settings.history + 1, first - 1)
+            if span is not None and span[0] > span[1]:  # Zenoh's history brought them all
+                self.fusion.history_done(track)
+                continue
+            selector = wire.history_selector(track.subject, track.segment, self.settings.history, span)
+            replies = self.session.get(selector, zenoh.handlers.FifoChannel(max(1024, self.settings.history)),
+                                       accept_replies=zenoh.ReplyKeyExpr.ANY, target=zenoh.QueryTarget.ALL,
+                                       consolidation=zenoh.ConsolidationMode.NONE, timeout=HISTORY_WAIT_S)
+            self._history_replies.append((track, track.generation, replies))
+        self._history_due.clear()
+
+    def _drain_history(self, now: float) -> None:
+        """Take in the earlier points of late-joined streams as their history queries answer;
+        a query that has completed settles its stream."""
+        still_open = []
+        for track, generation, replies in self._history_replies:
+            try:
+                while (reply := replies.try_recv()) is not None:
+                    if reply.ok is not None and track.generation == generation:
+                        self._history_point(track, reply.ok.payload.to_bytes(), now)
+                still_open.append((track, generation, replies))
+            except zenoh.ZError:  # complete and empty
+                if track.generation == generation:
+                    self.fusion.history_done(track)
+        self._history_replies = still_open
+
+    def _history_point(self, track: DeviceTrack, payload: bytes, now: float) -> None:
+        """A point from a device's cache: taken in if it is of the current stream and before
+        its first point received; the rest of the cache is already here (not a drop)."""
+        try:
+            point = wire.decode_point(payload)
+        except wire.WireError as exc:
+            track.dropped[exc.reason] += 1
+            return
+        if (point.stream == track.stream and track.first_seq is not None and point.seq < track.first_seq
+                and self.fusion.add_point(track, point, len(payload), now)):
             self.loop.points += 1
 
     def on_raw(self, key: str, payload: bytes, now: float) -> None:
@@ -276,12 +335,14 @@ class Aggregator:
                 handled += 1
         for sub in self._seg_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
-                self.on_point(str(sample.key_expr), sample.payload.to_bytes(), now)
+                self.on_point(str(sample.key_expr), sample.payload.to_bytes(), now, sample)
                 handled += 1
         for sub in self._raw_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
                 self.on_raw(str(sample.key_expr), sample.payload.to_bytes(), now)
                 handled += 1
+        self._ask_history()
+        self._drain_history(now)
         for listener in self._misses:
             while (miss := listener.try_recv()) is not None:
                 self.loop.missed += miss.nb

@@ -23,10 +23,15 @@ from limbstream.wire import SEGMENTS
 from limbstream.services.aggregator.calibrating import Calibrating
 from limbstream.services.aggregator.scoring import Scoring
 from limbstream.services.aggregator.store import IDENTITY, PointStore
-from limbstream.services.aggregator.track import HISTORY_GRACE_S, DeviceTrack
+from limbstream.services.aggregator.track import DeviceTrack
 
 MAX_FRAMES_PER_CALL = 500
 """Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""
+FIRST_FRAME_WAIT_S = 1.0
+"""How long a subject's first exact frame waits, at most, for all of its devices to settle
+(DeviceTrack.settled) after it could first start, seconds; then it starts from the settled
+ones (a device whose stream keeps restarting must not hold the others back)."""
+
 OVERDUE_GRACE_S = 0.25
 """A live frame extrapolates an active device's newest point for at most its max segment length
 (``max_len`` samples at the frame rate: by then the device has sent its next point) plus this
@@ -139,6 +144,11 @@ class Fusion(Scoring, Calibrating):
             sub.rest_pose = rest_pose
             self.rest_flag[sub.index] = wire.rest_pose_flag(rest_pose)
 
+    def history_done(self, track: DeviceTrack) -> None:
+        """The aggregator's history query for the track's stream has completed: it is settled."""
+        track.history_done()
+        self._view = None
+
     def set_online(self, track: DeviceTrack, online: bool) -> None:
         """The device's liveliness token appeared (True) or vanished (False)."""
         track.online = self.online[track.slot] = online
@@ -239,16 +249,15 @@ class Fusion(Scoring, Calibrating):
         _, wm, stale = self._device_view()
         subjects = list(self.subjects.values())
         for sub in subjects:  # a subject's first frame: where every device it has is covered,
-            # once every one of them settled (its history in, or its grace period over: a device
-            # whose history is still on its way would otherwise start the frames at its live
-            # points), and at the latest one grace period after it could first start (a device
-            # whose stream keeps restarting must not hold the others back)
+            # once every one of them settled (its start in, or its history query answered: a
+            # device whose history is still on its way would otherwise start the frames at its
+            # live points), at the latest FIRST_FRAME_WAIT_S after it could first start
             if self.next_frame[sub.index] >= 0 or wm[sub.index] == _NONE:
                 continue
             if sub.waiting_since is None:
                 sub.waiting_since = self.clock
             if (all(self.settled[t.slot] for t in sub.tracks.values())
-                    or self.clock - sub.waiting_since >= HISTORY_GRACE_S):
+                    or self.clock - sub.waiting_since >= FIRST_FRAME_WAIT_S):
                 ready = [t for t in sub.tracks.values() if self.settled[t.slot]] or sub.tracks.values()
                 first = max(self.store.first_t(t.slot) or 0 for t in ready)
                 self.next_frame[sub.index] = math.ceil(first / self.period_us)

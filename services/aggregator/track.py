@@ -12,9 +12,11 @@ from collections.abc import Callable
 
 from limbstream import wire
 
-HISTORY_GRACE_S = 1.0
-"""How long after a stream's first point earlier points (Zenoh history replayed to a joining
-aggregator, which may arrive after live points) are still taken in, seconds."""
+HISTORY_WAIT_S = 5.0
+"""How long after a stream's first point its earlier points (history of a device the
+aggregator joins late) may still be waited for, seconds. A stream whose first point is not its
+start is settled sooner once the aggregator's own history query for it has completed
+(:meth:`DeviceTrack.wants_history`); this bound covers a query that never completes."""
 
 RATE_WINDOW_S = 5.0
 """Sliding window of the data-rate figures, seconds (arrival time)."""
@@ -59,6 +61,7 @@ class DeviceTrack:
         self.first_arrival = 0.0
         self.first_t_us: int | None = None
         self.early: set[int] = set()          # points older than the first one, taken in later
+        self.history = "none"                 # the history query of a late-joined stream: none, asked, done
         self.points = 0
         self.last_t_us: int | None = None   # newest point's device time
         self.last_index = -1
@@ -98,7 +101,7 @@ class DeviceTrack:
             return None
         if self.next_seq is not None and p.seq < self.next_seq:
             if (p.seq < self.first_seq and p.seq not in self.early and p.t_us < self.first_t_us
-                    and now - self.first_arrival < HISTORY_GRACE_S and not stored(p.t_us)):
+                    and not self.settled(now) and not stored(p.t_us)):
                 self.early.add(p.seq)
                 self._count(p, nbytes, now)
                 return "insert"
@@ -130,11 +133,23 @@ class DeviceTrack:
         self.see(p.t_us, now)
 
     def settled(self, now: float) -> bool:
-        """True once the stream's start is complete (from sequence number 0), or the history
-        grace period after its first point is over: its points may then be used."""
+        """True once the stream's start is complete (from sequence number 0), its history query
+        has completed, or :data:`HISTORY_WAIT_S` passed since its first point: its points may
+        then be used (and no earlier ones are taken in)."""
         if self.first_seq is None:
             return True
-        return len(self.early) >= self.first_seq or now - self.first_arrival >= HISTORY_GRACE_S
+        return (len(self.early) >= self.first_seq or self.history == "done"
+                or now - self.first_arrival >= HISTORY_WAIT_S)
+
+    def wants_history(self) -> bool:
+        """True for a stream whose first point received is not its start (the aggregator joined
+        late) until the caller asks the device's cache for the earlier points (``history`` =
+        "asked"); it calls :meth:`history_done` when the answer is complete."""
+        return self.history == "none" and bool(self.first_seq) and len(self.early) < self.first_seq
+
+    def history_done(self) -> None:
+        """The history query of the current stream has completed: the stream is settled."""
+        self.history = "done"
 
     def accept_raw(self, batch: wire.RawBatch, now: float) -> bool | None:
         """True if the batch is taken, None if it is held until its stream's first point
