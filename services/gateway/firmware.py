@@ -1,0 +1,67 @@
+"""The device firmware (firmware_c/m4/device_main.c) run under QEMU ``mps2-an386``, its UART0
+on a TCP socket that QEMU serves on 127.0.0.1 (a serial link: ``tcp:127.0.0.1:PORT``)."""
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+from limbstream.launch import free_port
+
+ROOT = Path(__file__).resolve().parent.parent.parent
+FIRMWARE_DIR = ROOT / "firmware_c"
+DEFAULT_ELF = FIRMWARE_DIR / "build" / "device.elf"
+QEMU = "qemu-system-arm"
+
+
+def build(build_dir: Path | None = None) -> Path:
+    """``make device`` (into firmware_c/build, or ``build_dir``); the ELF's path.
+    RuntimeError with make's output if the build fails."""
+    args = ["make", "-s", "-C", str(FIRMWARE_DIR), "device"] + ([f"BUILD={build_dir}"] if build_dir else [])
+    done = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    if done.returncode != 0:
+        raise RuntimeError(f"make device failed:\n{done.stdout}\n{done.stderr}")
+    return (build_dir / "device.elf") if build_dir else DEFAULT_ELF
+
+
+def qemu_command(elf: Path, port: int) -> list[str]:
+    """QEMU running ``elf`` with UART0 served on 127.0.0.1:``port`` (the host connects after
+    QEMU listens); semihosting lets a fault end the run (exit status 99)."""
+    return [QEMU, "-M", "mps2-an386", "-nographic", "-monitor", "none",
+            "-semihosting-config", "enable=on,target=native", "-kernel", str(elf),
+            "-chardev", f"socket,id=u0,host=127.0.0.1,port={port},server=on,wait=off", "-serial", "chardev:u0"]
+
+
+class FirmwareDevice:
+    """One QEMU process running the device firmware; :attr:`port` is its link
+    (``tcp:127.0.0.1:N``). Stop it with :meth:`stop` (or use it as a context manager)."""
+
+    def __init__(self, elf: Path = DEFAULT_ELF):
+        if shutil.which(QEMU) is None:
+            raise RuntimeError(f"{QEMU} not found (apt install qemu-system-arm)")
+        if not Path(elf).exists():
+            raise RuntimeError(f"device firmware {elf} not built (make -C firmware_c device)")
+        self.tcp_port = free_port()
+        self.port = f"tcp:127.0.0.1:{self.tcp_port}"
+        self.process = subprocess.Popen(qemu_command(Path(elf), self.tcp_port), stdin=subprocess.DEVNULL,
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if self.process.stderr is not None:
+            self.process.stderr.close()
+
+    def __enter__(self) -> FirmwareDevice:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
