@@ -119,7 +119,7 @@ int lsw_link_feed(LswLinkReader *reader, uint8_t byte)
 {
     int done;
     if (byte != 0u) {
-        if (reader->n < sizeof reader->raw) {
+        if (reader->n < LSW_LINK_MAX_FRAME - 1u) { /* a frame without its delimiter */
             reader->raw[reader->n++] = byte;
         } else {
             reader->overflow = 1u;
