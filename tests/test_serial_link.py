@@ -70,7 +70,7 @@ def test_readers_agree_on_a_damaged_stream():
     keep the same frames and count the same bad ones."""
     rng = np.random.default_rng(2)
     parts = []
-    for k in range(400):
+    for _ in range(400):
         body = rng.integers(0, 256, int(rng.integers(0, 40))).astype(np.uint8).tobytes()
         good = link.frame(int(rng.choice([link.SAMPLE, link.CONFIG, 0x55])), body)
         damage = rng.integers(0, 6)

@@ -16,7 +16,7 @@ import binascii
 import math
 import struct
 from dataclasses import dataclass
-from typing import Callable, Union
+from collections.abc import Callable
 
 import numpy as np
 
@@ -231,7 +231,7 @@ class Identity:
     text: str
 
 
-DeviceMessage = Union[bytes, Ack, LinkStatus, Identity]
+DeviceMessage = bytes | Ack | LinkStatus | Identity
 
 
 def _ack(body: bytes) -> Ack:
