@@ -14,6 +14,15 @@
 /** Enable TX and RX (BAUDDIV 16: under QEMU the rate is not modelled). */
 void uart_init(void);
 
+/**
+ * Let a received byte wake the core from WFI: the RX interrupt on, through the NVIC (UART0 RX is
+ * IRQ 0 on mps2-an386), never taken (the caller masks interrupts with PRIMASK).
+ */
+void uart_wake_on_rx(void);
+
+/** Clear the RX wake-up (before draining the received bytes, so none is slept through). */
+void uart_clear_wake(void);
+
 /** The received byte, or -1 if none is waiting. */
 int uart_poll(void);
 
