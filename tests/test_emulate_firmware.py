@@ -1,0 +1,86 @@
+"""``limbstream emulate --firmware --source X --once`` sends the points of
+``limbstream emulate --source X --once``: for each of a subject's 10 devices, the same
+segment points (sample index, quaternion, rate, end-of-stream flag) bit for bit, in live mode
+(wire.LIVE_MODE, max_len 25), the firmware running under QEMU (one process per device) behind
+its serial link. A firmware process that dies is a device gone offline and comes back as a new
+stream."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import zenoh
+
+from limbstream import wire, zconfig
+from firmware import require_tools
+from stack import wait_until
+
+pytestmark = pytest.mark.qemu
+
+LIVE_FLAGS = ["--threshold", str(wire.LIVE_MODE["threshold"]), "--max-len", "25",
+              "--live-bound-deg", str(wire.LIVE_MODE["live_bound_deg"])]
+
+
+@pytest.fixture(scope="module")
+def elf(tmp_path_factory):
+    require_tools("arm-none-eabi-gcc", "qemu-system-arm", "make")
+    from limbstream.services.gateway import firmware
+    return firmware.build(tmp_path_factory.mktemp("device"))
+
+
+@pytest.fixture(scope="module")
+def short_clip(cmu_npz, tmp_path_factory):
+    """A motion file with one short CMU clip (369 samples, 7.4 s at 50 Hz)."""
+    data = np.load(cmu_npz)
+    path = tmp_path_factory.mktemp("clip") / "clip.npz"
+    np.savez(path, clip_05_06=data["clip_05_06"], fs=data["fs"], segment_names=data["segment_names"])
+    return path
+
+
+class PointLog:
+    """Every segment point on the router, by device."""
+
+    def __init__(self, endpoint: str):
+        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+        self.sub = self.session.declare_subscriber(wire.device_selector("seg"), zenoh.handlers.FifoChannel(100_000))
+        self.points: dict[str, list[wire.SegmentPoint]] = {}
+
+    def poll(self) -> dict[str, list[wire.SegmentPoint]]:
+        while (sample := self.sub.try_recv()) is not None:
+            subject, segment, _ = wire.parse_device_key(str(sample.key_expr))
+            self.points.setdefault(wire.device_id(subject, segment), []).append(
+                wire.decode_point(sample.payload.to_bytes()))
+        return self.points
+
+    def ended(self, devices: int) -> bool:
+        points = self.poll()
+        return len(points) == devices and all(p[-1].flags & wire.FLAG_FINAL for p in points.values())
+
+    def close(self):
+        self.session.close()
+
+
+def run_once(stack, clip, *extra: str) -> dict[str, list[tuple]]:
+    """The points of one ``emulate --once`` run of one subject: {device: [(index, q, omega, flags)]}."""
+    log = PointLog(stack.endpoint)
+    try:
+        child = stack.start("emulate", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--source", str(clip),
+                            "--once", "--speed", "2", "--no-truth", "--no-sync", *LIVE_FLAGS, *extra)
+        wait_until(lambda: log.ended(10), 120, f"the 10 devices' last points ({' '.join(extra) or 'host kernel'})",
+                   on_fail=stack.logs)
+        child.signal(15)
+        wait_until(lambda: not child.alive(), 30, "the emulator to stop", on_fail=stack.logs)
+        return {d: [(p.index, p.q, p.omega, p.flags) for p in points] for d, points in log.poll().items()}
+    finally:
+        log.close()
+
+
+def test_firmware_devices_send_the_host_devices_points(stack, elf, short_clip):
+    stack.router()
+    host = run_once(stack, short_clip)
+    fw = run_once(stack, short_clip, "--firmware", "--firmware-elf", str(elf))
+    assert sorted(host) == sorted(fw) and len(host) == 10
+    for device in host:
+        assert fw[device] == host[device], f"{device}: {len(fw[device])} points vs {len(host[device])}"
+    counts = [len(p) for p in host.values()]
+    assert all(10 < n < 369 / 2 for n in counts), counts  # live mode compresses; every device has points
+    assert all(p[2] is not None for points in host.values() for p in points), "live mode: every point has its rate"
