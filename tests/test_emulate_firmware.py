@@ -6,6 +6,10 @@ its serial link. A firmware process that dies is a device gone offline and comes
 stream."""
 from __future__ import annotations
 
+import os
+import signal
+from pathlib import Path
+
 import numpy as np
 import pytest
 import zenoh
@@ -84,3 +88,63 @@ def test_firmware_devices_send_the_host_devices_points(stack, elf, short_clip):
     counts = [len(p) for p in host.values()]
     assert all(10 < n < 369 / 2 for n in counts), counts  # live mode compresses; every device has points
     assert all(p[2] is not None for points in host.values() for p in points), "live mode: every point has its rate"
+
+
+def qemu_children(pid: int) -> list[int]:
+    """Pids of the QEMU processes whose parent is ``pid``."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        name, rest = text[text.index("(") + 1:text.rindex(")")], text[text.rindex(")") + 2:].split()
+        if name.startswith("qemu-system") and int(rest[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def test_a_firmware_device_that_dies_comes_back_as_a_new_stream(stack, elf):
+    stack.router()
+    log = PointLog(stack.endpoint)
+    alive = log.session.liveliness().declare_subscriber(wire.device_selector("alive"), zenoh.handlers.FifoChannel(256))
+    try:
+        child = stack.start("emulate", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--firmware",
+                            "--firmware-elf", str(elf), "--no-sync", "--no-truth", *LIVE_FLAGS)
+        wait_until(lambda: len(log.poll()) == 10, 60, "points of the 10 firmware devices", on_fail=stack.logs)
+        qemus = qemu_children(child.pid)
+        assert len(qemus) == 10, qemus
+        os.kill(qemus[0], signal.SIGKILL)
+        events: list[tuple[str, str]] = []
+
+        def came_back() -> str | None:
+            while (sample := alive.try_recv()) is not None:
+                events.append((str(sample.kind), str(sample.key_expr)))
+            gone = [key for kind, key in events if "DELETE" in kind]
+            return gone[0] if gone and any("PUT" in kind and key == gone[0] for kind, key in events) else None
+
+        key = wait_until(came_back, 60, "the killed device to go offline and come back", on_fail=stack.logs)
+        subject, segment, _ = wire.parse_device_key(key)
+        device = wire.device_id(subject, segment)
+        first = log.poll()[device][0].stream
+        new = wait_until(lambda: next((p for p in log.poll()[device] if p.stream != first), None), 30,
+                         f"points of {device}'s new stream", on_fail=stack.logs)
+        assert new.index == 0 and new.seq == 0, new  # a new stream from its first sample
+        assert len(qemu_children(child.pid)) == 10 and child.alive()
+    finally:
+        log.close()
+
+
+def test_up_passes_firmware_on_and_emulate_refuses_what_firmware_cannot_model():
+    import argparse
+
+    from limbstream.cli import emulate, up
+    parser = argparse.ArgumentParser()
+    up.add_arguments(parser)
+    [argv] = [a for name, a in up.plan(parser.parse_args(["--no-sync", "--firmware"])) if name == "emulator"]
+    sub = argparse.ArgumentParser()
+    emulate.add_arguments(sub)
+    assert sub.parse_args(argv[1:]).firmware
+    args = sub.parse_args(["--firmware", "--clock-offset-ms", "5", "--no-sync"])
+    with pytest.raises(SystemExit, match="--firmware feeds every device its motion's own samples"):
+        emulate.run(args)
