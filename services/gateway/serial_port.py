@@ -73,6 +73,7 @@ class SerialLink:
         ("closed", None) when the link ends.
     identity : the device's latest :class:`~limbstream.wire.serial_link.Identity`, or None.
     reader : the frame reader (``reader.bad``: frames dropped by reason, ``reader.frames``).
+    bytes_in, bytes_out : bytes read from and written to the link.
     """
 
     def __init__(self, port: str, timeout_s: float = 10.0):
@@ -80,6 +81,7 @@ class SerialLink:
         self._read, self._write, self._close = open_port(port, timeout_s)
         self.reader = link.FrameReader(link.DEVICE_BODIES)
         self.inbox: queue.Queue = queue.Queue()
+        self.bytes_in = self.bytes_out = 0
         self.identity: link.Identity | None = None
         self.closed = threading.Event()
         self._lock = threading.Lock()
@@ -95,6 +97,7 @@ class SerialLink:
     def _run(self) -> None:
         try:
             while data := self._read(READ_CHUNK):
+                self.bytes_in += len(data)
                 for kind, body in self.reader.feed(data):
                     self._deliver(link.decode_device(kind, body))
         except OSError:
@@ -126,6 +129,7 @@ class SerialLink:
         with self._lock:
             try:
                 self._write(data)
+                self.bytes_out += len(data)
             except OSError as exc:
                 raise LinkClosed(f"{self.port}: {exc}") from None
 
