@@ -6,7 +6,7 @@ only the devices and their links).
     python bench/firmware_devices.py [--devices 10] [--seconds 30] [--rate 50] [--elf build/device.elf]
 
 Prints, per run: the host loop's late ticks (a tick started more than one period after its
-deadline) and the largest lateness; each QEMU process's CPU (utime + stime over the run, from
+deadline) and the largest lateness; this process's CPU (the host side of the links) and each QEMU process's CPU (utime + stime over the run, from
 /proc); how far each device lags behind the samples sent (samples sent minus the samples its
 heartbeat reports, every second); the link's bytes per second each way per device; points
 per second per device; the firmware's stack high-water mark (bytes, from its status).
@@ -60,7 +60,7 @@ def main() -> int:
         ticks = int(args.seconds * args.rate)
         late, max_late, lag, points = 0, 0.0, [], [0] * len(links)
         sent = 0
-        start = time.perf_counter()
+        start, host0 = time.perf_counter(), time.process_time()
         for k in range(ticks):
             deadline = start + k * period
             now = time.perf_counter()
@@ -81,6 +81,7 @@ def main() -> int:
                     elif kind == "status":
                         lag.append(sent - message.samples)
         wall = time.perf_counter() - start
+        host = (time.process_time() - host0) / wall
         cpu = [(cpu_s(d.process.pid) - c) / wall for d, c in zip(devices, cpu0)]
         stack = max(port.status().stack_bytes for port in links)
         rx = [(p.bytes_in - b) / wall for p, b in zip(links, in0)]
@@ -97,6 +98,8 @@ def main() -> int:
     print("|---|---|")
     print(f"| host loop: late ticks | {late} of {ticks} ({100 * late / ticks:.2f} %), max {1e3 * max_late:.1f} ms |")
     print(f"| CPU per QEMU process, mean / max | {100 * np.mean(cpu):.1f} % / {100 * max(cpu):.1f} % of a core |")
+    print(f"| CPU of the host side (this process: pacing, framing, {args.devices} link reader threads) | "
+          f"{100 * host:.1f} % of a core |")
     print(f"| device lag behind the samples sent (at its heartbeats), median / max | "
           f"{np.median(lag_a):.0f} / {lag_a.max()} samples ({len(lag)} heartbeats) |")
     print(f"| link host -> device, per device | {np.mean(tx):.0f} B/s |")

@@ -6,7 +6,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from limbstream.launch import free_port
+from limbstream.launch import _die_with_parent, free_port
 
 ROOT = Path(__file__).resolve().parent.parent.parent
 FIRMWARE_DIR = ROOT / "firmware_c"
@@ -44,7 +44,8 @@ class FirmwareDevice:
         self.tcp_port = free_port()
         self.port = f"tcp:127.0.0.1:{self.tcp_port}"
         self.process = subprocess.Popen(qemu_command(Path(elf), self.tcp_port), stdin=subprocess.DEVNULL,
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                        preexec_fn=_die_with_parent())  # no QEMU outlives its device's owner
 
     def alive(self) -> bool:
         return self.process.poll() is None
@@ -57,8 +58,6 @@ class FirmwareDevice:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
-        if self.process.stderr is not None:
-            self.process.stderr.close()
 
     def __enter__(self) -> FirmwareDevice:
         return self
