@@ -132,6 +132,19 @@ def test_points_equal_the_host_devices_bit_for_bit(device, clip):
     assert sum(status.bad.values()) == 0 and status.frames > len(clip) * len(streams)
 
 
+def test_the_link_works_unchanged_over_a_tty(elf, clip):
+    """UART0 on a pseudo-terminal, opened as a serial device is (raw mode): the same points."""
+    with firmware.FirmwareDevice(elf, tty=True) as fw:
+        assert fw.port.startswith("/dev/")
+        port = SerialLink(fw.port)
+        try:
+            assert port.identify().link_version == link.LINK_VERSION
+            assert port.configure(LIVE).ok
+            assert stream_through(port, 3, clip[:, 9]) == host_points(clip[:, 9:], [3], LIVE)[0]
+        finally:
+            port.close()
+
+
 def test_plain_fastsw_points_are_version_1(device, clip):
     """With the live rule off (the default settings) the points are plain fastSW's, without rates."""
     expected = host_points(clip[:, :2], [7, 8], wire.DeviceConfig())

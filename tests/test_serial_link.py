@@ -106,3 +106,37 @@ def test_refusals_are_the_contracts_sentences(index, value):
     with pytest.raises(ValueError) as contract:
         tunable.check(int(value) if tunable.type is int and value.is_integer() else value)
     assert link.refusal(index, value) == str(contract.value)
+
+
+def test_the_gateway_side_counts_bad_frames_and_goes_on():
+    """A device that sends garbage, a cut frame, a wrong CRC and an unknown type between good
+    frames: the host's link counts each by reason and delivers the good ones, in order."""
+    import socket
+    import threading
+
+    from limbstream.services.gateway.serial_port import SerialLink
+
+    point = wire.encode_point(wire.SegmentPoint(9, 0, 0, 1, (1.0, 0.0, 0.0, 0.0)))
+    good = link.frame(link.POINT, point)
+    stream = (b"\x01\x02\x03garbage\0" + good[:7] + b"\0" + good[:3] + bytes([good[3] ^ 0x40]) + good[4:]
+              + link.frame(0x99, b"xyz") + good + b"\0\0" + link.frame(link.POINT, point[:20]) + good)
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def device():
+        conn, _ = server.accept()
+        for i in range(0, len(stream), 5):  # in pieces, as a UART delivers
+            conn.sendall(stream[i:i + 5])
+        conn.close()
+
+    thread = threading.Thread(target=device)
+    thread.start()
+    port = SerialLink(f"tcp:127.0.0.1:{server.getsockname()[1]}")
+    try:
+        messages = [port.inbox.get(timeout=10) for _ in range(3)]
+        assert messages == [("point", point), ("point", point), ("closed", None)]
+        # the cut frame is not COBS; the garbage happens to be, and fails its CRC like the flipped frame
+        assert port.bad == {"cobs": 1, "length": 1, "crc": 2, "version": 0, "type": 1}, port.bad
+    finally:
+        port.close()
+        thread.join()
+        server.close()
