@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 import os
 import queue
+import select
 import socket
 import termios
 import threading
@@ -20,6 +21,8 @@ from limbstream import wire
 from limbstream.wire import serial_link as link
 
 READ_CHUNK = 4096
+POLL_S = 0.2
+"""A tty's reader looks this often whether the link was closed."""
 ANSWER_TIMEOUT_S = 5.0
 """How long a request waits for the device's answer."""
 
@@ -29,8 +32,9 @@ class LinkClosed(ConnectionError):
 
 
 def open_port(port: str, timeout_s: float = 10.0):
-    """(read(n) -> bytes, write(bytes), close()) of ``port``: ``tcp:HOST:PORT`` (retried for
-    ``timeout_s``: an emulator that is still starting) or a serial device path (raw mode)."""
+    """(read(n) -> bytes, b"" at the end, None if nothing came for a while; write(bytes);
+    wake() the reader blocked in read; close()) of ``port``: ``tcp:HOST:PORT`` (retried for ``timeout_s``: an emulator that is
+    still starting) or a serial device path (raw mode)."""
     if port.startswith("tcp:"):
         host, _, number = port[4:].rpartition(":")
         deadline = time.monotonic() + timeout_s
@@ -45,13 +49,13 @@ def open_port(port: str, timeout_s: float = 10.0):
         sock.settimeout(None)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
-        def close() -> None:
+        def wake() -> None:
             try:
-                sock.shutdown(socket.SHUT_RDWR)  # wakes the reader blocked in recv
-            finally:
-                sock.close()
+                sock.shutdown(socket.SHUT_RDWR)  # recv returns b""
+            except OSError:
+                pass
 
-        return sock.recv, sock.sendall, close
+        return sock.recv, sock.sendall, wake, sock.close
     fd = os.open(port, os.O_RDWR | os.O_NOCTTY)
     if os.isatty(fd):
         tty.setraw(fd, termios.TCSANOW)
@@ -61,7 +65,11 @@ def open_port(port: str, timeout_s: float = 10.0):
         while view:
             view = view[os.write(fd, view):]
 
-    return (lambda n: os.read(fd, n)), write, (lambda: os.close(fd))
+    def read(n: int) -> bytes | None:
+        ready, _, _ = select.select([fd], [], [], POLL_S)  # wakes up to see a close
+        return os.read(fd, n) if ready else None
+
+    return read, write, (lambda: None), (lambda: os.close(fd))
 
 
 class SerialLink:
@@ -78,12 +86,13 @@ class SerialLink:
 
     def __init__(self, port: str, timeout_s: float = 10.0):
         self.port = port
-        self._read, self._write, self._close = open_port(port, timeout_s)
+        self._read, self._write, self._wake, self._close = open_port(port, timeout_s)
         self.reader = link.FrameReader(link.DEVICE_BODIES)
         self.inbox: queue.Queue = queue.Queue()
         self.bytes_in = self.bytes_out = 0
         self.identity: link.Identity | None = None
         self.closed = threading.Event()
+        self._closing = False
         self._lock = threading.Lock()
         self._requests = itertools.count(1)
         self._waiting: dict[int, tuple[threading.Event, list]] = {}
@@ -96,7 +105,12 @@ class SerialLink:
 
     def _run(self) -> None:
         try:
-            while data := self._read(READ_CHUNK):
+            while not self._closing:
+                data = self._read(READ_CHUNK)
+                if data is None:
+                    continue
+                if not data:
+                    break
                 self.bytes_in += len(data)
                 for kind, body in self.reader.feed(data):
                     self._deliver(link.decode_device(kind, body))
@@ -170,8 +184,11 @@ class SerialLink:
         return self._ask(lambda r: link.encode_request(link.IDENTIFY, r))
 
     def close(self) -> None:
+        """Stop the reader, then close the port (never under a reader still using it)."""
+        self._closing = True
+        self._wake()
+        self._thread.join(timeout=2.0)
         try:
             self._close()
         except OSError:
             pass
-        self._thread.join(timeout=2.0)
