@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+import zenoh.ext as zext
 
 from limbstream import wire, zconfig
 from firmware import require_tools
@@ -41,11 +42,16 @@ def short_clip(cmu_npz, tmp_path_factory):
 
 
 class PointLog:
-    """Every segment point on the router, by device."""
+    """Every segment point on the router, by device, read as the aggregator reads them: an
+    advanced subscriber that recovers a point lost on the way from the device's cache (on a
+    loaded machine a plain subscriber here once missed a run of points the devices had put)."""
 
     def __init__(self, endpoint: str):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.sub = self.session.declare_subscriber(wire.device_selector("seg"), zenoh.handlers.FifoChannel(100_000))
+        self.sub = zext.declare_advanced_subscriber(
+            self.session, wire.device_selector("seg"), zenoh.handlers.FifoChannel(100_000),
+            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1024),
+            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
         self.points: dict[str, list[wire.SegmentPoint]] = {}
 
     def poll(self) -> dict[str, list[wire.SegmentPoint]]:
@@ -84,7 +90,7 @@ def test_firmware_devices_send_the_host_devices_points(stack, elf, short_clip):
     fw = run_once(stack, short_clip, "--firmware", "--firmware-elf", str(elf))
     assert sorted(host) == sorted(fw) and len(host) == 10
     for device in host:
-        assert fw[device] == host[device], f"{device}: {len(fw[device])} points vs {len(host[device])}"
+        assert fw[device] == host[device], f"{device}: {len(fw[device])} points vs {len(host[device])}\n{stack.logs()}"
     counts = [len(p) for p in host.values()]
     assert all(10 < n < 369 / 2 for n in counts), counts  # live mode compresses; every device has points
     assert all(p[2] is not None for points in host.values() for p in points), "live mode: every point has its rate"

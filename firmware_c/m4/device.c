@@ -65,6 +65,7 @@ static void start_stream(uint16_t id)
     last_len = 0u;
 }
 
+/** ACK of a request: result ACK_OK, or ACK_REFUSED naming the tunable and the value refused. */
 static void send_ack(uint16_t request, uint8_t type, uint8_t result, uint8_t tunable, double value)
 {
     uint8_t body[13];
@@ -88,6 +89,7 @@ static int tunable_ok(const LswTunable *t, double v)
 /** Bytes of the watched stack written since power-up (painted at device_init): its high-water mark. */
 static uint32_t stack_used(void);
 
+/** STATUS: this stream's counters, the link's frame counts, the config, the stack's high-water mark. */
 static void send_status(uint16_t request)
 {
     uint8_t body[2 + 2 + 4 * 6 + 4 * LSW_BAD_REASONS + 8 * LSW_TUNABLES + 4];
@@ -111,6 +113,7 @@ static void send_status(uint16_t request)
     send_message(LSW_MSG_STATUS, body, sizeof body);
 }
 
+/** IDENTITY: link version, newest point version, sample dimension and the firmware's text. */
 static void send_identity(uint16_t request)
 {
     uint8_t body[5 + sizeof IDENTITY - 1u];
@@ -180,6 +183,7 @@ static void on_end(void)
     send_message(LSW_MSG_POINT, out, n);
 }
 
+/** CONFIG: all tunables within the contract's bounds are applied from the next sample, or none. */
 static void on_config(uint16_t request, const uint8_t *body)
 {
     double values[LSW_TUNABLES];
@@ -213,6 +217,7 @@ static uint32_t body_length(uint8_t type)
     }
 }
 
+/** A good frame from the reader: check its type and body length, then act on it. */
 static void on_frame(void)
 {
     const uint8_t type = reader.payload[1];

@@ -22,6 +22,7 @@
 
 static uint32_t sent; /* bytes the device has written */
 
+/** Where the device's frames go: counted, not sent. */
 static void sink(const uint8_t *data, size_t n)
 {
     (void)data;

@@ -17,8 +17,11 @@ QEMU = "qemu-system-arm"
 
 
 def build(build_dir: Path | None = None) -> Path:
-    """``make device`` (into firmware_c/build, or ``build_dir``); the ELF's path.
-    RuntimeError with make's output if the build fails."""
+    """``make device`` (into firmware_c/build, or ``build_dir``) in the source checkout this
+    package runs from (an installed wheel carries no firmware source: give an ELF instead);
+    the ELF's path. RuntimeError with make's output if the build fails."""
+    if not (FIRMWARE_DIR / "Makefile").exists():
+        raise RuntimeError(f"no firmware source at {FIRMWARE_DIR}: build device.elf from a checkout and give its path")
     args = ["make", "-s", "-C", str(FIRMWARE_DIR), "device"] + ([f"BUILD={build_dir}"] if build_dir else [])
     done = subprocess.run(args, capture_output=True, text=True, timeout=300)
     if done.returncode != 0:

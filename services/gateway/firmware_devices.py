@@ -84,6 +84,7 @@ def run(feeds: dict, settings: EmulatorSettings, zenoh: zconfig.ZenohSettings, e
             print(f"emulator: {ticks} ticks, {restarts} firmware restarts", flush=True)
         finally:
             for g in gateways:
+                print(f"emulator: {g.summary()}", flush=True)
                 g.close()
             for connector in connectors:
                 connector.stop()

@@ -252,7 +252,9 @@ class SerialGateway:
         bad = dict(c.bad)
         if self.link is not None:
             bad = {r: n + self.link.bad[r] for r, n in bad.items()}
-        return (f"{self.id}: {c.samples} samples fed, {c.points} points, {c.streams} streams, {c.links} links; "
+        dropped = self.link.dropped if self.link is not None else 0
+        return (f"{self.id}: {c.samples} samples fed, {c.points} points, {c.streams} streams, {c.links} links, "
+                f"{dropped} messages dropped (inbox full); "
                 f"bad frames from the device {bad}, at the device {device}")
 
     def close(self) -> None:

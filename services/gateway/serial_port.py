@@ -1,8 +1,9 @@
 """One serial link to a device, from the host: open it (a tty or ``tcp:HOST:PORT``), send
 samples and requests, read its frames on a thread of its own (docs/protocol.md, "Serial link").
 
-The reader thread only decodes and hands off: points and heartbeats go to a FIFO queue
-(:attr:`SerialLink.inbox`), answers to the waiting request. A bad frame is counted by reason
+The reader thread only decodes and hands off: points and heartbeats go to a bounded FIFO queue
+(:attr:`SerialLink.inbox`; what does not fit is counted in :attr:`SerialLink.dropped`), answers
+to the waiting request. A bad frame is counted by reason
 (:attr:`SerialLink.bad`) and dropped; the link goes on.
 """
 from __future__ import annotations
@@ -21,6 +22,8 @@ from limbstream import wire
 from limbstream.wire import serial_link as link
 
 READ_CHUNK = 4096
+INBOX = 8192
+"""Messages the inbox holds (minutes of points at 50 Hz: a consumer that stops reading)."""
 POLL_S = 0.2
 """A tty's reader looks this often whether the link was closed."""
 ANSWER_TIMEOUT_S = 5.0
@@ -77,8 +80,9 @@ class SerialLink:
 
     Attributes
     ----------
-    inbox : queue of ("point", bytes) and ("status", LinkStatus) in arrival order; then
-        ("closed", None) when the link ends.
+    inbox : bounded queue of ("point", bytes) and ("status", LinkStatus) in arrival order;
+        then ("closed", None) when the link ends.
+    dropped : messages that found the inbox full.
     identity : the device's latest :class:`~limbstream.wire.serial_link.Identity`, or None.
     reader : the frame reader (``reader.bad``: frames dropped by reason, ``reader.frames``).
     bytes_in, bytes_out : bytes read from and written to the link.
@@ -88,7 +92,8 @@ class SerialLink:
         self.port = port
         self._read, self._write, self._wake, self._close = open_port(port, timeout_s)
         self.reader = link.FrameReader(link.DEVICE_BODIES)
-        self.inbox: queue.Queue = queue.Queue()
+        self.inbox: queue.Queue = queue.Queue(INBOX)
+        self.dropped = 0
         self.bytes_in = self.bytes_out = 0
         self.identity: link.Identity | None = None
         self.closed = threading.Event()
@@ -120,21 +125,27 @@ class SerialLink:
             self.closed.set()
             for event, _ in list(self._waiting.values()):
                 event.set()
-            self.inbox.put(("closed", None))
+            self.inbox.put(("closed", None))  # may wait for room: the end is never dropped
 
     def _deliver(self, message: link.DeviceMessage) -> None:
         if isinstance(message, bytes):
-            self.inbox.put(("point", message))
+            self._hand_off(("point", message))
             return
         if isinstance(message, link.Identity):
             self.identity = message
         elif isinstance(message, link.LinkStatus) and message.request == 0:
-            self.inbox.put(("status", message))
+            self._hand_off(("status", message))
             return
         waiting = self._waiting.get(message.request)
         if waiting is not None:
             waiting[1].append(message)
             waiting[0].set()
+
+    def _hand_off(self, item: tuple) -> None:
+        try:
+            self.inbox.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
 
     def send(self, data: bytes) -> None:
         """Write frames (or anything: the device counts what is not a frame)."""
