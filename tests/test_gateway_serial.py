@@ -7,6 +7,7 @@ once the firmware has acked it; when the firmware dies the device goes offline."
 from __future__ import annotations
 
 import json
+import signal
 
 import pytest
 import zenoh
@@ -82,4 +83,40 @@ def test_gateway_bridges_the_firmware_device(stack, elf):
             session.close()
             watch.close()
     finally:
+        device.stop()
+
+
+def test_a_hung_device_goes_offline_and_comes_back_as_a_new_stream(stack, elf):
+    """The firmware frozen (QEMU stopped): no heartbeat, so the gateway takes the device offline
+    after --silence-s; resumed, it is back online with a new stream."""
+    stack.router()
+    device = firmware.FirmwareDevice(elf)
+    try:
+        stack.start("gateway", "gateway", "serial", "--port", device.port, "--subject", SUBJECT, "--segment", SEGMENT,
+                    "--source", "generator", "--max-len", "5", "--silence-s", "2", "--connect", stack.endpoint, "-v")
+        session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
+        try:
+            alive = session.liveliness().declare_subscriber(wire.alive_key(SUBJECT, SEGMENT),
+                                                            zenoh.handlers.FifoChannel(64), history=True)
+            points = session.declare_subscriber(wire.seg_key(SUBJECT, SEGMENT), zenoh.handlers.FifoChannel(4096))
+            events: list[str] = []
+
+            def seen(kind: str) -> int:
+                events.extend(str(s.kind) for s in iter(alive.try_recv, None))
+                return sum(kind in e for e in events)
+
+            wait_until(lambda: seen("PUT") == 1, 30, "the device online", on_fail=stack.logs)
+            first = wire.decode_point(wait_until(points.try_recv, 30, "a point", on_fail=stack.logs).payload.to_bytes())
+            device.process.send_signal(signal.SIGSTOP)
+            wait_until(lambda: seen("DELETE") == 1, 30, "the silent device to go offline", on_fail=stack.logs)
+            device.process.send_signal(signal.SIGCONT)
+            wait_until(lambda: seen("PUT") == 2, 60, "the device back online", on_fail=stack.logs)
+            new = wait_until(lambda: next((p for p in (wire.decode_point(s.payload.to_bytes())
+                                                       for s in iter(points.try_recv, None)) if p.stream != first.stream),
+                                          None), 30, "a point of the new stream", on_fail=stack.logs)
+            assert new.seq == 0 and new.index == 0
+        finally:
+            session.close()
+    finally:
+        device.process.send_signal(signal.SIGCONT)
         device.stop()

@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cache", type=int, default=512, help="segment points kept for recovery (default 512)")
     parser.add_argument("--link-timeout", type=float, default=10.0,
                         help="seconds to keep trying to open the link at start (default 10)")
+    parser.add_argument("--silence-s", type=float, default=10.0,
+                        help="a device not heard from for this long (it sends a heartbeat every second) is offline: "
+                             "its link is reopened as a new stream (default 10)")
     parser.add_argument("-v", "--verbose", action="store_true")
     zconfig.add_arguments(parser)
 
@@ -58,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
                         format="%(asctime)s %(name)s %(message)s")
     for ok, message in ((args.rate > 0, f"--rate must be > 0, got {args.rate}"),
                         (args.speed > 0, f"--speed must be > 0, got {args.speed}"),
+                        (args.silence_s > 1, f"--silence-s must be > 1 (the heartbeat's period), got {args.silence_s}"),
                         (1 <= args.raw_batch <= wire.MAX_RAW_BATCH, f"--raw-batch must be in 1..{wire.MAX_RAW_BATCH}")):
         if not ok:
             raise SystemExit(f"limbstream gateway serial: error: {message}")
@@ -74,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         gateway = serial_gateway.SerialGateway(
             session, lambda: SerialLink(args.port, args.link_timeout if not gateway.counters.links else 0.5), args.subject, args.segment,
             wire.config_from_args(args), feed, truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
-            rest_pose=rest_pose)
+            rest_pose=rest_pose, silence_s=args.silence_s)
         if not gateway.open():
             gateway.close()
             raise SystemExit(f"limbstream gateway serial: error: no device on {args.port}")

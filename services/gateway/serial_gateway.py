@@ -6,7 +6,9 @@ token, a config queryable, and with a motion source feeding it, the truth tap of
 The points are the firmware's messages, published as they come (the gateway never re-encodes
 them). A config query is checked against the contract here and again by the firmware, and
 answered once the firmware has acked it. A link that ends is a device gone offline: its token
-is dropped; when the link comes back (a new one from ``connect``) the device starts a new stream.
+is dropped; so does a device silent for longer than ``silence_s`` (its heartbeat comes every
+second: a hung firmware). When the link comes back (a new one from ``connect``) the device starts
+a new stream.
 """
 from __future__ import annotations
 
@@ -28,6 +30,8 @@ from limbstream.services.gateway.serial_port import LinkClosed, SerialLink
 from limbstream.wire import serial_link as link
 
 log = logging.getLogger("limbstream.gateway.serial")
+SILENCE_S = 10.0
+"""A device not heard from for this long is offline (10 heartbeats missed)."""
 
 
 @dataclass
@@ -70,16 +74,19 @@ class SerialGateway:
     truth : publish the truth tap of fed samples; raw_batch samples per message.
     cache, heartbeat_s : the advanced publisher's recovery cache and miss-detection heartbeat.
     rest_pose : what identity orientations mean (wire.REST_POSES).
+    silence_s : a device not heard from for this long is offline (its link is dropped and reopened).
     """
 
     def __init__(self, session: zenoh.Session, connect: Callable[[], SerialLink | None], subject: str, segment: str,
                  config: wire.DeviceConfig | None = None, feeding: Feeding | None = None, truth: bool = True,
-                 raw_batch: int = 25, cache: int = 512, heartbeat_s: float = 0.5, rest_pose: str = wire.DEFAULT_REST_POSE):
+                 raw_batch: int = 25, cache: int = 512, heartbeat_s: float = 0.5, rest_pose: str = wire.DEFAULT_REST_POSE,
+                 silence_s: float = SILENCE_S):
         self.session, self.connect = session, connect
         self.subject, self.segment = wire.check_chunk(subject, "subject"), wire.check_chunk(segment, "segment")
         self.config, self.feeding, self.rest_pose = (config or wire.DeviceConfig()).validate(), feeding, rest_pose
         self.truth, self.raw_batch = truth and feeding is not None, raw_batch
         self.counters = GatewayCounters()
+        self.silence_s = silence_s
         self.link: SerialLink | None = None
         self.stream = 0
         self.sample = 0                # samples fed in the current stream
@@ -209,6 +216,9 @@ class SerialGateway:
             try:
                 kind, message = self.link.inbox.get_nowait()
             except queue.Empty:
+                if time.monotonic() - self.link.last_heard > self.silence_s:
+                    log.warning("%s: silent for %g s", self.id, self.silence_s)
+                    self.offline()
                 return
             if kind == "point":
                 self.publisher.put(message)

@@ -86,6 +86,7 @@ class SerialLink:
     identity : the device's latest :class:`~limbstream.wire.serial_link.Identity`, or None.
     reader : the frame reader (``reader.bad``: frames dropped by reason, ``reader.frames``).
     bytes_in, bytes_out : bytes read from and written to the link.
+    last_heard : time.monotonic() of the last bytes read (the device's heartbeat comes every second).
     """
 
     def __init__(self, port: str, timeout_s: float = 10.0):
@@ -95,6 +96,7 @@ class SerialLink:
         self.inbox: queue.Queue = queue.Queue(INBOX)
         self.dropped = 0
         self.bytes_in = self.bytes_out = 0
+        self.last_heard = time.monotonic()
         self.identity: link.Identity | None = None
         self.closed = threading.Event()
         self._closing = False
@@ -117,6 +119,7 @@ class SerialLink:
                 if not data:
                     break
                 self.bytes_in += len(data)
+                self.last_heard = time.monotonic()
                 for kind, body in self.reader.feed(data):
                     self._deliver(link.decode_device(kind, body))
         except OSError:
