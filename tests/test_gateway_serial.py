@@ -39,9 +39,11 @@ def ask(session: zenoh.Session, payload: dict | None = None):
     return False, json.loads(reply.err.payload.to_bytes())
 
 
-def test_gateway_bridges_the_firmware_device(stack, elf):
+@pytest.mark.parametrize("tty", [False, True], ids=["tcp", "tty"])
+def test_gateway_bridges_the_firmware_device(stack, elf, tty):
+    """Over a TCP socket, and over a tty (QEMU's pseudo-terminal: how a USB or UART device appears)."""
     stack.router()
-    device = firmware.FirmwareDevice(elf)
+    device = firmware.FirmwareDevice(elf, tty=tty)
     try:
         gateway = stack.start("gateway", "gateway", "serial", "--port", device.port, "--subject", SUBJECT,
                               "--segment", SEGMENT, "--source", "generator", "--threshold", "9e-4",
