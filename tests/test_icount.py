@@ -22,7 +22,7 @@ FASTSW_MAX_INSTRUCTIONS = 130
 
 FASTSW_LIVE_MAX_INSTRUCTIONS = 176
 """Reached maximum with the live rule on, a live close (the bound: the paper's 210)."""
-DEVICE_MAX_INSTRUCTIONS = 7668
+DEVICE_MAX_INSTRUCTIONS = 7704
 """Reached maximum of the device firmware per SAMPLE frame, live mode (link decode, fastSW,
 the point's encoding with its float64 body rate, framing)."""
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",

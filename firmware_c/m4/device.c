@@ -3,13 +3,8 @@
  */
 #include "device.h"
 
-#include "fastsw.h"
 #include "lsw_bank.h"
-#include "lsw_link.h"
-#include "lsw_tunables.h"
-#include "lsw_wire.h"
 
-#define RING 4u /* samples remembered: a point is the current sample or the one before */
 #define SAMPLE_BODY 28u
 #define CONFIG_BODY 26u
 #define START_BODY 4u
@@ -22,51 +17,37 @@ static const char IDENTITY[] = "limbstream-fw 1 fastSW live; board mps2-an386 co
 
 extern uint32_t _stack_top[];
 
-static DeviceWrite send_bytes;
-static LswLinkReader reader;
-static FastswState state;
-static FastswSettings settings;
-static double config[LSW_TUNABLES];   /* the tunables as set (status reports them) */
-static uint16_t stream_id;
-static uint32_t seq;
-static int64_t base;                  /* sample number of the stream's sample 0: always 0 */
-static uint8_t live;
-static int64_t ring_sample[RING], ring_t_us[RING];
-static uint32_t samples, points, rejected, refused;
-static uint8_t last_point[LSW_POINT_RATE_SIZE];
-static uint32_t last_len;              /* 0: no point in this stream yet */
-
 /** Frame and send one message. */
-static void send_message(uint8_t type, const uint8_t *body, size_t n)
+static void send_message(Device *d, uint8_t type, const uint8_t *body, size_t n)
 {
     uint8_t frame[LSW_LINK_MAX_FRAME];
-    send_bytes(frame, lsw_link_frame(frame, type, body, n));
+    d->write(frame, lsw_link_frame(frame, type, body, n));
 }
 
 /** Apply config[] to the settings (and the running stream when retune). */
-static void apply_config(int retune)
+static void apply_config(Device *d, int retune)
 {
-    settings.threshold = (float)config[0];
-    settings.max_len = (uint32_t)config[1];
-    settings.live_bound_deg = (float)config[2];
-    live = (uint8_t)(settings.live_bound_deg > 0.0f && settings.live_bound_deg < 180.0f);
+    d->settings.threshold = (float)d->config[0];
+    d->settings.max_len = (uint32_t)d->config[1];
+    d->settings.live_bound_deg = (float)d->config[2];
+    d->live = (uint8_t)(d->settings.live_bound_deg > 0.0f && d->settings.live_bound_deg < 180.0f);
     if (retune) {
-        (void)fastsw_retune(&state, &settings);
+        (void)fastsw_retune(&d->state, &d->settings);
     }
 }
 
 /** A new stream: fresh kernel state, sequence and counters. */
-static void start_stream(uint16_t id)
+static void start_stream(Device *d, uint16_t id)
 {
-    (void)fastsw_init(&state, &settings);
-    stream_id = id;
-    seq = 0u;
-    samples = points = rejected = 0u;
-    last_len = 0u;
+    (void)fastsw_init(&d->state, &d->settings);
+    d->stream_id = id;
+    d->seq = 0u;
+    d->samples = d->points = d->rejected = 0u;
+    d->last_len = 0u;
 }
 
 /** ACK of a request: result ACK_OK, or ACK_REFUSED naming the tunable and the value refused. */
-static void send_ack(uint16_t request, uint8_t type, uint8_t result, uint8_t tunable, double value)
+static void send_ack(Device *d, uint16_t request, uint8_t type, uint8_t result, uint8_t tunable, double value)
 {
     uint8_t body[13];
     lsw_put_u16(body, request);
@@ -74,7 +55,7 @@ static void send_ack(uint16_t request, uint8_t type, uint8_t result, uint8_t tun
     body[3] = result;
     body[4] = tunable;
     lsw_put_f64(body + 5, value);
-    send_message(LSW_MSG_ACK, body, sizeof body);
+    send_message(d, LSW_MSG_ACK, body, sizeof body);
 }
 
 /** Whether v is within tunable t's bounds (finite, and an integer where it must be one). */
@@ -90,31 +71,31 @@ static int tunable_ok(const LswTunable *t, double v)
 static uint32_t stack_used(void);
 
 /** STATUS: this stream's counters, the link's frame counts, the config, the stack's high-water mark. */
-static void send_status(uint16_t request)
+static void send_status(Device *d, uint16_t request)
 {
     uint8_t body[2 + 2 + 4 * 6 + 4 * LSW_BAD_REASONS + 8 * LSW_TUNABLES + 4];
     uint8_t *p = body;
     uint32_t k;
     lsw_put_u16(p, request), p += 2;
-    lsw_put_u16(p, stream_id), p += 2;
-    lsw_put_u32(p, seq), p += 4;
-    lsw_put_u32(p, samples), p += 4;
-    lsw_put_u32(p, points), p += 4;
-    lsw_put_u32(p, rejected), p += 4;
-    lsw_put_u32(p, refused), p += 4;
-    lsw_put_u32(p, reader.frames), p += 4;
+    lsw_put_u16(p, d->stream_id), p += 2;
+    lsw_put_u32(p, d->seq), p += 4;
+    lsw_put_u32(p, d->samples), p += 4;
+    lsw_put_u32(p, d->points), p += 4;
+    lsw_put_u32(p, d->rejected), p += 4;
+    lsw_put_u32(p, d->refused), p += 4;
+    lsw_put_u32(p, d->reader.frames), p += 4;
     for (k = 0u; k < LSW_BAD_REASONS; k++) {
-        lsw_put_u32(p, reader.bad[k]), p += 4;
+        lsw_put_u32(p, d->reader.bad[k]), p += 4;
     }
     for (k = 0u; k < LSW_TUNABLES; k++) {
-        lsw_put_f64(p, config[k]), p += 8;
+        lsw_put_f64(p, d->config[k]), p += 8;
     }
     lsw_put_u32(p, stack_used());
-    send_message(LSW_MSG_STATUS, body, sizeof body);
+    send_message(d, LSW_MSG_STATUS, body, sizeof body);
 }
 
 /** IDENTITY: link version, newest point version, sample dimension and the firmware's text. */
-static void send_identity(uint16_t request)
+static void send_identity(Device *d, uint16_t request)
 {
     uint8_t body[5 + sizeof IDENTITY - 1u];
     uint32_t k;
@@ -125,82 +106,82 @@ static void send_identity(uint16_t request)
     for (k = 0u; k + 1u < sizeof IDENTITY; k++) {
         body[5 + k] = (uint8_t)IDENTITY[k];
     }
-    send_message(LSW_MSG_IDENTITY, body, sizeof body);
+    send_message(d, LSW_MSG_IDENTITY, body, sizeof body);
 }
 
 /** One sample: the kernel, and its point (if any) as its wire message. */
-static void on_sample(const uint8_t *body)
+static void on_sample(Device *d, const uint8_t *body)
 {
-    const uint32_t row = samples % RING;
+    const uint32_t row = d->samples % DEVICE_RING;
     const uint32_t tick = lsw_get_u32(body);
     float y[4], rates[4];
     uint8_t status, out[LSW_POINT_RATE_SIZE];
     uint32_t slot, end;
     FastswPoint point;
-    const uint8_t rate = live;
-    const LswBankWire wire = {&stream_id, &seq, &base, ring_sample, ring_t_us, &rate, RING, 1u};
+    const LswBankWire wire = {&d->stream_id, &d->seq, &d->base, d->ring_sample, d->ring_t_us, &d->live,
+                              DEVICE_RING, 1u};
     uint32_t k;
     for (k = 0u; k < 4u; k++) {
         y[k] = lsw_get_f32(body + 12u + 4u * k);
     }
-    ring_sample[row] = (int64_t)samples;
-    ring_t_us[row] = (int64_t)lsw_get_u64(body + 4);
-    if (lsw_bank_update(&state, 1u, &tick, y, &status, &point, rates, &wire, out, &slot, &end) != 0u) {
+    d->ring_sample[row] = (int64_t)d->samples;
+    d->ring_t_us[row] = (int64_t)lsw_get_u64(body + 4);
+    if (lsw_bank_update(&d->state, 1u, &tick, y, &status, &point, rates, &wire, out, &slot, &end) != 0u) {
         for (k = 0u; k < end; k++) {
-            last_point[k] = out[k];
+            d->last_point[k] = out[k];
         }
-        last_len = end;
-        points++;
-        send_message(LSW_MSG_POINT, out, end);
+        d->last_len = end;
+        d->points++;
+        send_message(d, LSW_MSG_POINT, out, end);
     }
-    rejected += status == (uint8_t)FASTSW_REJECTED;
-    samples++;
+    d->rejected += status == (uint8_t)FASTSW_REJECTED;
+    d->samples++;
 }
 
 /** End of stream: the last sample as a FINAL point, or the last point repeated as FINAL. */
-static void on_end(void)
+static void on_end(Device *d)
 {
     FastswPoint point;
     uint8_t out[LSW_POINT_RATE_SIZE];
     uint32_t n;
-    if (fastsw_flush(&state, &point) == FASTSW_POINT) {
-        const uint32_t row = point.index % RING;
+    if (fastsw_flush(&d->state, &point) == FASTSW_POINT) {
+        const uint32_t row = point.index % DEVICE_RING;
         static const float held[3] = {0.0f, 0.0f, 0.0f}; /* a flushed point is held: rate 0 */
-        point.index = (uint32_t)(ring_sample[row] - base);
-        n = live ? lsw_encode_point_rate(out, LSW_FLAG_FINAL, stream_id, seq, &point, held, ring_t_us[row])
-                 : lsw_encode_point(out, LSW_FLAG_FINAL, stream_id, seq, &point, ring_t_us[row]);
-    } else if (last_len != 0u) {
-        for (n = 0u; n < last_len; n++) {
-            out[n] = last_point[n];
+        point.index = (uint32_t)(d->ring_sample[row] - d->base);
+        n = d->live ? lsw_encode_point_rate(out, LSW_FLAG_FINAL, d->stream_id, d->seq, &point, held, d->ring_t_us[row])
+                    : lsw_encode_point(out, LSW_FLAG_FINAL, d->stream_id, d->seq, &point, d->ring_t_us[row]);
+    } else if (d->last_len != 0u) {
+        for (n = 0u; n < d->last_len; n++) {
+            out[n] = d->last_point[n];
         }
         out[1] = (uint8_t)LSW_FLAG_FINAL;
-        lsw_put_u32(out + 4, seq);
+        lsw_put_u32(out + 4, d->seq);
     } else {
         return; /* no sample in this stream */
     }
-    seq++;
-    points++;
-    send_message(LSW_MSG_POINT, out, n);
+    d->seq++;
+    d->points++;
+    send_message(d, LSW_MSG_POINT, out, n);
 }
 
 /** CONFIG: all tunables within the contract's bounds are applied from the next sample, or none. */
-static void on_config(uint16_t request, const uint8_t *body)
+static void on_config(Device *d, uint16_t request, const uint8_t *body)
 {
     double values[LSW_TUNABLES];
     uint32_t k;
     for (k = 0u; k < LSW_TUNABLES; k++) {
         values[k] = lsw_get_f64(body + 8u * k);
-        if (!tunable_ok(&lsw_tunables[k], values[k])) {
-            refused++;
-            send_ack(request, LSW_MSG_CONFIG, ACK_REFUSED, (uint8_t)k, values[k]);
+        if (!tunable_ok(lsw_tunable(k), values[k])) {
+            d->refused++;
+            send_ack(d, request, LSW_MSG_CONFIG, ACK_REFUSED, (uint8_t)k, values[k]);
             return;
         }
     }
     for (k = 0u; k < LSW_TUNABLES; k++) {
-        config[k] = values[k];
+        d->config[k] = values[k];
     }
-    apply_config(1);
-    send_ack(request, LSW_MSG_CONFIG, ACK_OK, NO_TUNABLE, 0.0);
+    apply_config(d, 1);
+    send_ack(d, request, LSW_MSG_CONFIG, ACK_OK, NO_TUNABLE, 0.0);
 }
 
 /** Expected body length of each host message type (0: not one). */
@@ -218,56 +199,56 @@ static uint32_t body_length(uint8_t type)
 }
 
 /** A good frame from the reader: check its type and body length, then act on it. */
-static void on_frame(void)
+static void on_frame(Device *d)
 {
-    const uint8_t type = reader.payload[1];
-    const uint8_t *body = reader.payload + 2;
+    const uint8_t type = d->reader.payload[1];
+    const uint8_t *body = d->reader.payload + 2;
     const uint32_t expected = body_length(type);
     uint16_t request;
     if (expected == 0u) {
-        lsw_link_bad(&reader, LSW_BAD_TYPE);
+        lsw_link_bad(&d->reader, LSW_BAD_TYPE);
         return;
     }
-    if (reader.payload_len - 2u != expected) {
-        lsw_link_bad(&reader, LSW_BAD_LENGTH);
+    if (d->reader.payload_len - 2u != expected) {
+        lsw_link_bad(&d->reader, LSW_BAD_LENGTH);
         return;
     }
     if (type == LSW_MSG_SAMPLE) {
-        on_sample(body);
+        on_sample(d, body);
         return;
     }
     request = lsw_get_u16(body);
     switch (type) {
     case LSW_MSG_CONFIG:
-        on_config(request, body + 2);
+        on_config(d, request, body + 2);
         break;
     case LSW_MSG_START:
-        start_stream(lsw_get_u16(body + 2));
-        send_ack(request, type, ACK_OK, NO_TUNABLE, 0.0);
+        start_stream(d, lsw_get_u16(body + 2));
+        send_ack(d, request, type, ACK_OK, NO_TUNABLE, 0.0);
         break;
     case LSW_MSG_END:
-        on_end();
-        send_ack(request, type, ACK_OK, NO_TUNABLE, 0.0);
+        on_end(d);
+        send_ack(d, request, type, ACK_OK, NO_TUNABLE, 0.0);
         break;
     case LSW_MSG_STATUS_REQ:
-        send_status(request);
+        send_status(d, request);
         break;
     default:
-        send_identity(request);
+        send_identity(d, request);
         break;
     }
 }
 
-void device_byte(uint8_t byte)
+void device_byte(Device *device, uint8_t byte)
 {
-    if (lsw_link_feed(&reader, byte)) {
-        on_frame();
+    if (lsw_link_feed(&device->reader, byte)) {
+        on_frame(device);
     }
 }
 
-void device_heartbeat(void)
+void device_heartbeat(Device *device)
 {
-    send_status(0u);
+    send_status(device, 0u);
 }
 
 #define STACK_PAINT 0x5AA5C33Cu
@@ -299,19 +280,20 @@ static void paint_stack(void)
     }
 }
 
-void device_init(DeviceWrite write)
+void device_init(Device *device, DeviceWrite write)
 {
     uint32_t k;
     paint_stack();
-    send_bytes = write;
-    lsw_link_reader_init(&reader);
-    settings = fastsw_default_settings;
-    settings.dim = 4u;
+    device->write = write;
+    lsw_link_reader_init(&device->reader);
+    device->settings = fastsw_default_settings;
+    device->settings.dim = 4u;
     for (k = 0u; k < LSW_TUNABLES; k++) {
-        config[k] = lsw_tunables[k].value;
+        device->config[k] = lsw_tunable(k)->value;
     }
-    apply_config(0);
-    start_stream(0u);
-    refused = 0u;
-    send_identity(0u);
+    device->base = 0;
+    apply_config(device, 0);
+    start_stream(device, 0u);
+    device->refused = 0u;
+    send_identity(device, 0u);
 }

@@ -22,6 +22,8 @@
 #define CPU_HZ 25000000u /* mps2-an386 core clock */
 #define TICKS_PER_HEARTBEAT 10u /* SysTick wraps every 100 ms */
 
+static Device device; /* the one device of this board (static: off the stack) */
+
 int main(void)
 {
     uint32_t ticks = 0u;
@@ -31,19 +33,19 @@ int main(void)
     __asm__ volatile("cpsid i" ::: "memory"); /* interrupts wake WFI, handlers never run */
     SYST_CSR = 0x7u; /* enabled, core clock, its exception pends (a wake-up) */
     uart_wake_on_rx();
-    device_init(uart_write);
+    device_init(&device, uart_write);
     for (;;) {
         int byte;
         __asm__ volatile("wfi" ::: "memory");
         uart_clear_wake();
         while ((byte = uart_poll()) >= 0) {
-            device_byte((uint8_t)byte);
+            device_byte(&device, (uint8_t)byte);
         }
         if ((SYST_CSR & SYST_COUNTFLAG) != 0u) {
             ICSR = ICSR_PENDSTCLR;
             if (++ticks == TICKS_PER_HEARTBEAT) {
                 ticks = 0u;
-                device_heartbeat();
+                device_heartbeat(&device);
             }
         }
     }

@@ -21,6 +21,7 @@
 #define PERIOD_US 20000u
 
 static uint32_t sent; /* bytes the device has written */
+static Device device;
 
 /** Where the device's frames go: counted, not sent. */
 static void sink(const uint8_t *data, size_t n)
@@ -34,7 +35,7 @@ __attribute__((noinline)) void icount_device_frame(const uint8_t *frame, uint32_
 {
     uint32_t i;
     for (i = 0u; i < n; i++) {
-        device_byte(frame[i]);
+        device_byte(&device, frame[i]);
     }
 }
 
@@ -43,7 +44,7 @@ static void give(const uint8_t *frame, uint32_t n)
 {
     uint32_t i;
     for (i = 0u; i < n; i++) {
-        device_byte(frame[i]);
+        device_byte(&device, frame[i]);
     }
 }
 
@@ -52,7 +53,7 @@ int main(void)
     const uint8_t *blob = default_vectors;
     uint8_t body[28], frame[LSW_LINK_MAX_FRAME];
     uint32_t off = 8u, k, i, m;
-    device_init(sink);
+    device_init(&device, sink);
     lsw_put_u16(body, 1u);
     lsw_put_f64(body + 2, 9e-4);
     lsw_put_f64(body + 10, 25.0);
