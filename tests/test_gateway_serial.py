@@ -95,7 +95,7 @@ def test_a_hung_device_goes_offline_and_comes_back_as_a_new_stream(stack, elf):
     device = firmware.FirmwareDevice(elf)
     try:
         stack.start("gateway", "gateway", "serial", "--port", device.port, "--subject", SUBJECT, "--segment", SEGMENT,
-                    "--source", "generator", "--max-len", "5", "--silence-s", "2", "--connect", stack.endpoint, "-v")
+                    "--source", "generator", "--max-len", "5", "--silence-s", "3", "--connect", stack.endpoint, "-v")
         session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
         try:
             alive = session.liveliness().declare_subscriber(wire.alive_key(SUBJECT, SEGMENT),
