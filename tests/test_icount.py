@@ -22,6 +22,9 @@ FASTSW_MAX_INSTRUCTIONS = 130
 
 FASTSW_LIVE_MAX_INSTRUCTIONS = 176
 """Reached maximum with the live rule on, a live close (the bound: the paper's 210)."""
+DEVICE_MAX_INSTRUCTIONS = 7704
+"""Reached maximum of the device firmware per SAMPLE frame, live mode (link decode, fastSW,
+the point's encoding with its float64 body rate, framing)."""
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
                  "live_reject_nan", "live_reject_time")
 
@@ -95,3 +98,15 @@ def test_make_icount_prints_table(build_dir):
     live = re.findall(r"^fastsw live max instructions per sample: (\d+)$", done.stdout, re.MULTILINE)
     assert len(live) == 1 and int(live[0]) <= FASTSW_LIVE_MAX_INSTRUCTIONS, done.stdout
     assert "ssr_break" in done.stdout and "least-squares fit" in done.stdout, done.stdout
+    device = re.findall(r"^device max instructions per sample: (\d+)$", done.stdout, re.MULTILINE)
+    assert len(device) == 1 and int(device[0]) <= DEVICE_MAX_INSTRUCTIONS, done.stdout
+
+
+def test_device_firmware_cost_per_sample(build_dir):
+    """The whole work of the device firmware for one sample, traced: a sample that makes a
+    point costs more (its encoding, body rate and framing) than one that does not."""
+    device = load_tool("icount").measure_device(build_dir / "icount_device.elf")
+    assert device["point"] and device["none"], device
+    assert min(device["point"]) > max(device["none"]) > 0
+    assert device["max"] <= DEVICE_MAX_INSTRUCTIONS, (
+        f"the device firmware takes up to {device['max']} instructions per sample, ceiling {DEVICE_MAX_INSTRUCTIONS}")

@@ -2,7 +2,8 @@
  * lsw_bank.h - many emulated devices in one call: each advances its fastSW state by one sample
  * and every segment point emitted comes back as its wire message (lsw_wire.h), ready to send.
  *
- * Host only (the device emulator's inner loop; not part of the Cortex-M4 build).
+ * The device emulator's inner loop (all its devices in one call), and the device firmware's
+ * (firmware_c/m4/device.c: one stream per call), so both send the same bytes.
  */
 #ifndef LSW_BANK_H
 #define LSW_BANK_H

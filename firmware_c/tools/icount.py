@@ -14,7 +14,9 @@ Usage::
     python3 icount.py build/icount.elf [--json]
 
 prints the tables, ``fastsw max instructions per sample: N`` (live rule off) and
-``fastsw live max instructions per sample: N`` (live rule on, every branch).
+``fastsw live max instructions per sample: N`` (live rule on, every branch). With ``--device``
+it traces ``build/icount_device.elf`` (m4/icount_device_main.c) instead: the device firmware's
+whole work per sample, link decode to framed point, ``device max instructions per sample: N``.
 """
 from __future__ import annotations
 
@@ -32,6 +34,8 @@ import numpy as np
 
 MEASURED = {"icount_probe": "K", "fastsw_update": "F", "sw_update": "S"}
 """Function -> the letter its calls are announced with."""
+DEVICE_MEASURED = {"icount_device_frame": "D"}
+"""The same for the device harness."""
 
 FASTSW_BRANCHES = ("first", "normal", "ssr_break", "max_len_break", "reject_nan", "reject_time")
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
@@ -54,7 +58,7 @@ def symbols(elf: Path) -> dict[str, tuple[int, int]]:
     table = {}
     for line in out.stdout.splitlines():
         parts = line.split()
-        if len(parts) == 4 and parts[2] in "Tt":
+        if len(parts) == 4 and parts[2] in "TtWw":  # W: libgcc's soft-float aliases (__aeabi_dmul)
             table[parts[3]] = (int(parts[0], 16) & ~1, int(parts[1], 16))
     return table
 
@@ -109,18 +113,21 @@ def qemu_command(elf: Path, dfilter: str, log: Path) -> list[str]:
     ]
 
 
-def run_trace(elf: Path, timeout: float = 120.0) -> tuple[dict[str, list[int]], list[tuple[str, str]]]:
+def run_trace(elf: Path, timeout: float = 120.0, measured: dict[str, str] | None = None
+              ) -> tuple[dict[str, list[int]], list[tuple[str, str]]]:
     """Run the harness traced; return instruction counts per call of each measured
-    function, in call order, and the harness's announcements (letter, argument)."""
+    function (default :data:`MEASURED`), in call order, and the harness's announcements
+    (letter, argument; "E" lines too)."""
+    measured = MEASURED if measured is None else measured
     syms = symbols(elf)
     callees, returns = call_graph(elf, syms)
-    missing = [name for name in MEASURED if name not in syms]
+    missing = [name for name in measured if name not in syms]
     if missing:
         raise ValueError(f"{elf}: functions {missing} not found")
-    ranges = [syms[name] for name in sorted(reachable(list(MEASURED), callees))]
-    ret_to = {address: name for name in MEASURED for address in returns[name]}
+    ranges = [syms[name] for name in sorted(reachable(list(measured), callees))]
+    ret_to = {address: name for name in measured for address in returns[name]}
     dfilter = ",".join([f"0x{a:x}+0x{max(s, 2):x}" for a, s in ranges] + [f"0x{a:x}+0x2" for a in ret_to])
-    entries = {syms[name][0]: name for name in MEASURED}
+    entries = {syms[name][0]: name for name in measured}
 
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "trace.log"
@@ -144,7 +151,8 @@ def run_trace(elf: Path, timeout: float = 120.0) -> tuple[dict[str, list[int]], 
                 else:
                     n += 1
     console = done.stderr + done.stdout
-    announced = [tuple(line.split(maxsplit=1)) for line in console.splitlines() if line[:2] in ("K ", "F ", "S ")]
+    letters = [f"{letter} " for letter in measured.values()] + ["E "]
+    announced = [tuple(line.split(maxsplit=1)) for line in console.splitlines() if line[:2] in letters]
     return counts, announced
 
 
@@ -195,6 +203,36 @@ def measure(elf: Path) -> dict:
     }
 
 
+def measure_device(elf: Path) -> dict:
+    """The device firmware's instructions per SAMPLE frame (icount_device_main.c).
+
+    Returns
+    -------
+    dict with keys point, none: [counts] of the samples that did / did not make a point;
+    max, mean: over all samples.
+    """
+    counts, announced = run_trace(elf, measured=DEVICE_MEASURED)
+    outcomes = [arg.strip() for letter, arg in announced if letter == "E"]
+    calls = counts["icount_device_frame"]
+    if len(outcomes) != len(calls) or not calls:
+        raise RuntimeError(f"icount_device_frame: {len(calls)} traced calls but {len(outcomes)} announced")
+    by = {kind: [n for n, o in zip(calls, outcomes) if o == kind] for kind in ("point", "none")}
+    return {**by, "max": max(calls), "mean": float(np.mean(calls))}
+
+
+def report_device(result: dict) -> str:
+    lines = ["device firmware per SAMPLE frame: link decode, fastSW live, point encoding and framing "
+             "(Cortex-M4, QEMU mps2-an386; the transport's write not counted)",
+             f"{'sample':<12}{'calls':>7}{'min':>7}{'mean':>8}{'max':>7}"]
+    for kind, label in (("none", "no point"), ("point", "a point")):
+        c = result[kind]
+        if c:
+            lines.append(f"{label:<12}{len(c):>7}{min(c):>7}{np.mean(c):>8.0f}{max(c):>7}")
+    lines.append(f"device mean instructions per sample: {result['mean']:.0f}")
+    lines.append(f"device max instructions per sample: {result['max']}")
+    return "\n".join(lines)
+
+
 def report(result: dict) -> str:
     """The printed table."""
     lines = ["fastsw_update, instructions per call (Cortex-M4, QEMU mps2-an386)",
@@ -230,7 +268,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("elf", type=Path, help="build/icount.elf")
     parser.add_argument("--json", action="store_true", help="print the measurements as JSON")
+    parser.add_argument("--device", action="store_true", help="ELF is build/icount_device.elf: the device firmware")
     args = parser.parse_args(argv)
+    if args.device:
+        result = measure_device(args.elf)
+        print(json.dumps(result) if args.json else report_device(result))
+        return 0
     result = measure(args.elf)
     bad = [p for p in result["probe"] if p[1] != p[2]]
     print(json.dumps(result) if args.json else report(result))

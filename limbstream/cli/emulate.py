@@ -6,6 +6,7 @@ import argparse
 import logging
 import os
 import threading
+from pathlib import Path
 
 from limbstream import calibration, wire, zconfig
 from limbstream.device_emulator import main as emulator
@@ -52,6 +53,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
     parser.add_argument("--seed", type=int, default=0, help="generator seed offset")
+    parser.add_argument("--firmware", action="store_true",
+                        help="run each device's firmware under QEMU (one process per device, fed over its serial link) "
+                             "instead of the host's kernel: the same points (docs/kernel.md, 'Device firmware')")
+    parser.add_argument("--firmware-elf", type=Path, default=None,
+                        help="the device firmware to run (default: build firmware_c/build/device.elf with make)")
     parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
     add_clock_arguments(parser)
     calibration.add_arguments(parser)
@@ -134,9 +140,33 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         feeds = build_feeds(args, scripted=sensors.on)
     except (MotionFileError, ValueError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
-    settings = EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
-                                truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
-                                clock=clock_settings(args),
-                                anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
-                                clock_id=args.first_subject, sensors=sensors)
-    return emulator.run(feeds, settings, zconfig.from_args(args), args.duration, args.verbose, stop)
+    if args.firmware:
+        return run_firmware(args, feeds, settings_of(args, sensors), stop)
+    return emulator.run(feeds, settings_of(args, sensors), zconfig.from_args(args), args.duration, args.verbose, stop)
+
+
+def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
+    """The EmulatorSettings of the flags."""
+    return EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
+                            truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
+                            clock=clock_settings(args),
+                            anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
+                            clock_id=args.first_subject, sensors=sensors)
+
+
+def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettings,
+                 stop: threading.Event | None) -> int:
+    """``--firmware``: the devices' firmware under QEMU (limbstream.services.gateway.firmware_devices).
+    Each device takes its feed's own samples: modelled clocks and sensor errors are refused."""
+    from limbstream.services.gateway import firmware, firmware_devices
+    if settings.clock.modelled or settings.sensors.on:
+        raise SystemExit("limbstream emulate: error: --firmware feeds every device its motion's own samples: "
+                         "device clock models (--clock-offset-ms, --clock-drift-ppm, --clock-jitter-us) and "
+                         "sensor errors are not available with it")
+    try:
+        elf = args.firmware_elf or firmware.build()
+    except (RuntimeError, OSError) as exc:
+        raise SystemExit(f"limbstream emulate: error: {exc}") from None
+    if not elf.exists():
+        raise SystemExit(f"limbstream emulate: error: no firmware at {elf}")
+    return firmware_devices.run(feeds, settings, zconfig.from_args(args), elf, args.duration, stop)

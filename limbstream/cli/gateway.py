@@ -10,6 +10,8 @@ import argparse
 import importlib
 
 GATEWAYS: dict[str, tuple[str, str]] = {
+    "serial": ("limbstream.cli.gateway_serial",
+               "one device on a serial link (USB CDC, a UART, or the device firmware under QEMU on tcp:HOST:PORT)"),
 }
 """{kind: (module, help)}."""
 

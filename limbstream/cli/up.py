@@ -54,6 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     # the device tunables, passed on to the emulators; live mode on by default (wire.LIVE_MODE)
     wire.add_arguments(parser, defaults=wire.LIVE_MODE)
     parser.add_argument("--no-truth", action="store_true", help="devices do not publish the truth tap")
+    parser.add_argument("--firmware", action="store_true",
+                        help="the devices run their firmware under QEMU (emulate --firmware: one process per device)")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     calibration.add_arguments(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
@@ -85,6 +87,8 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
                 "--speed", str(args.speed), *wire.config_from_args(args).flags(), *clock_flags(args), *anchor]
         if args.no_truth:
             argv.append("--no-truth")
+        if args.firmware:
+            argv.append("--firmware")
         if sensors.on:
             argv += calibration.flags(sensors)
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))

@@ -12,6 +12,7 @@ module          what it holds
 :mod:`.config`  device tunables (defaults, bounds), config and status messages
 :mod:`.time`    time exchange codec (device <-> time service)
 :mod:`.calibrate` calibration requests (client -> aggregator) and answers
+:mod:`.serial_link` the serial link between a device and its gateway (``wire.serial_link``)
 ==============  ==============================================================
 
 All binary payloads are little-endian and start with a format version byte. Import the

@@ -1,0 +1,264 @@
+"""The serial link between a device and its gateway (docs/protocol.md, "Serial link"): the
+host's codec; the firmware's is firmware_c/include/lsw_link.h (a test checks both agree).
+
+A frame on the line is ``COBS(payload + crc16) + b"\\0"``; the payload is the link version
+(:data:`LINK_VERSION`), the message type and its body, all little-endian; crc16 is
+CRC-16/CCITT-FALSE of the payload. A bad frame is counted by reason (:data:`BAD_REASONS`) and
+dropped; reading resumes at the next delimiter.
+
+Host to device: :func:`encode_sample`, :func:`encode_config`, :func:`encode_start`,
+:func:`encode_request` (END, STATUS_REQ, IDENTIFY). Device to host: POINT (a segment point
+message, as published), :class:`Ack`, :class:`LinkStatus`, :class:`Identity`.
+"""
+from __future__ import annotations
+
+import binascii
+import math
+import struct
+from dataclasses import dataclass
+from collections.abc import Callable
+
+import numpy as np
+
+from .config import TUNABLES, DeviceConfig
+from .errors import WireError
+from .point import POINT_SIZE, POINT_SIZE_RATE
+
+LINK_VERSION = 1
+MAX_PAYLOAD = 96
+"""Largest payload (version, type, body) either side sends."""
+MAX_FRAME = MAX_PAYLOAD + 5
+"""Largest frame on the line: COBS overhead, CRC and the delimiter included."""
+
+SAMPLE, CONFIG, START, END, STATUS_REQ, IDENTIFY = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+"""Host -> device message types."""
+POINT, ACK, STATUS, IDENTITY = 0x81, 0x82, 0x83, 0x84
+"""Device -> host message types."""
+NAMES = {SAMPLE: "sample", CONFIG: "config", START: "start", END: "end", STATUS_REQ: "status_req",
+         IDENTIFY: "identify", POINT: "point", ACK: "ack", STATUS: "status", IDENTITY: "identity"}
+
+BAD_REASONS: tuple[str, ...] = ("cobs", "length", "crc", "version", "type")
+"""Why a frame is dropped, in the firmware's order (LswBadReason): not COBS; too long, too short
+or a body of the wrong length for its type; checksum; another link version; unknown type."""
+
+_SAMPLE = struct.Struct("<Iq4f")
+_CONFIG = struct.Struct("<H3d")
+_START = struct.Struct("<HH")
+_REQUEST = struct.Struct("<H")
+_ACK = struct.Struct("<HBBBd")
+_STATUS = struct.Struct(f"<HH6I{len(BAD_REASONS)}I{len(TUNABLES)}dI")
+_IDENTITY = struct.Struct("<HBBB")
+
+HOST_BODIES: dict[int, tuple[int, ...]] = {SAMPLE: (_SAMPLE.size,), CONFIG: (_CONFIG.size,), START: (_START.size,),
+                                           END: (2,), STATUS_REQ: (2,), IDENTIFY: (2,)}
+"""Body lengths of the host's messages (what a device accepts)."""
+DEVICE_BODIES: dict[int, tuple[int, ...]] = {POINT: (POINT_SIZE, POINT_SIZE_RATE), ACK: (_ACK.size,),
+                                             STATUS: (_STATUS.size,), IDENTITY: tuple(range(5, MAX_PAYLOAD - 1))}
+"""Body lengths of the device's messages (what a gateway accepts)."""
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection)."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def cobs_encode(data: bytes) -> bytes:
+    """Consistent Overhead Byte Stuffing: ``data`` without zero bytes (one byte longer per 254)."""
+    out = bytearray()
+    for block in data.split(b"\0"):
+        while len(block) >= 254:
+            out += b"\xff" + block[:254]
+            block = block[254:]
+        out += bytes([len(block) + 1]) + block
+    return bytes(out)
+
+
+def cobs_decode(data: bytes) -> bytes:
+    """Inverse of :func:`cobs_encode`; WireError('cobs') if ``data`` is not COBS."""
+    out = bytearray()
+    i = 0
+    while i < len(data):
+        code = data[i]
+        if code == 0 or i + code > len(data):
+            raise WireError("cobs", f"bad COBS block at byte {i}")
+        out += data[i + 1:i + code]
+        i += code
+        if code != 0xFF and i < len(data):
+            out.append(0)
+    return bytes(out)
+
+
+def frame(kind: int, body: bytes = b"") -> bytes:
+    """One frame on the line: COBS of (version, type, body, crc16) and the 0x00 delimiter."""
+    payload = bytes([LINK_VERSION, kind]) + body
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"link payload of {len(payload)} bytes, at most {MAX_PAYLOAD}")
+    return cobs_encode(payload + struct.pack("<H", crc16(payload))) + b"\0"
+
+
+class FrameReader:
+    """Frames out of a byte stream, whatever its chunks; bad ones counted and dropped.
+
+    Parameters
+    ----------
+    bodies : {type: accepted body lengths} of the messages this side reads
+        (:data:`DEVICE_BODIES` on a gateway, :data:`HOST_BODIES` on a device).
+    """
+
+    def __init__(self, bodies: dict[int, tuple[int, ...]]):
+        self.bodies = bodies
+        self.bad: dict[str, int] = dict.fromkeys(BAD_REASONS, 0)
+        self.frames = 0
+        self._buffer = bytearray()
+
+    def feed(self, data: bytes) -> list[tuple[int, bytes]]:
+        """The good frames ``data`` completes, as (type, body)."""
+        out = []
+        self._buffer += data
+        *chunks, rest = bytes(self._buffer).split(b"\0")
+        self._buffer = bytearray(rest[:MAX_FRAME + 1])  # an overlong frame stays too long
+        for chunk in chunks:
+            if chunk:  # back-to-back delimiters are not frames
+                try:
+                    out.append(self._check(chunk))
+                    self.frames += 1
+                except WireError as exc:
+                    self.bad[exc.reason] += 1
+        return out
+
+    def _check(self, chunk: bytes) -> tuple[int, bytes]:
+        if len(chunk) > MAX_FRAME - 1:
+            raise WireError("length", f"frame of {len(chunk)} bytes")
+        payload = cobs_decode(chunk)
+        if len(payload) < 4:
+            raise WireError("length", f"payload of {len(payload)} bytes")
+        payload, crc = payload[:-2], int.from_bytes(payload[-2:], "little")
+        if crc16(payload) != crc:
+            raise WireError("crc", "checksum differs")
+        if payload[0] != LINK_VERSION:
+            raise WireError("version", f"link version {payload[0]}")
+        kind, body = payload[1], payload[2:]
+        if kind not in self.bodies:
+            raise WireError("type", f"unknown message type 0x{kind:02x}")
+        if len(body) not in self.bodies[kind]:
+            raise WireError("length", f"{NAMES[kind]} body of {len(body)} bytes")
+        return kind, body
+
+
+# ---------------------------------------------------------------------- host -> device
+
+
+def encode_sample(tick: int, t_us: int, q) -> bytes:
+    """A SAMPLE frame: kernel tick (uint32, the device clock's microseconds), the sample's stamp
+    (int64 us on the common time base: the time its point would carry), quaternion (4 float32)."""
+    w, x, y, z = (float(v) for v in np.asarray(q, np.float32))
+    return frame(SAMPLE, _SAMPLE.pack(tick & 0xFFFFFFFF, int(t_us), w, x, y, z))
+
+
+def encode_config(request: int, config: DeviceConfig) -> bytes:
+    """A CONFIG frame: every tunable, in :data:`TUNABLES` order, as float64 (the device checks
+    them with the contract's bounds and answers with an :class:`Ack`)."""
+    return frame(CONFIG, _CONFIG.pack(request, *(float(getattr(config, name)) for name in TUNABLES)))
+
+
+def encode_start(request: int, stream: int) -> bytes:
+    """A START frame: a new stream with this id (fresh kernel state, sequence 0, sample 0)."""
+    return frame(START, _START.pack(request, stream))
+
+
+def encode_request(kind: int, request: int) -> bytes:
+    """An END, STATUS_REQ or IDENTIFY frame."""
+    if kind not in (END, STATUS_REQ, IDENTIFY):
+        raise ValueError(f"not a request type: {kind}")
+    return frame(kind, _REQUEST.pack(request))
+
+
+# ---------------------------------------------------------------------- device -> host
+
+
+@dataclass(frozen=True)
+class Ack:
+    """The device's answer to a request: ``ok``, or ``error`` (the contract's refusal sentence)."""
+
+    request: int
+    kind: int
+    ok: bool
+    error: str | None = None
+
+
+def refusal(index: int, value: float) -> str:
+    """The contract's sentence refusing ``value`` for the tunable at ``index``
+    (:meth:`limbstream.wire.Tunable.check`'s)."""
+    names = list(TUNABLES)
+    if not 0 <= index < len(names):
+        return f"unknown tunable {index}"
+    tunable = TUNABLES[names[index]]
+    shown: float | int = int(value) if tunable.type is int and math.isfinite(value) and value.is_integer() else value
+    try:
+        tunable.check(shown)
+    except ValueError as exc:
+        return str(exc)
+    return f"{tunable.name} refused, got {shown!r}"
+
+
+@dataclass(frozen=True)
+class LinkStatus:
+    """The device's status (asked, or its heartbeat with request 0): the current stream's
+    counters (samples, points, kernel-rejected samples), refused configs, good link frames
+    read, bad ones by reason, its config and its stack's high-water mark (bytes)."""
+
+    request: int
+    stream: int
+    seq: int
+    samples: int
+    points: int
+    rejected: int
+    refused: int
+    frames: int
+    bad: dict[str, int]
+    config: DeviceConfig
+    stack_bytes: int
+
+
+@dataclass(frozen=True)
+class Identity:
+    """What the device says it is: link version, newest point version, sample dimension, text."""
+
+    request: int
+    link_version: int
+    point_version: int
+    dim: int
+    text: str
+
+
+DeviceMessage = bytes | Ack | LinkStatus | Identity
+
+
+def _ack(body: bytes) -> Ack:
+    request, kind, result, tunable, value = _ACK.unpack(body)
+    return Ack(request, kind, result == 0, None if result == 0 else refusal(tunable, value))
+
+
+def _status(body: bytes) -> LinkStatus:
+    v = _STATUS.unpack(body)
+    nb, nt = len(BAD_REASONS), len(TUNABLES)
+    request, stream, seq, samples, points, rejected, refused, frames = v[:8]
+    bad = dict(zip(BAD_REASONS, v[8:8 + nb]))
+    values = v[8 + nb:8 + nb + nt]
+    config = DeviceConfig(**{name: TUNABLES[name].type(x) for name, x in zip(TUNABLES, values)})
+    return LinkStatus(request, stream, seq, samples, points, rejected, refused, frames, bad, config, v[-1])
+
+
+def _identity(body: bytes) -> Identity:
+    request, link, point, dim = _IDENTITY.unpack(body[:_IDENTITY.size])
+    return Identity(request, link, point, dim, body[_IDENTITY.size:].decode("ascii", "replace"))
+
+
+_DECODERS: dict[int, Callable[[bytes], DeviceMessage]] = {POINT: bytes, ACK: _ack, STATUS: _status,
+                                                         IDENTITY: _identity}
+
+
+def decode_device(kind: int, body: bytes) -> DeviceMessage:
+    """A device message read by a :class:`FrameReader` (DEVICE_BODIES): a POINT's body (the
+    segment point message, bytes), an :class:`Ack`, :class:`LinkStatus` or :class:`Identity`."""
+    return _DECODERS[kind](body)

@@ -1,0 +1,91 @@
+"""Devices that run the device firmware (``limbstream emulate --firmware``): one QEMU process per
+device, each fed its segment of its subject's motion over its serial link by a
+:class:`~limbstream.services.gateway.serial_gateway.SerialGateway`, all paced by one loop.
+
+Fed the same motion with the same settings, these devices send the same segment points (sample
+index, quaternion, rate, end-of-stream point) as the host's emulated devices: the firmware runs
+the same C code on the same inputs (each sample on its device's own clock grid). What differs:
+stream ids (drawn per stream) and stamps (the gateway stamps samples with this host's clock,
+on the sample grid from the start). A QEMU process that dies is a device gone offline; it is
+started again and its device begins a new stream.
+"""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+from limbstream import zconfig
+from limbstream.device_emulator.emulator import EmulatorSettings
+from limbstream.services.gateway import firmware, serial_gateway
+from limbstream.services.gateway.serial_port import SerialLink
+from limbstream.signals import stop_on_signals
+
+
+class FirmwareConnector:
+    """A device's link: its QEMU process, started by :meth:`launch` or on the first open, and
+    started anew on every later open (the previous one died or its link failed)."""
+
+    def __init__(self, elf: Path, link_timeout_s: float = 15.0):
+        self.elf, self.link_timeout_s = elf, link_timeout_s
+        self.device: firmware.FirmwareDevice | None = None
+        self.starts = 0
+        self._fresh = False
+
+    def launch(self) -> None:
+        """Start QEMU now (many devices start in parallel before their links are opened)."""
+        self.stop()
+        self.device = firmware.FirmwareDevice(self.elf)
+        self.starts += 1
+        self._fresh = True
+
+    def __call__(self) -> SerialLink:
+        if not self._fresh:
+            self.launch()
+        self._fresh = False
+        assert self.device is not None
+        return SerialLink(self.device.port, self.link_timeout_s)
+
+    def stop(self) -> None:
+        if self.device is not None:
+            self.device.stop()
+            self.device = None
+
+
+def run(feeds: dict, settings: EmulatorSettings, zenoh: zconfig.ZenohSettings, elf: Path,
+        duration: float | None = None, stop: threading.Event | None = None) -> int:
+    """Run one firmware device per segment of each feed ({subject: feed}) until ``stop``, a
+    signal or ``duration`` s of device time (a finite feed: its end, then idle); exit code."""
+    stop = stop_on_signals(stop)
+    session = zconfig.open_session(zenoh, stop)
+    if session is None:
+        return 0
+    connectors: list[FirmwareConnector] = []
+    gateways: list[serial_gateway.SerialGateway] = []
+    with session:
+        try:
+            for subject, feed in feeds.items():
+                for column, segment in enumerate(feed.segments):
+                    connector = FirmwareConnector(elf)
+                    connectors.append(connector)
+                    gateways.append(serial_gateway.SerialGateway(
+                        session, connector, subject, segment, settings.config,
+                        serial_gateway.Feeding(feed, column, settings.fs), truth=settings.truth,
+                        raw_batch=settings.raw_batch, cache=settings.cache, heartbeat_s=settings.heartbeat_s,
+                        rest_pose=feed.rest_pose))
+            for connector in connectors:
+                connector.launch()
+            online = sum(g.open() for g in gateways)
+            for feed in feeds.values():
+                feed.sample(0)  # the first chunk before the clock starts
+            print(f"emulating {len(gateways)} firmware devices ({online} online) of {len(feeds)} subjects "
+                  f"({', '.join(feeds)}) at {settings.fs:g} Hz x{settings.speed:g} under QEMU", flush=True)
+            ticks = serial_gateway.run(gateways, stop, settings.fs, settings.speed, duration)
+            restarts = sum(c.starts for c in connectors) - len(connectors)
+            print(f"emulator: {ticks} ticks, {restarts} firmware restarts", flush=True)
+        finally:
+            for g in gateways:
+                print(f"emulator: {g.summary()}", flush=True)
+                g.close()
+            for connector in connectors:
+                connector.stop()
+    return 0

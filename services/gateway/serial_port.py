@@ -1,0 +1,208 @@
+"""One serial link to a device, from the host: open it (a tty or ``tcp:HOST:PORT``), send
+samples and requests, read its frames on a thread of its own (docs/protocol.md, "Serial link").
+
+The reader thread only decodes and hands off: points and heartbeats go to a bounded FIFO queue
+(:attr:`SerialLink.inbox`; what does not fit is counted in :attr:`SerialLink.dropped`), answers
+to the waiting request. A bad frame is counted by reason
+(:attr:`SerialLink.bad`) and dropped; the link goes on.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import queue
+import select
+import socket
+import termios
+import threading
+import time
+import tty
+
+from limbstream import wire
+from limbstream.wire import serial_link as link
+
+READ_CHUNK = 4096
+INBOX = 8192
+"""Messages the inbox holds (minutes of points at 50 Hz: a consumer that stops reading)."""
+POLL_S = 0.2
+"""A tty's reader looks this often whether the link was closed."""
+ANSWER_TIMEOUT_S = 5.0
+"""How long a request waits for the device's answer."""
+
+
+class LinkClosed(ConnectionError):
+    """The link ended (the device went away)."""
+
+
+def open_port(port: str, timeout_s: float = 10.0):
+    """(read(n) -> bytes, b"" at the end, None if nothing came for a while; write(bytes);
+    wake() the reader blocked in read; close()) of ``port``: ``tcp:HOST:PORT`` (retried for ``timeout_s``: an emulator that is
+    still starting) or a serial device path (raw mode)."""
+    if port.startswith("tcp:"):
+        host, _, number = port[4:].rpartition(":")
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                sock = socket.create_connection((host or "127.0.0.1", int(number)), timeout=timeout_s)
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
+        sock.settimeout(None)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+        def wake() -> None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)  # recv returns b""
+            except OSError:
+                pass
+
+        return sock.recv, sock.sendall, wake, sock.close
+    fd = os.open(port, os.O_RDWR | os.O_NOCTTY)
+    if os.isatty(fd):
+        tty.setraw(fd, termios.TCSANOW)
+
+    def write(data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+
+    def read(n: int) -> bytes | None:
+        ready, _, _ = select.select([fd], [], [], POLL_S)  # wakes up to see a close
+        return os.read(fd, n) if ready else None
+
+    return read, write, (lambda: None), (lambda: os.close(fd))
+
+
+class SerialLink:
+    """A device at the other end of ``port``.
+
+    Attributes
+    ----------
+    inbox : bounded queue of ("point", bytes) and ("status", LinkStatus) in arrival order;
+        then ("closed", None) when the link ends.
+    dropped : messages that found the inbox full.
+    identity : the device's latest :class:`~limbstream.wire.serial_link.Identity`, or None.
+    reader : the frame reader (``reader.bad``: frames dropped by reason, ``reader.frames``).
+    bytes_in, bytes_out : bytes read from and written to the link.
+    last_heard : time.monotonic() of the last bytes read (the device's heartbeat comes every second).
+    """
+
+    def __init__(self, port: str, timeout_s: float = 10.0):
+        self.port = port
+        self._read, self._write, self._wake, self._close = open_port(port, timeout_s)
+        self.reader = link.FrameReader(link.DEVICE_BODIES)
+        self.inbox: queue.Queue = queue.Queue(INBOX)
+        self.dropped = 0
+        self.bytes_in = self.bytes_out = 0
+        self.last_heard = time.monotonic()
+        self.identity: link.Identity | None = None
+        self.closed = threading.Event()
+        self._closing = False
+        self._lock = threading.Lock()
+        self._requests = itertools.count(1)
+        self._waiting: dict[int, tuple[threading.Event, list]] = {}
+        self._thread = threading.Thread(target=self._run, name=f"link {port}", daemon=True)
+        self._thread.start()
+
+    @property
+    def bad(self) -> dict[str, int]:
+        return self.reader.bad
+
+    def _run(self) -> None:
+        try:
+            while not self._closing:
+                data = self._read(READ_CHUNK)
+                if data is None:
+                    continue
+                if not data:
+                    break
+                self.bytes_in += len(data)
+                self.last_heard = time.monotonic()
+                for kind, body in self.reader.feed(data):
+                    self._deliver(link.decode_device(kind, body))
+        except OSError:
+            pass
+        finally:
+            self.closed.set()
+            for event, _ in list(self._waiting.values()):
+                event.set()
+            self.inbox.put(("closed", None))  # may wait for room: the end is never dropped
+
+    def _deliver(self, message: link.DeviceMessage) -> None:
+        if isinstance(message, bytes):
+            self._hand_off(("point", message))
+            return
+        if isinstance(message, link.Identity):
+            self.identity = message
+        elif isinstance(message, link.LinkStatus) and message.request == 0:
+            self._hand_off(("status", message))
+            return
+        waiting = self._waiting.get(message.request)
+        if waiting is not None:
+            waiting[1].append(message)
+            waiting[0].set()
+
+    def _hand_off(self, item: tuple) -> None:
+        try:
+            self.inbox.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
+
+    def send(self, data: bytes) -> None:
+        """Write frames (or anything: the device counts what is not a frame)."""
+        if self.closed.is_set():
+            raise LinkClosed(f"{self.port}: link closed")
+        with self._lock:
+            try:
+                self._write(data)
+                self.bytes_out += len(data)
+            except OSError as exc:
+                raise LinkClosed(f"{self.port}: {exc}") from None
+
+    def sample(self, tick: int, t_us: int, q) -> None:
+        """One sample (see :func:`limbstream.wire.serial_link.encode_sample`)."""
+        self.send(link.encode_sample(tick, t_us, q))
+
+    def _ask(self, encode, timeout_s: float = ANSWER_TIMEOUT_S):
+        request = next(self._requests) & 0xFFFF or next(self._requests)
+        event: threading.Event = threading.Event()
+        answer: list = []
+        self._waiting[request] = (event, answer)
+        try:
+            self.send(encode(request))
+            if not event.wait(timeout_s) or not answer:
+                raise (LinkClosed if self.closed.is_set() else TimeoutError)(
+                    f"{self.port}: no answer to request {request} in {timeout_s:g} s")
+            return answer[0]
+        finally:
+            del self._waiting[request]
+
+    def configure(self, config: wire.DeviceConfig) -> link.Ack:
+        """Send the device its tunables; its :class:`Ack` (``error``: the contract's refusal)."""
+        return self._ask(lambda r: link.encode_config(r, config))
+
+    def start(self, stream: int) -> link.Ack:
+        """Begin a new stream with this id."""
+        return self._ask(lambda r: link.encode_start(r, stream))
+
+    def end(self) -> link.Ack:
+        """End the stream: its last point (FINAL) comes before the ack."""
+        return self._ask(lambda r: link.encode_request(link.END, r))
+
+    def status(self) -> link.LinkStatus:
+        return self._ask(lambda r: link.encode_request(link.STATUS_REQ, r))
+
+    def identify(self) -> link.Identity:
+        return self._ask(lambda r: link.encode_request(link.IDENTIFY, r))
+
+    def close(self) -> None:
+        """Stop the reader, then close the port (never under a reader still using it)."""
+        self._closing = True
+        self._wake()
+        self._thread.join(timeout=2.0)
+        try:
+            self._close()
+        except OSError:
+            pass
