@@ -10,6 +10,7 @@ import argparse
 import importlib
 
 GATEWAYS: dict[str, tuple[str, str]] = {
+    "slimevr": ("limbstream.cli.gateway_slimevr", "SlimeVR trackers (UDP, port 6969) as limbstream devices"),
 }
 """{kind: (module, help)}."""
 

@@ -1,0 +1,1 @@
+"""Gateways: devices that cannot speak Zenoh, bridged in."""
