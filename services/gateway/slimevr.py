@@ -63,6 +63,8 @@ RATE_WINDOW_S = 5.0
 TRUTH_MAX_AGE_S = 0.5
 """A device's truth samples wait at most this long for a full batch."""
 QUERIES_PER_TICK = 10
+RCVBUF = 4 << 20
+"""Socket receive buffer asked for, bytes (the system may cap it: net.core.rmem_max)."""
 
 
 @dataclass(frozen=True)
@@ -186,6 +188,10 @@ class SlimeVRGateway:
     def __init__(self, session: zenoh.Session, sock: socket.socket, settings: GatewaySettings):
         self.session, self.sock, self.settings = session, sock, settings
         sock.setblocking(False)
+        try:  # room for bursts: a hundred trackers' packets while a tick runs
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF)
+        except OSError:
+            pass
         c = settings.config
         n = settings.max_devices
         self.bank = kernel.SegmenterBank(n, c.threshold, c.max_len, live_bound_deg=c.live_bound_deg, ring=RING)
