@@ -147,3 +147,62 @@ class Tracker:
 
     def signal(self, dbm: int) -> None:
         self.send(19, struct.pack(">Bb", 255, dbm))
+
+
+SEGMENT_POSITIONS = {"neck": 2, "hip": 6, "l_thigh": 7, "r_thigh": 8, "l_shank": 9, "r_shank": 10,
+                     "l_lowerarm": 13, "r_lowerarm": 14, "l_upperarm": 15, "r_upperarm": 16}
+"""The SlimeVR body position id a tracker on each segment is set to."""
+
+
+class Fleet:
+    """Trackers playing a motion: one per segment and subject, each sending its segment's
+    orientation at ``fs`` (the clip looped), answering the server, and reporting its battery and
+    signal every second.
+
+    Parameters
+    ----------
+    server : the gateway's (host, port).
+    q : (T, S, 4) orientations (w, x, y, z) of segments ``segments`` at ``fs``.
+    subjects : copies of the set of trackers (the second one and later need --assign to be
+        placed: the gateway places trackers by body position into one subject).
+    """
+
+    def __init__(self, server: tuple[str, int], q, segments, fs: float, subjects: int = 1, q15: bool = False):
+        self.q, self.segments, self.fs, self.q15 = q, list(segments), fs, q15
+        self.trackers = [Tracker(server, bytes([2, 0x5E, 0, 0, s, k]), {0: SEGMENT_POSITIONS[seg]})
+                         for s in range(subjects) for k, seg in enumerate(self.segments)]
+        self.sent = 0
+        self.late = 0
+
+    def mac(self, subject: int, segment: str) -> str:
+        return self.trackers[subject * len(self.segments) + self.segments.index(segment)].mac_text
+
+    def connect(self, timeout: float = 30.0) -> None:
+        for t in self.trackers:
+            t.connect(timeout)
+
+    def run(self, stop, seconds: float | None = None) -> None:
+        """Send until ``stop`` is set or ``seconds`` have passed."""
+        start = time.monotonic()
+        period = 1.0 / self.fs
+        k = 0
+        n_seg = len(self.segments)
+        while not stop.is_set() and (seconds is None or time.monotonic() - start < seconds):
+            row = self.q[k % len(self.q)]
+            for i, t in enumerate(self.trackers):
+                t.rotation(0, row[i % n_seg], q15=self.q15)
+                if k % int(self.fs) == i % int(self.fs):
+                    t.battery(3.9, 0.8)
+                    t.signal(-60)
+                t.pump()
+            self.sent += len(self.trackers)
+            k += 1
+            delay = start + k * period - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -period:
+                self.late += 1
+
+    def close(self) -> None:
+        for t in self.trackers:
+            t.close()

@@ -110,6 +110,7 @@ class Tracker:
     name: str
     last_number: int = -1
     last_seen: float = 0.0             # monotonic s
+    connected: float = 0.0             # monotonic s of its last handshake
     online: bool = True
     packets: int = 0                   # numbered packets taken
     lost: int = 0                      # missing packet numbers
@@ -122,9 +123,10 @@ class Tracker:
     sensors: dict = field(default_factory=dict)  # sensor id -> Sensor
 
     def pps(self, now: float) -> float:
+        """Packets per second over the last RATE_WINDOW_S (or since it connected, at least 1 s)."""
         while self.arrivals and self.arrivals[0] < now - RATE_WINDOW_S:
             self.arrivals.popleft()
-        return len(self.arrivals) / RATE_WINDOW_S
+        return len(self.arrivals) / max(1.0, min(RATE_WINDOW_S, now - self.connected))
 
     def loss(self) -> float | None:
         total = self.packets + self.lost
@@ -377,7 +379,7 @@ class SlimeVRGateway:
                 self._place(tracker.sensors[m.sensor])
                 self._send(proto.sensor_info_answer(m.sensor, m.status), address)
             elif isinstance(m, proto.Battery):
-                tracker.battery_pct = m.level * 100.0 if math.isfinite(m.level) else None
+                tracker.battery_pct = round(m.level * 100.0, 2) if math.isfinite(m.level) else None
             elif isinstance(m, proto.Signal):
                 tracker.signal_dbm = m.dbm
             elif isinstance(m, proto.Pong):
@@ -404,7 +406,7 @@ class SlimeVRGateway:
                 del self.trackers[tracker.address]
                 tracker.address = address
             else:
-                tracker = Tracker(address, name)
+                tracker = Tracker(address, name, connected=now)
                 log.info("tracker %s connected from %s:%d (firmware %s, protocol %d)", name, address[0],
                          address[1], hs.firmware or "?", hs.protocol)
             self.trackers[address] = tracker
