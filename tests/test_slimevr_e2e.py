@@ -3,6 +3,7 @@ service and the aggregator: every device online, its points arriving, ICR and er
 against the trackers' own full-rate stream, its link figures in the stats."""
 from __future__ import annotations
 
+import json
 import math
 import socket
 import threading
@@ -67,3 +68,45 @@ def test_ten_trackers_reach_the_aggregator(stack):  # noqa: F811
         sender.join()
         fleet.close()
         watch.close()
+
+
+def test_up_starts_the_gateway(stack, tmp_path):  # noqa: F811
+    """``limbstream up --subjects 0 --slimevr PORT``: the gateway alone behind the router and the
+    aggregator; a tracker finds it and its device reaches the stats."""
+    from stack import free_port
+    port = free_udp_port()
+    stack.start("up", "up", "--router", stack.endpoint, "--http", f"127.0.0.1:{free_port()}", "--no-dashboard",
+                "--subjects", "0", "--slimevr", f"127.0.0.1:{port}", "--slimevr-subject", "sv07",
+                "--status-file", str(tmp_path / "status.json"))
+    fleet = Fleet(("127.0.0.1", port), motion(50.0, 4.0)[:, :1], ["hip"], 50.0)
+    stop = threading.Event()
+    sender = threading.Thread(target=lambda: (fleet.connect(60), fleet.run(stop)))
+    sender.start()
+    watch = None
+    try:
+        wait_until(lambda: (tmp_path / "status.json").exists() and "slimevr" in json.loads(
+            (tmp_path / "status.json").read_text())["parts"], 60, "up's status naming the gateway", on_fail=stack.logs)
+        watch = StatsWatch(stack.endpoint)
+        wait_until(lambda: (d := watch.poll().get("sv07/hip")) and d["online"] and d["points"] > 2, 60,
+                   "the tracker's device in the stats", on_fail=stack.logs)
+        parts = json.loads((tmp_path / "status.json").read_text())["parts"]
+        assert "emulator" not in parts and {"router", "aggregator", "slimevr"} <= set(parts)
+    finally:
+        stop.set()
+        sender.join()
+        fleet.close()
+        if watch is not None:
+            watch.close()
+
+
+def test_up_plan_passes_the_gateway_its_flags():
+    import argparse
+    from limbstream.cli import up as up_cli
+    parser = argparse.ArgumentParser()
+    up_cli.add_arguments(parser)
+    args = parser.parse_args(["--slimevr", "7000", "--no-truth", "--no-sync", "--threshold", "0.002"])
+    [argv] = [a for name, a in up_cli.plan(args) if name == "slimevr"]
+    assert argv[:6] == ["gateway", "slimevr", "--udp", "7000", "--subject", "sv01"]
+    assert {"--no-truth", "--no-sync"} <= set(argv) and argv[argv.index("--threshold") + 1] == "0.002"
+    assert argv[argv.index("--live-bound-deg") + 1] == str(wire.LIVE_MODE["live_bound_deg"])
+    assert up_cli.run(parser.parse_args(["--slimevr", "x:99999"])) == 2
