@@ -367,6 +367,7 @@ def test_grid_samples_follow_the_packets():
     from limbstream.services.gateway.slimevr import Device
     d = Device("s01", "hip", 0, wire.DeviceConfig())
     g = SlimeVRGateway.__new__(SlimeVRGateway)
+    g.hold_us = 15_000.0
     for t, angle in ((0.0, 0.0), (20_000.0, 0.2), (40_000.0, 0.4)):
         d.hist_t.append(t)
         d.hist_q.append(np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]))
@@ -376,3 +377,4 @@ def test_grid_samples_follow_the_packets():
     assert d.held == 0
     q = g._sample(d, 50_000.0)
     assert 2 * math.atan2(q[2], q[0]) == pytest.approx(0.4, abs=1e-6) and d.held == 1
+    assert g._sample(d, 56_000.0) is None  # held too long: the tracker went quiet

@@ -52,10 +52,18 @@ log = logging.getLogger("limbstream.gateway.slimevr")
 AXES = (math.cos(math.pi / 4), -math.sin(math.pi / 4), 0.0, 0.0)
 """-90 degrees about X (w, x, y, z): a tracker's axes (Z up) to limbstream's (Y up), as the
 SlimeVR server turns them."""
-RING = 8
-"""Ticks of samples each device keeps (segment points refer to the last one or two)."""
+RING = 64
+"""Ticks of samples each device keeps: a segment point refers to the device's newest sample or the
+one before, at most QUIET_TICKS ticks back."""
+QUIET_TICKS = RING - 2
+"""A device without a sample for this many ticks (its sensor stopped sending rotations) ends its
+stream; its next rotation starts a new one."""
 HISTORY = 16
 """Packets each device keeps for its grid samples."""
+PHASE_GAIN = 0.02
+"""Share of a packet's offset from its device's grid instant the grid's phase moves by."""
+HOLD_PERIODS = 2
+"""A device holds its newest packet this many grid periods at most, then takes no sample."""
 RECV_BUDGET = 4096
 """Datagrams read at most between two checks of the tick clock."""
 RATE_WINDOW_S = 5.0
@@ -171,6 +179,10 @@ class Device:
     truth_since: float = 0.0                     # monotonic s of the oldest of them
     raw_index: int = 0                           # index of the next truth sample in the stream
     held: int = 0                                # grid samples held (no packet after the instant yet)
+    quiet: int = 0                               # ticks since its last grid sample
+    last_n: int = -1                             # sample number and stamp of its last grid sample
+    last_t: int = 0
+    phase_us: float | None = None                # its grid's phase (None: set by its stream's first packet)
 
     @property
     def id(self) -> str:
@@ -207,6 +219,7 @@ class SlimeVRGateway:
         self.unassigned_samples = 0
         self.period_us = 1e6 / settings.fs
         self.delay_us = settings.delay_ms * 1e3
+        self.hold_us = HOLD_PERIODS * self.period_us
         self.ring_q = np.zeros((RING, n, 4), np.float32)
         self.base = TimeBase()
         self.clocks = DeviceClocks(1, ClockSettings(), self.period_us, self.base)
@@ -288,7 +301,7 @@ class SlimeVRGateway:
         b.reset(k)
         self.calls[k] = 0
         b.stream[k], b.seq[k], b.base[k] = random.getrandbits(16), 0, self.n[k]
-        d.points, d.last, d.raw_index, d.held = 0, None, 0, 0
+        d.points, d.last, d.raw_index, d.held, d.quiet, d.phase_us = 0, None, 0, 0, 0, None
         d.hist_t.clear()
         d.hist_q.clear()
         d.truth_t, d.truth_q = [], []
@@ -302,11 +315,10 @@ class SlimeVRGateway:
         its truth, its token."""
         b, k = self.bank, d.slot
         last = b.flush(k)
-        if last is not None:
-            row = int(last[0]) % RING
+        if last is not None:  # the kernel's newest sample, not yet a point: the device's last grid sample
             omega = (0.0, 0.0, 0.0) if b.live(k) else None
-            point = wire.SegmentPoint(int(b.stream[k]), int(b.seq[k]), int(b.sample[row, k] - b.base[k]),
-                                      int(b.t_us[row, k]), tuple(float(v) for v in last[2]), wire.FLAG_FINAL, omega)
+            point = wire.SegmentPoint(int(b.stream[k]), int(b.seq[k]), int(d.last_n - b.base[k]), d.last_t,
+                                      tuple(float(v) for v in last[2]), wire.FLAG_FINAL, omega)
             d.publisher.put(wire.encode_point(point))
         elif d.last is not None:
             point = wire.decode_point(d.last)
@@ -433,6 +445,7 @@ class SlimeVRGateway:
         if d.hist_t and t_us <= d.hist_t[-1]:  # the host clock stepped back: keep times increasing
             t_us = d.hist_t[-1] + 1.0
         q = quat.multiply(np.array(AXES), np.array(m.q))
+        self._lock_phase(d, t_us)
         d.hist_t.append(t_us)
         d.hist_q.append(q)
         if self.settings.truth:
@@ -442,6 +455,20 @@ class SlimeVRGateway:
             d.truth_q.append(q)
             if len(d.truth_t) >= self.settings.raw_batch:
                 self._flush_truth(d)
+
+    def _lock_phase(self, d: Device, t_us: float) -> None:
+        """Keep the device's grid instants on its tracker's packets: the phase is set by the
+        stream's first packet, then follows the packets that arrive within a quarter period of an
+        instant (PHASE_GAIN of their offset each; a tracker faster than the grid has others in
+        between, which do not count). Clock drift between tracker and gateway is followed so."""
+        period = self.period_us
+        grid0 = self.start_us - self.delay_us
+        if d.phase_us is None:
+            d.phase_us = (t_us - grid0) % period
+            return
+        r = (t_us - grid0 - d.phase_us + period / 2) % period - period / 2
+        if abs(r) < period / 4:
+            d.phase_us = (d.phase_us + PHASE_GAIN * r) % period
 
     def _flush_truth(self, d: Device) -> None:
         if not d.truth_t or d.raw_pub is None:
@@ -456,9 +483,10 @@ class SlimeVRGateway:
 
     def _sample(self, d: Device, at_us: float) -> np.ndarray | None:
         """The device's tracker at the gateway's time ``at_us``: SLERP of the packets around it,
-        the newest held if none is newer yet (counted), None before its first packet."""
+        the newest held if none is newer yet (counted) for at most HOLD_PERIODS grid periods,
+        None before its first packet and after that hold (a tracker gone quiet: no sample)."""
         ts = d.hist_t
-        if not ts or ts[0] > at_us:
+        if not ts or ts[0] > at_us or ts[-1] < at_us - self.hold_us:
             return None
         if ts[-1] <= at_us:
             if ts[-1] < at_us:
@@ -480,20 +508,27 @@ class SlimeVRGateway:
         y = np.full((m, 4), np.nan, np.float32)
         rows = self.calls[:m] % RING
         self.bank.sample[rows, np.arange(m)] = -1
-        stamp = int(round(at + self.offset_us))
+        ticks = np.zeros(m, np.uint32)
+        quiet = []
         for d in self.slots:
             if not d.online:
                 continue
-            q = self._sample(d, at)
+            # the device's own grid: its instants fall on its tracker's packets, the newest at or before ``at``
+            at_d = at - (-(d.phase_us or 0.0)) % self.period_us
+            q = self._sample(d, at_d)
             if q is None:
+                d.quiet += 1
+                if d.quiet >= QUIET_TICKS:
+                    quiet.append(d)
                 continue
             k_ = d.slot
             y[k_] = q
+            ticks[k_] = int(round(at_d)) & 0xFFFFFFFF
             row = rows[k_]
-            self.bank.sample[row, k_] = self.n[k_]
-            self.bank.t_us[row, k_] = stamp
+            self.bank.sample[row, k_] = d.last_n = int(self.n[k_])
+            self.bank.t_us[row, k_] = d.last_t = int(round(at_d + self.offset_us))
             self.n[k_] += 1
-        ticks = np.full(m, int(round(at)) & 0xFFFFFFFF, np.uint32)
+            d.quiet = 0
         slots, payload, ends = self.bank.update_wire(ticks, y)
         self.calls[:m] += 1
         start = 0
@@ -503,6 +538,9 @@ class SlimeVRGateway:
             d.publisher.put(d.last)
             d.points += 1
             start = end
+        for d in quiet:
+            log.info("%s: no rotation for %d ticks", d.id, d.quiet)
+            self._end_stream(d)
         for d in self.slots:
             if d.online and d.truth_t and now - d.truth_since >= TRUTH_MAX_AGE_S:
                 self._flush_truth(d)
