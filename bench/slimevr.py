@@ -147,12 +147,13 @@ def accuracy(args) -> None:
     aad = sum(d["aad_all_deg"] * d["error_samples"] for d in devices) / compared
     held = sum(d["held"] for d in report.get("devices", {}).values())
     print(f"{'online':>7} {'ICR':>7} {'AAD':>6} {'max':>6} {'live mean':>9} {'live p99':>8} {'live max':>8} "
-          f"{'compared':>9} {'held':>5} {'dropped':>8} {'sender late':>11}")
+          f"{'compared':>9} {'held':>5} {'dropped':>8} {'jitter p99 ms':>13}")
     print(f"{sum(system.online_seen.values()):>4}/10 {sum(d['points'] for d in devices) / samples:>7.4f} "
           f"{aad:>6.3f} {max(d['max_deg'] for d in devices):>6.2f} "
           f"{statistics.mean(d['live_err_deg'] for d in devices):>9.3f} "
           f"{max(d['live_p99_deg'] for d in devices):>8.3f} {max(d['live_max_deg'] for d in devices):>8.3f} "
-          f"{compared:>9} {held:>5} {sum(report.get('dropped', {}).values()):>8} {counters[1]:>11}")
+          f"{compared:>9} {held:>5} {sum(report.get('dropped', {}).values()):>8} "
+          f"{max(d['jitter_p99_ms'] or 0 for d in report['devices'].values()):>13.2f}")
 
 
 def after_pkts(report: dict) -> int:

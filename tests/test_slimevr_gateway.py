@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from limbstream import wire, zconfig
+from limbstream import quat, wire, zconfig
 from limbstream.device_emulator.device_clocks import ClockSettings
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
@@ -371,10 +371,11 @@ def test_grid_samples_follow_the_packets():
     for t, angle in ((0.0, 0.0), (20_000.0, 0.2), (40_000.0, 0.4)):
         d.hist_t.append(t)
         d.hist_q.append(np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]))
-    assert g._sample(d, -1.0) is None
-    q = g._sample(d, 30_000.0)
+    assert g._bracket(d, -1.0) is None
+    q0, q1, u = g._bracket(d, 30_000.0)
+    q = quat.slerp(q0, q1, u)
     assert 2 * math.atan2(q[2], q[0]) == pytest.approx(0.3, abs=1e-6)
     assert d.held == 0
-    q = g._sample(d, 50_000.0)
-    assert 2 * math.atan2(q[2], q[0]) == pytest.approx(0.4, abs=1e-6) and d.held == 1
-    assert g._sample(d, 56_000.0) is None  # held too long: the tracker went quiet
+    q0, q1, u = g._bracket(d, 50_000.0)
+    assert 2 * math.atan2(q1[2], q1[0]) == pytest.approx(0.4, abs=1e-6) and u == 0.0 and d.held == 1
+    assert g._bracket(d, 56_000.0) is None  # held too long: the tracker went quiet

@@ -52,6 +52,7 @@ log = logging.getLogger("limbstream.gateway.slimevr")
 AXES = (math.cos(math.pi / 4), -math.sin(math.pi / 4), 0.0, 0.0)
 """-90 degrees about X (w, x, y, z): a tracker's axes (Z up) to limbstream's (Y up), as the
 SlimeVR server turns them."""
+AXES_Q = np.array(AXES)
 RING = 64
 """Ticks of samples each device keeps: a segment point refers to the device's newest sample or the
 one before, at most QUIET_TICKS ticks back."""
@@ -62,6 +63,8 @@ HISTORY = 16
 """Packets each device keeps for its grid samples."""
 PHASE_GAIN = 0.02
 """Share of a packet's offset from its device's grid instant the grid's phase moves by."""
+JITTER_WINDOW = 500
+"""Packets over which a device's arrival jitter (offset from its grid instant) is reported."""
 HOLD_PERIODS = 2
 """A device holds its newest packet this many grid periods at most, then takes no sample."""
 RECV_BUDGET = 4096
@@ -183,6 +186,7 @@ class Device:
     last_n: int = -1                             # sample number and stamp of its last grid sample
     last_t: int = 0
     phase_us: float | None = None                # its grid's phase (None: set by its stream's first packet)
+    jitter: collections.deque = field(default_factory=lambda: collections.deque(maxlen=JITTER_WINDOW))  # us
 
     @property
     def id(self) -> str:
@@ -444,7 +448,7 @@ class SlimeVRGateway:
             self._start_stream(d)
         if d.hist_t and t_us <= d.hist_t[-1]:  # the host clock stepped back: keep times increasing
             t_us = d.hist_t[-1] + 1.0
-        q = quat.multiply(np.array(AXES), np.array(m.q))
+        q = m.q  # the tracker's axes: turned into limbstream's per tick and per truth batch, vectorised
         self._lock_phase(d, t_us)
         d.hist_t.append(t_us)
         d.hist_q.append(q)
@@ -468,35 +472,36 @@ class SlimeVRGateway:
             return
         r = (t_us - grid0 - d.phase_us + period / 2) % period - period / 2
         if abs(r) < period / 4:
+            d.jitter.append(abs(r))
             d.phase_us = (d.phase_us + PHASE_GAIN * r) % period
 
     def _flush_truth(self, d: Device) -> None:
         if not d.truth_t or d.raw_pub is None:
             return
         t = np.maximum.accumulate(np.array(d.truth_t, np.int64))
-        d.raw_pub.put(wire.encode_raw(wire.RawBatch(int(self.bank.stream[d.slot]), d.raw_index, t,
-                                                    np.array(d.truth_q, np.float32))))
+        q = quat.multiply(AXES_Q, np.array(d.truth_q)).astype(np.float32)
+        d.raw_pub.put(wire.encode_raw(wire.RawBatch(int(self.bank.stream[d.slot]), d.raw_index, t, q)))
         d.raw_index += len(t)
         d.truth_t, d.truth_q = [], []
 
     # ------------------------------------------------------------------ ticks
 
-    def _sample(self, d: Device, at_us: float) -> np.ndarray | None:
-        """The device's tracker at the gateway's time ``at_us``: SLERP of the packets around it,
-        the newest held if none is newer yet (counted) for at most HOLD_PERIODS grid periods,
-        None before its first packet and after that hold (a tracker gone quiet: no sample)."""
+    def _bracket(self, d: Device, at_us: float) -> tuple | None:
+        """The device's tracker at the gateway's time ``at_us`` as (q0, q1, u): the packets around
+        it and where it falls between them (SLERP), or the newest packet twice if none is newer
+        yet (held, counted) for at most HOLD_PERIODS grid periods; None before its first packet
+        and after that hold (a tracker gone quiet: no sample). Tracker axes."""
         ts = d.hist_t
         if not ts or ts[0] > at_us or ts[-1] < at_us - self.hold_us:
             return None
         if ts[-1] <= at_us:
             if ts[-1] < at_us:
                 d.held += 1
-            return d.hist_q[-1]
+            return d.hist_q[-1], d.hist_q[-1], 0.0
         j = len(ts) - 1
         while ts[j - 1] > at_us:
             j -= 1
-        u = (at_us - ts[j - 1]) / (ts[j] - ts[j - 1])
-        return quat.slerp(d.hist_q[j - 1], d.hist_q[j], u)
+        return d.hist_q[j - 1], d.hist_q[j], (at_us - ts[j - 1]) / (ts[j] - ts[j - 1])
 
     def step(self, k: int, now: float) -> None:
         """Tick k: every online device's grid sample, the kernel, segment points; truth older
@@ -509,26 +514,30 @@ class SlimeVRGateway:
         rows = self.calls[:m] % RING
         self.bank.sample[rows, np.arange(m)] = -1
         ticks = np.zeros(m, np.uint32)
-        quiet = []
+        quiet, taken, pairs = [], [], []
         for d in self.slots:
             if not d.online:
                 continue
             # the device's own grid: its instants fall on its tracker's packets, the newest at or before ``at``
             at_d = at - (-(d.phase_us or 0.0)) % self.period_us
-            q = self._sample(d, at_d)
-            if q is None:
+            pair = self._bracket(d, at_d)
+            if pair is None:
                 d.quiet += 1
                 if d.quiet >= QUIET_TICKS:
                     quiet.append(d)
                 continue
             k_ = d.slot
-            y[k_] = q
+            taken.append(k_)
+            pairs.append(pair)
             ticks[k_] = int(round(at_d)) & 0xFFFFFFFF
             row = rows[k_]
             self.bank.sample[row, k_] = d.last_n = int(self.n[k_])
             self.bank.t_us[row, k_] = d.last_t = int(round(at_d + self.offset_us))
             self.n[k_] += 1
             d.quiet = 0
+        if taken:  # every device's sample in one SLERP, turned into limbstream's axes
+            q0, q1, u = zip(*pairs)
+            y[taken] = quat.multiply(AXES_Q, quat.slerp(np.array(q0), np.array(q1), np.array(u)))
         slots, payload, ends = self.bank.update_wire(ticks, y)
         self.calls[:m] += 1
         start = 0
@@ -604,6 +613,8 @@ class SlimeVRGateway:
                            if s.device is None},
             "devices": {d.id: {"online": d.online, "streams": d.streams, "points": d.points,
                                "samples": int(self.n[d.slot] - self.bank.base[d.slot]), "held": d.held,
+                               "jitter_p99_ms": (round(float(np.percentile(d.jitter, 99)) / 1e3, 3)
+                                                 if d.jitter else None),
                                "sensor": d.sensor.name if d.sensor else None} for d in self.slots},
             "dropped": dict(self.dropped), "ignored": dict(self.ignored),
             "unassigned_samples": self.unassigned_samples, "ticks": self.ticks, "late": self.late,

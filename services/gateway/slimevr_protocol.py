@@ -55,7 +55,7 @@ class ProtocolError(ValueError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Handshake:
     """A tracker looking for a server: board, IMU and MCU type ids, protocol version, firmware
     version, MAC address (``AA:BB:..``; None if it sent none or zeros)."""
@@ -68,7 +68,7 @@ class Handshake:
     mac: str | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class SensorInfo:
     """Sensor ``sensor`` of the tracker: status (0 offline, 1 ok, 2 error), IMU type id and the
     body position it was set to (a SlimeVR TrackerPosition id; None: not sent, or 0)."""
@@ -79,7 +79,7 @@ class SensorInfo:
     position: int | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Rotation:
     """The fused orientation of sensor ``sensor``: ``q`` (w, x, y, z), unit norm, in the
     tracker's axes."""
@@ -88,7 +88,7 @@ class Rotation:
     q: tuple[float, float, float, float]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Battery:
     """Battery voltage (V) and level (fraction 0..1)."""
 
@@ -96,21 +96,21 @@ class Battery:
     level: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Signal:
     """Wi-Fi signal strength, dBm."""
 
     dbm: int
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Pong:
     """The tracker's echo of a server ping."""
 
     ping_id: int
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Other:
     """A packet of a type limbstream reads but does not use (heartbeat, feature flags,
     correction data, :data:`IGNORED`), or does not know (``known`` False)."""
@@ -122,7 +122,7 @@ class Other:
 Message = Handshake | SensorInfo | Rotation | Battery | Signal | Pong | Other
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Datagram:
     """One decoded datagram: its (outer) type, packet number and messages."""
 
