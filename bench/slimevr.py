@@ -27,7 +27,6 @@ import multiprocessing
 import statistics
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -124,8 +123,7 @@ class System:
 def accuracy(args) -> None:
     motion = load(args.source)[args.clip]
     q = motion.q.astype(np.float64)
-    for k in range(args.loops - 1):
-        q = np.concatenate([q, motion.q])
+    q = np.concatenate([q] * args.loops)
     print(f"clip {motion.name}: {len(motion.q)} samples at {motion.fs:g} Hz x {args.loops}, segments "
           f"{len(motion.segments)}; gateway grid {motion.fs:g} Hz, delay {args.delay_ms:g} ms, live mode "
           f"{wire.LIVE_MODE}")
@@ -210,6 +208,13 @@ def capacity(args) -> None:
           f"{drops1 - drops0:>9} {lost:>5} {sum(d['online'] for d in devices):>6} {counters[1]:>11}")
 
 
+def stamp_into(frames: list):
+    """A Zenoh callback that keeps each sample's arrival (monotonic s) and payload, nothing more."""
+    def on_sample(sample) -> None:
+        frames.append((time.monotonic(), sample.payload.to_bytes()))
+    return on_sample
+
+
 def latency(args) -> None:
     fs = 50.0
     turned = np.array([math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0])
@@ -217,26 +222,26 @@ def latency(args) -> None:
     for delay in [float(d) for d in args.delays.split(",")]:
         with tempfile.TemporaryDirectory() as tmp, Launcher(logdir=Path(tmp)) as launcher:
             system = System(launcher, ["--subject", "s01", "--rate", str(fs), "--delay-ms", str(delay)])
-            frames: list[tuple[float, np.ndarray]] = []
-
-            def on_pose(sample) -> None:  # Zenoh thread: stamp and keep, nothing more
-                frames.append((time.monotonic(), sample.payload.to_bytes()))
-
-            pose = system.session.declare_subscriber(wire.pose_key("s01"), on_pose)
+            frames: list[tuple[float, bytes]] = []
+            pose = system.session.declare_subscriber(wire.pose_key("s01"), stamp_into(frames))
             q = np.zeros((1, 10, 4))
             q[..., 0] = 1.0
             fleet = Fleet(("127.0.0.1", system.port), q, wire.SEGMENTS, fs)
             fleet.connect(60)
             hip = fleet.trackers[list(wire.SEGMENTS).index("hip")]
             identity = np.array([1.0, 0.0, 0.0, 0.0])
-            wait_until(lambda: sum(d["online"] for d in system.poll().values()) == 10, 60, "10 trackers online",
-                       on_fail=launcher.logs)
             steps: list[tuple[float, np.ndarray]] = []
             start = time.monotonic()
             k = 0
             target = identity
-            while time.monotonic() - start < args.seconds:
-                if k % int(fs / 2) == 0 and k:
+            stepping_from = None  # tick from which the hip steps: once every device is online
+            while stepping_from is None or (k - stepping_from) / fs < args.seconds:
+                if stepping_from is None and k % 25 == 0:
+                    if sum(d["online"] for d in system.poll().values()) == 10:
+                        stepping_from = k
+                    elif k / fs > 60:
+                        raise RuntimeError(f"not every tracker online after 60 s: {launcher.logs()}")
+                if stepping_from is not None and (k - stepping_from) % int(fs / 2) == 0 and k > stepping_from:
                     target = turned if target is identity else identity
                     steps.append((time.monotonic(), target))
                 for t in fleet.trackers:
@@ -281,7 +286,7 @@ def main() -> int:
     c.add_argument("--no-truth", action="store_true")
     lat = sub.add_parser("latency")
     lat.add_argument("--seconds", type=float, default=30.0)
-    lat.add_argument("--delays", default="30,0", help="grid delays to measure, ms, comma-separated")
+    lat.add_argument("--delays", default="30,10,0", help="grid delays to measure, ms, comma-separated")
     args = parser.parse_args()
     {"accuracy": accuracy, "capacity": capacity, "latency": latency}[args.part](args)
     return 0

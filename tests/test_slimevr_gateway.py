@@ -367,7 +367,7 @@ def test_grid_samples_follow_the_packets():
     from limbstream.services.gateway.slimevr import Device
     d = Device("s01", "hip", 0, wire.DeviceConfig())
     g = SlimeVRGateway.__new__(SlimeVRGateway)
-    g.hold_us = 15_000.0
+    g.hold_us, g.period_us = 15_000.0, 20_000.0
     for t, angle in ((0.0, 0.0), (20_000.0, 0.2), (40_000.0, 0.4)):
         d.hist_t.append(t)
         d.hist_q.append(np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]))
@@ -376,6 +376,8 @@ def test_grid_samples_follow_the_packets():
     q = quat.slerp(q0, q1, u)
     assert 2 * math.atan2(q[2], q[0]) == pytest.approx(0.3, abs=1e-6)
     assert d.held == 0
+    q0, q1, u = g._bracket(d, 44_000.0)  # within a quarter period of the newest packet: on time
+    assert 2 * math.atan2(q1[2], q1[0]) == pytest.approx(0.4, abs=1e-6) and u == 0.0 and d.held == 0
     q0, q1, u = g._bracket(d, 50_000.0)
     assert 2 * math.atan2(q1[2], q1[0]) == pytest.approx(0.4, abs=1e-6) and u == 0.0 and d.held == 1
     assert g._bracket(d, 56_000.0) is None  # held too long: the tracker went quiet

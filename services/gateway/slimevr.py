@@ -489,13 +489,14 @@ class SlimeVRGateway:
     def _bracket(self, d: Device, at_us: float) -> tuple | None:
         """The device's tracker at the gateway's time ``at_us`` as (q0, q1, u): the packets around
         it and where it falls between them (SLERP), or the newest packet twice if none is newer
-        yet (held, counted) for at most HOLD_PERIODS grid periods; None before its first packet
+        yet (held: counted when it is older than a quarter period) for at most HOLD_PERIODS grid
+        periods; None before its first packet
         and after that hold (a tracker gone quiet: no sample). Tracker axes."""
         ts = d.hist_t
         if not ts or ts[0] > at_us or ts[-1] < at_us - self.hold_us:
             return None
         if ts[-1] <= at_us:
-            if ts[-1] < at_us:
+            if at_us - ts[-1] > self.period_us / 4:  # (a packet within jitter of the instant is on time)
                 d.held += 1
             return d.hist_q[-1], d.hist_q[-1], 0.0
         j = len(ts) - 1
