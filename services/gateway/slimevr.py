@@ -511,6 +511,11 @@ class SlimeVRGateway:
         at = self.start_us + k * self.period_us - self.delay_us  # the grid instant, gateway clock
         if self.sync is not None:
             self.offset_us = float(self.sync.stamp(np.zeros(1, np.int64), np.array([at]))[0]) - at
+            if self.sync.steps:  # the time base stepped (a resync after the holdover): new streams, as emulated devices
+                log.info("time base stepped: every stream restarts")
+                for d in self.slots:
+                    if d.online:
+                        self._end_stream(d)
         y = np.full((m, 4), np.nan, np.float32)
         rows = self.calls[:m] % RING
         self.bank.sample[rows, np.arange(m)] = -1
