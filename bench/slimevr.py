@@ -73,22 +73,22 @@ def gateway_report(child) -> dict:
     return json.loads(lines[-1].split(" ", 2 if lines[-1].startswith("slimevr final") else 1)[-1]) if lines else {}
 
 
-def fleet_process(server, q, segments, fs, subjects, seconds, ready, stop, counters) -> None:
+def fleet_process(server, q, segments, fs, subjects, seconds, ready, stop, counters, spin_s) -> None:
     """A process of trackers (its own interpreter: the bench's polling never delays a packet)."""
     fleet = Fleet(server, q, segments, fs, subjects=subjects)
     fleet.connect(60)
     ready.set()
-    fleet.run(stop, seconds)
+    fleet.run(stop, seconds, spin_s)
     counters[0], counters[1] = fleet.sent, fleet.late
     fleet.close()
 
 
-def start_fleet(server, q, segments, fs, subjects=1, seconds=None):
+def start_fleet(server, q, segments, fs, subjects=1, seconds=None, spin_s=0.0):
     """(process, ready event, stop event, counters [sent, late]) of a tracker process."""
     ready, stop = multiprocessing.Event(), multiprocessing.Event()
     counters = multiprocessing.Array("q", 2)
     proc = multiprocessing.Process(target=fleet_process, args=(server, np.asarray(q), list(segments), fs, subjects,
-                                                               seconds, ready, stop, counters), daemon=True)
+                                                               seconds, ready, stop, counters, spin_s), daemon=True)
     proc.start()
     if not ready.wait(90):
         raise RuntimeError("the trackers did not connect")
@@ -124,13 +124,14 @@ def accuracy(args) -> None:
     motion = load(args.source)[args.clip]
     q = motion.q.astype(np.float64)
     q = np.concatenate([q] * args.loops)
-    print(f"clip {motion.name}: {len(motion.q)} samples at {motion.fs:g} Hz x {args.loops}, segments "
+    print(f"clip {motion.name}: {len(motion.q)} samples at {motion.fs:g} Hz x {args.loops}, trackers spin "
+          f"{args.spin_ms:g} ms, segments "
           f"{len(motion.segments)}; gateway grid {motion.fs:g} Hz, delay {args.delay_ms:g} ms, live mode "
           f"{wire.LIVE_MODE}")
     with tempfile.TemporaryDirectory() as tmp, Launcher(logdir=Path(tmp)) as launcher:
         system = System(launcher, ["--subject", "s01", "--rate", str(motion.fs), "--delay-ms", str(args.delay_ms)])
         sender, _, counters = start_fleet(("127.0.0.1", system.port), q, motion.segments, motion.fs,
-                                          seconds=len(q) / motion.fs)
+                                          seconds=len(q) / motion.fs, spin_s=args.spin_ms / 1e3)
         while sender.is_alive():
             system.poll()
             time.sleep(0.2)
@@ -276,6 +277,8 @@ def main() -> int:
     a.add_argument("--clip", type=int, default=0, help="clip index in the file (default 0)")
     a.add_argument("--loops", type=int, default=1, help="play the clip this many times back to back")
     a.add_argument("--delay-ms", type=float, default=30.0)
+    a.add_argument("--spin-ms", type=float, default=0.0,
+                   help="the trackers busy-wait the last this long before each send (steadier timing)")
     c = sub.add_parser("capacity")
     c.add_argument("--trackers", type=int, default=100)
     c.add_argument("--fs", type=float, default=100.0)

@@ -62,7 +62,7 @@ stream; its next rotation starts a new one."""
 HISTORY = 16
 """Packets each device keeps for its grid samples."""
 PHASE_GAIN = 0.02
-"""Share of a packet's offset from its device's grid instant the grid's phase moves by."""
+"""Share of a late packet's offset from its device's grid instant the grid moves by."""
 JITTER_WINDOW = 500
 """Packets over which a device's arrival jitter (offset from its grid instant) is reported."""
 HOLD_PERIODS = 2
@@ -185,7 +185,9 @@ class Device:
     quiet: int = 0                               # ticks since its last grid sample
     last_n: int = -1                             # sample number and stamp of its last grid sample
     last_t: int = 0
-    phase_us: float | None = None                # its grid's phase (None: set by its stream's first packet)
+    instant: float | None = None                 # its grid instant of the last tick (None: none yet)
+    anchor: float | None = None                  # arrival of its stream's first packet: where its grid starts
+    shift: float = 0.0                           # correction of its grid since the last tick
     jitter: collections.deque = field(default_factory=lambda: collections.deque(maxlen=JITTER_WINDOW))  # us
 
     @property
@@ -305,7 +307,9 @@ class SlimeVRGateway:
         b.reset(k)
         self.calls[k] = 0
         b.stream[k], b.seq[k], b.base[k] = random.getrandbits(16), 0, self.n[k]
-        d.points, d.last, d.raw_index, d.held, d.quiet, d.phase_us = 0, None, 0, 0, 0, None
+        d.points, d.last, d.raw_index, d.held, d.quiet = 0, None, 0, 0, 0
+        d.instant = d.anchor = None
+        d.shift = 0.0
         d.hist_t.clear()
         d.hist_q.clear()
         d.truth_t, d.truth_q = [], []
@@ -461,19 +465,42 @@ class SlimeVRGateway:
                 self._flush_truth(d)
 
     def _lock_phase(self, d: Device, t_us: float) -> None:
-        """Keep the device's grid instants on its tracker's packets: the phase is set by the
-        stream's first packet, then follows the packets that arrive within a quarter period of an
-        instant (PHASE_GAIN of their offset each; a tracker faster than the grid has others in
-        between, which do not count). Clock drift between tracker and gateway is followed so."""
-        period = self.period_us
-        grid0 = self.start_us - self.delay_us
-        if d.phase_us is None:
-            d.phase_us = (t_us - grid0) % period
+        """Keep the device's grid instants on its tracker's packets, at their earliest arrivals:
+        the grid starts at the stream's first packet; a packet that arrives within a quarter
+        period before an instant moves the grid back to it at once, one after an instant moves
+        it PHASE_GAIN of the way (the grid follows the tracker's clock drift along the lower edge
+        of the arrival jitter, so a packet's arrival is at or after its instant and the point
+        made at that instant counts as known at the packet). A tracker faster than the grid has
+        packets in between, which do not count."""
+        if d.instant is None:
+            if d.anchor is None:
+                d.anchor = t_us
             return
-        r = (t_us - grid0 - d.phase_us + period / 2) % period - period / 2
+        period = self.period_us
+        r = (t_us - d.instant - d.shift + period / 2) % period - period / 2
         if abs(r) < period / 4:
             d.jitter.append(abs(r))
-            d.phase_us = (d.phase_us + PHASE_GAIN * r) % period
+            d.shift += r if r < 0 else PHASE_GAIN * r
+
+    def _next_instant(self, d: Device, at_us: float) -> float | None:
+        """The device's grid instant for the tick whose gateway instant is ``at_us``: one period
+        after its last, moved by the correction since (at most a quarter period), kept within the
+        period up to ``at_us`` (the tracker's clock drift makes it skip an instant, or wait a
+        tick, once in a long while); None when it waits or has no packet yet."""
+        period = self.period_us
+        if d.instant is None:
+            if d.anchor is None:
+                return None
+            d.instant = d.anchor + math.floor((at_us - d.anchor) / period) * period
+            return d.instant
+        d.instant += period + max(-period / 4, min(period / 4, d.shift))
+        d.shift = 0.0
+        if d.instant <= at_us - period:
+            d.instant += period
+        if d.instant > at_us:
+            d.instant -= period
+            return None
+        return d.instant
 
     def _flush_truth(self, d: Device) -> None:
         if not d.truth_t or d.raw_pub is None:
@@ -524,9 +551,8 @@ class SlimeVRGateway:
         for d in self.slots:
             if not d.online:
                 continue
-            # the device's own grid: its instants fall on its tracker's packets, the newest at or before ``at``
-            at_d = at - (-(d.phase_us or 0.0)) % self.period_us
-            pair = self._bracket(d, at_d)
+            at_d = self._next_instant(d, at)  # the device's own grid, locked to its tracker's packets
+            pair = None if at_d is None else self._bracket(d, at_d)
             if pair is None:
                 d.quiet += 1
                 if d.quiet >= QUIET_TICKS:
