@@ -11,7 +11,8 @@ the larger of grid samples and tracker packets), exact AAD (pooled over the stre
 trackers' own packets: the truth tap), worst exact max, live mean / p99 / max (the live view
 against every packet), and the gateway's held grid samples.
 capacity: N trackers (N/10 subjects, placed by --assign) at F Hz for S seconds, gateway grid at
-F Hz: the gateway process's CPU (user + system, /proc) per second of wall time, per tracker,
+F Hz: the gateway process's CPU (user + system, /proc) per second of wall time (loop: its main
+thread, the rest is Zenoh's threads sending the points), per tracker,
 its late ticks, held samples, datagrams the kernel dropped on its socket (/proc/net/udp) and
 packets lost on the way (packet numbers), and how late the sender itself ran.
 latency: 10 trackers at 50 Hz; every 0.5 s the hip tracker turns by 90 degrees at once; the
@@ -23,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import multiprocessing
 import statistics
 import sys
@@ -50,10 +52,10 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    import os
+def cpu_s(pid: int, tid: int | None = None) -> float:
+    """User + system CPU seconds of a process (or one of its threads) so far."""
+    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
+    fields = Path(path).read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
@@ -185,9 +187,10 @@ def capacity(args) -> None:
                        "every tracker online in the stats", on_fail=launcher.logs)
             time.sleep(2.0)
             before = gateway_report(system.gateway)
-            drops0, cpu0, wall0 = udp_drops(system.port), cpu_s(system.gateway.pid), time.monotonic()
+            pid = system.gateway.pid
+            drops0, cpu0, main0, wall0 = udp_drops(system.port), cpu_s(pid), cpu_s(pid, pid), time.monotonic()
             time.sleep(args.seconds)
-            cpu1, wall1, drops1 = cpu_s(system.gateway.pid), time.monotonic(), udp_drops(system.port)
+            cpu1, main1, wall1, drops1 = cpu_s(pid), cpu_s(pid, pid), time.monotonic(), udp_drops(system.port)
             time.sleep(2.5)
             after = gateway_report(system.gateway)
             devices = list(system.poll().values())
@@ -196,15 +199,16 @@ def capacity(args) -> None:
             sender.join(10)
             system.session.close()
     cpu = (cpu1 - cpu0) / (wall1 - wall0)
+    main = (main1 - main0) / (wall1 - wall0)
     ticks = after["ticks"] - before["ticks"]
     late = after["late"] - before["late"]
     held = sum(d["held"] for d in after["devices"].values()) - sum(d["held"] for d in before["devices"].values())
     grid = ticks * args.trackers
     lost = sum(t["lost"] for t in after["trackers"].values())
     pkts = (after_pkts(after) - after_pkts(before)) / (wall1 - wall0 + 2.5)
-    print(f"{'trackers':>8} {'Hz':>4} {'pkts/s':>7} {'CPU %core':>9} {'per tracker %':>13} {'late ticks':>10} "
+    print(f"{'trackers':>8} {'Hz':>4} {'pkts/s':>7} {'CPU %core':>9} {'loop %':>6} {'per tracker %':>13} {'late ticks':>10} "
           f"{'held %':>7} {'udp drops':>9} {'lost':>5} {'online':>6} {'sender late':>11}")
-    print(f"{args.trackers:>8} {args.fs:>4g} {pkts:>7.0f} {100 * cpu:>9.1f} "
+    print(f"{args.trackers:>8} {args.fs:>4g} {pkts:>7.0f} {100 * cpu:>9.1f} {100 * main:>6.1f} "
           f"{100 * cpu / args.trackers:>13.3f} {late:>5}/{ticks:<4} {100 * held / max(grid, 1):>7.2f} "
           f"{drops1 - drops0:>9} {lost:>5} {sum(d['online'] for d in devices):>6} {counters[1]:>11}")
 
