@@ -188,6 +188,7 @@ class Device:
     instant: float | None = None                 # its grid instant of the last tick (None: none yet)
     anchor: float | None = None                  # arrival of its stream's first packet: where its grid starts
     shift: float = 0.0                           # correction of its grid since the last tick
+    no_rise: int = 0                             # packets before its grid may move later again
     jitter: collections.deque = field(default_factory=lambda: collections.deque(maxlen=JITTER_WINDOW))  # us
 
     @property
@@ -226,6 +227,7 @@ class SlimeVRGateway:
         self.period_us = 1e6 / settings.fs
         self.delay_us = settings.delay_ms * 1e3
         self.hold_us = HOLD_PERIODS * self.period_us
+        self.rise_after = math.ceil(self.delay_us / self.period_us) + 2  # packets between one's arrival and its instant
         self.ring_q = np.zeros((RING, n, 4), np.float32)
         self.base = TimeBase()
         self.clocks = DeviceClocks(1, ClockSettings(), self.period_us, self.base)
@@ -309,7 +311,7 @@ class SlimeVRGateway:
         b.stream[k], b.seq[k], b.base[k] = random.getrandbits(16), 0, self.n[k]
         d.points, d.last, d.raw_index, d.held, d.quiet = 0, None, 0, 0, 0
         d.instant = d.anchor = None
-        d.shift = 0.0
+        d.shift, d.no_rise = 0.0, 0
         d.hist_t.clear()
         d.hist_q.clear()
         d.truth_t, d.truth_q = [], []
@@ -468,7 +470,9 @@ class SlimeVRGateway:
         """Keep the device's grid instants on its tracker's packets, at their earliest arrivals:
         the grid starts at the stream's first packet; a packet that arrives within a quarter
         period before an instant moves the grid back to it at once, one after an instant moves
-        it PHASE_GAIN of the way (the grid follows the tracker's clock drift along the lower edge
+        it PHASE_GAIN of the way, unless an early packet came within the last ``rise_after``
+        packets (its own instant, a delay later, must not move past it) (the grid follows the
+        tracker's clock drift along the lower edge
         of the arrival jitter, so a packet's arrival is at or after its instant and the point
         made at that instant counts as known at the packet). A tracker faster than the grid has
         packets in between, which do not count."""
@@ -480,7 +484,13 @@ class SlimeVRGateway:
         r = (t_us - d.instant - d.shift + period / 2) % period - period / 2
         if abs(r) < period / 4:
             d.jitter.append(abs(r))
-            d.shift += r if r < 0 else PHASE_GAIN * r
+            if r < 0:  # early: back at once, and no rise until this packet's own instant has passed
+                d.shift += r
+                d.no_rise = self.rise_after
+            elif d.no_rise > 0:
+                d.no_rise -= 1
+            else:
+                d.shift += PHASE_GAIN * r
 
     def _next_instant(self, d: Device, at_us: float) -> float | None:
         """The device's grid instant for the tick whose gateway instant is ``at_us``: one period
