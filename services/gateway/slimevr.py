@@ -9,14 +9,14 @@ and a ping every 0.5 s), and at each tick of the device rate runs fastSW for eve
 the truth tap and liveliness with the emulator's device pieces (:mod:`..device_emulator.device_io`).
 
 Timing: each packet is stamped on arrival (the gateway's clock, synchronised to the common time
-base by :class:`SyncClient`, one clock for all). Trackers send at their own irregular rate; a
-device samples its tracker on the gateway's uniform grid ``t_k = t_0 + k / rate``, delayed by
-``delay`` (default 30 ms): its sample at ``t_k - delay`` is the SLERP of the two packets around
-that instant, or the newest packet held when none has arrived after it yet (counted: ``held``).
-The truth tap carries every packet at its arrival stamp, so a device's errors are measured
-against the tracker's own full-rate stream. Arrival jitter moves a packet's stamp by its delay
-in the network and this loop (about 1 ms on a LAN); it costs the angle the limb turns in that
-time, in the truth as in the points.
+base by :class:`SyncClient`, one clock for all). Trackers send at their own irregular rate; each
+device samples its tracker on a uniform grid of its own, placed on the lower edge of its packets'
+arrivals (:meth:`SlimeVRGateway._lock_phase`), at the newest instant at least ``delay`` (default
+30 ms) in the past: the SLERP of the two packets around that instant, or the newest packet held
+when none has arrived after it yet (counted: ``held``). The truth tap carries every packet at its
+arrival stamp, so a device's errors are measured against the tracker's own full-rate stream. A
+packet later than the grid's edge by ``j`` is stamped ``j`` late; it costs the angle the limb
+turns in ``j``, in the truth as in the points.
 
 Devices: a sensor's segment comes from ``--assign`` (MAC[/SENSOR]=[SUBJECT/]SEGMENT), else from
 the body position it reports in its sensor info (:data:`POSITION_SEGMENTS`); a sensor with
