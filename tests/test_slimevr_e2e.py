@@ -110,3 +110,16 @@ def test_up_plan_passes_the_gateway_its_flags():
     assert {"--no-truth", "--no-sync"} <= set(argv) and argv[argv.index("--threshold") + 1] == "0.002"
     assert argv[argv.index("--live-bound-deg") + 1] == str(wire.LIVE_MODE["live_bound_deg"])
     assert up_cli.run(parser.parse_args(["--slimevr", "x:99999"])) == 2
+
+
+def test_a_taken_port_is_a_clear_error():
+    import subprocess
+    import sys
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        port = taken.getsockname()[1]
+        result = subprocess.run([sys.executable, "-m", "limbstream.cli", "gateway", "slimevr", "--udp",
+                                 f"127.0.0.1:{port}", "--connect", "tcp/127.0.0.1:1"],
+                                capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    assert f"cannot listen on 127.0.0.1:{port}" in result.stderr
