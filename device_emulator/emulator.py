@@ -19,7 +19,6 @@ stream. Zenoh callbacks are not used: queries go to a FIFO channel read between 
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import random
@@ -29,11 +28,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import zenoh
-import zenoh.ext as zext
 
+from limbstream.device_emulator import device_io
 from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device_emulator.sync_client import SyncClient
-from limbstream import kernel, quat, wire, zconfig
+from limbstream import kernel, quat, wire
 from limbstream.calibration import SensorModel
 
 log = logging.getLogger("limbstream.emulator")
@@ -176,24 +175,10 @@ class Emulator:
         """Publishers, liveliness tokens and config queryables."""
         s = self.settings
         for d in self.devices:
-            d.publisher = zext.declare_advanced_publisher(
-                self.session, wire.seg_key(d.subject, d.segment),
-                cache=zext.CacheConfig(max_samples=s.cache),
-                sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s),
-                publisher_detection=True,
-                **zconfig.publisher_options("seg"),  # never drop a point under load
-            )
-            d.token = self.session.liveliness().declare_token(wire.alive_key(d.subject, d.segment))
-        # the truth tap is recoverable too (cache: 64 batches, 32 s at 50 Hz), so a router restart or a
-        # cut link costs no evaluation samples and the live AAD matches a fault-free run
-        self._raw_pubs = (
-            {d.slot: zext.declare_advanced_publisher(
-                self.session, wire.raw_key(d.subject, d.segment), cache=zext.CacheConfig(max_samples=64),
-                sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s), publisher_detection=True,
-                **zconfig.publisher_options("raw"))
-             for d in self.devices}
-            if s.truth else {}
-        )
+            d.publisher = device_io.point_publisher(self.session, d.subject, d.segment, s.cache, s.heartbeat_s)
+            d.token = device_io.alive_token(self.session, d.subject, d.segment)
+        self._raw_pubs = ({d.slot: device_io.raw_publisher(self.session, d.subject, d.segment, s.heartbeat_s)
+                           for d in self.devices} if s.truth else {})
         self._queries = [
             (self.session.declare_queryable(wire.device_selector("config", subject), zenoh.handlers.FifoChannel(1024)),
              {zenoh.KeyExpr(wire.config_key(d.subject, d.segment)): d for d in self.devices if d.subject == subject})
@@ -232,18 +217,11 @@ class Emulator:
     def _answer(self, query: zenoh.Query, devices: dict) -> None:
         """Apply and answer one query on a subject's queryable; ``devices``: its {config key: Device}."""
         targets = [d for key, d in devices.items() if key.intersects(query.key_expr)]
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        for d in targets:
-            if payload:
-                try:
-                    config = wire.decode_config(payload, d.config)
-                except wire.WireError as exc:
-                    query.reply_err(json.dumps({"error": str(exc)}))
-                    return
-                self.bank.retune(d.slot, config.threshold, config.max_len, config.live_bound_deg)
-                d.config = config
-                log.info("%s: %s", d.id, config)
-            query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(self.status(d)))
+        device_io.answer_config(query, targets, self._apply, self.status)
+
+    def _apply(self, d: Device, config: wire.DeviceConfig) -> None:
+        self.bank.retune(d.slot, config.threshold, config.max_len, config.live_bound_deg)
+        d.config = config
 
     # ------------------------------------------------------------------ samples
 

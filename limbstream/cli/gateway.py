@@ -12,6 +12,7 @@ import importlib
 GATEWAYS: dict[str, tuple[str, str]] = {
     "serial": ("limbstream.cli.gateway_serial",
                "one device on a serial link (USB CDC, a UART, or the device firmware under QEMU on tcp:HOST:PORT)"),
+    "slimevr": ("limbstream.cli.gateway_slimevr", "SlimeVR trackers (UDP, port 6969) as limbstream devices"),
 }
 """{kind: (module, help)}."""
 

@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 
 from limbstream.cli.emulate import add_clock_arguments, clock_flags
+from limbstream.cli.gateway_slimevr import parse_address
 from limbstream import calibration, wire, zconfig
 from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
@@ -59,6 +60,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     calibration.add_arguments(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
+    parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
+                        help="also start the SlimeVR gateway: trackers send to this UDP port (their default: 6969); "
+                             "with --subjects 0 only real trackers run")
+    parser.add_argument("--slimevr-subject", default="sv01",
+                        help="subject of the SlimeVR trackers (default sv01)")
     parser.add_argument("--max-exits", type=int, default=RestartPolicy.max_exits,
                         help=f"stop everything when one part exits this many times within "
                              f"{RestartPolicy.window_s:g} s (default {RestartPolicy.max_exits})")
@@ -92,6 +98,11 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         if sensors.on:
             argv += calibration.flags(sensors)
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
+    if args.slimevr is not None:
+        argv = ["gateway", "slimevr", "--udp", args.slimevr, "--subject", args.slimevr_subject,
+                *wire.config_from_args(args).flags()]
+        argv += (["--no-truth"] if args.no_truth else []) + ([] if args.sync else ["--no-sync"])
+        parts.append(("slimevr", argv + connect))
     calibrations = ["--calibrate-on-start"] if sensors.on else []
     if sensors.on and args.status_file is not None:  # kept beside the status file: they outlive a restart
         calibrations += ["--calibration-file", str(Path(args.status_file).with_name("calibrations.json"))]
@@ -129,10 +140,13 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     try:
         split_endpoint(args.router)
         split_endpoint(args.http)
-        if args.subjects < 1 or args.emulators < 1 or args.max_exits < 1:
-            raise ValueError("--subjects, --emulators and --max-exits must be >= 1")
+        if args.subjects < (0 if args.slimevr is not None else 1) or args.emulators < 1 or args.max_exits < 1:
+            raise ValueError("--subjects (>= 0 with --slimevr), --emulators and --max-exits must be >= 1")
+        if args.slimevr is not None:
+            parse_address(args.slimevr)
+            wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
         calibration.from_args(args)  # ValueError naming a bad sensor bound
-    except ValueError as exc:
+    except (ValueError, argparse.ArgumentTypeError) as exc:
         print(f"limbstream up: error: {exc}", file=sys.stderr)
         return 2
     temp = None
@@ -174,6 +188,10 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             print(f"\n  dashboard   http://{args.http}/   (API docs http://{args.http}/docs)")
             if TOKEN_ENV in dashboard_vars:
                 print(f"  API token   {dashboard_vars[TOKEN_ENV]}   (development; set {TOKEN_ENV} to choose one)")
+        if args.slimevr is not None:
+            host, port = parse_address(args.slimevr)
+            print(f"  slimevr     udp {host}:{port}  subject {args.slimevr_subject} (point trackers at this "
+                  "machine's address and this port)")
         print(f"  zenoh       {args.router}  keys limbstream/<subject>/pose, limbstream/<subject>/stats")
         print(f"  status      {status_file}  (restart counts; a part that exits is started again)")
         print("\nCtrl-C stops everything.\n", flush=True)

@@ -204,6 +204,10 @@ class SegmenterBank:
         self._live[k] = live_rule(self._settings[k])
         _lib.fastsw_retune(ctypes.addressof(self._states) + k * STATE_SIZE, ctypes.byref(self._settings[k]))
 
+    def reset(self, k: int) -> None:
+        """Start stream k afresh (its settings kept): its next sample is a first point."""
+        _lib.fastsw_init(ctypes.addressof(self._states) + k * STATE_SIZE, ctypes.byref(self._settings[k]))
+
     def flush(self, k: int) -> tuple[int, int, np.ndarray] | None:
         """End stream k: (index, tick, y) of its last point (held: rate 0), or None."""
         point = Point()

@@ -177,6 +177,7 @@ class DeviceStatus:
     points : segment points sent in this stream.
     clock : its clock synchronisation (:class:`ClockStatus`), None if it does not report one.
     rest_pose : what identity orientations of its data mean (wire.REST_POSES).
+    link : the link of a device bridged in by a gateway (:class:`LinkStatus`), None for others.
     """
 
     device: str
@@ -186,11 +187,37 @@ class DeviceStatus:
     points: int
     clock: ClockStatus | None = None
     rest_pose: str = DEFAULT_REST_POSE
+    link: LinkStatus | None = None
 
     def as_dict(self) -> dict:
         clock = {} if self.clock is None else self.clock.as_dict()
+        link = {} if self.link is None else self.link.as_dict()
         return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
-                "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose}
+                "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose, **link}
+
+
+@dataclass(frozen=True)
+class LinkStatus:
+    """The link between a gateway and the real device it bridges in (part of the device's status;
+    optional: a status without ``tracker`` has none).
+
+    Attributes
+    ----------
+    tracker : the device behind the gateway (SlimeVR: ``<MAC or ip:port>/<sensor id>``).
+    battery_pct : its battery level, % (None: not reported).
+    signal_dbm : its radio signal strength, dBm (None: not reported).
+    link_loss : fraction of its packets lost on the way to the gateway (from their numbers).
+    link_pps : packets per second the gateway receives from it.
+    """
+
+    tracker: str
+    battery_pct: float | None = None
+    signal_dbm: float | None = None
+    link_loss: float | None = None
+    link_pps: float | None = None
+
+    def as_dict(self) -> dict:
+        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -235,6 +262,19 @@ def _clock(data: dict) -> ClockStatus | None:
     return ClockStatus(offset, rtt, synced, bad)
 
 
+def _link(data: dict) -> LinkStatus | None:
+    """The LinkStatus fields of a status reply (None if it has none); TypeError if one is bad."""
+    if "tracker" not in data:
+        return None
+    if not isinstance(data["tracker"], str):
+        raise TypeError(f"tracker must be a string, got {data['tracker']!r}")
+    values = [data.get(k) for k in ("battery_pct", "signal_dbm", "link_loss", "link_pps")]
+    for v in values:
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            raise TypeError(f"link figures must be finite numbers or null, got {v!r}")
+    return LinkStatus(data["tracker"], *values)
+
+
 def decode_status(payload: bytes) -> DeviceStatus:
     """A config reply -> DeviceStatus; WireError('status') if it is not one."""
     try:
@@ -246,6 +286,6 @@ def decode_status(payload: bytes) -> DeviceStatus:
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (stream, samples, points)):
             raise TypeError(f"stream, samples and points must be integers, got {[stream, samples, points]}")
         return DeviceStatus(str(data["device"]), config, stream, samples, points, clock=_clock(data),
-                            rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)))
+                            rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)), link=_link(data))
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

@@ -325,6 +325,7 @@ class Aggregator:
             self.fusion.set_config(track, status.config)
             self.fusion.set_rest_pose(track.subject, status.rest_pose)
             track.clock = status.clock
+            track.link = status.link
 
     def drain(self, now: float, budget: int = 100_000) -> int:
         """Move everything waiting in the channels into the tracks. Returns messages handled."""

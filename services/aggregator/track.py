@@ -46,6 +46,7 @@ class DeviceTrack:
         self.online = False
         self.config: wire.DeviceConfig | None = None  # as the device last reported it
         self.clock: wire.ClockStatus | None = None    # its clock sync, as it last reported it
+        self.link: wire.LinkStatus | None = None      # a bridged device's link, as its gateway last reported it
         self.dropped: collections.Counter = collections.Counter()
         self.restarts = 0
         self.generation = 0
@@ -218,4 +219,5 @@ class DeviceTrack:
             **{name: getattr(self.config, name, None) for name in wire.TUNABLES},
             "stream": self.stream, "restarts": self.restarts, "final": self.final,
             **(self.clock.as_dict() if self.clock is not None else {}),
+            **(self.link.as_dict() if self.link is not None else {}),
         }

@@ -1,0 +1,62 @@
+"""The Zenoh side of a device, shared by every process that runs devices (the emulator, the
+gateways): its publishers and the answer to its config queries (docs/protocol.md)."""
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable, Sequence
+
+import zenoh
+import zenoh.ext as zext
+
+from limbstream import wire, zconfig
+
+log = logging.getLogger("limbstream.device")
+RAW_CACHE = 64
+"""Truth-tap batches a device keeps for recovery (32 s at 50 Hz in batches of 25)."""
+
+
+def point_publisher(session: zenoh.Session, subject: str, segment: str, cache: int, heartbeat_s: float):
+    """The segment point publisher: an advanced publisher with a cache of ``cache`` points (a
+    router restart or a cut link costs nothing), miss detection and the "seg" options (never drop
+    a point under load)."""
+    return zext.declare_advanced_publisher(
+        session, wire.seg_key(subject, segment),
+        cache=zext.CacheConfig(max_samples=cache),
+        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),
+        publisher_detection=True,
+        **zconfig.publisher_options("seg"),
+    )
+
+
+def raw_publisher(session: zenoh.Session, subject: str, segment: str, heartbeat_s: float):
+    """The truth-tap publisher, recoverable too (:data:`RAW_CACHE`), so a cut link costs no
+    evaluation samples."""
+    return zext.declare_advanced_publisher(
+        session, wire.raw_key(subject, segment), cache=zext.CacheConfig(max_samples=RAW_CACHE),
+        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s), publisher_detection=True,
+        **zconfig.publisher_options("raw"))
+
+
+def alive_token(session: zenoh.Session, subject: str, segment: str):
+    """The device's liveliness token: it is online while the token is declared."""
+    return session.liveliness().declare_token(wire.alive_key(subject, segment))
+
+
+def answer_config(query: zenoh.Query, targets: Sequence, apply: Callable[[object, wire.DeviceConfig], None],
+                  status: Callable[[object], wire.DeviceStatus]) -> None:
+    """Apply and answer one config query for the devices it names (``targets``: objects with
+    ``config``, ``subject`` and ``segment``): a payload is decoded against each device's config
+    and applied (``apply(device, config)``; a bad one gets an error reply and changes nothing);
+    every target replies with its status."""
+    payload = query.payload.to_bytes() if query.payload is not None else b""
+    for d in targets:
+        if payload:
+            try:
+                config = wire.decode_config(payload, d.config)
+            except wire.WireError as exc:
+                query.reply_err(json.dumps({"error": str(exc)}))
+                return
+            apply(d, config)
+            log.info("%s/%s: %s", d.subject, d.segment, config)
+        query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(status(d)))

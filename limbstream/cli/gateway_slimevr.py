@@ -1,0 +1,132 @@
+"""``limbstream gateway slimevr``: SlimeVR trackers in, limbstream devices out (the part:
+:mod:`limbstream.services.gateway.slimevr`; docs/protocol.md, "SlimeVR gateway")."""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import socket
+import threading
+
+from limbstream import wire, zconfig
+from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.services.gateway import slimevr_protocol as proto
+from limbstream.signals import stop_on_signals
+
+HELP = "SlimeVR trackers (UDP, port 6969) as limbstream devices"
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (or ``PORT``) -> (host, port); argparse.ArgumentTypeError otherwise."""
+    host, sep, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not 0 <= number <= 65535:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT with a port in 0..65535, got {text!r}")
+    return (host.strip("[]") or "0.0.0.0") if sep else "0.0.0.0", number
+
+
+def parse_assign(text: str) -> tuple[tuple[str, int | None], tuple[str | None, str]]:
+    """``TRACKER[/SENSOR]=[SUBJECT/]SEGMENT`` -> ((tracker, sensor or None), (subject or None, segment))."""
+    left, sep, right = text.partition("=")
+    tracker, slash, sensor = left.rpartition("/") if "/" in left else (left, "", "")
+    subject, _, segment = right.rpartition("/")
+    try:
+        number = int(sensor) if slash else None
+        if not sep or not tracker or (number is not None and not 0 <= number <= 255):
+            raise ValueError
+        if segment not in wire.SEGMENTS:
+            raise argparse.ArgumentTypeError(f"--assign {text!r}: segment must be one of {', '.join(wire.SEGMENTS)}")
+        if subject:
+            wire.check_chunk(subject, "subject")
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--assign expects TRACKER[/SENSOR]=[SUBJECT/]SEGMENT (TRACKER: MAC AA:BB:CC:DD:EE:FF or ip:port, "
+            f"SENSOR 0..255), got {text!r}") from None
+    return (tracker.upper() if tracker.count(":") == 5 else tracker, number), (subject or None, segment)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--udp", type=parse_address, default=("0.0.0.0", proto.PORT), metavar="HOST:PORT",
+                        help=f"where trackers send (default 0.0.0.0:{proto.PORT}, the port they look for)")
+    parser.add_argument("--subject", type=lambda s: wire.check_chunk(s, "subject"), default="s01",
+                        help="subject of the trackers (default s01)")
+    parser.add_argument("--assign", type=parse_assign, action="append", default=[],
+                        metavar="TRACKER[/SENSOR]=[SUBJECT/]SEGMENT",
+                        help="the segment of a tracker's sensor (every sensor without /SENSOR); overrides the "
+                             "body position it reports; repeatable")
+    parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--delay-ms", type=float, default=30.0,
+                        help="grid samples are taken this long in the past (default 30 ms)")
+    wire.add_arguments(parser, defaults=wire.LIVE_MODE)  # live mode, as under limbstream up
+    parser.add_argument("--no-truth", dest="truth", action="store_false",
+                        help="do not publish the truth tap (every tracker packet)")
+    parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
+    parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
+    parser.add_argument("--timeout", type=float, default=proto.TRACKER_TIMEOUT_S,
+                        help=f"a tracker silent this long goes offline, s (default {proto.TRACKER_TIMEOUT_S:g})")
+    parser.add_argument("--max-devices", type=int, default=256, help="devices served at most (default 256)")
+    parser.add_argument("--report-s", type=float, default=10.0,
+                        help="print the trackers, unassigned sensors and drops this often, s (default 10)")
+    group = parser.add_argument_group("time sync (docs/reliability.md)")
+    group.add_argument("--no-sync", dest="sync", action="store_false",
+                       help="stamp with the gateway's own clock (no time service)")
+    group.add_argument("--sync-wait-s", type=float, default=10.0,
+                       help="at start, wait at most this long for the first time answers (default 10)")
+    parser.add_argument("-v", "--verbose", action="store_true")
+    zconfig.add_arguments(parser)
+
+
+def validate(args: argparse.Namespace) -> None:
+    checks = [
+        (args.rate > 0, f"--rate must be > 0, got {args.rate}"),
+        (0 <= args.delay_ms <= 1000, f"--delay-ms must be in 0..1000, got {args.delay_ms}"),
+        (1 <= args.raw_batch <= wire.MAX_RAW_BATCH, f"--raw-batch must be in 1..{wire.MAX_RAW_BATCH}"),
+        (args.cache >= 1, f"--cache must be >= 1, got {args.cache}"),
+        (args.timeout > 0, f"--timeout must be > 0, got {args.timeout}"),
+        (args.max_devices >= 1, f"--max-devices must be >= 1, got {args.max_devices}"),
+        (args.report_s > 0, f"--report-s must be > 0, got {args.report_s}"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise SystemExit(f"limbstream gateway slimevr: error: {message}")
+
+
+def settings_from_args(args: argparse.Namespace):
+    from limbstream.services.gateway.slimevr import GatewaySettings
+    assign = {key: (subject or args.subject, segment) for key, (subject, segment) in args.assign}
+    return GatewaySettings(subject=args.subject, assign=assign, fs=args.rate, delay_ms=args.delay_ms,
+                           config=wire.config_from_args(args), truth=args.truth, raw_batch=args.raw_batch,
+                           cache=args.cache, timeout_s=args.timeout, max_devices=args.max_devices,
+                           clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)))
+
+
+def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+    from limbstream.services.gateway.slimevr import SlimeVRGateway
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(message)s")
+    validate(args)
+    settings = settings_from_args(args)
+    sock = socket.socket(socket.AF_INET6 if ":" in args.udp[0] else socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind(args.udp)
+    except OSError as exc:
+        raise SystemExit(f"limbstream gateway slimevr: error: cannot listen on {args.udp[0]}:{args.udp[1]}: "
+                         f"{exc.strerror or exc}") from None
+    stop = stop_on_signals(stop)
+    session = zconfig.open_session(zconfig.from_args(args), stop)
+    if session is None:
+        return 0
+    with session, sock:
+        gateway = SlimeVRGateway(session, sock, settings)
+        gateway.declare()
+        host, port = sock.getsockname()[:2]
+        print(f"slimevr gateway on udp {host}:{port}, subject {settings.subject}, {settings.fs:g} Hz, "
+              f"{len(settings.assign)} assignments", flush=True)
+        gateway.run(stop, on_report=lambda r: print("slimevr " + json.dumps(r, default=str), flush=True),
+                    report_s=args.report_s)
+        gateway.undeclare()
+        print("slimevr final " + json.dumps(gateway.report(), default=str), flush=True)
+    return 0
