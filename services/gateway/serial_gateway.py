@@ -23,9 +23,9 @@ from collections.abc import Callable
 
 import numpy as np
 import zenoh
-import zenoh.ext as zext
 
-from limbstream import wire, zconfig
+from limbstream import wire
+from limbstream.device_emulator import device_io
 from limbstream.services.gateway.serial_port import LinkClosed, SerialLink
 from limbstream.wire import serial_link as link
 
@@ -93,14 +93,8 @@ class SerialGateway:
         self.last_status: link.LinkStatus | None = None
         self.ended = False
         self._tap: list[tuple[int, np.ndarray]] = []
-        self.publisher = zext.declare_advanced_publisher(
-            session, wire.seg_key(subject, segment), cache=zext.CacheConfig(max_samples=cache),
-            sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s), publisher_detection=True,
-            **zconfig.publisher_options("seg"))
-        self.raw_publisher = zext.declare_advanced_publisher(
-            session, wire.raw_key(subject, segment), cache=zext.CacheConfig(max_samples=64),
-            sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s), publisher_detection=True,
-            **zconfig.publisher_options("raw")) if self.truth else None
+        self.publisher = device_io.point_publisher(session, subject, segment, cache, heartbeat_s)
+        self.raw_publisher = device_io.raw_publisher(session, subject, segment, heartbeat_s) if self.truth else None
         self.queries = session.declare_queryable(wire.config_key(subject, segment), zenoh.handlers.FifoChannel(256))
         self.token = None
 
@@ -138,7 +132,7 @@ class SerialGateway:
         self._tap.clear()
         self.counters.links += 1
         self.counters.streams += 1
-        self.token = self.session.liveliness().declare_token(wire.alive_key(self.subject, self.segment))
+        self.token = device_io.alive_token(self.session, self.subject, self.segment)
         log.info("%s: online (%s), stream %d", self.id, identity.text, stream)
         return True
 
