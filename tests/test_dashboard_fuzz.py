@@ -55,7 +55,8 @@ def served():
             pub.put(wire.pose_key("s01"), wire.encode_pose(pose_frame(1)))
             return http_json(url + "/api/subjects/s01/pose")[0] == 200 and http_json(url + "/api/devices/s01/hip")[0] == 200
         wait_until(feed, 20, "s01 stats and pose")
-        wait_until(lambda: http_json(url + "/api/gateways")[1] == [{"gateway": "slimevr", "subject": "s01", "sensors": []}],
+        wait_until(lambda: http_json(url + "/api/gateways")[1] == [{"gateway": "slimevr", "subject": "s01", "sensors": [],
+                                                                  "segments": list(wire.SEGMENTS)}],
                    20, "the gateway listed")
         yield url
     finally:

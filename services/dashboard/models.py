@@ -187,6 +187,7 @@ class Gateway(BaseModel):
     gateway: str = Field(description="its name (limbstream/@gateway/<name>)")
     subject: str = Field(description="subject of the sensors it places by body position")
     sensors: list[GatewaySensor]
+    segments: list[str] = Field(description="the segments a sensor can feed")
 
 
 class AssignRequest(BaseModel):

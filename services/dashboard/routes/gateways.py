@@ -28,7 +28,8 @@ def _session(request: Request):
 async def list_gateways(request: Request, settings: SettingsDep) -> list[dict]:
     """Every gateway that answers within the config timeout, with each sensor it has heard of:
     the device it feeds, or why none."""
-    return await asyncio.to_thread(query_gateways, _session(request), settings.config_timeout_s)
+    gateways = await asyncio.to_thread(query_gateways, _session(request), settings.config_timeout_s)
+    return [g | {"segments": list(wire.SEGMENTS)} for g in gateways]
 
 
 @router.post("/{gateway}/assign", response_model=Gateway, dependencies=[TokenDep],
@@ -45,7 +46,8 @@ async def assign(gateway: GatewayPath, body: AssignRequest, request: Request, se
     sensor's next rotation. Answers the gateway's sensors after the change."""
     assignment = wire.Assignment(body.tracker, body.sensor, body.subject, body.segment)
     try:
-        return await asyncio.to_thread(query_assign, _session(request), gateway, assignment,
-                                       settings.config_timeout_s)
+        listing = await asyncio.to_thread(query_assign, _session(request), gateway, assignment,
+                                          settings.config_timeout_s)
+        return listing | {"segments": list(wire.SEGMENTS)}
     except ConfigError as exc:
         raise HTTPException(exc.status, exc.message) from None
