@@ -134,3 +134,26 @@ def test_bad_assignments_get_a_sentence_and_change_nothing():
     finally:
         t.close()
         g.close()
+
+
+def test_a_full_gateway_refuses_a_new_device_and_keeps_the_old_one():
+    g = Running(max_devices=1)
+    t = Tracker(g.address, bytes([2, 0, 0, 0, 1, 4]), {0: 7})   # left thigh
+    stop = threading.Event()
+    sender = threading.Thread(target=_stream, args=([t], {t.mac_text: [0]}, 30.0), kwargs={"stop": stop})
+    try:
+        t.connect()
+        sender.start()
+        wait_until(lambda: g.poll().get("s01/l_thigh"), 10, "points of the placed sensor")
+        listing, error = assign(g, t.mac_text, 0, "hip")
+        assert listing is None and error == "gateway full (1 devices): no room for s01/hip"
+        count = len(g.poll()["s01/l_thigh"])
+        wait_until(lambda: len(g.poll()["s01/l_thigh"]) > count, 10, "more points of the kept device")
+        assert not finals(g, "s01/l_thigh") and "s01/l_thigh" in g.alive()
+        assert listed(ask(g)[0]) == {f"{t.mac_text}/0": ("s01/l_thigh", None)}
+    finally:
+        stop.set()
+        if sender.is_alive():
+            sender.join()
+        t.close()
+        g.close()

@@ -364,14 +364,10 @@ class SlimeVRGateway:
         other = self.devices.get(wire.device_id(*target))
         if other is not None and other.sensor is not None and other.sensor.tracker.online:
             return f"{other.id} is fed by {other.sensor.name}: unassign it first"
-        if d is None and len(self.slots) == self.settings.max_devices and other is None:
-            return f"gateway full ({self.settings.max_devices} devices)"
+        if other is None and len(self.slots) == self.settings.max_devices:  # (a device keeps its slot)
+            return f"gateway full ({self.settings.max_devices} devices): no room for {wire.device_id(*target)}"
         self._unfeed(sensor, "moved")
-        refused = self._feed(sensor, *target)
-        if refused:  # not expected after the checks above; the sensor stays unassigned, saying why
-            sensor.why = refused
-            self.assigned[key] = None
-            return refused
+        self._feed(sensor, *target)  # cannot be refused after the checks above
         self.assigned[key] = target
         return None
 
