@@ -1,5 +1,5 @@
 """The web page in headless Chromium against the real stack: router, emulator, aggregator and
-dashboard as subprocesses. Writes tests/artifacts/dashboard.png for inspection."""
+dashboard as subprocesses. Writes tests/artifacts/dashboard.png and trackers.png for inspection."""
 from __future__ import annotations
 
 import os
@@ -264,6 +264,8 @@ def test_trackers_panel_assigns_a_sensor(stack):  # noqa: F811
                 page.wait_for_function(f"""() => document.querySelector('{row}')?.dataset.device === 's01/hip'""",
                                        timeout=10_000)
                 assert "-> s01/hip" in page.text_content("#trk-result")
+                ARTIFACTS.mkdir(parents=True, exist_ok=True)
+                page.locator("#trackers").screenshot(path=str(ARTIFACTS / "trackers.png"))
                 wait_until(lambda: any(d["device"] == "s01/hip" and d["alive"] for d in http_json(url + "/api/devices")[1]),
                            20, "the assigned sensor's device online", on_fail=stack.logs)
                 page.select_option(f"{row} select.assign", "s01/l_thigh")
