@@ -1,5 +1,5 @@
 """The web page in headless Chromium against the real stack: router, emulator, aggregator and
-dashboard as subprocesses. Writes tests/artifacts/dashboard.png for inspection."""
+dashboard as subprocesses. Writes tests/artifacts/dashboard.png and trackers.png for inspection."""
 from __future__ import annotations
 
 import os
@@ -217,3 +217,75 @@ def test_page_shows_each_devices_calibration(stack):  # noqa: F811
             assert "not still" in page.text_content("#cal-result"), page.text_content("#cal-result")
         finally:
             browser.close()
+
+
+def test_trackers_panel_assigns_a_sensor(stack):  # noqa: F811
+    """A SlimeVR gateway with two simulated trackers: the Trackers panel lists both sensors, one
+    without a segment and why; choosing a segment in its select assigns it (the device comes
+    online), choosing a segment fed by the other sensor is refused with the gateway's sentence,
+    choosing none unassigns it."""
+    import threading
+
+    from test_slimevr_e2e import free_udp_port
+    from test_slimevr_gateway import _stream
+
+    from slimevr_tracker import Tracker
+    chromium = require_chromium()
+    stack.router()
+    port = free_udp_port()
+    stack.start("gateway", "gateway", "slimevr", "--connect", stack.endpoint, "--udp", f"127.0.0.1:{port}",
+                "--no-sync", "--name", "lab1", "-v")
+    url = stack.dashboard(env={"LIMBSTREAM_API_TOKEN": TOKEN})
+    a = Tracker(("127.0.0.1", port), bytes([2, 0, 0, 0, 3, 1]), {0: 0})   # no body position
+    b = Tracker(("127.0.0.1", port), bytes([2, 0, 0, 0, 3, 2]), {0: 7})   # left thigh
+    stop = threading.Event()
+    sender = threading.Thread(target=_stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0]}, 60.0),
+                              kwargs={"stop": stop})
+    errors = []
+    try:
+        a.connect(30)
+        b.connect(30)
+        sender.start()
+        row = f'#trackers-body tr.sensor[data-tracker="{a.mac_text}"]'
+        with playwright_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page()
+                page.on("pageerror", lambda exc: errors.append(str(exc)))
+                page.goto(url + "/")
+                page.wait_for_function("() => document.querySelectorAll('#trackers-body tr.sensor').length === 2",
+                                       timeout=20_000)
+                assert page.get_attribute(row, "data-device") == ""
+                assert page.text_content(f"{row} td.why") == "no body position and no --assign"
+                assert page.get_attribute(f'#trackers-body tr.sensor[data-tracker="{b.mac_text}"]',
+                                          "data-device") == "s01/l_thigh"
+                page.fill("#ctl-token", TOKEN)
+                page.select_option(f"{row} select.assign", "s01/hip")
+                page.wait_for_function(f"""() => document.querySelector('{row}')?.dataset.device === 's01/hip'""",
+                                       timeout=10_000)
+                assert "-> s01/hip" in page.text_content("#trk-result")
+                ARTIFACTS.mkdir(parents=True, exist_ok=True)
+                page.locator("#trackers").screenshot(path=str(ARTIFACTS / "trackers.png"))
+                wait_until(lambda: any(d["device"] == "s01/hip" and d["alive"] for d in http_json(url + "/api/devices")[1]),
+                           20, "the assigned sensor's device online", on_fail=stack.logs)
+                page.select_option(f"{row} select.assign", "s01/l_thigh")
+                page.wait_for_function("() => /409/.test(document.querySelector('#trk-result').textContent)",
+                                       timeout=10_000)
+                assert f"s01/l_thigh is fed by {b.mac_text}/0" in page.text_content("#trk-result")
+                page.wait_for_function(f"""() => document.querySelector('{row} select.assign')?.value === 's01/hip'""",
+                                       timeout=10_000)
+                page.select_option(f"{row} select.assign", "")
+                page.wait_for_function(f"""() => document.querySelector('{row} td.why')?.textContent
+                    === 'unassigned at run time'""", timeout=10_000)
+                wait_until(lambda: not any(d["device"] == "s01/hip" and d["alive"]
+                                           for d in http_json(url + "/api/devices")[1]),
+                           20, "the unassigned sensor's device offline", on_fail=stack.logs)
+            finally:
+                browser.close()
+    finally:
+        stop.set()
+        if sender.is_alive():
+            sender.join()
+        a.close()
+        b.close()
+    assert not errors, errors

@@ -2,6 +2,7 @@
 authenticated or not, gets a 5xx, and every response conforms to the schema."""
 from __future__ import annotations
 
+import socket
 import threading
 import time
 
@@ -12,6 +13,8 @@ from stack import free_port, http_json, wait_until
 from test_dashboard_api import Device, device_stats, pose_frame
 
 from limbstream import wire, zconfig
+from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
 from limbstream.services.dashboard.app import create_app
 from limbstream.services.dashboard.settings import DashboardSettings
 
@@ -24,13 +27,20 @@ TOKEN = "fuzz-token"
 def served():
     """A router, a publisher with one answering device, one subject's frames and its calibrate
     queryable (as the contract describes the aggregator's: this one refuses, the subject is not
-    complete), and the dashboard served by uvicorn on a free port (in a thread)."""
+    complete), a SlimeVR gateway named ``slimevr`` (no tracker: it lists no sensor and refuses
+    every assignment), and the dashboard served by uvicorn on a free port (in a thread)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zconfig.open_session(zconfig.ZenohSettings(mode="router", connect=(), listen=(endpoint,)))
     pub = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
     device = Device(pub, "s01", "hip")
     refusal = wire.encode_calibrate_answer(wire.CalibrateAnswer(False, "s01: device(s) missing: l_shank"))
     calibrate = pub.declare_queryable(wire.calibrate_key("s01"), lambda q: q.reply(q.key_expr, refusal))
+    udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    udp.bind(("127.0.0.1", 0))
+    gateway = SlimeVRGateway(pub, udp, GatewaySettings("s01", clock=ClockSettings(sync=False), max_devices=4))
+    stop = threading.Event()
+    gateway_thread = threading.Thread(target=gateway.run, args=(stop,), daemon=True)
+    gateway_thread.start()
     port = free_port()
     app = create_app(DashboardSettings(router=endpoint, api_token=TOKEN, config_timeout_s=1.0))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
@@ -45,10 +55,17 @@ def served():
             pub.put(wire.pose_key("s01"), wire.encode_pose(pose_frame(1)))
             return http_json(url + "/api/subjects/s01/pose")[0] == 200 and http_json(url + "/api/devices/s01/hip")[0] == 200
         wait_until(feed, 20, "s01 stats and pose")
+        wait_until(lambda: http_json(url + "/api/gateways")[1] == [{"gateway": "slimevr", "subject": "s01", "sensors": [],
+                                                                  "segments": list(wire.SEGMENTS)}],
+                   20, "the gateway listed")
         yield url
     finally:
         server.should_exit = True
         thread.join(10)
+        stop.set()
+        gateway_thread.join(10)
+        gateway.undeclare()
+        udp.close()
         device.queryable.undeclare()
         calibrate.undeclare()
         pub.close()

@@ -258,3 +258,25 @@ def test_protocol_doc_holds_the_generated_tables():
     doc = (Path(__file__).resolve().parent.parent / "docs" / "protocol.md").read_text()
     for heading, table in tables().items():
         assert table in doc, f"docs/protocol.md: the '{heading}' table is out of date: run python -m limbstream.wire"
+
+
+def test_gateway_key_is_verbatim_and_its_codec_round_trips():
+    import zenoh
+    key = wire.gateway_key("lab1")
+    assert key == "limbstream/@gateway/lab1" and wire.parse_gateway_key(key) == "lab1"
+    assert zenoh.KeyExpr(wire.gateway_selector()).intersects(zenoh.KeyExpr(key))
+    for selector in (wire.subject_selector("pose"), wire.subject_selector("stats"), "limbstream/*/*", "limbstream/*/*/*"):
+        assert not zenoh.KeyExpr(selector).intersects(zenoh.KeyExpr(key)), selector
+    with pytest.raises(ValueError):
+        wire.gateway_key("a/b")
+    with pytest.raises(wire.WireError):
+        wire.parse_gateway_key("limbstream/s01/pose")
+    a = wire.Assignment("AA:BB:CC:DD:EE:01", 2, None, "hip")
+    assert wire.decode_assignment(wire.encode_assignment(a)) == a
+    assert wire.decode_assignment(b'{"tracker": "t", "sensor": 0, "segment": null}').segment is None
+    listing = {"gateway": "g", "subject": "s01", "sensors": [
+        {"tracker": "t", "sensor": 0, "online": True, "position": None, "device": None, "why": "no segment"}]}
+    assert wire.decode_sensors(wire.encode_sensors("g", "s01", listing["sensors"])) == listing
+    for bad in (b"{}", b'{"gateway": "g", "subject": "s", "sensors": [{"tracker": 1}]}', b"nope"):
+        with pytest.raises(wire.WireError):
+            wire.decode_sensors(bad)

@@ -53,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"where trackers send (default 0.0.0.0:{proto.PORT}, the port they look for)")
     parser.add_argument("--subject", type=lambda s: wire.check_chunk(s, "subject"), default="s01",
                         help="subject of the trackers (default s01)")
+    parser.add_argument("--name", type=lambda s: wire.check_chunk(s, "gateway name"), default="slimevr",
+                        help="the gateway's name: its sensors are listed and assigned at run time on "
+                             "limbstream/@gateway/NAME (default slimevr)")
     parser.add_argument("--assign", type=parse_assign, action="append", default=[],
                         metavar="TRACKER[/SENSOR]=[SUBJECT/]SEGMENT",
                         help="the segment of a tracker's sensor (every sensor without /SENSOR); overrides the "
@@ -97,7 +100,7 @@ def validate(args: argparse.Namespace) -> None:
 def settings_from_args(args: argparse.Namespace):
     from limbstream.services.gateway.slimevr import GatewaySettings
     assign = {key: (subject or args.subject, segment) for key, (subject, segment) in args.assign}
-    return GatewaySettings(subject=args.subject, assign=assign, fs=args.rate, delay_ms=args.delay_ms,
+    return GatewaySettings(subject=args.subject, name=args.name, assign=assign, fs=args.rate, delay_ms=args.delay_ms,
                            config=wire.config_from_args(args), truth=args.truth, raw_batch=args.raw_batch,
                            cache=args.cache, timeout_s=args.timeout, max_devices=args.max_devices,
                            clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)))
@@ -123,7 +126,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         gateway = SlimeVRGateway(session, sock, settings)
         gateway.declare()
         host, port = sock.getsockname()[:2]
-        print(f"slimevr gateway on udp {host}:{port}, subject {settings.subject}, {settings.fs:g} Hz, "
+        print(f"slimevr gateway {settings.name} on udp {host}:{port}, subject {settings.subject}, {settings.fs:g} Hz, "
               f"{len(settings.assign)} assignments", flush=True)
         gateway.run(stop, on_report=lambda r: print("slimevr " + json.dumps(r, default=str), flush=True),
                     report_s=args.report_s)

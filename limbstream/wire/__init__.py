@@ -12,6 +12,7 @@ module          what it holds
 :mod:`.config`  device tunables (defaults, bounds), config and status messages
 :mod:`.time`    time exchange codec (device <-> time service)
 :mod:`.calibrate` calibration requests (client -> aggregator) and answers
+:mod:`.gateway` a gateway's sensor listing and run-time assignments (client -> gateway)
 :mod:`.serial_link` the serial link between a device and its gateway (``wire.serial_link``)
 ==============  ==============================================================
 
@@ -27,8 +28,9 @@ from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, Cl
 from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
-from .keys import (CHUNK_PATTERN, DEVICE_KINDS, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
-                   device_selector, history_selector, parse_device_key, parse_subject_key, pose_key, raw_key, seg_key,
+from .gateway import Assignment, decode_assignment, decode_sensors, encode_assignment, encode_sensors
+from .keys import (CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
+                   device_selector, gateway_key, gateway_selector, history_selector, parse_device_key, parse_gateway_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,
                     decode_point, encode_point)

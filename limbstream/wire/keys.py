@@ -10,12 +10,15 @@ key                                                     payload                 
 ``limbstream/<subject>/pose``                           pose frame                 aggregator
 ``limbstream/<subject>/stats``                          stats JSON                 aggregator
 ``limbstream/@time``                                    queryable: time exchange   time service
+``limbstream/@gateway/<gateway>``                       queryable: sensors/assign  gateway
 =====================================================  =========================  ==========
 
 ``<subject>`` and ``<segment>`` are single chunks of letters, digits, ``_``, ``-`` and ``.``.
 Selectors take a subject *pattern*: ``*``, a name, or a name with ``*`` inside (``s0*``).
 The time key's ``@time`` is a verbatim chunk: only ``@time`` itself matches it (``*`` and ``**``
 do not), so no subject can take its place and wildcard queryables never see time queries.
+``@gateway`` is verbatim too: ``limbstream/@gateway/*`` reaches every gateway's queryable and no
+subject or device selector reaches it.
 """
 from __future__ import annotations
 
@@ -30,6 +33,8 @@ SUBJECT_KINDS: tuple[str, ...] = ("pose", "stats", "calibrate")
 """Last chunk of a subject key."""
 TIME_CHUNK = "@time"
 """Second chunk of the time service's key (a verbatim chunk: wildcards never match it)."""
+GATEWAY_CHUNK = "@gateway"
+"""Second chunk of a gateway's key (verbatim, as the time key's)."""
 
 CHUNK_PATTERN = r"^[A-Za-z0-9_.\-]+$"
 """A key chunk (subject or segment name): letters, digits, '_', '-', '.'."""
@@ -118,6 +123,25 @@ def history_selector(subject: str, segment: str, most: int, sn: tuple[int, int] 
 def time_key() -> str:
     """``limbstream/@time``: the time service's queryable (docs/protocol.md, "Time exchange")."""
     return f"{PREFIX}/{TIME_CHUNK}"
+
+
+def gateway_key(name: str) -> str:
+    """``limbstream/@gateway/<name>``: the queryable of the gateway named ``name`` (its sensors
+    and their assignment; docs/protocol.md, "SlimeVR gateway")."""
+    return f"{PREFIX}/{GATEWAY_CHUNK}/{check_chunk(name, 'gateway name')}"
+
+
+def gateway_selector() -> str:
+    """Every gateway's queryable: ``limbstream/@gateway/*``."""
+    return f"{PREFIX}/{GATEWAY_CHUNK}/*"
+
+
+def parse_gateway_key(key: str) -> str:
+    """``limbstream/@gateway/<name>`` -> name; WireError('key') otherwise."""
+    parts = str(key).split("/")
+    if len(parts) != 3 or parts[:2] != [PREFIX, GATEWAY_CHUNK] or not _CHUNK.match(parts[2]):
+        raise WireError("key", f"not a gateway key: {key!r}")
+    return parts[2]
 
 
 def subject_pattern(text: str) -> str:

@@ -17,7 +17,7 @@ from fastapi.staticfiles import StaticFiles
 import limbstream
 
 from .metrics import build_registry
-from .routes import devices, live, ops, subjects
+from .routes import devices, gateways, live, ops, subjects
 from .settings import DashboardSettings
 from .state import LiveState
 from .supervision import UpCollector, UpStatus
@@ -90,7 +90,7 @@ def create_app(settings: DashboardSettings | None = None, session: zenoh.Session
         detail = [{k: e[k] for k in ("type", "loc", "msg") if k in e} for e in exc.errors()]
         return JSONResponse({"detail": detail}, status_code=422)
 
-    for module in (ops, devices, subjects, live):
+    for module in (ops, devices, subjects, gateways, live):
         app.include_router(module.router)
     index = settings.static_dir / "index.html"
 

@@ -168,3 +168,35 @@ class CalibrateResult(BaseModel):
     subject: str
     pose: str
     devices: dict[str, dict]
+
+
+class GatewaySensor(BaseModel):
+    """One sensor a gateway has heard of (limbstream.wire.gateway)."""
+
+    tracker: str = Field(description="its tracker: MAC, or ip:port without one", examples=["AA:BB:CC:DD:EE:01"])
+    sensor: int = Field(description="sensor id on the tracker")
+    online: bool = Field(description="its tracker is sending")
+    position: int | None = Field(description="the body position the tracker reports for it (SlimeVR's ids)")
+    device: str | None = Field(description="the device it feeds, <subject>/<segment>; null: none")
+    why: str | None = Field(description="why it feeds no device")
+
+
+class Gateway(BaseModel):
+    """A gateway and its sensors."""
+
+    gateway: str = Field(description="its name (limbstream/@gateway/<name>)")
+    subject: str = Field(description="subject of the sensors it places by body position")
+    sensors: list[GatewaySensor]
+    segments: list[str] = Field(description="the segments a sensor can feed")
+
+
+class AssignRequest(BaseModel):
+    """Move a gateway's sensor to a device, or to none (``segment`` null)."""
+
+    model_config = ConfigDict(extra="forbid")
+    tracker: str = Field(min_length=1, max_length=64, description="the sensor's tracker (as listed)",
+                         examples=["AA:BB:CC:DD:EE:01"])
+    sensor: int = Field(ge=0, le=255, description="sensor id on the tracker")
+    subject: str | None = Field(None, pattern=wire.CHUNK_PATTERN, max_length=128,
+                                description="subject of the device; null: the gateway's subject")
+    segment: Literal[wire.SEGMENTS] | None = Field(description="segment of the device; null: feed none")

@@ -1,11 +1,12 @@
 """The dashboard's Zenoh side: subscriptions that feed the :class:`~.inbox.Inbox`, and the
-device-config query.
+device-config, calibration and gateway queries.
 
 Nothing here opens a session at import time; :func:`open_bridge` runs in the app lifespan.
 """
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass
 
 import zenoh
@@ -13,6 +14,8 @@ import zenoh
 from limbstream import wire, zconfig
 
 from .inbox import Inbox
+
+log = logging.getLogger("limbstream.dashboard")
 
 STATS_SELECTOR = wire.subject_selector("stats")
 POSE_SELECTOR = wire.subject_selector("pose")
@@ -124,3 +127,37 @@ def query_calibrate(session: zenoh.Session, subject: str, pose: str, timeout_s: 
         except wire.WireError as exc:
             raise ConfigError(502, str(exc)) from None
     raise ConfigError(504, f"no aggregator serving {subject} answered within {timeout_s:g} s")
+
+
+def query_gateways(session: zenoh.Session, timeout_s: float) -> list[dict]:
+    """Every reachable gateway's sensor listing (wire.gateway), sorted by name (blocking: run it
+    in a worker thread). A reply that is not a listing is logged and left out."""
+    gateways = []
+    for reply in session.get(wire.gateway_selector(), timeout=timeout_s):
+        try:
+            if reply.ok is None:
+                raise wire.WireError("gateway", reply.err.payload.to_string())
+            gateways.append(wire.decode_sensors(reply.ok.payload.to_bytes()))
+        except wire.WireError as exc:
+            log.warning("a gateway's listing left out: %s", exc)
+    return sorted(gateways, key=lambda g: g["gateway"])
+
+
+def query_assign(session: zenoh.Session, gateway: str, assignment: wire.Assignment, timeout_s: float) -> dict:
+    """Ask gateway ``gateway`` to apply ``assignment``; its sensor listing after it (blocking:
+    run it in a worker thread). Raises :class:`ConfigError`: 409 (refused: the gateway's
+    sentence), 404 (no gateway of that name answered within ``timeout_s``), 502 (a bad answer)."""
+    replies = session.get(wire.gateway_key(gateway), payload=wire.encode_assignment(assignment), timeout=timeout_s)
+    for reply in replies:
+        if reply.ok is None:
+            raw = reply.err.payload.to_bytes()
+            try:
+                message = str(json.loads(raw)["error"])
+            except (ValueError, KeyError, TypeError):
+                message = raw.decode(errors="replace")
+            raise ConfigError(409, message)
+        try:
+            return wire.decode_sensors(reply.ok.payload.to_bytes())
+        except wire.WireError as exc:
+            raise ConfigError(502, str(exc)) from None
+    raise ConfigError(404, f"no gateway named {gateway} answered within {timeout_s:g} s")

@@ -20,7 +20,9 @@ turns in ``j``, in the truth as in the points.
 
 Devices: a sensor's segment comes from ``--assign`` (MAC[/SENSOR]=[SUBJECT/]SEGMENT), else from
 the body position it reports in its sensor info (:data:`POSITION_SEGMENTS`); a sensor with
-neither, or whose device is fed by another sensor, is listed (``unassigned``), not published. A
+neither, or whose device is fed by another sensor, is listed (``unassigned``), not published.
+The gateway's queryable (``limbstream/@gateway/<name>``, :meth:`SlimeVRGateway.answer_admin`)
+lists the sensors and moves one to another device, or to none, at run time. A
 tracker silent for ``timeout`` (1 s, as a SlimeVR server) goes offline: its devices end their
 streams (FINAL) and drop their liveliness tokens; when it sends again, each starts a new stream.
 
@@ -29,6 +31,7 @@ Times are microseconds unless named otherwise.
 from __future__ import annotations
 
 import collections
+import json
 import logging
 import math
 import random
@@ -85,6 +88,7 @@ class GatewaySettings:
     Attributes
     ----------
     subject : the subject of sensors placed by their body position.
+    name : the gateway's name: its queryable is ``limbstream/@gateway/<name>``.
     assign : {(tracker, sensor or None: every sensor): (subject, segment)}; tracker is its MAC
         (``AA:BB:CC:DD:EE:FF``) or, without one, ``ip:port``.
     fs : device sample rate (the grid), Hz.
@@ -100,6 +104,7 @@ class GatewaySettings:
     """
 
     subject: str
+    name: str = "slimevr"
     assign: dict = field(default_factory=dict)
     fs: float = 50.0
     delay_ms: float = 30.0
@@ -238,6 +243,8 @@ class SlimeVRGateway:
         self.busy_s = 0.0
         self.start_us = 0.0
         self._queries: list = []
+        self._admin = None
+        self.assigned: dict[tuple, tuple | None] = {}  # run-time assignments, as settings.assign; None: none
         self._subjects = sorted({settings.subject} | {s for s, _ in settings.assign.values()})
 
     # ------------------------------------------------------------------ devices
@@ -248,6 +255,8 @@ class SlimeVRGateway:
         self._queries = [(self.session.declare_queryable(wire.device_selector("config", subject),
                                                          zenoh.handlers.FifoChannel(1024)), subject)
                          for subject in self._subjects]
+        self._admin = self.session.declare_queryable(wire.gateway_key(self.settings.name),
+                                                     zenoh.handlers.FifoChannel(256))
 
     def undeclare(self) -> None:
         for d in self.slots:
@@ -258,6 +267,9 @@ class SlimeVRGateway:
                     obj.undeclare()
         for queryable, _ in self._queries:
             queryable.undeclare()
+        if self._admin is not None:
+            self._admin.undeclare()
+            self._admin = None
         if self.sync is not None:
             self.sync.close()
 
@@ -279,27 +291,115 @@ class SlimeVRGateway:
         return d
 
     def _place(self, sensor: Sensor) -> None:
-        """Give the sensor its device (assignment, else body position), if it can have one."""
+        """Give the sensor its device (run-time assignment, else --assign, else body position),
+        if it can have one."""
         if sensor.device is not None:
             return
-        a = self.settings.assign
-        target = a.get((sensor.tracker.name, sensor.sensor)) or a.get((sensor.tracker.name, None))
-        if target is None and sensor.position in proto.POSITION_SEGMENTS:
-            target = (self.settings.subject, proto.POSITION_SEGMENTS[sensor.position])
+        key = (sensor.tracker.name, sensor.sensor)
+        if key in self.assigned:
+            target = self.assigned[key]
+            if target is None:
+                sensor.why = "unassigned at run time"
+                return
+        else:
+            a = self.settings.assign
+            target = a.get(key) or a.get((sensor.tracker.name, None))
+            if target is None and sensor.position in proto.POSITION_SEGMENTS:
+                target = (self.settings.subject, proto.POSITION_SEGMENTS[sensor.position])
         if target is None:
             sensor.why = (f"body position {sensor.position} has no segment" if sensor.position
                           else "no body position and no --assign")
             return
-        d = self._device(*target)
+        refused = self._feed(sensor, *target)
+        if refused:
+            sensor.why = refused
+
+    def _feed(self, sensor: Sensor, subject: str, segment: str) -> str | None:
+        """Make ``sensor`` (without a device) feed device (subject, segment); the reason it
+        cannot (one sentence), else None. A device fed by a sensor of an offline tracker is
+        taken over; its stream, if still open, ends (the new sensor starts a new one)."""
+        d = self._device(subject, segment)
         if d is None:
-            sensor.why = f"gateway full ({self.settings.max_devices} devices)"
-        elif d.sensor is not None and d.sensor is not sensor and d.sensor.tracker.online:
-            sensor.why = f"{d.id} is fed by {d.sensor.name}"
-        else:
-            if d.sensor is not None and d.sensor is not sensor:
-                d.sensor.device = None
-            d.sensor, sensor.device = sensor, d
-            log.info("%s -> %s", sensor.name, d.id)
+            return f"gateway full ({self.settings.max_devices} devices)"
+        if d.sensor is not None and d.sensor is not sensor:
+            if d.sensor.tracker.online:
+                return f"{d.id} is fed by {d.sensor.name}"
+            d.sensor.device = None
+            d.sensor.why = f"{d.id} taken over by {sensor.name}"
+            if d.online:
+                self._end_stream(d)
+        d.sensor, sensor.device = sensor, d
+        log.info("%s -> %s", sensor.name, d.id)
+        return None
+
+    def _unfeed(self, sensor: Sensor, why: str) -> None:
+        """The sensor feeds no device any more: its device's stream ends."""
+        d = sensor.device
+        if d is None:
+            return
+        if d.online:
+            self._end_stream(d)
+        d.sensor, sensor.device, sensor.why = None, None, why
+        log.info("%s -> none (%s)", sensor.name, why)
+
+    def assign(self, a: wire.Assignment) -> str | None:
+        """Move a sensor the gateway has heard of to device (subject, segment), or to none
+        (``segment`` None); the reason it is refused (one sentence), else None. The old device's
+        stream ends (FINAL, token dropped); the new device starts a stream at the sensor's next
+        rotation. Remembered while the gateway runs, over --assign and body positions."""
+        tracker = next((t for t in self.trackers.values() if t.name == a.tracker), None)
+        sensor = tracker.sensors.get(a.sensor) if tracker is not None else None
+        if sensor is None:
+            return f"no sensor {a.tracker}/{a.sensor} has reported to gateway {self.settings.name}"
+        key = (tracker.name, a.sensor)
+        if a.segment is None:
+            self._unfeed(sensor, "unassigned at run time")
+            self.assigned[key] = None
+            return None
+        target = (a.subject or self.settings.subject, a.segment)
+        d = sensor.device
+        if d is not None and (d.subject, d.segment) == target:
+            self.assigned[key] = target
+            return None
+        other = self.devices.get(wire.device_id(*target))
+        if other is not None and other.sensor is not None and other.sensor.tracker.online:
+            return f"{other.id} is fed by {other.sensor.name}: unassign it first"
+        if other is None and len(self.slots) == self.settings.max_devices:  # (a device keeps its slot)
+            return f"gateway full ({self.settings.max_devices} devices): no room for {wire.device_id(*target)}"
+        self._unfeed(sensor, "moved")
+        self._feed(sensor, *target)  # cannot be refused after the checks above
+        self.assigned[key] = target
+        return None
+
+    def sensors(self) -> list[dict]:
+        """Every sensor heard of: ``{tracker, sensor, online, position, device, why}`` (wire.gateway)."""
+        return [{"tracker": t.name, "sensor": s.sensor, "online": t.online, "position": s.position,
+                 "device": s.device.id if s.device else None, "why": None if s.device else s.why}
+                for t in sorted(self.trackers.values(), key=lambda t: t.name)
+                for s in sorted(t.sensors.values(), key=lambda s: s.sensor)]
+
+    def answer_admin(self) -> None:
+        """Answer the gateway's queryable (queries waiting in its channel, at most
+        QUERIES_PER_TICK): no payload lists the sensors; an assignment is applied, then they are
+        listed. A bad or refused one gets an error reply ``{"error": sentence}``."""
+        if self._admin is None:
+            return
+        for _ in range(QUERIES_PER_TICK):
+            query = self._admin.try_recv()
+            if query is None:
+                return
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            if payload:
+                try:
+                    refused = self.assign(wire.decode_assignment(payload))
+                except wire.WireError as exc:
+                    refused = str(exc)
+                if refused:
+                    log.info("assignment refused: %s", refused)
+                    query.reply_err(json.dumps({"error": refused}))
+                    continue
+            query.reply(wire.gateway_key(self.settings.name),
+                        wire.encode_sensors(self.settings.name, self.settings.subject, self.sensors()))
 
     # ------------------------------------------------------------------ streams
 
@@ -700,6 +800,7 @@ class SlimeVRGateway:
                 self.keepalive(now)
                 next_keepalive = now + proto.KEEPALIVE_S
             self.answer_queries()
+            self.answer_admin()
             if self.sync is not None:
                 self.sync.poll()
             self.busy_s += time.thread_time() - began
