@@ -138,11 +138,13 @@ class StatsWatch:
         self.sub = self.session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(4096))
         self.devices: dict[str, dict] = {}
         self.subjects: dict[str, dict] = {}
+        self.subject_history: dict[str, list[dict]] = {}  # every stats message of each subject, in order
 
     def poll(self) -> dict[str, dict]:
         while (sample := self.sub.try_recv()) is not None:
             data = wire.decode_stats(sample.payload.to_bytes())
             self.subjects[data["subject"]] = data
+            self.subject_history.setdefault(data["subject"], []).append(data)
             for d in data["devices"]:
                 self.devices[d["device"]] = d
         return self.devices

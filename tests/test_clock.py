@@ -293,13 +293,26 @@ def p99s(errors: dict[str, np.ndarray]) -> dict[str, float]:
     return {k: float(np.percentile(v, 99)) for k, v in errors.items() if len(v)}
 
 
+def mean_over_first(history: list[dict], frames: int) -> float:
+    """A subject's mean frame error over its first ``frames`` compared frames, deg, from its stats
+    messages (each: the mean over all frames so far, the error window being longer): the error
+    sum is interpolated between the two messages around ``frames``. Emulators that started at
+    different instants are thus compared over the same stretch of their motion."""
+    counts = np.array([h.get("frame_error_frames") or 0 for h in history], float)
+    sums = np.array([(h.get("frame_aad_deg") or 0.0) for h in history]) * counts
+    assert counts[-1] >= frames, (counts[-1], frames)
+    return float(np.interp(frames, counts, sums)) / frames
+
+
 def test_loopback_sync_keeps_every_device_on_the_common_time_base_and_frames_aligned(stack, watch):  # noqa: F811
     """Three emulators of the same motion (subjects s01-s02): perfect clocks (s01, s02), clocks
     off by up to +-2 s drifting up to +-100 ppm with sync (s03, s04), and the same clocks without
-    sync (s05, s06). Every synced device's timestamps are within 3 ms (p99) of the reference
-    from 10 s after its emulator started (the target, 1 ms, is measured in bench/clock_sync.py
-    hour and met here too, 0.33-0.71 ms: the bound keeps 3x that for a loaded machine); the synced subjects' alignment-aware frame error is
-    within 0.1 deg of the perfect clocks'; without sync it is many times larger."""
+    sync (s05, s06). Every synced device's timestamps are within 5 ms (p99) of the reference
+    from 10 s after its emulator started (the target, 1 ms, is measured by bench/clock_sync.py
+    hour; here 0.33-0.71 ms alone and 1.67 ms on a loaded CI machine: the bound keeps 3x that).
+    Over the first 1000 frames of each subject (the same stretch of the same motion, whenever its
+    emulator started), the synced subjects' alignment-aware frame error is within 0.1 deg of the
+    perfect clocks'; without sync it is many times larger."""
     taps = Taps(stack.endpoint)
     try:
         stack.start("clock", "clock", "--connect", stack.endpoint)
@@ -316,7 +329,7 @@ def test_loopback_sync_keeps_every_device_on_the_common_time_base_and_frames_ali
         wait_until(settled, 90, "1000 compared frames per subject", interval=0.2, on_fail=stack.logs)
         p99 = p99s({k: v for k, v in taps.errors_after(started + 10e6).items() if k[:3] in ("s03", "s04")})
         devices = watch.poll()
-        frame_aad = {s: d["frame_aad_deg"] for s, d in sorted(watch.subjects.items())}
+        frame_aad = {s: mean_over_first(h, 1000) for s, h in sorted(watch.subject_history.items())}
         printed = printed_offsets(synced_emulator)
         report_offset = {k: (devices[k]["clock_offset_ms"], printed[k]) for k in printed}
         worst = max(p99, key=p99.get)
@@ -325,7 +338,7 @@ def test_loopback_sync_keeps_every_device_on_the_common_time_base_and_frames_ali
                f"{np.median(list(p99.values())):.0f} us; frame_aad_deg perfect {frame_aad['s01']:.3f}/"
                f"{frame_aad['s02']:.3f}, synced {frame_aad['s03']:.3f}/{frame_aad['s04']:.3f}, unsynced "
                f"{frame_aad['s05']:.2f}/{frame_aad['s06']:.2f}")
-        assert len(p99) == 20 and max(p99.values()) <= 3000, p99
+        assert len(p99) == 20 and max(p99.values()) <= 5000, p99
         for k, (reported, drawn) in report_offset.items():  # the device's own estimate vs its drawn offset
             assert devices[k]["synced"] is True and abs(reported - drawn) < 0.1 * 60 + 1.0, (k, reported, drawn)
         for d in ("s05/hip", "s01/hip"):
