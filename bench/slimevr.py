@@ -9,7 +9,10 @@ accuracy: 10 trackers of one subject send a clip (played once, each tracker its 
 rate; the aggregator's figures once every stream ended: devices seen online, ICR (points over
 the larger of grid samples and tracker packets), exact AAD (pooled over the stream, against the
 trackers' own packets: the truth tap), worst exact max, live mean / p99 / max (the live view
-against every packet), and the gateway's held grid samples.
+against every packet), and the gateway's held grid samples; then, from the points and the truth
+tap themselves (subscribed to), the truth samples whose live error is over the live bound and
+how far each came after the one before it (a packet delayed on its way keeps its arrival stamp
+when it is more than half a period late).
 capacity: N trackers (N/10 subjects, placed by --assign) at F Hz for S seconds, gateway grid at
 F Hz: the gateway process's CPU (user + system, /proc) per second of wall time (loop: its main
 thread, the rest is Zenoh's threads sending the points), per tracker,
@@ -39,7 +42,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 import numpy as np  # noqa: E402
 import zenoh  # noqa: E402
 
-from limbstream import wire, zconfig  # noqa: E402
+from limbstream import quat, wire, zconfig  # noqa: E402
 from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
 from limbstream.sources import load  # noqa: E402
 from slimevr_tracker import Fleet  # noqa: E402
@@ -132,6 +135,8 @@ def accuracy(args) -> None:
           f"{wire.LIVE_MODE}")
     with tempfile.TemporaryDirectory() as tmp, Launcher(logdir=Path(tmp)) as launcher:
         system = System(launcher, ["--subject", "s01", "--rate", str(motion.fs), "--delay-ms", str(args.delay_ms)])
+        taps = {kind: system.session.declare_subscriber(wire.device_selector(kind), zenoh.handlers.FifoChannel(1 << 16))
+                for kind in ("seg", "raw")}
         sender, _, counters = start_fleet(("127.0.0.1", system.port), q, motion.segments, motion.fs,
                                           seconds=len(q) / motion.fs, spin_s=args.spin_ms / 1e3)
         while sender.is_alive():
@@ -142,6 +147,7 @@ def accuracy(args) -> None:
         time.sleep(3.0)  # the last truth samples evaluated
         devices = list(system.poll().values())
         report = gateway_report(system.gateway)
+        over = over_bound(taps, wire.LIVE_MODE["live_bound_deg"], 1e6 / motion.fs)
         system.session.close()
     samples = sum(d["samples"] for d in devices)
     compared = sum(d["error_samples"] for d in devices)
@@ -155,6 +161,41 @@ def accuracy(args) -> None:
           f"{max(d['live_p99_deg'] for d in devices):>8.3f} {max(d['live_max_deg'] for d in devices):>8.3f} "
           f"{compared:>9} {held:>5} {sum(report.get('dropped', {}).values()):>8} "
           f"{max(d['jitter_p99_ms'] or 0 for d in report['devices'].values()):>13.2f}")
+    print(f"from the taps: {len(over)} truth samples over the live bound"
+          + "".join(f"\n  {dev}: {err:.2f} deg, {gap / 1e3:.1f} ms after the sample before" for dev, err, gap in over))
+
+
+def over_bound(taps: dict, bound_deg: float, period_us: float) -> list[tuple[str, float, float]]:
+    """(device, live error deg, us since the truth sample before) of every truth sample whose live
+    view (the newest point at or before it, extrapolated: quat.predict) is over ``bound_deg``,
+    from the points and truth batches received on ``taps`` (one stream per device)."""
+    points: dict[str, list] = {}
+    truth: dict[str, list] = {}
+    for kind, sub in taps.items():
+        while (sample := sub.try_recv()) is not None:
+            subject, segment, _ = wire.parse_device_key(str(sample.key_expr))
+            payload = sample.payload.to_bytes()
+            if kind == "seg":
+                points.setdefault(f"{subject}/{segment}", []).append(wire.decode_point(payload))
+            else:
+                truth.setdefault(f"{subject}/{segment}", []).append(wire.decode_raw(payload))
+    over = []
+    for dev, ps in sorted(points.items()):
+        ps.sort(key=lambda p: p.t_us)
+        pt = np.array([p.t_us for p in ps])
+        pq = np.array([p.q for p in ps], np.float64)
+        pw = np.array([p.omega or (0.0, 0.0, 0.0) for p in ps], np.float64)
+        batches = sorted(truth.get(dev, []), key=lambda b: b.first_index)
+        if not batches:
+            continue
+        tt = np.concatenate([b.t_us for b in batches])
+        tq = np.concatenate([b.q for b in batches]).astype(np.float64)
+        k = np.searchsorted(pt, tt, side="right") - 1
+        seen = np.flatnonzero(k >= 0)
+        err = quat.angle_deg(quat.predict(pq[k[seen]], pw[k[seen]], (tt[seen] - pt[k[seen]]) / 1e6), tq[seen])
+        for i in seen[err > bound_deg + 1e-3]:
+            over.append((dev, float(err[np.searchsorted(seen, i)]), float(tt[i] - tt[i - 1]) if i else period_us))
+    return over
 
 
 def after_pkts(report: dict) -> int:

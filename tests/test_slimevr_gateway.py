@@ -363,20 +363,32 @@ def test_flags_of_the_command_are_checked():
 
 
 def test_grid_samples_follow_the_packets():
-    """A device's grid sample is the SLERP of the packets around its instant (held after the newest)."""
+    """A device's grid sample is the packet that arrived less than half a period after its instant
+    (delayed on its way) or a twentieth before it (the grid moved later since), its truth sample
+    restamped at the instant; else the SLERP of the packets around the instant (held after the
+    newest)."""
     from limbstream.services.gateway.slimevr import Device
     d = Device("s01", "hip", 0, wire.DeviceConfig())
     g = SlimeVRGateway.__new__(SlimeVRGateway)
-    g.hold_us, g.period_us = 15_000.0, 20_000.0
+    g.hold_us, g.period_us, g.late_us, g.early_us, g.offset_us = 15_000.0, 20_000.0, 10_000.0, 1_000.0, 1_000.0
     for t, angle in ((0.0, 0.0), (20_000.0, 0.2), (40_000.0, 0.4)):
+        q = np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0])
         d.hist_t.append(t)
-        d.hist_q.append(np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]))
+        d.hist_q.append(q)
+        d.truth_a.append(t)
+        d.truth_t.append(round(t + g.offset_us))
+        d.truth_q.append(q)
     assert g._bracket(d, -1.0) is None
-    q0, q1, u = g._bracket(d, 30_000.0)
+    q0, q1, u = g._bracket(d, 30_000.0)  # half a period before the next packet: between the two
     q = quat.slerp(q0, q1, u)
     assert 2 * math.atan2(q[2], q[0]) == pytest.approx(0.3, abs=1e-6)
-    assert d.held == 0
-    q0, q1, u = g._bracket(d, 44_000.0)  # within a quarter period of the newest packet: on time
+    assert d.held == 0 and d.truth_t == [1_000, 21_000, 41_000]
+    q0, q1, u = g._bracket(d, 33_000.0)  # the packet at 40 ms came 7 ms late for this instant
+    assert 2 * math.atan2(q1[2], q1[0]) == pytest.approx(0.4, abs=1e-6) and u == 0.0 and d.held == 0
+    assert d.truth_t == [1_000, 21_000, 34_000]
+    q0, q1, u = g._bracket(d, 40_500.0)  # the packet at 40 ms arrived just before this instant: its own
+    assert u == 0.0 and q0 is q1 and d.truth_t == [1_000, 21_000, 41_500]
+    q0, q1, u = g._bracket(d, 44_000.0)  # within a quarter period after the newest packet: on time
     assert 2 * math.atan2(q1[2], q1[0]) == pytest.approx(0.4, abs=1e-6) and u == 0.0 and d.held == 0
     q0, q1, u = g._bracket(d, 50_000.0)
     assert 2 * math.atan2(q1[2], q1[0]) == pytest.approx(0.4, abs=1e-6) and u == 0.0 and d.held == 1

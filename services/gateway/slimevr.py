@@ -13,10 +13,11 @@ base by :class:`SyncClient`, one clock for all). Trackers send at their own irre
 device samples its tracker on a uniform grid of its own, placed on the lower edge of its packets'
 arrivals (:meth:`SlimeVRGateway._lock_phase`), at the newest instant at least ``delay`` (default
 30 ms) in the past: the SLERP of the two packets around that instant, or the newest packet held
-when none has arrived after it yet (counted: ``held``). The truth tap carries every packet at its
-arrival stamp, so a device's errors are measured against the tracker's own full-rate stream. A
-packet later than the grid's edge by ``j`` is stamped ``j`` late; it costs the angle the limb
-turns in ``j``, in the truth as in the points.
+when none has arrived after it yet (counted: ``held``). A packet that arrives less than half a
+period after an instant was delayed on its way (arrival jitter), not taken later: it is that
+instant's sample, and the truth tap stamps it at that instant (the sample's own stamp). The truth
+tap carries every packet, each other one at its arrival, so a device's errors are measured
+against the tracker's own full-rate stream.
 
 Devices: a sensor's segment comes from ``--assign`` (MAC[/SENSOR]=[SUBJECT/]SEGMENT), else from
 the body position it reports in its sensor info (:data:`POSITION_SEGMENTS`); a sensor with
@@ -68,6 +69,14 @@ PHASE_GAIN = 0.02
 """Share of a late packet's offset from its device's grid instant the grid moves by."""
 JITTER_WINDOW = 500
 """Packets over which a device's arrival jitter (offset from its grid instant) is reported."""
+LATE_SHARE = 0.5
+"""A packet that arrives less than this share of a period after its device's grid instant was
+delayed on its way: it is that instant's sample (a tracker faster than the grid has its packets
+in between: then the SLERP of the two around the instant)."""
+EARLY_SHARE = 0.05
+"""A packet that arrives less than this share of a period before its device's grid instant is that
+instant's sample too: the grid moves later by PHASE_GAIN of each late packet's offset, so the
+packet that set the lower edge can end up just before its instant."""
 HOLD_PERIODS = 2
 """A device holds its newest packet this many grid periods at most, then takes no sample."""
 RECV_BUDGET = 4096
@@ -184,6 +193,7 @@ class Device:
     hist_q: collections.deque = field(default_factory=lambda: collections.deque(maxlen=HISTORY))
     truth_t: list = field(default_factory=list)  # common-time stamps of packets not yet on the tap
     truth_q: list = field(default_factory=list)
+    truth_a: list = field(default_factory=list)  # and their arrivals (gateway clock)
     truth_since: float = 0.0                     # monotonic s of the oldest of them
     raw_index: int = 0                           # index of the next truth sample in the stream
     held: int = 0                                # grid samples held (no packet after the instant yet)
@@ -232,6 +242,8 @@ class SlimeVRGateway:
         self.period_us = 1e6 / settings.fs
         self.delay_us = settings.delay_ms * 1e3
         self.hold_us = HOLD_PERIODS * self.period_us
+        self.late_us = LATE_SHARE * self.period_us
+        self.early_us = EARLY_SHARE * self.period_us
         self.rise_after = math.ceil(self.delay_us / self.period_us) + 2  # packets between one's arrival and its instant
         self.ring_q = np.zeros((RING, n, 4), np.float32)
         self.base = TimeBase()
@@ -414,7 +426,7 @@ class SlimeVRGateway:
         d.shift, d.no_rise = 0.0, 0
         d.hist_t.clear()
         d.hist_q.clear()
-        d.truth_t, d.truth_q = [], []
+        d.truth_t, d.truth_q, d.truth_a = [], [], []
         d.streams += 1
         d.online = True
         d.token = device_io.alive_token(self.session, d.subject, d.segment)
@@ -435,7 +447,7 @@ class SlimeVRGateway:
             d.publisher.put(wire.encode_point(wire.SegmentPoint(
                 point.stream, int(b.seq[k]), point.index, point.t_us, point.q, wire.FLAG_FINAL, point.omega)))
         b.seq[k] = (int(b.seq[k]) + 1) & 0xFFFFFFFF
-        self._flush_truth(d)
+        self._flush_truth(d, len(d.truth_t))
         if d.token is not None:
             d.token.undeclare()
             d.token = None
@@ -563,8 +575,7 @@ class SlimeVRGateway:
                 d.truth_since = now
             d.truth_t.append(round(t_us + self.offset_us))
             d.truth_q.append(q)
-            if len(d.truth_t) >= self.settings.raw_batch:
-                self._flush_truth(d)
+            d.truth_a.append(t_us)
 
     def _lock_phase(self, d: Device, t_us: float) -> None:
         """Keep the device's grid instants on its tracker's packets, at their earliest arrivals:
@@ -612,33 +623,64 @@ class SlimeVRGateway:
             return None
         return d.instant
 
-    def _flush_truth(self, d: Device) -> None:
-        if not d.truth_t or d.raw_pub is None:
+    def _restamp_truth(self, d: Device, arrival: float, t_us: int) -> None:
+        """The truth sample of the packet that arrived at ``arrival`` is stamped ``t_us``."""
+        for i in range(len(d.truth_a) - 1, -1, -1):
+            if d.truth_a[i] == arrival:
+                d.truth_t[i] = t_us
+                return
+            if d.truth_a[i] < arrival:
+                return
+
+    def _flush_truth(self, d: Device, n: int) -> None:
+        """Put the device's first ``n`` truth samples on its tap."""
+        if not n or d.raw_pub is None:
             return
-        t = np.maximum.accumulate(np.array(d.truth_t, np.int64))
-        q = quat.multiply(AXES_Q, np.array(d.truth_q)).astype(np.float32)
+        t = np.maximum.accumulate(np.array(d.truth_t[:n], np.int64))
+        q = quat.multiply(AXES_Q, np.array(d.truth_q[:n])).astype(np.float32)
         d.raw_pub.put(wire.encode_raw(wire.RawBatch(int(self.bank.stream[d.slot]), d.raw_index, t, q)))
         d.raw_index += len(t)
-        d.truth_t, d.truth_q = [], []
+        del d.truth_t[:n], d.truth_q[:n], d.truth_a[:n]
+        if d.truth_t:
+            d.truth_since = time.monotonic()
+
+    def _settled_truth(self, d: Device) -> int:
+        """How many of the device's truth samples keep their stamps: those that arrived before
+        its last grid instant plus LATE_SHARE of a period (a later one may still be an instant's)."""
+        edge = (d.instant if d.instant is not None else -math.inf) + self.late_us
+        n = len(d.truth_a)
+        while n and d.truth_a[n - 1] >= edge:
+            n -= 1
+        return n
 
     # ------------------------------------------------------------------ ticks
 
     def _bracket(self, d: Device, at_us: float) -> tuple | None:
-        """The device's tracker at the gateway's time ``at_us`` as (q0, q1, u): the packets around
-        it and where it falls between them (SLERP), or the newest packet twice if none is newer
-        yet (held: counted when it is older than a quarter period) for at most HOLD_PERIODS grid
-        periods; None before its first packet
-        and after that hold (a tracker gone quiet: no sample). Tracker axes."""
+        """The device's tracker at the gateway's time ``at_us`` as (q0, q1, u): the nearest packet
+        that arrived less than EARLY_SHARE of a period before the instant or less than LATE_SHARE
+        after it (delayed on its way: the instant's own sample, and its truth sample is stamped at
+        the instant), else the packets
+        around it and where it falls between them (SLERP), or the newest packet twice if none is
+        newer yet (held: counted when it is older than a quarter period) for at most HOLD_PERIODS
+        grid periods; None before its first packet and after that hold (a tracker gone quiet: no
+        sample). Tracker axes."""
         ts = d.hist_t
         if not ts or ts[0] > at_us or ts[-1] < at_us - self.hold_us:
             return None
-        if ts[-1] <= at_us:
-            if at_us - ts[-1] > self.period_us / 4:  # (a packet within jitter of the instant is on time)
+        j = len(ts)
+        while j and ts[j - 1] > at_us:
+            j -= 1
+        # ts[:j] arrived at or before the instant, ts[j:] after it
+        before = at_us - ts[j - 1] if j and at_us - ts[j - 1] < self.early_us else math.inf
+        after = ts[j] - at_us if j < len(ts) and ts[j] - at_us < self.late_us else math.inf
+        own = None if before == after == math.inf else j - 1 if before <= after else j
+        if own is not None:
+            self._restamp_truth(d, ts[own], int(round(at_us + self.offset_us)))
+            return d.hist_q[own], d.hist_q[own], 0.0
+        if j == len(ts):
+            if at_us - ts[-1] > self.period_us / 4:
                 d.held += 1
             return d.hist_q[-1], d.hist_q[-1], 0.0
-        j = len(ts) - 1
-        while ts[j - 1] > at_us:
-            j -= 1
         return d.hist_q[j - 1], d.hist_q[j], (at_us - ts[j - 1]) / (ts[j] - ts[j - 1])
 
     def step(self, k: int, now: float) -> None:
@@ -693,8 +735,10 @@ class SlimeVRGateway:
             log.info("%s: no rotation for %d ticks", d.id, d.quiet)
             self._end_stream(d)
         for d in self.slots:
-            if d.online and d.truth_t and now - d.truth_since >= TRUTH_MAX_AGE_S:
-                self._flush_truth(d)
+            if d.online and d.truth_t:
+                n = self._settled_truth(d)
+                if n >= self.settings.raw_batch or (n and now - d.truth_since >= TRUTH_MAX_AGE_S):
+                    self._flush_truth(d, n)
         self.ticks = k + 1
 
     def keepalive(self, now: float) -> None:
