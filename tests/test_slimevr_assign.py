@@ -77,6 +77,7 @@ def test_sensors_are_listed_assigned_moved_and_refused():
                          "points of the moved sensor's new device")
         assert new[0].seq == 0 and new[0].index == 0 and not new[0].flags & wire.FLAG_FINAL
         assert "s02/r_thigh" in g.alive()
+        assert g.status("s02/r_thigh")["device"] == "s02/r_thigh"  # a new subject's devices answer too
         # the old device takes no points after its FINAL one
         hip = g.poll()["s01/hip"]
         assert hip[-1].flags & wire.FLAG_FINAL
@@ -157,3 +158,35 @@ def test_a_full_gateway_refuses_a_new_device_and_keeps_the_old_one():
             sender.join()
         t.close()
         g.close()
+
+
+def test_assignments_made_at_run_time_outlive_the_gateway(tmp_path):
+    """With an assignments file, a restarted gateway feeds the devices the last one was told to at
+    run time (over body positions), and keeps a sensor it was told to unassign unassigned."""
+    kept = tmp_path / "assignments.json"
+    for run in range(2):
+        g = Running(assignments_file=str(kept))
+        t = Tracker(g.address, bytes([2, 0, 0, 0, 1, 5]), {0: 1, 1: 7})   # head (no segment), left thigh
+        stop = threading.Event()
+        sender = threading.Thread(target=_stream, args=([t], {t.mac_text: [0, 1]}, 30.0), kwargs={"stop": stop})
+        try:
+            t.connect()
+            sender.start()
+            if run == 0:
+                wait_until(lambda g=g: "s01/l_thigh" in g.poll(), 10, "points of the placed sensor")
+                assert assign(g, t.mac_text, 0, "neck", subject="s03")[1] is None
+                assert assign(g, t.mac_text, 1, None)[1] is None
+                assert json.loads(kept.read_text()) == [
+                    {"tracker": t.mac_text, "sensor": 0, "subject": "s03", "segment": "neck"},
+                    {"tracker": t.mac_text, "sensor": 1, "subject": None, "segment": None}]
+            else:  # the new gateway: as it was left
+                wait_until(lambda g=g: "s03/neck" in g.poll(), 10, "points of the kept assignment")
+                assert listed(ask(g)[0]) == {f"{t.mac_text}/0": ("s03/neck", None),
+                                             f"{t.mac_text}/1": (None, "unassigned at run time")}
+                assert "s01/l_thigh" not in g.poll()
+        finally:
+            stop.set()
+            if sender.is_alive():
+                sender.join()
+            t.close()
+            g.close()

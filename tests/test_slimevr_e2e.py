@@ -11,7 +11,8 @@ import threading
 import numpy as np
 import pytest
 
-from limbstream import wire
+from limbstream import wire, zconfig
+from limbstream.launch import free_port
 from slimevr_tracker import Fleet
 from stack import StatsWatch, stack, wait_until  # noqa: F401  (the fixture)
 
@@ -109,6 +110,10 @@ def test_up_plan_passes_the_gateway_its_flags():
     assert argv[:6] == ["gateway", "slimevr", "--udp", "7000", "--subject", "sv01"]
     assert {"--no-truth", "--no-sync"} <= set(argv) and argv[argv.index("--threshold") + 1] == "0.002"
     assert argv[argv.index("--live-bound-deg") + 1] == str(wire.LIVE_MODE["live_bound_deg"])
+    assert "--assignments-file" not in argv
+    args = parser.parse_args(["--slimevr", "7000", "--status-file", "/var/lib/ls/status.json"])
+    [argv] = [a for name, a in up_cli.plan(args) if name == "slimevr"]
+    assert argv[argv.index("--assignments-file") + 1] == "/var/lib/ls/slimevr-assignments.json"
     assert up_cli.run(parser.parse_args(["--slimevr", "x:99999"])) == 2
 
 
@@ -123,3 +128,17 @@ def test_a_taken_port_is_a_clear_error():
                                 capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert f"cannot listen on 127.0.0.1:{port}" in result.stderr
+
+
+def test_a_bad_assignments_file_is_a_clear_error(tmp_path):
+    import subprocess
+    import sys
+    bad = tmp_path / "assignments.json"
+    bad.write_text('[{"tracker": "02:00:00:00:01:05", "sensor": 0, "segment": "tail"}]')
+    router = f"tcp/127.0.0.1:{free_port()}"
+    with zconfig.open_session(zconfig.ZenohSettings(mode="router", listen=(router,), connect=())):
+        result = subprocess.run([sys.executable, "-m", "limbstream.cli", "gateway", "slimevr", "--udp", "127.0.0.1:0",
+                                 "--assignments-file", str(bad), "--no-sync", "--connect", router],
+                                capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1, result.stderr
+    assert f"error: assignments file {bad}: segment must be one of" in result.stderr

@@ -60,6 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         metavar="TRACKER[/SENSOR]=[SUBJECT/]SEGMENT",
                         help="the segment of a tracker's sensor (every sensor without /SENSOR); overrides the "
                              "body position it reports; repeatable")
+    parser.add_argument("--assignments-file", metavar="PATH",
+                        help="keep the assignments made at run time (dashboard, REST) in this JSON file: "
+                             "loaded at start, over --assign; rewritten after each change")
     parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
     parser.add_argument("--delay-ms", type=float, default=30.0,
                         help="grid samples are taken this long in the past (default 30 ms)")
@@ -103,7 +106,8 @@ def settings_from_args(args: argparse.Namespace):
     return GatewaySettings(subject=args.subject, name=args.name, assign=assign, fs=args.rate, delay_ms=args.delay_ms,
                            config=wire.config_from_args(args), truth=args.truth, raw_batch=args.raw_batch,
                            cache=args.cache, timeout_s=args.timeout, max_devices=args.max_devices,
-                           clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)))
+                           clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)),
+                           assignments_file=args.assignments_file)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
@@ -123,7 +127,10 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     if session is None:
         return 0
     with session, sock:
-        gateway = SlimeVRGateway(session, sock, settings)
+        try:
+            gateway = SlimeVRGateway(session, sock, settings)
+        except ValueError as exc:  # a bad assignments file
+            raise SystemExit(f"limbstream gateway slimevr: error: {exc}") from None
         gateway.declare()
         host, port = sock.getsockname()[:2]
         print(f"slimevr gateway {settings.name} on udp {host}:{port}, subject {settings.subject}, {settings.fs:g} Hz, "

@@ -102,6 +102,8 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         argv = ["gateway", "slimevr", "--udp", args.slimevr, "--subject", args.slimevr_subject,
                 *wire.config_from_args(args).flags()]
         argv += (["--no-truth"] if args.no_truth else []) + ([] if args.sync else ["--no-sync"])
+        if args.status_file is not None:  # run-time assignments kept beside the status file, as calibrations
+            argv += ["--assignments-file", str(Path(args.status_file).with_name("slimevr-assignments.json"))]
         parts.append(("slimevr", argv + connect))
     calibrations = ["--calibrate-on-start"] if sensors.on else []
     if sensors.on and args.status_file is not None:  # kept beside the status file: they outlive a restart

@@ -49,6 +49,7 @@ from limbstream import kernel, quat, wire
 from limbstream.device_emulator import device_io
 from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device_emulator.sync_client import SyncClient
+from limbstream.services.gateway import assignments
 from limbstream.services.gateway import slimevr_protocol as proto
 
 log = logging.getLogger("limbstream.gateway.slimevr")
@@ -110,6 +111,8 @@ class GatewaySettings:
     timeout_s : a tracker silent this long goes offline.
     max_devices : devices the gateway can serve (bank size).
     clock : time sync (one clock: the gateway's).
+    assignments_file : where run-time assignments are kept (:mod:`.assignments`): loaded at start,
+        rewritten after each change; None: they last while the gateway runs.
     """
 
     subject: str
@@ -125,6 +128,7 @@ class GatewaySettings:
     timeout_s: float = proto.TRACKER_TIMEOUT_S
     max_devices: int = 256
     clock: ClockSettings = field(default_factory=ClockSettings)
+    assignments_file: str | None = None
 
 
 @dataclass
@@ -256,7 +260,9 @@ class SlimeVRGateway:
         self.start_us = 0.0
         self._queries: list = []
         self._admin = None
-        self.assigned: dict[tuple, tuple | None] = {}  # run-time assignments, as settings.assign; None: none
+        # run-time assignments, as settings.assign; None: none (ValueError: a bad assignments file)
+        kept = assignments.load(settings.assignments_file) if settings.assignments_file else {}
+        self.assigned: dict[tuple, tuple | None] = {k: t and (t[0] or settings.subject, t[1]) for k, t in kept.items()}
         self._subjects = sorted({settings.subject} | {s for s, _ in settings.assign.values()})
 
     # ------------------------------------------------------------------ devices
@@ -264,11 +270,16 @@ class SlimeVRGateway:
     def declare(self) -> None:
         """One config queryable per subject the gateway may serve (devices are declared as
         their trackers appear)."""
-        self._queries = [(self.session.declare_queryable(wire.device_selector("config", subject),
-                                                         zenoh.handlers.FifoChannel(1024)), subject)
-                         for subject in self._subjects]
+        for subject in self._subjects:
+            self._serve_subject(subject)
         self._admin = self.session.declare_queryable(wire.gateway_key(self.settings.name),
                                                      zenoh.handlers.FifoChannel(256))
+
+    def _serve_subject(self, subject: str) -> None:
+        """Declare the config queryable of ``subject``'s devices, unless it is declared."""
+        if all(s != subject for _, s in self._queries):
+            self._queries.append((self.session.declare_queryable(wire.device_selector("config", subject),
+                                                                 zenoh.handlers.FifoChannel(1024)), subject))
 
     def undeclare(self) -> None:
         for d in self.slots:
@@ -294,6 +305,7 @@ class SlimeVRGateway:
             if len(self.slots) == self.settings.max_devices:
                 return None
             s = self.settings
+            self._serve_subject(subject)  # a run-time assignment may name a subject not served yet
             d = Device(subject, segment, len(self.slots), s.config)
             d.publisher = device_io.point_publisher(self.session, subject, segment, s.cache, s.heartbeat_s)
             if s.truth:
@@ -358,7 +370,8 @@ class SlimeVRGateway:
         """Move a sensor the gateway has heard of to device (subject, segment), or to none
         (``segment`` None); the reason it is refused (one sentence), else None. The old device's
         stream ends (FINAL, token dropped); the new device starts a stream at the sensor's next
-        rotation. Remembered while the gateway runs, over --assign and body positions."""
+        rotation. Remembered over --assign and body positions while the gateway runs, and in its
+        assignments file if it has one."""
         tracker = next((t for t in self.trackers.values() if t.name == a.tracker), None)
         sensor = tracker.sensors.get(a.sensor) if tracker is not None else None
         if sensor is None:
@@ -366,12 +379,12 @@ class SlimeVRGateway:
         key = (tracker.name, a.sensor)
         if a.segment is None:
             self._unfeed(sensor, "unassigned at run time")
-            self.assigned[key] = None
+            self._remember(key, None)
             return None
         target = (a.subject or self.settings.subject, a.segment)
         d = sensor.device
         if d is not None and (d.subject, d.segment) == target:
-            self.assigned[key] = target
+            self._remember(key, target)
             return None
         other = self.devices.get(wire.device_id(*target))
         if other is not None and other.sensor is not None and other.sensor.tracker.online:
@@ -380,8 +393,18 @@ class SlimeVRGateway:
             return f"gateway full ({self.settings.max_devices} devices): no room for {wire.device_id(*target)}"
         self._unfeed(sensor, "moved")
         self._feed(sensor, *target)  # cannot be refused after the checks above
-        self.assigned[key] = target
+        self._remember(key, target)
         return None
+
+    def _remember(self, key: tuple, target: tuple | None) -> None:
+        """Keep a run-time assignment (and write the assignments file, if any: a failure is logged,
+        the assignment holds while the gateway runs)."""
+        self.assigned[key] = target
+        if self.settings.assignments_file:
+            try:
+                assignments.save(self.settings.assignments_file, self.assigned)
+            except OSError as exc:
+                log.error("cannot write assignments file %s: %s", self.settings.assignments_file, exc)
 
     def sensors(self) -> list[dict]:
         """Every sensor heard of: ``{tracker, sensor, online, position, device, why}`` (wire.gateway)."""
