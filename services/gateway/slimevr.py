@@ -42,6 +42,7 @@ import select
 import socket
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -93,7 +94,7 @@ RCVBUF = 4 << 20
 """Socket receive buffer asked for, bytes (the system may cap it: net.core.rmem_max)."""
 
 
-def quaternions(qs: list) -> np.ndarray:
+def quaternions(qs: Sequence) -> np.ndarray:
     """(n, 4) float64 array of n (w, x, y, z) tuples (a few times quicker than np.array on
     tuples of floats)."""
     return np.fromiter(itertools.chain.from_iterable(qs), np.float64, 4 * len(qs)).reshape(-1, 4)
@@ -227,24 +228,6 @@ class Device:
     @property
     def id(self) -> str:
         return wire.device_id(self.subject, self.segment)
-
-
-@dataclass(slots=True)
-class GridSamples:
-    """One tick's grid samples, one per device that has one: its bank slot, its tick (the
-    device's grid instant, gateway clock, modulo 2**32), its common-time stamp and its
-    (q0, q1, u) to SLERP (tracker axes)."""
-
-    slots: list = field(default_factory=list)
-    ticks: list = field(default_factory=list)
-    stamps: list = field(default_factory=list)
-    pairs: list = field(default_factory=list)
-
-    def add(self, slot: int, tick: int, stamp: int, pair: tuple) -> None:
-        self.slots.append(slot)
-        self.ticks.append(tick)
-        self.stamps.append(stamp)
-        self.pairs.append(pair)
 
 
 class SlimeVRGateway:
@@ -739,7 +722,7 @@ class SlimeVRGateway:
                 for d in self.slots:
                     if d.online:
                         self._end_stream(d)
-        samples = GridSamples()
+        samples: list[tuple] = []
         quiet, truth = [], []
         batch = self.settings.raw_batch
         for d in self.slots:
@@ -754,7 +737,7 @@ class SlimeVRGateway:
             else:
                 d.last_t = int(round(at_d + self.offset_us))
                 d.quiet = 0
-                samples.add(d.slot, int(round(at_d)) & 0xFFFFFFFF, d.last_t, pair)
+                samples.append((d.slot, int(round(at_d)) & 0xFFFFFFFF, d.last_t, *pair))
             if d.truth_t and (len(d.truth_t) >= batch or now - d.truth_since >= TRUTH_MAX_AGE_S):
                 truth.append(d)  # may be due (_settled_truth, once its points are out)
         self._update(samples)
@@ -767,22 +750,23 @@ class SlimeVRGateway:
                 self._flush_truth(d, n)
         self.ticks = k + 1
 
-    def _update(self, samples: GridSamples) -> None:
-        """One kernel call for every device: the tick's grid samples (one SLERP, turned into
-        limbstream's axes; NaN: none), their numbers and stamps in the bank's ring; the segment
-        points it makes are published."""
+    def _update(self, samples: list[tuple]) -> None:
+        """One kernel call for every device: the tick's grid samples, each (bank slot, tick: the
+        device's grid instant, gateway clock, modulo 2**32; common-time stamp; q0, q1, u to
+        SLERP, tracker axes), in one SLERP turned into limbstream's axes (NaN: no sample), their
+        numbers and stamps in the bank's ring; the segment points it makes are published."""
         m = len(self.slots)
         rows = self.calls[:m] % RING
         self.bank.sample[rows, np.arange(m)] = -1
         y = np.full((m, 4), np.nan, np.float32)
         ticks = np.zeros(m, np.uint32)
-        if samples.slots:
-            slots = np.array(samples.slots)
+        if samples:
+            taken, tick, stamps, q0, q1, u = zip(*samples)
+            slots = np.array(taken)
             self.bank.sample[rows[slots], slots] = self.n[slots]
-            self.bank.t_us[rows[slots], slots] = samples.stamps
+            self.bank.t_us[rows[slots], slots] = stamps
             self.n[slots] += 1
-            ticks[slots] = samples.ticks
-            q0, q1, u = zip(*samples.pairs)
+            ticks[slots] = tick
             y[slots] = quat.slerp(quaternions(q0), quaternions(q1), np.array(u)) @ AXES_T
         points, payload, ends = self.bank.update_wire(ticks, y)
         self.calls[:m] += 1
