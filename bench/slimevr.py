@@ -1,9 +1,10 @@
 """The SlimeVR gateway with simulated trackers (tests/slimevr_tracker.py) through a real router,
-time service and aggregator, on loopback. Three parts, each printing a table:
+time service and aggregator, on loopback. Three parts, each printing a table, and a replay:
 
     python bench/slimevr.py accuracy --source ../shared/data/cmu_10seg_50hz.npz
     python bench/slimevr.py capacity --trackers 100 --fs 100 --seconds 30
     python bench/slimevr.py latency --seconds 30
+    python bench/slimevr.py replay --trackers 100 --fs 100 --seconds 10
 
 accuracy: 10 trackers of one subject send a clip (played once, each tracker its segment) at its
 rate; the aggregator's figures once every stream ended: devices seen online, ICR (points over
@@ -21,6 +22,10 @@ packets lost on the way (packet numbers), and how late the sender itself ran.
 latency: 10 trackers at 50 Hz; every 0.5 s the hip tracker turns by 90 degrees at once; the
 time from sending that packet to the first live pose frame of the subject showing the hip
 within 10 degrees of the new orientation (wall clock, one host), p50 / p99, per grid delay.
+replay: the gateway's Python alone, in this process: N trackers' rotation datagrams (arrivals
+0-2 ms after their instant) handed straight to it, a tick after each round, on a Zenoh peer
+session of its own (no socket reads, no router, no timing): its CPU per packet, steadier than
+the capacity part, which moves with the machine's load.
 """
 from __future__ import annotations
 
@@ -254,6 +259,51 @@ def capacity(args) -> None:
           f"{drops1 - drops0:>9} {lost:>5} {sum(d['online'] for d in devices):>6} {counters[1]:>11}")
 
 
+def replay(args) -> None:
+    import random
+    import socket
+    import struct
+
+    from limbstream.device_emulator.device_clocks import ClockSettings
+    from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
+    from slimevr_tracker import handshake_payload, rotation_payload, to_tracker_axes
+    segments = list(wire.SEGMENTS)
+    macs = [bytes([2, 0x5E, 0, 0, k // len(segments), k % len(segments)]) for k in range(args.trackers)]
+    assign = {(":".join(f"{b:02X}" for b in mac), None): (f"s{mac[4] + 1:02d}", segments[mac[5]]) for mac in macs}
+    addresses = [(f"127.0.0.{2 + k}", 9) for k in range(args.trackers)]  # the discard port: answers go nowhere
+    random.seed(1)
+    rng = np.random.default_rng(1)
+    ticks = int(args.seconds * args.fs)
+    angle = 0.4 * np.sin(np.arange(ticks) / args.fs)
+    datagrams = [[struct.pack(">iq", 17, i + 1) + rotation_payload(0, to_tracker_axes(
+        (math.cos(a + 0.01 * k), 0.0, math.sin(a + 0.01 * k), 0.0))) for k in range(args.trackers)]
+        for i, a in enumerate(angle)]
+    arrivals = rng.uniform(0.0, 2000.0, (ticks, args.trackers)).tolist()
+    period_us = 1e6 / args.fs
+    session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
+    with session, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        gateway = SlimeVRGateway(session, sock, GatewaySettings(
+            "s01", assign=assign, fs=args.fs, clock=ClockSettings(sync=False), config=wire.DeviceConfig(**wire.LIVE_MODE)))
+        gateway.declare()
+        for address, mac in zip(addresses, macs):
+            gateway.handle(struct.pack(">iq", 3, 0) + handshake_payload(mac), address, 0.0, 0.0)
+        began = time.thread_time()
+        for i in range(ticks):
+            for address, datagram, late in zip(addresses, datagrams[i], arrivals[i]):
+                gateway.handle(datagram, address, i * period_us + late, i / args.fs)
+            gateway.step(i, i / args.fs)  # tick i: grid instant i periods after the start, less the delay
+        cpu = time.thread_time() - began
+        report = gateway.report()
+        gateway.undeclare()
+    packets = ticks * args.trackers
+    print(f"{args.trackers} trackers at {args.fs:g} Hz, {args.seconds:g} s replayed in-process, delay 30 ms, truth on")
+    print(f"{'packets':>8} {'us/packet':>9} {'% core':>6} {'points':>7} {'held':>5} {'dropped':>7}")
+    print(f"{packets:>8} {1e6 * cpu / packets:>9.2f} {100 * cpu / args.seconds:>6.1f} "
+          f"{sum(d['points'] for d in report['devices'].values()):>7} "
+          f"{sum(d['held'] for d in report['devices'].values()):>5} {sum(report['dropped'].values()):>7}")
+
+
 def stamp_into(frames: list):
     """A Zenoh callback that keeps each sample's arrival (monotonic s) and payload, nothing more."""
     def on_sample(sample) -> None:
@@ -335,8 +385,12 @@ def main() -> int:
     lat = sub.add_parser("latency")
     lat.add_argument("--seconds", type=float, default=30.0)
     lat.add_argument("--delays", default="30,10,0", help="grid delays to measure, ms, comma-separated")
+    r = sub.add_parser("replay")
+    r.add_argument("--trackers", type=int, default=100)
+    r.add_argument("--fs", type=float, default=100.0)
+    r.add_argument("--seconds", type=float, default=10.0)
     args = parser.parse_args()
-    {"accuracy": accuracy, "capacity": capacity, "latency": latency}[args.part](args)
+    {"accuracy": accuracy, "capacity": capacity, "latency": latency, "replay": replay}[args.part](args)
     return 0
 
 

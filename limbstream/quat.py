@@ -110,6 +110,13 @@ def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def left_matrix(a: np.ndarray) -> np.ndarray:
+    """The (4, 4) float64 matrix L of the left product by quaternion ``a``: ``multiply(a, b)`` is
+    ``L @ b`` (``b @ L.T`` for (..., 4) ``b``), one matrix product when ``a`` is fixed."""
+    w, x, y, z = np.asarray(a, np.float64)
+    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+
+
 def conjugate(q: np.ndarray) -> np.ndarray:
     """(..., 4) -> (..., 4) float64 (w, -x, -y, -z): the inverse of a unit quaternion."""
     return np.asarray(q, np.float64) * np.array([1.0, -1.0, -1.0, -1.0])

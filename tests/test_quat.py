@@ -178,3 +178,10 @@ def test_angle_deg_matches_scipy_and_ignores_sign():
     small = quat.from_rotation(quat.to_rotation(q0) * Rotation.from_rotvec([1e-5, 0, 0]))
     err = np.abs(quat.angle_deg(q0, small) - np.degrees(1e-5)).max()
     assert err < 5e-6, f"angle_deg of a 1e-5 rad rotation off by {err:.3g} deg"
+
+
+def test_left_matrix_is_the_left_product():
+    rng = np.random.default_rng(3)
+    a = quat.normalize(rng.normal(size=4))
+    b = quat.normalize(rng.normal(size=(50, 4)))
+    np.testing.assert_allclose(b @ quat.left_matrix(a).T, quat.multiply(a, b), atol=1e-15)

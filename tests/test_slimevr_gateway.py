@@ -96,6 +96,26 @@ def test_random_bytes_never_escape_as_another_error():
             assert exc.reason in {"truncated", "oversized", "unknown_type", "bad_quaternion", "bad_bundle"}
 
 
+def test_the_short_way_for_rotations_decodes_as_the_full_decoder():
+    """decode_rotation gives a lone rotation datagram (17, 23) as decode does, and None for
+    every other datagram (which then takes the full decoder)."""
+    from slimevr_tracker import rotation_q15_payload
+    q = (0.5, 0.5, -0.5, 0.5)
+    for datagram in (_header(17, 7) + rotation_payload(2, q), _header(17, 7) + rotation_payload(2, q)[:-1],
+                     _header(23, 7) + rotation_q15_payload(2, q)):
+        number, sensor, got = proto.decode_rotation(datagram)
+        full = proto.decode(datagram)
+        assert (number, sensor, got) == (full.number, full.messages[0].sensor, full.messages[0].q)
+    other = _header(17, 7) + struct.pack(">BB4fB", 2, 2, 0.0, 0.0, 0.0, 1.0, 0)  # a magnetometer correction
+    for datagram in (other, _header(17, 7) + rotation_payload(2, q)[:10], _header(12, 7) + struct.pack(">ff", 3.9, 0.8),
+                     _header(100, 7) + struct.pack(">Hi", 23, 17) + rotation_payload(2, q),
+                     _header(17, 7) + rotation_payload(2, q) + bytes(proto.MAX_DATAGRAM)):
+        assert proto.decode_rotation(datagram) is None
+    with pytest.raises(proto.ProtocolError) as exc:
+        proto.decode_rotation(_header(17, 7) + rotation_payload(2, (0.0, 0.0, 0.0, 0.0)))
+    assert exc.value.reason == "bad_quaternion"
+
+
 def test_server_answers_are_what_the_firmware_checks():
     answer = proto.handshake_answer()
     assert len(answer) == 64 and answer[0] == 3 and answer[1:13] == b"Hey OVR =D 5"

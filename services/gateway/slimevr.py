@@ -31,7 +31,9 @@ Times are microseconds unless named otherwise.
 """
 from __future__ import annotations
 
+import bisect
 import collections
+import itertools
 import json
 import logging
 import math
@@ -40,6 +42,7 @@ import select
 import socket
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -57,7 +60,8 @@ log = logging.getLogger("limbstream.gateway.slimevr")
 AXES = (math.cos(math.pi / 4), -math.sin(math.pi / 4), 0.0, 0.0)
 """-90 degrees about X (w, x, y, z): a tracker's axes (Z up) to limbstream's (Y up), as the
 SlimeVR server turns them."""
-AXES_Q = np.array(AXES)
+AXES_T = quat.left_matrix(AXES).T
+"""``q @ AXES_T``: (..., 4) quaternions in a tracker's axes turned into limbstream's (AXES * q)."""
 RING = 64
 """Ticks of samples each device keeps: a segment point refers to the device's newest sample or the
 one before, at most QUIET_TICKS ticks back."""
@@ -89,6 +93,22 @@ TRUTH_MAX_AGE_S = 0.5
 QUERIES_PER_TICK = 10
 RCVBUF = 4 << 20
 """Socket receive buffer asked for, bytes (the system may cap it: net.core.rmem_max)."""
+
+
+def quaternions(qs: Sequence) -> np.ndarray:
+    """(n, 4) float64 array of n (w, x, y, z) tuples (a few times quicker than np.array on
+    tuples of floats)."""
+    return np.fromiter(itertools.chain.from_iterable(qs), np.float64, 4 * len(qs)).reshape(-1, 4)
+
+
+def percentile(values, p: float) -> float:
+    """The ``p``-th percentile of ``values`` (not empty), interpolated linearly between the two
+    nearest ranks (as NumPy's default); plain Python, quicker than NumPy for a few hundred."""
+    a = sorted(values)
+    rank = p / 100.0 * (len(a) - 1)
+    lo = math.floor(rank)
+    hi = min(lo + 1, len(a) - 1)
+    return a[lo] + (a[hi] - a[lo]) * (rank - lo)
 
 
 @dataclass(frozen=True)
@@ -131,7 +151,7 @@ class GatewaySettings:
     assignments_file: str | None = None
 
 
-@dataclass
+@dataclass(slots=True)
 class Tracker:
     """One tracker (a UDP address) and its link figures."""
 
@@ -162,7 +182,7 @@ class Tracker:
         return self.lost / total if total else None
 
 
-@dataclass
+@dataclass(slots=True)
 class Sensor:
     """One sensor of a tracker."""
 
@@ -177,7 +197,7 @@ class Sensor:
         return f"{self.tracker.name}/{self.sensor}"
 
 
-@dataclass
+@dataclass(slots=True)
 class Device:
     """One limbstream device (a bank slot) and the sensor feeding it."""
 
@@ -202,8 +222,7 @@ class Device:
     raw_index: int = 0                           # index of the next truth sample in the stream
     held: int = 0                                # grid samples held (no packet after the instant yet)
     quiet: int = 0                               # ticks since its last grid sample
-    last_n: int = -1                             # sample number and stamp of its last grid sample
-    last_t: int = 0
+    last_t: int = 0                              # common-time stamp of its last grid sample
     instant: float | None = None                 # its grid instant of the last tick (None: none yet)
     anchor: float | None = None                  # arrival of its stream's first packet: where its grid starts
     shift: float = 0.0                           # correction of its grid since the last tick
@@ -462,7 +481,7 @@ class SlimeVRGateway:
         last = b.flush(k)
         if last is not None:  # the kernel's newest sample, not yet a point: the device's last grid sample
             omega = (0.0, 0.0, 0.0) if b.live(k) else None
-            point = wire.SegmentPoint(int(b.stream[k]), int(b.seq[k]), int(d.last_n - b.base[k]), d.last_t,
+            point = wire.SegmentPoint(int(b.stream[k]), int(b.seq[k]), int(self.n[k] - 1 - b.base[k]), d.last_t,
                                       tuple(float(v) for v in last[2]), wire.FLAG_FINAL, omega)
             d.publisher.put(wire.encode_point(point))
         elif d.last is not None:
@@ -488,49 +507,44 @@ class SlimeVRGateway:
     def receive(self, now: float) -> int:
         """Read and handle the datagrams waiting (at most RECV_BUDGET); returns how many."""
         count = 0
+        recvfrom, handle = self.sock.recvfrom, self.handle
         while count < RECV_BUDGET:
             try:
-                data, address = self.sock.recvfrom(65536)
+                data, address = recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:  # e.g. an ICMP error of an earlier send, reported here
                 self.dropped["socket_error"] += 1
                 continue
             count += 1
-            self.handle(data, address, time.time_ns() / 1e3, now)
+            handle(data, address, time.time_ns() / 1e3, now)
         return count
 
     def handle(self, data: bytes, address: tuple, t_us: float, now: float) -> None:
         """One datagram from ``address``, arrived at the gateway's clock ``t_us`` (monotonic
-        ``now``, s). Bad ones are counted by reason and dropped."""
+        ``now``, s). Bad ones are counted by reason and dropped. A lone rotation packet, nearly
+        all of a tracker's traffic, takes the short way (:func:`proto.decode_rotation`)."""
         try:
-            dg = proto.decode(data)
+            rotation = proto.decode_rotation(data)
+            dg = proto.decode(data) if rotation is None else None
         except proto.ProtocolError as exc:
             self.dropped[exc.reason] += 1
             return
-        if dg.type == proto.HANDSHAKE:
+        if dg is not None and dg.type == proto.HANDSHAKE:
             self._handshake(address, dg.messages[0], now)  # type: ignore[arg-type]
             return
         tracker = self.trackers.get(address)
         if tracker is None:
             self.dropped["no_handshake"] += 1
             return
-        if dg.number != 0:  # a pong echoes the server's number 0; every other packet counts up
-            if dg.number <= tracker.last_number:
-                self.dropped["out_of_order"] += 1
-                return
-            if 0 <= tracker.last_number and dg.number - tracker.last_number < 1 << 16:
-                tracker.lost += dg.number - tracker.last_number - 1
-            tracker.last_number = dg.number
-            tracker.packets += 1
-        tracker.last_seen = now
-        tracker.arrivals.append(now)
-        if not tracker.online:
-            tracker.online = True
-            log.info("tracker %s is back", tracker.name)
+        if not self._count(tracker, rotation[0] if dg is None else dg.number, now):
+            return
+        if dg is None:
+            self._rotation(tracker, rotation[1], rotation[2], t_us, now)  # type: ignore[index]
+            return
         for m in dg.messages:
             if isinstance(m, proto.Rotation):
-                self._rotation(tracker, m, t_us, now)
+                self._rotation(tracker, m.sensor, m.q, t_us, now)
             elif isinstance(m, proto.SensorInfo):
                 self._sensor(tracker, m.sensor).position = m.position
                 self._place(tracker.sensors[m.sensor])
@@ -551,6 +565,24 @@ class SlimeVRGateway:
                     self.ignored[m.type] += 1
             else:  # a handshake inside a bundle is refused by the decoder
                 self.dropped["misplaced"] += 1
+
+    def _count(self, tracker: Tracker, number: int, now: float) -> bool:
+        """Count packet ``number`` of the tracker, heard at monotonic ``now`` (s): its loss (a gap
+        in the numbers), its rate, its liveliness; False (dropped) when it is out of order."""
+        if number != 0:  # a pong echoes the server's number 0; every other packet counts up
+            if number <= tracker.last_number:
+                self.dropped["out_of_order"] += 1
+                return False
+            if 0 <= tracker.last_number and number - tracker.last_number < 1 << 16:
+                tracker.lost += number - tracker.last_number - 1
+            tracker.last_number = number
+            tracker.packets += 1
+        tracker.last_seen = now
+        tracker.arrivals.append(now)
+        if not tracker.online:
+            tracker.online = True
+            log.info("tracker %s is back", tracker.name)
+        return True
 
     def _handshake(self, address: tuple, hs: proto.Handshake, now: float) -> None:
         """A tracker looking for a server: known by its MAC (possibly from a new address) or its
@@ -578,18 +610,22 @@ class SlimeVRGateway:
             sensor = tracker.sensors[sensor_id] = Sensor(tracker, sensor_id)
         return sensor
 
-    def _rotation(self, tracker: Tracker, m: proto.Rotation, t_us: float, now: float) -> None:
-        sensor = self._sensor(tracker, m.sensor)
-        self._place(sensor)
-        d = sensor.device
-        if d is None:
-            self.unassigned_samples += 1
-            return
+    def _rotation(self, tracker: Tracker, sensor_id: int, q: tuple, t_us: float, now: float) -> None:
+        """Sensor ``sensor_id`` of the tracker is at ``q`` (w, x, y, z, the tracker's axes: turned
+        into limbstream's per tick and per truth batch, vectorised), arrived at ``t_us``."""
+        sensor = tracker.sensors.get(sensor_id)
+        d = sensor.device if sensor is not None else None
+        if d is None:  # a new sensor, or one without a device yet
+            sensor = self._sensor(tracker, sensor_id)
+            self._place(sensor)
+            d = sensor.device
+            if d is None:
+                self.unassigned_samples += 1
+                return
         if not d.online:
             self._start_stream(d)
         if d.hist_t and t_us <= d.hist_t[-1]:  # the host clock stepped back: keep times increasing
             t_us = d.hist_t[-1] + 1.0
-        q = m.q  # the tracker's axes: turned into limbstream's per tick and per truth batch, vectorised
         self._lock_phase(d, t_us)
         d.hist_t.append(t_us)
         d.hist_q.append(q)
@@ -647,20 +683,18 @@ class SlimeVRGateway:
         return d.instant
 
     def _restamp_truth(self, d: Device, arrival: float, t_us: int) -> None:
-        """The truth sample of the packet that arrived at ``arrival`` is stamped ``t_us``."""
-        for i in range(len(d.truth_a) - 1, -1, -1):
-            if d.truth_a[i] == arrival:
-                d.truth_t[i] = t_us
-                return
-            if d.truth_a[i] < arrival:
-                return
+        """The truth sample of the packet that arrived at ``arrival`` (if not on the tap yet) is
+        stamped ``t_us``."""
+        i = bisect.bisect_left(d.truth_a, arrival)  # arrivals increase (_rotation)
+        if i < len(d.truth_a) and d.truth_a[i] == arrival:
+            d.truth_t[i] = t_us
 
     def _flush_truth(self, d: Device, n: int) -> None:
         """Put the device's first ``n`` truth samples on its tap."""
         if not n or d.raw_pub is None:
             return
         t = np.maximum.accumulate(np.array(d.truth_t[:n], np.int64))
-        q = quat.multiply(AXES_Q, np.array(d.truth_q[:n])).astype(np.float32)
+        q = (quaternions(d.truth_q[:n]) @ AXES_T).astype(np.float32)
         d.raw_pub.put(wire.encode_raw(wire.RawBatch(int(self.bank.stream[d.slot]), d.raw_index, t, q)))
         d.raw_index += len(t)
         del d.truth_t[:n], d.truth_q[:n], d.truth_a[:n]
@@ -671,10 +705,7 @@ class SlimeVRGateway:
         """How many of the device's truth samples keep their stamps: those that arrived before
         its last grid instant plus LATE_SHARE of a period (a later one may still be an instant's)."""
         edge = (d.instant if d.instant is not None else -math.inf) + self.late_us
-        n = len(d.truth_a)
-        while n and d.truth_a[n - 1] >= edge:
-            n -= 1
-        return n
+        return bisect.bisect_left(d.truth_a, edge)  # arrivals increase (_rotation)
 
     # ------------------------------------------------------------------ ticks
 
@@ -690,10 +721,7 @@ class SlimeVRGateway:
         ts = d.hist_t
         if not ts or ts[0] > at_us or ts[-1] < at_us - self.hold_us:
             return None
-        j = len(ts)
-        while j and ts[j - 1] > at_us:
-            j -= 1
-        # ts[:j] arrived at or before the instant, ts[j:] after it
+        j = bisect.bisect_right(ts, at_us)  # ts[:j] arrived at or before the instant, ts[j:] after it
         before = at_us - ts[j - 1] if j and at_us - ts[j - 1] < self.early_us else math.inf
         after = ts[j] - at_us if j < len(ts) and ts[j] - at_us < self.late_us else math.inf
         own = None if before == after == math.inf else j - 1 if before <= after else j
@@ -709,7 +737,6 @@ class SlimeVRGateway:
     def step(self, k: int, now: float) -> None:
         """Tick k: every online device's grid sample, the kernel, segment points; truth older
         than TRUTH_MAX_AGE_S; silent trackers go offline."""
-        m = len(self.slots)
         at = self.start_us + k * self.period_us - self.delay_us  # the grid instant, gateway clock
         if self.sync is not None:
             self.offset_us = float(self.sync.stamp(np.zeros(1, np.int64), np.array([at]))[0]) - at
@@ -718,11 +745,9 @@ class SlimeVRGateway:
                 for d in self.slots:
                     if d.online:
                         self._end_stream(d)
-        y = np.full((m, 4), np.nan, np.float32)
-        rows = self.calls[:m] % RING
-        self.bank.sample[rows, np.arange(m)] = -1
-        ticks = np.zeros(m, np.uint32)
-        quiet, taken, pairs = [], [], []
+        samples: list[tuple] = []
+        quiet, truth = [], []
+        batch = self.settings.raw_batch
         for d in self.slots:
             if not d.online:
                 continue
@@ -732,37 +757,49 @@ class SlimeVRGateway:
                 d.quiet += 1
                 if d.quiet >= QUIET_TICKS:
                     quiet.append(d)
-                continue
-            k_ = d.slot
-            taken.append(k_)
-            pairs.append(pair)
-            ticks[k_] = int(round(at_d)) & 0xFFFFFFFF
-            row = rows[k_]
-            self.bank.sample[row, k_] = d.last_n = int(self.n[k_])
-            self.bank.t_us[row, k_] = d.last_t = int(round(at_d + self.offset_us))
-            self.n[k_] += 1
-            d.quiet = 0
-        if taken:  # every device's sample in one SLERP, turned into limbstream's axes
-            q0, q1, u = zip(*pairs)
-            y[taken] = quat.multiply(AXES_Q, quat.slerp(np.array(q0), np.array(q1), np.array(u)))
-        slots, payload, ends = self.bank.update_wire(ticks, y)
+            else:
+                d.last_t = int(round(at_d + self.offset_us))
+                d.quiet = 0
+                samples.append((d.slot, int(round(at_d)) & 0xFFFFFFFF, d.last_t, *pair))
+            if d.truth_t and (len(d.truth_t) >= batch or now - d.truth_since >= TRUTH_MAX_AGE_S):
+                truth.append(d)  # may be due (_settled_truth, once its points are out)
+        self._update(samples)
+        for d in quiet:
+            log.info("%s: no rotation for %d ticks", d.id, d.quiet)
+            self._end_stream(d)
+        for d in truth:
+            n = self._settled_truth(d) if d.online else 0
+            if n >= batch or (n and now - d.truth_since >= TRUTH_MAX_AGE_S):
+                self._flush_truth(d, n)
+        self.ticks = k + 1
+
+    def _update(self, samples: list[tuple]) -> None:
+        """One kernel call for every device: the tick's grid samples, each (bank slot, tick: the
+        device's grid instant, gateway clock, modulo 2**32; common-time stamp; q0, q1, u to
+        SLERP, tracker axes), in one SLERP turned into limbstream's axes (NaN: no sample), their
+        numbers and stamps in the bank's ring; the segment points it makes are published."""
+        m = len(self.slots)
+        rows = self.calls[:m] % RING
+        self.bank.sample[rows, np.arange(m)] = -1
+        y = np.full((m, 4), np.nan, np.float32)
+        ticks = np.zeros(m, np.uint32)
+        if samples:
+            taken, tick, stamps, q0, q1, u = zip(*samples)
+            slots = np.array(taken)
+            self.bank.sample[rows[slots], slots] = self.n[slots]
+            self.bank.t_us[rows[slots], slots] = stamps
+            self.n[slots] += 1
+            ticks[slots] = tick
+            y[slots] = quat.slerp(quaternions(q0), quaternions(q1), np.array(u)) @ AXES_T
+        points, payload, ends = self.bank.update_wire(ticks, y)
         self.calls[:m] += 1
         start = 0
-        for slot, end in zip(slots.tolist(), ends.tolist()):
+        for slot, end in zip(points.tolist(), ends.tolist()):
             d = self.slots[slot]
             d.last = payload[start:end]
             d.publisher.put(d.last)
             d.points += 1
             start = end
-        for d in quiet:
-            log.info("%s: no rotation for %d ticks", d.id, d.quiet)
-            self._end_stream(d)
-        for d in self.slots:
-            if d.online and d.truth_t:
-                n = self._settled_truth(d)
-                if n >= self.settings.raw_batch or (n and now - d.truth_since >= TRUTH_MAX_AGE_S):
-                    self._flush_truth(d, n)
-        self.ticks = k + 1
 
     def keepalive(self, now: float) -> None:
         """Every KEEPALIVE_S: a heartbeat and a ping to each tracker; silent ones go offline."""
@@ -822,8 +859,7 @@ class SlimeVRGateway:
                            if s.device is None},
             "devices": {d.id: {"online": d.online, "streams": d.streams, "points": d.points,
                                "samples": int(self.n[d.slot] - self.bank.base[d.slot]), "held": d.held,
-                               "jitter_p99_ms": (round(float(np.percentile(d.jitter, 99)) / 1e3, 3)
-                                                 if d.jitter else None),
+                               "jitter_p99_ms": (round(percentile(d.jitter, 99) / 1e3, 3) if d.jitter else None),
                                "sensor": d.sensor.name if d.sensor else None} for d in self.slots},
             "dropped": dict(self.dropped), "ignored": dict(self.ignored),
             "unassigned_samples": self.unassigned_samples, "ticks": self.ticks, "late": self.late,
