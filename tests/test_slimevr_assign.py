@@ -5,6 +5,7 @@ appears and publishes; moved, the old device's stream ends (FINAL, token gone) a
 starts a stream; a device fed by another sensor and bad payloads are refused with a sentence."""
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 
@@ -35,72 +36,81 @@ def finals(g: Running, device: str) -> list[wire.SegmentPoint]:
     return [p for p in g.poll().get(device, []) if p.flags & wire.FLAG_FINAL]
 
 
-def test_sensors_are_listed_assigned_moved_and_refused():
-    g = Running()
-    a = Tracker(g.address, bytes([2, 0, 0, 0, 1, 1]), {0: 1, 1: 7})   # head (no segment), left thigh
-    b = Tracker(g.address, bytes([2, 0, 0, 0, 1, 2]), {0: 13})        # left lower arm
+@contextlib.contextmanager
+def streaming(trackers: list[Tracker], sensors: dict):
+    """The trackers connect, then stream their sensors (``{mac: [sensor ids]}``) from a thread
+    until the block ends."""
     stop = threading.Event()
-    sender = threading.Thread(target=_stream, args=([a, b], {a.mac_text: [0, 1], b.mac_text: [0]}, 30.0),
-                              kwargs={"stop": stop})
+    sender = threading.Thread(target=_stream, args=(trackers, sensors, 30.0), kwargs={"stop": stop})
     try:
-        a.connect()
-        b.connect()
+        for t in trackers:
+            t.connect()
         sender.start()
-        wait_until(lambda: {"s01/l_thigh", "s01/l_lowerarm"} <= set(g.poll()), 10, "points of the placed sensors")
-        listing, _ = ask(g)
-        assert listing["gateway"] == "slimevr" and listing["subject"] == "s01"
-        assert listed(listing) == {f"{a.mac_text}/0": (None, "body position 1 has no segment"),
-                                   f"{a.mac_text}/1": ("s01/l_thigh", None),
-                                   f"{b.mac_text}/0": ("s01/l_lowerarm", None)}
-        assert all(s["online"] for s in listing["sensors"])
-
-        # the unassigned head sensor, assigned: its device appears and publishes
-        listing, error = assign(g, a.mac_text, 0, "hip")
-        assert error is None and listed(listing)[f"{a.mac_text}/0"] == ("s01/hip", None)
-        wait_until(lambda: len(g.poll().get("s01/hip", [])) >= 2, 10, "points of the assigned sensor")
-        hip_stream = g.poll()["s01/hip"][0].stream
-        assert g.poll()["s01/hip"][0].seq == 0
-        wait_until(lambda: "s01/hip" in g.alive(), 5, "the new device's liveliness token")
-
-        # a device fed by another sensor is refused, and nothing changes
-        listing, error = assign(g, a.mac_text, 0, "l_lowerarm")
-        assert listing is None and error == f"s01/l_lowerarm is fed by {b.mac_text}/0: unassign it first"
-        assert listed(ask(g)[0])[f"{a.mac_text}/0"] == ("s01/hip", None)
-
-        # moved to another subject's segment: the old stream ends, the new device starts its own
-        listing, error = assign(g, a.mac_text, 0, "r_thigh", subject="s02")
-        assert error is None and listed(listing)[f"{a.mac_text}/0"] == ("s02/r_thigh", None)
-        wait_until(lambda: finals(g, "s01/hip"), 10, "the old device's FINAL point")
-        wait_until(lambda: "s01/hip" not in g.alive(), 10, "the old device's token gone")
-        assert {p.stream for p in g.poll()["s01/hip"]} == {hip_stream}
-        new = wait_until(lambda: len(g.poll().get("s02/r_thigh", [])) >= 2 and g.poll()["s02/r_thigh"], 10,
-                         "points of the moved sensor's new device")
-        assert new[0].seq == 0 and new[0].index == 0 and not new[0].flags & wire.FLAG_FINAL
-        assert "s02/r_thigh" in g.alive()
-        assert g.status("s02/r_thigh")["device"] == "s02/r_thigh"  # a new subject's devices answer too
-        # the old device takes no points after its FINAL one
-        hip = g.poll()["s01/hip"]
-        assert hip[-1].flags & wire.FLAG_FINAL
-
-        # unassigned: its device's stream ends, the sensor is listed with the reason
-        listing, error = assign(g, b.mac_text, 0, None)
-        assert error is None and listed(listing)[f"{b.mac_text}/0"] == (None, "unassigned at run time")
-        wait_until(lambda: finals(g, "s01/l_lowerarm"), 10, "the unassigned sensor's device's FINAL point")
-        arm_stream = g.poll()["s01/l_lowerarm"][0].stream
-        # now free, the segment can be fed by another sensor
-        _, error = assign(g, a.mac_text, 0, "l_lowerarm")
-        assert error is None
-        wait_until(lambda: finals(g, "s02/r_thigh"), 10, "the FINAL point of the device it left")
-        wait_until(lambda: any(p.stream != arm_stream for p in g.poll()["s01/l_lowerarm"])
-                   and "s01/l_lowerarm" in g.alive(), 10, "a new stream on the freed device")
-        report = wait_until(lambda: (r := g.report()) and r["devices"]["s01/l_lowerarm"]["streams"] == 2 and r, 5,
-                            "the second stream reported")
-        assert report["unassigned"] == {f"{b.mac_text}/0": "unassigned at run time"}
-        assert report["devices"]["s01/l_thigh"]["online"] and report["devices"]["s01/l_thigh"]["streams"] == 1
+        yield
     finally:
         stop.set()
         if sender.is_alive():
             sender.join()
+
+
+def test_sensors_are_listed_assigned_moved_and_refused():
+    g = Running()
+    a = Tracker(g.address, bytes([2, 0, 0, 0, 1, 1]), {0: 1, 1: 7})   # head (no segment), left thigh
+    b = Tracker(g.address, bytes([2, 0, 0, 0, 1, 2]), {0: 13})        # left lower arm
+    try:
+        with streaming([a, b], {a.mac_text: [0, 1], b.mac_text: [0]}):
+            wait_until(lambda: {"s01/l_thigh", "s01/l_lowerarm"} <= set(g.poll()), 10, "points of the placed sensors")
+            listing, _ = ask(g)
+            assert listing["gateway"] == "slimevr" and listing["subject"] == "s01"
+            assert listed(listing) == {f"{a.mac_text}/0": (None, "body position 1 has no segment"),
+                                       f"{a.mac_text}/1": ("s01/l_thigh", None),
+                                       f"{b.mac_text}/0": ("s01/l_lowerarm", None)}
+            assert all(s["online"] for s in listing["sensors"])
+
+            # the unassigned head sensor, assigned: its device appears and publishes
+            listing, error = assign(g, a.mac_text, 0, "hip")
+            assert error is None and listed(listing)[f"{a.mac_text}/0"] == ("s01/hip", None)
+            wait_until(lambda: len(g.poll().get("s01/hip", [])) >= 2, 10, "points of the assigned sensor")
+            hip_stream = g.poll()["s01/hip"][0].stream
+            assert g.poll()["s01/hip"][0].seq == 0
+            wait_until(lambda: "s01/hip" in g.alive(), 5, "the new device's liveliness token")
+
+            # a device fed by another sensor is refused, and nothing changes
+            listing, error = assign(g, a.mac_text, 0, "l_lowerarm")
+            assert listing is None and error == f"s01/l_lowerarm is fed by {b.mac_text}/0: unassign it first"
+            assert listed(ask(g)[0])[f"{a.mac_text}/0"] == ("s01/hip", None)
+
+            # moved to another subject's segment: the old stream ends, the new device starts its own
+            listing, error = assign(g, a.mac_text, 0, "r_thigh", subject="s02")
+            assert error is None and listed(listing)[f"{a.mac_text}/0"] == ("s02/r_thigh", None)
+            wait_until(lambda: finals(g, "s01/hip"), 10, "the old device's FINAL point")
+            wait_until(lambda: "s01/hip" not in g.alive(), 10, "the old device's token gone")
+            assert {p.stream for p in g.poll()["s01/hip"]} == {hip_stream}
+            new = wait_until(lambda: len(g.poll().get("s02/r_thigh", [])) >= 2 and g.poll()["s02/r_thigh"], 10,
+                             "points of the moved sensor's new device")
+            assert new[0].seq == 0 and new[0].index == 0 and not new[0].flags & wire.FLAG_FINAL
+            assert "s02/r_thigh" in g.alive()
+            assert g.status("s02/r_thigh")["device"] == "s02/r_thigh"  # a new subject's devices answer too
+            # the old device takes no points after its FINAL one
+            hip = g.poll()["s01/hip"]
+            assert hip[-1].flags & wire.FLAG_FINAL
+
+            # unassigned: its device's stream ends, the sensor is listed with the reason
+            listing, error = assign(g, b.mac_text, 0, None)
+            assert error is None and listed(listing)[f"{b.mac_text}/0"] == (None, "unassigned at run time")
+            wait_until(lambda: finals(g, "s01/l_lowerarm"), 10, "the unassigned sensor's device's FINAL point")
+            arm_stream = g.poll()["s01/l_lowerarm"][0].stream
+            # now free, the segment can be fed by another sensor
+            _, error = assign(g, a.mac_text, 0, "l_lowerarm")
+            assert error is None
+            wait_until(lambda: finals(g, "s02/r_thigh"), 10, "the FINAL point of the device it left")
+            wait_until(lambda: any(p.stream != arm_stream for p in g.poll()["s01/l_lowerarm"])
+                       and "s01/l_lowerarm" in g.alive(), 10, "a new stream on the freed device")
+            report = wait_until(lambda: (r := g.report()) and r["devices"]["s01/l_lowerarm"]["streams"] == 2 and r, 5,
+                                "the second stream reported")
+            assert report["unassigned"] == {f"{b.mac_text}/0": "unassigned at run time"}
+            assert report["devices"]["s01/l_thigh"]["online"] and report["devices"]["s01/l_thigh"]["streams"] == 1
+    finally:
         a.close()
         b.close()
         g.close()
@@ -140,22 +150,16 @@ def test_bad_assignments_get_a_sentence_and_change_nothing():
 def test_a_full_gateway_refuses_a_new_device_and_keeps_the_old_one():
     g = Running(max_devices=1)
     t = Tracker(g.address, bytes([2, 0, 0, 0, 1, 4]), {0: 7})   # left thigh
-    stop = threading.Event()
-    sender = threading.Thread(target=_stream, args=([t], {t.mac_text: [0]}, 30.0), kwargs={"stop": stop})
     try:
-        t.connect()
-        sender.start()
-        wait_until(lambda: g.poll().get("s01/l_thigh"), 10, "points of the placed sensor")
-        listing, error = assign(g, t.mac_text, 0, "hip")
-        assert listing is None and error == "gateway full (1 devices): no room for s01/hip"
-        count = len(g.poll()["s01/l_thigh"])
-        wait_until(lambda: len(g.poll()["s01/l_thigh"]) > count, 10, "more points of the kept device")
-        assert not finals(g, "s01/l_thigh") and "s01/l_thigh" in g.alive()
-        assert listed(ask(g)[0]) == {f"{t.mac_text}/0": ("s01/l_thigh", None)}
+        with streaming([t], {t.mac_text: [0]}):
+            wait_until(lambda: g.poll().get("s01/l_thigh"), 10, "points of the placed sensor")
+            listing, error = assign(g, t.mac_text, 0, "hip")
+            assert listing is None and error == "gateway full (1 devices): no room for s01/hip"
+            count = len(g.poll()["s01/l_thigh"])
+            wait_until(lambda: len(g.poll()["s01/l_thigh"]) > count, 10, "more points of the kept device")
+            assert not finals(g, "s01/l_thigh") and "s01/l_thigh" in g.alive()
+            assert listed(ask(g)[0]) == {f"{t.mac_text}/0": ("s01/l_thigh", None)}
     finally:
-        stop.set()
-        if sender.is_alive():
-            sender.join()
         t.close()
         g.close()
 
@@ -167,26 +171,20 @@ def test_assignments_made_at_run_time_outlive_the_gateway(tmp_path):
     for run in range(2):
         g = Running(assignments_file=str(kept))
         t = Tracker(g.address, bytes([2, 0, 0, 0, 1, 5]), {0: 1, 1: 7})   # head (no segment), left thigh
-        stop = threading.Event()
-        sender = threading.Thread(target=_stream, args=([t], {t.mac_text: [0, 1]}, 30.0), kwargs={"stop": stop})
         try:
-            t.connect()
-            sender.start()
-            if run == 0:
-                wait_until(lambda g=g: "s01/l_thigh" in g.poll(), 10, "points of the placed sensor")
-                assert assign(g, t.mac_text, 0, "neck", subject="s03")[1] is None
-                assert assign(g, t.mac_text, 1, None)[1] is None
-                assert json.loads(kept.read_text()) == [
-                    {"tracker": t.mac_text, "sensor": 0, "subject": "s03", "segment": "neck"},
-                    {"tracker": t.mac_text, "sensor": 1, "subject": None, "segment": None}]
-            else:  # the new gateway: as it was left
-                wait_until(lambda g=g: "s03/neck" in g.poll(), 10, "points of the kept assignment")
-                assert listed(ask(g)[0]) == {f"{t.mac_text}/0": ("s03/neck", None),
-                                             f"{t.mac_text}/1": (None, "unassigned at run time")}
-                assert "s01/l_thigh" not in g.poll()
+            with streaming([t], {t.mac_text: [0, 1]}):
+                if run == 0:
+                    wait_until(lambda g=g: "s01/l_thigh" in g.poll(), 10, "points of the placed sensor")
+                    assert assign(g, t.mac_text, 0, "neck", subject="s03")[1] is None
+                    assert assign(g, t.mac_text, 1, None)[1] is None
+                    assert json.loads(kept.read_text()) == [
+                        {"tracker": t.mac_text, "sensor": 0, "subject": "s03", "segment": "neck"},
+                        {"tracker": t.mac_text, "sensor": 1, "subject": None, "segment": None}]
+                else:  # the new gateway: as it was left
+                    wait_until(lambda g=g: "s03/neck" in g.poll(), 10, "points of the kept assignment")
+                    assert listed(ask(g)[0]) == {f"{t.mac_text}/0": ("s03/neck", None),
+                                                 f"{t.mac_text}/1": (None, "unassigned at run time")}
+                    assert "s01/l_thigh" not in g.poll()
         finally:
-            stop.set()
-            if sender.is_alive():
-                sender.join()
             t.close()
             g.close()
