@@ -22,10 +22,11 @@ packets lost on the way (packet numbers), and how late the sender itself ran.
 latency: 10 trackers at 50 Hz; every 0.5 s the hip tracker turns by 90 degrees at once; the
 time from sending that packet to the first live pose frame of the subject showing the hip
 within 10 degrees of the new orientation (wall clock, one host), p50 / p99, per grid delay.
-replay: the gateway's Python alone, in this process: N trackers' rotation datagrams (arrivals
-0-2 ms after their instant) handed straight to it, a tick after each round, on a Zenoh peer
-session of its own (no socket reads, no router, no timing): its CPU per packet, steadier than
-the capacity part, which moves with the machine's load.
+replay: the gateway alone, in this process: N trackers' rotation datagrams (arrivals 0-2 ms
+after their instant) handed straight to it (``handle``: the C path of a datagram read from its
+socket, less the read), a tick after each round, on a Zenoh peer session of its own (no socket
+reads, no router, no timing): its CPU per packet, steadier than the capacity part, which moves
+with the machine's load.
 """
 from __future__ import annotations
 

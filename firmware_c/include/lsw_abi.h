@@ -15,6 +15,11 @@ typedef enum {
     LSW_ABI_BATCH_OUT = 2, /**< FastswBatchOut */
     LSW_ABI_BANK_WIRE = 3, /**< LswBankWire */
     LSW_ABI_SYNC = 4,      /**< LswSync */
+    LSW_ABI_GRID_SETTINGS = 5, /**< LswGridSettings */
+    LSW_ABI_GRID_DEVICE = 6,   /**< LswGridDevice */
+    LSW_ABI_SVR_TRACKER = 7,   /**< LswSvrTracker */
+    LSW_ABI_SVR_ROUTE = 8,     /**< LswSvrRoute */
+    LSW_ABI_SVR_SLOW = 9,      /**< LswSvrSlow */
 } LswAbiStruct;
 
 /** sizeof the struct ``which``; 0 for an unknown one. */

@@ -5,6 +5,8 @@
 #include "fastsw_batch.h"
 #include "lsw_bank.h"
 #include "lsw_clock.h"
+#include "lsw_grid.h"
+#include "lsw_slimevr.h"
 
 size_t lsw_abi_size(int which)
 {
@@ -14,6 +16,11 @@ size_t lsw_abi_size(int which)
     case LSW_ABI_BATCH_OUT: return sizeof(FastswBatchOut);
     case LSW_ABI_BANK_WIRE: return sizeof(LswBankWire);
     case LSW_ABI_SYNC: return sizeof(LswSync);
+    case LSW_ABI_GRID_SETTINGS: return sizeof(LswGridSettings);
+    case LSW_ABI_GRID_DEVICE: return sizeof(LswGridDevice);
+    case LSW_ABI_SVR_TRACKER: return sizeof(LswSvrTracker);
+    case LSW_ABI_SVR_ROUTE: return sizeof(LswSvrRoute);
+    case LSW_ABI_SVR_SLOW: return sizeof(LswSvrSlow);
     default: return 0;
     }
 }

@@ -115,6 +115,72 @@ class _Sync(ctypes.Structure):
 _lib.lsw_stamp.argtypes = [ctypes.POINTER(_Sync), ctypes.c_size_t, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
 _lib.lsw_stamp.restype = ctypes.c_size_t
 
+GRID_HISTORY, GRID_TRUTH, GRID_JITTER = 16, 512, 500
+"""LSW_GRID_HISTORY, LSW_GRID_TRUTH, LSW_GRID_JITTER (lsw_grid.h)."""
+
+
+class GridSettings(ctypes.Structure):
+    """LswGridSettings (lsw_grid.h): what every device of a grid bank shares."""
+
+    _fields_ = [(name, ctypes.c_double) for name in ("period_us", "hold_us", "late_us", "early_us", "phase_gain",
+                                                     "offset_us")] + [
+        ("axes", ctypes.c_double * 4), ("rise_after", ctypes.c_uint32), ("truth", ctypes.c_uint32)]
+
+
+class GridDevice(ctypes.Structure):
+    """LswGridDevice (lsw_grid.h): one device's history, grid and truth samples."""
+
+    _fields_ = [("hist_t", ctypes.c_double * GRID_HISTORY), ("hist_q", (ctypes.c_double * 4) * GRID_HISTORY),
+                ("truth_t", ctypes.c_int64 * GRID_TRUTH), ("truth_a", ctypes.c_double * GRID_TRUTH),
+                ("truth_q", (ctypes.c_float * 4) * GRID_TRUTH), ("jitter", ctypes.c_float * GRID_JITTER)] + [
+        (name, ctypes.c_double) for name in ("instant", "anchor", "shift", "truth_since")] + [
+        (name, ctypes.c_int64) for name in ("last_t", "held", "truth_dropped")] + [
+        (name, ctypes.c_uint32) for name in ("hist_len", "hist_head", "truth_len", "jitter_len", "jitter_head",
+                                             "no_rise", "quiet")] + [
+        (name, ctypes.c_uint8) for name in ("has_instant", "has_anchor", "online")] + [("pad", ctypes.c_uint8 * 5)]
+
+
+class SvrTracker(ctypes.Structure):
+    """LswSvrTracker (lsw_slimevr.h): a SlimeVR tracker's link counters."""
+
+    _fields_ = [(name, ctypes.c_int64) for name in ("last_number", "lost", "packets", "arrived")] + [
+        ("last_seen", ctypes.c_double), ("online", ctypes.c_uint32), ("pad", ctypes.c_uint32)]
+
+
+class SvrRoute(ctypes.Structure):
+    """LswSvrRoute (lsw_slimevr.h): rotations of (ip, port, sensor) go to device ``slot``."""
+
+    _fields_ = [("tracker", ctypes.POINTER(SvrTracker)), ("ip", ctypes.c_uint32), ("port", ctypes.c_uint16),
+                ("sensor", ctypes.c_uint8), ("pad", ctypes.c_uint8), ("slot", ctypes.c_uint32),
+                ("pad2", ctypes.c_uint32)]
+
+
+SVR_MAX_DATAGRAM = 2048
+"""LSW_SVR_MAX_DATAGRAM (lsw_slimevr.h)."""
+
+
+class SvrSlow(ctypes.Structure):
+    """LswSvrSlow (lsw_slimevr.h): a datagram left to Python."""
+
+    _fields_ = [("data", ctypes.c_uint8 * SVR_MAX_DATAGRAM), ("len", ctypes.c_uint32), ("ip", ctypes.c_uint32),
+                ("port", ctypes.c_uint16), ("ready", ctypes.c_uint16), ("t_us", ctypes.c_double)]
+
+
+_vp, _d, _sz, _u32 = ctypes.c_void_p, ctypes.c_double, ctypes.c_size_t, ctypes.c_uint32
+for _name, _args, _res in (
+        ("lsw_grid_reset", [_vp], None),
+        ("lsw_grid_push", [_vp, _vp, _d, _vp, _d], None),
+        ("lsw_grid_tick", [_vp, _vp, _sz, _d, _vp, _vp, _vp, _vp], _sz),
+        ("lsw_grid_truth_due", [_vp, _vp, _sz, _d, _u32, _d, _vp, _vp], _sz),
+        ("lsw_grid_take_truth", [_vp, _u32, _vp, _vp, _d], _u32),
+        ("lsw_svr_rx_size", [], _sz),
+        ("lsw_svr_rx_init", [_vp, ctypes.c_int, _vp, _vp], ctypes.c_int),
+        ("lsw_svr_rx_routes", [_vp, _vp, _u32], None),
+        ("lsw_svr_datagram", [_vp, ctypes.c_char_p, _sz, _u32, ctypes.c_uint16, _d, _d], ctypes.c_int),
+        ("lsw_svr_drain", [_vp, _d, _u32, _vp, _vp], _u32)):
+    getattr(_lib, _name).argtypes = _args
+    getattr(_lib, _name).restype = _res
+
 STATE_SIZE: int = _lib.fastsw_state_size()
 SW_STATE_SIZE: int = _lib.sw_state_size()
 
@@ -130,7 +196,8 @@ def _check_abi() -> None:
     that drifted from its declaration fails here, at import, instead of corrupting memory."""
     _lib.lsw_abi_size.argtypes = [ctypes.c_int]
     _lib.lsw_abi_size.restype = ctypes.c_size_t
-    for which, struct in enumerate((Settings, Point, BatchOut, BankWire, _Sync)):
+    for which, struct in enumerate((Settings, Point, BatchOut, BankWire, _Sync, GridSettings, GridDevice, SvrTracker,
+                                    SvrRoute, SvrSlow)):
         size = _lib.lsw_abi_size(which)
         if size != ctypes.sizeof(struct):
             raise ImportError(f"limbstream C kernels: {struct.__name__} is {size} bytes in C, "

@@ -2,17 +2,21 @@
 (:mod:`.slimevr_protocol`) and turns every tracker sensor into a limbstream device
 (docs/protocol.md, "SlimeVR gateway").
 
-One thread does everything: it waits on the socket until the next tick, decodes each datagram
-and answers trackers as a SlimeVR server does (handshake, sensor info, feature flags, a heartbeat
-and a ping every 0.5 s), and at each tick of the device rate runs fastSW for every device in one
-:class:`limbstream.kernel.SegmenterBank` call, as the emulator does, publishing segment points,
-the truth tap and liveliness with the emulator's device pieces (:mod:`..device_emulator.device_io`).
+One thread does everything. At each tick of the device rate it reads the datagrams waiting:
+rotations of sensors that feed devices, nearly all of the traffic, in C (:mod:`.slimevr_rx`:
+counted on their tracker and put in their device's history, stamped by the kernel on arrival);
+every other datagram is decoded here and answered as a SlimeVR server does (handshake, sensor
+info, feature flags, a heartbeat and a ping every 0.5 s). Then every device takes its grid sample
+(:class:`limbstream.kernel.grid.GridBank`, one C call) and fastSW runs for all of them in one
+:class:`limbstream.kernel.SegmenterBank` call, as the emulator does, publishing segment points, the
+truth tap and liveliness with the emulator's device pieces (:mod:`..device_emulator.device_io`).
 
-Timing: each packet is stamped on arrival (the gateway's clock, synchronised to the common time
-base by :class:`SyncClient`, one clock for all). Trackers send at their own irregular rate; each
-device samples its tracker on a uniform grid of its own, placed on the lower edge of its packets'
-arrivals (:meth:`SlimeVRGateway._lock_phase`), at the newest instant at least ``delay`` (default
-30 ms) in the past: the SLERP of the two packets around that instant, or the newest packet held
+Timing: each packet is stamped on arrival (by the kernel, on the gateway's clock, synchronised to
+the common time base by :class:`SyncClient`, one clock for all; where the system gives no arrival
+stamps, at its read, and the gateway then waits on the socket between ticks). Trackers send at
+their own irregular rate; each device samples its tracker on a uniform grid of its own, placed on
+the lower edge of its packets' arrivals (``firmware_c/src/lsw_grid.c``), at the newest instant at
+least ``delay`` (default 30 ms) in the past: the SLERP of the two packets around that instant, or the newest packet held
 when none has arrived after it yet (counted: ``held``). A packet that arrives less than half a
 period after an instant was delayed on its way (arrival jitter), not taken later: it is that
 instant's sample, and the truth tap stamps it at that instant (the sample's own stamp). The truth
@@ -31,9 +35,7 @@ Times are microseconds unless named otherwise.
 """
 from __future__ import annotations
 
-import bisect
 import collections
-import itertools
 import json
 import logging
 import math
@@ -42,38 +44,33 @@ import select
 import socket
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import zenoh
 
-from limbstream import kernel, quat, wire
+from limbstream import kernel, wire
+from limbstream.kernel.grid import GridBank
 from limbstream.device_emulator import device_io
 from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device_emulator.sync_client import SyncClient
 from limbstream.services.gateway import assignments
 from limbstream.services.gateway import slimevr_protocol as proto
+from limbstream.services.gateway.slimevr_rx import Receiver, ipv4
 
 log = logging.getLogger("limbstream.gateway.slimevr")
 
 AXES = (math.cos(math.pi / 4), -math.sin(math.pi / 4), 0.0, 0.0)
 """-90 degrees about X (w, x, y, z): a tracker's axes (Z up) to limbstream's (Y up), as the
 SlimeVR server turns them."""
-AXES_T = quat.left_matrix(AXES).T
-"""``q @ AXES_T``: (..., 4) quaternions in a tracker's axes turned into limbstream's (AXES * q)."""
 RING = 64
 """Ticks of samples each device keeps: a segment point refers to the device's newest sample or the
 one before, at most QUIET_TICKS ticks back."""
 QUIET_TICKS = RING - 2
 """A device without a sample for this many ticks (its sensor stopped sending rotations) ends its
 stream; its next rotation starts a new one."""
-HISTORY = 16
-"""Packets each device keeps for its grid samples."""
 PHASE_GAIN = 0.02
 """Share of a late packet's offset from its device's grid instant the grid moves by."""
-JITTER_WINDOW = 500
-"""Packets over which a device's arrival jitter (offset from its grid instant) is reported."""
 LATE_SHARE = 0.5
 """A packet that arrives less than this share of a period after its device's grid instant was
 delayed on its way: it is that instant's sample (a tracker faster than the grid has its packets
@@ -85,20 +82,17 @@ packet that set the lower edge can end up just before its instant."""
 HOLD_PERIODS = 2
 """A device holds its newest packet this many grid periods at most, then takes no sample."""
 RECV_BUDGET = 4096
-"""Datagrams read at most between two checks of the tick clock."""
+"""Datagrams read at most at once (at a tick; without kernel stamps, also as they come)."""
 RATE_WINDOW_S = 5.0
 """Packets per second are counted over this window."""
 TRUTH_MAX_AGE_S = 0.5
 """A device's truth samples wait at most this long for a full batch."""
 QUERIES_PER_TICK = 10
 RCVBUF = 4 << 20
-"""Socket receive buffer asked for, bytes (the system may cap it: net.core.rmem_max)."""
-
-
-def quaternions(qs: Sequence) -> np.ndarray:
-    """(n, 4) float64 array of n (w, x, y, z) tuples (a few times quicker than np.array on
-    tuples of floats)."""
-    return np.fromiter(itertools.chain.from_iterable(qs), np.float64, 4 * len(qs)).reshape(-1, 4)
+"""Socket receive buffer asked for, bytes (the system may cap it: net.core.rmem_max): a tick's
+datagrams wait in it."""
+RATE_MARK_S = 0.25
+"""A tracker's packet count is noted at most this often for its packet rate."""
 
 
 @dataclass(frozen=True)
@@ -143,29 +137,50 @@ class GatewaySettings:
 
 @dataclass(slots=True)
 class Tracker:
-    """One tracker (a UDP address) and its link figures."""
+    """One tracker (a UDP address) and its link figures. Its packet counters are a C record
+    (``link``), shared with the datagrams read in C (:mod:`.slimevr_rx`)."""
 
     address: tuple
     name: str
-    last_number: int = -1
-    last_seen: float = 0.0             # monotonic s
     connected: float = 0.0             # monotonic s of its last handshake
-    online: bool = True
-    packets: int = 0                   # numbered packets taken
-    lost: int = 0                      # missing packet numbers
     battery_pct: float | None = None
     signal_dbm: float | None = None
     ping_id: int = 0
-    ping_sent: float = 0.0
+    ping_sent_us: float = 0.0          # gateway clock of its last ping
     rtt_ms: float | None = None
-    arrivals: collections.deque = field(default_factory=collections.deque)  # monotonic s of recent packets
+    link: kernel.SvrTracker = field(default_factory=lambda: kernel.SvrTracker(last_number=-1, online=1))
+    marks: collections.deque = field(default_factory=collections.deque)  # (monotonic s, packets heard)
     sensors: dict = field(default_factory=dict)  # sensor id -> Sensor
 
+    @property
+    def online(self) -> bool:
+        return bool(self.link.online)
+
+    @online.setter
+    def online(self, value: bool) -> None:
+        self.link.online = int(value)
+
+    @property
+    def packets(self) -> int:
+        """Numbered packets taken."""
+        return self.link.packets
+
+    @property
+    def lost(self) -> int:
+        """Packet numbers missing."""
+        return self.link.lost
+
     def pps(self, now: float) -> float:
-        """Packets per second over the last RATE_WINDOW_S (or since it connected, at least 1 s)."""
-        while self.arrivals and self.arrivals[0] < now - RATE_WINDOW_S:
-            self.arrivals.popleft()
-        return len(self.arrivals) / max(1.0, min(RATE_WINDOW_S, now - self.connected))
+        """Packets per second over about the last RATE_WINDOW_S (or since it connected, at least 1 s)."""
+        marks, heard = self.marks, self.link.arrived
+        if not marks:
+            marks.append((self.connected, 0))
+        if now - marks[-1][0] >= RATE_MARK_S:
+            marks.append((now, heard))
+        while len(marks) > 1 and marks[1][0] <= now - RATE_WINDOW_S:
+            marks.popleft()
+        since, before = marks[0]
+        return (heard - before) / max(1.0, now - since)
 
     def loss(self) -> float | None:
         total = self.packets + self.lost
@@ -203,21 +218,8 @@ class Device:
     streams: int = 0
     points: int = 0
     last: bytes | None = None
-    hist_t: collections.deque = field(default_factory=lambda: collections.deque(maxlen=HISTORY))
-    hist_q: collections.deque = field(default_factory=lambda: collections.deque(maxlen=HISTORY))
-    truth_t: list = field(default_factory=list)  # common-time stamps of packets not yet on the tap
-    truth_q: list = field(default_factory=list)
-    truth_a: list = field(default_factory=list)  # and their arrivals (gateway clock)
-    truth_since: float = 0.0                     # monotonic s of the oldest of them
+    grid: kernel.GridDevice | None = None        # its history, grid and truth samples (C record)
     raw_index: int = 0                           # index of the next truth sample in the stream
-    held: int = 0                                # grid samples held (no packet after the instant yet)
-    quiet: int = 0                               # ticks since its last grid sample
-    last_t: int = 0                              # common-time stamp of its last grid sample
-    instant: float | None = None                 # its grid instant of the last tick (None: none yet)
-    anchor: float | None = None                  # arrival of its stream's first packet: where its grid starts
-    shift: float = 0.0                           # correction of its grid since the last tick
-    no_rise: int = 0                             # packets before its grid may move later again
-    jitter: collections.deque = field(default_factory=lambda: collections.deque(maxlen=JITTER_WINDOW))  # us
 
     @property
     def id(self) -> str:
@@ -254,16 +256,18 @@ class SlimeVRGateway:
         self.unassigned_samples = 0
         self.period_us = 1e6 / settings.fs
         self.delay_us = settings.delay_ms * 1e3
-        self.hold_us = HOLD_PERIODS * self.period_us
-        self.late_us = LATE_SHARE * self.period_us
-        self.early_us = EARLY_SHARE * self.period_us
-        self.rise_after = math.ceil(self.delay_us / self.period_us) + 2  # packets between one's arrival and its instant
-        self.ring_q = np.zeros((RING, n, 4), np.float32)
+        self.grid = GridBank(n, self.period_us, hold_us=HOLD_PERIODS * self.period_us,
+                             late_us=LATE_SHARE * self.period_us, early_us=EARLY_SHARE * self.period_us,
+                             phase_gain=PHASE_GAIN,
+                             rise_after=math.ceil(self.delay_us / self.period_us) + 2,  # packets between one's arrival and its instant
+                             axes=AXES, truth=settings.truth)
+        # rotations of sensors that feed devices, read in C from an IPv4 socket (else handed in)
+        self.rx = Receiver(sock if sock.family == socket.AF_INET else None, self.grid, n)
         self.base = TimeBase()
         self.clocks = DeviceClocks(1, ClockSettings(), self.period_us, self.base)
         self.sync = (SyncClient(session, self.clocks, settings.clock, ["slimevr-gateway"])
                      if settings.clock.sync else None)
-        self.offset_us = 0.0       # common time base minus the gateway's clock, as stamped this tick
+        self.offset_us = 0.0       # common time base minus the gateway's clock, as stamped this tick (also grid's)
         self.ticks = self.late = 0
         self.busy_s = 0.0
         self.start_us = 0.0
@@ -315,7 +319,7 @@ class SlimeVRGateway:
                 return None
             s = self.settings
             self._serve_subject(subject)  # a run-time assignment may name a subject not served yet
-            d = Device(subject, segment, len(self.slots), s.config)
+            d = Device(subject, segment, len(self.slots), s.config, grid=self.grid.devices[len(self.slots)])
             d.publisher = device_io.point_publisher(self.session, subject, segment, s.cache, s.heartbeat_s)
             if s.truth:
                 d.raw_pub = device_io.raw_publisher(self.session, subject, segment, s.heartbeat_s)
@@ -362,6 +366,7 @@ class SlimeVRGateway:
             if d.online:
                 self._end_stream(d)
         d.sensor, sensor.device = sensor, d
+        self._reroute()
         log.info("%s -> %s", sensor.name, d.id)
         return None
 
@@ -373,7 +378,15 @@ class SlimeVRGateway:
         if d.online:
             self._end_stream(d)
         d.sensor, sensor.device, sensor.why = None, None, why
+        self._reroute()
         log.info("%s -> none (%s)", sensor.name, why)
+
+    def _reroute(self) -> None:
+        """Tell the C side which sensors feed which devices (after any change of them or of a
+        tracker's address): their rotations are read there (:mod:`.slimevr_rx`)."""
+        self.rx.route((t.link, ip, t.address[1], s.sensor, s.device.slot)
+                      for t in self.trackers.values() if (ip := ipv4(t.address[0])) is not None
+                      for s in t.sensors.values() if s.device is not None)
 
     def assign(self, a: wire.Assignment) -> str | None:
         """Move a sensor the gateway has heard of to device (subject, segment), or to none
@@ -451,16 +464,12 @@ class SlimeVRGateway:
         """A new stream: fresh kernel state, stream id and numbering; liveliness token."""
         b, k = self.bank, d.slot
         b.reset(k)
+        self.grid.reset(k)
         self.calls[k] = 0
         b.stream[k], b.seq[k], b.base[k] = random.getrandbits(16), 0, self.n[k]
-        d.points, d.last, d.raw_index, d.held, d.quiet = 0, None, 0, 0, 0
-        d.instant = d.anchor = None
-        d.shift, d.no_rise = 0.0, 0
-        d.hist_t.clear()
-        d.hist_q.clear()
-        d.truth_t, d.truth_q, d.truth_a = [], [], []
+        d.points, d.last, d.raw_index = 0, None, 0
         d.streams += 1
-        d.online = True
+        d.online = d.grid.online = True
         d.token = device_io.alive_token(self.session, d.subject, d.segment)
         log.info("%s: stream %d from %s", d.id, b.stream[k], d.sensor.name if d.sensor else "?")
 
@@ -471,7 +480,7 @@ class SlimeVRGateway:
         last = b.flush(k)
         if last is not None:  # the kernel's newest sample, not yet a point: the device's last grid sample
             omega = (0.0, 0.0, 0.0) if b.live(k) else None
-            point = wire.SegmentPoint(int(b.stream[k]), int(b.seq[k]), int(self.n[k] - 1 - b.base[k]), d.last_t,
+            point = wire.SegmentPoint(int(b.stream[k]), int(b.seq[k]), int(self.n[k] - 1 - b.base[k]), d.grid.last_t,
                                       tuple(float(v) for v in last[2]), wire.FLAG_FINAL, omega)
             d.publisher.put(wire.encode_point(point))
         elif d.last is not None:
@@ -479,11 +488,11 @@ class SlimeVRGateway:
             d.publisher.put(wire.encode_point(wire.SegmentPoint(
                 point.stream, int(b.seq[k]), point.index, point.t_us, point.q, wire.FLAG_FINAL, point.omega)))
         b.seq[k] = (int(b.seq[k]) + 1) & 0xFFFFFFFF
-        self._flush_truth(d, len(d.truth_t))
+        self._flush_truth(d, d.grid.truth_len, time.monotonic())
         if d.token is not None:
             d.token.undeclare()
             d.token = None
-        d.online = False
+        d.online = d.grid.online = False
         log.info("%s: stream %d ended", d.id, b.stream[k])
 
     # ------------------------------------------------------------------ datagrams
@@ -495,7 +504,20 @@ class SlimeVRGateway:
             self.dropped["send_failed"] += 1
 
     def receive(self, now: float) -> int:
-        """Read and handle the datagrams waiting (at most RECV_BUDGET); returns how many."""
+        """Read and handle the datagrams waiting (at most RECV_BUDGET); returns how many. From an
+        IPv4 socket they are read in C, which handles the rotations of sensors that feed devices
+        and hands every other datagram back, in order (:mod:`.slimevr_rx`)."""
+        if self.rx.reads:
+            count = 0
+            while count < RECV_BUDGET:
+                n, slow = self.rx.drain(now, RECV_BUDGET - count)
+                count += n
+                if slow is None:
+                    break
+                self._decode(*slow, now)
+            if self.rx.errors:
+                self.dropped["socket_error"] = self.rx.errors
+            return count
         count = 0
         recvfrom, handle = self.sock.recvfrom, self.handle
         while count < RECV_BUDGET:
@@ -512,25 +534,28 @@ class SlimeVRGateway:
 
     def handle(self, data: bytes, address: tuple, t_us: float, now: float) -> None:
         """One datagram from ``address``, arrived at the gateway's clock ``t_us`` (monotonic
-        ``now``, s). Bad ones are counted by reason and dropped. A lone rotation packet, nearly
-        all of a tracker's traffic, takes the short way (:func:`proto.decode_rotation`)."""
+        ``now``, s): rotations of sensors that feed devices in C (as :meth:`receive` reads them),
+        anything else decoded here."""
+        ip = ipv4(address[0])
+        if ip is None or not self.rx.datagram(data, ip, address[1], t_us, now):
+            self._decode(data, address, t_us, now)
+
+    def _decode(self, data: bytes, address: tuple, t_us: float, now: float) -> None:
+        """A datagram the C side left to Python (:meth:`handle`). Bad ones are counted by reason
+        and dropped."""
         try:
-            rotation = proto.decode_rotation(data)
-            dg = proto.decode(data) if rotation is None else None
+            dg = proto.decode(data)
         except proto.ProtocolError as exc:
             self.dropped[exc.reason] += 1
             return
-        if dg is not None and dg.type == proto.HANDSHAKE:
+        if dg.type == proto.HANDSHAKE:
             self._handshake(address, dg.messages[0], now)  # type: ignore[arg-type]
             return
         tracker = self.trackers.get(address)
         if tracker is None:
             self.dropped["no_handshake"] += 1
             return
-        if not self._count(tracker, rotation[0] if dg is None else dg.number, now):
-            return
-        if dg is None:
-            self._rotation(tracker, rotation[1], rotation[2], t_us, now)  # type: ignore[index]
+        if not self._count(tracker, dg.number, now):
             return
         for m in dg.messages:
             if isinstance(m, proto.Rotation):
@@ -545,7 +570,7 @@ class SlimeVRGateway:
                 tracker.signal_dbm = m.dbm
             elif isinstance(m, proto.Pong):
                 if m.ping_id == tracker.ping_id:
-                    tracker.rtt_ms = (now - tracker.ping_sent) * 1e3
+                    tracker.rtt_ms = (t_us - tracker.ping_sent_us) / 1e3  # (t_us: its arrival)
             elif isinstance(m, proto.Other):
                 if m.type == proto.FEATURE_FLAGS:
                     self._send(proto.feature_flags(), address)
@@ -559,16 +584,17 @@ class SlimeVRGateway:
     def _count(self, tracker: Tracker, number: int, now: float) -> bool:
         """Count packet ``number`` of the tracker, heard at monotonic ``now`` (s): its loss (a gap
         in the numbers), its rate, its liveliness; False (dropped) when it is out of order."""
+        link = tracker.link  # (shared with the C side, which counts the rotations it takes the same way)
         if number != 0:  # a pong echoes the server's number 0; every other packet counts up
-            if number <= tracker.last_number:
+            if number <= link.last_number:
                 self.dropped["out_of_order"] += 1
                 return False
-            if 0 <= tracker.last_number and number - tracker.last_number < 1 << 16:
-                tracker.lost += number - tracker.last_number - 1
-            tracker.last_number = number
-            tracker.packets += 1
-        tracker.last_seen = now
-        tracker.arrivals.append(now)
+            if 0 <= link.last_number and number - link.last_number < 1 << 16:
+                link.lost += number - link.last_number - 1
+            link.last_number = number
+            link.packets += 1
+        link.last_seen = now
+        link.arrived += 1
         if not tracker.online:
             tracker.online = True
             log.info("tracker %s is back", tracker.name)
@@ -589,8 +615,9 @@ class SlimeVRGateway:
                 log.info("tracker %s connected from %s:%d (firmware %s, protocol %d)", name, address[0],
                          address[1], hs.firmware or "?", hs.protocol)
             self.trackers[address] = tracker
-        tracker.last_number = -1  # a tracker keeps its numbering across reconnects: loss counts from here
-        tracker.last_seen = now
+            self._reroute()
+        tracker.link.last_number = -1  # a tracker keeps its numbering across reconnects: loss counts from here
+        tracker.link.last_seen = now
         tracker.online = True
         self._send(proto.handshake_answer(), address)
 
@@ -601,8 +628,8 @@ class SlimeVRGateway:
         return sensor
 
     def _rotation(self, tracker: Tracker, sensor_id: int, q: tuple, t_us: float, now: float) -> None:
-        """Sensor ``sensor_id`` of the tracker is at ``q`` (w, x, y, z, the tracker's axes: turned
-        into limbstream's per tick and per truth batch, vectorised), arrived at ``t_us``."""
+        """Sensor ``sensor_id`` of the tracker is at ``q`` (w, x, y, z, the tracker's axes),
+        arrived at ``t_us``: a rotation the C side did not take (a new sensor, a new stream)."""
         sensor = tracker.sensors.get(sensor_id)
         d = sensor.device if sensor is not None else None
         if d is None:  # a new sensor, or one without a device yet
@@ -614,119 +641,22 @@ class SlimeVRGateway:
                 return
         if not d.online:
             self._start_stream(d)
-        if d.hist_t and t_us <= d.hist_t[-1]:  # the host clock stepped back: keep times increasing
-            t_us = d.hist_t[-1] + 1.0
-        self._lock_phase(d, t_us)
-        d.hist_t.append(t_us)
-        d.hist_q.append(q)
-        if self.settings.truth:
-            if not d.truth_t:
-                d.truth_since = now
-            d.truth_t.append(round(t_us + self.offset_us))
-            d.truth_q.append(q)
-            d.truth_a.append(t_us)
+        self.grid.push(d.slot, t_us, q, now)
 
-    def _lock_phase(self, d: Device, t_us: float) -> None:
-        """Keep the device's grid instants on its tracker's packets, at their earliest arrivals:
-        the grid starts at the stream's first packet; a packet that arrives within a quarter
-        period before an instant moves the grid back to it at once, one after an instant moves
-        it PHASE_GAIN of the way, unless an early packet came within the last ``rise_after``
-        packets (its own instant, a delay later, must not move past it) (the grid follows the
-        tracker's clock drift along the lower edge
-        of the arrival jitter, so a packet's arrival is at or after its instant and the point
-        made at that instant counts as known at the packet). A tracker faster than the grid has
-        packets in between, which do not count."""
-        if d.instant is None:
-            if d.anchor is None:
-                d.anchor = t_us
-            return
-        period = self.period_us
-        r = (t_us - d.instant - d.shift + period / 2) % period - period / 2
-        if abs(r) < period / 4:
-            d.jitter.append(abs(r))
-            if r < 0:  # early: back at once, and no rise until this packet's own instant has passed
-                d.shift += r
-                d.no_rise = self.rise_after
-            elif d.no_rise > 0:
-                d.no_rise -= 1
-            else:
-                d.shift += PHASE_GAIN * r
-
-    def _next_instant(self, d: Device, at_us: float) -> float | None:
-        """The device's grid instant for the tick whose gateway instant is ``at_us``: one period
-        after its last, moved by the correction since (at most a quarter period), kept within the
-        period up to ``at_us`` (the tracker's clock drift makes it skip an instant, or wait a
-        tick, once in a long while); None when it waits or has no packet yet."""
-        period = self.period_us
-        if d.instant is None:
-            if d.anchor is None:
-                return None
-            d.instant = d.anchor + math.floor((at_us - d.anchor) / period) * period
-            return d.instant
-        d.instant += period + max(-period / 4, min(period / 4, d.shift))
-        d.shift = 0.0
-        if d.instant <= at_us - period:
-            d.instant += period
-        if d.instant > at_us:
-            d.instant -= period
-            return None
-        return d.instant
-
-    def _restamp_truth(self, d: Device, arrival: float, t_us: int) -> None:
-        """The truth sample of the packet that arrived at ``arrival`` (if not on the tap yet) is
-        stamped ``t_us``."""
-        i = bisect.bisect_left(d.truth_a, arrival)  # arrivals increase (_rotation)
-        if i < len(d.truth_a) and d.truth_a[i] == arrival:
-            d.truth_t[i] = t_us
-
-    def _flush_truth(self, d: Device, n: int) -> None:
-        """Put the device's first ``n`` truth samples on its tap."""
+    def _flush_truth(self, d: Device, n: int, now: float) -> None:
+        """Put the device's first ``n`` truth samples on its tap (the rest wait from ``now``)."""
         if not n or d.raw_pub is None:
             return
-        t = np.maximum.accumulate(np.array(d.truth_t[:n], np.int64))
-        q = (quaternions(d.truth_q[:n]) @ AXES_T).astype(np.float32)
+        t, q = self.grid.take_truth(d.slot, n, now)
         d.raw_pub.put(wire.encode_raw(wire.RawBatch(int(self.bank.stream[d.slot]), d.raw_index, t, q)))
         d.raw_index += len(t)
-        del d.truth_t[:n], d.truth_q[:n], d.truth_a[:n]
-        if d.truth_t:
-            d.truth_since = time.monotonic()
-
-    def _settled_truth(self, d: Device) -> int:
-        """How many of the device's truth samples keep their stamps: those that arrived before
-        its last grid instant plus LATE_SHARE of a period (a later one may still be an instant's)."""
-        edge = (d.instant if d.instant is not None else -math.inf) + self.late_us
-        return bisect.bisect_left(d.truth_a, edge)  # arrivals increase (_rotation)
 
     # ------------------------------------------------------------------ ticks
 
-    def _bracket(self, d: Device, at_us: float) -> tuple | None:
-        """The device's tracker at the gateway's time ``at_us`` as (q0, q1, u): the nearest packet
-        that arrived less than EARLY_SHARE of a period before the instant or less than LATE_SHARE
-        after it (delayed on its way: the instant's own sample, and its truth sample is stamped at
-        the instant), else the packets
-        around it and where it falls between them (SLERP), or the newest packet twice if none is
-        newer yet (held: counted when it is older than a quarter period) for at most HOLD_PERIODS
-        grid periods; None before its first packet and after that hold (a tracker gone quiet: no
-        sample). Tracker axes."""
-        ts = d.hist_t
-        if not ts or ts[0] > at_us or ts[-1] < at_us - self.hold_us:
-            return None
-        j = bisect.bisect_right(ts, at_us)  # ts[:j] arrived at or before the instant, ts[j:] after it
-        before = at_us - ts[j - 1] if j and at_us - ts[j - 1] < self.early_us else math.inf
-        after = ts[j] - at_us if j < len(ts) and ts[j] - at_us < self.late_us else math.inf
-        own = None if before == after == math.inf else j - 1 if before <= after else j
-        if own is not None:
-            self._restamp_truth(d, ts[own], int(round(at_us + self.offset_us)))
-            return d.hist_q[own], d.hist_q[own], 0.0
-        if j == len(ts):
-            if at_us - ts[-1] > self.period_us / 4:
-                d.held += 1
-            return d.hist_q[-1], d.hist_q[-1], 0.0
-        return d.hist_q[j - 1], d.hist_q[j], (at_us - ts[j - 1]) / (ts[j] - ts[j - 1])
-
     def step(self, k: int, now: float) -> None:
-        """Tick k: every online device's grid sample, the kernel, segment points; truth older
-        than TRUTH_MAX_AGE_S; silent trackers go offline."""
+        """Tick k: every online device's grid sample (:class:`GridBank`: on its own grid, locked
+        to its tracker's packets), the kernel, segment points; truth due; devices whose tracker
+        stopped sending rotations end their streams."""
         at = self.start_us + k * self.period_us - self.delay_us  # the grid instant, gateway clock
         if self.sync is not None:
             self.offset_us = float(self.sync.stamp(np.zeros(1, np.int64), np.array([at]))[0]) - at
@@ -735,53 +665,31 @@ class SlimeVRGateway:
                 for d in self.slots:
                     if d.online:
                         self._end_stream(d)
-        samples: list[tuple] = []
-        quiet, truth = [], []
-        batch = self.settings.raw_batch
+        self.grid.offset_us = self.offset_us
+        m = len(self.slots)
+        self.grid.tick(m, at)
+        self._update(m)
         for d in self.slots:
-            if not d.online:
-                continue
-            at_d = self._next_instant(d, at)  # the device's own grid, locked to its tracker's packets
-            pair = None if at_d is None else self._bracket(d, at_d)
-            if pair is None:
-                d.quiet += 1
-                if d.quiet >= QUIET_TICKS:
-                    quiet.append(d)
-            else:
-                d.last_t = int(round(at_d + self.offset_us))
-                d.quiet = 0
-                samples.append((d.slot, int(round(at_d)) & 0xFFFFFFFF, d.last_t, *pair))
-            if d.truth_t and (len(d.truth_t) >= batch or now - d.truth_since >= TRUTH_MAX_AGE_S):
-                truth.append(d)  # may be due (_settled_truth, once its points are out)
-        self._update(samples)
-        for d in quiet:
-            log.info("%s: no rotation for %d ticks", d.id, d.quiet)
-            self._end_stream(d)
-        for d in truth:
-            n = self._settled_truth(d) if d.online else 0
-            if n >= batch or (n and now - d.truth_since >= TRUTH_MAX_AGE_S):
-                self._flush_truth(d, n)
+            if d.online and d.grid.quiet >= QUIET_TICKS:
+                log.info("%s: no rotation for %d ticks", d.id, d.grid.quiet)
+                self._end_stream(d)
+        for slot, n in self.grid.truth_due(m, now, self.settings.raw_batch, TRUTH_MAX_AGE_S):
+            self._flush_truth(self.slots[slot], n, now)
         self.ticks = k + 1
 
-    def _update(self, samples: list[tuple]) -> None:
-        """One kernel call for every device: the tick's grid samples, each (bank slot, tick: the
-        device's grid instant, gateway clock, modulo 2**32; common-time stamp; q0, q1, u to
-        SLERP, tracker axes), in one SLERP turned into limbstream's axes (NaN: no sample), their
-        numbers and stamps in the bank's ring; the segment points it makes are published."""
-        m = len(self.slots)
+    def _update(self, m: int) -> None:
+        """One kernel call for devices 0..m-1 with the tick's grid samples (the grid bank's
+        ``have``, ``y``, ``tick_u32``, ``stamp``; NaN: no sample), their numbers and stamps in the
+        bank's ring; the segment points it makes are published."""
+        g = self.grid
         rows = self.calls[:m] % RING
-        self.bank.sample[rows, np.arange(m)] = -1
-        y = np.full((m, 4), np.nan, np.float32)
-        ticks = np.zeros(m, np.uint32)
-        if samples:
-            taken, tick, stamps, q0, q1, u = zip(*samples)
-            slots = np.array(taken)
-            self.bank.sample[rows[slots], slots] = self.n[slots]
-            self.bank.t_us[rows[slots], slots] = stamps
-            self.n[slots] += 1
-            ticks[slots] = tick
-            y[slots] = quat.slerp(quaternions(q0), quaternions(q1), np.array(u)) @ AXES_T
-        points, payload, ends = self.bank.update_wire(ticks, y)
+        cols = np.arange(m)
+        taken = g.have[:m].astype(bool)
+        self.bank.sample[rows, cols] = np.where(taken, self.n[:m], -1)
+        self.bank.t_us[rows[taken], cols[taken]] = g.stamp[:m][taken]
+        self.n[:m] += taken
+        ticks = np.where(taken, g.tick_u32[:m], 0).astype(np.uint32)
+        points, payload, ends = self.bank.update_wire(ticks, g.y[:m])
         self.calls[:m] += 1
         start = 0
         for slot, end in zip(points.tolist(), ends.tolist()):
@@ -794,15 +702,16 @@ class SlimeVRGateway:
     def keepalive(self, now: float) -> None:
         """Every KEEPALIVE_S: a heartbeat and a ping to each tracker; silent ones go offline."""
         for tracker in self.trackers.values():
-            if tracker.online and now - tracker.last_seen > self.settings.timeout_s:
+            if tracker.online and now - tracker.link.last_seen > self.settings.timeout_s:
                 tracker.online = False
                 log.info("tracker %s timed out", tracker.name)
                 for sensor in tracker.sensors.values():
                     if sensor.device is not None and sensor.device.online:
                         self._end_stream(sensor.device)
+            tracker.pps(now)  # a mark for its packet rate
             self._send(proto.heartbeat(), tracker.address)
             tracker.ping_id = random.getrandbits(31)
-            tracker.ping_sent = now
+            tracker.ping_sent_us = time.time_ns() / 1e3
             self._send(proto.ping(tracker.ping_id), tracker.address)
 
     # ------------------------------------------------------------------ status
@@ -848,9 +757,10 @@ class SlimeVRGateway:
             "unassigned": {s.name: s.why for t in self.trackers.values() for s in t.sensors.values()
                            if s.device is None},
             "devices": {d.id: {"online": d.online, "streams": d.streams, "points": d.points,
-                               "samples": int(self.n[d.slot] - self.bank.base[d.slot]), "held": d.held,
-                               "jitter_p99_ms": (round(float(np.percentile(d.jitter, 99)) / 1e3, 3)
-                                                 if d.jitter else None),
+                               "samples": int(self.n[d.slot] - self.bank.base[d.slot]), "held": d.grid.held,
+                               "truth_dropped": d.grid.truth_dropped,
+                               "jitter_p99_ms": (round(float(np.percentile(jitter, 99)) / 1e3, 3)
+                                                 if len(jitter := self.grid.jitter_us(d.slot)) else None),
                                "sensor": d.sensor.name if d.sensor else None} for d in self.slots},
             "dropped": dict(self.dropped), "ignored": dict(self.ignored),
             "unassigned_samples": self.unassigned_samples, "ticks": self.ticks, "late": self.late,
@@ -859,8 +769,9 @@ class SlimeVRGateway:
     # ------------------------------------------------------------------ loop
 
     def run(self, stop: threading.Event, on_report=None, report_s: float = 10.0) -> None:
-        """Serve until ``stop``: datagrams as they come, a tick every 1/fs, keepalives every
-        KEEPALIVE_S; ``on_report(report)`` every ``report_s``."""
+        """Serve until ``stop``: a tick every 1/fs, keepalives every KEEPALIVE_S; ``on_report(report)``
+        every ``report_s``. Datagrams are read at each tick when the kernel stamps their arrival
+        (they wait in the socket's buffer), else as they come."""
         if not self._queries:
             self.declare()
         self.clocks.boot(self.base.now_us())
@@ -875,7 +786,10 @@ class SlimeVRGateway:
         while not stop.is_set():
             deadline = start + k * period
             now = time.monotonic()
-            if now < deadline:
+            if now < deadline and self.rx.kernel_stamps:
+                time.sleep(deadline - now)
+                now = time.monotonic()
+            elif now < deadline:
                 readable, _, _ = select.select([self.sock], [], [], deadline - now)
                 now = time.monotonic()
                 if readable:

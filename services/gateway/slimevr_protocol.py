@@ -5,6 +5,9 @@ Every datagram is big-endian: ``i32 type, i64 packet number, payload``. A tracke
 packets from 0 up (a handshake, and a pong, which echoes the server's ping, carry 0); a server
 sends number 0. Bundles (100: ``u16 length, i32 type, payload`` repeated; 101, compact:
 ``u8 length, u8 type, payload`` repeated) carry several packets under one number.
+
+Datagrams of rotations only, nearly all of the traffic, are read the same way in C
+(``firmware_c/src/lsw_slimevr.c``; tests/test_grid.py checks that both agree).
 """
 from __future__ import annotations
 
@@ -44,13 +47,6 @@ _HEADER = struct.Struct(">iq")
 _ROTATION = struct.Struct(">BB4fB")
 _ROTATION_Q15 = struct.Struct(">B4h3h")
 _Q15 = 1.0 / 32768.0
-_ROTATION_PACKET = struct.Struct(">iqBB4f")
-"""A whole rotation data datagram (type 17: header, sensor, data type, x, y, z, w; the accuracy
-byte after it is optional)."""
-_ROTATION_Q15_PACKET = struct.Struct(">iqB4h")
-"""A whole rotation + acceleration datagram (type 23) up to its quaternion (Q15 x, y, z, w)."""
-_TYPE_PREFIX = b"\0\0\0"
-"""The first three bytes of a datagram of a type below 256 (i32, big-endian)."""
 
 
 class ProtocolError(ValueError):
@@ -226,25 +222,6 @@ def _bundle(p: bytes, compact: bool) -> tuple[Message, ...]:
             raise ProtocolError("bad_bundle", f"packet type {kind} inside a bundle")
         out.append(decode_message(kind, item[head:]))
     return tuple(out)
-
-
-def decode_rotation(datagram: bytes) -> tuple[int, int, tuple[float, float, float, float]] | None:
-    """A datagram that is one rotation packet (type 17 with the fused orientation, or 23) as
-    (packet number, sensor, q): what :func:`decode` makes of it, with one unpack and no message
-    objects (a tracker sends a hundred of these a second); None for any other datagram (decode
-    it in full); ProtocolError (bad_quaternion) if its quaternion is not finite or is zero."""
-    size = len(datagram)
-    if size < _ROTATION_Q15_PACKET.size or size > MAX_DATAGRAM or datagram[:3] != _TYPE_PREFIX:
-        return None
-    kind = datagram[3]
-    if kind == ROTATION_DATA and size >= _ROTATION_PACKET.size:
-        _, number, sensor, data_type, x, y, z, w = _ROTATION_PACKET.unpack_from(datagram)
-        if data_type == ROTATION_NORMAL:
-            return number, sensor, _quaternion(w, x, y, z)
-    elif kind == ROTATION_ACCEL:
-        _, number, sensor, x, y, z, w = _ROTATION_Q15_PACKET.unpack_from(datagram)
-        return number, sensor, _quaternion(w * _Q15, x * _Q15, y * _Q15, z * _Q15)
-    return None
 
 
 def decode(datagram: bytes) -> Datagram:
