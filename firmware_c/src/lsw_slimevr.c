@@ -2,7 +2,7 @@
  * lsw_slimevr.c - rotation datagrams of routed SlimeVR sensors, read and handled in C (see
  * lsw_slimevr.h). Host library only; the protocol is services/gateway/slimevr_protocol.py's.
  */
-#define _GNU_SOURCE /* recvmmsg */
+#define _GNU_SOURCE /* recvmmsg (Linux; elsewhere one recvfrom per datagram, stamped at the read) */
 #include "lsw_slimevr.h"
 
 #include <errno.h>
@@ -35,15 +35,18 @@ struct LswSvrRx {
     int fd;
     int kernel_stamps;
     uint32_t next, count; /* the batch: datagrams [next, count) not handled yet */
+    struct sockaddr_in from[BATCH];
+    uint32_t len[BATCH];
+    double stamp[BATCH];
+    uint8_t data[BATCH][LSW_SVR_MAX_DATAGRAM];
+#ifdef __linux__
     struct mmsghdr msgs[BATCH];
     struct iovec iov[BATCH];
-    struct sockaddr_in from[BATCH];
     union { /* control messages: the kernel's arrival stamp */
         char buf[CMSG_SPACE(sizeof(struct timespec))];
         struct cmsghdr align;
     } control[BATCH];
-    double stamp[BATCH];
-    uint8_t data[BATCH][LSW_SVR_MAX_DATAGRAM];
+#endif
 };
 
 typedef struct {
@@ -166,11 +169,15 @@ int lsw_svr_rx_init(LswSvrRx *rx, int fd, const LswGridSettings *grid, LswGridDe
     rx->grid = grid;
     rx->devices = devices;
     rx->fd = fd;
+#ifdef __linux__
     for (k = 0u; k < BATCH; k++) {
         rx->iov[k].iov_base = rx->data[k];
         rx->iov[k].iov_len = LSW_SVR_MAX_DATAGRAM;
     }
-#ifdef SO_TIMESTAMPNS
+#else
+    (void)k;
+#endif
+#if defined(__linux__) && defined(SO_TIMESTAMPNS)
     if (fd >= 0) {
         const int on = 1;
         rx->kernel_stamps = setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on) == 0;
@@ -231,6 +238,7 @@ static double realtime_us(void)
     return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec / 1e3;
 }
 
+#ifdef __linux__
 /** Read the next batch into rx (0 datagrams: none waits); -1 on a read error. */
 static int read_batch(LswSvrRx *rx)
 {
@@ -254,6 +262,7 @@ static int read_batch(LswSvrRx *rx)
     for (k = 0u; k < (uint32_t)got; k++) {
         struct msghdr *h = &rx->msgs[k].msg_hdr;
         struct cmsghdr *c;
+        rx->len[k] = rx->msgs[k].msg_len;
         rx->stamp[k] = 0.0;
         for (c = CMSG_FIRSTHDR(h); c != NULL; c = CMSG_NXTHDR(h, c)) {
 #ifdef SO_TIMESTAMPNS
@@ -271,6 +280,29 @@ static int read_batch(LswSvrRx *rx)
     rx->count = (uint32_t)got;
     return got;
 }
+#else
+/** Read the next batch into rx, one recvfrom each, stamped at the read (0: none waits; -1: a read error). */
+static int read_batch(LswSvrRx *rx)
+{
+    uint32_t k;
+    rx->next = rx->count = 0u;
+    for (k = 0u; k < BATCH; k++) {
+        socklen_t size = sizeof rx->from[k];
+        const ssize_t got = recvfrom(rx->fd, rx->data[k], LSW_SVR_MAX_DATAGRAM, MSG_DONTWAIT,
+                                     (struct sockaddr *)&rx->from[k], &size);
+        if (got < 0) {
+            if (k == 0u && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+                return -1;
+            }
+            break;
+        }
+        rx->len[k] = (uint32_t)got;
+        rx->stamp[k] = realtime_us();
+    }
+    rx->count = k;
+    return (int)k;
+}
+#endif
 
 uint32_t lsw_svr_drain(LswSvrRx *rx, double now_s, uint32_t budget, LswSvrSlow *slow, int64_t *errors)
 {
@@ -292,7 +324,7 @@ uint32_t lsw_svr_drain(LswSvrRx *rx, double now_s, uint32_t budget, LswSvrSlow *
         }
         k = rx->next++;
         read++;
-        len = rx->msgs[k].msg_len < LSW_SVR_MAX_DATAGRAM ? rx->msgs[k].msg_len : LSW_SVR_MAX_DATAGRAM;
+        len = rx->len[k] < LSW_SVR_MAX_DATAGRAM ? rx->len[k] : LSW_SVR_MAX_DATAGRAM;
         ip = ntohl(rx->from[k].sin_addr.s_addr);
         port = ntohs(rx->from[k].sin_port);
         if (rx->from[k].sin_family == AF_INET
