@@ -34,7 +34,9 @@ class GridBank:
 
     ``devices[k]`` is device k's C record (read its ``held``, ``quiet``, ``last_t``,
     ``truth_len``, ``truth_dropped``; set its ``online``); ``offset_us`` (common time base minus
-    the gateway's clock) stamps the truth samples and grid samples.
+    the gateway's clock) stamps the truth samples and grid samples. ``settings_ptr`` and
+    ``devices_ptr`` are their addresses, for other C code that feeds the bank
+    (``lsw_slimevr.c``).
     """
 
     def __init__(self, count: int, period_us: float, hold_us: float, late_us: float, early_us: float,
@@ -53,8 +55,8 @@ class GridBank:
         self._truth_q = np.zeros((GRID_TRUTH, 4), np.float32)
         self._q = (ctypes.c_double * 4)()
         # addresses taken once: numpy's .ctypes costs microseconds per call
-        self._s = ctypes.addressof(self.settings)
-        self._d = ctypes.addressof(self.devices)
+        self.settings_ptr = ctypes.addressof(self.settings)
+        self.devices_ptr = ctypes.addressof(self.devices)
         self._size = ctypes.sizeof(GridDevice)
         self._tick_ptrs = tuple(a.ctypes.data for a in (self.have, self.tick_u32, self.stamp, self.y))
         self._due_ptrs = (self._due[0].ctypes.data, self._due[1].ctypes.data)
@@ -70,7 +72,7 @@ class GridBank:
 
     def address(self, k: int) -> int:
         """Address of device k's record (for the C calls that take one)."""
-        return self._d + k * self._size
+        return self.devices_ptr + k * self._size
 
     def reset(self, k: int) -> None:
         """Device k starts a new stream: no samples, no grid, no truth (its jitter figure stays)."""
@@ -79,18 +81,18 @@ class GridBank:
     def push(self, k: int, t_us: float, q: Sequence[float], now: float) -> None:
         """Device k's sender's sample ``q`` (unit, its axes) arrived at ``t_us``, at monotonic ``now`` (s)."""
         self._q[:] = q
-        _lib.lsw_grid_push(self._s, self.address(k), t_us, self._q, now)
+        _lib.lsw_grid_push(self.settings_ptr, self.address(k), t_us, self._q, now)
 
     def tick(self, m: int, at_us: float) -> int:
         """Devices 0..m-1 at the gateway's grid instant ``at_us``: ``have[:m]`` 1 where a device
         took a sample: ``y[k]`` (turned), ``tick_u32[k]`` (its own instant mod 2**32),
         ``stamp[k]`` (common time base); returns how many took one."""
-        return _lib.lsw_grid_tick(self._s, self._d, m, at_us, *self._tick_ptrs)
+        return _lib.lsw_grid_tick(self.settings_ptr, self.devices_ptr, m, at_us, *self._tick_ptrs)
 
     def truth_due(self, m: int, now: float, batch: int, max_age_s: float) -> list[tuple[int, int]]:
         """(device, samples to take) of devices 0..m-1 whose truth is due at monotonic ``now``:
         ``batch`` settled samples (no later tick can restamp them), or some waiting ``max_age_s``."""
-        n = _lib.lsw_grid_truth_due(self._s, self._d, m, now, batch, max_age_s, *self._due_ptrs)
+        n = _lib.lsw_grid_truth_due(self.settings_ptr, self.devices_ptr, m, now, batch, max_age_s, *self._due_ptrs)
         return list(zip(self._due[0, :n].tolist(), self._due[1, :n].tolist()))
 
     def take_truth(self, k: int, n: int, now: float) -> tuple[np.ndarray, np.ndarray]:

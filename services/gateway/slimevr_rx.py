@@ -38,7 +38,7 @@ class Receiver:
         self._rx = ctypes.create_string_buffer(_lib.lsw_svr_rx_size())
         fd = sock.fileno() if sock is not None else -1
         self.reads = sock is not None
-        self.kernel_stamps = bool(_lib.lsw_svr_rx_init(self._rx, fd, grid._s, grid._d))
+        self.kernel_stamps = bool(_lib.lsw_svr_rx_init(self._rx, fd, grid.settings_ptr, grid.devices_ptr))
         self._routes = (SvrRoute * max(max_routes, 1))()
         self._slow = SvrSlow()
         self._errors = ctypes.c_int64(0)
