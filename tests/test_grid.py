@@ -276,3 +276,26 @@ def test_the_socket_is_read_in_batches_and_other_datagrams_come_back_in_order():
         stamps = [t for _, _, t in back]
         assert stamps == sorted(stamps) and all(t > 1e15 for t in stamps)  # microseconds since the epoch
         assert rx.kernel_stamps
+
+
+def test_datagrams_the_full_socket_buffer_dropped_are_counted():
+    """Datagrams the kernel drops on a full receive buffer are counted (SO_RXQ_OVFL): read plus
+    dropped is what was sent, so a stall shows as socket drops, not only as lost packet numbers."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as server, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tracker:
+        server.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # (the kernel's minimum, about 4.6 kB)
+        server.bind(("127.0.0.1", 0))
+        tracker.bind(("127.0.0.1", 0))
+        grid = GridBank(1, 10_000.0, hold_us=20_000.0, late_us=5_000.0, early_us=500.0, phase_gain=0.02,
+                        rise_after=5, axes=IDENTITY, truth=False)
+        grid.devices[0].online = 1
+        rx = Receiver(server, grid, 1)
+        link = SvrTracker(last_number=-1, online=1)
+        rx.route([(link, ipv4("127.0.0.1"), tracker.getsockname()[1], 0, 0)])
+        for number in range(1, 301):  # loopback queues each as it is sent: the buffer fills
+            tracker.sendto(header(17, number) + rotation_payload(0, IDENTITY), server.getsockname())
+        read, _ = rx.drain(0.0, 4096)
+        assert 0 < read < 300 and link.packets == read
+        tracker.sendto(header(17, 301) + rotation_payload(0, IDENTITY), server.getsockname())
+        assert rx.drain(0.0, 4096)[0] == 1  # the count comes with the first datagram queued after the drops
+        assert rx.overflows == 300 - read and link.lost == 300 - read

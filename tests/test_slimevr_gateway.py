@@ -108,9 +108,11 @@ def test_server_answers_are_what_the_firmware_checks():
 
 class Running:
     """A gateway in a thread on a peer Zenoh session (its own subscribers see what it publishes),
-    with a subscriber to every segment point and liveliness token."""
+    with a subscriber to every segment point and liveliness token. ``reads``: "ticks" (kernel
+    arrival stamps and the whole receive buffer), "between" (a buffer capped by the system: also
+    reads between ticks), "as they come" (as on a system without kernel arrival stamps)."""
 
-    def __init__(self, **overrides):
+    def __init__(self, reads: str = "ticks", **overrides):
         self.session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
@@ -119,6 +121,9 @@ class Running:
                                       "config": wire.DeviceConfig(**{**wire.LIVE_MODE, "max_len": 25}),
                                       **overrides})
         self.gateway = SlimeVRGateway(self.session, self.sock, settings)
+        self.gateway.rx.kernel_stamps &= reads != "as they come"
+        if reads == "between":
+            self.gateway.rcvbuf = 0
         self.points = self.session.declare_subscriber(wire.device_selector("seg"), zenoh.handlers.FifoChannel(100000))
         self.received: dict[str, list] = {}
         self.stop = threading.Event()
@@ -161,8 +166,8 @@ class Running:
 
 
 @pytest.fixture
-def gateway():
-    g = Running()
+def gateway(request):
+    g = Running(reads=getattr(request, "param", "ticks"))
     yield g
     g.close()
 
@@ -183,6 +188,7 @@ def _stream(trackers: list[Tracker], sensors: dict, seconds: float, rate: float 
         time.sleep(max(0.0, start + k / rate - time.monotonic()))
 
 
+@pytest.mark.parametrize("gateway", ["ticks", "between", "as they come"], indirect=True)
 def test_trackers_become_devices(gateway):
     a = Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 1]), {0: 7, 1: 13})   # left thigh, left lower arm
     b = Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 2]), {0: 1})          # head: no segment
@@ -359,3 +365,28 @@ def test_flags_of_the_command_are_checked():
     for bad in ("aa:bb=knee", "=neck", "aa/300=neck", "aa=s 1/neck"):
         with pytest.raises(argparse.ArgumentTypeError):
             parse_assign(bad)
+
+
+def test_a_tracker_whose_address_another_takes_goes_offline():
+    """A handshake of a new tracker from a known tracker's address (a DHCP lease handed on, a
+    port reused): the tracker there goes offline and its device can be fed by another sensor."""
+    session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
+    with session, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        g = SlimeVRGateway(session, sock, GatewaySettings("s01", clock=ClockSettings(sync=False),
+                                                           assign={("02:00:00:00:00:01", None): ("s01", "hip"),
+                                                                   ("02:00:00:00:00:02", None): ("s01", "hip")}))
+        g.declare()
+        here, there = ("127.0.0.1", 9), ("127.0.0.2", 9)  # the discard port: answers go nowhere
+        g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), here, 0.0, 0.0)
+        g.handle(_header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 1.0, 0.0)
+        assert g.devices["s01/hip"].online and g.devices["s01/hip"].sensor.tracker.name == "02:00:00:00:00:01"
+        g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 2])), here, 2.0, 0.1)
+        first = g.devices["s01/hip"].sensor.tracker
+        assert not first.online and not g.devices["s01/hip"].online  # its stream ended
+        g.handle(_header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 3.0, 0.1)
+        assert g.devices["s01/hip"].sensor.tracker.name == "02:00:00:00:00:02" and g.devices["s01/hip"].online
+        g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), there, 4.0, 0.2)  # back elsewhere
+        assert {t.name: t.online for t in g.trackers.values()} == {"02:00:00:00:00:01": True,
+                                                                   "02:00:00:00:00:02": True}
+        g.undeclare()

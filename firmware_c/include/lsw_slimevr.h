@@ -71,6 +71,9 @@ size_t lsw_svr_rx_size(void);
  */
 int lsw_svr_rx_init(LswSvrRx *rx, int fd, const LswGridSettings *grid, LswGridDevice *devices);
 
+/** Datagrams the kernel dropped because the socket's buffer was full (Linux; else 0). */
+uint32_t lsw_svr_rx_overflows(const LswSvrRx *rx);
+
 /** The routes in use from now on: routes[0..count-1] (the caller keeps the array). */
 void lsw_svr_rx_routes(LswSvrRx *rx, const LswSvrRoute *routes, uint32_t count);
 

@@ -34,6 +34,8 @@ struct LswSvrRx {
     uint32_t n_routes;
     int fd;
     int kernel_stamps;
+    uint32_t overflows;   /* datagrams the kernel dropped on a full socket buffer (SO_RXQ_OVFL) */
+    uint32_t late_errors; /* read errors after the first datagram of a batch (counted at the next drain) */
     uint32_t next, count; /* the batch: datagrams [next, count) not handled yet */
     struct sockaddr_in from[BATCH];
     uint32_t len[BATCH];
@@ -43,7 +45,7 @@ struct LswSvrRx {
     struct mmsghdr msgs[BATCH];
     struct iovec iov[BATCH];
     union { /* control messages: the kernel's arrival stamp */
-        char buf[CMSG_SPACE(sizeof(struct timespec))];
+        char buf[CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(uint32_t))];
         struct cmsghdr align;
     } control[BATCH];
 #endif
@@ -181,9 +183,17 @@ int lsw_svr_rx_init(LswSvrRx *rx, int fd, const LswGridSettings *grid, LswGridDe
     if (fd >= 0) {
         const int on = 1;
         rx->kernel_stamps = setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on) == 0;
+#ifdef SO_RXQ_OVFL
+        (void)setsockopt(fd, SOL_SOCKET, SO_RXQ_OVFL, &on, sizeof on);
+#endif
     }
 #endif
     return rx->kernel_stamps;
+}
+
+uint32_t lsw_svr_rx_overflows(const LswSvrRx *rx)
+{
+    return rx->overflows;
 }
 
 void lsw_svr_rx_routes(LswSvrRx *rx, const LswSvrRoute *routes, uint32_t count)
@@ -272,6 +282,11 @@ static int read_batch(LswSvrRx *rx)
                 rx->stamp[k] = (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec / 1e3;
             }
 #endif
+#ifdef SO_RXQ_OVFL
+            if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SO_RXQ_OVFL) {
+                memcpy(&rx->overflows, CMSG_DATA(c), sizeof rx->overflows); /* the socket's running count */
+            }
+#endif
         }
         if (rx->stamp[k] == 0.0) {
             rx->stamp[k] = realtime_us();
@@ -291,8 +306,11 @@ static int read_batch(LswSvrRx *rx)
         const ssize_t got = recvfrom(rx->fd, rx->data[k], LSW_SVR_MAX_DATAGRAM, MSG_DONTWAIT,
                                      (struct sockaddr *)&rx->from[k], &size);
         if (got < 0) {
-            if (k == 0u && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
-                return -1;
+            if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+                if (k == 0u) {
+                    return -1;
+                }
+                rx->late_errors++;
             }
             break;
         }
@@ -308,6 +326,8 @@ uint32_t lsw_svr_drain(LswSvrRx *rx, double now_s, uint32_t budget, LswSvrSlow *
 {
     uint32_t read = 0u;
     slow->ready = 0u;
+    *errors += rx->late_errors;
+    rx->late_errors = 0u;
     while (read < budget) {
         uint32_t k, len, ip;
         uint16_t port;

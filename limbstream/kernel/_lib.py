@@ -176,6 +176,7 @@ for _name, _args, _res in (
         ("lsw_svr_rx_size", [], _sz),
         ("lsw_svr_rx_init", [_vp, ctypes.c_int, _vp, _vp], ctypes.c_int),
         ("lsw_svr_rx_routes", [_vp, _vp, _u32], None),
+        ("lsw_svr_rx_overflows", [_vp], _u32),
         ("lsw_svr_datagram", [_vp, ctypes.c_char_p, _sz, _u32, ctypes.c_uint16, _d, _d], ctypes.c_int),
         ("lsw_svr_drain", [_vp, _d, _u32, _vp, _vp], _u32)):
     getattr(_lib, _name).argtypes = _args

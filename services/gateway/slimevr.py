@@ -89,8 +89,12 @@ TRUTH_MAX_AGE_S = 0.5
 """A device's truth samples wait at most this long for a full batch."""
 QUERIES_PER_TICK = 10
 RCVBUF = 4 << 20
-"""Socket receive buffer asked for, bytes (the system may cap it: net.core.rmem_max): a tick's
-datagrams wait in it."""
+"""Socket receive buffer asked for, bytes (the system may cap it: net.core.rmem_max): datagrams
+wait in it between reads."""
+READ_GAP_S = 0.002
+"""With kernel arrival stamps and a receive buffer smaller than RCVBUF (capped by the system), the
+socket is also read between ticks when datagrams wait, at most this often: the buffer then holds
+a few ms of traffic instead of a tick's. With the whole buffer it is read at ticks only."""
 RATE_MARK_S = 0.25
 """A tracker's packet count is noted at most this often for its packet rate."""
 
@@ -243,6 +247,10 @@ class SlimeVRGateway:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF)
         except OSError:
             pass
+        self.rcvbuf = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)  # what the system gave (Linux: x2)
+        if self.rcvbuf < RCVBUF:
+            log.warning("UDP receive buffer %d bytes (asked for %d; net.core.rmem_max caps it): a stall of "
+                        "the gateway may drop datagrams (counted: socket_full)", self.rcvbuf, RCVBUF)
         c = settings.config
         n = settings.max_devices
         self.bank = kernel.SegmenterBank(n, c.threshold, c.max_len, live_bound_deg=c.live_bound_deg, ring=RING)
@@ -517,6 +525,8 @@ class SlimeVRGateway:
                 self._decode(*slow, now)
             if self.rx.errors:
                 self.dropped["socket_error"] = self.rx.errors
+            if self.rx.overflows:
+                self.dropped["socket_full"] = self.rx.overflows
             return count
         count = 0
         recvfrom, handle = self.sock.recvfrom, self.handle
@@ -606,6 +616,8 @@ class SlimeVRGateway:
         name = hs.mac or f"{address[0]}:{address[1]}"
         tracker = self.trackers.get(address)
         if tracker is None or tracker.name != name:
+            if tracker is not None:  # another tracker took this address: the one there left it
+                self._offline(tracker, f"its address {address[0]}:{address[1]} is now {name}'s")
             tracker = next((t for t in self.trackers.values() if t.name == name), None)
             if tracker is not None:
                 del self.trackers[tracker.address]
@@ -699,15 +711,19 @@ class SlimeVRGateway:
             d.points += 1
             start = end
 
+    def _offline(self, tracker: Tracker, why: str) -> None:
+        """The tracker is gone (its devices end their streams; another sensor may take them over)."""
+        tracker.online = False
+        log.info("tracker %s offline: %s", tracker.name, why)
+        for sensor in tracker.sensors.values():
+            if sensor.device is not None and sensor.device.online:
+                self._end_stream(sensor.device)
+
     def keepalive(self, now: float) -> None:
         """Every KEEPALIVE_S: a heartbeat and a ping to each tracker; silent ones go offline."""
         for tracker in self.trackers.values():
             if tracker.online and now - tracker.link.last_seen > self.settings.timeout_s:
-                tracker.online = False
-                log.info("tracker %s timed out", tracker.name)
-                for sensor in tracker.sensors.values():
-                    if sensor.device is not None and sensor.device.online:
-                        self._end_stream(sensor.device)
+                self._offline(tracker, "timed out")
             tracker.pps(now)  # a mark for its packet rate
             self._send(proto.heartbeat(), tracker.address)
             tracker.ping_id = random.getrandbits(31)
@@ -770,8 +786,9 @@ class SlimeVRGateway:
 
     def run(self, stop: threading.Event, on_report=None, report_s: float = 10.0) -> None:
         """Serve until ``stop``: a tick every 1/fs, keepalives every KEEPALIVE_S; ``on_report(report)``
-        every ``report_s``. Datagrams are read at each tick when the kernel stamps their arrival
-        (they wait in the socket's buffer), else as they come."""
+        every ``report_s``. Datagrams are read at each tick; when the kernel stamps their arrival
+        and the whole buffer is there, at ticks only; with a capped buffer also between ticks, at
+        most every READ_GAP_S; without kernel stamps as they come."""
         if not self._queries:
             self.declare()
         self.clocks.boot(self.base.now_us())
@@ -782,23 +799,25 @@ class SlimeVRGateway:
         start = time.monotonic()
         self.start_us = time.time_ns() / 1e3
         next_keepalive = next_report = start
+        between = not self.rx.kernel_stamps or self.rcvbuf < RCVBUF  # read between ticks too
         k = 0
         while not stop.is_set():
             deadline = start + k * period
             now = time.monotonic()
-            if now < deadline and self.rx.kernel_stamps:
+            if now < deadline and not between:  # datagrams wait in the buffer with their arrival stamps
                 time.sleep(deadline - now)
-                now = time.monotonic()
-            elif now < deadline:
+                continue
+            if now < deadline:
                 readable, _, _ = select.select([self.sock], [], [], deadline - now)
                 now = time.monotonic()
                 if readable:
                     began = time.thread_time()
                     self.receive(now)
                     self.busy_s += time.thread_time() - began
-                if now < deadline:
-                    continue
-            elif now - deadline > period:
+                    if self.rx.kernel_stamps:  # stamped on arrival: the next read at most READ_GAP_S later
+                        time.sleep(max(0.0, min(deadline, now + READ_GAP_S) - time.monotonic()))
+                continue
+            if now - deadline > period:
                 self.late += 1
             began = time.thread_time()
             self.receive(now)

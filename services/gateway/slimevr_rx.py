@@ -45,6 +45,11 @@ class Receiver:
         self._slow_ptr, self._errors_ptr = ctypes.addressof(self._slow), ctypes.addressof(self._errors)
 
     @property
+    def overflows(self) -> int:
+        """Datagrams the kernel dropped because the socket's buffer was full (Linux)."""
+        return _lib.lsw_svr_rx_overflows(self._rx)
+
+    @property
     def errors(self) -> int:
         """Read errors (an ICMP error of an earlier send, reported at a read)."""
         return self._errors.value
