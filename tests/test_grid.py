@@ -3,10 +3,12 @@
 (services/gateway/slimevr_rx.py, firmware_c/src/lsw_slimevr.c) against the Python decoder."""
 from __future__ import annotations
 
+import fcntl
 import math
 import random
 import socket
 import struct
+import termios
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from limbstream.kernel import GridBank, SvrTracker
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr_rx import Receiver, ipv4
 from slimevr_tracker import rotation_payload, rotation_q15_payload
+from stack import wait_until
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
 
@@ -242,6 +245,12 @@ def test_packet_loss_is_counted_from_the_numbers():
     assert link.lost == 2 and link.packets == 6  # 7, 8; a jump of 2**16 or more is a restart, not loss
 
 
+def sent_out(sock: socket.socket) -> bool:
+    """Every datagram ``sock`` sent has left it: queued at the receiver or dropped there (loopback
+    delivers in a softirq, which runs later when the machine is busy)."""
+    return struct.unpack("i", fcntl.ioctl(sock, termios.TIOCOUTQ, b"\0\0\0\0"))[0] == 0
+
+
 def test_the_socket_is_read_in_batches_and_other_datagrams_come_back_in_order():
     """From a real UDP socket: routed rotations are taken in C, every other datagram comes back
     with its sender and a kernel arrival stamp, in the order sent."""
@@ -262,7 +271,8 @@ def test_the_socket_is_read_in_batches_and_other_datagrams_come_back_in_order():
                     else header(12, number) + struct.pack(">ff", 3.9, 0.5))
             tracker.sendto(data, server.getsockname())
             sent.append(data)
-            if number % 50 == 0:  # (within the socket's default buffer; loopback queues them as sent)
+            if number % 50 == 0:  # (within the socket's default buffer)
+                wait_until(lambda: sent_out(tracker), 10, "the datagrams delivered", interval=0.001)
                 while True:
                     n, slow = rx.drain(0.0, 4096)
                     read += n
@@ -292,10 +302,12 @@ def test_datagrams_the_full_socket_buffer_dropped_are_counted():
         rx = Receiver(server, grid, 1)
         link = SvrTracker(last_number=-1, online=1)
         rx.route([(link, ipv4("127.0.0.1"), tracker.getsockname()[1], 0, 0)])
-        for number in range(1, 301):  # loopback queues each as it is sent: the buffer fills
+        for number in range(1, 301):  # the buffer fills
             tracker.sendto(header(17, number) + rotation_payload(0, IDENTITY), server.getsockname())
+        wait_until(lambda: sent_out(tracker), 10, "the datagrams delivered or dropped", interval=0.001)
         read, _ = rx.drain(0.0, 4096)
         assert 0 < read < 300 and link.packets == read
         tracker.sendto(header(17, 301) + rotation_payload(0, IDENTITY), server.getsockname())
+        wait_until(lambda: sent_out(tracker), 10, "the last datagram delivered", interval=0.001)
         assert rx.drain(0.0, 4096)[0] == 1  # the count comes with the first datagram queued after the drops
         assert rx.overflows == 300 - read and link.lost == 300 - read
