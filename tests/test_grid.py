@@ -251,6 +251,17 @@ def sent_out(sock: socket.socket) -> bool:
     return struct.unpack("i", fcntl.ioctl(sock, termios.TIOCOUTQ, b"\0\0\0\0"))[0] == 0
 
 
+def socket_receiver(server: socket.socket, tracker: socket.socket) -> tuple[Receiver, SvrTracker]:
+    """A receiver reading ``server`` into one device, fed by sensor 0 of ``tracker``."""
+    grid = GridBank(1, 10_000.0, hold_us=20_000.0, late_us=5_000.0, early_us=500.0, phase_gain=0.02,
+                    rise_after=5, axes=IDENTITY, truth=False)
+    grid.devices[0].online = 1
+    rx = Receiver(server, grid, 1)
+    link = SvrTracker(last_number=-1, online=1)
+    rx.route([(link, ipv4("127.0.0.1"), tracker.getsockname()[1], 0, 0)])
+    return rx, link
+
+
 def test_the_socket_is_read_in_batches_and_other_datagrams_come_back_in_order():
     """From a real UDP socket: routed rotations are taken in C, every other datagram comes back
     with its sender and a kernel arrival stamp, in the order sent."""
@@ -259,12 +270,7 @@ def test_the_socket_is_read_in_batches_and_other_datagrams_come_back_in_order():
         server.bind(("127.0.0.1", 0))
         server.setblocking(False)
         tracker.bind(("127.0.0.1", 0))
-        grid = GridBank(1, 10_000.0, hold_us=20_000.0, late_us=5_000.0, early_us=500.0, phase_gain=0.02,
-                        rise_after=5, axes=IDENTITY, truth=False)
-        grid.devices[0].online = 1
-        rx = Receiver(server, grid, 1)
-        link = SvrTracker(last_number=-1, online=1)
-        rx.route([(link, ipv4("127.0.0.1"), tracker.getsockname()[1], 0, 0)])
+        rx, link = socket_receiver(server, tracker)
         sent, back, read = [], [], 0
         for number in range(1, 301):
             data = (header(17, number) + rotation_payload(0, IDENTITY) if number % 7
@@ -296,12 +302,7 @@ def test_datagrams_the_full_socket_buffer_dropped_are_counted():
         server.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # (the kernel's minimum, about 4.6 kB)
         server.bind(("127.0.0.1", 0))
         tracker.bind(("127.0.0.1", 0))
-        grid = GridBank(1, 10_000.0, hold_us=20_000.0, late_us=5_000.0, early_us=500.0, phase_gain=0.02,
-                        rise_after=5, axes=IDENTITY, truth=False)
-        grid.devices[0].online = 1
-        rx = Receiver(server, grid, 1)
-        link = SvrTracker(last_number=-1, online=1)
-        rx.route([(link, ipv4("127.0.0.1"), tracker.getsockname()[1], 0, 0)])
+        rx, link = socket_receiver(server, tracker)
         for number in range(1, 301):  # the buffer fills
             tracker.sendto(header(17, number) + rotation_payload(0, IDENTITY), server.getsockname())
         wait_until(lambda: sent_out(tracker), 10, "the datagrams delivered or dropped", interval=0.001)

@@ -36,6 +36,8 @@ class Receiver:
 
     def __init__(self, sock: socket.socket | None, grid: GridBank, max_routes: int):
         self._rx = ctypes.create_string_buffer(_lib.lsw_svr_rx_size())
+        self._grid = grid  # the C side keeps pointers into it (and into the routed links: _links)
+        self._links: list[SvrTracker] = []
         fd = sock.fileno() if sock is not None else -1
         self.reads = sock is not None
         self.kernel_stamps = bool(_lib.lsw_svr_rx_init(self._rx, fd, grid.settings_ptr, grid.devices_ptr))
@@ -56,10 +58,12 @@ class Receiver:
 
     def route(self, routes: Iterable[tuple[SvrTracker, int, int, int, int]]) -> None:
         """The routes from now on: (tracker's link counters, ip, port, sensor, device)."""
-        n = 0
-        for n, (link, ip, port, sensor, slot) in enumerate(routes, 1):
-            self._routes[n - 1] = SvrRoute(ctypes.pointer(link), ip, port, sensor, 0, slot, 0)
-        _lib.lsw_svr_rx_routes(self._rx, self._routes, n)
+        links = []
+        for n, (link, ip, port, sensor, slot) in enumerate(routes):
+            self._routes[n] = SvrRoute(ctypes.pointer(link), ip, port, sensor, 0, slot, 0)
+            links.append(link)
+        self._links = links
+        _lib.lsw_svr_rx_routes(self._rx, self._routes, len(links))
 
     def datagram(self, data: bytes, ip: int, port: int, t_us: float, now: float) -> bool:
         """One datagram from (ip, port), arrived at ``t_us``, at monotonic ``now`` (s): True when
