@@ -50,6 +50,10 @@ class Motion:
     rest_pose : str
         What identity orientations mean (``wire.REST_POSES``): ``tpose`` for BVH clips and the
         files converted from them, ``standing`` for the generator and IMU recordings.
+    root : (m, 3) float64 or None
+        The body's root (pelvis) position in the same world frame, metres at the scale of the
+        default :class:`limbstream.skeleton.Skeleton`, where the source has one (BVH clips);
+        None: the body turns about a fixed root (emulated sensors then feel no travel).
     """
 
     t: np.ndarray
@@ -57,12 +61,15 @@ class Motion:
     segments: tuple[str, ...]
     name: str = ""
     rest_pose: str = wire.DEFAULT_REST_POSE
+    root: np.ndarray | None = None
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:
             raise ValueError(f"Motion needs t (m,) and q (m, S, 4); got {self.t.shape}, {self.q.shape}")
         if self.q.shape[1] != len(self.segments):
             raise ValueError(f"{len(self.segments)} segment names for {self.q.shape[1]} streams")
+        if self.root is not None and np.shape(self.root) != (len(self.t), 3):
+            raise ValueError(f"Motion root must be (m, 3) = ({len(self.t)}, 3), got {np.shape(self.root)}")
         wire.check_rest_pose(self.rest_pose)
 
     @property
