@@ -1,7 +1,9 @@
 """Motion sources: every loader returns a :class:`Motion`.
 
 ``load(path)`` picks the loader from the file (or folder) type; ``generator`` is the
-built-in synthetic full-body motion (the default of demos and tests).
+built-in synthetic full-body motion (the default of demos and tests). Raw sensor recordings
+(angular rate and specific force, ``.mat``) are read by ``load_raw(path)`` into a
+:class:`~limbstream.sources.raw.RawRecording` instead.
 """
 from __future__ import annotations
 
@@ -148,4 +150,12 @@ def load(path: str | Path) -> list[Motion]:
         read = imu_files.read_xio_csv if suffix == ".csv" else imu_files.read_xsens_txt
         s = read(path)
         return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem)]
+    if suffix == ".mat":
+        raise MotionFileError(f"{path}: a raw sensor recording (angular rate, specific force), not orientations: "
+                              "read it with limbstream.sources.load_raw")
     raise MotionFileError(f"{path}: unknown motion file type (expected .npz, .bvh, .csv, .txt or a folder)")
+
+
+from limbstream.sources.raw import RawRecording, load_raw  # noqa: E402  (needs MotionFileError above)
+
+__all__ = ["SEGMENTS", "Motion", "MotionFileError", "RawRecording", "is_number", "load", "load_npz", "load_raw"]
