@@ -122,7 +122,7 @@ VQF_VERSION = "2.1.2"
 
 
 def reference_vqf(gyr: np.ndarray, acc: np.ndarray, rate: float, mag: np.ndarray | None = None,
-                  start_heading: np.ndarray | None = None) -> np.ndarray:
+                  start_heading: np.ndarray | None = None, params: dict | None = None) -> np.ndarray:
     """Online VQF from the PyPI ``vqf`` package (default parameters: rest and motion bias
     estimation on), sensor by sensor: the reference a device's fusion is measured against.
 
@@ -132,6 +132,7 @@ def reference_vqf(gyr: np.ndarray, acc: np.ndarray, rate: float, mag: np.ndarray
     rate : sample rate, Hz.
     start_heading : (S, 4) each filter's start heading (its gyroscope quaternion before the first
         sample, :func:`limbstream.imu.earth_heading`); None: identity.
+    params : VQF parameters to override (``VQFParams`` names, e.g. ``{"restThGyr": 1.0}``).
 
     Returns
     -------
@@ -144,7 +145,7 @@ def reference_vqf(gyr: np.ndarray, acc: np.ndarray, rate: float, mag: np.ndarray
         raise ImportError(f"the reference fusion needs the PyPI vqf package: pip install vqf=={VQF_VERSION}") from exc
     out = np.empty(gyr.shape[:2] + (4,))
     for s in range(gyr.shape[1]):
-        f = VQF(1.0 / rate)
+        f = VQF(1.0 / rate, **(params or {}))
         if start_heading is not None:
             state = f.state
             state["gyrQuat"] = np.asarray(start_heading[s], np.float64)
