@@ -100,7 +100,7 @@ class ReadingFeed:
         span = self._source.span_s
         self.length = None if span is None else int(math.floor(span * self.rate + 1e-9)) + 1
         self._chunk_len = max(1, round(CHUNK_S * self.rate))
-        self._chunks: dict[int, SmoothMotion] = {}
+        self._chunks: dict[int, Readings] = {}
 
     def readings(self, k: np.ndarray) -> Readings:
         """Readings of sample numbers ``k`` (m,) (any order): t (m,), q (m, S, 4), gyr and acc
@@ -108,26 +108,30 @@ class ReadingFeed:
         k = np.asarray(k, np.int64)
         if self.length is not None and len(k) and (k.min() < 0 or k.max() >= self.length):
             raise IndexError(f"samples {k.min()}..{k.max()} of a {self.length}-sample stream")
-        t = k / self.rate
+        chunk, row = np.divmod(k, self._chunk_len)
         width = {"q": 4, "gyr": 3, "acc": 3}
         out = {name: np.empty((len(k), len(self.segments), w)) for name, w in width.items()}
-        for c in np.unique(k // self._chunk_len):
-            here = k // self._chunk_len == c
-            part = readings(self._motion(int(c)), t[here], self.rate, self.skeleton)
+        for c in np.unique(chunk):
+            here = chunk == c
+            part = self._chunk(int(c))
             for name in out:
-                out[name][here] = getattr(part, name)
-        return Readings(t, out["q"], out["gyr"], out["acc"], self.segments)
+                out[name][here] = getattr(part, name)[row[here]]
+        return Readings(k / self.rate, out["q"], out["gyr"], out["acc"], self.segments)
 
-    def _motion(self, c: int) -> SmoothMotion:
-        """The smooth motion around chunk ``c`` (the two latest are kept)."""
+    def _chunk(self, c: int) -> Readings:
+        """The readings of chunk ``c``'s samples, from the source around it (the two latest chunks
+        are kept: the devices of a subject ask for nearby samples)."""
         if c not in self._chunks:
             fs = self._source.fs
             start = math.floor(c * self._chunk_len / self.rate * fs) - math.ceil(MARGIN_S * fs)
             count = math.ceil(self._chunk_len / self.rate * fs) + 2 * math.ceil(MARGIN_S * fs) + 2
             q, root = self._source.samples(start, count)
             motion = Motion((start + np.arange(count)) / fs, q, self.segments, rest_pose=self.rest_pose, root=root)
+            k = c * self._chunk_len + np.arange(self._chunk_len)
+            if self.length is not None:
+                k = k[k < self.length]
             self._chunks = {key: value for key, value in self._chunks.items() if key == c - 1}
-            self._chunks[c] = SmoothMotion(motion)
+            self._chunks[c] = readings(SmoothMotion(motion), k / self.rate, self.rate, self.skeleton)
         return self._chunks[c]
 
 
