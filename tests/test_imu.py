@@ -255,3 +255,11 @@ def test_bvh_clips_bring_their_root_path_in_metres(cmu_bvh_dir):
     speed = np.linalg.norm(np.diff(native.root[:, [0, 2]], axis=0), axis=1) * native.fs
     assert 0.8 < np.median(speed) < 2.0  # walking pace, m/s
     assert np.allclose(np.interp(m.t, native.t, native.root[:, 2]), m.root[:, 2])
+
+
+def test_uneven_samples_are_refused():
+    t = np.array([0.0, 0.02, 0.05, 0.06, 0.08])
+    m = Motion(t, np.tile([1.0, 0.0, 0.0, 0.0], (5, 10, 1)), SEGMENTS, "jitter")
+    for script in (True, False):
+        with pytest.raises(ValueError, match="evenly spaced"):
+            imu.ReadingFeed(m, RATE, script=script)

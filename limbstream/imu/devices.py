@@ -9,13 +9,13 @@ the same whether its samples are asked for one tick at a time or for a whole rec
 
 Heading. Raw readings do not depend on where the world faces (turning the motion about the
 vertical leaves every angular rate and specific force unchanged), so ``--heading-deg`` cannot be
-in the readings: it is the fusion filter's start heading. A device's filter starts with its earth
-frame turned by its drawn heading ``h`` about the vertical: VQF with its gyroscope quaternion set
-to :func:`earth_heading` ``(h)`` before the first sample. In 6D this is exactly the filter started
-from identity with every output turned by ``earth_heading(h)`` on the left (its accelerometer
-correction and bias estimate do not depend on the heading), which tests/test_imu.py checks
-against the PyPI ``vqf``. The heading then drifts with the uncorrected gyroscope offset about the
-vertical; ``--yaw-drift-dps``, the modelled sensors' drift formula, has no meaning here.
+in the readings: it is the fusion filter's. VQF 6D starts its earth frame at the sensor's own
+heading at switch-on, so headings are arbitrary already; a device's filter is turned further by
+its drawn heading ``h``: VQF with its gyroscope quaternion set to :func:`earth_heading` ``(h)``
+before the first sample. That is turning every output by ``earth_heading(h)`` on the left, but for
+VQF's motion bias estimate, which clips its correction per earth axis (tests/test_imu.py: 1e-5 deg
+without it, 0.05 deg with it). The heading then drifts with the gyroscope offset the filter has not
+learned; ``--yaw-drift-dps``, the modelled sensors' drift formula, has no meaning here.
 """
 from __future__ import annotations
 

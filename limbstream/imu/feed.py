@@ -43,11 +43,9 @@ def scripted(motion: Motion, back_to_rest: bool = False) -> Motion:
 
     Raises
     ------
-    ValueError if the motion is not sampled at a uniform rate.
+    ValueError if the motion is not sampled at a uniform rate (:func:`uniform_rate`).
     """
-    fs = motion.fs
-    if len(motion.t) > 1 and not np.allclose(np.diff(motion.t), 1.0 / fs, rtol=1e-4):
-        raise ValueError(f"motion {motion.name!r}: the calibration script needs a uniform rate (resample it first)")
+    fs = uniform_rate(motion)
     q, _, _ = calibration.with_script(motion.q, fs, motion.segments)
     before = len(q) - len(motion.t)
     parts, after = [q], 0
@@ -60,6 +58,15 @@ def scripted(motion: Motion, back_to_rest: bool = False) -> Motion:
         root = np.concatenate([np.repeat(root[:1], before, axis=0), root, np.repeat(root[-1:], after, axis=0)])
     q = np.concatenate(parts)
     return Motion(np.arange(len(q)) / fs, q, motion.segments, motion.name, motion.rest_pose, root)
+
+
+def uniform_rate(motion: Motion) -> float:
+    """The motion's sample rate, Hz; ValueError if its samples are not evenly spaced (a feed
+    counts samples, and the script is played at the motion's rate)."""
+    fs = motion.fs
+    if len(motion.t) < 2 or not np.allclose(np.diff(motion.t), 1.0 / fs, rtol=1e-4):
+        raise ValueError(f"motion {motion.name!r}: sensors are emulated from evenly spaced samples (resample it first)")
+    return fs
 
 
 def script_samples(fs: float) -> int:
@@ -155,7 +162,7 @@ class _ClipSamples:
 
     def __init__(self, motion: Motion, loop: bool, script: bool):
         played = scripted(motion, back_to_rest=loop) if script else motion
-        self.segments, self.rest_pose, self.fs = motion.segments, motion.rest_pose, motion.fs
+        self.segments, self.rest_pose, self.fs = motion.segments, motion.rest_pose, uniform_rate(motion)
         self.script_s = script_samples(self.fs) / self.fs if script else 0.0
         self.q, self.root, self.loop = quat.continuous(played.q), played.root, loop
         self.span_s = None if loop else (len(self.q) - 1) / self.fs
