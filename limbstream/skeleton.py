@@ -41,7 +41,8 @@ class Skeleton:
             if not getattr(self, name) > 0:
                 raise ValueError(f"bone length {name} must be > 0 m, got {getattr(self, name)}")
 
-    def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None) -> np.ndarray:
+    def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None,
+                  dtype: type = np.float32) -> np.ndarray:
         """Joint positions, pelvis at the origin.
 
         Parameters
@@ -49,10 +50,11 @@ class Skeleton:
         q : (..., 10, 4) segment orientations, SEGMENTS order, scalar-first.
         tpose : (...) bool or a bool: the orientations refer to the T-pose (else to the standing
             rest pose); None: the skeleton's ``rest_pose``.
+        dtype : of the result (float32 for pose frames; float64 where positions are differentiated).
 
         Returns
         -------
-        (..., 15, 3) float32 metres, wire.JOINTS order.
+        (..., 15, 3) metres, wire.JOINTS order.
         """
         q = np.asarray(q, np.float64)
         out = np.zeros(q.shape[:-2] + (len(JOINTS), 3))
@@ -81,4 +83,4 @@ class Skeleton:
             put(f"{side}_shoulder", get("neck_base") + quat.rotate(hip, [lateral * self.shoulder_width / 2, -0.05, 0.0]))
             put(f"{side}_elbow", get(f"{side}_shoulder") + quat.rotate(seg(f"{side}_upperarm"), arm * self.upperarm))
             put(f"{side}_wrist", get(f"{side}_elbow") + quat.rotate(seg(f"{side}_lowerarm"), arm * self.lowerarm))
-        return out.astype(np.float32)
+        return out.astype(dtype)
