@@ -50,6 +50,10 @@ class Motion:
     rest_pose : str
         What identity orientations mean (``wire.REST_POSES``): ``tpose`` for BVH clips and the
         files converted from them, ``standing`` for the generator and IMU recordings.
+    sensor_up : str or None
+        None: ``q`` are the segments' own orientations (the skeleton's frame, Y up). ``"z"``:
+        they are real sensors' orientations in their fusion's world, whose up axis is +Z (x-IMU3,
+        Xsens): anything about the body (joint angles) needs a calibration first.
     """
 
     t: np.ndarray
@@ -57,6 +61,7 @@ class Motion:
     segments: tuple[str, ...]
     name: str = ""
     rest_pose: str = wire.DEFAULT_REST_POSE
+    sensor_up: str | None = None
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:
@@ -140,5 +145,5 @@ def load(path: str | Path) -> list[Motion]:
     if suffix in (".csv", ".txt"):
         read = imu_files.read_xio_csv if suffix == ".csv" else imu_files.read_xsens_txt
         s = read(path)
-        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem)]
+        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem, sensor_up="z")]
     raise MotionFileError(f"{path}: unknown motion file type (expected .npz, .bvh, .csv, .txt or a folder)")
