@@ -183,13 +183,11 @@ UP_AXES = {"y": np.array([1.0, 0.0, 0.0, 0.0]),
 """A sensor world's up axis -> the rotation taking the skeleton's up (+Y) to it."""
 
 
-def from_readings(q: np.ndarray, segments: tuple[str, ...], fs: float, up: str = "z",
-                  still_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, Facing]:
-    """A recording of real sensors that starts standing still, as anatomical segment orientations.
-
-    Each sensor is calibrated from the first ``still_s`` seconds (the rest pose, ``Calibration.rest``),
-    its world turned so that its ``up`` axis is the skeleton's +Y, and the subject's facing found
-    from the hinges over the whole recording (the sensors must share one world heading).
+def rest_calibrated(q: np.ndarray, segments: tuple[str, ...], fs: float, up: str = "z",
+                    still_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A recording of real sensors that starts standing still, each sensor calibrated from the
+    first ``still_s`` seconds (the rest pose, ``Calibration.rest``) and its world turned so that
+    its ``up`` axis is the skeleton's +Y: the segments up to the subject's facing.
 
     Parameters
     ----------
@@ -198,12 +196,8 @@ def from_readings(q: np.ndarray, segments: tuple[str, ...], fs: float, up: str =
 
     Returns
     -------
-    q : (m, 10, 4) float64 anatomical orientations (SEGMENTS order; NaN rows for segments without
-        a sensor); present : (10,) bool; facing : what the hinges told.
-
-    Raises
-    ------
-    CalibrationError naming the sensor that was not still, or saying that no hinge moved enough.
+    q : (m, 10, 4) float64 (SEGMENTS order; NaN rows for segments without a sensor);
+    present : (10,) bool. CalibrationError naming a sensor that was not still.
     """
     q = np.asarray(q, np.float64)
     turn = UP_AXES[up]
@@ -213,10 +207,25 @@ def from_readings(q: np.ndarray, segments: tuple[str, ...], fs: float, up: str =
         if name in _SEG:
             rest = calibration.calibrate(q[:, k], still, None, None, name).apply(q[:, k])
             out[:, _SEG[name]] = quat.multiply(quat.multiply(quat.conjugate(turn), rest), turn)
-    present = np.isfinite(out).all(axis=(0, 2))
+    return out, np.isfinite(out).all(axis=(0, 2))
+
+
+def from_readings(q: np.ndarray, segments: tuple[str, ...], fs: float, up: str = "z",
+                  still_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, Facing]:
+    """A recording of real sensors that starts standing still, as anatomical segment orientations:
+    :func:`rest_calibrated`, then the subject's facing found from the hinges over the whole
+    recording (the sensors must share one world heading) and undone.
+
+    Returns
+    -------
+    q : (m, 10, 4) anatomical orientations (NaN rows for segments without a sensor);
+    present : (10,) bool; facing : what the hinges told. CalibrationError naming the sensor that
+    was not still, or saying that no hinge moved enough.
+    """
+    rest, present = rest_calibrated(q, segments, fs, up, still_s)
     stats = HingeStats.empty()
-    stats.add(out, present)
+    stats.add(rest, present)
     facing = stats.facing()
     if not facing.found:
         raise calibration.CalibrationError(f"functional calibration: {facing.describe()}")
-    return face(out, facing.heading), present, facing
+    return face(rest, facing.heading), present, facing
