@@ -13,9 +13,9 @@ from limbstream.joints.convention import (ANGLES, GIMBAL, GIMBAL_DEG, JOINT_TABL
                                           Joint, anatomical, euler_zxy, joint_angles, standing)
 from limbstream.joints.functional import (HINGES, Facing, HingeStats, face, from_readings, functional_calibration,
                                           rest_calibrated, rotation_vector)
-from limbstream.joints.scoring import FIGURES, angle_errors, format_errors, in_layout, true_angles
+from limbstream.joints.scoring import FIGURES, angle_errors, format_errors, in_layout, pooled_errors, true_angles
 
 __all__ = ["ANGLES", "FIGURES", "GIMBAL", "GIMBAL_DEG", "HINGES", "JOINT_TABLE", "MISSING", "TO_OPENSIM", "UNCALIBRATED",
            "Facing", "HingeStats", "Joint", "anatomical", "angle_errors", "euler_zxy", "face", "format_errors",
-           "from_readings", "functional_calibration", "in_layout", "joint_angles", "rest_calibrated", "rotation_vector", "standing",
+           "from_readings", "functional_calibration", "in_layout", "joint_angles", "pooled_errors", "rest_calibrated", "rotation_vector", "standing",
            "true_angles"]

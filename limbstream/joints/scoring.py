@@ -64,3 +64,19 @@ def format_errors(errors: dict[str, dict], title: str = "joint angle errors (deg
             lines.append(f"{name:<16} {e['mean']:>7.2f} {e['p99']:>7.2f} {e['bias']:>+7.2f} {e['n']:>7d} "
                          f"{e['gimbal']:>7d}")
     return "\n".join(lines)
+
+
+def pooled_errors(motions) -> dict[str, dict]:
+    """Per-angle error figures pooled over motions: each an (estimate, truth, rest_pose) triple of
+    (m, 10, 4) segment orientations (SEGMENTS order, NaN rows where a segment has no data), the
+    estimate calibrated (anatomical), the truth the source's own segments."""
+    estimated, true, flags = [], [], []
+    for estimate, truth, rest_pose in motions:
+        e, e_flags = joint_angles(estimate, rest_pose=rest_pose)
+        t, t_flags = joint_angles(truth, rest_pose=rest_pose)
+        estimated.append(e)
+        true.append(t)
+        flags.append(e_flags | t_flags)
+    if not estimated:
+        return angle_errors(np.zeros((0, len(ANGLES))), np.zeros((0, len(ANGLES))))
+    return angle_errors(np.concatenate(estimated), np.concatenate(true), np.concatenate(flags))
