@@ -103,6 +103,8 @@ _COMPONENT = np.array([i for _, i, _ in _AT])
 """(A,) which Z-X-Y angle (0, 1, 2) each angle is."""
 _SIGN = np.array([s for _, _, s in _AT])
 _STANDING_FROM_TPOSE = quat.conjugate(rest_offsets("standing"))
+_OPENSIM_SIGNS = np.array([1.0, 1.0, 1.0, -1.0])
+"""A rotation's (w, z, y, -x) is the same rotation in OpenSim's axes (:data:`TO_OPENSIM`)."""
 
 
 def anatomical(q: np.ndarray, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:
@@ -174,9 +176,10 @@ def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: st
     q = np.asarray(q, np.float64)
     finite = np.isfinite(q).all(axis=-1) & (np.abs(q).sum(axis=-1) > 0)
     have = finite if present is None else finite & np.asarray(present, bool)
-    q = np.where(have[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
-    frames = anatomical(q, rest_pose)
-    relative = quat.multiply(quat.conjugate(frames[..., _PARENT, :]), frames[..., _CHILD, :])  # (..., J, 4)
+    q = standing(np.where(have[..., None], q, np.array([1.0, 0.0, 0.0, 0.0])), rest_pose)
+    relative = quat.multiply(quat.conjugate(q[..., _PARENT, :]), q[..., _CHILD, :])  # (..., J, 4)
+    relative = relative[..., [0, 3, 2, 1]] * _OPENSIM_SIGNS  # in OpenSim's axes (conjugated by TO_OPENSIM)
+    relative /= np.linalg.norm(relative, axis=-1, keepdims=True)
     euler, near_lock = euler_zxy(relative)
     angles = np.degrees(euler[..., _JOINT_OF, _COMPONENT]) * _SIGN
     flags = np.where(near_lock[..., _JOINT_OF] & (_COMPONENT != 1), GIMBAL, 0).astype(np.uint8)
