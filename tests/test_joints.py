@@ -261,3 +261,75 @@ def test_eval_joint_angles_needs_explicit_rows(cmu_npz):
     parser = __import__("argparse").ArgumentParser()
     cli_eval.add_arguments(parser)
     assert cli_eval.run(parser.parse_args([str(cmu_npz), "--joint-angles"])) == 2
+
+
+OPENSIM_JOINTS = (  # (joint, parent body, child body, segment, ((coordinate, axis, coefficient) x 1 or 3))
+    ("hip_r", "pelvis", "femur_r", "r_thigh", (("hip_flexion_r", "0 0 1", 1), ("hip_adduction_r", "1 0 0", 1),
+                                               ("hip_rotation_r", "0 1 0", 1))),
+    ("hip_l", "pelvis", "femur_l", "l_thigh", (("hip_flexion_l", "0 0 1", 1), ("hip_adduction_l", "1 0 0", -1),
+                                               ("hip_rotation_l", "0 1 0", -1))),
+    ("knee_r", "femur_r", "tibia_r", "r_shank", (("knee_angle_r", "0 0 -1", 1),)),
+    ("knee_l", "femur_l", "tibia_l", "l_shank", (("knee_angle_l", "0 0 -1", 1),)),
+    ("acromial_r", "pelvis", "humerus_r", "r_upperarm", (("arm_flex_r", "0 0 1", 1), ("arm_add_r", "1 0 0", 1),
+                                                         ("arm_rot_r", "0 1 0", 1))),
+    ("acromial_l", "pelvis", "humerus_l", "l_upperarm", (("arm_flex_l", "0 0 1", 1), ("arm_add_l", "-1 0 0", 1),
+                                                         ("arm_rot_l", "0 -1 0", 1))),
+    ("elbow_r", "humerus_r", "ulna_r", "r_lowerarm", (("elbow_flex_r", "0 0 1", 1),)),
+    ("elbow_l", "humerus_l", "ulna_l", "l_lowerarm", (("elbow_flex_l", "0 0 1", 1),)),
+    ("neck", "pelvis", "head", "neck", (("neck_extension", "0 0 1", 1), ("neck_bending", "1 0 0", 1),
+                                        ("neck_rotation", "0 1 0", 1))),
+)
+"""A skeleton of the Rajagopal model's joints as its file defines them (hinge tilts left out), the
+neck with its back joint's axes."""
+
+
+def opensim_model_text() -> str:
+    """The OpenSim model file of :data:`OPENSIM_JOINTS` (pelvis welded to the ground)."""
+    bodies = ["pelvis"] + [child for _, _, child, _, _ in OPENSIM_JOINTS]
+    body_xml = "".join(f'<Body name="{b}"><mass>1</mass><mass_center>0 0 0</mass_center>'
+                       f'<inertia>1 1 1 0 0 0</inertia></Body>' for b in bodies)
+    joints_xml = ['<WeldJoint name="ground_pelvis"><socket_parent_frame>/ground</socket_parent_frame>'
+                  '<socket_child_frame>/bodyset/pelvis</socket_child_frame></WeldJoint>']
+    for name, parent, child, _, coordinates in OPENSIM_JOINTS:
+        axes = list(coordinates) + ([("", "1 0 0", 0), ("", "0 1 0", 0)] if len(coordinates) == 1 else [])  # hinges: about Z
+        rotations = "".join(
+            f'<TransformAxis name="rotation{i + 1}"><coordinates>{c}</coordinates><axis>{a}</axis>'
+            + (f'<LinearFunction name="function"><coefficients> {k} 0</coefficients></LinearFunction>' if c
+               else '<Constant name="function"><value>0</value></Constant>') + '</TransformAxis>'
+            for i, (c, a, k) in enumerate(axes))
+        translations = "".join(f'<TransformAxis name="translation{i + 1}"><coordinates></coordinates><axis>{a}</axis>'
+                               f'<Constant name="function"><value>0</value></Constant></TransformAxis>'
+                               for i, a in enumerate(("1 0 0", "0 1 0", "0 0 1")))
+        coords = "".join(f'<Coordinate name="{c}"/>' for c, _, _ in coordinates)
+        joints_xml.append(f'<CustomJoint name="{name}"><socket_parent_frame>/bodyset/{parent}</socket_parent_frame>'
+                          f'<socket_child_frame>/bodyset/{child}</socket_child_frame><coordinates>{coords}'
+                          f'</coordinates><SpatialTransform>{rotations}{translations}</SpatialTransform></CustomJoint>')
+    return (f'<?xml version="1.0" encoding="UTF-8" ?><OpenSimDocument Version="40000"><Model name="joints">'
+            f'<BodySet name="bodyset"><objects>{body_xml}</objects></BodySet>'
+            f'<JointSet name="jointset"><objects>{"".join(joints_xml)}</objects></JointSet></Model></OpenSimDocument>')
+
+
+def test_opensims_own_kinematics_give_the_same_angles(tmp_path):
+    """OpenSim poses a model whose joints are the Rajagopal model's (axes, coefficients) from
+    random coordinates; its bodies' orientations, taken into limbstream's axes, give the
+    coordinates back: the Euler order, the axes carried by the rotations before, and every sign."""
+    import opensim
+
+    (tmp_path / "joints.osim").write_text(opensim_model_text())
+    model = opensim.Model(str(tmp_path / "joints.osim"))
+    state = model.initSystem()
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        values = {c: rng.uniform(-60.0, 60.0) for *_, coordinates in OPENSIM_JOINTS for c, _, _ in coordinates}
+        for name, value in values.items():
+            model.getCoordinateSet().get(name).setValue(state, math.radians(value))
+        model.realizePosition(state)
+        q = np.tile(IDENTITY, (len(wire.SEGMENTS), 1))
+        for _, _, body, segment, _ in OPENSIM_JOINTS:
+            r = model.getBodySet().get(body).getTransformInGround(state).R()
+            matrix = np.array([[r.get(i, k) for k in range(3)] for i in range(3)])
+            in_opensim = quat.from_rotation(Rotation.from_matrix(matrix))
+            q[SEG[segment]] = quat.multiply(quat.multiply(quat.conjugate(TO_OPENSIM), in_opensim), TO_OPENSIM)
+        got, _ = joint_angles(q)
+        for name, value in values.items():
+            assert angle(got, name) == pytest.approx(value, abs=1e-9), name
