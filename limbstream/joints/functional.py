@@ -173,13 +173,13 @@ def functional_calibration(rest: calibration.Calibration, heading: float) -> cal
     its corrections then give anatomical frames (as a mounting calibration's do)."""
     if rest.poses[:1] != ("rest",):
         raise calibration.CalibrationError("functional: calibrate the rest pose first")
-    s0 = quat.multiply(calibration.yaw(rest.heading), rest.mounting)  # the rest reading
-    return calibration.Calibration(("rest", "functional"), quat.multiply(calibration.yaw(-heading), s0),
+    s0 = quat.multiply(calibration.yaw(np.array(rest.heading)), rest.mounting)  # the rest reading
+    return calibration.Calibration(("rest", "functional"), quat.multiply(calibration.yaw(np.array(-heading)), s0),
                                    float(heading), 0.0, rest.t_ref)
 
 
 UP_AXES = {"y": np.array([1.0, 0.0, 0.0, 0.0]),
-           "z": calibration.axis_angle(calibration.LATERAL, math.pi / 2)}
+           "z": calibration.axis_angle(calibration.LATERAL, np.array(math.pi / 2))}
 """A sensor world's up axis -> the rotation taking the skeleton's up (+Y) to it."""
 
 
