@@ -75,5 +75,5 @@ def sto_text(t: np.ndarray, q: np.ndarray, segments: tuple[str, ...], rate_hz: f
 
 def segments_with_data(present: np.ndarray) -> tuple[str, ...]:
     """The segments (SEGMENTS order) that have data in some frame of ``present`` (F, 10)."""
-    with_data: np.ndarray = np.asarray(present, bool).reshape(-1, len(wire.SEGMENTS)).any(axis=0)
-    return tuple(s for k, s in enumerate(wire.SEGMENTS) if with_data[k])
+    with_data = np.flatnonzero(np.asarray(present, bool).reshape(-1, len(wire.SEGMENTS)).any(axis=0))
+    return tuple(wire.SEGMENTS[k] for k in with_data)
