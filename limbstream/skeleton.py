@@ -20,6 +20,20 @@ _S = {name: i for i, name in enumerate(SEGMENTS)}
 _J = {name: i for i, name in enumerate(JOINTS)}
 
 
+def rest_offsets(rest_pose: str) -> np.ndarray:
+    """(10, 4) scalar-first rotation from the T-pose to ``rest_pose`` per segment (SEGMENTS order):
+    identity for ``tpose``; for ``standing`` the arms lowered by 90 deg about +Z (left arm +X -> -Y).
+    An orientation referred to the T-pose is ``q_standing * rest_offsets("standing")``; one referred
+    to the standing pose is ``q_tpose * conjugate(rest_offsets("standing"))``."""
+    wire.check_rest_pose(rest_pose)
+    out = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))
+    if rest_pose == "standing":
+        h = np.sqrt(0.5)
+        for s, sign in (("l", -1.0), ("r", 1.0)):
+            out[_S[f"{s}_upperarm"]] = out[_S[f"{s}_lowerarm"]] = (h, 0.0, 0.0, sign * h)
+    return out
+
+
 @dataclass(frozen=True)
 class Skeleton:
     """Bone lengths in metres (defaults: an adult of about 1.75 m) and the default rest pose

@@ -56,6 +56,10 @@ class Motion:
         The body's root (pelvis) position in the same world frame, metres at the scale of the
         default :class:`limbstream.skeleton.Skeleton`, where the source has one (BVH clips);
         None: the body turns about a fixed root (emulated sensors then feel no travel).
+    sensor_up : str or None
+        None: ``q`` are the segments' own orientations (the skeleton's frame, Y up). ``"z"``:
+        they are real sensors' orientations in their fusion's world, whose up axis is +Z (x-IMU3,
+        Xsens): anything about the body (joint angles) needs a calibration first.
     """
 
     t: np.ndarray
@@ -64,6 +68,7 @@ class Motion:
     name: str = ""
     rest_pose: str = wire.DEFAULT_REST_POSE
     root: np.ndarray | None = None
+    sensor_up: str | None = None
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:
@@ -149,7 +154,7 @@ def load(path: str | Path) -> list[Motion]:
     if suffix in (".csv", ".txt"):
         read = imu_files.read_xio_csv if suffix == ".csv" else imu_files.read_xsens_txt
         s = read(path)
-        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem)]
+        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem, sensor_up="z")]
     if suffix == ".mat":
         raise MotionFileError(f"{path}: a raw sensor recording (angular rate, specific force), not orientations: "
                               "read it with limbstream.sources.load_raw")
