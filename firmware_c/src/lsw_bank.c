@@ -26,10 +26,17 @@ size_t lsw_bank_update(FastswState *states, size_t count, const uint32_t *t, con
                        uint8_t *status, FastswPoint *points, float *rates, const LswBankWire *wire,
                        uint8_t *out, uint32_t *slots, uint32_t *ends)
 {
+    fastsw_update_many(states, count, t, y, status, points, rates);
+    return lsw_bank_encode(states, count, status, points, rates, wire, out, slots, ends);
+}
+
+size_t lsw_bank_encode(const FastswState *states, size_t count, const uint8_t *status,
+                       const FastswPoint *points, const float *rates, const LswBankWire *wire,
+                       uint8_t *out, uint32_t *slots, uint32_t *ends)
+{
     size_t k, n = 0u;
     uint32_t end = 0u;
 
-    fastsw_update_many(states, count, t, y, status, points, rates);
     for (k = 0u; k < count; k++) {
         const FastswPoint *point = &points[k];
         size_t at;
