@@ -122,6 +122,21 @@ size_t lsw_imu_bank_update(LswImu *imus, FastswState *states, size_t count, cons
                            const int64_t *t_us, uint8_t *status, FastswPoint *points, float *rates,
                            const LswBankWire *wire, uint8_t *out, uint32_t *slots, uint32_t *ends);
 
+/**
+ * Offline: fuse n raw samples in order through one device (lsw_imu_fuse, instants ignored) and
+ * write the orientation after each into q (n x 4 floats, w x y z; a skipped sample repeats the
+ * orientation before it, identity before the first). Returns the number of samples skipped.
+ */
+size_t lsw_imu_fuse_batch(LswImu *imu, const LswRawSample *raw, size_t n, float *q);
+
+/**
+ * What a bank's devices report: bias (count x 3, rad/s), rest (count: 1 at rest), faults
+ * (count x LSW_IMU_FAULTS counts, LswImuFault order) and outputs (count: device-rate samples
+ * made). Any output may be NULL.
+ */
+void lsw_imu_bank_status(const LswImu *imus, size_t count, float *bias, uint8_t *rest, uint32_t *faults,
+                         uint32_t *outputs);
+
 /** sizeof(LswImu), for bindings that allocate states. */
 size_t lsw_imu_state_size(void);
 

@@ -168,6 +168,47 @@ size_t lsw_imu_bank_update(LswImu *imus, FastswState *states, size_t count, cons
     return lsw_bank_encode(states, count, status, points, rates, wire, out, slots, ends);
 }
 
+size_t lsw_imu_fuse_batch(LswImu *imu, const LswRawSample *raw, size_t n, float *q)
+{
+    size_t i, skipped = 0u;
+    float held[4] = {1.0f, 0.0f, 0.0f, 0.0f};
+    for (i = 0u; i < n; i++) {
+        uint32_t tick;
+        float *out = q + 4u * i;
+        uint32_t k;
+        if (lsw_imu_fuse(imu, &raw[i], &tick, out) == LSW_IMU_SKIPPED) {
+            skipped++;
+        } else {
+            lsw_imu_quat(imu, held);
+        }
+        for (k = 0u; k < 4u; k++) {
+            out[k] = held[k];
+        }
+    }
+    return skipped;
+}
+
+void lsw_imu_bank_status(const LswImu *imus, size_t count, float *bias, uint8_t *rest, uint32_t *faults,
+                         uint32_t *outputs)
+{
+    size_t k;
+    uint32_t f;
+    for (k = 0u; k < count; k++) {
+        if (bias != NULL) {
+            lsw_imu_bias(&imus[k], bias + 3u * k);
+        }
+        if (rest != NULL) {
+            rest[k] = (uint8_t)lsw_imu_rest(&imus[k]);
+        }
+        for (f = 0u; faults != NULL && f < (uint32_t)LSW_IMU_FAULTS; f++) {
+            faults[(size_t)LSW_IMU_FAULTS * k + f] = imus[k].faults[f];
+        }
+        if (outputs != NULL) {
+            outputs[k] = imus[k].outputs;
+        }
+    }
+}
+
 size_t lsw_imu_state_size(void)
 {
     return sizeof(LswImu);
