@@ -116,7 +116,7 @@ static void send_identity(Device *d, uint16_t request)
 }
 
 /** A point the stream's fastSW made (out, n bytes): kept for END, sent. */
-static void send_point(Device *d, const uint8_t *out, uint32_t n)
+static inline __attribute__((always_inline)) void send_point(Device *d, const uint8_t *out, uint32_t n)
 {
     uint32_t k;
     for (k = 0u; k < n; k++) {
