@@ -7,8 +7,8 @@ The compile flags are the ones the Cortex-M4 build uses for its arithmetic
 (-ffp-contract=off), so both targets compute the same segment points.
 
 VQF, the orientation filter, is C++ from the `vqf` package (a build requirement, pinned in
-pyproject.toml): its vqf.cpp, compiled as it ships, and the C wrapper firmware_c/src/lsw_vqf.cpp
-form a static library (build_clib, with C++ flags) that setuptools links into the extension.
+pyproject.toml): its vqf.cpp, as it ships, compiled inside the C wrapper firmware_c/src/lsw_vqf.cpp
+into a static library (build_clib, with C++ flags) that setuptools links into the extension.
 """
 import sys
 from glob import glob
@@ -25,10 +25,11 @@ VQF_CXXFLAGS = ["-std=c++17", "-O3", "-ffp-contract=off", "-fno-math-errno", "-f
 """The M4 build's (firmware_c/Makefile VQF_CXXFLAGS): VQF in single precision, no FMA, no asserts."""
 VQF_DIR = vqf_cpp_dir()
 VQF_LIBRARY = ("lsw_vqf", {
-    "sources": [str(Path(VQF_DIR) / "vqf.cpp"), "firmware_c/src/lsw_vqf.cpp"],
+    "sources": ["firmware_c/src/lsw_vqf.cpp"],  # includes VQF_DIR/vqf.cpp
     "include_dirs": ["firmware_c/include", VQF_DIR],
     "macros": [("VQF_SINGLE_PRECISION", None), ("NDEBUG", None)],
     "cflags": VQF_CXXFLAGS,
+    "obj_deps": {"": sorted(glob("firmware_c/include/*.h")) + [str(Path(VQF_DIR) / name) for name in ("vqf.cpp", "vqf.hpp")]},
 })
 
 PARTS = ("services", "device_emulator", "dashboard")

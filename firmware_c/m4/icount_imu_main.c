@@ -6,10 +6,10 @@
  * then 0.8 s of motion (angular rates up to 3 rad/s per axis, changing every 0.1 s; acc = gravity
  * in the sensor frame plus noise). The first 3 s (VQF's start-up: its low-pass filters average
  * their input for tauAcc = 3 s before they filter) run uncounted; then each raw sample goes through
- *   icount_vqf6d   VQF alone, 6D: updateGyr and updateAcc (a filter of its own), announced "V -";
- *   icount_imu     the device's pipeline (lsw_imu_bank_update for one device: the checks, VQF 6D,
- *                  the device's instants at 50 Hz and fastSW with the live rule), announced "P -"
- *                  and after it "E none" (no device sample), "E sample" or "E point".
+ * icount_imu, the device's pipeline (lsw_imu_bank_update for one device: the checks, VQF 6D, the
+ * device's instants at 50 Hz and fastSW with the live rule), announced "P -" and after it
+ * "E none" (no device sample), "E sample" or "E point". VQF alone is the count of its two updates
+ * inside it (lsw_vqf_gyr, lsw_vqf_acc: updateGyr and updateAcc), which icount.py counts too.
  * "R rest" (or "R moving") says whether VQF detected the still phase.
  */
 #include <stdint.h>
@@ -24,14 +24,6 @@
 
 static LswImu imu;
 static FastswState state;
-static LswVqf vqf6;
-
-__attribute__((noinline, noclone)) void icount_vqf6d(LswVqf *v, const float *gyr, const float *acc)
-{
-    lsw_vqf_gyr(v, gyr);
-    lsw_vqf_acc(v, acc);
-}
-
 /** The pipeline for one raw sample (one device of lsw_imu_bank_update, no wire). */
 static uint8_t pipeline(const LswRawSample *raw)
 {
@@ -78,7 +70,6 @@ int main(void)
     live.live_bound_deg = 5.0f;
     lsw_imu_init(&imu, &settings);
     (void)fastsw_init(&state, &live);
-    lsw_vqf_init(&vqf6, settings.raw_period_s);
     for (i = 0u; i < STILL + MOVING; i++) {
         LswRawSample raw;
         float n, dq[4];
@@ -105,13 +96,9 @@ int main(void)
             q[k] = dq[k] * n;
         }
         if (i < WARM_UP) {
-            lsw_vqf_gyr(&vqf6, raw.gyr);
-            lsw_vqf_acc(&vqf6, raw.acc);
             (void)pipeline(&raw);
             continue;
         }
-        semihost_write0("V -\n");
-        icount_vqf6d(&vqf6, raw.gyr, raw.acc);
         semihost_write0("P -\n");
         status = icount_imu(&raw);
         semihost_write0(status == LSW_IMU_NO_OUTPUT ? "E none\n" : status == FASTSW_POINT ? "E point\n" : "E sample\n");

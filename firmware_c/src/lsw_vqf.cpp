@@ -1,12 +1,31 @@
 /*
- * lsw_vqf.cpp - the C API of lsw_vqf.h over VQF's own C++ class (vqf.hpp / vqf.cpp from the
- * `vqf` package, compiled unchanged beside this file).
+ * lsw_vqf.cpp - the C API of lsw_vqf.h over VQF's own C++ class.
+ *
+ * VQF's source (vqf.cpp and vqf.hpp from the `vqf` package, unchanged) is compiled inside this
+ * file, so that the one compile-time switch about it (LSW_VQF_FLOAT, fastsw_config.h) reaches it
+ * and the Cortex-M4 build inlines VQF's updates into the calls below.
  */
 #include "lsw_vqf.h"
 
+#include <assert.h>
+#include <stddef.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
 #include <new>
 
-#include "vqf.hpp"
+#include "fastsw_config.h"
+
+#if LSW_VQF_FLOAT
+/* VQF's double-precision filter states, coefficients and 3x3 inverse become float: every
+ * standard header VQF includes is in above, so only VQF's own code sees this. */
+#define double float
+#endif
+#include "vqf.cpp"
+#if LSW_VQF_FLOAT
+#undef double
+#endif
 
 #ifndef VQF_SINGLE_PRECISION
 #error "VQF is built with -DVQF_SINGLE_PRECISION on every target (lsw_vqf.h)"

@@ -5,7 +5,8 @@ guest instruction per translation block (``-singlestep``, or ``-accel tcg,one-in
 on QEMU >= 8.1) and ``-d exec,nochain``, so the log has one line per executed instruction.
 ``-dfilter`` keeps only the measured functions, everything they call, and the return
 addresses of their call sites: a call's count is the number of lines from the function's
-entry up to (not including) the return address. The harness announces each call on the
+entry up to (not including) the return address (a measured function called inside another is
+counted in both). The harness announces each call on the
 semihosting console ("F ssr_break", "S 17", ...), in call order, which labels the counts.
 A naked function of known length (icount_probe: 3 + 3k instructions) checks the counting.
 
@@ -39,8 +40,9 @@ MEASURED = {"icount_probe": "K", "fastsw_update": "F", "sw_update": "S"}
 """Function -> the letter its calls are announced with."""
 DEVICE_MEASURED = {"icount_device_frame": "D"}
 """The same for the device harness."""
-IMU_MEASURED = {"icount_vqf6d": "V", "icount_imu": "P"}
-"""The same for the raw-sample pipeline's harness."""
+IMU_MEASURED = {"icount_imu": "P", "lsw_vqf_gyr": "G", "lsw_vqf_acc": "A"}
+"""The same for the raw-sample pipeline's harness; VQF's two updates (6D) are counted inside it and
+are not announced."""
 
 FASTSW_BRANCHES = ("first", "normal", "ssr_break", "max_len_break", "reject_nan", "reject_time")
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
@@ -140,21 +142,21 @@ def run_trace(elf: Path, timeout: float = 120.0, measured: dict[str, str] | None
         if done.returncode != 0:
             raise RuntimeError(f"{elf} under QEMU exited with {done.returncode}: {done.stderr[-500:]}")
         counts: dict[str, list[int]] = defaultdict(list)
-        inside, n = None, 0
+        stack: list[list] = []  # [name, count] of the measured calls in progress, innermost last
         with open(log) as trace:
             for line in trace:
                 match = TRACE_LINE.match(line)
                 if not match:
                     continue
                 pc = int(match.group(1), 16)
-                if inside is None:
-                    if pc in entries:
-                        inside, n = entries[pc], 1
-                elif pc in ret_to and ret_to[pc] == inside:
-                    counts[inside].append(n)
-                    inside = None
-                else:
-                    n += 1
+                if stack and ret_to.get(pc) == stack[-1][0]:
+                    name, n = stack.pop()
+                    counts[name].append(n)
+                    continue
+                if pc in entries:  # a measured call, maybe inside another (counted in both)
+                    stack.append([entries[pc], 0])
+                for call in stack:
+                    call[1] += 1
     console = done.stderr + done.stdout
     letters = [f"{letter} " for letter in measured.values()] + ["E ", "R "]
     announced = [tuple(line.split(maxsplit=1)) for line in console.splitlines() if line[:2] in letters]
@@ -251,8 +253,10 @@ def measure_imu(elf: Path) -> dict:
     counts, announced = run_trace(elf, timeout=600.0, measured=IMU_MEASURED)
     outcomes = [arg.strip() for letter, arg in announced if letter == "E"]
     calls = counts["icount_imu"]
-    if len(outcomes) != len(calls) or len(counts["icount_vqf6d"]) != len(calls) or not calls:
-        raise RuntimeError(f"icount_imu: {len(calls)} traced calls but {len(outcomes)} announced")
+    n = len(calls)
+    gyr, acc = counts["lsw_vqf_gyr"][-n:], counts["lsw_vqf_acc"][-n:]  # the warm-up's calls come first
+    if len(outcomes) != n or len(gyr) != n or len(acc) != n or not calls:
+        raise RuntimeError(f"icount_imu: {n} traced calls but {len(outcomes)} announced")
     console_rest = [arg.strip() for letter, arg in announced if letter == "R"]
     imu = {kind: [n for n, o in zip(calls, outcomes) if o == kind] for kind in ("none", "sample", "point")}
     per_output, since = [], 0
@@ -261,7 +265,7 @@ def measure_imu(elf: Path) -> dict:
         if outcome != "none":
             per_output.append(since)
             since = 0
-    return {"vqf6d": counts["icount_vqf6d"], "imu": imu,
+    return {"vqf6d": [g + a for g, a in zip(gyr, acc)], "imu": imu,
             "per_output": per_output[1:], "rest": console_rest == ["rest"]}  # the first: one raw sample
 
 
