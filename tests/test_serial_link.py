@@ -156,7 +156,7 @@ def test_raw_and_fusion_messages():
                                                np.float32([0.1, -0.2, 0.3, 0.0, 0.5, 9.8, 0, 0, 0]))
     assert int.from_bytes(body[:4], "little") == 7 and int.from_bytes(body[4:12], "little") == 1_790_000_000_000_123
     assert kind2 == link.FUSION and np.frombuffer(body2[2:6], "<f4")[0] == np.float32(1 / 285.7)
-    assert int.from_bytes(body2[6:10], "little") == 3500 and body2[-1] == 1
+    assert int.from_bytes(body2[6:10], "little") == 20_000 and body2[-1] == 1  # the device period, us
     status = link.decode_device(link.FUSION_STATUS, bytes([5, 0, 9, 1]) + np.float32([1e-3, 0, -2e-3]).tobytes()
                                 + np.uint32([100, 25, 1, 2, 0, 3, 4]).tobytes())
     assert (status.request, status.mode, status.rest, status.raw, status.samples) == (5, "9D", True, 100, 25)
