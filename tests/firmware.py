@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import queue
 import shutil
 import sys
 from types import ModuleType
@@ -47,3 +48,15 @@ def final_point(bank: kernel.SegmenterBank, slot: int, stream: int, last: bytes)
                                   int(bank.t_us[row, slot]), tuple(float(v) for v in flushed[2]), wire.FLAG_FINAL,
                                   (0.0, 0.0, 0.0) if bank.live(slot) else None)
     return wire.encode_point(point)
+
+
+def drain(port) -> list[bytes]:
+    """The points a device on the serial link (a SerialLink) has sent so far (heartbeats skipped)."""
+    points = []
+    while True:
+        try:
+            kind, message = port.inbox.get_nowait()
+        except queue.Empty:
+            return points
+        if kind == "point":
+            points.append(message)

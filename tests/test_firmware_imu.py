@@ -4,7 +4,6 @@ in 6D and 9D; bad raw samples are counted as on the host, malformed RAW frames b
 the stream goes on."""
 from __future__ import annotations
 
-import queue
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ from limbstream.services.gateway import firmware
 from limbstream.services.gateway.serial_port import SerialLink
 from limbstream.wire import serial_link as link
 from conftest import require_data
-from firmware import final_point, require_tools
+from firmware import drain, final_point, require_tools
 
 pytestmark = pytest.mark.qemu
 
@@ -80,14 +79,7 @@ def firmware_points(port: SerialLink, d: dict, stream: int, nine_d: bool, bad=No
             between(i)
         port.raw(tick, T0_US + tick, g, a, m if nine_d else None)
     assert port.end().ok  # answered after the FINAL point: every point is in
-    points = []
-    while True:
-        try:
-            kind, message = port.inbox.get_nowait()
-        except queue.Empty:
-            return points
-        if kind == "point":
-            points.append(message)
+    return drain(port)
 
 
 def differences(got: list[bytes], expected: list[bytes]) -> str:
@@ -101,7 +93,7 @@ def differences(got: list[bytes], expected: list[bytes]) -> str:
 
 @pytest.mark.parametrize("nine_d", [False, True], ids=["6D", "9D"])
 def test_raw_samples_give_the_host_pipelines_points(device, broad, nine_d):
-    device.inbox.queue.clear()
+    drain(device)
     expected, bank = host_points(broad, 40 + nine_d, nine_d)
     got = firmware_points(device, broad, 40 + nine_d, nine_d)
     assert got == expected, differences(got, expected)
@@ -142,7 +134,7 @@ def test_bad_raw_samples_and_frames_are_counted_and_the_stream_goes_on(device, b
             device.send(malformed[reason])
             sent.append(reason)
 
-    device.inbox.queue.clear()
+    drain(device)
     before = device.status().bad
     expected, bank = host_points(broad, 50, False, bad)
     assert firmware_points(device, broad, 50, False, bad, between) == expected

@@ -4,8 +4,8 @@ VQF -> orientation at the device's instants -> fastSW with the live rule -> segm
 many devices in one C call per raw sample (:class:`ImuBank`; C: ``firmware_c/include/lsw_imu.h``,
 the firmware runs the same code).
 
-Orientations are scalar-first (w, x, y, z): the sensor frame in VQF's earth frame (z up; 9D:
-x east... as VQF's, heading from the magnetometer; 6D: heading arbitrary, from the start).
+Orientations are scalar-first (w, x, y, z): the sensor frame in VQF's earth frame, z up (9D:
+east, north, up, heading from the magnetometer; 6D: the heading is wherever the sensor started).
 """
 from __future__ import annotations
 
