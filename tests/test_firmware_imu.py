@@ -22,7 +22,7 @@ pytestmark = pytest.mark.qemu
 LIVE = wire.DeviceConfig(**wire.LIVE_MODE)
 T0_US = 1_790_000_000_000_000
 START, COUNT = 9500, 1500
-"""BROAD trial 21 from 3.5 s before its fast motion: 5.3 s, 262 device samples."""
+"""BROAD trial 21 from 3.5 s before its fast motion: 5.3 s, 263 device samples."""
 
 
 @pytest.fixture(scope="module")
