@@ -5,6 +5,7 @@ built-in synthetic full-body motion (the default of demos and tests).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,30 +105,32 @@ def load_npz(path: str | Path) -> list[Motion]:
     return motions
 
 
-def load(path: str | Path) -> list[Motion]:
+def load(path: str | Path, names: Mapping[str, str] | None = None) -> list[Motion]:
     """Load every motion in a file or folder.
 
     - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at 50 Hz (:mod:`.bvh`).
-    - x-IMU3 ``.csv`` / Xsens ``.txt`` file: one single-segment Motion of its raw samples.
-    - A folder of ``.csv`` (x-IMU3) or ``.txt`` (Xsens) files: one Motion, one segment per file,
-      aligned on a common time base (see :mod:`.imu_files`).
+    - An x-IMU3 ``.csv`` or Xsens ``.txt`` file, or a folder of either: one Motion, one segment
+      per sensor, aligned on a common time base, turned into segment orientations (see
+      :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`).
     - Any other folder: every ``.npz`` and ``.bvh`` in it, in name order.
 
     Raises
     ------
-    MotionFileError naming the file and what is wrong.
+    MotionFileError naming the file and what is wrong (also: an IMU recording in which no sensor
+    maps to a body segment, and ``names`` for a source whose segments are named already).
     """
     from limbstream.sources import bvh, imu_files
 
     path = Path(path)
     if not path.exists():
         raise MotionFileError(f"{path}: no such file or folder")
+    suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()} if path.is_dir() else {path.suffix.lower()}
+    if suffixes & {".csv", ".txt"}:
+        return [imu_files.load_imu(path, names)]
+    if names is not None:
+        raise MotionFileError(f"{path}: --names maps the sensors of IMU recordings (x-IMU3 .csv, Xsens .txt); "
+                              "this source names its segments itself")
     if path.is_dir():
-        suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()}
-        if ".csv" in suffixes:
-            return [imu_files.load_xio_folder(path)]
-        if ".txt" in suffixes:
-            return [imu_files.load_xsens_folder(path)]
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".npz", ".bvh"))
         if not files:
             raise MotionFileError(f"{path}: folder holds no .npz, .bvh, .csv or .txt motion files")
@@ -137,8 +140,4 @@ def load(path: str | Path) -> list[Motion]:
         return load_npz(path)
     if suffix == ".bvh":
         return [bvh.load_bvh(path)]
-    if suffix in (".csv", ".txt"):
-        read = imu_files.read_xio_csv if suffix == ".csv" else imu_files.read_xsens_txt
-        s = read(path)
-        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem)]
     raise MotionFileError(f"{path}: unknown motion file type (expected .npz, .bvh, .csv, .txt or a folder)")

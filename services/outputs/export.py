@@ -13,6 +13,7 @@ offsets in metres (Y up, X to the subject's left), every joint's rotation channe
 from __future__ import annotations
 
 import csv
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -180,13 +181,18 @@ _SEGMENT_PARENT = {"hip": None, "neck": "hip", "l_thigh": "hip", "r_thigh": "hip
 """Each segment's parent in the body, parents first."""
 
 
-def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None) -> Take:
-    """A recording (``.mcap``) or a motion file, as a :class:`Take`; ExportError naming the problem."""
+def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None,
+              names: Mapping[str, str] | None = None) -> Take:
+    """A recording (``.mcap``) or a motion file (``names``: its sensors' segments,
+    :mod:`limbstream.sources.names`), as a :class:`Take`; ExportError naming the problem."""
     path = Path(path)
     try:
         if path.suffix.lower() == ".mcap":
+            if names is not None:
+                raise ExportError(f"{path}: --names maps the sensors of IMU recordings; a recording's devices "
+                                  "are named by segment already")
             return from_recording(Recording(path), subject, rest_pose)
-        return from_motion(load(path), subject, path, rest_pose)
+        return from_motion(load(path, names), subject, path, rest_pose)
     except (RecordingError, MotionFileError) as exc:
         raise ExportError(str(exc)) from None
 
