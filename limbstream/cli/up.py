@@ -48,7 +48,10 @@ POLL_S = 0.1
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--subjects", type=int, default=2, help="subjects to emulate (10 IMUs each), default 2")
     parser.add_argument("--source", default="generator", help="'generator' (default) or a motion file/folder")
-    parser.add_argument("--router", default=zconfig.DEFAULT_ROUTER, help=f"router endpoint (default {zconfig.DEFAULT_ROUTER})")
+    router = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER)
+    parser.add_argument("--router", default=router, metavar="ENDPOINT",
+                        help=f"where the router listens; every part connects there (env {zconfig.ROUTER_ENV}, which "
+                             f"every command's --connect also defaults to; default {router})")
     parser.add_argument("--http", default="127.0.0.1:8000", help="dashboard address (default 127.0.0.1:8000)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
@@ -76,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     """(name, ``limbstream`` arguments) of the time service, the emulators and the aggregator, in
     start order."""
-    connect = ["--connect", args.router]
+    connect = ["--connect", args.router, "--connect-timeout", "0"]  # parts wait for a restarted router
     sensors = calibration.from_args(args)
     parts = []
     # a scaled time base (--speed) is shared by the time service and the devices: one anchor

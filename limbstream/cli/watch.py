@@ -11,6 +11,7 @@ import sys
 import time
 
 from limbstream import quat, wire, zconfig
+from limbstream.cli import zenoh_args
 from limbstream.sources import SEGMENTS
 from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
 
@@ -43,8 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refresh", type=float, default=5.0, help="screen updates per second (default 5)")
     parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
-                        help="exit with status 1 if no frame arrives for this many seconds (0: wait forever)")
-    zconfig.add_arguments(parser)
+                        help="exit with status 1 if the router does not answer or no frame arrives for this many "
+                             f"seconds (0: wait for frames forever, for the router {zconfig.CONNECT_TIMEOUT_S:g} s)")
+    zenoh_args.add_arguments(parser, timeout=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,7 +59,10 @@ def run(args: argparse.Namespace) -> int:
     wanted = KINDS[args.kind]
     tty = sys.stdout.isatty()
     count, last_count, last_time, last_seen = 0, 0, time.monotonic(), time.monotonic()
-    with Subscription(zconfig.from_args(args), args.subject, ("pose",)) as sub:
+    if not args.timeout >= 0:
+        raise SystemExit("limbstream watch: --timeout must be >= 0")
+    settings = zenoh_args.session_settings(args, "limbstream watch", args.timeout or zconfig.CONNECT_TIMEOUT_S)
+    with Subscription(settings, args.subject, ("pose",)) as sub:
         while True:
             frame = None
             first = sub.get(timeout=1.0 / args.refresh)
