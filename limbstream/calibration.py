@@ -65,6 +65,13 @@ axis by this much, degrees (a bow with bent knees and the arms raised forward; t
 turn every segment about a horizontal axis, or its heading cannot be told)."""
 
 
+def absent_segments(present) -> list[str]:
+    """The body's segments (:data:`SEGMENTS`, in that order) not among ``present`` (segment
+    names): what the calibration of a partial body leaves out."""
+    present = set(present)
+    return [s for s in SEGMENTS if s not in present]
+
+
 class CalibrationError(ValueError):
     """A calibration that cannot be made (device not still, bad samples): the sentence says why."""
 

@@ -68,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
     if not answer.ok:
         print(f"limbstream calibrate: refused: {answer.reason}", file=sys.stderr)
         return 1
-    print(f"{args.subject}: {len(answer.devices)} devices calibrated ({args.pose})")
+    print(f"{args.subject}: {len(answer.devices)} devices calibrated ({args.pose})"
+          + (f"; no device on {', '.join(answer.absent)} (not calibrated)" if answer.absent else ""))
     for device, info in sorted(answer.devices.items()):
         print(f"  {device}: {'+'.join(info.get('poses', []))}, heading {info.get('heading_deg')} deg")
     return 0
