@@ -16,6 +16,7 @@ from fastapi.staticfiles import StaticFiles
 
 import limbstream
 
+from .deps import KnownQueryDep
 from .metrics import build_registry
 from .routes import devices, gateways, live, ops, subjects
 from .settings import DashboardSettings
@@ -91,7 +92,7 @@ def create_app(settings: DashboardSettings | None = None, session: zenoh.Session
         return JSONResponse({"detail": detail}, status_code=422)
 
     for module in (ops, devices, subjects, gateways, live):
-        app.include_router(module.router)
+        app.include_router(module.router, dependencies=[KnownQueryDep])
     index = settings.static_dir / "index.html"
 
     @app.get("/", include_in_schema=False)
