@@ -129,12 +129,24 @@ def clock_flags(args: argparse.Namespace) -> list[str]:
     return argv if args.sync else argv + ["--no-sync"]
 
 
-def clock_settings(args: argparse.Namespace) -> ClockSettings:
-    """ClockSettings from the flags; SystemExit naming a bad one."""
-    checks = [
+def check_clock(args: argparse.Namespace) -> None:
+    """ValueError naming the first bad flag of :func:`add_clock_arguments` without tuning."""
+    for ok, message in (
         (0 <= args.clock_offset_ms <= 1e7, f"--clock-offset-ms must be in 0..1e7, got {args.clock_offset_ms}"),
         (0 <= args.clock_drift_ppm <= 1000, f"--clock-drift-ppm must be in 0..1000, got {args.clock_drift_ppm}"),
         (0 <= args.clock_jitter_us <= 1000, f"--clock-jitter-us must be in 0..1000, got {args.clock_jitter_us}"),
+    ):
+        if not ok:
+            raise ValueError(message)
+
+
+def clock_settings(args: argparse.Namespace) -> ClockSettings:
+    """ClockSettings from the flags; SystemExit naming a bad one."""
+    try:
+        check_clock(args)
+    except ValueError as exc:
+        raise SystemExit(f"{PROG}: error: {exc}") from None
+    checks = [
         (args.sync_poll_s >= 1, f"--sync-poll-s must be >= 1, got {args.sync_poll_s}"),
         (args.sync_holdover_s > 0, f"--sync-holdover-s must be > 0, got {args.sync_holdover_s}"),
         (args.sync_wait_s >= 0, f"--sync-wait-s must be >= 0, got {args.sync_wait_s}"),

@@ -47,3 +47,8 @@ def add_names_argument(parser: argparse.ArgumentParser) -> None:
                              f"({', '.join(names.NAMED)}), a file of SENSOR=SEGMENT lines, or a list "
                              "(SENSOR: a file name without extension, e.g. an Xsens serial number; default: "
                              "x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh)")
+
+
+def names_flags(mapping: dict[str, str] | None) -> list[str]:
+    """The flags that give ``mapping`` to a child process (none for None)."""
+    return [] if mapping is None else ["--names", ",".join(f"{sensor}={segment}" for sensor, segment in mapping.items())]
