@@ -62,6 +62,9 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     except ValueError as exc:
         writer.discard()
         return fail(str(exc))
+    except BaseException:  # no router in time (zconfig.ConnectError), Ctrl-C: no file is left
+        writer.discard()
+        raise
     if session is None:  # stopped while waiting for the router
         writer.discard()
         return 0
