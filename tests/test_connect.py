@@ -30,17 +30,17 @@ file, a part that `limbstream up` supervises (which waits: --connect-timeout 0),
 
 
 class Command:
-    """A ``limbstream`` command whose stderr is read line by line as it comes."""
+    """A ``limbstream`` command whose output (stdout and stderr) is read line by line as it comes."""
 
     def __init__(self, argv: list[str]):
         self.proc = subprocess.Popen([*LIMBSTREAM, *argv], cwd=ROOT, stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self.lines: queue.Queue[str] = queue.Queue()
         self.seen: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:
-        for line in self.proc.stderr:
+        for line in self.proc.stdout:
             self.lines.put(line.rstrip("\n"))
 
     def wait_line(self, text: str, timeout: float = 60.0) -> float:
@@ -100,3 +100,18 @@ def test_ctrl_c_stops_a_command_while_it_connects(name, tmp_path):
     assert ended - sent <= 2.0 and code in (0, 130), (code, cmd.rest())
     assert "Traceback" not in "\n".join(cmd.rest()), cmd.rest()
     assert not list(tmp_path.iterdir()), "no file is left behind"
+
+
+def test_the_dashboard_says_it_still_waits_for_its_router_and_stops_on_ctrl_c():
+    """The dashboard, a server, keeps waiting for its router (/health 503 meanwhile), but says so
+    once the default connect timeout has passed; Ctrl-C stops it within 2 s."""
+    from limbstream import zconfig
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    cmd = Command(["dashboard", "--http", f"127.0.0.1:{free_port()}", "--connect", endpoint])
+    cmd.wait_line(f"(zenoh client -> {endpoint})")
+    cmd.wait_line(f"dashboard: no Zenoh router answered at {endpoint} within {zconfig.CONNECT_TIMEOUT_S:g} s; "
+                  "still waiting", timeout=zconfig.CONNECT_TIMEOUT_S + 10)
+    cmd.proc.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    code, ended = cmd.exit_code(2.0)
+    assert ended - sent <= 2.0 and code == 0, (code, cmd.rest())

@@ -30,7 +30,7 @@ from limbstream import calibration, quat
 from limbstream.sources import Motion, MotionFileError, is_number, names as sensor_names
 
 XIO_HEADER = ("Timestamp (us)", "W", "X", "Y", "Z")
-Z_UP_TO_Y_UP = calibration.axis_angle(np.array([1.0, 0.0, 0.0]), -np.pi / 2)
+Z_UP_TO_Y_UP = calibration.axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2))
 """(4,) the rotation that takes the recordings' world (Z up: x-IMU3's and Xsens' earth frames)
 onto the skeleton's (Y up), by -90 degrees about X."""
 
