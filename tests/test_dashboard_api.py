@@ -2,6 +2,7 @@
 on loopback), with the app's lifespan on."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -535,6 +536,11 @@ def test_subscribe_pose_and_watch_command(router, pub):
     text = render("watchM", pose_frame(5), 50.0)
     assert "watchM  exact #5" in text and "l_wrist" in text and "°" in text, text
     assert render("watchM", pose_frame(6, wire.KIND_LIVE), 50.0).startswith("watchM  live #6")
+    missing = dataclasses.replace(pose_frame(7), flags=wire.FRAME_MISSING)
+    devices = {s: s != "hip" for s in ("hip", "l_thigh", "r_thigh", "l_shank", "r_shank", "l_foot")}
+    assert render("watchM", missing, 50.0, devices).splitlines()[0].endswith(
+        "MISSING (no device: l_lowerarm, r_lowerarm, l_upperarm, r_upperarm, neck; offline: hip)")
+    assert render("watchM", missing, 50.0).splitlines()[0].endswith("MISSING (no stats yet)")
 
     def watch(*flags: str) -> str:
         """Run ``limbstream watch watchM`` while exact and live frames come interleaved."""
