@@ -109,9 +109,9 @@ def load(path: str | Path, names: Mapping[str, str] | None = None) -> list[Motio
     """Load every motion in a file or folder.
 
     - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at 50 Hz (:mod:`.bvh`).
-    - An x-IMU3 ``.csv`` or Xsens ``.txt`` file, or a folder of either: one Motion, one segment
-      per sensor, aligned on a common time base, turned into segment orientations (see
-      :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`).
+    - An x-IMU3 ``.csv`` or Xsens ``.txt`` file (one segment, its own samples), or a folder of
+      either (one segment per sensor, aligned on a common time base): one Motion of segment
+      orientations (see :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`).
     - Any other folder: every ``.npz`` and ``.bvh`` in it, in name order.
 
     Raises

@@ -313,13 +313,16 @@ def load_imu(path: str | Path, names: Mapping[str, str] | None = None) -> Motion
     except ValueError as exc:
         raise MotionFileError(str(exc)) from None
     streams = [replace(s, name=seg) for s, seg in zip(streams, segments) if seg]
+    if path.is_file():  # one sensor: its own samples, as recorded
+        (one,) = streams
+        return to_body(Motion(one.t - one.t[0], one.q[:, None, :], (one.name,), path.stem))
     fs = None
     if not xio:  # Xsens: the sensors share the packet counter at one update rate
         rates = {round(1.0 / np.min(np.diff(s.t)), 6) for s in streams}
         if len(rates) != 1:
             raise MotionFileError(f"{path}: sensors have different update rates {sorted(rates)}")
         fs = rates.pop()
-    return to_body(align(streams, fs, path.stem if path.is_file() else path.name))
+    return to_body(align(streams, fs, path.name))
 
 
 def to_body(motion: Motion) -> Motion:
