@@ -174,6 +174,33 @@ def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_o
     assert "never arrived" in fusion.calibration_figures(late.slot)["calibration_refused"]
 
 
+def test_a_partial_body_calibrates_the_devices_it_has_and_names_the_segments_it_lacks():
+    """A lower body (hip, thighs, shanks) held still: a rest calibration on request calibrates
+    those five devices and answers with the body's other segments as absent; a subject without a
+    streaming device is refused."""
+    from limbstream import wire
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+    agg = Aggregator(None, AggregatorSettings())
+    agg._publish = lambda subject, payload: None
+    legs = ("hip", "l_thigh", "r_thigh", "l_shank", "r_shank")
+    still = np.tile(quat.normalize(np.array([0.9, 0.1, 0.3, -0.2])), (int(4 * FS), 1))
+    t0 = 1_700_000_000_000_000
+    for segment in legs:
+        agg.on_alive(wire.alive_key("s01", segment), True)
+        feed_aggregator(agg, still[: int(FS)], t0, 1, segment)
+    assert agg.fusion.start_request("s02", "rest", 0.0) == "s02: no such subject here"
+    req = agg.fusion.start_request("s01", "rest", 0.0)
+    assert sorted(t.segment for t in req.tracks) == sorted(legs), req
+    for segment in legs:  # the stream again: its first second repeats (duplicates, dropped), then the hold
+        feed_aggregator(agg, still, t0, 1, segment)
+    answer = agg.fusion.finish_request(req, 1.0)
+    assert answer.ok and sorted(answer.devices) == sorted(f"s01/{s}" for s in legs), answer
+    assert answer.absent == ["l_lowerarm", "r_lowerarm", "l_upperarm", "r_upperarm", "neck"], answer
+    assert wire.decode_calibrate_answer(wire.encode_calibrate_answer(answer)) == answer
+    corrected = agg.fusion.calibrations[agg.track("s01", "hip").slot].apply(still[:1])
+    assert quat.angle_deg(corrected, [[1.0, 0.0, 0.0, 0.0]])[0] < 0.01
+
+
 def frames_compared(watch: StatsWatch, n: int, on_fail) -> dict:
     """s01's stats once at least ``n`` of its exact frames were compared with the truth."""
     def compared():

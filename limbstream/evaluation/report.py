@@ -9,30 +9,44 @@ from pathlib import Path
 import numpy as np
 
 from limbstream.evaluation.sweep import ICR_TARGETS, KEYS, at_icr
+from limbstream.evaluation.table import Column, render
+
+EVAL_COLUMNS: tuple[Column, ...] = (
+    Column("algorithm", "algorithm", "", "segmentation algorithm (fastsw, sw: the paper's; cplr, swing: baselines)",
+           ""),
+    Column("live_bound", "bound", "deg", "fastSW's live rule: no sample's live error beyond it (0: off)", "g"),
+    Column("icr", "ICR", "", "inverse compression ratio: segment points sent / samples taken", ".4f"),
+    Column("threshold", "TH", "", "the algorithm's threshold (SSR bound for fastsw, sw, cplr; largest deviation "
+           "per quaternion component for swing); at a target ICR: interpolated", ".2e"),
+    Column("aad", "AAD", "deg", "mean angular deviation of the SLERP reconstruction from every sample"),
+    Column("std", "std", "deg", "standard deviation of that deviation"),
+    Column("p99", "p99", "deg", "its 99th percentile"),
+    Column("max", "max", "deg", "its largest value"),
+    Column("point_aad", "pt AAD", "deg", "mean deviation of the segment points from the samples at their times "
+           "(0: the points are samples)"),
+    Column("point_max", "pt max", "deg", "largest deviation of the segment points"),
+    Column("live_aad", "live", "deg", "mean live error: the receiver's view at each sample's time (newest point "
+           "extrapolated) against the sample; with --live-bound"),
+    Column("live_p99", "live p99", "deg", "99th percentile of the live error"),
+    Column("live_max", "live max", "deg", "largest live error"),
+    Column("body_aad", "body", "deg", "mean error of the calibrated reconstruction against the true segments; with "
+           "a sensor model (--mounting-deg, --heading-deg, --yaw-drift-dps)"),
+)
+"""The columns of every ``limbstream eval`` table, in order (a new measure: one more here)."""
 
 
 def format_table(
-    rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] = ICR_TARGETS,
+    rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] | None = ICR_TARGETS,
     live_bounds: Sequence[float] = (0.0,),
 ) -> str:
-    """The comparison table (measures at the target ICRs, per algorithm and live bound) as
-    aligned text."""
-    head = (f"{'algorithm':<9} {'bound':>5} {'ICR':>5} {'AAD':>7} {'p99':>7} {'max':>7} {'pt_AAD':>8} "
-            f"{'pt_max':>8} {'live':>7} {'live99':>7}  {'~TH':>9}")
-    lines = [head, "-" * len(head)]
-    for a in algorithms:
-        for bound in live_bounds:
-            for r in at_icr(rows, a, targets, live_bound=bound):
-                lines.append(
-                    f"{a:<9} {bound:>5g} {r['icr']:>5.2f} {r['aad']:>7.2f} {r['p99']:>7.2f} {r['max']:>7.2f} "
-                    f"{r['point_aad']:>8.3f} {r['point_max']:>8.3f} {r['live_aad']:>7.2f} {r['live_p99']:>7.2f}  "
-                    f"{r['threshold']:>9.2e}"
-                )
-    lines.append(
-        "(angles in degrees; pt_ = segment points vs. the samples at their timestamps; live = live"
-        " error, mean and p99; bound = live rule bound, 0 off; ~TH = interpolated threshold)"
-    )
-    return "\n".join(lines)
+    """The comparison table with its legend: the measures interpolated at the ``targets`` ICRs
+    per algorithm and live bound, or (``targets`` None) every row as swept."""
+    if targets is None:
+        shown = list(rows)
+    else:
+        shown = [r | {"live_bound": bound} for a in algorithms for bound in live_bounds
+                 for r in at_icr(rows, a, targets, live_bound=bound)]
+    return render(EVAL_COLUMNS, shown)
 
 
 def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:

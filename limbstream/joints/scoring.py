@@ -28,11 +28,13 @@ def in_layout(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
 
 
 def true_angles(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
-    """The joint angles of a motion source's own segment orientations (BVH clips, npz files: no
-    calibration, they are the segments): (m, A) degrees and (m, A) flags (:func:`joint_angles`).
-    ValueError for a recording of real sensors (their orientations are not the segments')."""
-    if motion.sensor_up is not None:
-        raise ValueError(f"{motion.name}: real sensors' orientations have no true joint angles")
+    """The joint angles of a motion source's own segment orientations (BVH clips, npz files, the
+    generator: ``Motion.orientations`` ``segments``): (m, A) degrees and (m, A) flags
+    (:func:`joint_angles`). ValueError for a recording of real sensors (rest-calibrated, their
+    facing unknown, or uncalibrated: not the segments' own orientations)."""
+    if motion.orientations != "segments":
+        raise ValueError(f"{motion.name}: real sensors' orientations ({motion.orientations}) have no true joint "
+                         "angles")
     q, present = in_layout(motion)
     return joint_angles(q, present, motion.rest_pose)
 

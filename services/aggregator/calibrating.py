@@ -10,8 +10,9 @@ is calibrated (before, its readings are in the sensor's frame, not the segment's
 
 On request (``limbstream/<subject>/calibrate``, :mod:`limbstream.wire.calibrate`) the subject's
 devices are calibrated from the pose the subject holds for CALIBRATION_HOLD_S from the request
-on: every device of the subject, all or none (a device missing, not still, restarted meanwhile,
-or silent: refused with a sentence, the previous calibrations stay).
+on: every device of the subject that streams, all or none (not still, restarted meanwhile, or
+silent: refused with a sentence, the previous calibrations stay); a partial body (e.g. legs only)
+calibrates the devices it has, and the answer names the body's segments it lacks.
 
 Calibrations live outside the aggregator process when it has a calibration file: every one made
 is written there (atomically, at most once per tick), by device id with the stream it belongs to,
@@ -34,7 +35,6 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import calibration, quat, wire
-from limbstream.wire import SEGMENTS
 
 log = logging.getLogger("limbstream.aggregator.calibration")
 
@@ -67,6 +67,7 @@ class CalibrationRequest:
     t_from: int
     t_to: int
     wall: float
+    absent: list[str]
 
 
 class Calibrating:
@@ -220,23 +221,23 @@ class Calibrating:
     # ------------------------------------------------------------------ requests
 
     def start_request(self, subject: str, pose: str, wall: float) -> CalibrationRequest | str:
-        """Begin a calibration of ``subject``'s devices from ``pose`` held from now on; a refusal
-        sentence instead if it cannot begin (unknown subject, a device missing)."""
+        """Begin a calibration of ``subject``'s devices that stream (online, with points) from
+        ``pose`` held from now on; a refusal sentence instead if it cannot begin (unknown subject,
+        no device streams)."""
         sub = self.subjects.get(subject)
         if sub is None:
             return f"{subject}: no such subject here"
-        missing = [seg for seg in SEGMENTS if seg not in sub.tracks or not sub.tracks[seg].online
-                   or self.latest_t[sub.tracks[seg].slot] < 0]
-        if missing:
-            return f"{subject}: device(s) missing: {', '.join(missing)}"
-        tracks = [sub.tracks[seg] for seg in SEGMENTS]
+        tracks = [t for t in sub.tracks.values() if t.online and self.latest_t[t.slot] >= 0]
+        if not tracks:
+            return f"{subject}: no device streams (none online with points)"
         if pose == "mounting":
             uncalibrated = [t.id for t in tracks if "rest" not in getattr(self.calibrations.get(t.slot), "poses", ())]
             if uncalibrated:
                 return f"mounting: calibrate the rest pose first ({', '.join(uncalibrated)} not calibrated)"
         t_from = int(max(self.latest_t[t.slot] for t in tracks))
         return CalibrationRequest(subject, pose, tracks, {t.slot: t.generation for t in tracks}, t_from,
-                                  t_from + round(wire.CALIBRATION_HOLD_S * 1e6), wall)
+                                  t_from + round(wire.CALIBRATION_HOLD_S * 1e6), wall,
+                                  calibration.absent_segments(t.segment for t in tracks))
 
     def finish_request(self, req: CalibrationRequest, wall: float) -> wire.CalibrateAnswer | None:
         """The answer once every device's points passed the hold (None: not yet); on success the
@@ -275,7 +276,7 @@ class Calibrating:
             self._save()
         return wire.CalibrateAnswer(True, None, {
             self.tracks[slot].id: {"poses": list(new.poses), "heading_deg": round(math.degrees(new.heading), 3)}
-            for slot, (_, new) in made.items()})
+            for slot, (_, new) in made.items()}, req.absent)
 
     def _reapply_store(self, slot: int, old: calibration.Calibration | None, new: calibration.Calibration) -> None:
         """The row's points corrected by ``new`` instead of ``old`` (None: raw)."""
