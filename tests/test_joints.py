@@ -3,6 +3,7 @@ Euler sequences, the generator's own joint angles, constructed poses), gimbal lo
 segments, the functional calibration of the facing, and the error figures."""
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -271,12 +272,35 @@ def test_eval_scores_the_calibrated_angles_against_the_truth(cmu_npz):
     assert rest_only["joints"]["hip_flexion_r"]["mean"] > 5.0
 
 
-def test_eval_joint_angles_needs_explicit_rows(cmu_npz):
-    from limbstream.cli import evaluate as cli_eval
+def test_eval_joint_angles_table(tmp_path, cmu_npz, xio_dir, capsys):
+    """``eval --joint-angles`` prints one line per (row, angle) with a legend; an angle whose
+    segments the source lacks shows – (a lower body: no arm angles). It needs explicit rows and
+    sources with true angles (motion files, not a recording of real sensors)."""
+    from limbstream import cli
+    from limbstream.sources import load_npz
 
-    parser = __import__("argparse").ArgumentParser()
-    cli_eval.add_arguments(parser)
-    assert cli_eval.run(parser.parse_args([str(cmu_npz), "--joint-angles"])) == 2
+    motion = load_npz(cmu_npz)[0]
+    legs = [wire.SEGMENTS.index(s) for s in ("hip", "l_thigh", "l_shank", "r_thigh", "r_shank")]
+    np.savez(tmp_path / "legs.npz", clip_legs=motion.q[:, legs], fs=np.float64(motion.fs),
+             segment_names=np.array([wire.SEGMENTS[k] for k in legs]), rest_pose=np.array(motion.rest_pose))
+    assert cli.main(["eval", str(tmp_path / "legs.npz"), "--thresholds", "1e-3,1e-2", "--joint-angles",
+                     "--json", str(tmp_path / "rows.json")]) == 0
+    text = capsys.readouterr().out
+    lines = [line.split() for line in text.split("joint angles of the reconstruction")[1].splitlines()
+             if line.startswith("fastsw ")]
+    assert [(ln[2], ln[3]) for ln in lines] == [(th, a) for th in ("1.00e-03", "1.00e-02") for a in ANGLES], text
+    scored = {ln[3]: ln[4:] for ln in lines if ln[2] == "1.00e-02"}
+    assert scored["elbow_flex_r"] == ["–", "–", "–", "0", "0"], scored
+    assert float(scored["knee_angle_l"][0]) > 0 and scored["knee_angle_l"][3] == str(len(motion.t)), scored
+    assert "  bias (deg)" in text and "  frames " in text and "does not apply to the row" in text and "nan" not in text
+    rows = json.loads((tmp_path / "rows.json").read_text())
+    assert rows[1]["joints"]["elbow_flex_r"] == {"mean": None, "p99": None, "bias": None, "n": 0, "gimbal": 0}
+    assert rows[1]["joints"]["knee_angle_l"]["mean"] == pytest.approx(float(scored["knee_angle_l"][0]), abs=0.01)
+
+    assert cli.main(["eval", str(cmu_npz), "--joint-angles"]) == 2
+    assert "--thresholds TH[,TH...]" in capsys.readouterr().err
+    assert cli.main(["eval", str(xio_dir), "--thresholds", "1e-3", "--joint-angles"]) == 2
+    assert "no true joint angles" in capsys.readouterr().err
 
 
 OPENSIM_JOINTS = (  # (joint, parent body, child body, segment, ((coordinate, axis, coefficient) x 1 or 3))

@@ -18,9 +18,8 @@ from limbstream import calibration, kernel
 from limbstream.calibration import CalibrationError
 from limbstream.cli.values import add_names_argument, comma_list
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
-                                   format_table, frontier, streams_of, write_json)
+                                   format_joint_errors, format_table, frontier, streams_of, write_json)
 from limbstream.evaluation.table import Progress
-from limbstream.joints import format_errors
 from limbstream.sources import Motion, MotionFileError, load
 
 
@@ -165,8 +164,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", type=_calibration, default=None, metavar="none|rest|rest,mounting",
                         help="with a sensor model: the calibration before the body error (default rest,mounting)")
     parser.add_argument("--joint-angles", action="store_true",
-                        help="with --thresholds: each row's joint angle errors (mean, p99, bias per angle) against "
-                             "the true angles (docs/evaluation.md, 'Joint angles')")
+                        help="with --thresholds TH[,TH...]: each row's joint angle errors (mean, p99, bias per "
+                             "angle) against the true angles, a second table (docs/evaluation.md, 'Joint angles'); "
+                             "motion files only (a recording of real sensors has no true angles)")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here")
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG")
 
@@ -190,7 +190,7 @@ def _check(args: argparse.Namespace, algorithms: list[str], bounds: list[float])
         if out is not None and not out.parent.resolve().is_dir():
             return f"{what} {out}: folder {out.parent} does not exist"
     if args.joint_angles and args.thresholds is None:
-        return "--joint-angles prints a table per row: give the rows' --thresholds"
+        return "--joint-angles scores explicit rows: give them with --thresholds TH[,TH...]"
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         return f"--plot {args.plot}: must end in .png"
     return None
@@ -223,6 +223,9 @@ def run(args: argparse.Namespace) -> int:
             return _fail(str(exc))
         except OSError as exc:
             return _fail(f"{path}: {exc}")
+    if args.joint_angles and (real := [m.name for m in motions if m.orientations != "segments"]):
+        return _fail(f"--joint-angles: {', '.join(real)}: a recording of real sensors has no true joint angles "
+                     "(its orientations are not the segments' own); score motion files (.npz, .bvh)")
     try:
         sensors = calibration.from_args(args)
     except ValueError as exc:
@@ -268,10 +271,9 @@ def _report(args: argparse.Namespace, motions: list[Motion], streams: list, n_sa
           f"rows: the measures at ICR {', '.join(f'{c:.2f}' for c in ICR_TARGETS)}, interpolated over the paper's "
           "threshold sweep")
     print(format_table(rows, algorithms, None if explicit else ICR_TARGETS, live_bounds=bounds))
-    for r in rows if args.joint_angles else ():
-        against = "the calibrated reconstruction" if sensors.on else "the reconstruction"
-        print("\n" + format_errors(r["joints"], f"joint angles of {against} against the truth's (deg): "
-                                                f"{r['algorithm']}, TH {r['threshold']:.2e}, bound {r['live_bound']:g}"))
+    if args.joint_angles:
+        print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")
+        print(format_joint_errors(rows))
     if args.json is not None:
         write_json(rows, args.json)
         print(f"wrote {len(rows)} rows to {args.json}")

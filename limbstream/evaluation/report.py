@@ -10,6 +10,7 @@ import numpy as np
 
 from limbstream.evaluation.sweep import ICR_TARGETS, KEYS, at_icr
 from limbstream.evaluation.table import Column, render
+from limbstream.joints import GIMBAL_DEG
 
 EVAL_COLUMNS: tuple[Column, ...] = (
     Column("algorithm", "algorithm", "", "segmentation algorithm (fastsw, sw: the paper's; cplr, swing: baselines)",
@@ -34,6 +35,21 @@ EVAL_COLUMNS: tuple[Column, ...] = (
 )
 """The columns of every ``limbstream eval`` table, in order (a new measure: one more here)."""
 
+_ROW = {c.key: c for c in EVAL_COLUMNS}
+JOINT_COLUMNS: tuple[Column, ...] = (
+    _ROW["algorithm"], _ROW["live_bound"], _ROW["threshold"],
+    Column("angle", "angle", "", "joint angle, named as the Rajagopal model's coordinate (docs/evaluation.md, "
+           "'Joint angles')", ""),
+    Column("mean", "mean", "deg", "mean absolute error of the reconstruction's angle (with a sensor model: the "
+           "calibrated reconstruction's) against the true angle, the source's own segments'", ".2f"),
+    Column("p99", "p99", "deg", "99th percentile of that absolute error", ".2f"),
+    Column("bias", "bias", "deg", "mean signed error, estimate - truth", "+.2f"),
+    Column("n", "frames", "", "frames scored (the joint's segments present in both, not near gimbal lock)", "d"),
+    Column("gimbal", "near lock", "", f"frames left out within {GIMBAL_DEG:g} deg of gimbal lock (either side's "
+           "flag GIMBAL)", "d"),
+)
+"""The columns of ``limbstream eval --joint-angles``: one line per (row, joint angle)."""
+
 
 def format_table(
     rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] | None = ICR_TARGETS,
@@ -47,6 +63,14 @@ def format_table(
         shown = [r | {"live_bound": bound} for a in algorithms for bound in live_bounds
                  for r in at_icr(rows, a, targets, live_bound=bound)]
     return render(EVAL_COLUMNS, shown)
+
+
+def format_joint_errors(rows: Sequence[dict]) -> str:
+    """The joint angle errors of the rows that have them (``joints``: per angle the figures of
+    :func:`limbstream.joints.angle_errors`), one line per (row, angle), with the legend; an angle
+    no frame scored shows :data:`~limbstream.evaluation.table.DASH`."""
+    lines = [r | {"angle": angle} | figures for r in rows for angle, figures in r.get("joints", {}).items()]
+    return render(JOINT_COLUMNS, lines)
 
 
 def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
@@ -69,10 +93,15 @@ def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01)
     return np.array(icr), np.array(aad)
 
 
+def _finite(value):
+    """``value`` with every non-finite float (also within dicts) as None (JSON null)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
 def write_json(rows: Sequence[dict], path: str | Path) -> None:
-    """All rows as a JSON list of objects with the :data:`KEYS`; NaN becomes null."""
-    clean = [
-        {k: (None if isinstance(r[k], float) and not math.isfinite(r[k]) else r[k]) for k in KEYS}
-        for r in rows
-    ]
+    """All rows as a JSON list of objects with the :data:`KEYS` (and ``joints`` where scored);
+    NaN becomes null."""
+    clean = [_finite({k: r[k] for k in KEYS} | ({"joints": r["joints"]} if "joints" in r else {})) for r in rows]
     Path(path).write_text(json.dumps(clean, indent=1) + "\n")

@@ -58,16 +58,6 @@ def angle_errors(estimate: np.ndarray, truth: np.ndarray, flags: np.ndarray | No
     return out
 
 
-def format_errors(errors: dict[str, dict], title: str = "joint angle errors (deg)") -> str:
-    """The per-angle figures as a table (angles without a scored frame left out)."""
-    lines = [title, f"{'angle':<16} {'mean':>7} {'p99':>7} {'bias':>7} {'frames':>7} {'gimbal':>7}"]
-    for name, e in errors.items():
-        if e["n"]:
-            lines.append(f"{name:<16} {e['mean']:>7.2f} {e['p99']:>7.2f} {e['bias']:>+7.2f} {e['n']:>7d} "
-                         f"{e['gimbal']:>7d}")
-    return "\n".join(lines)
-
-
 def pooled_errors(motions) -> dict[str, dict]:
     """Per-angle error figures pooled over motions: each an (estimate, truth, rest_pose) triple of
     (m, 10, 4) segment orientations (SEGMENTS order, NaN rows where a segment has no data), the
