@@ -88,21 +88,30 @@ def test_a_recording_with_a_missing_segment_leaves_those_frames_out(tmp_path, cm
 
 
 def test_the_xsens_walk_exports_calibrated_functionally(tmp_path):
-    """The OpenSense example walk (sensors mapped by ``opensense``, the first second standing
-    still): the loader's rest calibration and the knees' facing give knee flexion peaks of
-    60-70 deg."""
+    """``limbstream export ../shared/data/xsens_opensense --names opensense -o walk.mot``: the
+    loader calibrates the sensors from the still first second, the export finds the knees' facing
+    (and only turns the segments about the vertical by it), and knee flexion peaks at 60-70 deg."""
     folder = require_data("xsens_opensense")
-    (motion,) = load(folder, names.NAMED["opensense"])
-    assert motion.orientations == "rest"
-    take = from_motion([motion], None, folder, None)
-    assert take.anatomical and "functional facing" in take.basis, take.basis
-    export(take, "mot", tmp_path / "walk.mot")
+    result = cli(str(folder), "--names", "opensense", "-o", str(tmp_path / "walk.mot"))
+    assert result.returncode == 0, result.stderr
+    assert "calibration: rest pose from the first 1 s standing still, functional facing" in result.stderr
     storage, columns = storage_columns(tmp_path / "walk.mot")
     assert list(columns)[1:] == [a for a in joints.ANGLES if a.startswith(("hip", "knee"))]
     assert columns["time"][0] == 0.0
     for side in "lr":
         assert 60.0 <= columns[f"knee_angle_{side}"].max() <= 72.0, side
         assert np.ptp(columns[f"hip_flexion_{side}"]) > 30.0
+
+    (motion,) = load(folder, names.NAMED["opensense"])
+    assert motion.orientations == "rest"
+    take = from_motion([motion], None, folder, None)
+    assert take.anatomical and "functional facing" in take.basis, take.basis
+    t = (take.t_us - take.t_us[0]) / 1e6
+    for segment in ("hip", "l_thigh", "r_shank"):  # the facing is a turn about the vertical: angles from rest kept
+        loaded = quat.interpolate(motion.t, motion.segment(segment), t)
+        exported = take.q[:, wire.SEGMENTS.index(segment)]
+        assert np.abs(np.abs(exported[:, 0]) - np.abs(loaded[:, 0])).max() < 1e-6, segment
+        assert np.abs(exported[:, 2]) == pytest.approx(np.abs(loaded[:, 2]), abs=1e-6), segment  # about Y too
     export(take, "sto", tmp_path / "walk.sto")
     table, q = quaternion_table(tmp_path / "walk.sto")
     assert table.getColumnLabels() == ("tibia_l_imu", "tibia_r_imu", "femur_l_imu", "femur_r_imu", "pelvis_imu")
