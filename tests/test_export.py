@@ -154,6 +154,7 @@ def test_an_xsens_recording_exports_once_its_sensors_are_mapped(tmp_path, xsens_
     assert "no sensor maps to a body segment (sensors found: 00B421E6, 00B421ED" in err and "--names" in err, err
     done = cli(str(xsens_dir), "--names", "opensense", "-o", str(out))
     assert done.returncode == 0, done.stderr
+    assert "calibration: rest pose from the first 1 s standing still, functional facing" in done.stderr, done.stderr
     data = np.load(out)
     q = data["clip_xsens_opensense"].astype(np.float64)
     fs = float(data["fs"])

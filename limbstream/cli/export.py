@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         export(take, fmt, args.output)
     except ExportError as exc:
         return fail(str(exc))
-    for note in take.notes + ([f"calibration: {take.basis}"] if fmt in ("mot", "sto") else []):
+    for note in take.notes + [f"calibration: {take.basis}"]:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     seconds = len(take) * take.period_us / 1e6
     print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:g} Hz ({seconds:.1f} s, "

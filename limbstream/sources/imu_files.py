@@ -4,7 +4,8 @@ Both give per-sensor raw streams (:class:`SensorStream`, each with its own times
 loader (:func:`load_imu`) that aligns the sensors of a file or folder into one :class:`Motion` of
 segment orientations (:func:`to_body`): each sensor named by its segment (:mod:`.names`), the
 recording's world (Z up) turned onto the skeleton's (Y up), and each sensor calibrated from the
-still rest pose the recording starts with (:func:`limbstream.calibration.calibrate_start`).
+still rest pose the recording starts with (:func:`limbstream.calibration.calibrate_start`), once:
+``Motion.orientations`` tells users (the export, joint angles) whether that was done.
 
 - x-IMU3 sensors have independent, jittered clocks and drop samples. The folder's Motion is
   every sensor SLERP-resampled onto one uniform grid over the time all sensors overlap, at the
