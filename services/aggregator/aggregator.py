@@ -405,6 +405,9 @@ class Aggregator:
         kind = "pose_live" if payload[_POSE_KIND_BYTE] == wire.KIND_LIVE else "pose_exact"
         self._publisher(wire.pose_key(subject), kind).put(payload)
 
+    def _publish_stats(self, subject: str, payload: bytes) -> None:
+        self._publisher(wire.stats_key(subject), "stats").put(payload)
+
     def _publisher(self, key: str, kind: str) -> zenoh.Publisher:
         """The publisher of ``key`` for messages of ``kind`` (zconfig.QOS), declared on first use."""
         pub = self._pubs.get((key, kind))
@@ -412,9 +415,10 @@ class Aggregator:
             pub = self._pubs[key, kind] = self.session.declare_publisher(key, **zconfig.publisher_options(kind))
         return pub
 
-    def advance(self, live: bool, prune: bool = True, now: float | None = None) -> int:
+    def advance(self, live: bool, prune: bool = True, now: float | None = None, wall: float | None = None) -> int:
         """Truth evaluation, exact frames (and live frames) of every subject; returns frames published.
-        ``now``: the arrival clock of the messages (perf_counter), if time went on without any."""
+        ``now``: the arrival clock of the messages (perf_counter), if time went on without any;
+        ``wall``: the publication time of live frames (s since the epoch; default: the clock's)."""
         if now is not None:
             self.fusion.advance_clock(now)
         self.fusion.calibrate_ready()
@@ -424,7 +428,8 @@ class Aggregator:
         for sub, payload in zip(owners, frames.encode()):
             self._publish(sub.name, payload)
         if live:
-            owners, live_frames = self.fusion.live_frames(self.fusion.clock if now is None else now, time.time())
+            owners, live_frames = self.fusion.live_frames(self.fusion.clock if now is None else now,
+                                                            time.time() if wall is None else wall)
             for sub, payload in zip(owners, live_frames.encode()):
                 self._publish(sub.name, payload)
         if prune:
@@ -476,10 +481,11 @@ class Aggregator:
             "facing_deg": self.fusion.facing_deg(sub),
         }
 
-    def publish_stats(self, now: float, part: int = 0, parts: int = 1) -> None:
+    def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop
-        spreads one round over the ticks of a stats period so that no tick carries them all."""
-        wall = time.time()
+        spreads one round over the ticks of a stats period so that no tick carries them all.
+        ``wall``: their send time (s since the epoch; default: the clock's)."""
+        wall = time.time() if wall is None else wall
         for sub in list(self.subjects.values()):
             if sub.index % parts != part:
                 continue
@@ -489,7 +495,7 @@ class Aggregator:
             snapshot["aggregator"] = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {
                 "bad_keys": dict(self.bad_keys)}
             payload = wire.encode_stats(sub.name, wall, devices, snapshot, seq=self.stats_seq[sub.name])
-            self._publisher(wire.stats_key(sub.name), "stats").put(payload)
+            self._publish_stats(sub.name, payload)
             self.stats_seq[sub.name] += 1
         if part == parts - 1:
             self.loop.end_round(now)
