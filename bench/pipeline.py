@@ -284,7 +284,7 @@ def bench_latency(seconds: float, subjects: int, max_len: int, live: bool = Fals
                 else:
                     live_lag.append(time.time() - f.t_us / 1e6)
             while (s := stats.try_recv()) is not None:
-                last_stats = json.loads(s.payload.to_bytes())
+                last_stats = wire.decode_stats(s.payload.to_bytes())
             time.sleep(0.001)  # poll period of this measuring client (1 ms resolution)
         stop_all([emu, agg])
         session.close()

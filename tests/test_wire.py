@@ -171,25 +171,38 @@ def test_pose_frames_encode_as_the_documented_layout():
 SAMPLE_VALUES = {float: 0.5, int: 3, bool: True, str: "s01/hip", dict: {"size": 1}}
 
 
-def test_stats_round_trip_and_null_for_non_finite():
-    device = {f.name: SAMPLE_VALUES[f.type] for f in wire.DEVICE_FIELDS} | {"aad_deg": math.nan}
+def test_stats_round_trip_in_both_forms_and_null_for_non_finite():
+    device = {f.name: SAMPLE_VALUES[f.type] for f in wire.DEVICE_FIELDS} | {"aad_deg": math.nan, "gaps": 2**40}
     loop = {f.name: SAMPLE_VALUES[f.type] for f in wire.AGGREGATOR_FIELDS}
-    data = wire.decode_stats(wire.encode_stats("s01", 1.5, [device], {"frames": 3, "aggregator": loop}, seq=7))
+    other = device | {"online": False, "tracker": None, "sync_bad": None, "max_len": None, "icr": math.inf}
+    args = ("s01", 1.5, [device, other], {"frames": 3, "aggregator": loop})
+    compact, text = wire.encode_stats(*args, seq=7), wire.encode_stats_json(*args, seq=7)
+    assert compact[0] == wire.STATS_VERSION and text[:1] == b"{" and len(compact) < len(text)
+    data = wire.decode_stats(compact)
+    assert data == wire.decode_stats(text) == json.loads(wire.stats_json(compact)), "one message, two forms"
+    assert wire.stats_json(text) == text
     assert data["subject"] == "s01" and data["frames"] == 3 and data["seq"] == 7
-    assert data["devices"][0]["aad_deg"] is None
-    assert data["devices"][0] == {k: v for k, v in device.items() if k != "aad_deg"} | {"aad_deg": None}
+    assert data["devices"][0] == device | {"aad_deg": None}
+    assert data["devices"][1] == other | {"aad_deg": None, "icr": None}
     assert data["aggregator"] == loop
+    assert list(data) == ["subject", "t", "seq", "frames", "devices", "aggregator"]
     assert list(data["devices"][0]) == list(wire.STATS_FIELDS), "device fields in table order"
+    assert [type(v) for v in data["devices"][0].values()] == [type(v) for v in (device | {"aad_deg": None}).values()]
+    empty = wire.decode_stats(wire.encode_stats("s02", 2.0, []))
+    assert empty == {"subject": "s02", "t": 2.0, "seq": 0, "devices": []}
 
 
 def test_stats_fields_are_declared_and_typed():
-    """The encoder refuses a field the table lacks; the decoder a value of the wrong type."""
-    with pytest.raises(ValueError, match="not declared"):
-        wire.encode_stats("s01", 1.0, [{"device": "s01/hip", "speed": 3}])
-    with pytest.raises(ValueError, match="not declared"):
-        wire.encode_stats("s01", 1.0, [], {"aggregator": {"colour": 1}})
-    sparse = json.loads(wire.encode_stats("s01", 1.0, [{"device": "s01/hip"}]))
+    """The encoders refuse a field the table lacks; the decoder a value of the wrong type, and a
+    compact message whose parts do not fit."""
+    for encode in (wire.encode_stats, wire.encode_stats_json):
+        with pytest.raises(ValueError, match="not declared"):
+            encode("s01", 1.0, [{"device": "s01/hip", "speed": 3}])
+        with pytest.raises(ValueError, match="not declared"):
+            encode("s01", 1.0, [], {"aggregator": {"colour": 1}})
+    sparse = json.loads(wire.encode_stats_json("s01", 1.0, [{"device": "s01/hip"}]))
     assert set(sparse["devices"][0]) == set(wire.STATS_FIELDS), "missing device fields are sent as null"
+    assert wire.decode_stats(wire.encode_stats("s01", 1.0, [{"device": "s01/hip"}])) == sparse
     for field in wire.DEVICE_FIELDS:
         wrong = "text" if field.type is not str else 5
         bad = dict(sparse, devices=[sparse["devices"][0] | {field.name: wrong}])
@@ -198,6 +211,12 @@ def test_stats_fields_are_declared_and_typed():
     for bad_seq in ("1", 1.5, True):
         with pytest.raises(wire.WireError):
             wire.decode_stats(json.dumps(sparse | {"seq": bad_seq}).encode())
+    good = wire.encode_stats("s01", 1.0, [{"device": "s01/hip", "points": 3}])
+    column = 12 + int.from_bytes(good[8:12], "little") + 8 * wire.STATS_NUMBERS.index("points")
+    half = good[:column] + struct.pack("<d", 2.5) + good[column + 8:]
+    for bad in (good[:-1], good + b"\0" * 8, good[:11], good[:12] + b"[" + good[13:], half):
+        with pytest.raises(wire.WireError):
+            wire.decode_stats(bad)
 
 
 def test_field_table_is_consistent():
