@@ -9,7 +9,7 @@ import numpy as np
 from limbstream import wire
 from limbstream.sources import SEGMENTS
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
-from limbstream.services.aggregator.fusion import FIRST_FRAME_WAIT_S
+from limbstream.services.aggregator.frames import FIRST_FRAME_WAIT_S
 from limbstream.services.aggregator.track import HISTORY_WAIT_S
 
 T0 = 1_700_000_000_000_000
@@ -121,7 +121,7 @@ def test_truth_before_a_late_joiners_first_point_waits_for_its_history_grace():
     send(agg, SEGMENTS[-1], range(3, 11), now=0.0)
     truth(agg, SEGMENTS[-1], 1, now=0.0)
     agg.advance(live=False, now=0.5)
-    assert not late.dropped and agg.fusion.exact.count[late.slot] == 0, "must wait for the history"
+    assert not late.dropped and agg.fusion.scoring.exact.count[late.slot] == 0, "must wait for the history"
     agg.advance(live=False, now=HISTORY_WAIT_S + 0.01)  # time passes, no message
     assert late.dropped == {"raw_before_first_point": 1}, dict(late.dropped)
 
@@ -137,7 +137,7 @@ def test_history_arriving_after_live_points_completes_the_stream():
     n = agg.fusion.store.n[late.slot]
     assert np.array_equal(agg.fusion.store.t[late.slot, :n], T0 + np.arange(11) * STEP_US), "inserted in order"
     assert late.points == 11 and not late.dropped, dict(late.dropped)
-    assert agg.fusion.exact.count[late.slot] == 1, "the truth sample is judged against the full stream"
+    assert agg.fusion.scoring.exact.count[late.slot] == 1, "the truth sample is judged against the full stream"
 
 
 def test_truth_arriving_before_its_streams_first_point_is_kept_for_it():
@@ -151,7 +151,7 @@ def test_truth_arriving_before_its_streams_first_point_is_kept_for_it():
     send(agg, SEGMENTS[0], range(11), now=0.0)
     agg.advance(live=False, now=0.1)
     assert not track.dropped and not track.held_raw, dict(track.dropped)
-    assert agg.fusion.exact.count[track.slot] == 1, "the early truth sample is judged"
+    assert agg.fusion.scoring.exact.count[track.slot] == 1, "the early truth sample is judged"
 
     restarted = wire.SegmentPoint(2, 0, 0, T0 + 20 * STEP_US, IDENTITY)  # the device rebooted: stream 2
     agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(restarted), 0.2)
@@ -242,7 +242,7 @@ def test_live_frames_stop_extrapolating_a_device_that_went_silent():
     OVERDUE_GRACE_S; later live frames hold it at that point and are flagged MISSING. The horizon
     follows the max_len the device reports."""
     from limbstream import quat
-    from limbstream.services.aggregator.fusion import OVERDUE_GRACE_S
+    from limbstream.services.aggregator.frames import OVERDUE_GRACE_S
 
     agg, sent = spinning_subject()
     spin = SPIN

@@ -4,7 +4,8 @@ per-device statistics.
 
 Zenoh delivers into bounded FIFO channels (its callbacks never run our code); one loop
 drains them, advances the frames of every subject, and publishes. Segment points come
-through an advanced subscriber (history for late joining, recovery of missed points).
+through an advanced subscriber (history for late joining, recovery of missed points); a tick's
+points are decoded together and taken in as one batch.
 """
 from __future__ import annotations
 
@@ -21,8 +22,10 @@ import zenoh.ext as zext
 
 from limbstream import heap, wire, zconfig
 from limbstream.skeleton import Skeleton
+from limbstream.services.aggregator.frames import FrameBatch, FrameStage
 from limbstream.services.aggregator.fusion import Fusion, Subject
-from limbstream.services.aggregator.track import HISTORY_WAIT_S, DeviceTrack
+from limbstream.services.aggregator.history import HistoryQueries
+from limbstream.services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
 STATUSES_PER_TICK = 100
@@ -132,10 +135,14 @@ class Aggregator:
         self._calibrating: list = []  # (query, CalibrationRequest) under way
         self._calibrate_qs: list = []
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
+        self._pose_pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (subject, zconfig.QOS kind)
         self._config_replies: list = []
-        self._history_replies: list = []  # (track, its stream's generation, reply channel)
-        self._history_due: dict = {}      # {track: Zenoh sequence numbers (first, newest) received}
+        self._seg_tracks: dict[str, DeviceTrack] = {}  # by segment point key, once a point came
+        self.history = None if session is None else HistoryQueries(session, self.fusion, settings.history)
+        self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
+        self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
+        self._stats_qs: list = []
         self._time_service = None     # the time service's presence (a querier's matching listener)
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
         self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
@@ -162,6 +169,8 @@ class Aggregator:
                 wire.device_selector("alive", pattern), zenoh.handlers.FifoChannel(1 << 14), history=True))
             self._calibrate_qs.append(self.session.declare_queryable(
                 wire.subject_selector("calibrate", pattern), zenoh.handlers.FifoChannel(256)))
+            self._stats_qs.append(self.session.declare_queryable(  # the stats as JSON, on request
+                wire.subject_selector("stats", pattern), zenoh.handlers.FifoChannel(256)))
         # the time service's return: devices resync at once; their stats should follow
         self._time_querier = self.session.declare_querier(wire.time_key(), allowed_destination=zenoh.Locality.REMOTE)
         self._time_service = self._time_querier.declare_matching_listener(zenoh.handlers.FifoChannel(16))
@@ -171,7 +180,8 @@ class Aggregator:
             with query:
                 query.reply_err("the aggregator is stopping")
         self._calibrating = []
-        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs, self._calibrate_qs):
+        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs, self._calibrate_qs,
+                      self._stats_qs):
             for entity in group:
                 entity.undeclare()
         if self._time_service is not None:
@@ -221,75 +231,34 @@ class Aggregator:
         return track
 
     def on_point(self, key: str, payload: bytes, now: float, sample: zenoh.Sample | None = None) -> None:
-        """A segment point message (decoded, validated, counted); ``sample``: the Zenoh sample
-        that carried it (its source sequence number bounds a history query)."""
-        ids = self._parse_key(key, "seg")
-        if ids is None:
-            return
-        try:
-            point = wire.decode_point(payload)
-        except wire.WireError as exc:
-            self._device(ids, "seg", exc.reason)
-            return
-        track = self._device(ids, "seg", None)
-        if track is not None and self.fusion.add_point(track, point, len(payload), now):
-            self.loop.points += 1
-            if self.session is not None and track.wants_history():
-                info = sample.source_info if sample is not None else None
-                first, _ = self._history_due.get(track, (None, None))
-                sn = None if info is None else info.source_sn
-                self._history_due[track] = (sn if first is None else first, sn)
+        """One segment point message (a drain of one; ``sample``: the Zenoh sample that carried it)."""
+        self.take_points([key], [payload], now, [sample])
 
-    def _ask_history(self) -> None:
-        """Ask the caches of the devices whose streams began, as received in this drain, after
-        their start, for the points before. Zenoh's history for a joining subscriber brings each
-        device's newest ``history`` points before its live ones, but not always (a publisher it
-        found late, or answers late under load), and a subject's frames begin where its devices'
-        streams begin. So the query asks for what is missing of the ``history`` points before
-        the newest one received (Zenoh's sequence numbers: nothing when Zenoh's history came),
-        and its end, an event, settles the stream (tests/test_history.py)."""
-        for track, (first, newest) in self._history_due.items():
-            track.history = "asked"
-            if first == 0:  # its publisher's first sample: nothing before it
-                self.fusion.history_done(track)
+    def take_points(self, keys: list[str], payloads: list[bytes], now: float,
+                    samples: list[zenoh.Sample | None] | None = None) -> None:
+        """The segment point messages of one drain, in arrival order (keys, payloads and the Zenoh
+        samples that carried them: their source sequence numbers bound history queries): decoded
+        together, counted and dropped per device where invalid, the rest taken in as one batch."""
+        points = wire.decode_points(payloads)
+        items = []
+        for i, key in enumerate(keys):
+            track = self._seg_tracks.get(key)
+            reason = points.reason[i]
+            if track is None:  # a key without a point yet: checked, its device found or made
+                ids = self._parse_key(key, "seg")
+                track = None if ids is None else self._device(ids, "seg", reason)
+                if track is None or reason is not None:
+                    continue
+                self._seg_tracks[key] = track
+            elif reason is not None:
+                track.dropped[reason] += 1
                 continue
-            span = None if first is None else (newest - self.settings.history + 1, first - 1)
-            if span is not None and span[0] > span[1]:  # Zenoh's history brought them all
-                self.fusion.history_done(track)
-                continue
-            selector = wire.history_selector(track.subject, track.segment, self.settings.history, span)
-            replies = self.session.get(selector, zenoh.handlers.FifoChannel(max(1024, self.settings.history)),
-                                       accept_replies=zenoh.ReplyKeyExpr.ANY, target=zenoh.QueryTarget.ALL,
-                                       consolidation=zenoh.ConsolidationMode.NONE, timeout=HISTORY_WAIT_S)
-            self._history_replies.append((track, track.generation, replies))
-        self._history_due.clear()
-
-    def _drain_history(self, now: float) -> None:
-        """Take in the earlier points of late-joined streams as their history queries answer;
-        a query that has completed settles its stream."""
-        still_open = []
-        for track, generation, replies in self._history_replies:
-            try:
-                while (reply := replies.try_recv()) is not None:
-                    if reply.ok is not None and track.generation == generation:
-                        self._history_point(track, reply.ok.payload.to_bytes(), now)
-                still_open.append((track, generation, replies))
-            except zenoh.ZError:  # complete and empty
-                if track.generation == generation:
-                    self.fusion.history_done(track)
-        self._history_replies = still_open
-
-    def _history_point(self, track: DeviceTrack, payload: bytes, now: float) -> None:
-        """A point from a device's cache: taken in if it is of the current stream and before
-        its first point received; the rest of the cache is already here (not a drop)."""
-        try:
-            point = wire.decode_point(payload)
-        except wire.WireError as exc:
-            track.dropped[exc.reason] += 1
-            return
-        if (point.stream == track.stream and track.first_seq is not None and point.seq < track.first_seq
-                and self.fusion.add_point(track, point, len(payload), now)):
-            self.loop.points += 1
+            items.append((track, i))
+        taken = None
+        if self.history is not None:
+            def taken(track: DeviceTrack, i: int) -> None:
+                self.history.taken(track, samples[i] if samples else None)
+        self.loop.points += self.fusion.add_points(items, points, now, taken)
 
     def on_raw(self, key: str, payload: bytes, now: float) -> None:
         """A truth-tap batch."""
@@ -334,16 +303,22 @@ class Aggregator:
             while (sample := sub.try_recv()) is not None:
                 self.on_alive(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
                 handled += 1
+        keys, payloads, samples = [], [], []
         for sub in self._seg_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
-                self.on_point(str(sample.key_expr), sample.payload.to_bytes(), now, sample)
+                keys.append(str(sample.key_expr))
+                payloads.append(sample.payload.to_bytes())
+                samples.append(sample)
                 handled += 1
+        if keys:
+            self.take_points(keys, payloads, now, samples)
         for sub in self._raw_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
                 self.on_raw(str(sample.key_expr), sample.payload.to_bytes(), now)
                 handled += 1
-        self._ask_history()
-        self._drain_history(now)
+        if self.history is not None:
+            self.history.ask()
+            self.loop.points += self.history.drain(now)
         for listener in self._misses:
             while (miss := listener.try_recv()) is not None:
                 self.loop.missed += miss.nb
@@ -403,7 +378,10 @@ class Aggregator:
     def _publish(self, subject: str, payload: bytes) -> None:
         """An encoded pose frame of ``subject``: exact and live frames share the key, not the QoS."""
         kind = "pose_live" if payload[_POSE_KIND_BYTE] == wire.KIND_LIVE else "pose_exact"
-        self._publisher(wire.pose_key(subject), kind).put(payload)
+        pub = self._pose_pubs.get((subject, kind))
+        if pub is None:
+            pub = self._pose_pubs[subject, kind] = self._publisher(wire.pose_key(subject), kind)
+        pub.put(payload)
 
     def _publish_stats(self, subject: str, payload: bytes) -> None:
         self._publisher(wire.stats_key(subject), "stats").put(payload)
@@ -421,21 +399,22 @@ class Aggregator:
         ``wall``: the publication time of live frames (s since the epoch; default: the clock's)."""
         if now is not None:
             self.fusion.advance_clock(now)
-        self.fusion.calibrate_ready()
-        self.fusion.evaluate_truth()
-        owners, frames = self.fusion.exact_frames()
-        self.fusion.evaluate_frames()
-        for sub, payload in zip(owners, frames.encode()):
-            self._publish(sub.name, payload)
-        if live:
-            owners, live_frames = self.fusion.live_frames(self.fusion.clock if now is None else now,
-                                                            time.time() if wall is None else wall)
-            for sub, payload in zip(owners, live_frames.encode()):
-                self._publish(sub.name, payload)
+        batch = self.fusion.tick(live, now, time.time() if wall is None else wall)
+        self._publish_frames(batch)
         if prune:
             self.fusion.prune()
-        self.loop.frames += len(frames)
-        return len(frames)
+        self.loop.frames += len(batch.exact)
+        return len(batch.exact)
+
+    def _publish_frames(self, batch: FrameBatch) -> None:
+        """A tick's frames, per subject exact ones first, and what the frame stages make of them."""
+        for stage in self.frame_stages:
+            for key, kind, payload in stage(batch):
+                self._publisher(key, kind).put(payload)
+        names = list(self.subjects)
+        for frames, owner in ((batch.exact, batch.exact_owner), (batch.live, batch.live_owner)):
+            for i, payload in zip(owner.tolist(), frames.encode()):
+                self._publish(names[i], payload)
 
     def serve_calibrations(self) -> None:
         """Take calibration requests in; answer those whose pose hold is complete (each tick)."""
@@ -469,16 +448,19 @@ class Aggregator:
             query.reply(query.key_expr, wire.encode_calibrate_answer(answer))
 
     def subject_stats(self, subject: str, now: float) -> dict:
+        """The figures of a subject's stats message: ``devices`` (its device entries) and the
+        subject fields."""
         sub = self.subjects[subject]
-        frame_aad, frames_compared = self.fusion.frame_error(sub)
+        frame_aad, frames_compared = self.fusion.scoring.frame_error(sub.index)
+        made, skipped = self.fusion.frame_counts(sub)
         return {
             "devices": self.fusion.device_stats(sub, now),
-            "frames": sub.frames,
-            "skipped_frames": sub.skipped,
+            "frames": made,
+            "skipped_frames": skipped,
             "watermark_us": self.fusion.watermark(sub),
             "frame_aad_deg": frame_aad,
             "frame_error_frames": frames_compared,
-            "facing_deg": self.fusion.facing_deg(sub),
+            "facing_deg": self.fusion.scoring.facing_deg(sub.index),
         }
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
@@ -486,19 +468,29 @@ class Aggregator:
         spreads one round over the ticks of a stats period so that no tick carries them all.
         ``wall``: their send time (s since the epoch; default: the clock's)."""
         wall = time.time() if wall is None else wall
-        for sub in list(self.subjects.values()):
-            if sub.index % parts != part:
-                continue
+        # load / soak figures (bench/soak.py) and messages no device could be charged with
+        loop = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
+        for sub in list(self.subjects.values())[part::parts]:
             snapshot = self.subject_stats(sub.name, now)
             devices = snapshot.pop("devices")
-            # load / soak figures (bench/soak.py) and messages no device could be charged with
-            snapshot["aggregator"] = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {
-                "bad_keys": dict(self.bad_keys)}
+            snapshot["aggregator"] = loop
             payload = wire.encode_stats(sub.name, wall, devices, snapshot, seq=self.stats_seq[sub.name])
             self._publish_stats(sub.name, payload)
+            self._last_stats[sub.name] = payload
             self.stats_seq[sub.name] += 1
         if part == parts - 1:
             self.loop.end_round(now)
+
+    def serve_stats_queries(self) -> None:
+        """Answer queries of stats keys with the newest stats message of each subject they match,
+        as JSON (wire.stats_json: the form for clients that ask for it)."""
+        for queryable in self._stats_qs:
+            while (query := queryable.try_recv()) is not None:
+                with query:
+                    for subject, payload in self._last_stats.items():
+                        key = wire.stats_key(subject)
+                        if query.key_expr.intersects(zenoh.KeyExpr(key)):
+                            query.reply(key, wire.stats_json(payload))
 
     # ------------------------------------------------------------------ loop
 
@@ -534,6 +526,7 @@ class Aggregator:
                     next_prune = now + 0.5 if prune else next_prune
                 self.publish_stats(now, k % stats_parts, stats_parts)
                 self.serve_calibrations()
+                self.serve_stats_queries()
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s

@@ -3,7 +3,8 @@ devices instead of a few per device (200 subjects x 10 IMUs in real time).
 
 - :class:`PointStore`: the segment points of every device, one row per device slot.
 - :class:`TruthQueue`: truth-tap samples waiting until their reconstruction is final.
-- :class:`ErrorRings`: per-device windows of angular errors (exact and live).
+
+(The windows of figures per device: :mod:`.rings`.)
 """
 from __future__ import annotations
 
@@ -64,6 +65,32 @@ class PointStore:
         self.n[slot] = k + 1
         return forgotten
 
+    def append_many(self, slots: np.ndarray, t_us: np.ndarray, q: np.ndarray, w: np.ndarray) -> dict[int, int]:
+        """Add the points of many rows at once, as :meth:`append` one by one in the given order:
+        rows ``slots`` (P,), times (P,) increasing within a row and after its newest point,
+        orientations ``q`` (P, 4) and body rates ``w`` (P, 3) rad/s. Returns {slot: points
+        forgotten to make room} of the rows that had to forget some."""
+        order = np.argsort(slots, kind="stable")
+        s = slots[order]
+        starts = np.flatnonzero(np.r_[True, s[1:] != s[:-1]])
+        counts = np.diff(np.r_[starts, len(s)])
+        rows = s[starts]
+        full = self.n[rows] + counts > self.cap
+        forgotten = {}
+        for slot in rows[full]:  # consumers stalled: these rows forget points on the way, one by one
+            mine = np.flatnonzero(slots == slot)
+            forgotten[int(slot)] = sum(self.append(slot, t_us[i], q[i], w[i]) for i in mine)
+        if full.any():
+            keep = ~np.isin(s, rows[full])
+            order, s = order[keep], s[keep]
+            rows, counts = rows[~full], counts[~full]
+        position = self.n[s] + np.arange(len(s)) - np.repeat(np.cumsum(counts) - counts, counts)
+        self.t[s, position] = t_us[order]
+        self.q[s, position] = q[order]
+        self.w[s, position] = w[order]
+        self.n[rows] += counts
+        return {slot: n for slot, n in forgotten.items() if n}
+
     def extend(self, slot: int, t_us: np.ndarray, q: np.ndarray) -> int:
         """Add points (times increasing, after the row's newest) in one go; returns how many old
         points were forgotten to make room (the oldest half of the row, as often as needed)."""
@@ -122,25 +149,31 @@ class PointStore:
         return int(self.t[slot, 0]) if self.n[slot] else None
 
     def locate(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-        """(Q,) index of the last point at or before each query time in its row (-1: none)."""
-        if len(slots) == 0:
-            return np.zeros(0, np.int64)
+        """(Q,) index of the last point at or before each query time in its row (-1: none); a
+        binary search of all rows at once."""
         n = self.n[slots]
-        width = max(int(n.max()), 1)
-        rows = self.t[slots, :width]
-        valid = np.arange(width)[None, :] < n[:, None]
-        return np.sum((rows <= t_us[:, None]) & valid, axis=1) - 1
+        lo, hi = np.zeros(len(slots), np.int64), n.copy()
+        flat, base = self.t.reshape(-1), slots * self.cap
+        for _ in range(int(n.max(initial=0)).bit_length()):
+            mid = (lo + hi) >> 1
+            go = (mid < hi) & (flat[base + np.minimum(mid, self.cap - 1)] <= t_us)
+            lo = np.where(go, mid + 1, lo)
+            hi = np.where(go, hi, mid)
+        return lo - 1
 
     def interpolate(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """(Q, 4) float64 SLERP reconstruction of row ``slots[i]`` at ``t_us[i]``; held before the
         first and after the last point; identity for an empty row."""
         out = np.tile(IDENTITY, (len(slots), 1))
         have = self.n[slots] > 0
-        slots, t_us = slots[have], t_us[have]
-        if len(slots) == 0:
-            return out
+        if have.any():
+            out[have] = self._slerp(slots[have], t_us[have], self.locate(slots[have], t_us[have]))
+        return out
+
+    def _slerp(self, slots: np.ndarray, t_us: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """SLERP between the points around each time of non-empty rows (``k``: :meth:`locate`)."""
         n = self.n[slots]
-        k = np.clip(self.locate(slots, t_us), 0, np.maximum(n - 2, 0))
+        k = np.clip(k, 0, np.maximum(n - 2, 0))
         k1 = np.minimum(k + 1, n - 1)
         t0, t1 = self.t[slots, k], self.t[slots, k1]
         span = (t1 - t0).astype(np.float64)
@@ -149,32 +182,48 @@ class PointStore:
         q1 = self.q[slots, k1].astype(np.float64)
         q0 /= np.linalg.norm(q0, axis=1, keepdims=True)
         q1 /= np.linalg.norm(q1, axis=1, keepdims=True)
-        out[have] = quat.slerp(q0, q1, u)
-        return out
+        return quat.slerp(q0, q1, u)
 
-    def predicted(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+    def _predict(self, slots: np.ndarray, t_us: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Point ``k`` of each row extrapolated with its rate to each time (quat.predict)."""
+        dt = (t_us - self.t[slots, k]) / 1e6
+        return quat.predict(self.q[slots, k].astype(np.float64), self.w[slots, k].astype(np.float64), dt)
+
+    def predicted(self, slots: np.ndarray, t_us: np.ndarray, k: np.ndarray | None = None) -> np.ndarray:
         """(Q, 4) float64: what a receiver knowing only the points of row ``slots[i]`` at or before
         ``t_us[i]`` shows then: the newest of them extrapolated with its rate
         (:func:`limbstream.quat.predict`, the prediction the device's live rule bounds; rate 0
-        holds it); identity for a row without such a point."""
+        holds it); identity for a row without such a point. ``k``: :meth:`locate`, if known."""
         out = np.tile(IDENTITY, (len(slots), 1))
-        k = self.locate(slots, t_us)
+        k = self.locate(slots, t_us) if k is None else k
         have = k >= 0
-        s, j = slots[have], k[have]
-        if len(s):
-            dt = (t_us[have] - self.t[s, j]) / 1e6
-            out[have] = quat.predict(self.q[s, j].astype(np.float64), self.w[s, j].astype(np.float64), dt)
+        if have.any():
+            out[have] = self._predict(slots[have], t_us[have], k[have])
         return out
 
-    def live(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-        """(Q, 4) float64 live view of row ``slots[i]`` at ``t_us[i]``: SLERP between points where
-        a point at or after the time is known (exact), else :meth:`predicted` from the newest point."""
+    def exact_and_predicted(self, slots: np.ndarray, t_us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`interpolate`, :meth:`predicted`) at the same times, each (Q, 4), one search."""
+        k = self.locate(slots, t_us)
+        exact = np.tile(IDENTITY, (len(slots), 1))
+        have = self.n[slots] > 0
+        if have.any():
+            exact[have] = self._slerp(slots[have], t_us[have], k[have])
+        return exact, self.predicted(slots, t_us, k)
+
+    def reconstruct(self, slots: np.ndarray, t_us: np.ndarray, live: np.ndarray) -> np.ndarray:
+        """(Q, 4) float64 orientation of row ``slots[i]`` at ``t_us[i]`` in a frame: exact
+        (:meth:`interpolate`) where ``live[i]`` is False or a point at or after the time is known,
+        else the live view: the newest point extrapolated with its rate (:meth:`predicted`)."""
+        out = np.tile(IDENTITY, (len(slots), 1))
         n = self.n[slots]
-        last = self.t[slots, np.maximum(n - 1, 0)]
-        inside = (n > 0) & (t_us <= last)
-        out = self.predicted(slots, t_us)
+        newest = np.maximum(n - 1, 0)
+        ahead = live & (n > 0) & (t_us > self.t[slots, newest])
+        inside = (n > 0) & ~ahead
         if inside.any():
-            out[inside] = self.interpolate(slots[inside], t_us[inside])
+            s, t = slots[inside], t_us[inside]
+            out[inside] = self._slerp(s, t, self.locate(s, t))
+        if ahead.any():
+            out[ahead] = self._predict(slots[ahead], t_us[ahead], newest[ahead])
         return out
 
     def held(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
@@ -242,59 +291,3 @@ class TruthQueue:
         for slot, _, t, _ in self._incoming:
             out[slot] = min(out[slot], int(t[0]))
         return out
-
-
-class ErrorRings:
-    """Per-slot ring windows of angular errors in degrees, and totals since the stream began.
-    A row holds ``min(count, window)`` values (the first ones until it wraps); rows that never
-    held a value stay untouched zero pages (no memory resident for a window nobody fills)."""
-
-    def __init__(self, window: int, slots: int = 64):
-        self.window = window
-        self.values = np.zeros((slots, window), np.float32)
-        self.count = np.zeros(slots, np.int64)
-        self.total = np.zeros(slots, np.float64)
-
-    def ensure(self, slots: int) -> None:
-        if slots > len(self.count):
-            grow = max(slots - len(self.count), len(self.count))
-            values = np.zeros((len(self.count) + grow, self.window), np.float32)
-            used = np.flatnonzero(self.count > 0)
-            values[used] = self.values[used]
-            self.values = values
-            self.count = np.concatenate([self.count, np.zeros(grow, np.int64)])
-            self.total = np.concatenate([self.total, np.zeros(grow)])
-
-    def reset(self, slot: int) -> None:
-        self.count[slot] = 0
-        self.total[slot] = 0.0
-
-    def add(self, slots: np.ndarray, errors: np.ndarray) -> None:
-        """Append errors (E,) of rows slots (E,), in order within each row."""
-        if len(slots) == 0:
-            return
-        order = np.argsort(slots, kind="stable")
-        slots, errors = slots[order], errors[order]
-        starts = np.flatnonzero(np.r_[True, slots[1:] != slots[:-1]])
-        rank = np.arange(len(slots)) - np.repeat(starts, np.diff(np.r_[starts, len(slots)]))
-        self.values[slots, (self.count[slots] + rank) % self.window] = errors
-        np.add.at(self.count, slots, 1)
-        np.add.at(self.total, slots, errors)
-
-    def summary(self, slots: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:
-        """(mean, max, *quantiles) over each row's window, each (slots,), NaN for empty rows; a
-        quantile ``p`` (0..1) is the lower order statistic. One sort of the rows that hold values
-        gives all of them; empty rows (truth tap or live frames off) cost nothing."""
-        n = np.minimum(self.count[slots], self.window)
-        out = np.full((2 + len(quantiles), len(slots)), np.nan)
-        rows = np.flatnonzero(n > 0)
-        if len(rows):
-            k, r = n[rows], np.arange(len(rows))
-            v = self.values[slots[rows]]
-            v[np.arange(self.window) >= k[:, None]] = np.nan  # unused: sorts last
-            v.sort(axis=1)
-            out[0, rows] = np.nansum(v, axis=1) / k
-            out[1, rows] = v[r, k - 1]
-            for i, p in enumerate(quantiles):
-                out[2 + i, rows] = v[r, np.floor(p * (k - 1)).astype(np.int64)]
-        return tuple(out)

@@ -10,6 +10,8 @@ import collections
 import math
 from collections.abc import Callable
 
+import numpy as np
+
 from limbstream import wire
 
 HISTORY_WAIT_S = 5.0
@@ -90,48 +92,49 @@ class DeviceTrack:
         self.reset_stream()
         return "new"
 
-    def accept_point(self, p: wire.SegmentPoint, nbytes: int, now: float,
+    def accept_point(self, seq: int, index: int, t_us: int, flags: int, nbytes: int, now: float,
                      stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
-        """Sequence and time checks of a point of the current stream. Returns "append" (newest
-        point), "insert" (an earlier point of the stream's start arriving late, e.g. history),
-        "final" (the newest point repeated with FINAL: the stream ends, no new point), or None
-        when it is dropped (counted by reason). ``stored(t_us)``: a point with that
-        time is already kept."""
-        if not 0 <= p.t_us < MAX_T_US:
+        """Sequence and time checks of a point of the current stream (sequence number ``seq``,
+        sample ``index``, device time ``t_us`` us, ``flags``, ``nbytes`` on the wire, arrived at
+        ``now``). Returns "append" (newest point), "insert" (an earlier point of the stream's
+        start arriving late, e.g. history), "final" (the newest point repeated with FINAL: the
+        stream ends, no new point), or None when it is dropped (counted by reason).
+        ``stored(t_us)``: a point with that time is already kept."""
+        if not 0 <= t_us < MAX_T_US:
             self.dropped["time_range"] += 1
             return None
-        if self.next_seq is not None and p.seq < self.next_seq:
-            if (p.seq < self.first_seq and p.seq not in self.early and p.t_us < self.first_t_us
-                    and not self.settled(now) and not stored(p.t_us)):
-                self.early.add(p.seq)
-                self._count(p, nbytes, now)
+        if self.next_seq is not None and seq < self.next_seq:
+            if (seq < self.first_seq and seq not in self.early and t_us < self.first_t_us
+                    and not self.settled(now) and not stored(t_us)):
+                self.early.add(seq)
+                self._count(t_us, nbytes, now)
                 return "insert"
             self.dropped["duplicate"] += 1
             return None
-        if (p.flags & wire.FLAG_FINAL and p.seq == self.next_seq and p.t_us == self.last_t_us
-                and p.index == self.last_index):  # the newest point repeated as the stream's end marker
-            self.next_seq, self.final = p.seq + 1, True
-            self._count(p, nbytes, now)
+        if (flags & wire.FLAG_FINAL and seq == self.next_seq and t_us == self.last_t_us
+                and index == self.last_index):  # the newest point repeated as the stream's end marker
+            self.next_seq, self.final = seq + 1, True
+            self._count(t_us, nbytes, now)
             self.points -= 1
             return "final"
-        if self.last_t_us is not None and (p.t_us <= self.last_t_us or p.index <= self.last_index):
+        if self.last_t_us is not None and (t_us <= self.last_t_us or index <= self.last_index):
             self.dropped["time_backwards"] += 1
             return None
         if self.next_seq is None:
-            self.first_seq, self.first_arrival, self.first_t_us = p.seq, now, p.t_us
-        elif p.seq > self.next_seq:
-            self.gaps += p.seq - self.next_seq
-            self.gap_spans.append((self.last_t_us, p.t_us))
-        self.next_seq = p.seq + 1
-        self.last_t_us, self.last_index = p.t_us, p.index
-        self.final = bool(p.flags & wire.FLAG_FINAL)
-        self._count(p, nbytes, now)
+            self.first_seq, self.first_arrival, self.first_t_us = seq, now, t_us
+        elif seq > self.next_seq:
+            self.gaps += seq - self.next_seq
+            self.gap_spans.append((self.last_t_us, t_us))
+        self.next_seq = seq + 1
+        self.last_t_us, self.last_index = t_us, index
+        self.final = bool(flags & wire.FLAG_FINAL)
+        self._count(t_us, nbytes, now)
         return "append"
 
-    def _count(self, p: wire.SegmentPoint, nbytes: int, now: float) -> None:
+    def _count(self, t_us: int, nbytes: int, now: float) -> None:
         self.points += 1
         self.arrivals.append((now, nbytes))
-        self.see(p.t_us, now)
+        self.see(t_us, now)
 
     def settled(self, now: float) -> bool:
         """True once the stream's start is complete (from sequence number 0), its history query
@@ -184,40 +187,37 @@ class DeviceTrack:
         if self.latest_t_us is None or t_us >= self.latest_t_us:
             self.latest_t_us, self.latest_arrival = t_us, now
 
-    def in_gap(self, t_us) -> list[bool]:
-        """Per time: inside a span whose points were lost."""
-        return [any(t0 < t < t1 for t0, t1 in self.gap_spans) for t in t_us]
+    def in_gap(self, t_us: np.ndarray) -> np.ndarray:
+        """(F,) bool: each time (F,) us inside a span whose points were lost."""
+        spans = np.array(self.gap_spans, np.int64).reshape(-1, 2)
+        return ((t_us[:, None] > spans[:, 0]) & (t_us[:, None] < spans[:, 1])).any(axis=1)
 
-    def stats(self, now: float, errors: tuple[float, float, float, float, float, int],
-              live_view: dict | None = None) -> dict:
-        """The device entry of a stats message (the device fields of limbstream.wire.fields).
-
-        ``errors``: (aad, p99, max, live mean, aad since the stream began, samples compared);
-        ``live_view``: the live-view figures (live_p50_deg ... live_latency_p99_ms).
-        """
+    def stats(self, now: float, figures: dict) -> dict:
+        """The device entry of a stats message (the device fields of limbstream.wire.fields):
+        the track's own, and ``figures``: those computed elsewhere (error windows, live view,
+        calibration), by field name."""
         while self.arrivals and self.arrivals[0][0] < now - RATE_WINDOW_S:
             self.arrivals.popleft()
         span = RATE_WINDOW_S
         if self.arrivals and self.points == len(self.arrivals):  # stream younger than the window
             span = max(now - self.arrivals[0][0], 1.0)
         samples = max(self.last_index, self.last_raw_index) + 1
-        aad, p99, mx, live, aad_all, compared = errors
         lag = math.nan
         if self.latest_t_us is not None and self.last_t_us is not None:
             device_now = self.latest_t_us + (now - self.latest_arrival) * 1e6
             lag = 0.0 if self.final else max(0.0, (device_now - self.last_t_us) / 1e6)
+        config, clock, link = self.config, self.clock, self.link
         return {
             "device": self.id, "segment": self.segment, "subject": self.subject, "online": self.online,
             "samples": samples, "points": self.points,
             "icr": self.points / samples if samples > 0 else math.nan,
             "msgs_per_s": len(self.arrivals) / span,
             "bytes_per_s": sum(b for _, b in self.arrivals) / span,
-            "aad_deg": aad, "p99_deg": p99, "max_deg": mx, "live_err_deg": live,
-            "aad_all_deg": aad_all, "error_samples": compared, **(live_view or {}),
+            **figures,
             "watermark_lag_s": lag, "gaps": self.gaps, "dropped": sum(self.dropped.values()),
             "dropped_by_reason": dict(self.dropped),
-            **{name: getattr(self.config, name, None) for name in wire.TUNABLES},
+            **{name: getattr(config, name, None) for name in wire.TUNABLES},
             "stream": self.stream, "restarts": self.restarts, "final": self.final,
-            **(self.clock.as_dict() if self.clock is not None else {}),
-            **(self.link.as_dict() if self.link is not None else {}),
+            **(clock.as_dict() if clock is not None else {}),
+            **(link.as_dict() if link is not None else {}),
         }
