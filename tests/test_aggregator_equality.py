@@ -192,15 +192,14 @@ def feed_reference(agg: ReferenceAggregator, messages: list[tuple], now: float) 
 
 
 def feed(agg: Aggregator, messages: list[tuple], now: float) -> None:
-    """A tick's messages as a drain takes them: the segment points as one batch."""
+    """A tick's messages as a drain takes them: the segment points as one batch, the truth
+    batches as another."""
     for kind in DRAIN_ORDER:
         mine = [m for m in messages if m[0] == kind]
-        if kind == "seg" and mine:
-            agg.take_points([m[1] for m in mine], [m[2] for m in mine], now)
-        for _, key, value in mine if kind != "seg" else ():
-            if kind == "raw":
-                agg.on_raw(key, value, now)
-            elif kind == "alive":
+        if kind in ("seg", "raw") and mine:
+            (agg.take_points if kind == "seg" else agg.take_raw)([m[1] for m in mine], [m[2] for m in mine], now)
+        for _, key, value in mine if kind in ("alive", "config") else ():
+            if kind == "alive":
                 agg.on_alive(key, value)
             else:
                 agg.on_config(key, value)

@@ -173,7 +173,7 @@ def test_offline_device_does_not_hold_frames_back_and_they_are_flagged():
     later = exact(sent)[before:]
     assert [f.t_us - T0 for f in later] == list(range(520_000, 1_000_001, 20_000))
     assert all(f.flags & wire.FRAME_MISSING for f in later), "the held segment is flagged"
-    stats = {d["segment"]: d for d in agg.fusion.device_stats(agg.subjects["s01"], 0.1)}
+    stats = {d["segment"]: d for d in agg.fusion.device_stats([agg.subjects["s01"]], 0.1)[0]}
     assert stats[SEGMENTS[0]]["online"] is False and stats[SEGMENTS[1]]["online"] is True
 
 
@@ -228,7 +228,7 @@ def test_live_frames_extrapolate_open_segments_with_the_point_rate():
     for segment in SEGMENTS:  # later points make the truth final, and the segment before them exact
         send(agg, segment, range(1, 3), now=0.2)
     agg.advance(live=True, now=0.2)
-    stats = {d["segment"]: d for d in agg.fusion.device_stats(agg.subjects["s01"], 0.2)}
+    stats = {d["segment"]: d for d in agg.fusion.device_stats([agg.subjects["s01"]], 0.2)[0]}
     assert stats[SEGMENTS[0]]["live_max_deg"] < 1e-3, stats[SEGMENTS[0]]
     assert abs(stats[SEGMENTS[1]]["live_p50_deg"] - 5.7248) < 0.01, "held: the 0.1 rad turn"
     assert stats[SEGMENTS[1]]["live_err_deg"] == stats[SEGMENTS[1]]["live_p99_deg"] == stats[SEGMENTS[1]]["live_max_deg"]

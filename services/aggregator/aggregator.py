@@ -138,6 +138,7 @@ class Aggregator:
         self._pose_pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (subject, zconfig.QOS kind)
         self._config_replies: list = []
         self._seg_tracks: dict[str, DeviceTrack] = {}  # by segment point key, once a point came
+        self._raw_tracks: dict[str, DeviceTrack] = {}  # by truth-tap key, once a batch came
         self.history = None if session is None else HistoryQueries(session, self.fusion, settings.history)
         self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
         self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
@@ -240,20 +241,7 @@ class Aggregator:
         samples that carried them: their source sequence numbers bound history queries): decoded
         together, counted and dropped per device where invalid, the rest taken in as one batch."""
         points = wire.decode_points(payloads)
-        items = []
-        for i, key in enumerate(keys):
-            track = self._seg_tracks.get(key)
-            reason = points.reason[i]
-            if track is None:  # a key without a point yet: checked, its device found or made
-                ids = self._parse_key(key, "seg")
-                track = None if ids is None else self._device(ids, "seg", reason)
-                if track is None or reason is not None:
-                    continue
-                self._seg_tracks[key] = track
-            elif reason is not None:
-                track.dropped[reason] += 1
-                continue
-            items.append((track, i))
+        items = self._items(keys, points.reason, "seg", self._seg_tracks)
         taken = None
         if self.history is not None:
             def taken(track: DeviceTrack, i: int) -> None:
@@ -261,18 +249,35 @@ class Aggregator:
         self.loop.points += self.fusion.add_points(items, points, now, taken)
 
     def on_raw(self, key: str, payload: bytes, now: float) -> None:
-        """A truth-tap batch."""
-        ids = self._parse_key(key, "raw")
-        if ids is None:
-            return
-        try:
-            batch = wire.decode_raw(payload)
-        except wire.WireError as exc:
-            self._device(ids, "raw", exc.reason)
-            return
-        track = self._device(ids, "raw", None)
-        if track is not None and self.fusion.add_raw(track, batch, now):
-            self.loop.raw_batches += 1
+        """One truth-tap message (a drain of one)."""
+        self.take_raw([key], [payload], now)
+
+    def take_raw(self, keys: list[str], payloads: list[bytes], now: float) -> None:
+        """The truth-tap messages of one drain, in arrival order: decoded together, counted and
+        dropped per device where invalid, the rest taken in as one batch."""
+        batches = wire.decode_raws(payloads)
+        items = self._items(keys, batches.reason, "raw", self._raw_tracks)
+        self.loop.raw_batches += self.fusion.add_raws(items, batches, now)
+
+    def _items(self, keys: list[str], reasons: list, kind: str, known: dict[str, DeviceTrack]) -> list:
+        """(track, row) of each message of ``kind`` (``seg``, ``raw``) that decoded (``reasons[row]``
+        None), in order; an undecodable one is counted against its device, a key never seen is
+        checked and its device found or made (``known``: tracks by key, kept)."""
+        items = []
+        for i, key in enumerate(keys):
+            track = known.get(key)
+            reason = reasons[i]
+            if track is None:
+                ids = self._parse_key(key, kind)
+                track = None if ids is None else self._device(ids, kind, reason)
+                if track is None or reason is not None:
+                    continue
+                known[key] = track
+            elif reason is not None:
+                track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
+                continue
+            items.append((track, i))
+        return items
 
     def on_alive(self, key: str, online: bool) -> None:
         ids = self._parse_key(key, "alive")
@@ -312,10 +317,14 @@ class Aggregator:
                 handled += 1
         if keys:
             self.take_points(keys, payloads, now, samples)
+        keys, payloads = [], []
         for sub in self._raw_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
-                self.on_raw(str(sample.key_expr), sample.payload.to_bytes(), now)
+                keys.append(str(sample.key_expr))
+                payloads.append(sample.payload.to_bytes())
                 handled += 1
+        if keys:
+            self.take_raw(keys, payloads, now)
         if self.history is not None:
             self.history.ask()
             self.loop.points += self.history.drain(now)
@@ -450,18 +459,24 @@ class Aggregator:
     def subject_stats(self, subject: str, now: float) -> dict:
         """The figures of a subject's stats message: ``devices`` (its device entries) and the
         subject fields."""
-        sub = self.subjects[subject]
-        frame_aad, frames_compared = self.fusion.scoring.frame_error(sub.index)
-        made, skipped = self.fusion.frame_counts(sub)
-        return {
-            "devices": self.fusion.device_stats(sub, now),
-            "frames": made,
-            "skipped_frames": skipped,
-            "watermark_us": self.fusion.watermark(sub),
-            "frame_aad_deg": frame_aad,
-            "frame_error_frames": frames_compared,
-            "facing_deg": self.fusion.scoring.facing_deg(sub.index),
-        }
+        return self._subject_stats([self.subjects[subject]], now)[0]
+
+    def _subject_stats(self, subjects: list[Subject], now: float) -> list[dict]:
+        """:meth:`subject_stats` of several subjects, their device figures computed together."""
+        out = []
+        for sub, devices in zip(subjects, self.fusion.device_stats(subjects, now)):
+            frame_aad, frames_compared = self.fusion.scoring.frame_error(sub.index)
+            made, skipped = self.fusion.frame_counts(sub)
+            out.append({
+                "devices": devices,
+                "frames": made,
+                "skipped_frames": skipped,
+                "watermark_us": self.fusion.watermark(sub),
+                "frame_aad_deg": frame_aad,
+                "frame_error_frames": frames_compared,
+                "facing_deg": self.fusion.scoring.facing_deg(sub.index),
+            })
+        return out
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop
@@ -470,8 +485,8 @@ class Aggregator:
         wall = time.time() if wall is None else wall
         # load / soak figures (bench/soak.py) and messages no device could be charged with
         loop = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
-        for sub in list(self.subjects.values())[part::parts]:
-            snapshot = self.subject_stats(sub.name, now)
+        subjects = list(self.subjects.values())[part::parts]
+        for sub, snapshot in zip(subjects, self._subject_stats(subjects, now)):
             devices = snapshot.pop("devices")
             snapshot["aggregator"] = loop
             payload = wire.encode_stats(sub.name, wall, devices, snapshot, seq=self.stats_seq[sub.name])
@@ -549,6 +564,6 @@ def snapshot(aggregator: Aggregator) -> dict:
     """{device id: stats} of every device, taken under the aggregator's lock (tests and tools)."""
     now = time.perf_counter()
     with aggregator.lock:
-        return {d["device"]: d for sub in aggregator.subjects.values()
-                for d in aggregator.fusion.device_stats(sub, now)}
+        return {d["device"]: d for devices in aggregator.fusion.device_stats(list(aggregator.subjects.values()), now)
+                for d in devices}
 

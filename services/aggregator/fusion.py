@@ -199,15 +199,46 @@ class Fusion:
         """A decoded truth-tap batch; False if dropped (counted) or held until the first point of
         its stream arrives."""
         self.advance_clock(now)
-        if not track.accept_raw(batch, now):
+        if not self._accept_raw(track, batch.stream, batch.first_index, len(batch.t_us), int(batch.t_us[0]),
+                                int(batch.t_us[-1]), now, lambda: batch):
             return False
-        slot = track.slot
-        self.table.last_raw_t[slot] = track.last_raw_t_us
-        self.table.latest_t[slot] = track.latest_t_us
-        self.table.latest_arrival[slot] = track.latest_arrival
-        if self.calibrating.compares(slot):  # readings of a device being calibrated are not the segment's
-            self.scoring.take_truth(slot, track.generation, batch)
+        if self.calibrating.compares(track.slot):  # readings of a device being calibrated are not the segment's
+            self.scoring.take_truth(track.slot, batch)
         return True
+
+    def add_raws(self, items: list[tuple[DeviceTrack, int]], batches: wire.RawColumns, now: float) -> int:
+        """The valid truth-tap batches of one drain, in arrival order: (track, row of ``batches``)
+        each; returns how many were taken in."""
+        self.advance_clock(now)
+        stream, first, count, start = (batches.stream.tolist(), batches.first_index.tolist(), batches.count.tolist(),
+                                       batches.start.tolist())
+        t_us = batches.t_us
+        slots, rows, taken = [], [], 0
+        for track, i in items:
+            t_first, t_last = int(t_us[start[i]]), int(t_us[start[i] + count[i] - 1])
+            if self._accept_raw(track, stream[i], first[i], count[i], t_first, t_last, now, lambda i=i: batches.batch(i)):
+                taken += 1
+                if self.calibrating.compares(track.slot):  # readings of a device being calibrated are not the segment's
+                    slots.append(track.slot)
+                    rows.append(i)
+        if rows:
+            self.scoring.take_truths(np.array(slots, np.int64), batches, np.array(rows, np.int64))
+        return taken
+
+    def _accept_raw(self, track: DeviceTrack, stream: int, first_index: int, count: int, t_first: int, t_last: int,
+                    now: float, batch: Callable[[], wire.RawBatch]) -> bool:
+        """A truth batch's checks (DeviceTrack.accept_raw): True if it is taken; a batch of a
+        stream to come (``batch()``) is held."""
+        taken = track.accept_raw(stream, first_index, count, t_first, t_last, now)
+        if taken is None:
+            track.hold_raw(batch())
+            return False
+        if taken:
+            slot = track.slot
+            self.table.last_raw_t[slot] = track.last_raw_t_us
+            self.table.latest_t[slot] = track.latest_t_us
+            self.table.latest_arrival[slot] = track.latest_arrival
+        return taken
 
     def advance_clock(self, now: float) -> None:
         """Advance the arrival clock; devices still in their history grace period may settle."""
@@ -270,7 +301,7 @@ class Fusion:
 
     def evaluate_truth(self) -> None:
         """Score the truth samples whose reconstruction became final (counting those dropped)."""
-        overflow, early = self.scoring.evaluate_truth(self.device_view().usable_t, self.table.generation)
+        overflow, early = self.scoring.evaluate_truth(self.device_view().usable_t)
         for slot in overflow:
             self.tracks[slot].dropped["raw_overflow"] += 1
         for slot in early:
@@ -314,14 +345,17 @@ class Fusion:
 
     # ------------------------------------------------------------------ figures
 
-    def device_stats(self, sub: Subject, now: float) -> list[dict]:
-        """The device entries of ``sub``'s stats message, by segment name."""
-        tracks = [sub.tracks[name] for name in sorted(sub.tracks)]
-        slots = np.array([t.slot for t in tracks], np.int64)
+    def device_stats(self, subjects: list[Subject], now: float) -> list[list[dict]]:
+        """The device entries of each subject's stats message, by segment name (the figures of
+        all of them computed together)."""
+        tracks = [[sub.tracks[name] for name in sorted(sub.tracks)] for sub in subjects]
+        flat = [t for mine in tracks for t in mine]
+        slots = np.array([t.slot for t in flat], np.int64)
         figures = self.scoring.device_figures(slots, self.table.owner[slots])
-        columns = {name: values.tolist() for name, values in figures.items()}
-        return [t.stats(now, {name: values[i] for name, values in columns.items()} | self.calibrating.figures(t.slot))
-                for i, t in enumerate(tracks)]
+        names, columns = list(figures), [values.tolist() for values in figures.values()]
+        calibrating = self.calibrating.figures
+        entries = iter([t.stats(now, dict(zip(names, row)) | calibrating(t.slot)) for t, row in zip(flat, zip(*columns))])
+        return [[next(entries) for _ in mine] for mine in tracks]
 
     def watermark(self, sub: Subject) -> int | None:
         wm = self.device_view().watermark

@@ -60,10 +60,13 @@ class ErrorRings:
         held = np.flatnonzero(n > 0)
         if len(held):
             k, r = n[held], np.arange(len(held))
-            v = self.values[rows[held]]
-            v[np.arange(self.window) >= k[:, None]] = np.nan  # unused: sorts last
+            width = int(k.max())  # windows not yet full: only their values are sorted
+            v = self.values[rows[held], :width]
+            v[np.arange(width) >= k[:, None]] = np.nan  # unused: sorts last
             v.sort(axis=1)
-            out[0, held] = np.nansum(v, axis=1) / k
+            # the mean's sum over the whole window's length, as the values and zeros after them
+            whole = v if width == self.window else np.hstack([v, np.zeros((len(held), self.window - width), np.float32)])
+            out[0, held] = np.nansum(whole, axis=1) / k
             out[1, held] = v[r, k - 1]
             for i, p in enumerate(quantiles):
                 out[2 + i, held] = v[r, np.floor(p * (k - 1)).astype(np.int64)]

@@ -79,7 +79,8 @@ class Scoring:
         self.latency.add_device()
 
     def reset(self, slot: int) -> None:
-        """A new stream of the device in ``slot``: its windows start over."""
+        """A new stream of the device in ``slot``: its windows start over, its old truth is dropped."""
+        self.truth.drop(slot)
         self.reference.reset(slot)
         self.exact.reset(slot)
         self.live.reset(slot)
@@ -89,14 +90,28 @@ class Scoring:
         """Fit the subject's facing again from the next frames compared (its calibrations changed)."""
         self._facing_fit[subject] = [0.0, 0.0, 0.0]
 
-    def take_truth(self, slot: int, generation: int, batch: wire.RawBatch) -> None:
-        """A truth-tap batch of the device's current stream ``generation``."""
-        self.truth.put(slot, generation, batch.t_us, batch.q)
-        if batch.ref_us is not None:  # reference times: only for the alignment-aware frame error
-            n = self.reference.n[slot]
-            newer = batch.ref_us > (self.reference.t[slot, n - 1] if n else np.iinfo(np.int64).min)
-            if newer.any():
-                self.reference.extend(slot, batch.ref_us[newer], batch.q[newer])
+    def take_truth(self, slot: int, batch: wire.RawBatch) -> None:
+        """A truth-tap batch of the device's current stream."""
+        self.truth.put(slot, batch.t_us, batch.q)
+        if batch.ref_us is not None:
+            self._reference(slot, batch.ref_us, batch.q)
+
+    def take_truths(self, slots: np.ndarray, batches: wire.RawColumns, rows: np.ndarray) -> None:
+        """Truth-tap batches ``rows`` (B,) of ``batches`` of the devices ``slots`` (B,), each of
+        its device's current stream, in arrival order."""
+        count, start = batches.count[rows], batches.start[rows]
+        samples = np.repeat(start - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+        self.truth.put(np.repeat(slots, count), batches.t_us[samples], batches.q[samples])
+        for slot, i in zip(slots[batches.has_ref[rows]].tolist(), rows[batches.has_ref[rows]].tolist()):
+            part = slice(int(batches.start[i]), int(batches.start[i] + batches.count[i]))
+            self._reference(slot, batches.ref_us[part], batches.q[part])
+
+    def _reference(self, slot: int, ref_us: np.ndarray, q: np.ndarray) -> None:
+        """Truth samples by reference time: only for the alignment-aware frame error."""
+        n = self.reference.n[slot]
+        newer = ref_us > (self.reference.t[slot, n - 1] if n else np.iinfo(np.int64).min)
+        if newer.any():
+            self.reference.extend(slot, ref_us[newer], q[newer])
 
     def score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, slots: np.ndarray) -> None:
         """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions, (F, 10)
@@ -114,19 +129,19 @@ class Scoring:
         those subjects (``slot_subjects``) that have points."""
         self.latency.add(subjects, latency_ms, slots, slot_subjects)
 
-    def evaluate_truth(self, usable_t: np.ndarray, generation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def evaluate_truth(self, usable_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Angular error of the exact reconstruction and of the live view (the newest point at or
         before the sample, extrapolated to it), at every truth sample whose reconstruction became
-        final (``usable_t``: (slots,) newest usable point time, us; ``generation``: (slots,) current
-        stream generations). Returns the slots of the samples dropped: (queue overflow,) and
-        (before the stream's first point known: no reconstruction,), one entry per sample."""
-        slots, t_us, truth, overflow = self.truth.take_ready(usable_t, generation)
+        final (``usable_t``: (slots,) newest usable point time, us). Returns the slots of the
+        samples dropped: (queue overflow,) and (before the stream's first point known: no
+        reconstruction,), one entry per sample."""
+        slots, t_us, truth, overflow = self.truth.take_ready(usable_t)
         before = t_us < self.store.t[slots, 0]
         slots, t_us, truth, early = slots[~before], t_us[~before], truth[~before], slots[before]
         if len(slots):
-            exact, predicted = self.store.exact_and_predicted(slots, t_us)
-            self.exact.add(slots, quat.angle_deg(exact, truth))
-            self.live.add(slots, quat.angle_deg(predicted, truth))
+            exact, predicted = self.store.errors(slots, t_us, truth)
+            self.exact.add(slots, exact)
+            self.live.add(slots, predicted)
         return overflow, early
 
     def evaluate_frames(self, seg_slots: np.ndarray) -> int:

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from limbstream import quat
+from limbstream.kernel import fuse
 
-IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
 class PointStore:
@@ -27,6 +26,7 @@ class PointStore:
         self.w = np.zeros((slots, cap, 3), np.float32)
         self.n = np.zeros(slots, np.int64)
         self.size = 0
+        self._c = fuse.PointRows(self.t, self.q, self.w, self.n)  # the C library's view of the rows
 
     def add_slot(self) -> int:
         """A new empty row; returns its slot."""
@@ -47,6 +47,7 @@ class PointStore:
             new[:self.size, :used] = old[:self.size, :used]
             setattr(self, name, new)
         self.n = np.concatenate([self.n, np.zeros(slots - len(self.n), np.int64)])
+        self._c = fuse.PointRows(self.t, self.q, self.w, self.n)
 
     def reset(self, slot: int) -> None:
         self.n[slot] = 0
@@ -70,24 +71,25 @@ class PointStore:
         rows ``slots`` (P,), times (P,) increasing within a row and after its newest point,
         orientations ``q`` (P, 4) and body rates ``w`` (P, 3) rad/s. Returns {slot: points
         forgotten to make room} of the rows that had to forget some."""
-        order = np.argsort(slots, kind="stable")
-        s = slots[order]
-        starts = np.flatnonzero(np.r_[True, s[1:] != s[:-1]])
-        counts = np.diff(np.r_[starts, len(s)])
-        rows = s[starts]
+        rows, first, counts = np.unique(slots, return_index=True, return_counts=True)
         full = self.n[rows] + counts > self.cap
         forgotten = {}
-        for slot in rows[full]:  # consumers stalled: these rows forget points on the way, one by one
-            mine = np.flatnonzero(slots == slot)
-            forgotten[int(slot)] = sum(self.append(slot, t_us[i], q[i], w[i]) for i in mine)
-        if full.any():
-            keep = ~np.isin(s, rows[full])
-            order, s = order[keep], s[keep]
+        if full.any():  # consumers stalled: these rows forget points on the way, one by one
+            for slot in rows[full]:
+                forgotten[int(slot)] = sum(self.append(slot, t_us[i], q[i], w[i]) for i in np.flatnonzero(slots == slot))
+            keep = ~np.isin(slots, rows[full])
+            slots, t_us, q, w = slots[keep], t_us[keep], q[keep], w[keep]
             rows, counts = rows[~full], counts[~full]
-        position = self.n[s] + np.arange(len(s)) - np.repeat(np.cumsum(counts) - counts, counts)
-        self.t[s, position] = t_us[order]
-        self.q[s, position] = q[order]
-        self.w[s, position] = w[order]
+        if len(rows) == len(slots):  # a point per row (a tick's usual)
+            position = self.n[slots]
+        else:  # rank of each point within its row, in order
+            order = np.argsort(slots, kind="stable")
+            rank = np.empty(len(slots), np.int64)
+            rank[order] = np.arange(len(slots)) - np.repeat(np.cumsum(counts) - counts, counts)
+            position = self.n[slots] + rank
+        self.t[slots, position] = t_us
+        self.q[slots, position] = q
+        self.w[slots, position] = w
         self.n[rows] += counts
         return {slot: n for slot, n in forgotten.items() if n}
 
@@ -164,74 +166,25 @@ class PointStore:
     def interpolate(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """(Q, 4) float64 SLERP reconstruction of row ``slots[i]`` at ``t_us[i]``; held before the
         first and after the last point; identity for an empty row."""
-        out = np.tile(IDENTITY, (len(slots), 1))
-        have = self.n[slots] > 0
-        if have.any():
-            out[have] = self._slerp(slots[have], t_us[have], self.locate(slots[have], t_us[have]))
-        return out
+        return self._c.reconstruct(slots, t_us, fuse.EXACT)
 
-    def _slerp(self, slots: np.ndarray, t_us: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """SLERP between the points around each time of non-empty rows (``k``: :meth:`locate`)."""
-        n = self.n[slots]
-        k = np.clip(k, 0, np.maximum(n - 2, 0))
-        k1 = np.minimum(k + 1, n - 1)
-        t0, t1 = self.t[slots, k], self.t[slots, k1]
-        span = (t1 - t0).astype(np.float64)
-        u = np.clip((t_us - t0) / np.where(span > 0, span, 1.0), 0.0, 1.0)
-        q0 = self.q[slots, k].astype(np.float64)
-        q1 = self.q[slots, k1].astype(np.float64)
-        q0 /= np.linalg.norm(q0, axis=1, keepdims=True)
-        q1 /= np.linalg.norm(q1, axis=1, keepdims=True)
-        return quat.slerp(q0, q1, u)
-
-    def _predict(self, slots: np.ndarray, t_us: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """Point ``k`` of each row extrapolated with its rate to each time (quat.predict)."""
-        dt = (t_us - self.t[slots, k]) / 1e6
-        return quat.predict(self.q[slots, k].astype(np.float64), self.w[slots, k].astype(np.float64), dt)
-
-    def predicted(self, slots: np.ndarray, t_us: np.ndarray, k: np.ndarray | None = None) -> np.ndarray:
+    def predicted(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """(Q, 4) float64: what a receiver knowing only the points of row ``slots[i]`` at or before
         ``t_us[i]`` shows then: the newest of them extrapolated with its rate
         (:func:`limbstream.quat.predict`, the prediction the device's live rule bounds; rate 0
-        holds it); identity for a row without such a point. ``k``: :meth:`locate`, if known."""
-        out = np.tile(IDENTITY, (len(slots), 1))
-        k = self.locate(slots, t_us) if k is None else k
-        have = k >= 0
-        if have.any():
-            out[have] = self._predict(slots[have], t_us[have], k[have])
-        return out
+        holds it); identity for a row without such a point."""
+        return self._c.reconstruct(slots, t_us, fuse.PREDICTED)
 
-    def exact_and_predicted(self, slots: np.ndarray, t_us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(:meth:`interpolate`, :meth:`predicted`) at the same times, each (Q, 4), one search."""
-        k = self.locate(slots, t_us)
-        exact = np.tile(IDENTITY, (len(slots), 1))
-        have = self.n[slots] > 0
-        if have.any():
-            exact[have] = self._slerp(slots[have], t_us[have], k[have])
-        return exact, self.predicted(slots, t_us, k)
+    def errors(self, slots: np.ndarray, t_us: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Angles (Q,) degrees between ``truth`` (Q, 4) and :meth:`interpolate`, and between it and
+        :meth:`predicted`, of row ``slots[i]`` at ``t_us[i]``."""
+        return self._c.errors(slots, t_us, truth)
 
     def reconstruct(self, slots: np.ndarray, t_us: np.ndarray, live: np.ndarray) -> np.ndarray:
         """(Q, 4) float64 orientation of row ``slots[i]`` at ``t_us[i]`` in a frame: exact
         (:meth:`interpolate`) where ``live[i]`` is False or a point at or after the time is known,
         else the live view: the newest point extrapolated with its rate (:meth:`predicted`)."""
-        out = np.tile(IDENTITY, (len(slots), 1))
-        n = self.n[slots]
-        newest = np.maximum(n - 1, 0)
-        ahead = live & (n > 0) & (t_us > self.t[slots, newest])
-        inside = (n > 0) & ~ahead
-        if inside.any():
-            s, t = slots[inside], t_us[inside]
-            out[inside] = self._slerp(s, t, self.locate(s, t))
-        if ahead.any():
-            out[ahead] = self._predict(slots[ahead], t_us[ahead], newest[ahead])
-        return out
-
-    def held(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-        """(Q, 4) float64: the newest point strictly before each time (first point if none)."""
-        k = np.maximum(self.locate(slots, t_us - 1), 0)
-        out = self.q[slots, k].astype(np.float64)
-        out[self.n[slots] == 0] = IDENTITY
-        return out
+        return self._c.reconstruct(slots, t_us, np.where(live, fuse.LIVE, fuse.EXACT))
 
     def prune(self, keep_from: np.ndarray, min_drop: int = 16) -> None:
         """Forget points before ``keep_from[slot]`` (keeping one before it) where that frees at least
@@ -242,52 +195,59 @@ class PointStore:
 
 
 class TruthQueue:
-    """Truth-tap samples of every device waiting for the device's watermark to pass them.
-
-    Each entry carries the slot's generation: a restarted stream bumps it, and entries of the
-    old stream are dropped instead of being compared with the new one.
-    """
+    """Truth-tap samples of every device waiting for the device's watermark to pass them, in
+    arrival order. A device's new stream drops the samples of its old one (:meth:`drop`): they
+    are never compared with the new one."""
 
     def __init__(self, limit: int = 2_000_000):
         self.limit = limit
         self.slot = np.zeros(0, np.int64)
-        self.gen = np.zeros(0, np.int64)
         self.t = np.zeros(0, np.int64)
         self.q = np.zeros((0, 4), np.float32)
-        self._incoming: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        self._incoming: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (slot, t_us, q) per sample
 
     def __len__(self) -> int:
-        return len(self.t) + sum(len(b[2]) for b in self._incoming)
+        return len(self.t) + sum(len(b[1]) for b in self._incoming)
 
-    def put(self, slot: int, gen: int, t_us: np.ndarray, q: np.ndarray) -> None:
-        self._incoming.append((slot, gen, t_us, q))
+    def put(self, slots: np.ndarray | int, t_us: np.ndarray, q: np.ndarray) -> None:
+        """Samples at device times ``t_us`` (k,) us, orientations ``q`` (k, 4), of devices ``slots``
+        (k,) (or one for all)."""
+        self._incoming.append((np.broadcast_to(np.asarray(slots, np.int64), t_us.shape), t_us, q))
 
-    def take_ready(self, watermark: np.ndarray, generation: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Remove and return (slot, t_us, q float64) of every sample at or before its slot's
-        watermark; drops samples of replaced streams. Also returns (slots, count) overflowed."""
+    def drop(self, slot: int) -> None:
+        """Forget the samples of ``slot`` (its device began a new stream)."""
+        self._merge()
+        keep = self.slot != slot
+        self.slot, self.t, self.q = self.slot[keep], self.t[keep], self.q[keep]
+
+    def _merge(self) -> None:
         if self._incoming:
-            self.slot = np.concatenate([self.slot] + [np.full(len(b[2]), b[0]) for b in self._incoming])
-            self.gen = np.concatenate([self.gen] + [np.full(len(b[2]), b[1]) for b in self._incoming])
-            self.t = np.concatenate([self.t] + [b[2] for b in self._incoming])
-            self.q = np.concatenate([self.q] + [b[3] for b in self._incoming])
+            self.slot = np.concatenate([self.slot, *(b[0] for b in self._incoming)])
+            self.t = np.concatenate([self.t, *(b[1] for b in self._incoming)])
+            self.q = np.concatenate([self.q, *(b[2] for b in self._incoming)])
             self._incoming = []
-        current = self.gen == generation[self.slot]
-        ready = current & (self.t <= watermark[self.slot])
-        out = self.slot[ready], self.t[ready], self.q[ready].astype(np.float64)
-        keep = current & ~ready
+
+    def take_ready(self, watermark: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Remove and return (slot, t_us, q float32) of every sample at or before its slot's
+        ``watermark``, and the slots of the samples dropped because more than ``limit`` wait
+        (the oldest first, one entry per sample)."""
+        self._merge()
+        ready = self.t <= watermark[self.slot]
+        out = self.slot[ready], self.t[ready], self.q[ready]
+        keep = ~ready
         overflow = np.zeros(0, np.int64)
-        if keep.sum() > self.limit:  # oldest entries first in each arrival order
+        if len(self.t) - len(out[1]) > self.limit:  # oldest entries first in each arrival order
             idx = np.flatnonzero(keep)
             overflow = self.slot[idx[: len(idx) - self.limit]]
             keep[idx[: len(idx) - self.limit]] = False
-        self.slot, self.gen, self.t, self.q = self.slot[keep], self.gen[keep], self.t[keep], self.q[keep]
+        if len(out[1]) or len(overflow):
+            self.slot, self.t, self.q = self.slot[keep], self.t[keep], self.q[keep]
         return (*out, overflow)
 
     def oldest(self, slots: int) -> np.ndarray:
         """(slots,) time of each slot's oldest waiting sample (int64 max if none)."""
+        self._merge()
         out = np.full(slots, np.iinfo(np.int64).max)
         if len(self.t):
             np.minimum.at(out, self.slot, self.t)
-        for slot, _, t, _ in self._incoming:
-            out[slot] = min(out[slot], int(t[0]))
         return out

@@ -74,6 +74,7 @@ class DeviceTrack:
         self.gaps = 0
         self.gap_spans: collections.deque = collections.deque(maxlen=64)  # (t0, t1) us
         self.arrivals: collections.deque = collections.deque()            # (arrival s, bytes)
+        self.arrival_bytes = 0                                            # the bytes of those
         self.latest_t_us: int | None = None  # newest device time seen (point or raw)
         self.latest_arrival = math.nan
 
@@ -134,6 +135,7 @@ class DeviceTrack:
     def _count(self, t_us: int, nbytes: int, now: float) -> None:
         self.points += 1
         self.arrivals.append((now, nbytes))
+        self.arrival_bytes += nbytes
         self.see(t_us, now)
 
     def settled(self, now: float) -> bool:
@@ -155,25 +157,31 @@ class DeviceTrack:
         """The history query of the current stream has completed: the stream is settled."""
         self.history = "done"
 
-    def accept_raw(self, batch: wire.RawBatch, now: float) -> bool | None:
-        """True if the batch is taken, None if it is held until its stream's first point
-        arrives (:meth:`take_held_raw`), False if it is dropped (counted)."""
-        if batch.stream != self.stream:
-            if batch.stream in self._retired:
+    def accept_raw(self, stream: int, first_index: int, count: int, t_first: int, t_last: int, now: float) -> bool | None:
+        """A truth batch of ``stream`` (``count`` samples from sample ``first_index``, device times
+        ``t_first`` .. ``t_last`` us) arrived at ``now``: True if it is taken, None if it is to be
+        held until its stream's first point arrives (:meth:`hold_raw`), False if it is dropped
+        (counted)."""
+        if stream != self.stream:
+            if stream in self._retired:
                 self.dropped["raw_other_stream"] += 1
                 return False
-            if len(self.held_raw) == HELD_RAW:
-                self.held_raw.popleft()
-                self.dropped["raw_other_stream"] += 1
-            self.held_raw.append(batch)
             return None
-        if not 0 <= int(batch.t_us[0]) <= int(batch.t_us[-1]) < MAX_T_US:  # (wrapped int64 fails too)
+        if not 0 <= t_first <= t_last < MAX_T_US:  # (wrapped int64 fails too)
             self.dropped["raw_time_range"] += 1
             return False
-        self.last_raw_index = max(self.last_raw_index, batch.first_index + len(batch.t_us) - 1)
-        self.last_raw_t_us = max(self.last_raw_t_us or 0, int(batch.t_us[-1]))
-        self.see(int(batch.t_us[-1]), now)
+        self.last_raw_index = max(self.last_raw_index, first_index + count - 1)
+        self.last_raw_t_us = max(self.last_raw_t_us or 0, t_last)
+        self.see(t_last, now)
         return True
+
+    def hold_raw(self, batch: wire.RawBatch) -> None:
+        """Keep a truth batch of a stream whose first point has not arrived (HELD_RAW at most: then
+        the oldest is dropped, counted)."""
+        if len(self.held_raw) == HELD_RAW:
+            self.held_raw.popleft()
+            self.dropped["raw_other_stream"] += 1
+        self.held_raw.append(batch)
 
     def take_held_raw(self) -> list[wire.RawBatch]:
         """The held truth batches of the current stream (to take in now); others are dropped."""
@@ -197,7 +205,7 @@ class DeviceTrack:
         the track's own, and ``figures``: those computed elsewhere (error windows, live view,
         calibration), by field name."""
         while self.arrivals and self.arrivals[0][0] < now - RATE_WINDOW_S:
-            self.arrivals.popleft()
+            self.arrival_bytes -= self.arrivals.popleft()[1]
         span = RATE_WINDOW_S
         if self.arrivals and self.points == len(self.arrivals):  # stream younger than the window
             span = max(now - self.arrivals[0][0], 1.0)
@@ -212,7 +220,7 @@ class DeviceTrack:
             "samples": samples, "points": self.points,
             "icr": self.points / samples if samples > 0 else math.nan,
             "msgs_per_s": len(self.arrivals) / span,
-            "bytes_per_s": sum(b for _, b in self.arrivals) / span,
+            "bytes_per_s": self.arrival_bytes / span,
             **figures,
             "watermark_lag_s": lag, "gaps": self.gaps, "dropped": sum(self.dropped.values()),
             "dropped_by_reason": dict(self.dropped),

@@ -6,7 +6,7 @@ from __future__ import annotations
 import collections
 
 from limbstream import wire
-from limbstream.skeleton import Skeleton
+from reference_aggregator.skeleton import Skeleton
 from reference_aggregator.fusion import Fusion, Subject
 from reference_aggregator.track import DeviceTrack
 

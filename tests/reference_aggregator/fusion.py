@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from limbstream import wire
-from limbstream.skeleton import Skeleton
+from reference_aggregator.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
 from reference_aggregator.calibrating import Calibrating
 from reference_aggregator.scoring import Scoring
