@@ -25,6 +25,7 @@ from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.frames import FrameBatch, FrameStage
 from limbstream.services.aggregator.fusion import Fusion, Subject
 from limbstream.services.aggregator.history import HistoryQueries
+from limbstream.services.aggregator.intake import Intake
 from limbstream.services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
@@ -129,7 +130,6 @@ class Aggregator:
                              calibrate_on_start=settings.calibrate_on_start,
                              calibration_file=settings.calibration_file)
         self.subjects: dict[str, Subject] = self.fusion.subjects
-        self.bad_keys: collections.Counter = collections.Counter()
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
         self.loop = LoopStats()
         self._calibrating: list = []  # (query, CalibrationRequest) under way
@@ -137,9 +137,9 @@ class Aggregator:
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
         self._pose_pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (subject, zconfig.QOS kind)
         self._config_replies: list = []
-        self._seg_tracks: dict[str, DeviceTrack] = {}  # by segment point key, once a point came
-        self._raw_tracks: dict[str, DeviceTrack] = {}  # by truth-tap key, once a batch came
         self.history = None if session is None else HistoryQueries(session, self.fusion, settings.history)
+        self.intake = Intake(self.fusion, self.loop, settings.max_devices, self._ask_status, self.history)
+        self.bad_keys = self.intake.bad_keys
         self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
         self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
@@ -196,110 +196,33 @@ class Aggregator:
     def track(self, subject: str, segment: str) -> DeviceTrack:
         return self.fusion.track(subject, segment)
 
-    def _parse_key(self, key: str, kind: str) -> tuple[str, str] | None:
-        try:
-            subject, segment, got = wire.parse_device_key(key)
-        except wire.WireError:
-            self.bad_keys["key"] += 1
-            return None
-        if got != kind:
-            self.bad_keys["key"] += 1
-            return None
-        return subject, segment
-
-    def _known(self, subject: str, segment: str) -> DeviceTrack | None:
-        sub = self.subjects.get(subject)
-        return sub.tracks.get(segment) if sub is not None else None
-
-    def _device(self, ids: tuple[str, str], kind: str, reason: str | None) -> DeviceTrack | None:
-        """The track a message of ``kind`` counts against, or None (counted in ``bad_keys``).
-
-        Undecodable messages (``reason``) of devices never seen create no track, and at most
-        ``max_devices`` tracks exist: keys invented by a faulty or hostile client cannot grow
-        the aggregator's memory without bound (tests/test_live_fuzz.py)."""
-        track = self._known(*ids)
-        if track is None:
-            if reason is not None:
-                self.bad_keys[f"{kind}_{reason}"] += 1
-                return None
-            if len(self.fusion.tracks) >= self.settings.max_devices:
-                self.bad_keys["too_many_devices"] += 1
-                return None
-            track = self.track(*ids)
-            self._ask_status(*ids)  # its settings and rest pose, before the next poll
-        if reason is not None:
-            track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
-        return track
+    def known(self, subject: str, segment: str) -> DeviceTrack | None:
+        """The track of a device seen, or None."""
+        return self.intake.known(subject, segment)
 
     def on_point(self, key: str, payload: bytes, now: float, sample: zenoh.Sample | None = None) -> None:
         """One segment point message (a drain of one; ``sample``: the Zenoh sample that carried it)."""
-        self.take_points([key], [payload], now, [sample])
+        self.intake.take_points([key], [payload], now, [sample])
 
-    def take_points(self, keys: list[str], payloads: list[bytes], now: float,
-                    samples: list[zenoh.Sample | None] | None = None) -> None:
-        """The segment point messages of one drain, in arrival order (keys, payloads and the Zenoh
-        samples that carried them: their source sequence numbers bound history queries): decoded
-        together, counted and dropped per device where invalid, the rest taken in as one batch."""
-        points = wire.decode_points(payloads)
-        items = self._items(keys, points.reason, "seg", self._seg_tracks)
-        taken = None
-        if self.history is not None:
-            def taken(track: DeviceTrack, i: int) -> None:
-                self.history.taken(track, samples[i] if samples else None)
-        self.loop.points += self.fusion.add_points(items, points, now, taken)
+    def take_points(self, keys: list[str], payloads: list[bytes], now: float) -> None:
+        """A drain's segment point messages (Intake.take_points)."""
+        self.intake.take_points(keys, payloads, now)
 
     def on_raw(self, key: str, payload: bytes, now: float) -> None:
         """One truth-tap message (a drain of one)."""
-        self.take_raw([key], [payload], now)
+        self.intake.take_raw([key], [payload], now)
 
     def take_raw(self, keys: list[str], payloads: list[bytes], now: float) -> None:
-        """The truth-tap messages of one drain, in arrival order: decoded together, counted and
-        dropped per device where invalid, the rest taken in as one batch."""
-        batches = wire.decode_raws(payloads)
-        items = self._items(keys, batches.reason, "raw", self._raw_tracks)
-        self.loop.raw_batches += self.fusion.add_raws(items, batches, now)
-
-    def _items(self, keys: list[str], reasons: list, kind: str, known: dict[str, DeviceTrack]) -> list:
-        """(track, row) of each message of ``kind`` (``seg``, ``raw``) that decoded (``reasons[row]``
-        None), in order; an undecodable one is counted against its device, a key never seen is
-        checked and its device found or made (``known``: tracks by key, kept)."""
-        items = []
-        for i, key in enumerate(keys):
-            track = known.get(key)
-            reason = reasons[i]
-            if track is None:
-                ids = self._parse_key(key, kind)
-                track = None if ids is None else self._device(ids, kind, reason)
-                if track is None or reason is not None:
-                    continue
-                known[key] = track
-            elif reason is not None:
-                track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
-                continue
-            items.append((track, i))
-        return items
+        """A drain's truth-tap messages (Intake.take_raw)."""
+        self.intake.take_raw(keys, payloads, now)
 
     def on_alive(self, key: str, online: bool) -> None:
-        ids = self._parse_key(key, "alive")
-        if ids is not None and (track := self._device(ids, "alive", None)) is not None:
-            self.fusion.set_online(track, online)
+        """A device's liveliness token appeared or vanished."""
+        self.intake.on_alive(key, online)
 
     def on_config(self, key: str, payload: bytes) -> None:
-        """A device's config reply (its status): the settings it runs."""
-        ids = self._parse_key(key, "config")
-        if ids is None:
-            return
-        try:
-            status = wire.decode_status(payload)
-        except wire.WireError:
-            self.bad_keys["config_reply"] += 1
-            return
-        track = self._known(*ids)
-        if track is not None:
-            self.fusion.set_config(track, status.config)
-            self.fusion.set_rest_pose(track.subject, status.rest_pose)
-            track.clock = status.clock
-            track.link = status.link
+        """A device's config reply (its status)."""
+        self.intake.on_config(key, payload)
 
     def drain(self, now: float, budget: int = 100_000) -> int:
         """Move everything waiting in the channels into the tracks. Returns messages handled."""
@@ -316,7 +239,7 @@ class Aggregator:
                 samples.append(sample)
                 handled += 1
         if keys:
-            self.take_points(keys, payloads, now, samples)
+            self.intake.take_points(keys, payloads, now, samples)
         keys, payloads = [], []
         for sub in self._raw_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
@@ -324,7 +247,7 @@ class Aggregator:
                 payloads.append(sample.payload.to_bytes())
                 handled += 1
         if keys:
-            self.take_raw(keys, payloads, now)
+            self.intake.take_raw(keys, payloads, now)
         if self.history is not None:
             self.history.ask()
             self.loop.points += self.history.drain(now)

@@ -1,5 +1,5 @@
-"""The columns every tick reads: per device slot (its subject, liveliness, stream generation,
-newest times, live horizon, settled) and per subject (the device slot of each segment), kept
+"""The columns every tick reads: per device slot (its subject, liveliness, newest times, live
+horizon, settled) and per subject (the device slot of each segment), kept
 current as messages arrive so that a tick reads all devices in a few NumPy calls."""
 from __future__ import annotations
 
@@ -17,7 +17,6 @@ class DeviceTable:
 
     - ``owner`` (slots,) int64 subject index;
     - ``online`` (slots,) bool: liveliness token present; ``active``: online and its stream not ended;
-    - ``generation`` (slots,) int64 stream generation (truth of older streams is dropped);
     - ``latest_t`` (slots,) int64 newest device time of a point or truth sample, us (NO_TIME: none);
       ``latest_arrival`` (slots,) float64 arrival clock when it arrived, s (NaN: none);
     - ``last_raw_t`` (slots,) int64 newest truth sample time, us (NO_TIME: none);
@@ -33,7 +32,6 @@ class DeviceTable:
         self.owner = np.zeros(0, np.int64)
         self.online = np.zeros(0, bool)
         self.active = np.zeros(0, bool)
-        self.generation = np.zeros(0, np.int64)
         self.latest_t = np.zeros(0, np.int64)
         self.latest_arrival = np.zeros(0)
         self.last_raw_t = np.zeros(0, np.int64)
@@ -51,7 +49,7 @@ class DeviceTable:
     def add_device(self, subject: int, segment: str, horizon_us: int) -> int:
         """A new device of ``subject`` (offline, no data yet); returns its slot."""
         slot = len(self.owner)
-        for name, value in (("owner", subject), ("online", False), ("active", False), ("generation", 0),
+        for name, value in (("owner", subject), ("online", False), ("active", False),
                             ("latest_t", NO_TIME), ("latest_arrival", np.nan), ("last_raw_t", NO_TIME),
                             ("horizon_us", horizon_us), ("settled", True)):
             setattr(self, name, np.append(getattr(self, name), value))
@@ -59,7 +57,6 @@ class DeviceTable:
             self.seg_slots[subject, SEGMENT_INDEX[segment]] = slot
         return slot
 
-    def new_stream(self, slot: int, generation: int) -> None:
-        """The device in ``slot`` began stream ``generation``: no data of it yet."""
-        self.generation[slot] = generation
+    def new_stream(self, slot: int) -> None:
+        """The device in ``slot`` began a new stream: no data of it yet."""
         self.latest_t[slot] = self.last_raw_t[slot] = NO_TIME

@@ -115,7 +115,7 @@ class Fusion:
         self.scoring.reset(slot)
         if self.calibrating.new_stream(track):
             self._calibrations_changed([track])
-        self.table.new_stream(slot, track.generation)
+        self.table.new_stream(slot)
         self._unsettled.add(track)
         self._gappy.discard(track)
         for batch in track.take_held_raw():  # truth that came before the stream's first point

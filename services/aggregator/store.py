@@ -71,7 +71,12 @@ class PointStore:
         rows ``slots`` (P,), times (P,) increasing within a row and after its newest point,
         orientations ``q`` (P, 4) and body rates ``w`` (P, 3) rad/s. Returns {slot: points
         forgotten to make room} of the rows that had to forget some."""
-        rows, first, counts = np.unique(slots, return_index=True, return_counts=True)
+        if len(set(slots.tolist())) == len(slots) and (self.n[slots] < self.cap).all():  # a point per row: a tick's usual
+            position = self.n[slots]
+            self.t[slots, position], self.q[slots, position], self.w[slots, position] = t_us, q, w
+            self.n[slots] += 1
+            return {}
+        rows, counts = np.unique(slots, return_counts=True)
         full = self.n[rows] + counts > self.cap
         forgotten = {}
         if full.any():  # consumers stalled: these rows forget points on the way, one by one
@@ -80,16 +85,11 @@ class PointStore:
             keep = ~np.isin(slots, rows[full])
             slots, t_us, q, w = slots[keep], t_us[keep], q[keep], w[keep]
             rows, counts = rows[~full], counts[~full]
-        if len(rows) == len(slots):  # a point per row (a tick's usual)
-            position = self.n[slots]
-        else:  # rank of each point within its row, in order
-            order = np.argsort(slots, kind="stable")
-            rank = np.empty(len(slots), np.int64)
-            rank[order] = np.arange(len(slots)) - np.repeat(np.cumsum(counts) - counts, counts)
-            position = self.n[slots] + rank
-        self.t[slots, position] = t_us
-        self.q[slots, position] = q
-        self.w[slots, position] = w
+        order = np.argsort(slots, kind="stable")  # rank of each point within its row, in order
+        rank = np.empty(len(slots), np.int64)
+        rank[order] = np.arange(len(slots)) - np.repeat(np.cumsum(counts) - counts, counts)
+        position = self.n[slots] + rank
+        self.t[slots, position], self.q[slots, position], self.w[slots, position] = t_us, q, w
         self.n[rows] += counts
         return {slot: n for slot, n in forgotten.items() if n}
 
