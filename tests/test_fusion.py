@@ -271,3 +271,37 @@ def test_live_frames_stop_extrapolating_a_device_that_went_silent():
     assert not frame.flags & wire.FRAME_MISSING
     expected = quat.predict(np.array(IDENTITY), np.array(spin), (frame.t_us - T0) / 1e6)
     assert quat.angle_deg(frame.q[0].astype(np.float64), expected) < 1e-3
+
+
+def test_a_frame_stage_takes_each_ticks_frames_of_every_subject_before_they_are_encoded():
+    """The place for work on whole frames (joint angles from the live frames, say): every tick's
+    frame batch, all subjects at once, orientations in float64; what it returns is published."""
+    agg, sent = aggregator()
+    online_subject(agg)
+    online_subject(agg, "s02")
+    batches, published = [], []
+
+    def stage(batch):
+        batches.append(batch)
+        return [(wire.subject_key(SUBJECTS[i], "stats"), "stats", bytes([i])) for i in batch.live_owner.tolist()]
+
+    class Publisher:
+        def __init__(self, key, kind):
+            self.key, self.kind = key, kind
+
+        def put(self, payload):
+            published.append((self.key, self.kind, payload))
+
+    agg.frame_stages.append(stage)
+    agg._publisher = Publisher
+    for subject in SUBJECTS:
+        for segment in SEGMENTS:
+            send(agg, segment, range(6), now=0.0, subject=subject)
+    agg.advance(live=True, now=0.1)
+    batch = batches[-1]
+    assert batch.exact.q.dtype == np.float64 and batch.exact.q.shape == (len(exact(sent)), len(SEGMENTS), 4)
+    assert sorted(set(batch.exact_owner.tolist())) == [0, 1] and batch.live_owner.tolist() == [0, 1]
+    assert published == [(wire.stats_key(s), "stats", bytes([i])) for i, s in enumerate(SUBJECTS)]
+
+
+SUBJECTS = ("s01", "s02")

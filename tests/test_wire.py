@@ -133,6 +133,71 @@ def test_raw_batch_round_trip_and_errors():
         assert err.value.reason == reason
 
 
+def payloads_of_points(count: int, seed: int) -> list[bytes]:
+    """Valid v1 and v2 points and every kind of bad one, mixed."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(count):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        omega = None if i % 3 else tuple(rng.normal(0, 3, 3))
+        good = wire.encode_point(wire.SegmentPoint(i % 65536, i, 3 * i, 1_800_000_000_000_000 + i, tuple(q), i % 2, omega))
+        bad = [good[:-1], good + b"\0", bytes([7]) + good[1:], b"", good[:20] + struct.pack("<4f", math.nan, 0, 0, 0),
+               good[:20] + struct.pack("<4f", 1.5, 0, 0, 0), good[:36] + struct.pack("<3f", 0, math.inf, 0)]
+        out.append(good if rng.random() < 0.7 else bad[int(rng.integers(len(bad)))])
+    return out
+
+
+def test_points_decoded_together_are_the_points_decoded_one_by_one():
+    payloads = payloads_of_points(3000, 1)
+    cols = wire.decode_points(payloads)
+    for i, payload in enumerate(payloads):
+        try:
+            p = wire.decode_point(payload)
+        except wire.WireError as exc:
+            assert cols.reason[i] == exc.reason, (i, payload)
+            continue
+        assert cols.reason[i] is None
+        got = (cols.stream[i], cols.seq[i], cols.index[i], cols.t_us[i], cols.flags[i], tuple(cols.q[i].tolist()))
+        assert got == (p.stream, p.seq, p.index, p.t_us, p.flags, p.q), i
+        assert tuple(cols.omega[i].tolist()) == (p.omega or (0.0, 0.0, 0.0)) and cols.nbytes[i] == len(payload)
+    assert len(wire.decode_points([]).reason) == 0
+
+
+def test_truth_batches_decoded_together_are_the_batches_decoded_one_by_one():
+    rng = np.random.default_rng(2)
+    payloads = []
+    for i in range(600):
+        n = int(rng.integers(1, 40))
+        t = 1_800_000_000_000_000 + np.cumsum(rng.integers(0, 30_000, n))
+        good = bytearray(wire.encode_raw(wire.RawBatch(i % 9, 10 * i, t, rng.normal(size=(n, 4)).astype(np.float32),
+                                                       t + 3_000 if i % 2 else None)))
+        kind = rng.integers(8)
+        if kind == 1:
+            good = good[:-3]
+        elif kind == 2:
+            good[0] = 9
+        elif kind == 3:
+            good[-4:] = struct.pack("<f", math.nan)
+        elif kind == 4 and n > 1:  # the first two samples' times swapped
+            header, size = (28, 24) if i % 2 else (20, 20)
+            good[header:header + 4], good[header + size:header + size + 4] = (good[header + size:header + size + 4],
+                                                                              good[header:header + 4])
+        payloads.append(bytes(good))
+    cols = wire.decode_raws(payloads + [b""])
+    assert cols.reason[-1] == "size"
+    for i, payload in enumerate(payloads):
+        try:
+            b = wire.decode_raw(payload)
+        except wire.WireError as exc:
+            assert cols.reason[i] == exc.reason, (i, cols.reason[i], exc.reason)
+            continue
+        got = cols.batch(i)
+        assert cols.reason[i] is None and (got.stream, got.first_index) == (b.stream, b.first_index)
+        assert np.array_equal(got.t_us, b.t_us) and np.array_equal(got.q, b.q)
+        assert (got.ref_us is None and b.ref_us is None) or np.array_equal(got.ref_us, b.ref_us)
+
+
 def test_pose_frame_round_trip():
     rng = np.random.default_rng(1)
     q = rng.normal(size=(len(SEGMENTS), 4)).astype(np.float32)

@@ -38,7 +38,8 @@ from .pose import (AUTO_LIVE_WINDOW_S, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KI
                    PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, rest_pose_flag)
 from .raw import (MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, RawColumns, decode_raw,
                   decode_raws, encode_raw)
-from .stats import STATS_NUMBERS, STATS_TEXTS, STATS_VERSION, decode_stats, encode_stats, encode_stats_json, stats_json
+from .stats import (STATS_NUMBERS, STATS_TEXTS, STATS_VERSION, decode_stats, encode_stats, encode_stats_json,
+                    encode_stats_table, stats_devices, stats_json)
 from .time import (MAX_TIME_US, TIME_ANSWER_SIZE, TIME_REQUEST_SIZE, TIME_VERSION, TimeAnswer, TimeRequest,
                    decode_time_answer, decode_time_request, encode_time_answer, encode_time_request, offset_delay)
 

@@ -82,24 +82,54 @@ def encode_stats(subject: str, t: float, devices: list[dict], extra: dict | None
     devices : one dict of device-scope fields per device (missing fields are sent as null).
     extra : subject-scope fields, and ``"aggregator"``: a dict of aggregator-scope fields.
     seq : the subject's stats message counter.
+    """
+    for d in devices:
+        unknown = d.keys() - _DEVICE.keys()
+        if unknown:
+            raise ValueError(f"device entry has fields not declared in limbstream.wire.fields: {sorted(unknown)}")
+    numbers = np.array([[d.get(name) for name in STATS_NUMBERS] for d in devices], "<f8").reshape(-1, len(STATS_NUMBERS))
+    return encode_stats_table(subject, t, numbers, {name: [d.get(name) for d in devices] for name in STATS_TEXTS},
+                              extra, seq)
+
+
+def encode_stats_table(subject: str, t: float, numbers: np.ndarray, texts: dict[str, list], extra: dict | None = None,
+                       seq: int = 0) -> bytes:
+    """One stats message in the compact form from its device columns: ``numbers`` (N, K) float64,
+    the :data:`STATS_NUMBERS` of each of N devices (NaN: null), and ``texts``: {field: N values}
+    of the :data:`STATS_TEXTS` (missing ones: null); the rest as :func:`encode_stats`.
 
     Layout (little-endian): u8 version (:data:`STATS_VERSION`), u8 0, u16 devices N, u16 numbers
     per device K, u16 0, u32 head length H; H bytes of UTF-8 JSON: the envelope and subject fields,
     ``"aggregator"``, ``"numbers"``: the K names of the number columns, ``"texts"``: {field: N
     values} of the other device fields; then N x K float64, device by device (NaN: null; bools 0/1).
     """
+    n = len(numbers)
+    if numbers.shape != (n, len(STATS_NUMBERS)) or texts.keys() - set(STATS_TEXTS) or any(
+            len(v) != n for v in texts.values()):
+        raise ValueError(f"stats table: numbers must be (N, {len(STATS_NUMBERS)}) and texts N values of "
+                         f"{STATS_TEXTS}, got {numbers.shape} and {sorted(texts)}")
     message, aggregator = _message(subject, t, extra, seq)
-    for d in devices:
-        unknown = d.keys() - _DEVICE.keys()
-        if unknown:
-            raise ValueError(f"device entry has fields not declared in limbstream.wire.fields: {sorted(unknown)}")
     if aggregator is not None:
         message["aggregator"] = aggregator
     message["numbers"] = STATS_NUMBERS
-    message["texts"] = {name: [d.get(name) for d in devices] for name in STATS_TEXTS}
-    numbers = np.array([[d.get(name) for name in STATS_NUMBERS] for d in devices], "<f8").reshape(-1, len(STATS_NUMBERS))
+    message["texts"] = {name: texts.get(name, [None] * n) for name in STATS_TEXTS}
     head = json.dumps(message, separators=(",", ":")).encode()
-    return _HEADER.pack(STATS_VERSION, 0, len(devices), len(STATS_NUMBERS), 0, len(head)) + head + numbers.tobytes()
+    body = np.ascontiguousarray(numbers, "<f8").tobytes()
+    return _HEADER.pack(STATS_VERSION, 0, n, len(STATS_NUMBERS), 0, len(head)) + head + body
+
+
+def stats_devices(names: list[str], rows: list[list[float]], texts: dict[str, list]) -> list[dict]:
+    """Device entries (dicts, fields in table order) from columns: number rows (N lists of the
+    values of columns ``names``; NaN: null) and ``texts`` {field: N values}; numbers take their
+    field's type (TypeError: an int field that is not one)."""
+    types = [_DEVICE.get(name) for name in names]
+    devices = []
+    for i, row in enumerate(rows):
+        entry = {name: _number(v, f) for name, v, f in zip(names, row, types)}
+        entry.update((name, values[i]) for name, values in texts.items())
+        devices.append({name: entry[name] for name in _DEVICE if name in entry}
+                       | {name: v for name, v in entry.items() if name not in _DEVICE})
+    return devices
 
 
 def stats_json(payload: bytes) -> bytes:
@@ -164,13 +194,7 @@ def _compact(payload: bytes) -> dict:
             isinstance(v, list) and len(v) == n for v in texts.values()):
         raise TypeError(f"numbers must name the {k} columns and texts hold {n} values each")
     rows = np.frombuffer(payload, "<f8", n * k, _HEADER.size + h).reshape(n, k).tolist()
-    types = [_DEVICE.get(name) for name in names]
-    devices = []
-    for i, row in enumerate(rows):
-        entry = {name: _number(v, f) for name, v, f in zip(names, row, types)}
-        entry.update((name, values[i]) for name, values in texts.items())
-        devices.append({name: entry[name] for name in _DEVICE if name in entry}
-                       | {name: v for name, v in entry.items() if name not in _DEVICE})
+    devices = stats_devices(names, rows, texts)
     return {key: data[key] for key in data if key not in _COMPACT[3:]} | {"devices": devices} | (
         {"aggregator": data["aggregator"]} if "aggregator" in data else {})
 

@@ -382,24 +382,15 @@ class Aggregator:
     def subject_stats(self, subject: str, now: float) -> dict:
         """The figures of a subject's stats message: ``devices`` (its device entries) and the
         subject fields."""
-        return self._subject_stats([self.subjects[subject]], now)[0]
+        sub = self.subjects[subject]
+        return {"devices": self.fusion.device_stats([sub], now)[0]} | self._subject_fields(sub)
 
-    def _subject_stats(self, subjects: list[Subject], now: float) -> list[dict]:
-        """:meth:`subject_stats` of several subjects, their device figures computed together."""
-        out = []
-        for sub, devices in zip(subjects, self.fusion.device_stats(subjects, now)):
-            frame_aad, frames_compared = self.fusion.scoring.frame_error(sub.index)
-            made, skipped = self.fusion.frame_counts(sub)
-            out.append({
-                "devices": devices,
-                "frames": made,
-                "skipped_frames": skipped,
-                "watermark_us": self.fusion.watermark(sub),
-                "frame_aad_deg": frame_aad,
-                "frame_error_frames": frames_compared,
-                "facing_deg": self.fusion.scoring.facing_deg(sub.index),
-            })
-        return out
+    def _subject_fields(self, sub: Subject) -> dict:
+        frame_aad, frames_compared = self.fusion.scoring.frame_error(sub.index)
+        made, skipped = self.fusion.frame_counts(sub)
+        return {"frames": made, "skipped_frames": skipped, "watermark_us": self.fusion.watermark(sub),
+                "frame_aad_deg": frame_aad, "frame_error_frames": frames_compared,
+                "facing_deg": self.fusion.scoring.facing_deg(sub.index)}
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop
@@ -409,10 +400,13 @@ class Aggregator:
         # load / soak figures (bench/soak.py) and messages no device could be charged with
         loop = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
         subjects = list(self.subjects.values())[part::parts]
-        for sub, snapshot in zip(subjects, self._subject_stats(subjects, now)):
-            devices = snapshot.pop("devices")
-            snapshot["aggregator"] = loop
-            payload = wire.encode_stats(sub.name, wall, devices, snapshot, seq=self.stats_seq[sub.name])
+        counts, numbers, texts = self.fusion.stats_table(subjects, now)
+        start = 0
+        for sub, n in zip(subjects, counts):
+            mine = {name: values[start:start + n] for name, values in texts.items()}
+            payload = wire.encode_stats_table(sub.name, wall, numbers[start:start + n], mine,
+                                              self._subject_fields(sub) | {"aggregator": loop}, self.stats_seq[sub.name])
+            start += n
             self._publish_stats(sub.name, payload)
             self._last_stats[sub.name] = payload
             self.stats_seq[sub.name] += 1

@@ -299,10 +299,13 @@ class Calibrating:
             self.store.w[slot, :n] = quat.rotate(np.broadcast_to(old.c, (n, 4)), w).astype(np.float32)
         self._apply_to_store(slot, new)
 
-    def figures(self, slot: int) -> dict:
-        """The device's calibration fields of its stats."""
-        at = self.calibrated_at.get(slot)
-        return {"calibrated": slot in self.calibrations,
-                "calibration_age_s": math.nan if at is None else max(0.0, time.time() - at),
-                "heading_drift_dps": math.degrees(cal.drift) if (cal := self.calibrations.get(slot)) else math.nan,
-                "calibration_refused": self.calibration_refused.get(slot)}
+    def figures(self, slots: list[int]) -> dict[str, list]:
+        """The calibration fields of the stats entries of devices ``slots``, by name: a list of
+        values each."""
+        wall = time.time()
+        at = [self.calibrated_at.get(slot) for slot in slots]
+        cal = [self.calibrations.get(slot) for slot in slots]
+        return {"calibrated": [c is not None for c in cal],
+                "calibration_age_s": [math.nan if a is None else max(0.0, wall - a) for a in at],
+                "heading_drift_dps": [math.nan if c is None else math.degrees(c.drift) for c in cal],
+                "calibration_refused": [self.calibration_refused.get(slot) for slot in slots]}

@@ -20,6 +20,8 @@ from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
 from limbstream.services.aggregator.frames import OVERDUE_GRACE_S, DeviceView, FrameBatch, FrameBuilder
 from limbstream.services.aggregator.scoring import Scoring
 from limbstream.services.aggregator.store import PointStore
+from limbstream.services.aggregator.track import NUMBERS as TRACK_NUMBERS
+from limbstream.services.aggregator.track import TEXTS as TRACK_TEXTS
 from limbstream.services.aggregator.track import DeviceTrack
 
 
@@ -345,17 +347,29 @@ class Fusion:
 
     # ------------------------------------------------------------------ figures
 
-    def device_stats(self, subjects: list[Subject], now: float) -> list[list[dict]]:
-        """The device entries of each subject's stats message, by segment name (the figures of
-        all of them computed together)."""
+    def stats_table(self, subjects: list[Subject], now: float) -> tuple[list[int], np.ndarray, dict[str, list]]:
+        """The device columns of the stats messages of ``subjects``, their devices by segment name,
+        one subject after the other: (devices of each subject, numbers (N, K) float64 in the order
+        of wire.STATS_NUMBERS (NaN: null), texts {wire.STATS_TEXTS field: N values})."""
         tracks = [[sub.tracks[name] for name in sorted(sub.tracks)] for sub in subjects]
         flat = [t for mine in tracks for t in mine]
         slots = np.array([t.slot for t in flat], np.int64)
-        figures = self.scoring.device_figures(slots, self.table.owner[slots])
-        names, columns = list(figures), [values.tolist() for values in figures.values()]
-        calibrating = self.calibrating.figures
-        entries = iter([t.stats(now, dict(zip(names, row)) | calibrating(t.slot)) for t, row in zip(flat, zip(*columns))])
-        return [[next(entries) for _ in mine] for mine in tracks]
+        own = [t.stats(now) for t in flat]
+        track_numbers = np.array([numbers for numbers, _ in own], np.float64).reshape(len(flat), len(TRACK_NUMBERS))
+        columns = {name: track_numbers[:, j] for j, name in enumerate(TRACK_NUMBERS)}
+        columns |= self.scoring.device_figures(slots, self.table.owner[slots])
+        texts = {name: [t[j] for _, t in own] for j, name in enumerate(TRACK_TEXTS)}
+        for name, values in self.calibrating.figures(slots.tolist()).items():
+            (texts if name in wire.STATS_TEXTS else columns)[name] = values
+        numbers = np.column_stack([np.asarray(columns[name], np.float64) for name in wire.STATS_NUMBERS])
+        return [len(mine) for mine in tracks], numbers.reshape(len(flat), len(wire.STATS_NUMBERS)), texts
+
+    def device_stats(self, subjects: list[Subject], now: float) -> list[list[dict]]:
+        """The device entries of each subject's stats message, by segment name (:meth:`stats_table`
+        as dicts)."""
+        counts, numbers, texts = self.stats_table(subjects, now)
+        entries = iter(wire.stats_devices(list(wire.STATS_NUMBERS), numbers.tolist(), texts))
+        return [[next(entries) for _ in range(n)] for n in counts]
 
     def watermark(self, sub: Subject) -> int | None:
         wm = self.device_view().watermark

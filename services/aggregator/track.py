@@ -200,10 +200,9 @@ class DeviceTrack:
         spans = np.array(self.gap_spans, np.int64).reshape(-1, 2)
         return ((t_us[:, None] > spans[:, 0]) & (t_us[:, None] < spans[:, 1])).any(axis=1)
 
-    def stats(self, now: float, figures: dict) -> dict:
-        """The device entry of a stats message (the device fields of limbstream.wire.fields):
-        the track's own, and ``figures``: those computed elsewhere (error windows, live view,
-        calibration), by field name."""
+    def stats(self, now: float) -> tuple[tuple, tuple]:
+        """The track's own fields of its stats entry (limbstream.wire.fields): the values of
+        :data:`NUMBERS` and of :data:`TEXTS`, in their order (None: null)."""
         while self.arrivals and self.arrivals[0][0] < now - RATE_WINDOW_S:
             self.arrival_bytes -= self.arrivals.popleft()[1]
         span = RATE_WINDOW_S
@@ -215,17 +214,19 @@ class DeviceTrack:
             device_now = self.latest_t_us + (now - self.latest_arrival) * 1e6
             lag = 0.0 if self.final else max(0.0, (device_now - self.last_t_us) / 1e6)
         config, clock, link = self.config, self.clock, self.link
-        return {
-            "device": self.id, "segment": self.segment, "subject": self.subject, "online": self.online,
-            "samples": samples, "points": self.points,
-            "icr": self.points / samples if samples > 0 else math.nan,
-            "msgs_per_s": len(self.arrivals) / span,
-            "bytes_per_s": self.arrival_bytes / span,
-            **figures,
-            "watermark_lag_s": lag, "gaps": self.gaps, "dropped": sum(self.dropped.values()),
-            "dropped_by_reason": dict(self.dropped),
-            **{name: getattr(config, name, None) for name in wire.TUNABLES},
-            "stream": self.stream, "restarts": self.restarts, "final": self.final,
-            **(clock.as_dict() if clock is not None else {}),
-            **(link.as_dict() if link is not None else {}),
-        }
+        numbers = (self.online, samples, self.points, self.points / samples if samples > 0 else math.nan,
+                   len(self.arrivals) / span, self.arrival_bytes / span, lag, self.gaps, sum(self.dropped.values()),
+                   *(getattr(config, name, None) for name in wire.TUNABLES), self.stream, self.restarts, self.final,
+                   *((None, None, None) if clock is None else (clock.clock_offset_ms, clock.sync_rtt_ms, clock.synced)),
+                   *((None,) * 4 if link is None else (link.battery_pct, link.signal_dbm, link.link_loss, link.link_pps)))
+        texts = (self.id, self.segment, self.subject, dict(self.dropped), None if clock is None else dict(clock.sync_bad),
+                 None if link is None else link.tracker)
+        return numbers, texts
+
+
+NUMBERS: tuple[str, ...] = ("online", "samples", "points", "icr", "msgs_per_s", "bytes_per_s", "watermark_lag_s", "gaps",
+                            "dropped", *wire.TUNABLES, "stream", "restarts", "final", "clock_offset_ms",
+                            "sync_rtt_ms", "synced", "battery_pct", "signal_dbm", "link_loss", "link_pps")
+"""The number fields of a device's stats entry that its track gives (:meth:`DeviceTrack.stats`)."""
+TEXTS: tuple[str, ...] = ("device", "segment", "subject", "dropped_by_reason", "sync_bad", "tracker")
+"""The other fields of a device's stats entry that its track gives."""
