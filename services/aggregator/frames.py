@@ -138,10 +138,12 @@ class FrameBuilder:
         return owner, t_us, seq
 
     def exact_flags(self, owner: np.ndarray, t_us: np.ndarray, view: DeviceView, table: DeviceTable,
-                    store: PointStore, gappy: Iterable[DeviceTrack]) -> np.ndarray:
+                    store: PointStore, gappy: set[DeviceTrack]) -> np.ndarray:
         """(E,) flags of exact frames (subject ``owner``, time ``t_us``): MISSING where a segment
         has no device, is held beyond a stale device's last point or lies before its first point;
-        GAP inside a span whose points were lost; the subject's rest pose."""
+        GAP inside a span whose points were lost (``gappy``: the devices with such spans; one whose
+        spans all end before its subject's frames is taken out: no frame to come is in them); the
+        subject's rest pose."""
         slots = table.seg_slots[owner]                       # (E, 10)
         valid = slots >= 0
         rows = np.maximum(slots, 0)
@@ -149,11 +151,15 @@ class FrameBuilder:
         before = valid & (store.n[rows] > 0) & (store.t[rows, 0] > t_us[:, None])
         missing = ((view.stale[owner] & beyond) | before).any(axis=1) | (~valid).any(axis=1)
         gap = np.zeros(len(owner), bool)
-        gappy = list(gappy)
-        subject = table.owner[[t.slot for t in gappy]]
+        tracks = list(gappy)
+        subject = table.owner[np.array([t.slot for t in tracks], np.int64)]
         start, end = np.searchsorted(owner, subject), np.searchsorted(owner, subject, side="right")
-        for track, a, b in zip(gappy, start, end):  # each subject's frames are one run of ``owner``
-            if a < b and track.gap_spans[-1][1] > t_us[a]:  # spans end in time order
+        for track, a, b in zip(tracks, start.tolist(), end.tolist()):  # a subject's frames: one run of ``owner``
+            if a == b:
+                continue
+            if track.gap_spans[-1][1] <= t_us[a]:  # spans end in time order
+                gappy.discard(track)
+            else:
                 gap[a:b] |= track.in_gap(t_us[a:b])
         return np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | self.rest_flag[owner]
 

@@ -131,46 +131,60 @@ class Fusion:
                    taken: Callable[[DeviceTrack, int], None] | None = None) -> int:
         """The valid points of one drain, in arrival order: (track, row of ``points``) each.
         Each is checked against its device's stream; those kept are corrected (calibration) and
-        stored in one go. ``taken(track, row)`` is called for each point taken in, at once.
-        Returns how many were taken in."""
+        stored in one go. ``taken(track, row)`` is called, at once, for each point taken in of a
+        stream whose history is not settled yet (``DeviceTrack.history`` "none": it may want its
+        start). Returns how many were taken in."""
         self.advance_clock(now)
         stream, seq, index, t_us, flags = (points.stream.tolist(), points.seq.tolist(), points.index.tolist(),
                                            points.t_us.tolist(), points.flags.tolist())
         nbytes = points.nbytes.tolist()
-        store, table, first_sample = self.store, self.table, self.calibrating.first_sample
+        table = self.table
         appended: list[tuple[int, int]] = []  # (slot, row) of the points to store, in order
         count = 0
         for track, i in items:
-            state = track.check_stream(stream[i])
-            if state == "stale":
-                continue
-            if state == "new":
-                self._store(appended, points)
-                self._new_stream(track, now)
-            slot, gaps = track.slot, track.gaps
-            how = track.accept_point(seq[i], index[i], t_us[i], flags[i], nbytes[i], now,
-                                     lambda t, slot=slot: store.contains(slot, t))
-            if how is None:
-                continue
-            first_sample(slot, seq[i], t_us[i])
-            if how == "append":
+            slot = track.slot
+            if track.take_next(stream[i], seq[i], index[i], t_us[i], flags[i], nbytes[i], now):
                 appended.append((slot, i))
-                table.active[slot] = track.online and not track.final
-                if track.gaps != gaps:
-                    self._gappy.add(track)
-            elif how == "final":
-                table.active[slot] = False
-            else:  # "insert": an earlier point of the stream's start, in time order
-                self._store(appended, points)
-                self._insert(track, points, i)
+                table.active[slot] = track.online
+            elif not self._accept(track, i, stream, seq, index, t_us, flags, nbytes, now, appended, points):
+                continue
             table.latest_t[slot] = track.latest_t_us
             table.latest_arrival[slot] = track.latest_arrival
             count += 1
-            if taken is not None:
+            if taken is not None and track.history == "none":  # (a stream that may want its start)
                 taken(track, i)
         self._store(appended, points)
         self._view = None
         return count
+
+    def _accept(self, track: DeviceTrack, i: int, stream: list, seq: list, index: list, t_us: list, flags: list,
+                nbytes: list, now: float, appended: list[tuple[int, int]], points: wire.PointColumns) -> bool:
+        """Point ``i`` (its fields: the columns as lists) by the full rules (a new stream, the
+        start of a stream, gaps, duplicates, time going back, the stream's end, an earlier point
+        arriving late); True if it is taken in."""
+        state = track.check_stream(stream[i])
+        if state == "stale":
+            return False
+        if state == "new":
+            self._store(appended, points)
+            self._new_stream(track, now)
+        slot, gaps = track.slot, track.gaps
+        how = track.accept_point(seq[i], index[i], t_us[i], flags[i], nbytes[i], now,
+                                 lambda t: self.store.contains(slot, t))
+        if how is None:
+            return False
+        self.calibrating.first_sample(slot, seq[i], t_us[i])
+        if how == "append":
+            appended.append((slot, i))
+            self.table.active[slot] = track.online and not track.final
+            if track.gaps != gaps:
+                self._gappy.add(track)
+        elif how == "final":
+            self.table.active[slot] = False
+        else:  # "insert": an earlier point of the stream's start, in time order
+            self._store(appended, points)
+            self._insert(track, points, i)
+        return True
 
     def _corrected(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> tuple[np.ndarray, ...]:
         """(times, orientations (P, 4), body rates (P, 3)) of ``points`` ``rows`` of devices

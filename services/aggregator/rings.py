@@ -80,9 +80,8 @@ class SubjectRings:
     A device gets every value of its subject from its stream's first point on (once a device
     has a point it keeps one until its next stream), so its values are the newest of its
     subject's: one ring per subject, and per device the subject's count when its values began
-    (``since``; -1: none yet). A device whose window is full has its subject's figures; only a
-    device younger than the window is summarised on its own. The same order statistics as one
-    row per device, with a tenth of the sorting.
+    (``since``; -1: none yet). The same order statistics as one row per device, with a tenth of
+    the sorting.
     """
 
     def __init__(self, window: int):
@@ -114,23 +113,22 @@ class SubjectRings:
 
     def quantiles(self, slots: np.ndarray, owner: np.ndarray, quantiles: tuple[float, ...]) -> tuple[np.ndarray, ...]:
         """The lower order statistics ``quantiles`` (0..1) of the window of each device ``slots``
-        (k,) of subjects ``owner`` (k,), each (k,), NaN for a device without values."""
-        count, window = self.count(slots, owner), self.rings.window
+        (k,) of subjects ``owner`` (k,), each (k,), NaN for a device without values. A window is
+        its subject's newest values, as many as the device got (the window at most): devices of
+        one subject with as many share one sort (in the long run, every device of a subject)."""
+        window = self.rings.window
+        held = np.minimum(self.count(slots, owner), window)
         out = np.full((len(quantiles), len(slots)), np.nan)
-        full = np.flatnonzero(count >= window)
-        if len(full):
-            subjects, where = np.unique(owner[full], return_inverse=True)
-            shared = self.rings.summary(subjects, quantiles)[2:]
-            for i in range(len(quantiles)):
-                out[i, full] = shared[i][where]
-        young = np.flatnonzero((count > 0) & (count < window))
-        if len(young):  # the newest ``count`` values of the subject's ring, NaN-padded to sort last
-            k, r = count[young], np.arange(len(young))
-            newest = self.rings.count[owner[young]]
-            back = np.arange(int(k.max()))
-            v = self.rings.values[owner[young][:, None], (newest[:, None] - 1 - back) % window]
-            v[back >= k[:, None]] = np.nan
-            v.sort(axis=1)
-            for i, p in enumerate(quantiles):
-                out[i, young] = v[r, np.floor(p * (k - 1)).astype(np.int64)]
+        have = np.flatnonzero(held > 0)
+        if len(have) == 0:
+            return tuple(out)
+        _, first, group = np.unique(owner[have] * (window + 1) + held[have], return_index=True, return_inverse=True)
+        subject, k = owner[have][first], held[have][first]
+        back = np.arange(int(k.max()))
+        v = self.rings.values[subject[:, None], (self.rings.count[subject][:, None] - 1 - back) % window]
+        v[back >= k[:, None]] = np.nan  # beyond the window: sorts last
+        v.sort(axis=1)
+        r = np.arange(len(k))
+        for i, p in enumerate(quantiles):
+            out[i, have] = v[r, np.floor(p * (k - 1)).astype(np.int64)][group.reshape(-1)]
         return tuple(out)

@@ -93,6 +93,22 @@ class DeviceTrack:
         self.reset_stream()
         return "new"
 
+    def take_next(self, stream: int, seq: int, index: int, t_us: int, flags: int, nbytes: int, now: float) -> bool:
+        """The usual point, taken in at once: the next of the current stream, later than the one
+        before it and without flags (what :meth:`accept_point` appends without a second look).
+        False, and nothing changed, for any other: :meth:`check_stream` and :meth:`accept_point`
+        then decide."""
+        if (stream != self.stream or seq != self.next_seq or flags or self.last_t_us is None
+                or not self.last_t_us < t_us < MAX_T_US or index <= self.last_index):
+            return False
+        self.next_seq, self.last_t_us, self.last_index, self.final = seq + 1, t_us, index, False
+        self.points += 1
+        self.arrivals.append((now, nbytes))
+        self.arrival_bytes += nbytes
+        if t_us >= self.latest_t_us:
+            self.latest_t_us, self.latest_arrival = t_us, now
+        return True
+
     def accept_point(self, seq: int, index: int, t_us: int, flags: int, nbytes: int, now: float,
                      stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
         """Sequence and time checks of a point of the current stream (sequence number ``seq``,
