@@ -114,11 +114,11 @@ static void identity(double *y)
     y[1] = y[2] = y[3] = 0.0;
 }
 
-/** Row r at time x as mode asks (LswFuseMode). */
-static void query(const LswFuseRows *rows, int64_t r, int64_t x, int mode, double *y)
+/** Row r at time x as mode asks (LswFuseMode); k: the point at or before x (locate), or -2 if not
+ * searched yet. */
+static void query(const LswFuseRows *rows, int64_t r, int64_t x, int mode, int64_t k, double *y)
 {
     const int64_t n = rows->n[r];
-    int64_t k;
     if (n == 0) {
         identity(y);
         return;
@@ -127,7 +127,9 @@ static void query(const LswFuseRows *rows, int64_t r, int64_t x, int mode, doubl
         predict(rows, r, x, n - 1, y);
         return;
     }
-    k = locate(rows, r, x);
+    if (k == -2) {
+        k = locate(rows, r, x);
+    }
     if (mode == LSW_FUSE_PREDICTED) {
         if (k < 0) {
             identity(y);
@@ -155,7 +157,7 @@ void lsw_fuse_reconstruct(const LswFuseRows *rows, size_t count, const int64_t *
 {
     size_t i;
     for (i = 0; i < count; i++) {
-        query(rows, slots[i], t_us[i], mode[i], out + 4 * i);
+        query(rows, slots[i], t_us[i], mode[i], -2, out + 4 * i);
     }
 }
 
@@ -166,10 +168,11 @@ void lsw_fuse_errors(const LswFuseRows *rows, size_t count, const int64_t *slots
     for (i = 0; i < count; i++) {
         const float *s = truth + 4 * i;
         const double b[4] = {s[0], s[1], s[2], s[3]};
+        const int64_t k = rows->n[slots[i]] > 0 ? locate(rows, slots[i], t_us[i]) : -1;
         double y[4];
-        query(rows, slots[i], t_us[i], LSW_FUSE_EXACT, y);
+        query(rows, slots[i], t_us[i], LSW_FUSE_EXACT, k, y);
         exact_deg[i] = angle_deg(y, b);
-        query(rows, slots[i], t_us[i], LSW_FUSE_PREDICTED, y);
+        query(rows, slots[i], t_us[i], LSW_FUSE_PREDICTED, k, y);
         predicted_deg[i] = angle_deg(y, b);
     }
 }

@@ -215,9 +215,13 @@ class Fusion:
         """A decoded truth-tap batch; False if dropped (counted) or held until the first point of
         its stream arrives."""
         self.advance_clock(now)
-        if not self._accept_raw(track, batch.stream, batch.first_index, len(batch.t_us), int(batch.t_us[0]),
-                                int(batch.t_us[-1]), now, lambda: batch):
+        taken = track.accept_raw(batch.stream, batch.first_index, len(batch.t_us), int(batch.t_us[0]),
+                                 int(batch.t_us[-1]), now)
+        if taken is None:
+            track.hold_raw(batch)
+        if not taken:
             return False
+        self._raw_seen([track])
         if self.calibrating.compares(track.slot):  # readings of a device being calibrated are not the segment's
             self.scoring.take_truth(track.slot, batch)
         return True
@@ -228,33 +232,29 @@ class Fusion:
         self.advance_clock(now)
         stream, first, count, start = (batches.stream.tolist(), batches.first_index.tolist(), batches.count.tolist(),
                                        batches.start.tolist())
-        t_us = batches.t_us
-        slots, rows, taken = [], [], 0
+        t_us = batches.t_us.tolist()
+        taken, slots, rows = [], [], []
         for track, i in items:
-            t_first, t_last = int(t_us[start[i]]), int(t_us[start[i] + count[i] - 1])
-            if self._accept_raw(track, stream[i], first[i], count[i], t_first, t_last, now, lambda i=i: batches.batch(i)):
-                taken += 1
+            ok = track.accept_raw(stream[i], first[i], count[i], t_us[start[i]], t_us[start[i] + count[i] - 1], now)
+            if ok is None:
+                track.hold_raw(batches.batch(i))
+            elif ok:
+                taken.append(track)
                 if self.calibrating.compares(track.slot):  # readings of a device being calibrated are not the segment's
                     slots.append(track.slot)
                     rows.append(i)
+        if taken:
+            self._raw_seen(taken)
         if rows:
             self.scoring.take_truths(np.array(slots, np.int64), batches, np.array(rows, np.int64))
-        return taken
+        return len(taken)
 
-    def _accept_raw(self, track: DeviceTrack, stream: int, first_index: int, count: int, t_first: int, t_last: int,
-                    now: float, batch: Callable[[], wire.RawBatch]) -> bool:
-        """A truth batch's checks (DeviceTrack.accept_raw): True if it is taken; a batch of a
-        stream to come (``batch()``) is held."""
-        taken = track.accept_raw(stream, first_index, count, t_first, t_last, now)
-        if taken is None:
-            track.hold_raw(batch())
-            return False
-        if taken:
-            slot = track.slot
-            self.table.last_raw_t[slot] = track.last_raw_t_us
-            self.table.latest_t[slot] = track.latest_t_us
-            self.table.latest_arrival[slot] = track.latest_arrival
-        return taken
+    def _raw_seen(self, tracks: list[DeviceTrack]) -> None:
+        """The devices' columns after truth batches of theirs were taken."""
+        slots = [t.slot for t in tracks]
+        self.table.last_raw_t[slots] = [t.last_raw_t_us for t in tracks]
+        self.table.latest_t[slots] = [t.latest_t_us for t in tracks]
+        self.table.latest_arrival[slots] = [t.latest_arrival for t in tracks]
 
     def advance_clock(self, now: float) -> None:
         """Advance the arrival clock; devices still in their history grace period may settle."""

@@ -40,15 +40,15 @@ class ErrorRings:
             return
         order = np.argsort(rows, kind="stable")
         rows, values = rows[order], values[order]
-        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+        starts = np.flatnonzero(np.concatenate([[True], rows[1:] != rows[:-1]]))
         if len(starts) == len(rows):  # one value per row
             self.values[rows, self.count[rows] % self.window] = values
             self.count[rows] += 1
             self.total[rows] += values
             return
-        rank = np.arange(len(rows)) - np.repeat(starts, np.diff(np.r_[starts, len(rows)]))
+        rank = np.arange(len(rows)) - np.repeat(starts, np.diff(np.append(starts, len(rows))))
         self.values[rows, (self.count[rows] + rank) % self.window] = values
-        np.add.at(self.count, rows, 1)
+        self.count[rows[starts]] += np.diff(np.append(starts, len(rows)))
         np.add.at(self.total, rows, values)
 
     def summary(self, rows: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:
@@ -62,14 +62,18 @@ class ErrorRings:
             k, r = n[held], np.arange(len(held))
             width = int(k.max())  # windows not yet full: only their values are sorted
             v = self.values[rows[held], :width]
-            v[np.arange(width) >= k[:, None]] = np.nan  # unused: sorts last
+            unused = np.arange(width) >= k[:, None]
+            v[unused] = np.nan  # sorts last
             v.sort(axis=1)
-            # the mean's sum over the whole window's length, as the values and zeros after them
-            whole = v if width == self.window else np.hstack([v, np.zeros((len(held), self.window - width), np.float32)])
-            out[0, held] = np.nansum(whole, axis=1) / k
             out[1, held] = v[r, k - 1]
             for i, p in enumerate(quantiles):
                 out[2 + i, held] = v[r, np.floor(p * (k - 1)).astype(np.int64)]
+            # the mean: the sorted values, then zeros, summed over the window's length (float32,
+            # in the order NumPy's pairwise sum takes them)
+            whole = np.zeros((len(held), self.window), np.float32)
+            whole[:, :width] = v
+            whole[:, :width][unused] = 0.0
+            out[0, held] = whole.sum(axis=1) / k
         return tuple(out)
 
 
