@@ -134,57 +134,56 @@ class RawColumns:
                         self.ref_us[rows].copy() if self.has_ref[i] else None)
 
 
-def _raw_header(payload: bytes) -> tuple[str | None, tuple]:
-    """(reason or None, (version, stream, count, first_index, t0_us, ref0_us)) of a batch's header
-    and size, as :func:`decode_raw` checks them."""
-    if len(payload) < _HEADER_V1.size:
-        return "size", ()
-    version = payload[0]
-    if version not in _LAYOUT:
-        return "version", ()
-    header, dtype = _LAYOUT[version]
-    if len(payload) < header.size:
-        return "size", ()
-    _, _, stream, n, _, first_index, t0, *ref0 = header.unpack_from(payload)
-    if n == 0 or len(payload) != header.size + n * dtype.itemsize:
-        return "size", ()
-    return None, (version, stream, n, first_index, t0, ref0[0] if ref0 else 0)
+_HEADS = {v: np.dtype([("version", "u1"), ("flags", "u1"), ("stream", "<u2"), ("count", "<u2"), ("reserved", "<u2"),
+                       ("first_index", "<u4"), ("t0", "<i8")] + ([("ref0", "<i8")] if v == 2 else []))
+          for v in _LAYOUT}
+"""The headers of both versions as NumPy record types (the bytes of the structs above)."""
 
 
 def decode_raws(payloads: list[bytes]) -> RawColumns:
     """Many truth-tap payloads at once -> :class:`RawColumns`: the same batches and the same
-    reasons as :func:`decode_raw` of each, the samples of all in a few NumPy calls."""
-    heads = [_raw_header(p) for p in payloads]
-    reason = [r for r, _ in heads]
+    reasons as :func:`decode_raw` of each, in a few NumPy calls for all."""
     b = len(payloads)
-    version, stream, count, first_index, t0, ref0 = (np.array([h[k] if h else 0 for _, h in heads], np.int64)
-                                                     .reshape(b) for k in range(6))
-    count[version == 0] = 0
+    nbytes = np.fromiter(map(len, payloads), np.int64, b)
+    buf = np.frombuffer(b"".join(payloads), np.uint8)
+    offset = np.cumsum(nbytes) - nbytes
+    version = np.full(b, -1, np.int64)
+    long = nbytes >= _HEADER_V1.size
+    version[long] = buf[offset[long]]
+    stream, count, first_index, t0, ref0 = (np.zeros(b, np.int64) for _ in range(5))
+    for v, (header, dtype) in _LAYOUT.items():
+        mine = np.flatnonzero((version == v) & (nbytes >= header.size))
+        head = buf[offset[mine, None] + np.arange(header.size)].view(_HEADS[v])[:, 0]
+        ok = (head["count"] > 0) & (nbytes[mine] == header.size + head["count"].astype(np.int64) * dtype.itemsize)
+        mine, head = mine[ok], head[ok]
+        stream[mine], count[mine], first_index[mine], t0[mine] = head["stream"], head["count"], head["first_index"], head["t0"]
+        if v == 2:
+            ref0[mine] = head["ref0"]
     start = np.cumsum(count) - count
     total = int(count.sum())
-    t_us, ref_us, q = np.zeros(total, np.int64), np.zeros(total, np.int64), np.zeros((total, 4), np.float32)
     sample_batch = np.repeat(np.arange(b), count)
+    rank = np.arange(total) - start[sample_batch]
+    t_us, ref_us, q = np.zeros(total, np.int64), np.zeros(total, np.int64), np.zeros((total, 4), np.float32)
     for v, (header, dtype) in _LAYOUT.items():
-        mine = np.flatnonzero(version == v)
-        if len(mine):
-            body = np.frombuffer(b"".join(payloads[i][header.size:] for i in mine), dtype)
-            rows = np.flatnonzero(version[sample_batch] == v)
-            t_us[rows] = t0[sample_batch[rows]] + body["dt_us"]
-            q[rows] = body["q"]
-            if v == 2:
-                ref_us[rows] = ref0[sample_batch[rows]] + body["ref_dt_us"]
-    if total:
-        held = count > 0  # the samples are theirs, batch after batch
-        finite = np.zeros(b, bool)
-        finite[held] = np.logical_and.reduceat(np.isfinite(q).all(axis=1), start[held])
-        first = np.zeros(total, bool)
-        first[start[held]] = True
-        back = ~first[1:] & ((np.diff(t_us) < 0) | (np.diff(ref_us) < 0))  # within a batch only
-        backwards = np.zeros(b, bool)
-        np.logical_or.at(backwards, sample_batch[1:][back], True)
-        for i in np.flatnonzero(count > 0):
-            if not finite[i]:
-                reason[i] = "non_finite"
-            elif backwards[i]:
-                reason[i] = "time_backwards"
+        rows = np.flatnonzero(version[sample_batch] == v)
+        at = offset[sample_batch[rows]] + header.size + rank[rows] * dtype.itemsize
+        body = buf[at[:, None] + np.arange(dtype.itemsize)].view(dtype)[:, 0]
+        t_us[rows] = t0[sample_batch[rows]] + body["dt_us"]
+        q[rows] = body["q"]
+        if v == 2:
+            ref_us[rows] = ref0[sample_batch[rows]] + body["ref_dt_us"]
+    finite = np.ones(b, bool)
+    np.logical_and.at(finite, sample_batch, np.isfinite(q).all(axis=1))
+    later = rank[1:] > 0  # a sample after the first of its batch: its times may not go back
+    back = later & ((np.diff(t_us) < 0) | (np.diff(ref_us) < 0))
+    backwards = np.zeros(b, bool)
+    backwards[sample_batch[1:][back]] = True
+    reason: list[str | None] = [None] * b
+    for i in np.flatnonzero((count == 0) | ~finite | backwards):
+        if not long[i] or (version[i] in _LAYOUT and count[i] == 0):
+            reason[i] = "size"
+        elif version[i] not in _LAYOUT:
+            reason[i] = "version"
+        else:
+            reason[i] = "non_finite" if not finite[i] else "time_backwards"
     return RawColumns(stream, first_index, start, count, version == 2, reason, t_us, ref_us, q)

@@ -38,17 +38,20 @@ class ErrorRings:
         """Append values (E,) of rows (E,), in order within each row."""
         if len(rows) == 0:
             return
-        order = np.argsort(rows, kind="stable")
-        rows, values = rows[order], values[order]
         starts = np.flatnonzero(np.concatenate([[True], rows[1:] != rows[:-1]]))
+        if len(np.unique(rows[starts])) < len(starts):  # a row in more than one run: group them, in order
+            order = np.argsort(rows, kind="stable")
+            rows, values = rows[order], values[order]
+            starts = np.flatnonzero(np.concatenate([[True], rows[1:] != rows[:-1]]))
+        runs = np.diff(np.append(starts, len(rows)))
         if len(starts) == len(rows):  # one value per row
             self.values[rows, self.count[rows] % self.window] = values
             self.count[rows] += 1
             self.total[rows] += values
             return
-        rank = np.arange(len(rows)) - np.repeat(starts, np.diff(np.append(starts, len(rows))))
+        rank = np.arange(len(rows)) - np.repeat(starts, runs)
         self.values[rows, (self.count[rows] + rank) % self.window] = values
-        self.count[rows[starts]] += np.diff(np.append(starts, len(rows)))
+        self.count[rows[starts]] += runs
         np.add.at(self.total, rows, values)
 
     def summary(self, rows: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import collections
 import math
+import operator
 from collections.abc import Callable
 
 import numpy as np
@@ -31,6 +32,9 @@ MAX_T_US = 2**53
 """Device timestamps must lie in [0, 2**53) us (year 2255): frame times and SLERP run in
 float64, exact below 2**53. Others are dropped as ``time_range`` (a point near the int64 limit
 once overflowed the frame grid and stopped the aggregator; tests/test_fuzz.py)."""
+
+
+_tunables = operator.attrgetter(*wire.TUNABLES)  # a config's settings, in wire.TUNABLES order
 
 
 class DeviceTrack:
@@ -232,7 +236,8 @@ class DeviceTrack:
         config, clock, link = self.config, self.clock, self.link
         numbers = (self.online, samples, self.points, self.points / samples if samples > 0 else math.nan,
                    len(self.arrivals) / span, self.arrival_bytes / span, lag, self.gaps, sum(self.dropped.values()),
-                   *(getattr(config, name, None) for name in wire.TUNABLES), self.stream, self.restarts, self.final,
+                   *((None,) * len(wire.TUNABLES) if config is None else _tunables(config)), self.stream, self.restarts,
+                   self.final,
                    *((None, None, None) if clock is None else (clock.clock_offset_ms, clock.sync_rtt_ms, clock.synced)),
                    *((None,) * 4 if link is None else (link.battery_pct, link.signal_dbm, link.link_loss, link.link_pps)))
         texts = (self.id, self.segment, self.subject, dict(self.dropped), None if clock is None else dict(clock.sync_bad),
