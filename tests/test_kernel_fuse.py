@@ -99,3 +99,18 @@ def test_forward_kinematics_in_c_is_numpys_bit_for_bit():
         for args in ((q, tpose), (q,), (q[0],), (q, True), (q.reshape(4, 50, 10, 4), tpose.reshape(4, 50))):
             assert np.array_equal(c.positions(*args), ref.positions(*args))
     assert fuse.MAX_JOINTS >= len(Skeleton().positions(q[0]))
+
+
+def test_error_windows_filled_in_c_are_numpys():
+    from reference_aggregator.store import ErrorRings as NumpyRings
+
+    from limbstream.services.aggregator.rings import ErrorRings
+    rng = np.random.default_rng(6)
+    c, ref = ErrorRings(50, rows=8), NumpyRings(50, slots=8)
+    for _ in range(40):
+        rows = rng.integers(0, 8, int(rng.integers(1, 120)))
+        values = rng.gamma(2.0, 3.0, len(rows))
+        c.add(rows, values)
+        ref.add(rows, values)
+        assert np.array_equal(c.values, ref.values) and np.array_equal(c.count, ref.count)
+        assert np.array_equal(c.total, ref.total)

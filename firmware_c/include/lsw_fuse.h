@@ -52,6 +52,14 @@ void lsw_fuse_reconstruct(const LswFuseRows *rows, size_t count, const int64_t *
 void lsw_fuse_errors(const LswFuseRows *rows, size_t count, const int64_t *slots, const int64_t *t_us,
                      const float *truth, double *exact_deg, double *predicted_deg);
 
+/**
+ * Append count values to ring windows of window values per row, in order: value i goes to row
+ * rows[i] at ring[rows[i]][seen[rows[i]] % window] (as float), then seen[rows[i]] += 1 and
+ * total[rows[i]] += value (in double, in the order given). services/aggregator/rings.py.
+ */
+void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t window, size_t count,
+                          const int64_t *rows, const double *values);
+
 #define LSW_FUSE_MAX_JOINTS 64u /**< joints of a body at most (lsw_fuse_chain) */
 
 /**

@@ -224,3 +224,15 @@ void lsw_fuse_chain(size_t count, const double *q, uint32_t segments, const uint
         }
     }
 }
+
+void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t window, size_t count,
+                          const int64_t *rows, const double *values)
+{
+    size_t i;
+    for (i = 0; i < count; i++) {
+        const int64_t r = rows[i];
+        ring[r * window + seen[r] % window] = (float)values[i];
+        seen[r] += 1;
+        total[r] += values[i];
+    }
+}

@@ -82,6 +82,22 @@ class PointRows:
         return exact, predicted
 
 
+_lib.lsw_fuse_ring_append.argtypes = [_vp, _vp, _vp, ctypes.c_int64, ctypes.c_size_t, _vp, _vp]
+_lib.lsw_fuse_ring_append.restype = None
+
+
+def ring_append(ring: np.ndarray, seen: np.ndarray, total: np.ndarray, rows: np.ndarray, values: np.ndarray) -> None:
+    """Append ``values`` (k,) to ring windows ``ring`` (R, window) float32 of rows ``rows`` (k,),
+    in order: row r's value at ``seen[r] % window``, then ``seen[r]`` (R,) int64 += 1 and
+    ``total[r]`` (R,) float64 += value. Rows must be rows of the arrays."""
+    for name, a, dtype in (("ring", ring, np.float32), ("seen", seen, np.int64), ("total", total, np.float64)):
+        if a.dtype != dtype or not a.flags.c_contiguous:
+            raise TypeError(f"{name} must be C-contiguous {np.dtype(dtype).name}")
+    rows, values = _int64(rows), np.ascontiguousarray(values, np.float64)
+    _lib.lsw_fuse_ring_append(ring.ctypes.data, seen.ctypes.data, total.ctypes.data, ring.shape[1], len(rows),
+                              rows.ctypes.data, values.ctypes.data)
+
+
 _lib.lsw_fuse_chain.argtypes = [ctypes.c_size_t, _vp, ctypes.c_uint32, _vp, ctypes.c_uint32, _vp, _vp, _vp, _vp, _vp,
                                 ctypes.c_uint32, _vp]
 _lib.lsw_fuse_chain.restype = None

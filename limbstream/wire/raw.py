@@ -165,19 +165,19 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
     rank = np.arange(total) - start[sample_batch]
     t_us, ref_us, q = np.zeros(total, np.int64), np.zeros(total, np.int64), np.zeros((total, 4), np.float32)
     for v, (header, dtype) in _LAYOUT.items():
-        rows = np.flatnonzero(version[sample_batch] == v)
-        at = offset[sample_batch[rows]] + header.size + rank[rows] * dtype.itemsize
-        body = buf[at[:, None] + np.arange(dtype.itemsize)].view(dtype)[:, 0]
+        batches = np.flatnonzero((version == v) & (count > 0))
+        if len(batches) == 0:
+            continue
+        rows = slice(None) if int(count[batches].sum()) == total else np.flatnonzero(version[sample_batch] == v)
+        body = np.frombuffer(b"".join([payloads[i][header.size:] for i in batches.tolist()]), dtype)
         t_us[rows] = t0[sample_batch[rows]] + body["dt_us"]
         q[rows] = body["q"]
         if v == 2:
             ref_us[rows] = ref0[sample_batch[rows]] + body["ref_dt_us"]
-    finite = np.ones(b, bool)
-    np.logical_and.at(finite, sample_batch, np.isfinite(q).all(axis=1))
+    finite = np.bincount(sample_batch[~np.isfinite(q).all(axis=1)], minlength=b) == 0
     later = rank[1:] > 0  # a sample after the first of its batch: its times may not go back
     back = later & ((np.diff(t_us) < 0) | (np.diff(ref_us) < 0))
-    backwards = np.zeros(b, bool)
-    backwards[sample_batch[1:][back]] = True
+    backwards = np.bincount(sample_batch[1:][back], minlength=b) > 0
     reason: list[str | None] = [None] * b
     for i in np.flatnonzero((count == 0) | ~finite | backwards):
         if not long[i] or (version[i] in _LAYOUT and count[i] == 0):

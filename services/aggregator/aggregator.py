@@ -22,6 +22,7 @@ import zenoh.ext as zext
 
 from limbstream import heap, wire, zconfig
 from limbstream.skeleton import Skeleton
+from limbstream.services.aggregator.devices import NO_TIME
 from limbstream.services.aggregator.frames import FrameBatch, FrameStage
 from limbstream.services.aggregator.fusion import Fusion, Subject
 from limbstream.services.aggregator.history import HistoryQueries
@@ -383,14 +384,16 @@ class Aggregator:
         """The figures of a subject's stats message: ``devices`` (its device entries) and the
         subject fields."""
         sub = self.subjects[subject]
-        return {"devices": self.fusion.device_stats([sub], now)[0]} | self._subject_fields(sub)
+        return {"devices": self.fusion.device_stats([sub], now)[0]} | self._subject_fields([sub])[0]
 
-    def _subject_fields(self, sub: Subject) -> dict:
-        frame_aad, frames_compared = self.fusion.scoring.frame_error(sub.index)
-        made, skipped = self.fusion.frame_counts(sub)
-        return {"frames": made, "skipped_frames": skipped, "watermark_us": self.fusion.watermark(sub),
-                "frame_aad_deg": frame_aad, "frame_error_frames": frames_compared,
-                "facing_deg": self.fusion.scoring.facing_deg(sub.index)}
+    def _subject_fields(self, subjects: list[Subject]) -> list[dict]:
+        """The subject fields of the subjects' stats messages."""
+        view = self.fusion.device_view()
+        scores = self.fusion.scoring.subject_figures([sub.index for sub in subjects])
+        return [{"frames": int(self.fusion.frames.made[sub.index]), "skipped_frames": int(self.fusion.frames.skipped[sub.index]),
+                 "watermark_us": None if view.watermark[sub.index] == NO_TIME else int(view.watermark[sub.index]),
+                 "frame_aad_deg": aad, "frame_error_frames": compared, "facing_deg": facing}
+                for sub, (aad, compared, facing) in zip(subjects, scores)]
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop
@@ -402,10 +405,10 @@ class Aggregator:
         subjects = list(self.subjects.values())[part::parts]
         counts, numbers, texts = self.fusion.stats_table(subjects, now)
         start = 0
-        for sub, n in zip(subjects, counts):
+        for sub, n, fields in zip(subjects, counts, self._subject_fields(subjects)):
             mine = {name: values[start:start + n] for name, values in texts.items()}
-            payload = wire.encode_stats_table(sub.name, wall, numbers[start:start + n], mine,
-                                              self._subject_fields(sub) | {"aggregator": loop}, self.stats_seq[sub.name])
+            payload = wire.encode_stats_table(sub.name, wall, numbers[start:start + n], mine, fields | {"aggregator": loop},
+                                              self.stats_seq[sub.name])
             start += n
             self._publish_stats(sub.name, payload)
             self._last_stats[sub.name] = payload

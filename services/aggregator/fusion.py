@@ -138,24 +138,24 @@ class Fusion:
         stream, seq, index, t_us, flags = (points.stream.tolist(), points.seq.tolist(), points.index.tolist(),
                                            points.t_us.tolist(), points.flags.tolist())
         nbytes = points.nbytes.tolist()
-        table = self.table
         appended: list[tuple[int, int]] = []  # (slot, row) of the points to store, in order
-        count = 0
+        seen: list[DeviceTrack] = []
         for track, i in items:
-            slot = track.slot
             if track.take_next(stream[i], seq[i], index[i], t_us[i], flags[i], nbytes[i], now):
-                appended.append((slot, i))
-                table.active[slot] = track.online
+                appended.append((track.slot, i))
             elif not self._accept(track, i, stream, seq, index, t_us, flags, nbytes, now, appended, points):
                 continue
-            table.latest_t[slot] = track.latest_t_us
-            table.latest_arrival[slot] = track.latest_arrival
-            count += 1
+            seen.append(track)
             if taken is not None and track.history == "none":  # (a stream that may want its start)
                 taken(track, i)
         self._store(appended, points)
+        if seen:
+            slots = [t.slot for t in seen]
+            self.table.active[slots] = [t.online and not t.final for t in seen]
+            self.table.latest_t[slots] = [t.latest_t_us for t in seen]
+            self.table.latest_arrival[slots] = [t.latest_arrival for t in seen]
         self._view = None
-        return count
+        return len(seen)
 
     def _accept(self, track: DeviceTrack, i: int, stream: list, seq: list, index: list, t_us: list, flags: list,
                 nbytes: list, now: float, appended: list[tuple[int, int]], points: wire.PointColumns) -> bool:
@@ -176,12 +176,9 @@ class Fusion:
         self.calibrating.first_sample(slot, seq[i], t_us[i])
         if how == "append":
             appended.append((slot, i))
-            self.table.active[slot] = track.online and not track.final
             if track.gaps != gaps:
                 self._gappy.add(track)
-        elif how == "final":
-            self.table.active[slot] = False
-        else:  # "insert": an earlier point of the stream's start, in time order
+        elif how == "insert":  # an earlier point of the stream's start, in time order
             self._store(appended, points)
             self._insert(track, points, i)
         return True
@@ -385,10 +382,3 @@ class Fusion:
         entries = iter(wire.stats_devices(list(wire.STATS_NUMBERS), numbers.tolist(), texts))
         return [[next(entries) for _ in range(n)] for n in counts]
 
-    def watermark(self, sub: Subject) -> int | None:
-        wm = self.device_view().watermark
-        return None if wm[sub.index] == NO_TIME else int(wm[sub.index])
-
-    def frame_counts(self, sub: Subject) -> tuple[int, int]:
-        """(exact frames made, frame times skipped) of a subject."""
-        return int(self.frames.made[sub.index]), int(self.frames.skipped[sub.index])

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from limbstream.kernel import fuse
+
 
 class ErrorRings:
     """Per-row ring windows of values (float32), and totals since the row began (float64).
@@ -35,24 +37,8 @@ class ErrorRings:
         self.total[row] = 0.0
 
     def add(self, rows: np.ndarray, values: np.ndarray) -> None:
-        """Append values (E,) of rows (E,), in order within each row."""
-        if len(rows) == 0:
-            return
-        starts = np.flatnonzero(np.concatenate([[True], rows[1:] != rows[:-1]]))
-        if len(np.unique(rows[starts])) < len(starts):  # a row in more than one run: group them, in order
-            order = np.argsort(rows, kind="stable")
-            rows, values = rows[order], values[order]
-            starts = np.flatnonzero(np.concatenate([[True], rows[1:] != rows[:-1]]))
-        runs = np.diff(np.append(starts, len(rows)))
-        if len(starts) == len(rows):  # one value per row
-            self.values[rows, self.count[rows] % self.window] = values
-            self.count[rows] += 1
-            self.total[rows] += values
-            return
-        rank = np.arange(len(rows)) - np.repeat(starts, runs)
-        self.values[rows, (self.count[rows] + rank) % self.window] = values
-        self.count[rows[starts]] += runs
-        np.add.at(self.total, rows, values)
+        """Append values (E,) of rows (E,), in order within each row (in C: one pass)."""
+        fuse.ring_append(self.values, self.count, self.total, rows, values)
 
     def summary(self, rows: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:
         """(mean, max, *quantiles) over each row's window, each (rows,), NaN for empty rows; a

@@ -202,14 +202,13 @@ class Scoring:
                 del self._facing_fit[int(sub)]
         return fitting
 
-    def facing_deg(self, subject: int) -> float:
-        """The subject's fitted facing (truth <- frames, about the vertical), degrees."""
-        return math.degrees(float(calibration.yaw_of(self.facing[subject])))
-
-    def frame_error(self, subject: int) -> tuple[float, int]:
-        """(mean alignment-aware frame error over the window, deg; frames compared so far)."""
-        mean, _ = self.frame_errors.summary(np.array([subject]))
-        return float(mean[0]), int(self.frame_errors.count[subject])
+    def subject_figures(self, subjects: list[int]) -> list[tuple[float, int, float]]:
+        """Per subject: (mean alignment-aware frame error over the window, deg; frames compared so
+        far; fitted facing, deg)."""
+        index = np.array(subjects, np.int64)
+        mean, _ = self.frame_errors.summary(index)
+        facing = np.degrees(calibration.yaw_of(self.facing[index]))
+        return list(zip(mean.tolist(), self.frame_errors.count[index].tolist(), facing.tolist()))
 
     def device_figures(self, slots: np.ndarray, owner: np.ndarray) -> dict[str, np.ndarray]:
         """The error and latency figures of devices ``slots`` (k,) of subjects ``owner`` (k,),
