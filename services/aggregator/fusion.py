@@ -22,7 +22,7 @@ from limbstream.services.aggregator.scoring import Scoring
 from limbstream.services.aggregator.store import PointStore
 from limbstream.services.aggregator.track import NUMBERS as TRACK_NUMBERS
 from limbstream.services.aggregator.track import TEXTS as TRACK_TEXTS
-from limbstream.services.aggregator.track import DeviceTrack
+from limbstream.services.aggregator.track import MAX_T_US, DeviceTrack, stream_figures
 
 
 class Subject:
@@ -79,7 +79,7 @@ class Fusion:
             if self.table.add_device(sub.index, segment, self._horizon_us(wire.MAX_LEN.default)) != slot:
                 raise RuntimeError("device table and point store out of step")
             self.scoring.add_device(slot)
-            track = sub.tracks[segment] = DeviceTrack(subject, segment, slot)
+            track = sub.tracks[segment] = DeviceTrack(subject, segment, slot, self.table)
             self.tracks.append(track)
             self._view = None
         return track
@@ -106,7 +106,7 @@ class Fusion:
 
     def set_online(self, track: DeviceTrack, online: bool) -> None:
         """The device's liveliness token appeared (True) or vanished (False)."""
-        track.online = self.table.online[track.slot] = online
+        track.online = online
         self.table.active[track.slot] = online and not track.final
         self._view = None
 
@@ -117,7 +117,6 @@ class Fusion:
         self.scoring.reset(slot)
         if self.calibrating.new_stream(track):
             self._calibrations_changed([track])
-        self.table.new_stream(slot)
         self._unsettled.add(track)
         self._gappy.discard(track)
         for batch in track.take_held_raw():  # truth that came before the stream's first point
@@ -130,32 +129,60 @@ class Fusion:
     def add_points(self, items: list[tuple[DeviceTrack, int]], points: wire.PointColumns, now: float,
                    taken: Callable[[DeviceTrack, int], None] | None = None) -> int:
         """The valid points of one drain, in arrival order: (track, row of ``points``) each.
-        Each is checked against its device's stream; those kept are corrected (calibration) and
-        stored in one go. ``taken(track, row)`` is called, at once, for each point taken in of a
-        stream whose history is not settled yet (``DeviceTrack.history`` "none": it may want its
-        start). Returns how many were taken in."""
+        The usual ones (the next of a settled stream, later, without flags, one per device) are
+        taken in all at once from the devices' columns; the others one by one by the full rules
+        (:meth:`_accept`). Those kept are corrected (calibration) and stored in one go.
+        ``taken(track, row)`` is called, at once, for each point taken in of a stream whose
+        history is not settled yet (``DeviceTrack.history`` "none": it may want its start).
+        Returns how many were taken in."""
         self.advance_clock(now)
-        stream, seq, index, t_us, flags = (points.stream.tolist(), points.seq.tolist(), points.index.tolist(),
-                                           points.t_us.tolist(), points.flags.tolist())
-        nbytes = points.nbytes.tolist()
-        appended: list[tuple[int, int]] = []  # (slot, row) of the points to store, in order
-        seen: list[DeviceTrack] = []
-        for track, i in items:
-            if track.take_next(stream[i], seq[i], index[i], t_us[i], flags[i], nbytes[i], now):
-                appended.append((track.slot, i))
-            elif not self._accept(track, i, stream, seq, index, t_us, flags, nbytes, now, appended, points):
-                continue
-            seen.append(track)
-            if taken is not None and track.history == "none":  # (a stream that may want its start)
-                taken(track, i)
+        if not items:
+            return 0
+        slots = np.fromiter((t.slot for t, _ in items), np.int64, len(items))
+        rows = np.fromiter((i for _, i in items), np.int64, len(items))
+        fast = self._usual(slots, rows, points)
+        self._take_usual(slots[fast], rows[fast], points, now)
+        appended: list[tuple[int, int]] = list(zip(slots[fast].tolist(), rows[fast].tolist()))
+        stream, seq, index, t_us, flags, nbytes = (getattr(points, name).tolist() for name in
+                                                   ("stream", "seq", "index", "t_us", "flags", "nbytes"))
+        kept = slots[fast].tolist()
+        for j in np.flatnonzero(~fast).tolist():
+            track, i = items[j]
+            if self._accept(track, i, stream, seq, index, t_us, flags, nbytes, now, appended, points):
+                kept.append(track.slot)
+                if taken is not None and track.history == "none":  # (a stream that may want its start)
+                    taken(track, i)
         self._store(appended, points)
-        if seen:
-            slots = [t.slot for t in seen]
-            self.table.active[slots] = [t.online and not t.final for t in seen]
-            self.table.latest_t[slots] = [t.latest_t_us for t in seen]
-            self.table.latest_arrival[slots] = [t.latest_arrival for t in seen]
+        table = self.table
+        table.active[kept] = table.online[kept] & ~table.final[kept]
         self._view = None
-        return len(seen)
+        return len(kept)
+
+    def _usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> np.ndarray:
+        """(P,) which points are the usual case: the next of their device's current stream, later
+        in time and index, without flags, the device's only point in the drain, and of a stream
+        that wants no history query (DeviceTrack.take_next's rules, for all at once)."""
+        table = self.table
+        last_t = table.last_t[slots]
+        t = points.t_us[rows]
+        return ((np.bincount(slots, minlength=len(table))[slots] == 1) & (table.stream[slots] == points.stream[rows])
+                & (table.next_seq[slots] == points.seq[rows]) & (points.flags[rows] == 0) & (last_t != NO_TIME)
+                & (last_t < t) & (t < MAX_T_US) & (table.last_index[slots] < points.index[rows])
+                & ((table.history[slots] != 0) | (table.first_seq[slots] == 0)))
+
+    def _take_usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns, now: float) -> None:
+        """Take the usual points ``rows`` of devices ``slots`` in: their devices' columns as
+        DeviceTrack.accept_point leaves them for such a point."""
+        table = self.table
+        t = points.t_us[rows]
+        table.next_seq[slots] = points.seq[rows] + 1
+        table.last_t[slots], table.last_index[slots] = t, points.index[rows]
+        table.final[slots] = False
+        table.points[slots] += 1
+        later = t >= table.latest_t[slots]
+        table.latest_t[slots[later]] = t[later]
+        table.latest_arrival[slots[later]] = now
+        table.arrivals.add(slots, now, np.ones(len(slots), np.int64), points.nbytes[rows])
 
     def _accept(self, track: DeviceTrack, i: int, stream: list, seq: list, index: list, t_us: list, flags: list,
                 nbytes: list, now: float, appended: list[tuple[int, int]], points: wire.PointColumns) -> bool:
@@ -218,40 +245,43 @@ class Fusion:
             track.hold_raw(batch)
         if not taken:
             return False
-        self._raw_seen([track])
         if self.calibrating.compares(track.slot):  # readings of a device being calibrated are not the segment's
             self.scoring.take_truth(track.slot, batch)
         return True
 
     def add_raws(self, items: list[tuple[DeviceTrack, int]], batches: wire.RawColumns, now: float) -> int:
         """The valid truth-tap batches of one drain, in arrival order: (track, row of ``batches``)
-        each; returns how many were taken in."""
+        each; the usual ones (of their device's current stream, in time range, one per device)
+        taken in all at once from the devices' columns, the others one by one
+        (DeviceTrack.accept_raw). Returns how many were taken in."""
         self.advance_clock(now)
-        stream, first, count, start = (batches.stream.tolist(), batches.first_index.tolist(), batches.count.tolist(),
-                                       batches.start.tolist())
-        t_us = batches.t_us.tolist()
-        taken, slots, rows = [], [], []
-        for track, i in items:
-            ok = track.accept_raw(stream[i], first[i], count[i], t_us[start[i]], t_us[start[i] + count[i] - 1], now)
+        if not items:
+            return 0
+        table = self.table
+        slots = np.fromiter((t.slot for t, _ in items), np.int64, len(items))
+        rows = np.fromiter((i for _, i in items), np.int64, len(items))
+        first, last = batches.start[rows], batches.start[rows] + batches.count[rows] - 1
+        t_first, t_last = batches.t_us[first], batches.t_us[last]
+        fast = ((np.bincount(slots, minlength=len(table))[slots] == 1) & (table.stream[slots] == batches.stream[rows])
+                & (0 <= t_first) & (t_first <= t_last) & (t_last < MAX_T_US))
+        s = slots[fast]
+        table.last_raw_index[s] = np.maximum(table.last_raw_index[s], batches.first_index[rows[fast]] + batches.count[rows[fast]] - 1)
+        table.last_raw_t[s] = np.maximum(np.where(table.last_raw_t[s] == NO_TIME, 0, table.last_raw_t[s]), t_last[fast])
+        later = (table.latest_t[s] == NO_TIME) | (t_last[fast] >= table.latest_t[s])
+        table.latest_t[s[later]], table.latest_arrival[s[later]] = t_last[fast][later], now
+        taken = fast.copy()
+        for j in np.flatnonzero(~fast).tolist():
+            track, i = items[j]
+            ok = track.accept_raw(int(batches.stream[i]), int(batches.first_index[i]), int(batches.count[i]),
+                                  int(t_first[j]), int(t_last[j]), now)
             if ok is None:
                 track.hold_raw(batches.batch(i))
-            elif ok:
-                taken.append(track)
-                if self.calibrating.compares(track.slot):  # readings of a device being calibrated are not the segment's
-                    slots.append(track.slot)
-                    rows.append(i)
-        if taken:
-            self._raw_seen(taken)
-        if rows:
-            self.scoring.take_truths(np.array(slots, np.int64), batches, np.array(rows, np.int64))
-        return len(taken)
-
-    def _raw_seen(self, tracks: list[DeviceTrack]) -> None:
-        """The devices' columns after truth batches of theirs were taken."""
-        slots = [t.slot for t in tracks]
-        self.table.last_raw_t[slots] = [t.last_raw_t_us for t in tracks]
-        self.table.latest_t[slots] = [t.latest_t_us for t in tracks]
-        self.table.latest_arrival[slots] = [t.latest_arrival for t in tracks]
+            taken[j] = bool(ok)
+        compared = taken if not self.calibrating.on_start else taken & np.fromiter(
+            (self.calibrating.compares(int(slot)) for slot in slots), bool, len(slots))
+        if compared.any():  # readings of a device being calibrated are not the segment's
+            self.scoring.take_truths(slots[compared], batches, rows[compared])
+        return int(taken.sum())
 
     def advance_clock(self, now: float) -> None:
         """Advance the arrival clock; devices still in their history grace period may settle."""
@@ -365,10 +395,10 @@ class Fusion:
         tracks = [[sub.tracks[name] for name in sorted(sub.tracks)] for sub in subjects]
         flat = [t for mine in tracks for t in mine]
         slots = np.array([t.slot for t in flat], np.int64)
-        own = [t.stats(now) for t in flat]
+        own = [t.stats() for t in flat]
         track_numbers = np.array([numbers for numbers, _ in own], np.float64).reshape(len(flat), len(TRACK_NUMBERS))
         columns = {name: track_numbers[:, j] for j, name in enumerate(TRACK_NUMBERS)}
-        columns |= self.scoring.device_figures(slots, self.table.owner[slots])
+        columns |= stream_figures(self.table, slots, now) | self.scoring.device_figures(slots, self.table.owner[slots])
         texts = {name: [t[j] for _, t in own] for j, name in enumerate(TRACK_TEXTS)}
         for name, values in self.calibrating.figures(slots.tolist()).items():
             (texts if name in wire.STATS_TEXTS else columns)[name] = values

@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from limbstream import wire
+from limbstream.services.aggregator.devices import COLUMNS, HISTORY, NO_TIME, DeviceTable
 
 HISTORY_WAIT_S = 5.0
 """How long after a stream's first point its earlier points (history of a device the
@@ -37,19 +38,49 @@ once overflowed the frame grid and stopped the aggregator; tests/test_fuzz.py)."
 _tunables = operator.attrgetter(*wire.TUNABLES)  # a config's settings, in wire.TUNABLES order
 
 
+class _Column:
+    """A :class:`DeviceTrack` attribute kept in the track's row of its DeviceTable (column
+    ``name``), so that a tick can read and write all devices' at once; with ``none``, the
+    column's empty value reads as None."""
+
+    def __init__(self, name: str, none: bool = False):
+        self.name, self.none, self.empty = name, none, COLUMNS[name][1]
+
+    def __get__(self, track: DeviceTrack, owner=None):
+        value = getattr(track.table, self.name)[track.slot].item()
+        return None if self.none and value == self.empty else value
+
+    def __set__(self, track: DeviceTrack, value) -> None:
+        getattr(track.table, self.name)[track.slot] = self.empty if value is None else value
+
+
 class DeviceTrack:
-    """One device as seen by the aggregator.
+    """One device as seen by the aggregator. Its stream state lives in its row (``slot``) of the
+    fusion's :class:`~.devices.DeviceTable` (the attributes below marked so); the rest here.
 
     Parameters
     ----------
     subject, segment : the device's key chunks.
     slot : its row in the aggregator's columnar stores.
+    table : the columns of every device (its row exists).
     """
 
-    def __init__(self, subject: str, segment: str, slot: int):
-        self.subject, self.segment, self.slot = subject, segment, slot
+    online = _Column("online")                  # its liveliness token is present
+    stream = _Column("stream", none=True)       # current stream id
+    next_seq = _Column("next_seq", none=True)   # sequence number of the stream's next point
+    first_seq = _Column("first_seq", none=True)  # sequence number of the first point received
+    last_t_us = _Column("last_t", none=True)    # newest point's device time
+    last_index = _Column("last_index")
+    final = _Column("final")
+    points = _Column("points")
+    last_raw_t_us = _Column("last_raw_t", none=True)  # newest truth-tap sample time (later ones need later points)
+    last_raw_index = _Column("last_raw_index")
+    latest_t_us = _Column("latest_t", none=True)  # newest device time seen (point or raw)
+    latest_arrival = _Column("latest_arrival")    # arrival clock when it came, s (NaN: none)
+
+    def __init__(self, subject: str, segment: str, slot: int, table: DeviceTable):
+        self.subject, self.segment, self.slot, self.table = subject, segment, slot, table
         self.id = wire.device_id(subject, segment)
-        self.online = False
         self.config: wire.DeviceConfig | None = None  # as the device last reported it
         self.clock: wire.ClockStatus | None = None    # its clock sync, as it last reported it
         self.link: wire.LinkStatus | None = None      # a bridged device's link, as its gateway last reported it
@@ -57,29 +88,31 @@ class DeviceTrack:
         self.restarts = 0
         self.generation = 0
         self._retired: collections.deque = collections.deque(maxlen=16)
-        self.stream: int | None = None
         self.held_raw: collections.deque = collections.deque()  # truth batches of a stream to come
         self.reset_stream()
 
+    @property
+    def history(self) -> str:
+        """The history query of a late-joined stream: none, asked, done."""
+        return HISTORY[self.table.history[self.slot]]
+
+    @history.setter
+    def history(self, value: str) -> None:
+        self.table.history[self.slot] = HISTORY.index(value)
+
     def reset_stream(self) -> None:
         """Forget the stream's counters (the caller resets the stores' rows)."""
-        self.next_seq: int | None = None
-        self.first_seq: int | None = None    # sequence number of the first point received
+        self.next_seq = self.first_seq = self.last_t_us = self.last_raw_t_us = self.latest_t_us = None
         self.first_arrival = 0.0
         self.first_t_us: int | None = None
         self.early: set[int] = set()          # points older than the first one, taken in later
-        self.history = "none"                 # the history query of a late-joined stream: none, asked, done
+        self.history = "none"
         self.points = 0
-        self.last_t_us: int | None = None   # newest point's device time
-        self.last_index = -1
-        self.last_raw_index = -1
-        self.last_raw_t_us: int | None = None  # newest truth-tap sample time (later ones need later points)
+        self.last_index = self.last_raw_index = -1
         self.final = False
         self.gaps = 0
         self.gap_spans: collections.deque = collections.deque(maxlen=64)  # (t0, t1) us
-        self.arrivals: collections.deque = collections.deque()            # (arrival s, bytes)
-        self.arrival_bytes = 0                                            # the bytes of those
-        self.latest_t_us: int | None = None  # newest device time seen (point or raw)
+        self.table.arrivals.reset(self.slot)
         self.latest_arrival = math.nan
 
     def check_stream(self, stream: int) -> str:
@@ -96,22 +129,6 @@ class DeviceTrack:
         self.generation += 1
         self.reset_stream()
         return "new"
-
-    def take_next(self, stream: int, seq: int, index: int, t_us: int, flags: int, nbytes: int, now: float) -> bool:
-        """The usual point, taken in at once: the next of the current stream, later than the one
-        before it and without flags (what :meth:`accept_point` appends without a second look).
-        False, and nothing changed, for any other: :meth:`check_stream` and :meth:`accept_point`
-        then decide."""
-        if (stream != self.stream or seq != self.next_seq or flags or self.last_t_us is None
-                or not self.last_t_us < t_us < MAX_T_US or index <= self.last_index):
-            return False
-        self.next_seq, self.last_t_us, self.last_index, self.final = seq + 1, t_us, index, False
-        self.points += 1
-        self.arrivals.append((now, nbytes))
-        self.arrival_bytes += nbytes
-        if t_us >= self.latest_t_us:
-            self.latest_t_us, self.latest_arrival = t_us, now
-        return True
 
     def accept_point(self, seq: int, index: int, t_us: int, flags: int, nbytes: int, now: float,
                      stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
@@ -154,8 +171,7 @@ class DeviceTrack:
 
     def _count(self, t_us: int, nbytes: int, now: float) -> None:
         self.points += 1
-        self.arrivals.append((now, nbytes))
-        self.arrival_bytes += nbytes
+        self.table.arrivals.add_one(self.slot, now, nbytes)
         self.see(t_us, now)
 
     def settled(self, now: float) -> bool:
@@ -220,24 +236,12 @@ class DeviceTrack:
         spans = np.array(self.gap_spans, np.int64).reshape(-1, 2)
         return ((t_us[:, None] > spans[:, 0]) & (t_us[:, None] < spans[:, 1])).any(axis=1)
 
-    def stats(self, now: float) -> tuple[tuple, tuple]:
-        """The track's own fields of its stats entry (limbstream.wire.fields): the values of
-        :data:`NUMBERS` and of :data:`TEXTS`, in their order (None: null)."""
-        while self.arrivals and self.arrivals[0][0] < now - RATE_WINDOW_S:
-            self.arrival_bytes -= self.arrivals.popleft()[1]
-        span = RATE_WINDOW_S
-        if self.arrivals and self.points == len(self.arrivals):  # stream younger than the window
-            span = max(now - self.arrivals[0][0], 1.0)
-        samples = max(self.last_index, self.last_raw_index) + 1
-        lag = math.nan
-        if self.latest_t_us is not None and self.last_t_us is not None:
-            device_now = self.latest_t_us + (now - self.latest_arrival) * 1e6
-            lag = 0.0 if self.final else max(0.0, (device_now - self.last_t_us) / 1e6)
+    def stats(self) -> tuple[tuple, tuple]:
+        """The fields of its stats entry (limbstream.wire.fields) that its row in the table does not
+        hold: the values of :data:`NUMBERS` and of :data:`TEXTS`, in their order (None: null)."""
         config, clock, link = self.config, self.clock, self.link
-        numbers = (self.online, samples, self.points, self.points / samples if samples > 0 else math.nan,
-                   len(self.arrivals) / span, self.arrival_bytes / span, lag, self.gaps, sum(self.dropped.values()),
-                   *((None,) * len(wire.TUNABLES) if config is None else _tunables(config)), self.stream, self.restarts,
-                   self.final,
+        numbers = (self.gaps, sum(self.dropped.values()),
+                   *((None,) * len(wire.TUNABLES) if config is None else _tunables(config)), self.restarts,
                    *((None, None, None) if clock is None else (clock.clock_offset_ms, clock.sync_rtt_ms, clock.synced)),
                    *((None,) * 4 if link is None else (link.battery_pct, link.signal_dbm, link.link_loss, link.link_pps)))
         texts = (self.id, self.segment, self.subject, dict(self.dropped), None if clock is None else dict(clock.sync_bad),
@@ -245,9 +249,25 @@ class DeviceTrack:
         return numbers, texts
 
 
-NUMBERS: tuple[str, ...] = ("online", "samples", "points", "icr", "msgs_per_s", "bytes_per_s", "watermark_lag_s", "gaps",
-                            "dropped", *wire.TUNABLES, "stream", "restarts", "final", "clock_offset_ms",
-                            "sync_rtt_ms", "synced", "battery_pct", "signal_dbm", "link_loss", "link_pps")
+NUMBERS: tuple[str, ...] = ("gaps", "dropped", *wire.TUNABLES, "restarts", "clock_offset_ms", "sync_rtt_ms", "synced",
+                            "battery_pct", "signal_dbm", "link_loss", "link_pps")
 """The number fields of a device's stats entry that its track gives (:meth:`DeviceTrack.stats`)."""
 TEXTS: tuple[str, ...] = ("device", "segment", "subject", "dropped_by_reason", "sync_bad", "tracker")
 """The other fields of a device's stats entry that its track gives."""
+
+
+def stream_figures(table: DeviceTable, slots: np.ndarray, now: float) -> dict[str, np.ndarray]:
+    """The stats fields of devices ``slots`` (k,) that their rows of ``table`` give, at arrival
+    clock ``now`` (s), by name, each (k,) (NaN: null): liveliness, samples, points, ICR, data
+    rates over RATE_WINDOW_S, watermark lag, stream, end."""
+    points, nbytes, oldest = table.arrivals.window(slots, now - RATE_WINDOW_S)
+    span = np.where((points > 0) & (table.points[slots] == points), np.maximum(now - oldest, 1.0), RATE_WINDOW_S)
+    samples = np.maximum(table.last_index[slots], table.last_raw_index[slots]) + 1
+    latest, last = table.latest_t[slots], table.last_t[slots]
+    device_now = latest + (now - table.latest_arrival[slots]) * 1e6
+    lag = np.where(table.final[slots], 0.0, np.maximum(0.0, (device_now - last) / 1e6))
+    return {"online": table.online[slots], "samples": samples, "points": table.points[slots],
+            "icr": np.where(samples > 0, table.points[slots] / np.maximum(samples, 1), np.nan),
+            "msgs_per_s": points / span, "bytes_per_s": nbytes / span,
+            "watermark_lag_s": np.where((latest != NO_TIME) & (last != NO_TIME), lag, np.nan),
+            "stream": np.where(table.stream[slots] >= 0, table.stream[slots], np.nan), "final": table.final[slots]}
