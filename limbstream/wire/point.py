@@ -156,8 +156,11 @@ def decode_points(payloads: list[bytes]) -> PointColumns:
     valid = np.zeros(n, bool)
     for v, dtype in _DTYPES.items():
         mine = np.flatnonzero((version == v) & (nbytes == dtype.itemsize))
-        if len(mine):
+        if len(mine) == n:  # all of one version (a drain's usual): their bytes as they came
+            rec = buf.view(dtype)
+        elif len(mine):
             rec = buf[start[mine, None] + np.arange(dtype.itemsize)].view(dtype)[:, 0]
+        if len(mine):
             for name in cols:
                 cols[name][mine] = rec[name]
             q[mine] = rec["q"]

@@ -142,7 +142,8 @@ class Fusion:
         rows = np.fromiter((i for _, i in items), np.int64, len(items))
         fast = self._usual(slots, rows, points)
         self._take_usual(slots[fast], rows[fast], points, now)
-        appended: list[tuple[int, int]] = list(zip(slots[fast].tolist(), rows[fast].tolist()))
+        self._store_rows(slots[fast], rows[fast], points)
+        appended: list[tuple[int, int]] = []
         stream, seq, index, t_us, flags, nbytes = (getattr(points, name).tolist() for name in
                                                    ("stream", "seq", "index", "t_us", "flags", "nbytes"))
         kept = slots[fast].tolist()
@@ -221,13 +222,17 @@ class Fusion:
 
     def _store(self, appended: list[tuple[int, int]], points: wire.PointColumns) -> None:
         """Store the points ``appended`` ((slot, row) each, in order) and forget them."""
-        if not appended:
-            return
-        slots, rows = np.array(appended, np.int64).T
-        t_us, q, w = self._corrected(slots, rows, points)
-        for slot, forgotten in self.store.append_many(slots, t_us, q, w).items():
-            self.tracks[slot].dropped["buffer_full"] += forgotten
-        appended.clear()
+        if appended:
+            slots, rows = np.array(appended, np.int64).T
+            self._store_rows(slots, rows, points)
+            appended.clear()
+
+    def _store_rows(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> None:
+        """Store points ``rows`` (P,) of ``points`` in the rows of devices ``slots`` (P,), in order."""
+        if len(slots):
+            t_us, q, w = self._corrected(slots, rows, points)
+            for slot, forgotten in self.store.append_many(slots, t_us, q, w).items():
+                self.tracks[slot].dropped["buffer_full"] += forgotten
 
     def _insert(self, track: DeviceTrack, points: wire.PointColumns, i: int) -> None:
         """Store an earlier point of a stream's start in time order (counted if the row is full)."""
