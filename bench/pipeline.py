@@ -248,7 +248,7 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
             agg.publish_stats(now, k % 50, 50)  # one round a second, spread as the loop does
         load = (cpu_now() - cpu0) / seconds
         print(f"| {subjects} | {10 * subjects} | {n_points / seconds:.0f} | {500 * subjects:.0f} | "
-              f"{agg.loop.frames / seconds:.0f} | {100 * load:.0f} % | {subjects / load:.0f} |")
+              f"{agg.loop.frames / seconds:.0f} | {100 * load:.1f} % | {subjects / load:.0f} |")
 
 
 # ----------------------------------------------------------------------------- latency
