@@ -129,9 +129,8 @@ class Fusion:
     def add_points(self, items: list[tuple[DeviceTrack, int]], points: wire.PointColumns, now: float,
                    taken: Callable[[DeviceTrack, int], None] | None = None) -> int:
         """The valid points of one drain, in arrival order: (track, row of ``points``) each.
-        The usual ones (the next of a settled stream, later, without flags, one per device) are
-        taken in all at once from the devices' columns; the others one by one by the full rules
-        (:meth:`_accept`). Those kept are corrected (calibration) and stored in one go.
+        The usual ones (:meth:`_usual`) are taken in all at once from the devices' columns; the
+        others one by one by the full rules (:meth:`_accept`). Those kept are corrected (calibration) and stored in one go.
         ``taken(track, row)`` is called, at once, for each point taken in of a stream whose
         history is not settled yet (``DeviceTrack.history`` "none": it may want its start).
         Returns how many were taken in."""
@@ -160,30 +159,47 @@ class Fusion:
         return len(kept)
 
     def _usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> np.ndarray:
-        """(P,) which points are the usual case: the next of their device's current stream, later
-        in time and index, without flags, the device's only point in the drain, and of a stream
-        that wants no history query (DeviceTrack.take_next's rules, for all at once)."""
+        """(P,) which points are the usual case (DeviceTrack.accept_point appends them without a
+        second look): each device's leading run in the drain of points that are the next of its
+        current stream, later in time and index than the one before, without flags, of a stream
+        that wants no history query."""
         table = self.table
-        last_t = table.last_t[slots]
-        t = points.t_us[rows]
-        return ((np.bincount(slots, minlength=len(table))[slots] == 1) & (table.stream[slots] == points.stream[rows])
-                & (table.next_seq[slots] == points.seq[rows]) & (points.flags[rows] == 0) & (last_t != NO_TIME)
-                & (last_t < t) & (t < MAX_T_US) & (table.last_index[slots] < points.index[rows])
-                & ((table.history[slots] != 0) | (table.first_seq[slots] == 0)))
+        order = np.argsort(slots, kind="stable")  # each device's points together, in arrival order
+        s, r = slots[order], rows[order]
+        seq, t, index = points.seq[r], points.t_us[r], points.index[r]
+        first = np.ones(len(s), bool)
+        first[1:] = s[1:] != s[:-1]
+        before = np.roll(np.arange(len(s)), 1)  # the point before in the same device's run
+        next_seq = np.where(first, table.next_seq[s], seq[before] + 1)
+        last_t = np.where(first, table.last_t[s], t[before])
+        last_index = np.where(first, table.last_index[s], index[before])
+        step = ((points.stream[r] == table.stream[s]) & (seq == next_seq) & (points.flags[r] == 0)
+                & (last_t != NO_TIME) & (last_t < t) & (t < MAX_T_US) & (last_index < index)
+                & ((table.history[s] != 0) | (table.first_seq[s] == 0)))
+        run = np.flatnonzero(first)
+        stop = np.minimum.reduceat(np.where(step, len(s), np.arange(len(s))), run)  # each run's first misfit
+        usual = np.empty(len(s), bool)
+        usual[order] = np.arange(len(s)) < np.repeat(stop, np.diff(np.append(run, len(s))))
+        return usual
 
     def _take_usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns, now: float) -> None:
-        """Take the usual points ``rows`` of devices ``slots`` in: their devices' columns as
-        DeviceTrack.accept_point leaves them for such a point."""
+        """Take the usual points ``rows`` of devices ``slots`` in (in arrival order): their devices'
+        columns as DeviceTrack.accept_point leaves them after such points."""
+        if len(slots) == 0:
+            return
         table = self.table
-        t = points.t_us[rows]
-        table.next_seq[slots] = points.seq[rows] + 1
-        table.last_t[slots], table.last_index[slots] = t, points.index[rows]
-        table.final[slots] = False
-        table.points[slots] += 1
-        later = t >= table.latest_t[slots]
-        table.latest_t[slots[later]] = t[later]
-        table.latest_arrival[slots[later]] = now
-        table.arrivals.add(slots, now, np.ones(len(slots), np.int64), points.nbytes[rows])
+        devices, newest, count = np.unique(slots[::-1], return_index=True, return_counts=True)
+        last = rows[len(rows) - 1 - newest]  # each device's newest point
+        t = points.t_us[last]
+        table.next_seq[devices] = points.seq[last] + 1
+        table.last_t[devices], table.last_index[devices] = t, points.index[last]
+        table.final[devices] = False
+        table.points[devices] += count
+        later = t >= table.latest_t[devices]
+        table.latest_t[devices[later]] = t[later]
+        table.latest_arrival[devices[later]] = now
+        nbytes = np.bincount(slots, points.nbytes[rows], minlength=len(table))[devices].astype(np.int64)
+        table.arrivals.add(devices, now, count, nbytes)
 
     def _accept(self, track: DeviceTrack, i: int, stream: list, seq: list, index: list, t_us: list, flags: list,
                 nbytes: list, now: float, appended: list[tuple[int, int]], points: wire.PointColumns) -> bool:
