@@ -3,10 +3,10 @@
  * Host library only.
  */
 #include "lsw_fuse.h"
+#include "lsw_quat.h"
 
 #include <math.h>
 
-#define NEAR_SIN 1e-6 /* SLERP by linear interpolation below this sin(angle), as limbstream.quat.slerp */
 
 /** Index of the last point of row r at or before time x (-1: none): a binary search. */
 static int64_t locate(const LswFuseRows *rows, int64_t r, int64_t x)
@@ -36,39 +36,6 @@ static void unit_point(const LswFuseRows *rows, int64_t r, int64_t k, double *y)
     y[3] = d / norm;
 }
 
-/** y /= |y|. */
-static void normalize(double *y)
-{
-    const double norm = sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3]);
-    y[0] /= norm;
-    y[1] /= norm;
-    y[2] /= norm;
-    y[3] /= norm;
-}
-
-/** SLERP along the shorter arc from q0 to q1 at u (0..1), normalised: limbstream.quat.slerp. */
-static void slerp(const double *q0, const double *q1, double u, double *y)
-{
-    double dot = q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3];
-    const double sign = dot < 0.0 ? -1.0 : 1.0;
-    double theta, sin_theta, w0, w1;
-    int i;
-    dot = fabs(dot);
-    theta = acos(dot > 1.0 ? 1.0 : dot);
-    sin_theta = sin(theta);
-    if (sin_theta < NEAR_SIN) {
-        w0 = 1.0 - u;
-        w1 = u;
-    } else {
-        w0 = sin((1.0 - u) * theta) / sin_theta;
-        w1 = sin(u * theta) / sin_theta;
-    }
-    for (i = 0; i < 4; i++) {
-        y[i] = w0 * q0[i] + w1 * (sign * q1[i]);
-    }
-    normalize(y);
-}
-
 /** The SLERP reconstruction of non-empty row r at time x, k the point at or before x (-1: none). */
 static void exact(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, double *y)
 {
@@ -84,7 +51,7 @@ static void exact(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, doub
     u = u < 0.0 ? 0.0 : (u > 1.0 ? 1.0 : u);
     unit_point(rows, r, k, q0);
     unit_point(rows, r, k1, q1);
-    slerp(q0, q1, u, y);
+    lsw_quat_slerp(q0, q1, u, y);
 }
 
 /** Point k of row r extrapolated to time x with its body rate: limbstream.quat.predict
@@ -104,7 +71,7 @@ static void predict(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, do
     for (i = 0; i < 4; i++) {
         y[i] = q[i] + dt * qdot[i];
     }
-    normalize(y);
+    lsw_quat_normalize(y);
 }
 
 /** y = identity. */

@@ -142,15 +142,23 @@ class PointColumns:
                    np.array(nbytes, np.int64).reshape(len(points)), [None] * len(points))
 
 
-def decode_points(payloads: list[bytes]) -> PointColumns:
-    """Many segment point payloads at once -> :class:`PointColumns`: the same points and the same
-    reasons as :func:`decode_point` of each, in a few NumPy calls for all."""
+def joined(payloads: list[bytes], first: int = 1) -> tuple[np.ndarray, ...]:
+    """Payloads side by side: (their sizes (n,), all their bytes as one uint8 array, where each
+    begins (n,), each one's first byte (its version; -1 where it has fewer than ``first`` bytes))."""
     n = len(payloads)
     nbytes = np.fromiter(map(len, payloads), np.int64, n)
     buf = np.frombuffer(b"".join(payloads), np.uint8)
     start = np.cumsum(nbytes) - nbytes
     version = np.full(n, -1, np.int64)
-    version[nbytes > 0] = buf[start[nbytes > 0]]
+    version[nbytes >= first] = buf[start[nbytes >= first]]
+    return nbytes, buf, start, version
+
+
+def decode_points(payloads: list[bytes]) -> PointColumns:
+    """Many segment point payloads at once -> :class:`PointColumns`: the same points and the same
+    reasons as :func:`decode_point` of each, in a few NumPy calls for all."""
+    n = len(payloads)
+    nbytes, buf, start, version = joined(payloads)
     cols = {name: np.zeros(n, np.int64) for name in ("stream", "seq", "index", "t_us", "flags")}
     q, omega = np.zeros((n, 4), np.float32), np.zeros((n, 3), np.float32)
     valid = np.zeros(n, bool)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import WireError
+from .point import joined
 
 RAW_VERSION = 2
 """Format version of truth-tap batches written with reference times (1: without)."""
@@ -144,12 +145,8 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
     """Many truth-tap payloads at once -> :class:`RawColumns`: the same batches and the same
     reasons as :func:`decode_raw` of each, in a few NumPy calls for all."""
     b = len(payloads)
-    nbytes = np.fromiter(map(len, payloads), np.int64, b)
-    buf = np.frombuffer(b"".join(payloads), np.uint8)
-    offset = np.cumsum(nbytes) - nbytes
-    version = np.full(b, -1, np.int64)
+    nbytes, buf, offset, version = joined(payloads, _HEADER_V1.size)
     long = nbytes >= _HEADER_V1.size
-    version[long] = buf[offset[long]]
     stream, count, first_index, t0, ref0 = (np.zeros(b, np.int64) for _ in range(5))
     for v, (header, dtype) in _LAYOUT.items():
         mine = np.flatnonzero((version == v) & (nbytes >= header.size))
