@@ -129,7 +129,7 @@ def statuses(sc: Scenario, subject: str, tick: int) -> None:
         sc.at(tick, "config", wire.config_key(subject, segment), wire.encode_status(status))
 
 
-def plain_scenario(subjects: int = 5, seconds: float = 10.0, seed: int = 1) -> list[list[tuple]]:
+def plain_scenario(subjects: int = 5, seconds: float = 8.0, seed: int = 1) -> list[list[tuple]]:
     m = int(seconds * FS)
     sc = Scenario(m + 60, seed)
     for s in range(subjects):
@@ -150,7 +150,7 @@ def plain_scenario(subjects: int = 5, seconds: float = 10.0, seed: int = 1) -> l
     return sc.shuffled()
 
 
-def calibrated_scenario(seconds: float = 16.0, seed: int = 2) -> list[list[tuple]]:
+def calibrated_scenario(seconds: float = 10.0, seed: int = 2) -> list[list[tuple]]:
     """Two subjects whose streams begin with the calibration script, read through strapped
     sensors (truth in a world turned 40 deg); a third device joins mid-stream and is refused."""
     from limbstream.sources.generator import generate
@@ -169,7 +169,7 @@ def calibrated_scenario(seconds: float = 16.0, seed: int = 2) -> list[list[tuple
             deliver(sc, name, seg, points_of(reading, rate=s == 1, threshold=9e-4))
             truth(sc, name, seg, truth_q[:, j], ref=True)
     sc.at(0, "alive", wire.alive_key("c2", "hip"), True)
-    deliver(sc, "c2", "hip", points_of(q[:, 9].astype(np.float32), rate=False, threshold=9e-4)[40:])
+    deliver(sc, "c2", "hip", points_of(q[:, 9].astype(np.float32), rate=False, threshold=9e-4)[5:])
     return sc.shuffled()
 
 
