@@ -159,7 +159,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = F
             thread.start()
             deadline = time.monotonic() + 60  # warm-up: every device seen and frames flowing
             while time.monotonic() < deadline and not (
-                    len(agg.subjects) == subjects and all(f.frames > 0 for f in agg.subjects.values())):
+                    len(agg.subjects) == subjects and (agg.fusion.frames.made > 0).all()):
                 time.sleep(0.1)
             p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.late, agg.loop.ticks
             cpu0, wall0 = cpu_now(), time.monotonic()

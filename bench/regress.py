@@ -82,6 +82,9 @@ def numbers(python: Path, cwd: Path, args) -> dict[str, float]:
     fig["soak: aggregator late ticks % after warm-up"] = r["aggregator late ticks % after warm-up"]
     fig["soak: aggregator busy %"] = r["aggregator busy % of wall time (main loop)"]
     fig["soak: aggregator CPU %"] = soak["cpu"].get("aggregator", float("nan"))
+    threads = soak.get("aggregator threads cpu", {})  # (revisions whose soak records them)
+    fig["soak: aggregator CPU % of its Python thread"] = threads.get("python", float("nan"))
+    fig["soak: aggregator CPU % of Zenoh's threads"] = sum(v for k, v in threads.items() if k != "python") if threads else float("nan")
     fig["soak: emulators CPU %"] = sum(v for k, v in soak["cpu"].items() if k.startswith("emulator"))
     fig["soak: router CPU %"] = soak["cpu"].get("router", float("nan"))
     fig["soak: aggregator RSS after warm-up MiB"] = max(soak["rss"]["aggregator"])
