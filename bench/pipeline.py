@@ -32,7 +32,7 @@ from limbstream.device_emulator.main import subject_names  # noqa: E402
 from limbstream import wire, zconfig  # noqa: E402
 from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
 from limbstream.sources import SEGMENTS  # noqa: E402
-from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
+from limbstream.services.aggregator.aggregator import STATS_BATCHES, Aggregator, AggregatorSettings  # noqa: E402
 
 
 class Router:
@@ -245,7 +245,8 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
             agg.take_raw([key for key, _ in raw], [payload for _, payload in raw], now)
             n_points += len(points)
             agg.advance(k % every == 0, prune=k % 25 == 0, now=now)  # live frames every ``every`` ticks
-            agg.publish_stats(now, k % 50, 50)  # one round a second, spread as the loop does
+            if k % (50 // STATS_BATCHES) == 0:  # one round a second, in batches as the loop sends it
+                agg.publish_stats(now, k // (50 // STATS_BATCHES) % STATS_BATCHES, STATS_BATCHES)
         load = (cpu_now() - cpu0) / seconds
         print(f"| {subjects} | {10 * subjects} | {n_points / seconds:.0f} | {500 * subjects:.0f} | "
               f"{agg.loop.frames / seconds:.0f} | {100 * load:.1f} % | {subjects / load:.0f} |")

@@ -38,6 +38,10 @@ UNSYNCED_POLL_S = 1.0
 reported itself not synced is asked for its statuses this often instead of every config_poll_s:
 the stats show the devices' resync within about a second."""
 RESYNC_WATCH_S = 10.0
+STATS_BATCHES = 10
+"""A stats period's messages (one per subject) go out in this many batches, a tick each: often
+enough that no tick carries them all, few enough that each batch's figures are computed for many
+devices at once."""
 
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
@@ -436,7 +440,9 @@ class Aggregator:
         next_live = next_config = next_frames = next_prune = next_trim = start
         next_unsynced = start + UNSYNCED_POLL_S
         watch_until = start  # the stats follow devices resyncing until then
-        stats_parts = max(1, round(s.stats_period_s / s.tick_s))  # one stats round per period
+        ticks = max(1, round(s.stats_period_s / s.tick_s))  # a stats round per period, in batches
+        stats_parts = min(STATS_BATCHES, ticks)
+        stats_every = ticks // stats_parts
         k = 0
         while not stop.is_set():
             deadline = start + k * s.tick_s
@@ -459,7 +465,8 @@ class Aggregator:
                     self.advance(live, prune, now)
                     next_frames = now + s.frame_batch_s
                     next_prune = now + 0.5 if prune else next_prune
-                self.publish_stats(now, k % stats_parts, stats_parts)
+                if k % stats_every == 0:
+                    self.publish_stats(now, k // stats_every % stats_parts, stats_parts)
                 self.serve_calibrations()
                 self.serve_stats_queries()
             if now >= next_config:
