@@ -18,9 +18,9 @@ import collections
 import sys
 
 PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("stats (figures, encoding, publishing)", ("publish_stats", "subject_stats")),
+    ("stats (figures, encoding, publishing)", ("publish_stats", "subject_stats", "encode_stats")),
     ("truth evaluation", ("evaluate_truth", "evaluate_frames")),
-    ("publishing frames", ("_publish_frames", "_publish ")),
+    ("publishing frames (encoding, puts)", ("_publish_frames", "_publish ", "PoseFrames.encode")),
     ("exact and live frames", ("exact_frames", "live_frames", "Fusion.tick", "FrameBuilder")),
     ("drain: points and truth batches taken in", ("drain", "on_point", "on_raw", "take_points", "take_raw")),
     ("pruning", ("prune",)),
@@ -52,13 +52,21 @@ def parts(path: str) -> tuple[collections.Counter, int]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("profiles", nargs="+", help="py-spy raw profiles (one column each)")
+    parser.add_argument("--cpu", type=float, nargs="+", default=(),
+                        help="each profile's CPU in all, % of a core: the parts then in % of a core too")
     args = parser.parse_args(argv)
     results = [parts(p) for p in args.profiles]
     names = [name for name, _ in PARTS] + ["other (the loop itself)"]
+    cpu = list(args.cpu) + [None] * (len(results) - len(args.cpu))
+
+    def cell(count: int, total: int, of: float | None) -> str:
+        share = count / max(total, 1)
+        return f"{100 * share:.0f} %" + ("" if of is None else f" ({share * of:.1f} % of a core)")
+
     print("| part | " + " | ".join(args.profiles) + " |")
     print("|---|" + "---:|" * len(results))
     for name in names:
-        print(f"| {name} | " + " | ".join(f"{100 * c[name] / max(t, 1):.0f} %" for c, t in results) + " |")
+        print(f"| {name} | " + " | ".join(cell(c[name], t, of) for (c, t), of in zip(results, cpu)) + " |")
     print("| samples | " + " | ".join(str(t) for _, t in results) + " |")
     return 0
 
