@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -68,7 +69,7 @@ class Skeleton:
         and parent joint (the pelvis: the origin), its vector in its segment's frame at rest, m,
         standing and with the arms out (T-pose)."""
         down = np.array([0.0, -1.0, 0.0])
-        rows = [("neck_base", None, "hip", [0.0, self.spine, 0.0], None),
+        rows: list[tuple[str, str | None, str, Any, Any]] = [("neck_base", None, "hip", [0.0, self.spine, 0.0], None),
                 ("head", "neck_base", "neck", [0.0, self.neck, 0.0], None)]
         for side, lateral in (("l", 1.0), ("r", -1.0)):
             out = np.array([lateral, 0.0, 0.0])

@@ -175,7 +175,7 @@ def decode_points(payloads: list[bytes]) -> PointColumns:
             if v == VERSION_RATE:
                 omega[mine] = rec["omega"]
             valid[mine] = True
-    finite = np.isfinite(q).all(axis=1) & np.isfinite(omega).all(axis=1)
+    finite = np.asarray(np.isfinite(q).all(axis=1) & np.isfinite(omega).all(axis=1))
     w, x, y, z = q.astype(np.float64).T
     unit = np.abs(np.sqrt(w * w + x * x + y * y + z * z) - 1.0) <= UNIT_TOLERANCE
     reason: list[str | None] = [None] * n

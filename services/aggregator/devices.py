@@ -122,6 +122,24 @@ class DeviceTable:
     ``seg_slots`` (subjects, 10) int64: the device slot of each segment (SEGMENTS order), -1 where
     the subject has no such device."""
 
+    owner: np.ndarray
+    online: np.ndarray
+    active: np.ndarray
+    stream: np.ndarray
+    next_seq: np.ndarray
+    first_seq: np.ndarray
+    history: np.ndarray
+    last_t: np.ndarray
+    last_index: np.ndarray
+    final: np.ndarray
+    points: np.ndarray
+    last_raw_t: np.ndarray
+    last_raw_index: np.ndarray
+    latest_t: np.ndarray
+    latest_arrival: np.ndarray
+    horizon_us: np.ndarray
+    settled: np.ndarray
+
     def __init__(self) -> None:
         self.seg_slots = np.full((0, len(SEGMENTS)), -1, np.int64)
         for name, (dtype, _) in COLUMNS.items():

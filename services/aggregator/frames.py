@@ -69,9 +69,9 @@ class FrameBatch:
     live: wire.PoseFrames
 
 
-FrameStage = Callable[[FrameBatch], Iterable[tuple[int, str, bytes]]]
-"""Work on a tick's frames, all subjects at once, before they are encoded: returns messages to
-publish as (subject index, key kind, payload)."""
+FrameStage = Callable[[FrameBatch], Iterable[tuple[str, str, bytes]]]
+"""Work on a tick's frames, all subjects at once, before they are encoded (the aggregator's
+``frame_stages``): returns messages to publish as (key, its ``zconfig.QOS`` kind, payload)."""
 
 
 class FrameBuilder:

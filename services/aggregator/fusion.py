@@ -4,8 +4,11 @@ computed for all subjects at once.
 :class:`Fusion` keeps every device's track (:mod:`.track`), its points (:mod:`.store`) and
 columns (:mod:`.devices`), and holds three parts with their own state: the frame builder
 (:mod:`.frames`), the scoring against the truth tap (:mod:`.scoring`) and the calibrations
-(:mod:`.calibrating`). Points come in batches, a drain's worth at a time: each is checked
-against its device's stream in arrival order, corrected (calibration) and stored in one go.
+(:mod:`.calibrating`). Points and truth batches come a drain's worth at a time: those that
+simply follow their device's stream are taken in for all devices at once, the others checked one
+by one in arrival order; then they are corrected (calibration) and stored in one go. A point's
+correction before fusion (a calibration today; any other per device would join it) is
+:meth:`_corrected`.
 """
 from __future__ import annotations
 
@@ -76,7 +79,7 @@ class Fusion:
         track = sub.tracks.get(segment)
         if track is None:
             slot = self.store.add_slot()
-            if self.table.add_device(sub.index, segment, self._horizon_us(wire.MAX_LEN.default)) != slot:
+            if self.table.add_device(sub.index, segment, self._horizon_us(int(wire.MAX_LEN.default))) != slot:
                 raise RuntimeError("device table and point store out of step")
             self.scoring.add_device(slot)
             track = sub.tracks[segment] = DeviceTrack(subject, segment, slot, self.table)
@@ -130,10 +133,10 @@ class Fusion:
                    taken: Callable[[DeviceTrack, int], None] | None = None) -> int:
         """The valid points of one drain, in arrival order: (track, row of ``points``) each.
         The usual ones (:meth:`_usual`) are taken in all at once from the devices' columns; the
-        others one by one by the full rules (:meth:`_accept`). Those kept are corrected (calibration) and stored in one go.
-        ``taken(track, row)`` is called, at once, for each point taken in of a stream whose
-        history is not settled yet (``DeviceTrack.history`` "none": it may want its start).
-        Returns how many were taken in."""
+        others one by one by the full rules (:meth:`_accept`). Those kept are corrected
+        (calibration) and stored in one go. ``taken(track, row)`` is called, at once, for each
+        point taken in of a stream whose history is not settled yet (``DeviceTrack.history``
+        "none": it may want its start). Returns how many were taken in."""
         self.advance_clock(now)
         if not items:
             return 0

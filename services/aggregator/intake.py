@@ -83,10 +83,8 @@ class Intake:
         together, counted and dropped per device where invalid, the rest taken in as one batch."""
         points = wire.decode_points(payloads)
         items = self._items(keys, points.reason, "seg", self._seg_tracks)
-        taken = None
-        if self.history is not None:
-            def taken(track: DeviceTrack, i: int) -> None:
-                self.history.taken(track, samples[i] if samples else None)
+        history = self.history
+        taken = None if history is None else (lambda track, i: history.taken(track, samples[i] if samples else None))
         self.counters.points += self.fusion.add_points(items, points, now, taken)
 
     def take_raw(self, keys: list[str], payloads: list[bytes], now: float) -> None:

@@ -234,7 +234,8 @@ class DeviceTrack:
     def in_gap(self, t_us: np.ndarray) -> np.ndarray:
         """(F,) bool: each time (F,) us inside a span whose points were lost."""
         spans = np.array(self.gap_spans, np.int64).reshape(-1, 2)
-        return ((t_us[:, None] > spans[:, 0]) & (t_us[:, None] < spans[:, 1])).any(axis=1)
+        inside: np.ndarray = ((t_us[:, None] > spans[:, 0]) & (t_us[:, None] < spans[:, 1])).any(axis=1)
+        return inside
 
     def stats(self) -> tuple[tuple, tuple]:
         """The fields of its stats entry (limbstream.wire.fields) that its row in the table does not
