@@ -259,7 +259,7 @@ def per_call(f, sleep_s: float, calls: int = 500) -> float:
 
 def stamp_row(n: int) -> str:
     """One table row: stamping ``n`` devices, warm and after a 2 ms sleep, with references."""
-    from limbstream.device_emulator.sync_client import SLEW
+    from limbstream.device.sync import SLEW
     from limbstream.kernel import Stamper
     st = Stamper(n, SLEW)
     st.ever[:], st.a[:], st.b[:], st.ref[:] = True, 1000.0, 50e-6, 1e9

@@ -27,7 +27,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from limbstream.device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
-from limbstream.device_emulator.feeds import GeneratorFeed  # noqa: E402
+from limbstream.device.feeds import GeneratorFeed  # noqa: E402
+from limbstream.device.host import HostSettings  # noqa: E402
 from limbstream.device_emulator.main import subject_names  # noqa: E402
 from limbstream import wire, zconfig  # noqa: E402
 from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
@@ -113,7 +114,7 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
             config = wire.DeviceConfig(live_bound_deg=bound).validate()
-            emulator = Emulator(session, feeds, EmulatorSettings(truth=truth, config=config))
+            emulator = Emulator(session, feeds, EmulatorSettings(HostSettings(truth=truth, config=config)))
             emulator.declare()
             stop = threading.Event()
             timer = threading.Timer(seconds, stop.set)

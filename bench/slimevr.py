@@ -265,7 +265,8 @@ def replay(args) -> None:
     import socket
     import struct
 
-    from limbstream.device_emulator.device_clocks import ClockSettings
+    from limbstream.device.clocks import ClockSettings
+    from limbstream.device.host import HostSettings
     from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
     from slimevr_tracker import handshake_payload, rotation_payload, to_tracker_axes
     segments = list(wire.SEGMENTS)
@@ -285,7 +286,8 @@ def replay(args) -> None:
     with session, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         gateway = SlimeVRGateway(session, sock, GatewaySettings(
-            "s01", assign=assign, fs=args.fs, clock=ClockSettings(sync=False), config=wire.DeviceConfig(**wire.LIVE_MODE)))
+            "s01", assign=assign, host=HostSettings(fs=args.fs, config=wire.DeviceConfig(**wire.LIVE_MODE)),
+            clock=ClockSettings(sync=False)))
         gateway.declare()
         for address, mac in zip(addresses, macs):
             gateway.handle(struct.pack(">iq", 3, 0) + handshake_payload(mac), address, 0.0, 0.0)

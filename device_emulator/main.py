@@ -8,7 +8,7 @@ import threading
 
 from limbstream import wire, zconfig
 from limbstream.signals import stop_on_signals
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
 from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
 
 
@@ -41,7 +41,7 @@ def run(feeds: dict, settings: EmulatorSettings, zenoh: zconfig.ZenohSettings,
         emulator = Emulator(session, feeds, settings)
         emulator.declare()
         print(f"emulating {len(emulator.devices)} devices of {len(feeds)} subjects "
-              f"({', '.join(feeds)}) at {settings.fs:g} Hz x{settings.speed:g}", flush=True)
+              f"({', '.join(feeds)}) at {settings.host.fs:g} Hz x{settings.speed:g}", flush=True)
         print_clocks(emulator, settings.clock, verbose)
         emulator.start_clocks(stop)
         if emulator.sync is not None:

@@ -13,7 +13,7 @@ from stack import free_port, http_json, wait_until
 from test_dashboard_api import Device, device_stats, pose_frame
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
 from limbstream.services.dashboard.app import create_app
 from limbstream.services.dashboard.settings import DashboardSettings

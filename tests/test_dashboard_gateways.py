@@ -12,7 +12,7 @@ from test_dashboard_api import AUTH, make_client, router  # noqa: F401  (router 
 from test_slimevr_gateway import _stream
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
 from slimevr_tracker import Tracker
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from limbstream import kernel, wire
-from limbstream.device_emulator.feeds import LoopFeed
+from limbstream.device.feeds import LoopFeed
 from limbstream.services.gateway import firmware
 from limbstream.services.gateway.serial_port import SerialLink
 from limbstream.sources import load

@@ -18,7 +18,8 @@ import pytest
 import zenoh
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
+from limbstream.device.host import HostSettings
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
 from slimevr_tracker import Tracker, handshake_payload, rotation_payload, sensor_info_payload
@@ -118,7 +119,7 @@ class Running:
         self.sock.bind(("127.0.0.1", 0))
         self.address = self.sock.getsockname()
         settings = GatewaySettings(**{"subject": "s01", "clock": ClockSettings(sync=False), "timeout_s": 0.6,
-                                      "config": wire.DeviceConfig(**{**wire.LIVE_MODE, "max_len": 25}),
+                                      "host": HostSettings(config=wire.DeviceConfig(**{**wire.LIVE_MODE, "max_len": 25})),
                                       **overrides})
         self.gateway = SlimeVRGateway(self.session, self.sock, settings)
         self.gateway.rx.kernel_stamps &= reads != "as they come"
@@ -380,13 +381,13 @@ def test_a_tracker_whose_address_another_takes_goes_offline():
         here, there = ("127.0.0.1", 9), ("127.0.0.2", 9)  # the discard port: answers go nowhere
         g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), here, 0.0, 0.0)
         g.handle(_header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 1.0, 0.0)
-        assert g.devices["s01/hip"].online and g.devices["s01/hip"].sensor.tracker.name == "02:00:00:00:00:01"
+        assert g.host.by_id["s01/hip"].online and g.host.by_id["s01/hip"].source.tracker.name == "02:00:00:00:00:01"
         g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 2])), here, 2.0, 0.1)
-        first = g.devices["s01/hip"].sensor.tracker
-        assert not first.online and not g.devices["s01/hip"].online  # its stream ended
+        first = g.host.by_id["s01/hip"].source.tracker
+        assert not first.online and not g.host.by_id["s01/hip"].online  # its stream ended
         g.handle(_header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 3.0, 0.1)
-        assert g.devices["s01/hip"].sensor.tracker.name == "02:00:00:00:00:02" and g.devices["s01/hip"].online
+        assert g.host.by_id["s01/hip"].source.tracker.name == "02:00:00:00:00:02" and g.host.by_id["s01/hip"].online
         g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), there, 4.0, 0.2)  # back elsewhere
-        assert {t.name: t.online for t in g.trackers.values()} == {"02:00:00:00:00:01": True,
+        assert {t.name: t.online for t in g.sessions.trackers.values()} == {"02:00:00:00:00:01": True,
                                                                    "02:00:00:00:00:02": True}
         g.undeclare()

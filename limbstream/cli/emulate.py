@@ -10,9 +10,10 @@ from pathlib import Path
 
 from limbstream import calibration, wire, zconfig
 from limbstream.device_emulator import main as emulator
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
+from limbstream.device.host import HostSettings
 from limbstream.device_emulator.emulator import EmulatorSettings
-from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.device.feeds import GeneratorFeed, LoopFeed
 from limbstream.device_emulator.main import subject_names
 from limbstream.sources import MotionFileError, load
 
@@ -147,9 +148,9 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
 
 def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
     """The EmulatorSettings of the flags."""
-    return EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
-                            truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
-                            clock=clock_settings(args),
+    return EmulatorSettings(HostSettings(fs=args.rate, config=wire.config_from_args(args), truth=args.truth,
+                                         raw_batch=args.raw_batch, cache=args.cache),
+                            speed=args.speed, clock=clock_settings(args),
                             anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
                             clock_id=args.first_subject, sensors=sensors)
 
@@ -169,4 +170,4 @@ def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettin
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if not elf.exists():
         raise SystemExit(f"limbstream emulate: error: no firmware at {elf}")
-    return firmware_devices.run(feeds, settings, zconfig.from_args(args), elf, args.duration, stop)
+    return firmware_devices.run(feeds, settings.host, settings.speed, zconfig.from_args(args), elf, args.duration, stop)

@@ -7,7 +7,8 @@ import argparse
 import logging
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.device.feeds import GeneratorFeed, LoopFeed
+from limbstream.device.host import HostSettings
 from limbstream.signals import stop_on_signals
 from limbstream.sources import MotionFileError, load
 
@@ -51,7 +52,7 @@ def feeding(args: argparse.Namespace):
     if args.segment not in feed.segments:
         raise SystemExit(f"limbstream gateway serial: error: --segment {args.segment!r} is not in the source's "
                          f"segments {list(feed.segments)}")
-    return Feeding(feed, list(feed.segments).index(args.segment), args.rate), feed.rest_pose
+    return Feeding(feed, list(feed.segments).index(args.segment)), feed.rest_pose
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,18 +76,23 @@ def run(args: argparse.Namespace) -> int:
     if session is None:
         return 0
     with session:
+        host = serial_gateway.serial_host(session, HostSettings(
+            fs=args.rate, config=wire.config_from_args(args), truth=args.truth and feed is not None,
+            raw_batch=args.raw_batch, cache=args.cache))
+        host.declare()
         gateway = serial_gateway.SerialGateway(
-            session, lambda: SerialLink(args.port, args.link_timeout if not gateway.counters.links else 0.5), args.subject, args.segment,
-            wire.config_from_args(args), feed, truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
-            rest_pose=rest_pose, silence_s=args.silence_s)
+            host, lambda: SerialLink(args.port, args.link_timeout if not gateway.counters.links else 0.5),
+            args.subject, args.segment, feed, rest_pose=rest_pose, silence_s=args.silence_s)
         if not gateway.open():
             gateway.close()
+            host.close()
             raise SystemExit(f"limbstream gateway serial: error: no device on {args.port}")
         print(f"gateway serial: {gateway.id} on {args.port}, stream {gateway.stream}"
               + ("" if feed is None else f", fed {args.source} at {args.rate:g} Hz x{args.speed:g}"), flush=True)
         try:
-            serial_gateway.run([gateway], stop, args.rate, args.speed, args.duration)
+            serial_gateway.run(host, [gateway], stop, args.speed, args.duration)
         finally:
             print(f"gateway serial: {gateway.summary()}", flush=True)
             gateway.close()
+            host.close()
     return 0

@@ -9,7 +9,8 @@ import socket
 import threading
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
+from limbstream.device.host import HostSettings
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.signals import stop_on_signals
 
@@ -103,9 +104,10 @@ def validate(args: argparse.Namespace) -> None:
 def settings_from_args(args: argparse.Namespace):
     from limbstream.services.gateway.slimevr import GatewaySettings
     assign = {key: (subject or args.subject, segment) for key, (subject, segment) in args.assign}
-    return GatewaySettings(subject=args.subject, name=args.name, assign=assign, fs=args.rate, delay_ms=args.delay_ms,
-                           config=wire.config_from_args(args), truth=args.truth, raw_batch=args.raw_batch,
-                           cache=args.cache, timeout_s=args.timeout, max_devices=args.max_devices,
+    host = HostSettings(fs=args.rate, config=wire.config_from_args(args), truth=args.truth, raw_batch=args.raw_batch,
+                        cache=args.cache)
+    return GatewaySettings(subject=args.subject, name=args.name, assign=assign, host=host, delay_ms=args.delay_ms,
+                           timeout_s=args.timeout, max_devices=args.max_devices,
                            clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)),
                            assignments_file=args.assignments_file)
 
@@ -133,7 +135,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             raise SystemExit(f"limbstream gateway slimevr: error: {exc}") from None
         gateway.declare()
         host, port = sock.getsockname()[:2]
-        print(f"slimevr gateway {settings.name} on udp {host}:{port}, subject {settings.subject}, {settings.fs:g} Hz, "
+        print(f"slimevr gateway {settings.name} on udp {host}:{port}, subject {settings.subject}, {settings.host.fs:g} Hz, "
               f"{len(settings.assign)} assignments", flush=True)
         gateway.run(stop, on_report=lambda r: print("slimevr " + json.dumps(r, default=str), flush=True),
                     report_s=args.report_s)

@@ -22,6 +22,10 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from .body import DEFAULT_REST_POSE, check_rest_pose
 from .errors import WireError
 
+DEVICE_RATE_HZ = 50.0
+"""A device's sample rate unless it is told another (every device, gateway grid and aggregator
+frame rate defaults to it), Hz."""
+
 
 @dataclass(frozen=True)
 class Tunable:

@@ -1,5 +1,6 @@
-"""The time exchanges of an emulator's devices with the time service (docs/protocol.md, "Time
-exchange") and the stamps they give.
+"""The time exchanges of a process's devices with the time service (docs/protocol.md, "Time
+exchange") and the stamps they give: each emulated device has its own clock; a gateway has one
+clock for all its devices.
 
 :class:`SyncClient`: two worker threads send the time queries and stamp the answers (the tick
 loop never calls Zenoh and never waits); the tick loop takes the results between ticks, updates
@@ -24,9 +25,9 @@ import zenoh
 
 from limbstream import kernel, wire
 from limbstream.timesync import SyncEstimator
-from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks
+from limbstream.device.clocks import ClockSettings, DeviceClocks
 
-log = logging.getLogger("limbstream.emulator.clock")
+log = logging.getLogger("limbstream.device.clock")
 
 BURST = 4
 """Exchanges 0.25 s apart when a device starts; it streams once they are in (or after the wait)."""
@@ -65,8 +66,8 @@ class SyncClient:
     Per device the tick loop reads :meth:`stamp` (vectorised). The correction ``C`` a device
     stamps with follows the estimator's line: at each sample it advances by the estimated drift
     and moves towards the line by at most SLEW times the elapsed time (a first sync, or a resync
-    after the holdover that moved more than STEP_US, sets it at once: a step, which the emulator
-    turns into a new stream).
+    after the holdover that moved more than STEP_US, sets it at once: a step, which the device
+    host turns into a new stream).
 
     Parameters
     ----------
