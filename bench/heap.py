@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         agg.close()
         session.close()
         launcher.stop()
-    print(f"\naggregator: {agg.loop.ticks} ticks, {100 * agg.loop.late / max(agg.loop.ticks, 1):.2f} % late, "
+    print(f"\naggregator: {agg.loop.pacing.ticks} ticks, {100 * agg.loop.pacing.late / max(agg.loop.pacing.ticks, 1):.2f} % late, "
           f"{agg.loop.missed} missed")
     return 0
 

@@ -162,7 +162,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = F
             while time.monotonic() < deadline and not (
                     len(agg.subjects) == subjects and all(f.frames > 0 for f in agg.subjects.values())):
                 time.sleep(0.1)
-            p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.late, agg.loop.ticks
+            p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.pacing.late, agg.loop.pacing.ticks
             cpu0, wall0 = cpu_now(), time.monotonic()
             ecpu0, rcpu0 = process_cpu_s(emu.pid), router.cpu_s()
             stop.wait(seconds)
@@ -170,7 +170,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = F
             cpu = cpu_now() - cpu0
             ecpu, rcpu = process_cpu_s(emu.pid) - ecpu0, router.cpu_s() - rcpu0
             points, frames = agg.loop.points - p0, agg.loop.frames - f0
-            late, ticks = agg.loop.late - l0, agg.loop.ticks - t0
+            late, ticks = agg.loop.pacing.late - l0, agg.loop.pacing.ticks - t0
             stop.set()
             thread.join()
             tracks = [t for f in agg.subjects.values() for t in f.tracks.values()]

@@ -58,16 +58,16 @@ class PacedLoop:
     work_clock : the clock a tick's work is measured with (default ``clock``; ``time.thread_time``
         counts the loop thread's CPU only).
 
-    ``stats`` (:class:`LoopStats`) counts the ticks of every :meth:`run`.
+    stats : where the ticks of every :meth:`run` are counted (default: a new :class:`LoopStats`).
     """
 
     def __init__(self, period_s: float, clock: Callable[[], float] = time.perf_counter,
-                 work_clock: Callable[[], float] | None = None):
+                 work_clock: Callable[[], float] | None = None, stats: LoopStats | None = None):
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
         self.period_s, self.clock = float(period_s), clock
         self.work_clock = work_clock or clock
-        self.stats = LoopStats()
+        self.stats = LoopStats() if stats is None else stats
 
     def run(self, stop: threading.Event, tick: Callable[[int, float], bool | None], ticks: int | None = None,
             between: Callable[[float], None] | None = None) -> int:

@@ -20,6 +20,8 @@ import zenoh
 import zenoh.ext as zext
 
 from limbstream import heap, wire, zconfig
+from limbstream.pacing import LoopStats as PacingStats
+from limbstream.pacing import PacedLoop
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.fusion import Fusion, Subject
 from limbstream.services.aggregator.track import HISTORY_WAIT_S, DeviceTrack
@@ -78,42 +80,24 @@ class AggregatorSettings:
 
 @dataclass
 class LoopStats:
-    """Counters of the aggregator itself."""
+    """Counters of the aggregator itself; its loop's pacing figures in ``pacing``."""
 
-    ticks: int = 0
-    late: int = 0
     points: int = 0
     raw_batches: int = 0
     frames: int = 0
     missed: int = 0          # reported by Zenoh's miss detection (not recoverable)
     max_backlog: int = 0     # most messages drained in one tick
     recent_backlog: int = 0  # most messages drained in one tick since the last stats message
-    busy_s: float = 0.0      # time spent working (not waiting for the next tick), seconds
-    load: float = 0.0        # share of the last stats period spent working (0..1; >= 1: cannot keep up)
-    max_tick_ms: float = 0.0      # longest tick's work, ms
-    recent_max_tick_ms: float = 0.0  # longest tick's work since the last stats round, ms
-
-    _round_start: float = field(default_factory=time.perf_counter, repr=False)
-    _round_busy: float = field(default=0.0, repr=False)
-
-    def record(self, work_s: float) -> None:
-        """One tick done, after ``work_s`` seconds of work."""
-        self.ticks += 1
-        self.busy_s += work_s
-        self._round_busy += work_s
-        self.max_tick_ms = max(self.max_tick_ms, 1e3 * work_s)
-        self.recent_max_tick_ms = max(self.recent_max_tick_ms, 1e3 * work_s)
+    pacing: PacingStats = field(default_factory=PacingStats)
 
     def end_round(self, now: float) -> None:
-        """A stats round is out: ``load`` over it, and the ``recent_*`` figures start over."""
-        self.load = round(self._round_busy / max(now - self._round_start, 1e-9), 4)
-        self._round_start, self._round_busy = now, 0.0
+        """A stats round is out: the pacing's ``load`` over it, and the ``recent_*`` figures start over."""
+        self.pacing.end_round(now)
         self.recent_backlog = 0
-        self.recent_max_tick_ms = 0.0
 
     def as_dict(self) -> dict:
         """The counters as published in every stats message (``"aggregator"`` entry)."""
-        return {k: getattr(self, k) for k in self.__dataclass_fields__ if not k.startswith("_")}
+        return self.pacing.as_dict() | {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pacing"}
 
 
 class Aggregator:
@@ -504,16 +488,9 @@ class Aggregator:
         next_unsynced = start + UNSYNCED_POLL_S
         watch_until = start  # the stats follow devices resyncing until then
         stats_parts = max(1, round(s.stats_period_s / s.tick_s))  # one stats round per period
-        k = 0
-        while not stop.is_set():
-            deadline = start + k * s.tick_s
-            now = time.perf_counter()
-            if now < deadline:
-                if stop.wait(deadline - now):
-                    break
-            elif now - deadline > s.tick_s:
-                self.loop.late += 1
-            now = time.perf_counter()
+
+        def tick(k: int, now: float) -> None:
+            nonlocal next_live, next_config, next_frames, next_prune, next_trim, next_unsynced, watch_until
             with self.lock:
                 self.drain(now)
                 live = s.live_rate > 0 and now >= next_live
@@ -541,8 +518,8 @@ class Aggregator:
             elif now >= next_trim:
                 heap.release_free_heap()
                 next_trim = now + s.trim_s
-            self.loop.record(time.perf_counter() - now)
-            k += 1
+
+        PacedLoop(s.tick_s, stats=self.loop.pacing).run(stop, tick)
         return self.loop
 
 
