@@ -22,6 +22,7 @@ from limbstream.services.dashboard.app import create_app
 from limbstream.cli.dashboard import parse_http
 from limbstream.services.dashboard.settings import DashboardSettings
 from limbstream.services.dashboard.state import LiveState
+from limbstream.services.dashboard.views import Views
 
 TOKEN = "test-token-123"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -440,11 +441,11 @@ def test_exact_latency_is_measured_per_subject():
         state.apply_pose(wire.pose_key("latO"), wire.encode_pose(frame), rx=t0 + i * 0.02 + (100 + i) / 1e3)
         live = wire.PoseFrame(i, int((t0 + i * 0.02) * 1e6), wire.KIND_LIVE, 0, frame.q, frame.joints)
         state.apply_pose(wire.pose_key("latO"), wire.encode_pose(live), rx=t0 + 60.0)
-    view = {s["subject"]: s for s in state.subject_views()}["latO"]
+    view = {s["subject"]: s for s in Views(state).subject_views()}["latO"]
     assert math.isclose(view["exact_latency_p50_ms"], 200.0, abs_tol=1.01), view
     assert math.isclose(view["exact_latency_p99_ms"], 298.0, abs_tol=1.01), view
     state.apply_pose(wire.pose_key("liveOnlyO"), wire.encode_pose(pose_frame(1, wire.KIND_LIVE)))
-    view = {s["subject"]: s for s in state.subject_views()}["liveOnlyO"]
+    view = {s["subject"]: s for s in Views(state).subject_views()}["liveOnlyO"]
     assert view["exact_latency_p50_ms"] is None and view["exact_latency_p99_ms"] is None, view
 
 
@@ -466,7 +467,7 @@ def test_subjects_carry_the_exact_latency(client, pub):
 
 def test_slow_client_skips_frames_without_stalling_others():
     state = LiveState(ws_queue=4)
-    slow, fast = state.add_client("s", "exact"), state.add_client("s", "exact")
+    slow, fast = state.fanout.add("s", "exact", None), state.fanout.add("s", "exact", None)
     received = []
     for seq in range(100):
         state.apply_pose(wire.pose_key("s"), wire.encode_pose(pose_frame(seq)))
@@ -474,9 +475,9 @@ def test_slow_client_skips_frames_without_stalling_others():
     assert received == list(range(100)), received[:10]
     kept = [json.loads(slow.queue.get_nowait())["seq"] for _ in range(slow.queue.qsize())]
     assert kept == [96, 97, 98, 99] and slow.skipped == 96, (kept, slow.skipped)
-    state.remove_client(slow)
-    state.remove_client(fast)
-    assert state.client_count() == 0 and state.clients_skipped == 96
+    state.fanout.remove(slow)
+    state.fanout.remove(fast)
+    assert state.fanout.count() == 0 and state.fanout.skipped_total() == 96
 
 
 # ----------------------------------------------------------------------------- python client

@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 
 from limbstream import wire
 
-from ..deps import LiveDep, SubjectPath, TokenDep
+from ..deps import LiveDep, SubjectPath, TokenDep, ViewsDep
 from ..models import CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject
 from ..zenoh_io import ConfigError, query_calibrate
 
@@ -16,9 +16,9 @@ router = APIRouter(prefix="/api", tags=["subjects"])
 
 
 @router.get("/subjects", response_model=list[Subject])
-async def list_subjects(live: LiveDep) -> list[dict]:
+async def list_subjects(views: ViewsDep) -> list[dict]:
     """Every subject with device counts, total data rate and its latest frame's age."""
-    return live.subject_views()
+    return views.subject_views()
 
 
 @router.get("/subjects/{subject}/pose", response_model=Pose,
