@@ -166,10 +166,10 @@ class DeviceHost(Generic[S]):
         d.publisher.put(payload)
         d.points += 1
 
-    def publish_raw(self, d: Device[S], batch: wire.RawBatch) -> None:
-        """One truth-tap batch (nothing without ``truth``)."""
+    def publish_raw(self, d: Device[S], batch: wire.RawBatch | bytes) -> None:
+        """One truth-tap batch, or its payload as encoded (nothing without ``truth``)."""
         if d.raw_pub is not None:
-            d.raw_pub.put(wire.encode_raw(batch))
+            d.raw_pub.put(batch if isinstance(batch, bytes) else wire.encode_raw(batch))
 
     def answer_queries(self, budget: int = QUERIES_PER_TICK) -> None:
         """Apply and answer the config queries that arrived since the last call, at most ``budget``."""
