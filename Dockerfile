@@ -15,6 +15,7 @@ WORKDIR /src
 COPY pyproject.toml setup.py README.md LICENSE ./
 COPY firmware_c/include firmware_c/include
 COPY firmware_c/src firmware_c/src
+COPY firmware_c/host firmware_c/host
 COPY limbstream limbstream
 COPY device_emulator device_emulator
 COPY services services

@@ -1,6 +1,6 @@
 """The C pieces of the SlimeVR gateway: irregular arrivals on a uniform grid per device
-(limbstream.kernel.GridBank, firmware_c/src/lsw_grid.c) and the rotation datagrams read in C
-(services/gateway/slimevr_rx.py, firmware_c/src/lsw_slimevr.c) against the Python decoder."""
+(limbstream.kernel.GridBank, firmware_c/host/lsw_grid.c) and the rotation datagrams read in C
+(services/gateway/slimevr_rx.py, firmware_c/host/lsw_slimevr.c) against the Python decoder."""
 from __future__ import annotations
 
 import fcntl

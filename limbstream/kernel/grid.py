@@ -1,5 +1,5 @@
 """Samples that arrive at a sender's own irregular times, put on a uniform grid per device, in C
-(``firmware_c/src/lsw_grid.c``; the SlimeVR gateway's devices, docs/protocol.md "Timing").
+(``firmware_c/host/lsw_grid.c``; the SlimeVR gateway's devices, docs/protocol.md "Timing").
 
 Each device keeps its sender's last 16 samples, a grid of instants one period apart locked to the
 lower edge of their arrivals, and its truth samples until they are taken. At each tick every

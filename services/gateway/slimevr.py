@@ -18,7 +18,7 @@ Timing: each packet is stamped on arrival (by the kernel, on the gateway's clock
 the common time base by :class:`SyncClient`, one clock for all; where the system gives no arrival
 stamps, at its read, and the gateway then waits on the socket between ticks). Trackers send at
 their own irregular rate; each device samples its tracker on a uniform grid of its own, placed on
-the lower edge of its packets' arrivals (``firmware_c/src/lsw_grid.c``), at the newest instant at
+the lower edge of its packets' arrivals (``firmware_c/host/lsw_grid.c``), at the newest instant at
 least ``delay`` (default 30 ms) in the past: the SLERP of the two packets around that instant, or the newest packet held
 when none has arrived after it yet (counted: ``held``). A packet that arrives less than half a
 period after an instant was delayed on its way (arrival jitter), not taken later: it is that
