@@ -39,17 +39,14 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+import numpy as np
+import zenoh
 
-import numpy as np  # noqa: E402
-import zenoh  # noqa: E402
+from limbstream import wire, zconfig
+from limbstream.launch import Launcher, free_port
 
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port  # noqa: E402
+from soak import cpu_s
 
-sys.path.insert(0, str(ROOT / "bench"))
-from soak import cpu_s  # noqa: E402
 
 SETUPS = {
     "perfect": [],

@@ -20,11 +20,9 @@ import threading
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from limbstream import heap, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, stop_all  # noqa: E402
-from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
+from limbstream import heap, zconfig
+from limbstream.launch import Launcher, free_port, stop_all
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 
 
 class MallInfo2(ctypes.Structure):

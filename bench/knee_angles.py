@@ -21,18 +21,14 @@ femur, 00B4227D right tibia, 00B421EE left femur, 00B421ED left tibia, 00B42279 
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from limbstream import calibration, quat
+from limbstream.sources import load
+from limbstream.sources.imu_files import load_xsens_folder
 
-from limbstream import calibration, quat  # noqa: E402
-from limbstream.sources import load  # noqa: E402
-from limbstream.sources.imu_files import load_xsens_folder  # noqa: E402
 
 NAMES = {"opensense": {"00B4227C": "r_thigh", "00B4227D": "r_shank", "00B421EE": "l_thigh",
                        "00B421ED": "l_shank", "00B42279": "hip"}}

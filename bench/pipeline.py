@@ -23,17 +23,16 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
+from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
+from limbstream.device.feeds import GeneratorFeed
+from limbstream.device.host import HostSettings
+from limbstream.device_emulator.main import subject_names
+from limbstream import wire, zconfig
+from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until
+from limbstream.sources import SEGMENTS
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 
-from limbstream.device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
-from limbstream.device.feeds import GeneratorFeed  # noqa: E402
-from limbstream.device.host import HostSettings  # noqa: E402
-from limbstream.device_emulator.main import subject_names  # noqa: E402
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
-from limbstream.sources import SEGMENTS  # noqa: E402
-from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 class Router:

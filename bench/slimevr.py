@@ -1,4 +1,4 @@
-"""The SlimeVR gateway with simulated trackers (tests/slimevr_tracker.py) through a real router,
+"""The SlimeVR gateway with simulated trackers (limbstream.device_emulator.slimevr_tracker) through a real router,
 time service and aggregator, on loopback. Three parts, each printing a table, and a replay:
 
     python bench/slimevr.py accuracy --source ../shared/data/cmu_10seg_50hz.npz
@@ -41,17 +41,15 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+import zenoh
+
+from limbstream import quat, wire, zconfig
+from limbstream.launch import Launcher, free_port, wait_until
+from limbstream.sources import load
+from limbstream.device_emulator.slimevr_tracker import Fleet
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
-
-import numpy as np  # noqa: E402
-import zenoh  # noqa: E402
-
-from limbstream import quat, wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
-from limbstream.sources import load  # noqa: E402
-from slimevr_tracker import Fleet  # noqa: E402
 
 
 def free_udp_port() -> int:
@@ -268,7 +266,7 @@ def replay(args) -> None:
     from limbstream.device.clocks import ClockSettings
     from limbstream.device.host import HostSettings
     from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
-    from slimevr_tracker import handshake_payload, rotation_payload, to_tracker_axes
+    from limbstream.device_emulator.slimevr_tracker import handshake_payload, rotation_payload, to_tracker_axes
     segments = list(wire.SEGMENTS)
     macs = [bytes([2, 0x5E, 0, 0, k // len(segments), k % len(segments)]) for k in range(args.trackers)]
     assign = {(":".join(f"{b:02X}" for b in mac), None): (f"s{mac[4] + 1:02d}", segments[mac[5]]) for mac in macs}

@@ -26,13 +26,11 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+import zenoh
 
-import zenoh  # noqa: E402
+from limbstream import wire, zconfig
+from limbstream.launch import Launcher, free_port, stop_all
 
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, stop_all  # noqa: E402
 
 SEGMENTS_PER_SUBJECT = 10
 GRACE_S = 20.0  # emulators of 1,000 devices take a while to stop

@@ -1,27 +1,13 @@
 """Shared fixtures: the shared motion data (skipped where absent, required in CI)."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
-pytest_plugins = ("stack",)  # the `stack` and `watch` fixtures of real processes
+from support import require_data
 
-ROOT = Path(__file__).resolve().parent.parent
-DATA = Path(os.environ.get("LIMBSTREAM_DATA", ROOT.parent / "shared" / "data"))
-IN_CI = os.environ.get("CI", "").lower() == "true"
-
-
-def require_data(relative: str) -> Path:
-    """Path of a file under the shared data folder; skip if absent, fail if absent in CI."""
-    path = DATA / relative
-    if not path.exists():
-        message = f"shared motion data not found: {path} (set LIMBSTREAM_DATA)"
-        if IN_CI:
-            pytest.fail(message)
-        pytest.skip(message)
-    return path
+pytest_plugins = ("support.stack",)  # the `stack` and `watch` fixtures of real processes
 
 
 @pytest.fixture(scope="session")

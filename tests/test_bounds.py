@@ -9,7 +9,7 @@ import math
 
 import pytest
 from fastapi.testclient import TestClient
-from stack import stack, wait_until  # noqa: F401  (the fixture)
+from support.stack import stack, wait_until  # noqa: F401  (the fixture)
 
 from limbstream import kernel, wire, zconfig
 from limbstream.cli import up

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from stack import StatsWatch, stack, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import StatsWatch, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 from limbstream import calibration as cal
 from limbstream import quat

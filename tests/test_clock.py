@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device.sync import RESUME_SPREAD_S, RETRY_S, SLEW, SyncClient

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 from fastapi.testclient import TestClient
-from stack import ROOT, free_port, wait_until
+from support.stack import ROOT, free_port, wait_until
 from starlette.websockets import WebSocketDisconnect
 
 from limbstream import wire, zconfig

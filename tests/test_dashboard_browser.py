@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 pytestmark = pytest.mark.browser
 
@@ -229,7 +229,7 @@ def test_trackers_panel_assigns_a_sensor(stack):  # noqa: F811
     from test_slimevr_e2e import free_udp_port
     from test_slimevr_gateway import _stream
 
-    from slimevr_tracker import Tracker
+    from limbstream.device_emulator.slimevr_tracker import Tracker
     chromium = require_chromium()
     stack.router()
     port = free_udp_port()

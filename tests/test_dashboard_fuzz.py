@@ -9,7 +9,7 @@ import time
 import pytest
 import uvicorn
 from hypothesis import HealthCheck, settings
-from stack import free_port, http_json, wait_until
+from support.stack import free_port, http_json, wait_until
 from test_dashboard_api import Device, device_stats, pose_frame
 
 from limbstream import wire, zconfig

@@ -7,14 +7,14 @@ import socket
 import threading
 
 import zenoh
-from stack import wait_until
+from support.stack import wait_until
 from test_dashboard_api import AUTH, make_client, router  # noqa: F401  (router is a fixture)
 from test_slimevr_gateway import _stream
 
 from limbstream import wire, zconfig
 from limbstream.device.clocks import ClockSettings
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
-from slimevr_tracker import Tracker
+from limbstream.device_emulator.slimevr_tracker import Tracker
 
 
 def test_sensors_are_listed_and_assigned_through_rest(router):  # noqa: F811

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from sw_oracle import live_sliding_window, live_view
+from support.sw_oracle import live_sliding_window, live_view
 
 from limbstream import cli, evaluation, kernel
 from limbstream.sources import load

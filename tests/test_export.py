@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import pytest
-from stack import ROOT
+from support.stack import ROOT
 
 from limbstream import quat, wire
 from limbstream.skeleton import Skeleton

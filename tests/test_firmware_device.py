@@ -20,7 +20,7 @@ from limbstream.services.gateway import firmware
 from limbstream.services.gateway.serial_port import SerialLink
 from limbstream.sources import load
 from limbstream.wire import serial_link as link
-from firmware import require_tools
+from support.firmware import require_tools
 
 pytestmark = pytest.mark.qemu
 

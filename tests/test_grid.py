@@ -17,8 +17,8 @@ from limbstream import quat
 from limbstream.kernel import GridBank, SvrTracker
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr_rx import Receiver, ipv4
-from slimevr_tracker import rotation_payload, rotation_q15_payload
-from stack import wait_until
+from limbstream.device_emulator.slimevr_tracker import rotation_payload, rotation_q15_payload
+from support.stack import wait_until
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
 

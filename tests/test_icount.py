@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware import FIRMWARE, load_tool, require_tools
+from support.firmware import FIRMWARE, load_tool, require_tools
 
 pytestmark = pytest.mark.qemu
 

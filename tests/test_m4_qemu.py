@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from limbstream import kernel
-from conftest import ROOT
-from firmware import FIRMWARE, load_tool, require_tools
+from support import ROOT
+from support.firmware import FIRMWARE, load_tool, require_tools
 
 pytestmark = pytest.mark.qemu
 

@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
-from stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+from support.stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import quat, wire, zconfig
 from limbstream.sources.bvh import load_bvh

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import zenoh
-from stack import free_port, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+from support.stack import free_port, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, wire, zconfig
 from limbstream.sources import load_npz

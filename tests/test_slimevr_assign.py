@@ -12,8 +12,8 @@ import threading
 from test_slimevr_gateway import Running, _stream
 
 from limbstream import wire
-from slimevr_tracker import Tracker
-from stack import wait_until
+from limbstream.device_emulator.slimevr_tracker import Tracker
+from support.stack import wait_until
 
 
 def ask(g: Running, payload: bytes | None = None) -> tuple[dict | None, str | None]:

@@ -13,8 +13,8 @@ import pytest
 
 from limbstream import wire, zconfig
 from limbstream.launch import free_port
-from slimevr_tracker import Fleet
-from stack import StatsWatch, stack, wait_until  # noqa: F401  (the fixture)
+from limbstream.device_emulator.slimevr_tracker import Fleet
+from support.stack import StatsWatch, stack, wait_until  # noqa: F401  (the fixture)
 
 
 def free_udp_port() -> int:

@@ -1,5 +1,5 @@
 """The SlimeVR gateway: its protocol codec against packets written from the firmware's side
-(tests/slimevr_tracker.py), and the gateway itself, in a thread with a real Zenoh session, serving
+(limbstream.device_emulator.slimevr_tracker), and the gateway itself, in a thread with a real Zenoh session, serving
 simulated trackers over real UDP sockets on loopback: handshake and keepalive answers, segments
 from body positions and --assign, segment points, link figures in the device status, silent
 trackers going offline and coming back as a new stream, and bad datagrams counted by reason
@@ -22,8 +22,8 @@ from limbstream.device.clocks import ClockSettings
 from limbstream.device.host import HostSettings
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
-from slimevr_tracker import Tracker, handshake_payload, rotation_payload, sensor_info_payload
-from stack import wait_until
+from limbstream.device_emulator.slimevr_tracker import Tracker, handshake_payload, rotation_payload, sensor_info_payload
+from support.stack import wait_until
 
 
 def _header(kind: int, number: int) -> bytes:

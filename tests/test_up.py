@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from stack import StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire
 from limbstream.launch import Child, ChildExited, CrashLoop, RestartPolicy, Supervisor, port_open

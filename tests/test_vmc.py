@@ -18,7 +18,7 @@ from limbstream.cli import main
 from limbstream.sources import generator
 from limbstream.services.outputs import vmc
 from limbstream.services.outputs.kinds import LiveFirst
-from stack import wait_until
+from support.stack import wait_until
 
 PARENT = {  # Unity's humanoid hierarchy (the bones sent)
     "Hips": None, "Spine": "Hips", "Chest": "Spine", "Neck": "Chest", "Head": "Neck",

@@ -6,8 +6,7 @@ import shutil
 import sys
 from types import ModuleType
 
-import pytest
-from conftest import IN_CI, ROOT
+from support import ROOT, require
 
 FIRMWARE = ROOT / "firmware_c"
 
@@ -15,11 +14,7 @@ FIRMWARE = ROOT / "firmware_c"
 def require_tools(*tools: str) -> None:
     """Skip without the cross toolchain and QEMU; fail in CI."""
     missing = [tool for tool in tools if shutil.which(tool) is None]
-    if missing:
-        message = f"Cortex-M4 tools not installed: {missing} (apt install gcc-arm-none-eabi qemu-system-arm)"
-        if IN_CI:
-            pytest.fail(message)
-        pytest.skip(message)
+    require(not missing, f"Cortex-M4 tools not installed: {missing} (apt install gcc-arm-none-eabi qemu-system-arm)")
 
 
 def load_tool(name: str) -> ModuleType:
