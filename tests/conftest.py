@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from support import require_data
+from support import profiles, require_data  # noqa: F401  (profiles: registers the Hypothesis profiles)
 
-pytest_plugins = ("support.stack",)  # the `stack` and `watch` fixtures of real processes
+pytest_plugins = ("support.stack", "support.dashboard")  # fixtures: `stack` and `watch` (real processes), `router`
 
 
 @pytest.fixture(scope="session")

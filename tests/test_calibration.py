@@ -303,7 +303,7 @@ def test_calibration_on_request_from_rest_api_and_command(stack, tmp_path, drift
     import zenoh
 
     from limbstream import wire, zconfig
-    from stack import http_json
+    from support.stack import http_json
 
     path = tmp_path / "poses.npz"
     poses_file(path)

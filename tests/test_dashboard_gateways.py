@@ -8,8 +8,8 @@ import threading
 
 import zenoh
 from support.stack import wait_until
-from test_dashboard_api import AUTH, make_client, router  # noqa: F401  (router is a fixture)
-from test_slimevr_gateway import _stream
+from support.dashboard import AUTH, make_client
+from support.slimevr import stream
 
 from limbstream import wire, zconfig
 from limbstream.device.clocks import ClockSettings
@@ -38,7 +38,7 @@ def test_sensors_are_listed_and_assigned_through_rest(router):  # noqa: F811
     a = Tracker(udp.getsockname(), bytes([2, 0, 0, 0, 2, 1]), {0: 0})   # no body position
     b = Tracker(udp.getsockname(), bytes([2, 0, 0, 0, 2, 2]), {0: 7})   # left thigh
     sending = threading.Event()
-    sender = threading.Thread(target=_stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0]}, 30.0),
+    sender = threading.Thread(target=stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0]}, 30.0),
                               kwargs={"stop": sending})
     try:
         a.connect()

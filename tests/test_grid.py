@@ -58,12 +58,12 @@ def test_grid_samples_follow_the_packets():
     assert taken and yaw(y) == pytest.approx(0.3, abs=1e-6) and stamp == 31_000
     assert grid.truth(0)[0].tolist() == [1_000, 21_000, 41_000] and grid.devices[0].held == 0
     taken, y, stamp = sample_at(grid, 33_000.0)  # the packet at 40 ms came 7 ms late for this instant
-    assert yaw(y) == pytest.approx(0.4, abs=1e-6) and stamp == 34_000
+    assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and stamp == 34_000
     assert grid.truth(0)[0].tolist() == [1_000, 21_000, 34_000]
     taken, y, _ = sample_at(grid, 40_500.0)  # it arrived just before this instant: its own
-    assert yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.truth(0)[0].tolist() == [1_000, 21_000, 41_500]
+    assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.truth(0)[0].tolist() == [1_000, 21_000, 41_500]
     taken, y, _ = sample_at(grid, 44_000.0)  # within a quarter period after the newest packet: on time
-    assert yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.devices[0].held == 0
+    assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.devices[0].held == 0
     taken, y, _ = sample_at(grid, 50_000.0)
     assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.devices[0].held == 1
     assert not sample_at(grid, 56_000.0)[0]  # held too long: the tracker went quiet

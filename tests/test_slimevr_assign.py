@@ -9,7 +9,7 @@ import contextlib
 import json
 import threading
 
-from test_slimevr_gateway import Running, _stream
+from support.slimevr import Running, stream
 
 from limbstream import wire
 from limbstream.device_emulator.slimevr_tracker import Tracker
@@ -41,7 +41,7 @@ def streaming(trackers: list[Tracker], sensors: dict):
     """The trackers connect, then stream their sensors (``{mac: [sensor ids]}``) from a thread
     until the block ends."""
     stop = threading.Event()
-    sender = threading.Thread(target=_stream, args=(trackers, sensors, 30.0), kwargs={"stop": stop})
+    sender = threading.Thread(target=stream, args=(trackers, sensors, 30.0), kwargs={"stop": stop})
     try:
         for t in trackers:
             t.connect()
@@ -135,7 +135,7 @@ def test_bad_assignments_get_a_sentence_and_change_nothing():
     t = Tracker(g.address, bytes([2, 0, 0, 0, 1, 3]), {0: 0})
     try:
         t.connect()
-        _stream([t], {t.mac_text: [0]}, 0.1)
+        stream([t], {t.mac_text: [0]}, 0.1)
         wait_until(lambda: listed(ask(g)[0]), 10, "the tracker's sensor listed")
         for payload, error in BAD:
             listing, message = ask(g, payload)
