@@ -28,17 +28,21 @@ install: $(STAMP)
 run: $(STAMP)
 	$(PYTHON) -m limbstream.cli up
 
+# every test; two workers (the end-to-end tests mostly wait on real time), a module on one worker
 test: $(STAMP)
-	$(PYTHON) -m pytest $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -n 2 --dist loadfile $(PYTEST_ARGS)
 
-# the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root)
+# the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root),
+# on 4 workers (they wait on sockets and subprocesses as much as they compute; a module stays on
+# one worker, in order), property tests on their quick profile (tests/support/profiles.py)
 test-fast: $(STAMP)
-	$(PYTHON) -m pytest -m "not (e2e or qemu or browser or root or slow)" $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -m "not (e2e or qemu or browser or root or slow)" -n 4 --dist loadfile \
+		--hypothesis-profile quick $(PYTEST_ARGS)
 
-# ruff as configured in pyproject.toml; mypy on the wire contract
+# ruff as configured in pyproject.toml (with its complexity rule); mypy on the whole package
 lint: $(STAMP)
 	$(PYTHON) -m ruff check .
-	$(PYTHON) -m mypy limbstream/wire
+	$(PYTHON) -m mypy limbstream
 
 icount:
 	$(MAKE) -C firmware_c icount
