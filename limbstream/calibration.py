@@ -66,14 +66,14 @@ class CalibrationError(ValueError):
     """A calibration that cannot be made (device not still, bad samples): the sentence says why."""
 
 
-def axis_angle(axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+def axis_angle(axis: np.ndarray, angle_rad: np.ndarray | float) -> np.ndarray:
     """(..., 4) rotation by ``angle_rad`` (...) about unit ``axis`` (..., 3) or (3,)."""
     half = 0.5 * np.asarray(angle_rad, np.float64)
     axis = np.asarray(axis, np.float64)
     return np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis], axis=-1)
 
 
-def yaw(angle_rad: np.ndarray) -> np.ndarray:
+def yaw(angle_rad: np.ndarray | float) -> np.ndarray:
     """(..., 4) rotation about the vertical by ``angle_rad`` (...)."""
     return axis_angle(VERTICAL, angle_rad)
 
@@ -355,7 +355,7 @@ def calibrate(q: np.ndarray, rest: slice, mounting: slice | None, pose: np.ndarr
     pose) and, if given, ``mounting`` (the known ``pose`` (4,)); ``t`` (m,) their device times, s
     (the heading's time for drift compensation later; None: unknown)."""
     cal = Calibration.rest(still_mean(q[rest], f"{what}, rest pose"), _middle(t, rest))
-    if mounting is not None:
+    if mounting is not None and pose is not None:
         cal = cal.with_mounting(still_mean(q[mounting], f"{what}, mounting pose"), pose)
     return cal
 

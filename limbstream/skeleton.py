@@ -71,14 +71,14 @@ class Skeleton:
             tpose = self.rest_pose == "tpose"
         tpose = np.asarray(tpose, bool)[..., None]  # (..., 1)
         hip = seg("hip")
-        put("neck_base", quat.rotate(hip, [0.0, self.spine, 0.0]))
-        put("head", get("neck_base") + quat.rotate(seg("neck"), [0.0, self.neck, 0.0]))
+        put("neck_base", quat.rotate(hip, np.array([0.0, self.spine, 0.0])))
+        put("head", get("neck_base") + quat.rotate(seg("neck"), np.array([0.0, self.neck, 0.0])))
         for side, lateral in (("l", 1.0), ("r", -1.0)):
-            put(f"{side}_hip", quat.rotate(hip, [lateral * self.hip_width / 2, 0.0, 0.0]))
+            put(f"{side}_hip", quat.rotate(hip, np.array([lateral * self.hip_width / 2, 0.0, 0.0])))
             put(f"{side}_knee", get(f"{side}_hip") + quat.rotate(seg(f"{side}_thigh"), down * self.thigh))
             put(f"{side}_ankle", get(f"{side}_knee") + quat.rotate(seg(f"{side}_shank"), down * self.shank))
             arm = np.where(tpose, np.array([lateral, 0.0, 0.0]), down)
-            put(f"{side}_shoulder", get("neck_base") + quat.rotate(hip, [lateral * self.shoulder_width / 2, -0.05, 0.0]))
+            put(f"{side}_shoulder", get("neck_base") + quat.rotate(hip, np.array([lateral * self.shoulder_width / 2, -0.05, 0.0])))
             put(f"{side}_elbow", get(f"{side}_shoulder") + quat.rotate(seg(f"{side}_upperarm"), arm * self.upperarm))
             put(f"{side}_wrist", get(f"{side}_elbow") + quat.rotate(seg(f"{side}_lowerarm"), arm * self.lowerarm))
         return out.astype(np.float32)

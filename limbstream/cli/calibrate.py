@@ -32,6 +32,8 @@ def run(args: argparse.Namespace) -> int:
         time.sleep(1.0)
     print(f"hold the {args.pose} pose still for {wire.CALIBRATION_HOLD_S:g} s", flush=True)
     session = zconfig.open_session(zconfig.from_args(args))
+    if session is None:
+        return 0
     try:
         replies = list(session.get(key, payload=wire.encode_calibrate_request(args.pose), timeout=wire.CALIBRATION_ANSWER_TIMEOUT_S))
     finally:
@@ -41,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     reply = replies[0]
     if reply.ok is None:
-        print(f"limbstream calibrate: error: {reply.err.payload.to_string()}", file=sys.stderr)
+        error = reply.err.payload.to_string() if reply.err is not None else "no answer"
+        print(f"limbstream calibrate: error: {error}", file=sys.stderr)
         return 1
     answer = wire.decode_calibrate_answer(reply.ok.payload.to_bytes())
     if not answer.ok:

@@ -22,6 +22,7 @@ def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
     """{subject: feed} from --source: the generator (seed = subject number) or a motion file;
     ``scripted``: each begins with the calibration script (limbstream.calibration)."""
     names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
+    feeds: dict[str, GeneratorFeed | LoopFeed]
     if args.source == "generator":
         feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
                  for i, name in enumerate(names)}

@@ -80,9 +80,14 @@ def run(args: argparse.Namespace) -> int:
             fs=args.rate, config=wire.config_from_args(args), truth=args.truth and feed is not None,
             raw_batch=args.raw_batch, cache=args.cache))
         host.declare()
-        gateway = serial_gateway.SerialGateway(
-            host, lambda: SerialLink(args.port, args.link_timeout if not gateway.counters.links else 0.5),
-            args.subject, args.segment, feed, rest_pose=rest_pose, silence_s=args.silence_s)
+        links: list[SerialLink] = []  # a longer wait for the first link, then the reconnects' short one
+
+        def connect() -> SerialLink:
+            links.append(SerialLink(args.port, args.link_timeout if not links else 0.5))
+            return links[-1]
+
+        gateway = serial_gateway.SerialGateway(host, connect, args.subject, args.segment, feed, rest_pose=rest_pose,
+                                               silence_s=args.silence_s)
         if not gateway.open():
             gateway.close()
             host.close()

@@ -30,6 +30,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     except zenoh.ZError as exc:  # e.g. the port is taken: one line, without Zenoh's source locations
         raise SystemExit(f"limbstream router: error: --listen {args.listen}: "
                          f"{re.sub(r' at [^ ]+[.]rs:[0-9]+[.]?', '', str(exc))}") from None
+    if session is None:  # (a router does not wait for another)
+        return 0
     with session:
         print(f"zenoh router {session.zid()} listening on {', '.join(settings.listen)}", flush=True)
         stop.wait()

@@ -10,6 +10,8 @@ import argparse
 import sys
 import time
 
+import numpy as np
+
 from limbstream import quat, wire, zconfig
 from limbstream.sources import SEGMENTS
 from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
@@ -25,7 +27,7 @@ def render(subject: str, frame: wire.PoseFrame, rate_hz: float) -> str:
     kind = "live" if frame.kind == wire.KIND_LIVE else "exact"
     stamp = time.strftime("%H:%M:%S", time.localtime(frame.t_us / 1e6)) + f".{frame.t_us // 1000 % 1000:03d}"
     lines = [f"{subject}  {kind} #{frame.seq}  t={stamp}  {rate_hz:5.1f} frames/s  {' '.join(flags)}".rstrip()]
-    identity = [[1.0, 0.0, 0.0, 0.0]] * len(SEGMENTS)
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))
     angles = quat.angle_deg(frame.q.astype(float), identity)
     cells = [f"{name:>11s} {a:6.1f}°" for name, a in zip(SEGMENTS, angles)]
     lines += ["  rotation from rest:"] + ["  " + "  ".join(cells[i:i + 5]) for i in range(0, len(cells), 5)]

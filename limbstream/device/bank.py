@@ -90,7 +90,7 @@ class DeviceBank:
         2 where the live rule is on, else version 1)."""
         b, row = self.kernel, index % self.ring
         point = wire.SegmentPoint(int(b.stream[d.slot]), int(b.seq[d.slot]), int(b.sample[row, d.slot] - b.base[d.slot]),
-                                  int(b.t_us[row, d.slot]), tuple(float(v) for v in y), flags,
+                                  int(b.t_us[row, d.slot]), (float(y[0]), float(y[1]), float(y[2]), float(y[3])), flags,
                                   (0.0, 0.0, 0.0) if b.live(d.slot) else None)
         self.host.publish(d, wire.encode_point(point))
         b.seq[d.slot] = (int(b.seq[d.slot]) + 1) & 0xFFFFFFFF

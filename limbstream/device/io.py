@@ -24,7 +24,7 @@ def point_publisher(session: zenoh.Session, subject: str, segment: str, cache: i
     return zext.declare_advanced_publisher(
         session, wire.seg_key(subject, segment),
         cache=zext.CacheConfig(max_samples=cache),
-        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),
+        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]  # (the stubs want every option)
         publisher_detection=True,
         **zconfig.publisher_options("seg"),
     )
@@ -35,8 +35,8 @@ def raw_publisher(session: zenoh.Session, subject: str, segment: str, heartbeat_
     evaluation samples."""
     return zext.declare_advanced_publisher(
         session, wire.raw_key(subject, segment), cache=zext.CacheConfig(max_samples=RAW_CACHE),
-        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s), publisher_detection=True,
-        **zconfig.publisher_options("raw"))
+        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]
+        publisher_detection=True, **zconfig.publisher_options("raw"))
 
 
 def alive_token(session: zenoh.Session, subject: str, segment: str):

@@ -31,7 +31,7 @@ def _through(y: np.ndarray, t: np.ndarray, p: int, r: int) -> np.ndarray:
 
 
 def simulate_live(
-    t: np.ndarray, q: np.ndarray, threshold: float, max_len: int, live_bound: float, predictor: str
+    t: np.ndarray, q: np.ndarray, threshold: float, max_len: int, live_bound: float, predictor: str | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """fastSW with its live rule and any predictor, float64 (the C kernel has ``rate`` only).
 
@@ -150,6 +150,7 @@ def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int
         return index, t[index], q[index], known, omega
     if algorithm == "fastsw":
         seg = kernel.segment(t, q, threshold, max_len, live_bound_deg=live_bound)
+        assert seg.index is not None and seg.known_from is not None  # (fastSW's points are samples)
         index, known = seg.index, seg.known_from
     else:
         seg = kernel.ALGORITHMS[algorithm](t, q, threshold, max_len)
@@ -159,5 +160,5 @@ def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int
             known[0] = index[0]
     if predictor is None:
         return index, seg.t, seg.q, known, None
-    omega = seg.omega if live_bound > 0 else _plain_rates(t, q, index, known, seg.q, predictor)
-    return index, seg.t, seg.q, known, omega
+    rates = seg.omega if live_bound > 0 else _plain_rates(t, q, index, known, seg.q, predictor)
+    return index, seg.t, seg.q, known, rates

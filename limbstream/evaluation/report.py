@@ -47,7 +47,8 @@ def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01)
     ok = [r for r in rows if np.isfinite(r["icr"]) and np.isfinite(r["aad"])
           and (bound is None or r["live_max"] <= bound + tolerance)]
     ok.sort(key=lambda r: (r["icr"], r["aad"]))
-    icr, aad = [], []
+    icr: list[float] = []
+    aad: list[float] = []
     for r in ok:
         if not aad or r["aad"] < aad[-1]:
             icr.append(r["icr"])

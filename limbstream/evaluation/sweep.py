@@ -171,7 +171,11 @@ def evaluate_threshold(
     if live_bound > 0 and algorithm != "fastsw":
         raise ValueError(f"the live rule is fastSW's, not {algorithm!r}'s")
     point_key, point_q, point_dev, owners = [], [], [], []
-    live_pos, live_q, live_t, live_omega, live_owner = [], [], [], [], []
+    live_pos: list[np.ndarray] = []
+    live_q: list[np.ndarray] = []
+    live_t: list[np.ndarray] = []
+    live_omega: list[np.ndarray | None] = []
+    live_owner: list[np.ndarray] = []
     n_points = 0
     for j, stream in enumerate(pool.streams):
         if len(stream.t) == 0:
@@ -201,8 +205,9 @@ def evaluate_threshold(
            "predictor": predictor if live else None, "icr": icr}
     if not point_key:
         return row | dict.fromkeys(MEASURES, math.nan)
-    errors = _live_errors(pool, np.concatenate(live_pos), np.concatenate(live_q), np.concatenate(live_t),
-                          np.concatenate(live_omega), np.concatenate(live_owner)) if live else np.zeros(0)
+    errors = (_live_errors(pool, np.concatenate(live_pos), np.concatenate(live_q), np.concatenate(live_t),
+                           np.concatenate([w for w in live_omega if w is not None]), np.concatenate(live_owner))
+              if live else np.zeros(0))
 
     keys = np.concatenate(point_key)
     q_points = np.concatenate(point_q)
@@ -256,7 +261,7 @@ def _body_errors(pool: _Pool, mask: np.ndarray, recon: np.ndarray, poses: Sequen
             continue
         r = rec[pool.start[j]:pool.start[j + 1]]
         cal = (calibration.calibrate(r, s.rest, s.mounting if "mounting" in poses else None, s.pose, s.name)
-               if "rest" in poses else calibration.Calibration.none())
+               if "rest" in poses and s.rest is not None else calibration.Calibration.none())
         motion, truth = r[s.motion_from:], s.truth[s.motion_from:]
         ok = np.isfinite(motion).all(axis=1) & np.isfinite(truth).all(axis=1)
         out.append(quat.angle_deg(cal.apply(motion[ok]), truth[ok]))
@@ -283,7 +288,7 @@ def _live_errors(pool: _Pool, known: np.ndarray, q_points: np.ndarray, t_points:
 def evaluate(
     motions: Iterable[Motion] | Sequence[Stream],
     algorithms: Sequence[str] = ALGORITHMS,
-    thresholds: Sequence[float] = THRESHOLDS,
+    thresholds: Sequence[float] | np.ndarray = THRESHOLDS,
     max_len: int = MAX_LEN,
     live_bounds: Sequence[float] | None = None,
     predictor: str = "rate",

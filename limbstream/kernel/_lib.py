@@ -122,7 +122,7 @@ GRID_HISTORY, GRID_TRUTH, GRID_JITTER = 16, 512, 500
 class GridSettings(ctypes.Structure):
     """LswGridSettings (lsw_grid.h): what every device of a grid bank shares."""
 
-    _fields_ = [(name, ctypes.c_double) for name in ("period_us", "hold_us", "late_us", "early_us", "phase_gain",
+    _fields_ = [(name, ctypes.c_double) for name in ("period_us", "hold_us", "late_us", "early_us", "phase_gain",  # type: ignore[assignment]  # fields of mixed types
                                                      "offset_us")] + [
         ("axes", ctypes.c_double * 4), ("rise_after", ctypes.c_uint32), ("truth", ctypes.c_uint32)]
 
@@ -130,7 +130,7 @@ class GridSettings(ctypes.Structure):
 class GridDevice(ctypes.Structure):
     """LswGridDevice (lsw_grid.h): one device's history, grid and truth samples."""
 
-    _fields_ = [("hist_t", ctypes.c_double * GRID_HISTORY), ("hist_q", (ctypes.c_double * 4) * GRID_HISTORY),
+    _fields_ = [("hist_t", ctypes.c_double * GRID_HISTORY), ("hist_q", (ctypes.c_double * 4) * GRID_HISTORY),  # type: ignore[assignment]  # fields of mixed types
                 ("truth_t", ctypes.c_int64 * GRID_TRUTH), ("truth_a", ctypes.c_double * GRID_TRUTH),
                 ("truth_q", (ctypes.c_float * 4) * GRID_TRUTH), ("jitter", ctypes.c_float * GRID_JITTER)] + [
         (name, ctypes.c_double) for name in ("instant", "anchor", "shift", "truth_since")] + [
@@ -143,7 +143,7 @@ class GridDevice(ctypes.Structure):
 class SvrTracker(ctypes.Structure):
     """LswSvrTracker (lsw_slimevr.h): a SlimeVR tracker's link counters."""
 
-    _fields_ = [(name, ctypes.c_int64) for name in ("last_number", "lost", "packets", "arrived")] + [
+    _fields_ = [(name, ctypes.c_int64) for name in ("last_number", "lost", "packets", "arrived")] + [  # type: ignore[assignment]  # fields of mixed types
         ("last_seen", ctypes.c_double), ("online", ctypes.c_uint32), ("pad", ctypes.c_uint32)]
 
 

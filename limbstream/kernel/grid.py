@@ -80,7 +80,7 @@ class GridBank:
 
     def push(self, k: int, t_us: float, q: Sequence[float], now: float) -> None:
         """Device k's sender's sample ``q`` (unit, its axes) arrived at ``t_us``, at monotonic ``now`` (s)."""
-        self._q[:] = q
+        self._q[:] = list(q)
         _lib.lsw_grid_push(self.settings_ptr, self.address(k), t_us, self._q, now)
 
     def tick(self, m: int, at_us: float) -> int:

@@ -19,7 +19,7 @@ class Segmenter:
     >>> seg.point_omega()                        # its body rate, rad/s (live rule)
     """
 
-    def __init__(self, threshold: float = wire.THRESHOLD.default, max_len: int = wire.MAX_LEN.default, dim: int = 4,
+    def __init__(self, threshold: float = wire.THRESHOLD.default, max_len: int = int(wire.MAX_LEN.default), dim: int = 4,
                  live_bound_deg: float = wire.LIVE_BOUND_DEG.default):
         self.dim = dim
         self._settings = make_settings(threshold, max_len, dim, live_bound_deg)
@@ -106,9 +106,9 @@ class SegmenterBank:
         base = ctypes.addressof(self._states)
         for k, settings in enumerate(self._settings):
             _lib.fastsw_init(base + k * STATE_SIZE, ctypes.byref(settings))
-        self._point_view = np.frombuffer(self._points, dtype=_POINT_DTYPE)
+        self._point_view = np.frombuffer(memoryview(self._points), dtype=_POINT_DTYPE)
         size = max(count, 1)
-        self._live = np.array([live_rule(st) for st in self._settings] or [0], np.uint8)
+        self._live = np.array([int(live_rule(st)) for st in self._settings] or [0], np.uint8)
         if ring >= 1:
             self.stream = np.zeros(size, np.uint16)
             self.seq = np.zeros(size, np.uint32)
@@ -118,7 +118,7 @@ class SegmenterBank:
             self._out = np.zeros(size * wire.POINT_SIZE_RATE, np.uint8)
             self._slots = np.zeros(size, np.uint32)
             self._ends = np.zeros(size, np.uint32)
-            self._wire = BankWire(*(a.ctypes.data for a in (self.stream, self.seq, self.base, self.sample,
+            self._wire: BankWire | None = BankWire(*(a.ctypes.data for a in (self.stream, self.seq, self.base, self.sample,
                                                              self.t_us, self._live)), ring, size)
             # addresses taken once (numpy's .ctypes costs tens of microseconds per call when the
             # tick loop wakes with cold caches)

@@ -109,11 +109,11 @@ def parse_bvh(path: str | Path) -> BvhClip:
         raise MotionFileError.at(path, None, f"cannot read ({exc})") from exc
     tokens: list[tuple[str, int]] = []
     motion_line = None
-    for number, line in enumerate(lines, 1):
-        if line.strip() == "MOTION":
+    for number, text in enumerate(lines, 1):
+        if text.strip() == "MOTION":
             motion_line = number
             break
-        tokens.extend((tok, number) for tok in line.split())
+        tokens.extend((tok, number) for tok in text.split())
     if not tokens or tokens[0][0] != "HIERARCHY":
         raise MotionFileError.at(path, 1, "not a BVH file (expected HIERARCHY on the first line)")
     if motion_line is None:
