@@ -10,7 +10,7 @@ import scipy.io
 
 from limbstream import kernel, quat, wire
 from limbstream.kernel import fusion
-from tests.conftest import DATA, require_data
+from support import DATA, require_data
 
 vqf = pytest.importorskip("vqf")
 
