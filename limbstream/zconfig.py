@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from limbstream import wire
+
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 ROUTER_ENV = "LIMBSTREAM_ROUTER"
 """Environment variable naming the router endpoint(s), comma-separated."""
@@ -48,17 +50,17 @@ class Qos:
 _BLOCK, _DROP = zenoh.CongestionControl.BLOCK, zenoh.CongestionControl.DROP
 QOS: dict[str, Qos] = {
     # the record: frames, replay and recordings are rebuilt from them; never dropped
-    "seg": Qos(_BLOCK, zenoh.Priority.DATA),
+    wire.SEG: Qos(_BLOCK, zenoh.Priority.DATA),
     # truth batches: the evaluation's record, recovered from the device's cache like points
-    "raw": Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+    wire.RAW: Qos(_BLOCK, zenoh.Priority.DATA_LOW),
     # final frames: recorders and the dashboard's history keep them, incl. the burst after a restart
-    "pose_exact": Qos(_BLOCK, zenoh.Priority.DATA),
+    wire.pose_stream(wire.KIND_EXACT): Qos(_BLOCK, zenoh.Priority.DATA),
     # superseded 20 ms later: never wait for them; their own queue, ahead of the bulk. Not express:
     # the frames of all subjects leave in one burst per tick, and batching (at most 1 ms) sends
     # them in a few writes instead of one per frame
-    "pose_live": Qos(_DROP, zenoh.Priority.INTERACTIVE_HIGH),
+    wire.pose_stream(wire.KIND_LIVE): Qos(_DROP, zenoh.Priority.INTERACTIVE_HIGH),
     # once a second per subject; the dashboard's history and recordings keep them
-    "stats": Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+    wire.STATS: Qos(_BLOCK, zenoh.Priority.DATA_LOW),
 }
 """Publisher options per message kind (docs/protocol.md, "Congestion control and priority")."""
 

@@ -16,8 +16,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--subjects", default="*",
                         help="comma-separated subject key chunks or patterns this instance serves "
                              "(default '*': all; e.g. 's0*' or 's01,s02' to shard)")
-    parser.add_argument("--rate", type=float, default=50.0, help="exact frame rate, Hz (default 50)")
-    parser.add_argument("--live-rate", type=float, default=50.0, help="live frame rate, Hz (0: none; default 50, the devices' rate)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"exact frame rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
+    parser.add_argument("--live-rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"live frame rate, Hz (0: none; default {wire.DEVICE_RATE_HZ:g}, the devices' rate)")
     parser.add_argument("--tick", type=float, default=0.02, help="loop period, s (default 0.02)")
     parser.add_argument("--frame-batch", type=float, default=0.0,
                         help="build exact frames at most every this many s (0: every tick)")

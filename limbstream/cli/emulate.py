@@ -48,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(env LIMBSTREAM_SOURCE)")
     parser.add_argument("--once", action="store_true", help="play a file source once, then flush and idle")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
-    parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"device sample rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = real time)")
     wire.add_arguments(parser)  # --threshold, --max-len: the device tunables
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")

@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="feed the device this motion, standing in for its IMU: 'generator' or a motion file "
                              "(its truth tap is published); default: the device samples its own IMU")
     parser.add_argument("--once", action="store_true", help="play a file source once, then end the stream and idle")
-    parser.add_argument("--rate", type=float, default=50.0, help="sample rate fed, Hz (default 50)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"sample rate fed, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the feeding (default 1 = real time)")
     parser.add_argument("--seed", type=int, default=1, help="generator seed (default 1: subject s01's)")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")

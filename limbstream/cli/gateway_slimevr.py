@@ -64,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--assignments-file", metavar="PATH",
                         help="keep the assignments made at run time (dashboard, REST) in this JSON file: "
                              "loaded at start, over --assign; rewritten after each change")
-    parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"device sample rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--delay-ms", type=float, default=30.0,
                         help="grid samples are taken this long in the past (default 30 ms)")
     wire.add_arguments(parser, defaults=wire.LIVE_MODE)  # live mode, as under limbstream up

@@ -7,6 +7,7 @@ kind of the frame shown."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -16,7 +17,8 @@ from limbstream import quat, wire, zconfig
 from limbstream.sources import SEGMENTS
 from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
 
-KINDS = {"any": None, "exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
+KINDS: dict[str, int | None] = {**wire.FRAME_KINDS, wire.AUTO: None}
+"""``--kind``: a frame kind, or ``auto`` (the pose stream API's rule: :func:`limbstream.wire.auto_kind`)."""
 SHOWN_JOINTS = ("head", "l_wrist", "r_wrist", "l_ankle", "r_ankle")
 
 
@@ -24,7 +26,7 @@ def render(subject: str, frame: wire.PoseFrame, rate_hz: float) -> str:
     """A few lines describing ``frame``: header, segment rotation angles, key joint positions."""
     flags = [name for bit, name in ((wire.FRAME_GAP, "GAP"), (wire.FRAME_MISSING, "MISSING"))
              if frame.flags & bit]
-    kind = "live" if frame.kind == wire.KIND_LIVE else "exact"
+    kind = wire.kind_name(frame.kind)
     stamp = time.strftime("%H:%M:%S", time.localtime(frame.t_us / 1e6)) + f".{frame.t_us // 1000 % 1000:03d}"
     lines = [f"{subject}  {kind} #{frame.seq}  t={stamp}  {rate_hz:5.1f} frames/s  {' '.join(flags)}".rstrip()]
     identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))
@@ -41,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", help="subject key chunk, e.g. s01")
     parser.add_argument("--kind", choices=tuple(KINDS), default="live",
                         help="which frames to show: live (default; at the devices' now), exact (final, "
-                             "behind by up to the max segment length) or any")
+                             "behind by up to the max segment length) or auto (live while they come, else exact)")
     parser.add_argument("--refresh", type=float, default=5.0, help="screen updates per second (default 5)")
     parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
@@ -59,12 +61,16 @@ def run(args: argparse.Namespace) -> int:
     wanted = KINDS[args.kind]
     tty = sys.stdout.isatty()
     count, last_count, last_time, last_seen = 0, 0, time.monotonic(), time.monotonic()
+    last_live = -math.inf  # monotonic time of the newest live frame (auto)
     with Subscription(zconfig.from_args(args), args.subject, ("pose",)) as sub:
         while True:
             frame = None
             first = sub.get(timeout=1.0 / args.refresh)
             for item in ([first] if first is not None else []) + sub.drain():  # keep the newest
-                if wanted is None or item.value.kind == wanted:
+                if item.value.kind == wire.KIND_LIVE:
+                    last_live = time.monotonic()
+                kind = wanted if wanted is not None else wire.auto_kind(time.monotonic() - last_live)
+                if item.value.kind == kind:
                     frame, count = item.value, count + 1
             now = time.monotonic()
             if frame is None:

@@ -26,7 +26,7 @@ def point_publisher(session: zenoh.Session, subject: str, segment: str, cache: i
         cache=zext.CacheConfig(max_samples=cache),
         sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]  # (the stubs want every option)
         publisher_detection=True,
-        **zconfig.publisher_options("seg"),
+        **zconfig.publisher_options(wire.SEG),
     )
 
 
@@ -36,7 +36,7 @@ def raw_publisher(session: zenoh.Session, subject: str, segment: str, heartbeat_
     return zext.declare_advanced_publisher(
         session, wire.raw_key(subject, segment), cache=zext.CacheConfig(max_samples=RAW_CACHE),
         sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]
-        publisher_detection=True, **zconfig.publisher_options("raw"))
+        publisher_detection=True, **zconfig.publisher_options(wire.RAW))
 
 
 def alive_token(session: zenoh.Session, subject: str, segment: str):

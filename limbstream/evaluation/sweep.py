@@ -108,7 +108,7 @@ def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | Non
 def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int) -> list[Stream]:
     """A motion's streams as its sensors report them, after the calibration script."""
     t = np.asarray(motion.t, np.float64)
-    fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else 50.0
+    fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else wire.DEVICE_RATE_HZ
     q, rest, mounting = calibration.with_script(motion.q, fs, motion.segments)
     start = len(q) - len(t)
     t = np.concatenate([t[0] - np.arange(start, 0, -1) / fs, t]) if len(t) else np.arange(len(q)) / fs

@@ -32,7 +32,7 @@ RAW_DTYPE = np.dtype({"names": ["t", "gyr", "acc", "mag"],
 _DEFAULTS = ImuSettings.in_dll(_lib, "lsw_imu_default_settings")
 
 
-def imu_settings(rate_hz: float, device_rate_hz: float = 50.0, nine_d: bool = False, max_gap_s: float | None = None,
+def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False, max_gap_s: float | None = None,
                  acc_limit: float | None = None) -> ImuSettings:
     """Validated pipeline settings (LswImuSettings).
 
@@ -115,7 +115,7 @@ class ImuBank(SegmenterBank):
     threshold, max_len, live_bound_deg, ring : as :class:`SegmenterBank`.
     """
 
-    def __init__(self, count: int, rate_hz: float, device_rate_hz: float = 50.0, nine_d: bool = False,
+    def __init__(self, count: int, rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False,
                  threshold=wire.THRESHOLD.default, max_len=wire.MAX_LEN.default,
                  live_bound_deg=wire.LIVE_BOUND_DEG.default, ring: int = 0, max_gap_s: float | None = None,
                  acc_limit: float | None = None):

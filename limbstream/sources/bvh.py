@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from limbstream import quat
+from limbstream import quat, wire
 from limbstream.sources import SEGMENTS, Motion, MotionFileError, is_number
 
 CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
@@ -338,7 +338,7 @@ def resample(t: np.ndarray, q: np.ndarray, fs: float) -> tuple[np.ndarray, np.nd
 
 def load_bvh(
     path: str | Path,
-    fs: float | None = 50.0,
+    fs: float | None = wire.DEVICE_RATE_HZ,
     segment_map: Mapping[str, str] | None = None,
     drop_first: bool | None = None,
 ) -> Motion:

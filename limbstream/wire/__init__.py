@@ -29,13 +29,13 @@ from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
 from .gateway import Assignment, decode_assignment, decode_sensors, encode_assignment, encode_sensors
-from .keys import (CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
+from .keys import (ALIVE, CALIBRATE, CONFIG, POSE, RAW, SEG, STATS, CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
                    device_selector, gateway_key, gateway_selector, history_selector, parse_device_key, parse_gateway_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,
                     decode_point, encode_point)
-from .pose import (AUTO_LIVE_WINDOW_S, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
-                   PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, rest_pose_flag)
+from .pose import (AUTO, AUTO_LIVE_WINDOW_S, FRAME_KINDS, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
+                   PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, kind_name, pose_stream, rest_pose_flag)
 from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, decode_raw, encode_raw
 from .stats import decode_stats, encode_stats
 from .time import (MAX_TIME_US, TIME_ANSWER_SIZE, TIME_REQUEST_SIZE, TIME_VERSION, TimeAnswer, TimeRequest,

@@ -155,7 +155,7 @@ class LiveState:
                 self.errors["too_many_subjects"] += 1
                 return
             slots = self.poses[subject] = {}
-        self._count_missed(subject, "pose_live" if frame.kind == wire.KIND_LIVE else "pose_exact", frame.seq)
+        self._count_missed(subject, wire.pose_stream(frame.kind), frame.seq)
         entry = slots[frame.kind] = PoseEntry(frame, rx)
         if frame.kind == wire.KIND_EXACT:
             lat = self.exact_latency.get(subject)

@@ -72,7 +72,7 @@ class Views:
                 "stats_age_s": round(now - self.live.stats_times[name], 3) if name in self.live.stats_times else None,
                 "pose": None if pose is None else {
                     "seq": pose.frame.seq, "t": pose.frame.t_us / 1e6,
-                    "kind": "live" if pose.frame.kind == wire.KIND_LIVE else "exact",
+                    "kind": wire.kind_name(pose.frame.kind),
                     "age_s": round(now - pose.rx, 3)},
                 **self.exact_latency_view(name),
                 **self.live.subject_stats.get(name, {}),

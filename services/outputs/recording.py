@@ -28,7 +28,7 @@ from mcap.stream_reader import StreamReader
 
 from limbstream import wire
 
-KINDS: tuple[str, ...] = ("seg", "raw", "pose", "stats", "config")
+KINDS: tuple[str, ...] = (wire.SEG, wire.RAW, wire.POSE, wire.STATS, wire.CONFIG)
 """Key kinds a recording holds, one channel each."""
 TOPICS: dict[str, str] = {kind: f"/limbstream/{kind}" for kind in KINDS}
 """MCAP topic of each kind."""

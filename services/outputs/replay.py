@@ -226,7 +226,7 @@ class Replayer:
         """Publish pass after pass (one without ``loop``) until the end or ``stop``; then hold the
         devices online for ``hold_s`` and take them offline."""
         s = self.settings
-        kinds = ("seg", "raw", "config", "stats") if s.truth else ("seg", "config", "stats")
+        kinds = (wire.SEG, wire.RAW, wire.CONFIG, wire.STATS) if s.truth else (wire.SEG, wire.CONFIG, wire.STATS)
         start = time.monotonic()
         offset_ns = 0  # recorded time of the passes before this one
         next_progress = start + progress_s
