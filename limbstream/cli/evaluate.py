@@ -210,6 +210,22 @@ def _fail(message: str) -> int:
     return 2
 
 
+def _mistake(args: argparse.Namespace, algorithms: list[str], bounds: list[float]) -> str | None:
+    """The flags' first mistake (one sentence), or None."""
+    if any(b > 0 for b in bounds) and algorithms != ["fastsw"]:
+        return f"--live-bound is fastSW's rule: use it with --algorithms fastsw, not {' '.join(algorithms)}"
+    if "sw" in algorithms and args.max_len > 1000:
+        return f"--max-len for algorithm 'sw' is at most 1000, got {args.max_len}"
+    for out, what in ((args.json, "--json"), (args.plot, "--plot")):
+        if out is not None and not out.parent.resolve().is_dir():
+            return f"{what} {out}: folder {out.parent} does not exist"
+    if args.joint_angles and args.thresholds is None:
+        return "--joint-angles prints a table per row: give the rows' --thresholds"
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        return f"--plot {args.plot}: must end in .png"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     """``limbstream eval``: print the ICR table, optionally write JSON rows and the plot."""
     if args.algorithms is None:
@@ -217,17 +233,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         algorithms = list(dict.fromkeys(n for group in args.algorithms for n in group))
     bounds = list(dict.fromkeys(args.live_bound)) if args.live_bound is not None else [0.0]
-    if any(b > 0 for b in bounds) and algorithms != ["fastsw"]:
-        return _fail(f"--live-bound is fastSW's rule: use it with --algorithms fastsw, not {' '.join(algorithms)}")
-    if "sw" in algorithms and args.max_len > 1000:
-        return _fail(f"--max-len for algorithm 'sw' is at most 1000, got {args.max_len}")
-    for out, what in ((args.json, "--json"), (args.plot, "--plot")):
-        if out is not None and not out.parent.resolve().is_dir():
-            return _fail(f"{what} {out}: folder {out.parent} does not exist")
-    if args.joint_angles and args.thresholds is None:
-        return _fail("--joint-angles prints a table per row: give the rows' --thresholds")
-    if args.plot is not None and args.plot.suffix.lower() != ".png":
-        return _fail(f"--plot {args.plot}: must end in .png")
+    mistake = _mistake(args, algorithms, bounds)
+    if mistake is not None:
+        return _fail(mistake)
     motions: list[Motion] = []
     for path in args.paths:
         try:
@@ -263,6 +271,14 @@ def run(args: argparse.Namespace) -> int:
            f"yaw drift +-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}, "
            f"calibration {args.calibration}" if sensors.on else "")
     )
+    _print_rows(args, rows, algorithms, bounds, sensors.on)
+    return 0
+
+
+def _print_rows(args: argparse.Namespace, rows: list[dict], algorithms: list[str], bounds: list[float],
+                sensors_on: bool) -> None:
+    """The rows as a table (every row with explicit thresholds), their joint-angle errors; the
+    JSON rows and the plot asked for."""
     if args.thresholds is not None:  # explicit thresholds: show every row
         print(
             f"{'algorithm':<9} {'bound':>5} {'TH':>9} {'ICR':>7} {'AAD':>7} {'std':>7} {'p99':>7} {'max':>7} "
@@ -277,7 +293,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_table(rows, algorithms, live_bounds=bounds))
     for r in rows if args.joint_angles else ():
-        against = "the calibrated reconstruction" if sensors.on else "the reconstruction"
+        against = "the calibrated reconstruction" if sensors_on else "the reconstruction"
         print("\n" + format_errors(r["joints"], f"joint angles of {against} against the truth's (deg): "
                                                 f"{r['algorithm']}, TH {r['threshold']:.2e}, bound {r['live_bound']:g}"))
     if args.json is not None:
@@ -290,4 +306,3 @@ def run(args: argparse.Namespace) -> int:
         else:
             plot(rows, algorithms, args.plot, title=title)
         print(f"wrote {args.plot}")
-    return 0

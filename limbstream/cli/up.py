@@ -138,7 +138,8 @@ def say(message: str) -> None:
     print(f"limbstream up: {message}", file=sys.stderr, flush=True)
 
 
-def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+def check(args: argparse.Namespace) -> str | None:
+    """The flags' first mistake (one sentence), or None."""
     try:
         split_endpoint(args.router)
         split_endpoint(args.http)
@@ -149,7 +150,73 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
         calibration.from_args(args)  # ValueError naming a bad sensor bound
     except (ValueError, argparse.ArgumentTypeError) as exc:
-        print(f"limbstream up: error: {exc}", file=sys.stderr)
+        return str(exc)
+    return None
+
+
+def start(args: argparse.Namespace, launcher: Launcher, supervisor: Supervisor, status_file: Path,
+          dashboard_vars: dict | None) -> bool:
+    """Start the router, the parts of :func:`plan` and (with ``dashboard_vars``) the dashboard;
+    False, said in one line, if one of them cannot start."""
+    try:
+        launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
+        write_status(status_file, "starting", supervisor)
+        for name, argv in plan(args):
+            launcher.start(name, *argv)
+        write_status(status_file, "starting", supervisor)
+        if dashboard_vars is not None:
+            launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
+    except ChildExited as exc:
+        say(f"{exc.child.name} failed to start ({exc.child.exit_text()}): {exc.child.last_line()}")
+        return False
+    except PortTaken as exc:
+        say(str(exc))
+        return False
+    except TimeoutError:
+        late = launcher.children[-1]
+        say(f"{late.name} did not come up within "
+            f"{ROUTER_TIMEOUT_S if late.name == 'router' else DASHBOARD_TIMEOUT_S:g} s: {late.last_line()}")
+        return False
+    return True
+
+
+def banner(args: argparse.Namespace, launcher: Launcher, status_file: Path, dashboard_vars: dict | None) -> None:
+    """What runs where, once everything is up."""
+    print(f"\nlimbstream is running ({args.subjects} subjects x 10 IMUs, source {args.source}):")
+    for child in launcher.children:
+        print(f"  {child.name:<11} pid {child.pid}")
+    if dashboard_vars is not None:
+        print(f"\n  dashboard   http://{args.http}/   (API docs http://{args.http}/docs)")
+        if TOKEN_ENV in dashboard_vars:
+            print(f"  API token   {dashboard_vars[TOKEN_ENV]}   (development; set {TOKEN_ENV} to choose one)")
+    if args.slimevr is not None:
+        host, port = parse_address(args.slimevr)
+        print(f"  slimevr     udp {host}:{port}  subject {args.slimevr_subject} (point trackers at this "
+              "machine's address and this port)")
+    print(f"  zenoh       {args.router}  keys limbstream/<subject>/pose, limbstream/<subject>/stats")
+    print(f"  status      {status_file}  (restart counts; a part that exits is started again)")
+    print("\nCtrl-C stops everything.\n", flush=True)
+
+
+def supervise(supervisor: Supervisor, status_file: Path, stop: threading.Event) -> int:
+    """Restart the parts that exit until ``stop``; 1 when one keeps exiting (its last lines said)."""
+    while not stop.wait(POLL_S):
+        try:
+            if supervisor.poll():
+                write_status(status_file, "running", supervisor)
+        except CrashLoop as exc:
+            say(f"{exc}; stopping")
+            print(f"last lines of {exc.child.name}'s output:", file=sys.stderr)
+            for line in exc.child.tail(10):
+                print(f"  {line}", file=sys.stderr)
+            return 1
+    return 0
+
+
+def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+    mistake = check(args)
+    if mistake is not None:
+        print(f"limbstream up: error: {mistake}", file=sys.stderr)
         return 2
     temp = None
     if args.status_file is None:
@@ -159,55 +226,15 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     launcher = Launcher()
     supervisor = Supervisor(launcher.children, RestartPolicy(max_exits=args.max_exits), report=say)
     dashboard = not args.no_dashboard and importlib.util.find_spec("limbstream.services.dashboard.main") is not None
+    dashboard_vars = dashboard_env(status_file) if dashboard else None
     signal.signal(signal.SIGTERM, _abort_start)  # while starting, Ctrl-C or SIGTERM abort the start
     try:
-        try:
-            launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
-            write_status(status_file, "starting", supervisor)
-            for name, argv in plan(args):
-                launcher.start(name, *argv)
-            write_status(status_file, "starting", supervisor)
-            if dashboard:
-                dashboard_vars = dashboard_env(status_file)
-                launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
-        except ChildExited as exc:
-            say(f"{exc.child.name} failed to start ({exc.child.exit_text()}): {exc.child.last_line()}")
-            return 1
-        except PortTaken as exc:
-            say(str(exc))
-            return 1
-        except TimeoutError:
-            late = launcher.children[-1]
-            say(f"{late.name} did not come up within "
-                f"{ROUTER_TIMEOUT_S if late.name == 'router' else DASHBOARD_TIMEOUT_S:g} s: {late.last_line()}")
+        if not start(args, launcher, supervisor, status_file, dashboard_vars):
             return 1
         stop = stop_on_signals(stop)
         write_status(status_file, "running", supervisor)
-        print(f"\nlimbstream is running ({args.subjects} subjects x 10 IMUs, source {args.source}):")
-        for child in launcher.children:
-            print(f"  {child.name:<11} pid {child.pid}")
-        if dashboard:
-            print(f"\n  dashboard   http://{args.http}/   (API docs http://{args.http}/docs)")
-            if TOKEN_ENV in dashboard_vars:
-                print(f"  API token   {dashboard_vars[TOKEN_ENV]}   (development; set {TOKEN_ENV} to choose one)")
-        if args.slimevr is not None:
-            host, port = parse_address(args.slimevr)
-            print(f"  slimevr     udp {host}:{port}  subject {args.slimevr_subject} (point trackers at this "
-                  "machine's address and this port)")
-        print(f"  zenoh       {args.router}  keys limbstream/<subject>/pose, limbstream/<subject>/stats")
-        print(f"  status      {status_file}  (restart counts; a part that exits is started again)")
-        print("\nCtrl-C stops everything.\n", flush=True)
-        while not stop.wait(POLL_S):
-            try:
-                if supervisor.poll():
-                    write_status(status_file, "running", supervisor)
-            except CrashLoop as exc:
-                say(f"{exc}; stopping")
-                print(f"last lines of {exc.child.name}'s output:", file=sys.stderr)
-                for line in exc.child.tail(10):
-                    print(f"  {line}", file=sys.stderr)
-                return 1
-        return 0
+        banner(args, launcher, status_file, dashboard_vars)
+        return supervise(supervisor, status_file, stop)
     except KeyboardInterrupt:
         return 130
     finally:
