@@ -164,9 +164,9 @@ def test_bad_samples_are_left_out():
     t = streams[0].t.copy()
     t[90] = t[88]
     broken = [evaluation.Stream(t, q, "broken"), streams[1]]
-    rows = evaluation.evaluate(broken, ["fastsw", "cplr"], [1e-3], live_bounds=[0.0])
+    rows = evaluation.evaluate(broken, ["fastsw", "cplr"], [1e-3], live_bound_deg=[0.0])
     for predictor in evaluation.PREDICTORS:
-        rows += evaluation.evaluate(broken, ["fastsw"], [1e-3], live_bounds=[5.0], predictor=predictor)
+        rows += evaluation.evaluate(broken, ["fastsw"], [1e-3], live_bound_deg=[5.0], predictor=predictor)
     for r in rows:
         assert all(np.isfinite(r[k]) for k in evaluation.MEASURES if k != "body_aad"), r
         assert np.isnan(r["body_aad"]), "no sensor model: no body error"
@@ -295,14 +295,14 @@ def test_live_rows_match_the_oracle(cmu_motions, predictor):
     streams = evaluation.streams_of(cmu_motions[1:3])  # two clips, 20 streams
     rows = evaluation.evaluate(streams, ["fastsw"], [1e-3, 1e-2], 25, [0.0, 5.0, 10.0], predictor)
     for row in rows:
-        want = live_oracle(streams, row["threshold"], 25, row["live_bound"], predictor)
-        label = f"{predictor} TH={row['threshold']} bound={row['live_bound']}"
+        want = live_oracle(streams, row["threshold"], 25, row["live_bound_deg"], predictor)
+        label = f"{predictor} TH={row['threshold']} bound={row['live_bound_deg']}"
         assert row["predictor"] == predictor and list(row) == list(evaluation.KEYS), label
         assert row["icr"] == pytest.approx(want["icr"], rel=2e-3), label
         for field in ("live_aad", "live_p99", "live_max"):
             assert row[field] == pytest.approx(want[field], rel=2e-3, abs=2e-3), f"{label} {field}"
-        if row["live_bound"] > 0:
-            assert row["live_max"] <= row["live_bound"] + 0.002, label
+        if row["live_bound_deg"] > 0:
+            assert row["live_max"] <= row["live_bound_deg"] + 0.002, label
 
 
 def test_simulated_rate_rule_is_the_kernels(cmu_motions):
@@ -349,7 +349,7 @@ def test_cli_live_bounds_json_table_and_frontier(cmu_npz, tmp_path, capsys):
     text = capsys.readouterr().out
     assert code == 0, text
     rows = json.loads(out_json.read_text())
-    assert [(r["algorithm"], r["live_bound"], r["predictor"]) for r in rows] == [
+    assert [(r["algorithm"], r["live_bound_deg"], r["predictor"]) for r in rows] == [
         ("fastsw", 0.0, "slope"), ("fastsw", 5.0, "slope")], rows
     assert rows[1]["live_max"] <= 5.002 < rows[0]["live_max"], rows
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

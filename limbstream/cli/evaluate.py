@@ -77,14 +77,14 @@ def plot_frontier(rows: Sequence[dict], bounds: Sequence[float], path: str | Pat
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
-    plain = sorted((r for r in rows if r["live_bound"] == 0 and r["icr"] > 0), key=lambda r: r["icr"])
+    plain = sorted((r for r in rows if r["live_bound_deg"] == 0 and r["icr"] > 0), key=lambda r: r["icr"])
     if plain:
         left.plot([r["icr"] for r in plain], [r["aad"] for r in plain], "k-", label="plain fastSW (no live bound)")
         right.plot([r["icr"] for r in plain], [r["live_p99"] for r in plain], "k-", label="plain fastSW")
     for n, bound in enumerate(b for b in bounds if b > 0):
         icr, aad = frontier(rows, bound)
         left.plot(icr, aad, ".-", ms=3, color=f"C{n}", label=f"live error <= {bound:g} deg")
-        own = sorted((r for r in rows if r["live_bound"] == bound and r["icr"] > 0), key=lambda r: r["icr"])
+        own = sorted((r for r in rows if r["live_bound_deg"] == bound and r["icr"] > 0), key=lambda r: r["icr"])
         right.plot([r["icr"] for r in own], [r["live_p99"] for r in own], ".-", ms=3, color=f"C{n}",
                    label=f"live rule {bound:g} deg")
         right.axhline(bound, color=f"C{n}", ls=":", lw=0.8)
@@ -286,16 +286,16 @@ def _print_rows(args: argparse.Namespace, rows: list[dict], algorithms: list[str
         )
         for r in rows:
             print(
-                f"{r['algorithm']:<9} {r['live_bound']:>5g} {r['threshold']:>9.2e} {r['icr']:>7.4f} {r['aad']:>7.3f} "
+                f"{r['algorithm']:<9} {r['live_bound_deg']:>5g} {r['threshold']:>9.2e} {r['icr']:>7.4f} {r['aad']:>7.3f} "
                 f"{r['std']:>7.3f} {r['p99']:>7.3f} {r['max']:>7.3f} {r['point_aad']:>8.3f} {r['point_max']:>8.3f} "
                 f"{r['live_aad']:>7.3f} {r['live_p99']:>7.3f} {r['live_max']:>7.3f} {r['body_aad']:>7.3f}"
             )
     else:
-        print(format_table(rows, algorithms, live_bounds=bounds))
+        print(format_table(rows, algorithms, live_bound_deg=bounds))
     for r in rows if args.joint_angles else ():
         against = "the calibrated reconstruction" if sensors_on else "the reconstruction"
         print("\n" + format_errors(r["joints"], f"joint angles of {against} against the truth's (deg): "
-                                                f"{r['algorithm']}, TH {r['threshold']:.2e}, bound {r['live_bound']:g}"))
+                                                f"{r['algorithm']}, TH {r['threshold']:.2e}, bound {r['live_bound_deg']:g}"))
     if args.json is not None:
         write_json(rows, args.json)
         print(f"wrote {len(rows)} rows to {args.json}")

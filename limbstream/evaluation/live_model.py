@@ -4,17 +4,14 @@ it. Times are seconds, rates rad/s."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from limbstream import kernel, quat
 
-if TYPE_CHECKING:
-    from limbstream.evaluation.sweep import Stream
+__all__ = ["accepted", "segment_live", "simulate_live"]
 
 
-def _accepted(t: np.ndarray, q: np.ndarray) -> np.ndarray:
+def accepted(t: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Positions of the samples a kernel accepts: finite values, time after the last accepted."""
     ok = np.isfinite(q).all(axis=1) & np.isfinite(t)
     keep, last = [], -math.inf
@@ -31,13 +28,13 @@ def _through(y: np.ndarray, t: np.ndarray, p: int, r: int) -> np.ndarray:
 
 
 def simulate_live(
-    t: np.ndarray, q: np.ndarray, threshold: float, max_len: int, live_bound: float, predictor: str | None
+    t: np.ndarray, q: np.ndarray, threshold: float, max_len: int, live_bound_deg: float, predictor: str | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """fastSW with its live rule and any predictor, float64 (the C kernel has ``rate`` only).
 
     The rules of ``limbstream.kernel`` (docs/kernel.md): running sums, the SSR and max_len
     rules close a segment at sample n-1, the live rule at sample n when the receiver's view of n
-    (newest point extrapolated by :func:`limbstream.quat.predict`) is more than ``live_bound``
+    (newest point extrapolated by :func:`limbstream.quat.predict`) is more than ``live_bound_deg``
     degrees from it. A new point's rate: ``rate``, through the next sample (SSR/max_len) or the
     one before (live); ``slope``, through the previous point; ``hold``, none. With ``slope`` and
     ``hold`` the view of sample n after a break at n-1 can miss it: then n is a point as well
@@ -46,7 +43,7 @@ def simulate_live(
     Parameters
     ----------
     t : (m,) seconds; q : (m, 4) quaternions; threshold, max_len: the SSR rules;
-    live_bound : degrees, 0 for off; predictor : one of :data:`PREDICTORS`.
+    live_bound_deg : degrees, 0 for off; predictor : one of :data:`PREDICTORS`.
 
     Returns
     -------
@@ -55,11 +52,11 @@ def simulate_live(
     """
     t = np.asarray(t, np.float64)
     y = np.asarray(q, np.float64)
-    keep = _accepted(t, y)
+    keep = accepted(t, y)
     if len(keep) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-    live = 0.0 < live_bound < 180.0
-    cos2 = math.cos(math.radians(live_bound) / 2.0) ** 2
+    live = 0.0 < live_bound_deg < 180.0
+    cos2 = math.cos(math.radians(live_bound_deg) / 2.0) ** 2
     rows = y.tolist()
     a = prev = int(keep[0])
     points, known, omega = [a], [a], [np.zeros(3)]
@@ -140,16 +137,18 @@ def _plain_rates(t: np.ndarray, q: np.ndarray, index: np.ndarray, known: np.ndar
     return np.nan_to_num(omega, nan=0.0)
 
 
-def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int, live_bound: float,
-                  predictor: str | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """One stream: (index, t_points, q_points, known_from, omega) for the row's algorithm,
-    threshold, live bound and predictor (None: no rates, omega None)."""
-    t, q = stream.t, stream.q
-    if live_bound > 0 and predictor != "rate":
-        index, known, omega = simulate_live(t, q, threshold, max_len, live_bound, predictor)
+def segment_live(t: np.ndarray, q: np.ndarray, algorithm: str, threshold: float, max_len: int,
+                 live_bound_deg: float, predictor: str | None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """One stream (times ``t`` (m,) s, orientations ``q`` (m, 4)) as a receiver gets it: (index,
+    t_points, q_points, known_from, omega) for the row's algorithm, threshold, live bound
+    (degrees, 0: off) and predictor (None: no rates, omega None). The one entry of the sweep
+    (:mod:`.sweep`) into the live model."""
+    if live_bound_deg > 0 and predictor != "rate":
+        index, known, omega = simulate_live(t, q, threshold, max_len, live_bound_deg, predictor)
         return index, t[index], q[index], known, omega
     if algorithm == "fastsw":
-        seg = kernel.segment(t, q, threshold, max_len, live_bound_deg=live_bound)
+        seg = kernel.segment(t, q, threshold, max_len, live_bound_deg=live_bound_deg)
         assert seg.index is not None and seg.known_from is not None  # (fastSW's points are samples)
         index, known = seg.index, seg.known_from
     else:
@@ -160,5 +159,5 @@ def _segment_live(stream: Stream, algorithm: str, threshold: float, max_len: int
             known[0] = index[0]
     if predictor is None:
         return index, seg.t, seg.q, known, None
-    rates = seg.omega if live_bound > 0 else _plain_rates(t, q, index, known, seg.q, predictor)
+    rates = seg.omega if live_bound_deg > 0 else _plain_rates(t, q, index, known, seg.q, predictor)
     return index, seg.t, seg.q, known, rates

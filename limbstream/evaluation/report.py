@@ -13,7 +13,7 @@ from limbstream.evaluation.sweep import ICR_TARGETS, KEYS, at_icr
 
 def format_table(
     rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] = ICR_TARGETS,
-    live_bounds: Sequence[float] = (0.0,),
+    live_bound_deg: Sequence[float] = (0.0,),
 ) -> str:
     """The comparison table (measures at the target ICRs, per algorithm and live bound) as
     aligned text."""
@@ -21,8 +21,8 @@ def format_table(
             f"{'pt_max':>8} {'live':>7} {'live99':>7}  {'~TH':>9}")
     lines = [head, "-" * len(head)]
     for a in algorithms:
-        for bound in live_bounds:
-            for r in at_icr(rows, a, targets, live_bound=bound):
+        for bound in live_bound_deg:
+            for r in at_icr(rows, a, targets, live_bound_deg=bound):
                 lines.append(
                     f"{a:<9} {bound:>5g} {r['icr']:>5.2f} {r['aad']:>7.2f} {r['p99']:>7.2f} {r['max']:>7.2f} "
                     f"{r['point_aad']:>8.3f} {r['point_max']:>8.3f} {r['live_aad']:>7.2f} {r['live_p99']:>7.2f}  "

@@ -10,7 +10,7 @@ import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
 from limbstream.sources import Motion
-from limbstream.evaluation.live_model import _accepted, _segment_live
+from limbstream.evaluation.live_model import accepted, segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
 """The paper's sweep: 0 and 205 log-spaced values from 1e-6 to 1e3 (206 thresholds)."""
@@ -34,7 +34,7 @@ PREDICTORS: tuple[str, ...] = ("rate", "slope", "hold")
 KEYS: tuple[str, ...] = (
     "algorithm",
     "threshold",
-    "live_bound",
+    "live_bound_deg",
     "predictor",
     "icr",
     "aad",
@@ -148,7 +148,7 @@ class _Pool:
         self.n_samples = int(lengths.sum())
         self.accepted = np.zeros(self.n_samples, bool)  # what a kernel accepts (time increasing too)
         for j, s in enumerate(streams):
-            self.accepted[self.start[j] + _accepted(s.t, np.asarray(s.q, np.float64))] = True
+            self.accepted[self.start[j] + accepted(s.t, np.asarray(s.q, np.float64))] = True
 
 
 def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
@@ -159,7 +159,7 @@ def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
 
 
 def evaluate_threshold(
-    pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound: float = 0.0,
+    pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound_deg: float = 0.0,
     predictor: str = "rate", live: bool = False, poses: Sequence[str] = CALIBRATIONS[-1], angles: bool = False,
 ) -> dict:
     """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result
@@ -173,7 +173,7 @@ def evaluate_threshold(
     -------
     dict with the fields of :data:`KEYS` (degrees for the angular measures), and ``joints``.
     """
-    if live_bound > 0 and algorithm != "fastsw":
+    if live_bound_deg > 0 and algorithm != "fastsw":
         raise ValueError(f"the live rule is fastSW's, not {algorithm!r}'s")
     point_key, point_q, point_dev, owners = [], [], [], []
     live_pos: list[np.ndarray] = []
@@ -185,8 +185,8 @@ def evaluate_threshold(
     for j, stream in enumerate(pool.streams):
         if len(stream.t) == 0:
             continue
-        index, seg_t, seg_q, known, omega = _segment_live(stream, algorithm, threshold, max_len,
-                                                          live_bound, predictor if live else None)
+        index, seg_t, seg_q, known, omega = segment_live(stream.t, stream.q, algorithm, threshold, max_len,
+                                                          live_bound_deg, predictor if live else None)
         k = len(seg_t)
         if k == 0:  # every sample rejected: nothing to rebuild this stream from
             continue
@@ -206,7 +206,7 @@ def evaluate_threshold(
         point_q.append(q_points)
         owners.append(j)
     icr = n_points / pool.n_samples if pool.n_samples else math.nan
-    row = {"algorithm": algorithm, "threshold": float(threshold), "live_bound": float(live_bound),
+    row = {"algorithm": algorithm, "threshold": float(threshold), "live_bound_deg": float(live_bound_deg),
            "predictor": predictor if live else None, "icr": icr}
     if not point_key:
         return row | dict.fromkeys(MEASURES, math.nan)
@@ -319,7 +319,7 @@ def evaluate(
     algorithms: Sequence[str] = ALGORITHMS,
     thresholds: Sequence[float] | np.ndarray = THRESHOLDS,
     max_len: int = MAX_LEN,
-    live_bounds: Sequence[float] | None = None,
+    live_bound_deg: Sequence[float] | None = None,
     predictor: str = "rate",
     poses: Sequence[str] = CALIBRATIONS[-1],
     angles: bool = False,
@@ -332,7 +332,7 @@ def evaluate(
     algorithms : keys of :data:`limbstream.kernel.ALGORITHMS`.
     thresholds : (T,) thresholds, >= 0, each algorithm's own unit.
     max_len : largest segment length, samples.
-    live_bounds : fastSW live rule bounds, degrees in [0, 180) (0: the plain rules; a bound
+    live_bound_deg : fastSW live rule bounds, degrees in [0, 180) (0: the plain rules; a bound
         above 0 needs algorithms == ["fastsw"]); None: the plain rules, and no live error
         (the ``live_*`` fields are NaN).
     predictor : the points' rates for the live error, one of :data:`PREDICTORS`.
@@ -353,20 +353,20 @@ def evaluate(
             raise ValueError(f"algorithm must be one of {sorted(kernel.ALGORITHMS)}, got {name!r}")
     if predictor not in PREDICTORS:
         raise ValueError(f"predictor must be one of {', '.join(PREDICTORS)}, got {predictor!r}")
-    live = live_bounds is not None
-    for bound in live_bounds or ():
+    live = live_bound_deg is not None
+    for bound in live_bound_deg or ():
         if kernel.LIVE_BOUND.check(bound) > 0 and set(algorithms) != {"fastsw"}:
             raise ValueError(f"a live bound needs algorithms ['fastsw'], got {list(algorithms)}")
     pool = _Pool(streams)
     if tuple(poses) not in CALIBRATIONS:
         raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {tuple(poses)}")
     return [evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses, angles)
-            for a in algorithms for bound in (live_bounds or (0.0,)) for th in thresholds]
+            for a in algorithms for bound in (live_bound_deg or (0.0,)) for th in thresholds]
 
 
 def at_icr(
     rows: Sequence[dict], algorithm: str, targets: Sequence[float] = ICR_TARGETS,
-    live_bound: float | None = None,
+    live_bound_deg: float | None = None,
 ) -> list[dict]:
     """Measures of one algorithm (and live bound, unless None) interpolated at given ICRs
     (linear in log ICR).
@@ -380,7 +380,7 @@ def at_icr(
     """
     own = [
         r for r in rows if r["algorithm"] == algorithm and np.isfinite(r["icr"]) and r["icr"] > 0
-        and (live_bound is None or r.get("live_bound", 0.0) == live_bound)
+        and (live_bound_deg is None or r.get("live_bound_deg", 0.0) == live_bound_deg)
     ]
     out = []
     if not own:
