@@ -122,29 +122,6 @@ class SensorModel:
         return Sensors(axis_angle(axis, angle), heading, drift)
 
 
-def add_arguments(parser) -> None:
-    """The sensor model's flags (``emulate``, ``up``, ``eval``)."""
-    group = parser.add_argument_group("sensors (docs/evaluation.md, 'Calibration'; default: perfect sensors)")
-    group.add_argument("--mounting-deg", type=float, default=0.0, metavar="MAX",
-                       help="each sensor sits on its segment turned by a random rotation of angle <= MAX")
-    group.add_argument("--heading-deg", type=float, default=0.0, metavar="MAX",
-                       help="each sensor's world frame is turned about the vertical by a uniform +-MAX")
-    group.add_argument("--yaw-drift-dps", type=float, default=0.0, metavar="MAX",
-                       help="... and that heading drifts at a uniform +-MAX deg/s")
-    group.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
-
-
-def from_args(args) -> SensorModel:
-    """The SensorModel of the flags (ValueError naming a bad one)."""
-    return SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
-
-
-def flags(model: SensorModel) -> list[str]:
-    """The flags that give ``model`` (for a child process)."""
-    return ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
-            "--yaw-drift-dps", f"{model.yaw_drift_dps:g}", "--sensor-seed", str(model.seed)]
-
-
 @dataclass(frozen=True)
 class Sensors:
     """Drawn sensor errors: ``mounting`` (n, 4), ``heading`` (n,) rad, ``drift`` (n,) rad/s."""

@@ -7,9 +7,7 @@ and may start before the router (back ~0.3 s after the router returns).
 """
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import signal
 import threading
 from dataclasses import dataclass, field
@@ -158,31 +156,20 @@ def open_session(settings: ZenohSettings, stop: threading.Event | None = None) -
     return result["session"]
 
 
-def add_arguments(parser: argparse.ArgumentParser, mode: str = "client") -> None:
-    """The shared ``--connect/--listen/--mode`` flags (router default from $LIMBSTREAM_ROUTER)."""
-    group = parser.add_argument_group("zenoh")
-    default = os.environ.get(ROUTER_ENV, DEFAULT_ROUTER if mode != "router" else "")
-    group.add_argument("--connect", default=default,
-                       help=f"endpoint(s) to connect to, comma-separated (env {ROUTER_ENV}; default {default or 'none'})")
-    group.add_argument("--listen", default="", help="endpoint(s) to listen on, comma-separated")
-    group.add_argument("--mode", default=mode, choices=("client", "peer", "router"), help=f"zenoh mode (default {mode})")
-    group.add_argument("--zenoh-config", default=os.environ.get(CONFIG_ENV, ""),
-                       help=f"JSON file of extra zenoh settings (key -> value), e.g. TLS/auth (env {CONFIG_ENV})")
-
-
-def from_args(args: argparse.Namespace) -> ZenohSettings:
-    """ZenohSettings from the flags of :func:`add_arguments`."""
+def settings(mode: str = "client", connect: str = "", listen: str = "", config_file: str = "") -> ZenohSettings:
+    """ZenohSettings of a mode, comma-separated endpoints and a JSON file of extra settings (key ->
+    value; "": none); ValueError naming the file when it cannot be read or holds no JSON object."""
 
     def split(value: str) -> tuple[str, ...]:
         return tuple(e.strip() for e in value.split(",") if e.strip())
 
     extra = {}
-    if args.zenoh_config:
+    if config_file:
         try:
-            with open(args.zenoh_config) as f:
+            with open(config_file) as f:
                 extra = json.load(f)
         except (OSError, ValueError) as exc:
-            raise SystemExit(f"--zenoh-config {args.zenoh_config}: {exc}") from None
+            raise ValueError(f"--zenoh-config {config_file}: {exc}") from None
         if not isinstance(extra, dict):
-            raise SystemExit(f"--zenoh-config {args.zenoh_config}: expected a JSON object")
-    return ZenohSettings(mode=args.mode, connect=split(args.connect), listen=split(args.listen), extra=extra)
+            raise ValueError(f"--zenoh-config {config_file}: expected a JSON object")
+    return ZenohSettings(mode=mode, connect=split(connect), listen=split(listen), extra=extra)

@@ -1,8 +1,6 @@
 """Shared fixtures: the shared motion data (skipped where absent, required in CI)."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
 from support import profiles, require_data  # noqa: F401  (profiles: registers the Hypothesis profiles)
@@ -10,24 +8,15 @@ from support import profiles, require_data  # noqa: F401  (profiles: registers t
 pytest_plugins = ("support.stack", "support.dashboard")  # fixtures: `stack` and `watch` (real processes), `router`
 
 
-@pytest.fixture(scope="session")
-def cmu_npz() -> Path:
-    return require_data("cmu_10seg_50hz.npz")
+def _data(relative: str):
+    """A session fixture: the path of ``relative`` in the shared data (skip, or fail in CI)."""
+    return pytest.fixture(scope="session")(lambda: require_data(relative))
 
 
-@pytest.fixture(scope="session")
-def xio_dir() -> Path:
-    return require_data("xio_lower_body")
-
-
-@pytest.fixture(scope="session")
-def cmu_bvh_dir() -> Path:
-    return require_data("cmu")
-
-
-@pytest.fixture(scope="session")
-def xsens_dir() -> Path:
-    return require_data("xsens_opensense")
+cmu_npz = _data("cmu_10seg_50hz.npz")
+xio_dir = _data("xio_lower_body")
+cmu_bvh_dir = _data("cmu")
+xsens_dir = _data("xsens_opensense")
 
 
 LANES = {"stack": "e2e", "watch": "e2e", "netns": "root"}

@@ -6,7 +6,8 @@ import argparse
 import logging
 import threading
 
-from limbstream import wire, zconfig
+from limbstream import wire
+from limbstream.cli import flags
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator import main as aggregator
 from limbstream.services.aggregator.aggregator import AggregatorSettings
@@ -38,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep the devices' calibrations in this JSON file, so that a restarted aggregator "
                              "has them (default: not kept)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
@@ -64,4 +65,4 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(message)s")
-    return aggregator.run(settings_from_args(args), zconfig.from_args(args), stop)
+    return aggregator.run(settings_from_args(args), flags.zenoh_settings(args), stop)

@@ -7,6 +7,7 @@ import sys
 import time
 
 from limbstream import wire, zconfig
+from limbstream.cli import flags
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", help="the subject, e.g. s01")
@@ -15,7 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "yaw: heading only, in the rest pose")
     parser.add_argument("--countdown", type=float, default=0.0, metavar="S",
                         help="count down this many seconds first, to get into the pose (default 0)")
-    zconfig.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -31,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"hold the {args.pose} pose in {left} ...", flush=True)
         time.sleep(1.0)
     print(f"hold the {args.pose} pose still for {wire.CALIBRATION_HOLD_S:g} s", flush=True)
-    session = zconfig.open_session(zconfig.from_args(args))
+    session = zconfig.open_session(flags.zenoh_settings(args))
     if session is None:
         return 0
     try:

@@ -6,7 +6,7 @@ import argparse
 import logging
 import threading
 
-from limbstream import zconfig
+from limbstream.cli import flags
 from limbstream.services.clock import main as clock
 from limbstream.services.clock.service import ClockServiceSettings
 
@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     test.add_argument("--jump-ms", type=float, default=0.0, help="the served clock jumps by this much once")
     test.add_argument("--jump-after-s", type=float, default=0.0, help="... this many wall seconds after the start")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> ClockServiceSettings:
@@ -46,4 +46,4 @@ def settings_from_args(args: argparse.Namespace) -> ClockServiceSettings:
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(message)s")
-    return clock.run(settings_from_args(args), zconfig.from_args(args), stop)
+    return clock.run(settings_from_args(args), flags.zenoh_settings(args), stop)

@@ -8,7 +8,8 @@ import os
 import threading
 from pathlib import Path
 
-from limbstream import calibration, wire, zconfig
+from limbstream import calibration, wire
+from limbstream.cli import flags
 from limbstream.device_emulator import main as emulator
 from limbstream.device.clocks import ClockSettings
 from limbstream.device.host import HostSettings
@@ -51,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
                         help=f"device sample rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = real time)")
-    wire.add_arguments(parser)  # --threshold, --max-len: the device tunables
+    flags.add_device_config(parser)  # --threshold, --max-len: the device tunables
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
@@ -63,9 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the device firmware to run (default: build firmware_c/build/device.elf with make)")
     parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
     add_clock_arguments(parser)
-    calibration.add_arguments(parser)
+    flags.add_sensor_model(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def add_clock_arguments(parser: argparse.ArgumentParser, tuning: bool = True) -> None:
@@ -139,18 +140,18 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
                         format="%(asctime)s %(name)s %(message)s")
     validate(args)
     try:
-        sensors = calibration.from_args(args)
+        sensors = flags.sensor_model(args)
         feeds = build_feeds(args, scripted=sensors.on)
     except (MotionFileError, ValueError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if args.firmware:
         return run_firmware(args, feeds, settings_of(args, sensors), stop)
-    return emulator.run(feeds, settings_of(args, sensors), zconfig.from_args(args), args.duration, args.verbose, stop)
+    return emulator.run(feeds, settings_of(args, sensors), flags.zenoh_settings(args), args.duration, args.verbose, stop)
 
 
 def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
     """The EmulatorSettings of the flags."""
-    return EmulatorSettings(HostSettings(fs=args.rate, config=wire.config_from_args(args), truth=args.truth,
+    return EmulatorSettings(HostSettings(fs=args.rate, config=flags.device_config(args), truth=args.truth,
                                          raw_batch=args.raw_batch, cache=args.cache),
                             speed=args.speed, clock=clock_settings(args),
                             anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
@@ -172,4 +173,4 @@ def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettin
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if not elf.exists():
         raise SystemExit(f"limbstream emulate: error: no firmware at {elf}")
-    return firmware_devices.run(feeds, settings.host, settings.speed, zconfig.from_args(args), elf, args.duration, stop)
+    return firmware_devices.run(feeds, settings.host, settings.speed, flags.zenoh_settings(args), elf, args.duration, stop)

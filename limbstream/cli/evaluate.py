@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import kernel
-from limbstream import calibration
+from limbstream.cli import flags
 from limbstream.calibration import CalibrationError
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate, format_table, frontier,
                                    streams_of, write_json)
@@ -125,21 +124,23 @@ def _algorithm_list(text: str) -> list[str]:
     return names
 
 
-def _threshold(text: str) -> float:
+def _parsed(text: str, kind: type, what: str):
+    """``kind(text)``; argparse.ArgumentTypeError "not WHAT" otherwise."""
     try:
-        value = float(text)
+        return kind(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        raise argparse.ArgumentTypeError(f"not {what}: {text!r}") from None
+
+
+def _threshold(text: str) -> float:
+    value = _parsed(text, float, "a number")
     if not math.isfinite(value) or value < 0:
         raise argparse.ArgumentTypeError(f"threshold must be finite and >= 0, got {text}")
     return value
 
 
 def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    value = _parsed(text, int, "an integer")
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
     return value
@@ -190,7 +191,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=MAX_LEN,
         help=f"largest segment length, samples (default {MAX_LEN})",
     )
-    calibration.add_arguments(parser)
+    flags.add_sensor_model(parser)
     parser.add_argument("--calibration", choices=[",".join(p) or "none" for p in CALIBRATIONS],
                          default="rest,mounting",
                          help="with a sensor model: the calibration before body_aad (default rest,mounting)")
@@ -203,11 +204,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG"
     )
-
-
-def _fail(message: str) -> int:
-    print(f"limbstream eval: error: {message}", file=sys.stderr)
-    return 2
 
 
 def _mistake(args: argparse.Namespace, algorithms: list[str], bounds: list[float]) -> str | None:
@@ -235,23 +231,23 @@ def run(args: argparse.Namespace) -> int:
     bounds = list(dict.fromkeys(args.live_bound)) if args.live_bound is not None else [0.0]
     mistake = _mistake(args, algorithms, bounds)
     if mistake is not None:
-        return _fail(mistake)
+        return flags.fail("limbstream eval", mistake)
     motions: list[Motion] = []
     for path in args.paths:
         try:
             motions.extend(load(path))
         except MotionFileError as exc:
-            return _fail(str(exc))
+            return flags.fail("limbstream eval", str(exc))
         except OSError as exc:
-            return _fail(f"{path}: {exc}")
+            return flags.fail("limbstream eval", f"{path}: {exc}")
     try:
-        sensors = calibration.from_args(args)
+        sensors = flags.sensor_model(args)
     except ValueError as exc:
-        return _fail(str(exc))
+        return flags.fail("limbstream eval", str(exc))
     poses = () if args.calibration == "none" else tuple(args.calibration.split(","))
     streams = streams_of(motions, sensors)
     if not streams:
-        return _fail(f"no motion streams in {' '.join(map(str, args.paths))}")
+        return flags.fail("limbstream eval", f"no motion streams in {' '.join(map(str, args.paths))}")
     thresholds = THRESHOLDS if args.thresholds is None else np.asarray(args.thresholds, np.float64)
     n_samples = sum(len(s.t) for s in streams)
 
@@ -260,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
         rows = evaluate(streams, algorithms, thresholds, args.max_len, args.live_bound and bounds, args.predictor,
                         poses, args.joint_angles)
     except CalibrationError as exc:
-        return _fail(f"calibration refused: {exc}")
+        return flags.fail("limbstream eval", f"calibration refused: {exc}")
     elapsed = time.perf_counter() - start
 
     print(

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from limbstream import wire
+from limbstream.cli import flags
 from limbstream.services.outputs.export import FORMATS, ExportError, export, read_take
 
 PROG = "limbstream export"
@@ -27,20 +28,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "without a rest_pose entry, standing for IMU files; recordings: their frames' flags)")
 
 
-def fail(message: str) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return 2
-
-
 def run(args: argparse.Namespace) -> int:
     fmt = args.format or Path(args.output).suffix.lower().lstrip(".")
     if fmt not in FORMATS:
-        return fail(f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
+        return flags.fail(PROG, f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
     try:
         take = read_take(args.source, args.subject, args.rest_pose)
         export(take, fmt, args.output)
     except ExportError as exc:
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     for note in take.notes + ([f"calibration: {take.basis}"] if fmt in ("mot", "sto") else []):
         print(f"{PROG}: note: {note}", file=sys.stderr)
     seconds = len(take) * take.period_us / 1e6

@@ -7,6 +7,7 @@ import argparse
 import logging
 
 from limbstream import wire, zconfig
+from limbstream.cli import flags
 from limbstream.device.feeds import GeneratorFeed, LoopFeed
 from limbstream.device.host import HostSettings
 from limbstream.signals import stop_on_signals
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the feeding (default 1 = real time)")
     parser.add_argument("--seed", type=int, default=1, help="generator seed (default 1: subject s01's)")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
-    wire.add_arguments(parser)  # the device tunables, given to the device at every (re)start
+    flags.add_device_config(parser)  # the device tunables, given to the device at every (re)start
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept for recovery (default 512)")
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a device not heard from for this long (it sends a heartbeat every second) is offline: "
                              "its link is reopened as a new stream (default 10)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def feeding(args: argparse.Namespace):
@@ -73,12 +74,12 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"limbstream gateway serial: error: {exc}") from None
     feed, rest_pose = feeding(args)
     stop = stop_on_signals()
-    session = zconfig.open_session(zconfig.from_args(args), stop)
+    session = zconfig.open_session(flags.zenoh_settings(args), stop)
     if session is None:
         return 0
     with session:
         host = serial_gateway.serial_host(session, HostSettings(
-            fs=args.rate, config=wire.config_from_args(args), truth=args.truth and feed is not None,
+            fs=args.rate, config=flags.device_config(args), truth=args.truth and feed is not None,
             raw_batch=args.raw_batch, cache=args.cache))
         host.declare()
         links: list[SerialLink] = []  # a longer wait for the first link, then the reconnects' short one

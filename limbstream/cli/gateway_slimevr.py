@@ -9,6 +9,7 @@ import socket
 import threading
 
 from limbstream import wire, zconfig
+from limbstream.cli import flags
 from limbstream.device.clocks import ClockSettings
 from limbstream.device.host import HostSettings
 from limbstream.services.gateway import slimevr_protocol as proto
@@ -68,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"device sample rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--delay-ms", type=float, default=30.0,
                         help="grid samples are taken this long in the past (default 30 ms)")
-    wire.add_arguments(parser, defaults=wire.LIVE_MODE)  # live mode, as under limbstream up
+    flags.add_device_config(parser, defaults=wire.LIVE_MODE)  # live mode, as under limbstream up
     parser.add_argument("--no-truth", dest="truth", action="store_false",
                         help="do not publish the truth tap (every tracker packet)")
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
@@ -84,7 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--sync-wait-s", type=float, default=10.0,
                        help="at start, wait at most this long for the first time answers (default 10)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def validate(args: argparse.Namespace) -> None:
@@ -105,7 +106,7 @@ def validate(args: argparse.Namespace) -> None:
 def settings_from_args(args: argparse.Namespace):
     from limbstream.services.gateway.slimevr import GatewaySettings
     assign = {key: (subject or args.subject, segment) for key, (subject, segment) in args.assign}
-    host = HostSettings(fs=args.rate, config=wire.config_from_args(args), truth=args.truth, raw_batch=args.raw_batch,
+    host = HostSettings(fs=args.rate, config=flags.device_config(args), truth=args.truth, raw_batch=args.raw_batch,
                         cache=args.cache)
     return GatewaySettings(subject=args.subject, name=args.name, assign=assign, host=host, delay_ms=args.delay_ms,
                            timeout_s=args.timeout, max_devices=args.max_devices,
@@ -126,7 +127,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         raise SystemExit(f"limbstream gateway slimevr: error: cannot listen on {args.udp[0]}:{args.udp[1]}: "
                          f"{exc.strerror or exc}") from None
     stop = stop_on_signals(stop)
-    session = zconfig.open_session(zconfig.from_args(args), stop)
+    session = zconfig.open_session(flags.zenoh_settings(args), stop)
     if session is None:
         return 0
     with session, sock:

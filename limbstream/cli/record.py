@@ -8,7 +8,8 @@ import socket
 import sys
 import threading
 
-from limbstream import wire, zconfig
+from limbstream import wire
+from limbstream.cli import flags
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs.record import Recorder, summary_line
 from limbstream.services.outputs.recording import RecordingError, RecordingWriter
@@ -30,36 +31,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ask devices for their settings every this many s, record changes (0: never; default 5)")
     parser.add_argument("--no-skeleton", dest="skeleton", action="store_false",
                         help="do not write the Foxglove skeleton channel")
-    zconfig.add_arguments(parser)
-
-
-def fail(message: str) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return 2
+    flags.add_zenoh(parser)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     try:
         wire.subject_pattern(args.subjects)
     except ValueError as exc:
-        return fail(f"--subjects: {exc}")
+        return flags.fail(PROG, f"--subjects: {exc}")
     if args.duration is not None and not args.duration > 0:
-        return fail(f"--duration must be > 0, got {args.duration:g}")
+        return flags.fail(PROG, f"--duration must be > 0, got {args.duration:g}")
     if args.history < 1 or args.config_poll < 0:
-        return fail("--history must be >= 1 and --config-poll >= 0")
-    settings = zconfig.from_args(args)
+        return flags.fail(PROG, "--history must be >= 1 and --config-poll >= 0")
+    settings = flags.zenoh_settings(args)
     metadata = {"subjects": args.subjects, "truth": str(args.truth).lower(), "host": socket.gethostname(),
                 "connect": ",".join(settings.connect)}
     try:
         writer = RecordingWriter(args.out, metadata, skeleton=args.skeleton)
     except RecordingError as exc:
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     stop = stop_on_signals(stop)
     try:
         session = open_session(settings, stop)
     except ValueError as exc:
         writer.discard()
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     if session is None:  # stopped while waiting for the router
         writer.discard()
         return 0

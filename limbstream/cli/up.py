@@ -33,7 +33,8 @@ from pathlib import Path
 
 from limbstream.cli.emulate import add_clock_arguments, clock_flags
 from limbstream.cli.gateway_slimevr import parse_address
-from limbstream import calibration, wire, zconfig
+from limbstream import wire, zconfig
+from limbstream.cli import flags
 from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
 from limbstream.services.dashboard.supervision import STATUS_ENV  # the status file's path, for the dashboard
@@ -53,12 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
     # the device tunables, passed on to the emulators; live mode on by default (wire.LIVE_MODE)
-    wire.add_arguments(parser, defaults=wire.LIVE_MODE)
+    flags.add_device_config(parser, defaults=wire.LIVE_MODE)
     parser.add_argument("--no-truth", action="store_true", help="devices do not publish the truth tap")
     parser.add_argument("--firmware", action="store_true",
                         help="the devices run their firmware under QEMU (emulate --firmware: one process per device)")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
-    calibration.add_arguments(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
+    flags.add_sensor_model(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
                         help="also start the SlimeVR gateway: trackers send to this UDP port (their default: 6969); "
@@ -77,7 +78,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     """(name, ``limbstream`` arguments) of the time service, the emulators and the aggregator, in
     start order."""
     connect = ["--connect", args.router]
-    sensors = calibration.from_args(args)
+    sensors = flags.sensor_model(args)
     parts = []
     # a scaled time base (--speed) is shared by the time service and the devices: one anchor
     anchor = [] if args.speed == 1 else ["--time-anchor", f"{time.time():.3f}"]
@@ -90,17 +91,17 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         if count <= 0:
             break
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
-                "--speed", str(args.speed), *wire.config_from_args(args).flags(), *clock_flags(args), *anchor]
+                "--speed", str(args.speed), *flags.device_config(args).flags(), *clock_flags(args), *anchor]
         if args.no_truth:
             argv.append("--no-truth")
         if args.firmware:
             argv.append("--firmware")
         if sensors.on:
-            argv += calibration.flags(sensors)
+            argv += flags.sensor_model_argv(sensors)
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
     if args.slimevr is not None:
         argv = ["gateway", "slimevr", "--udp", args.slimevr, "--subject", args.slimevr_subject,
-                *wire.config_from_args(args).flags()]
+                *flags.device_config(args).flags()]
         argv += (["--no-truth"] if args.no_truth else []) + ([] if args.sync else ["--no-sync"])
         if args.status_file is not None:  # run-time assignments kept beside the status file, as calibrations
             argv += ["--assignments-file", str(Path(args.status_file).with_name("slimevr-assignments.json"))]
@@ -148,7 +149,7 @@ def check(args: argparse.Namespace) -> str | None:
         if args.slimevr is not None:
             parse_address(args.slimevr)
             wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
-        calibration.from_args(args)  # ValueError naming a bad sensor bound
+        flags.sensor_model(args)  # ValueError naming a bad sensor bound
     except (ValueError, argparse.ArgumentTypeError) as exc:
         return str(exc)
     return None

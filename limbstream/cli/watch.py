@@ -13,7 +13,8 @@ import time
 
 import numpy as np
 
-from limbstream import quat, wire, zconfig
+from limbstream import quat, wire
+from limbstream.cli import flags
 from limbstream.sources import SEGMENTS
 from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
 
@@ -48,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
                         help="exit with status 1 if no frame arrives for this many seconds (0: wait forever)")
-    zconfig.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     tty = sys.stdout.isatty()
     count, last_count, last_time, last_seen = 0, 0, time.monotonic(), time.monotonic()
     last_live = -math.inf  # monotonic time of the newest live frame (auto)
-    with Subscription(zconfig.from_args(args), args.subject, ("pose",)) as sub:
+    with Subscription(flags.zenoh_settings(args), args.subject, ("pose",)) as sub:
         while True:
             frame = None
             first = sub.get(timeout=1.0 / args.refresh)

@@ -6,7 +6,6 @@ the control endpoints (403 with a message naming ``LIMBSTREAM_API_TOKEN``).
 """
 from __future__ import annotations
 
-import argparse
 import secrets
 import importlib.resources
 from pathlib import Path
@@ -92,7 +91,5 @@ class DashboardSettings(BaseSettings):
         return self, False
 
     def zenoh_settings(self) -> zconfig.ZenohSettings:
-        """The Zenoh session settings (parsed by :func:`limbstream.zconfig.from_args`)."""
-        args = argparse.Namespace(mode=self.zenoh_mode, connect=self.router, listen="",
-                                  zenoh_config=self.zenoh_config)
-        return zconfig.from_args(args)
+        """The Zenoh session settings (:func:`limbstream.zconfig.settings`)."""
+        return zconfig.settings(self.zenoh_mode, self.router, "", self.zenoh_config)
