@@ -7,7 +7,6 @@ import socket
 import threading
 
 from limbstream import wire, zconfig
-from limbstream.signals import stop_on_signals
 from limbstream.device.clocks import ClockSettings
 from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
 
@@ -33,8 +32,7 @@ def run(feeds: dict, settings: EmulatorSettings, zenoh: zconfig.ZenohSettings,
         duration: float | None = None, verbose: bool = False, stop: threading.Event | None = None) -> int:
     """Open the session (waiting for the router) and run the devices of ``feeds`` ({subject: feed})
     until ``stop``, a signal or ``duration`` s of device time; exit code."""
-    stop = stop_on_signals(stop)
-    session = zconfig.open_session(zenoh, stop)
+    stop, session = zconfig.part_session(zenoh, stop)
     if session is None:  # stopped while waiting for the router
         return 0
     with session:

@@ -71,6 +71,12 @@ class Tracker:
     def close(self) -> None:
         self.sock.close()
 
+    def __enter__(self) -> Tracker:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     def send_raw(self, data: bytes) -> None:
         self.sock.sendto(data, self.server)
 

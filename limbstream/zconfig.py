@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import zenoh
 
 from limbstream import wire
+from limbstream.signals import stop_on_signals
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 ROUTER_ENV = "LIMBSTREAM_ROUTER"
@@ -154,6 +155,14 @@ def open_session(settings: ZenohSettings, stop: threading.Event | None = None) -
     if "error" in result:
         raise result["error"]
     return result["session"]
+
+
+def part_session(settings: ZenohSettings, stop: threading.Event | None = None
+                 ) -> tuple[threading.Event, zenoh.Session | None]:
+    """What a long-running part starts with: its stop event (``stop``, else a new one; set by
+    SIGINT and SIGTERM) and its session, opened once its router answers (None: stopped first)."""
+    stop = stop_on_signals(stop)
+    return stop, open_session(settings, stop)
 
 
 def settings(mode: str = "client", connect: str = "", listen: str = "", config_file: str = "") -> ZenohSettings:

@@ -5,11 +5,9 @@ appears and publishes; moved, the old device's stream ends (FINAL, token gone) a
 starts a stream; a device fed by another sensor and bad payloads are refused with a sentence."""
 from __future__ import annotations
 
-import contextlib
 import json
-import threading
 
-from support.slimevr import Running, stream
+from support.slimevr import Running, stream, streaming
 
 from limbstream import wire
 from limbstream.device_emulator.slimevr_tracker import Tracker
@@ -34,23 +32,6 @@ def listed(listing: dict) -> dict[str, tuple]:
 
 def finals(g: Running, device: str) -> list[wire.SegmentPoint]:
     return [p for p in g.poll().get(device, []) if p.flags & wire.FLAG_FINAL]
-
-
-@contextlib.contextmanager
-def streaming(trackers: list[Tracker], sensors: dict):
-    """The trackers connect, then stream their sensors (``{mac: [sensor ids]}``) from a thread
-    until the block ends."""
-    stop = threading.Event()
-    sender = threading.Thread(target=stream, args=(trackers, sensors, 30.0), kwargs={"stop": stop})
-    try:
-        for t in trackers:
-            t.connect()
-        sender.start()
-        yield
-    finally:
-        stop.set()
-        if sender.is_alive():
-            sender.join()
 
 
 def test_sensors_are_listed_assigned_moved_and_refused():

@@ -12,7 +12,6 @@ import math
 import random
 import socket
 import struct
-import threading
 import time
 
 import pytest
@@ -23,7 +22,7 @@ from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
 from limbstream.device_emulator.slimevr_tracker import Tracker, handshake_payload, rotation_payload, sensor_info_payload
 from support.stack import wait_until
-from support.slimevr import Running, header, stream
+from support.slimevr import Running, header, stream, streaming
 
 
 # ---------------------------------------------------------------- codec
@@ -165,13 +164,7 @@ def test_assign_overrides_and_config_is_tunable():
     a = Tracker(g.address, bytes([2, 0, 0, 0, 0, 3]), {0: 7})
     b = Tracker(g.address, bytes([2, 0, 0, 0, 0, 4]), {0: 0, 1: 0})
     try:
-        a.connect()
-        b.connect()
-        stop = threading.Event()
-        sender = threading.Thread(target=stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0, 1]}, 6.0),
-                                  kwargs={"q15": True, "stop": stop})
-        sender.start()
-        try:
+        with streaming([a, b], {a.mac_text: [0], b.mac_text: [0, 1]}, 6.0, q15=True):
             wait_until(lambda: {"s07/r_shank", "s01/hip"} <= set(g.poll()), 10, "points of the assigned devices")
             replies = list(g.session.get(wire.config_key("s07", "r_shank"), payload=wire.encode_config({"max_len": 5}),
                                          timeout=5.0))
@@ -181,9 +174,6 @@ def test_assign_overrides_and_config_is_tunable():
             assert g.status("s07/r_shank")["max_len"] == 5
             assert wait_until(lambda: g.report().get("unassigned"), 5, "sensor 0 of b listed") == {
                 f"{b.mac_text}/0": "no body position and no --assign"}
-        finally:
-            stop.set()
-            sender.join()
     finally:
         a.close()
         b.close()
@@ -216,19 +206,14 @@ def test_a_silent_tracker_goes_offline_and_comes_back_as_a_new_stream(gateway):
 
 
 def test_bad_datagrams_are_counted_and_never_stop_the_others(gateway):
-    good = Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 6]), {0: 2})
-    bad = Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 7]), {0: 6})
-    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        good.connect()
+    with (Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 6]), {0: 2}) as good,
+          Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 7]), {0: 6}) as bad,
+          socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger):
         bad.connect()
-        stop = threading.Event()
-        sender = threading.Thread(target=stream, args=([good], {good.mac_text: [0]}, 30.0), kwargs={"stop": stop})
-        sender.start()
         rng = random.Random(3)
         sent = {"truncated": 0, "oversized": 0, "unknown_type": 0, "bad_quaternion": 0, "out_of_order": 0,
                 "no_handshake": 0}
-        try:
+        with streaming([good], {good.mac_text: [0]}):
             wait_until(lambda: gateway.poll().get("s01/neck"), 10, "points of the good tracker")
             before = len(gateway.poll()["s01/neck"])
             for _ in range(200):
@@ -257,14 +242,7 @@ def test_bad_datagrams_are_counted_and_never_stop_the_others(gateway):
             # the good tracker kept streaming through it all
             wait_until(lambda: len(gateway.poll()["s01/neck"]) > before + 3, 10, "more points of the good tracker")
             assert gateway.status("s01/neck")["link_loss"] == 0.0
-        finally:
-            stop.set()
-            sender.join()
         assert gateway.thread.is_alive()
-    finally:
-        good.close()
-        bad.close()
-        stranger.close()
 
 
 def test_packet_loss_is_counted_from_packet_numbers(gateway):

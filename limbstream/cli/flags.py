@@ -57,12 +57,10 @@ def device_config(args: argparse.Namespace) -> wire.DeviceConfig:
 def add_sensor_model(parser: argparse.ArgumentParser) -> None:
     """The sensor model's flags (``emulate``, ``up``, ``eval``)."""
     group = parser.add_argument_group("sensors (docs/evaluation.md, 'Calibration'; default: perfect sensors)")
-    group.add_argument("--mounting-deg", type=float, default=0.0, metavar="MAX",
-                       help="each sensor sits on its segment turned by a random rotation of angle <= MAX")
-    group.add_argument("--heading-deg", type=float, default=0.0, metavar="MAX",
-                       help="each sensor's world frame is turned about the vertical by a uniform +-MAX")
-    group.add_argument("--yaw-drift-dps", type=float, default=0.0, metavar="MAX",
-                       help="... and that heading drifts at a uniform +-MAX deg/s")
+    for flag, text in (("--mounting-deg", "each sensor sits on its segment turned by a random rotation of angle <= MAX"),
+                       ("--heading-deg", "each sensor's world frame is turned about the vertical by a uniform +-MAX"),
+                       ("--yaw-drift-dps", "... and that heading drifts at a uniform +-MAX deg/s")):
+        group.add_argument(flag, type=float, default=0.0, metavar="MAX", help=text)
     group.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
 
 

@@ -18,7 +18,6 @@ from limbstream import zconfig
 from limbstream.device.host import HostSettings
 from limbstream.services.gateway import firmware, serial_gateway
 from limbstream.services.gateway.serial_port import SerialLink
-from limbstream.signals import stop_on_signals
 
 
 class FirmwareConnector:
@@ -55,8 +54,7 @@ def run(feeds: dict, settings: HostSettings, speed: float, zenoh: zconfig.ZenohS
         duration: float | None = None, stop: threading.Event | None = None) -> int:
     """Run one firmware device per segment of each feed ({subject: feed}) at ``speed`` until
     ``stop``, a signal or ``duration`` s of device time (a finite feed: its end, then idle); exit code."""
-    stop = stop_on_signals(stop)
-    session = zconfig.open_session(zenoh, stop)
+    stop, session = zconfig.part_session(zenoh, stop)
     if session is None:
         return 0
     connectors: list[FirmwareConnector] = []

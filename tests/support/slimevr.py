@@ -2,6 +2,7 @@
 streaming, a free UDP port."""
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import socket
@@ -100,3 +101,20 @@ def stream(trackers: list[Tracker], sensors: dict, seconds: float, rate: float =
             t.pump()
         k += 1
         time.sleep(max(0.0, start + k / rate - time.monotonic()))
+
+
+@contextlib.contextmanager
+def streaming(trackers: list[Tracker], sensors: dict, seconds: float = 30.0, q15: bool = False):
+    """The trackers connect, then stream their sensors (``{mac: [sensor ids]}``, :func:`stream`)
+    from a thread until the block ends (or ``seconds``)."""
+    stop = threading.Event()
+    sender = threading.Thread(target=stream, args=(trackers, sensors, seconds), kwargs={"q15": q15, "stop": stop})
+    try:
+        for t in trackers:
+            t.connect()
+        sender.start()
+        yield
+    finally:
+        stop.set()
+        if sender.is_alive():
+            sender.join()
