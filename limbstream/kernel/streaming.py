@@ -3,6 +3,7 @@ C call per tick, with the segment point messages encoded in the same call (:clas
 from __future__ import annotations
 
 import ctypes
+from collections.abc import Callable
 
 import numpy as np
 
@@ -151,10 +152,8 @@ class SegmenterBank:
         y : (n, D) float32 value of each stream's point (where status == POINT).
         """
         ticks, y, n = self._samples(ticks, y)
-        _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points, self._rates_ptr)
-        self._n = n
-        view = self._point_view[:n]
-        return self._status[:n], view["index"], view["y"][:, : self.dim]
+        return self.advance(lambda states, status, points, rates, *_: _lib.fastsw_update_many(
+            states, n, ticks, y, status, points, rates), n)
 
     def update_wire(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, bytes, np.ndarray]:
         """:meth:`update`, and every point emitted as its segment point message (flags 0), encoded
@@ -169,11 +168,28 @@ class SegmenterBank:
         ends : (K,) uint32 offset in payload just after each message
             (message i is ``payload[ends[i - 1]:ends[i]]``, from 0 for i = 0).
         """
+        ticks, y, n = self._samples(ticks, y)
+        return self.advance_wire(lambda states, *out: _lib.lsw_bank_update(states, n, ticks, y, *out), n)
+
+    def advance(self, call: Callable[..., object], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the first n streams with a C call that feeds them (a stage in front of fastSW,
+        e.g. :class:`~limbstream.kernel.fusion.ImuBank`'s fusion): ``call(states, status, points,
+        rates, wire, out, slots, ends)`` (the last four NULL here). Returns as :meth:`update`."""
+        if n > self.count:
+            raise ValueError(f"at most {self.count} streams, got {n}")
+        call(self._states, self._status, self._points, self._rates_ptr, None, None, None, None)
+        self._n = n
+        view = self._point_view[:n]
+        return self._status[:n], view["index"], view["y"][:, : self.dim]
+
+    def advance_wire(self, call: Callable[..., int], n: int) -> tuple[np.ndarray, bytes, np.ndarray]:
+        """:meth:`advance` with the points encoded as wire messages in the call (it returns how
+        many). Needs ``ring`` >= 1. Returns as :meth:`update_wire`."""
         if self._wire is None:
             raise ValueError("update_wire needs a bank made with ring >= 1")
-        ticks, y, n = self._samples(ticks, y)
-        k = _lib.lsw_bank_update(self._states, n, ticks, y, self._status, self._points, self._rates_ptr,
-                                 *self._wire_ptrs)
+        if n > self.count:
+            raise ValueError(f"at most {self.count} streams, got {n}")
+        k = call(self._states, self._status, self._points, self._rates_ptr, *self._wire_ptrs)
         self._n = n
         end = int(self._ends[k - 1]) if k else 0
         return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()
