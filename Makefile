@@ -28,11 +28,11 @@ install: $(STAMP)
 run: $(STAMP)
 	$(PYTHON) -m limbstream.cli up
 
-# every test: on two workers (the end-to-end tests mostly wait on real time; a module stays on one
-# worker), then the slow end-to-end tests alone (a soak that counts late ticks must not share the
-# cores with another test)
+# every test: on three workers (the end-to-end tests mostly wait on real time: the whole suite keeps
+# about one core busy; a module stays on one worker), then the slow end-to-end tests alone (a soak
+# that counts late ticks must not share the cores with another test)
 test: $(STAMP)
-	$(PYTHON) -m pytest -n 2 --dist loadfile -m "not (slow and e2e)" $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -n 3 --dist loadfile -m "not (slow and e2e)" $(PYTEST_ARGS)
 	$(PYTHON) -m pytest -m "slow and e2e" $(PYTEST_ARGS)
 
 # the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root),
