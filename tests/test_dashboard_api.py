@@ -180,7 +180,9 @@ def test_bad_payloads_are_counted_not_fatal(client, pub):
     def publish():
         pub.put(wire.pose_key("junkD"), b"\x01\x02\x03")
         pub.put(wire.stats_key("junkD"), b"{not json")
-    publish_until(client, publish, lambda: 'reason="pose_size"' in client.get("/metrics").text, "pose error count")
+    # the two keys' messages come on two subscriptions: wait for both counts
+    publish_until(client, publish, lambda: 'reason="pose_size"' in (text := client.get("/metrics").text)
+                  and 'reason="json"' in text, "pose and stats error counts")
     text = client.get("/metrics").text
     assert 'limbstream_dashboard_errors_total{reason="json"}' in text, text[-800:]
     assert client.get("/health").status_code == 200
