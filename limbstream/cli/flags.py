@@ -7,8 +7,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from typing import TYPE_CHECKING
 
-from limbstream import calibration, wire, zconfig
+from limbstream import wire, zconfig
+
+if TYPE_CHECKING:  # (calibration brings scipy: the commands without sensors start without it)
+    from limbstream.calibration import SensorModel
 
 
 def fail(prog: str, message: str) -> int:
@@ -64,12 +68,13 @@ def add_sensor_model(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
 
 
-def sensor_model(args: argparse.Namespace) -> calibration.SensorModel:
+def sensor_model(args: argparse.Namespace) -> SensorModel:
     """The SensorModel of the flags (ValueError naming a bad one)."""
-    return calibration.SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
+    from limbstream.calibration import SensorModel
+    return SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
 
 
-def sensor_model_argv(model: calibration.SensorModel) -> list[str]:
+def sensor_model_argv(model: SensorModel) -> list[str]:
     """The flags that give ``model`` (for a child process)."""
     return ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
             "--yaw-drift-dps", f"{model.yaw_drift_dps:g}", "--sensor-seed", str(model.seed)]
