@@ -18,7 +18,7 @@ STAMP := build/.installed
 .venv/bin/python:
 	$(SYSTEM_PYTHON) -m venv .venv
 
-$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/include/*.h) | $(VENV)
+$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/include/*.h firmware_c/host/*) | $(VENV)
 	$(PYTHON) -m pip install -q --upgrade pip
 	$(PYTHON) -m pip install -e '.[test]'
 	@mkdir -p build && touch $@
@@ -28,17 +28,24 @@ install: $(STAMP)
 run: $(STAMP)
 	$(PYTHON) -m limbstream.cli up
 
+# every test: on three workers (the end-to-end tests mostly wait on real time: the whole suite keeps
+# about one core busy; a module stays on one worker), then the slow end-to-end tests alone (a soak
+# that counts late ticks must not share the cores with another test)
 test: $(STAMP)
-	$(PYTHON) -m pytest $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -n 3 --dist loadfile -m "not (slow and e2e)" $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -m "slow and e2e" $(PYTEST_ARGS)
 
-# the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root)
+# the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root),
+# on 4 workers (they wait on sockets and subprocesses as much as they compute; a module stays on
+# one worker, in order), property tests on their quick profile (tests/support/profiles.py)
 test-fast: $(STAMP)
-	$(PYTHON) -m pytest -m "not (e2e or qemu or browser or root or slow)" $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -m "not (e2e or qemu or browser or root or slow)" -n 4 --dist loadfile \
+		--hypothesis-profile quick $(PYTEST_ARGS)
 
-# ruff as configured in pyproject.toml; mypy on the wire contract
+# ruff as configured in pyproject.toml (with its complexity rule); mypy on the whole package
 lint: $(STAMP)
 	$(PYTHON) -m ruff check .
-	$(PYTHON) -m mypy limbstream/wire
+	$(PYTHON) -m mypy limbstream
 
 icount:
 	$(MAKE) -C firmware_c icount

@@ -1,6 +1,8 @@
-"""Builds the C kernels (firmware_c/) into limbstream/_kernels*.so on pip install, and maps the
-repository's part folders into the one import package: services/ -> limbstream.services,
-device_emulator/ -> limbstream.device_emulator, dashboard/ (the page) -> limbstream.dashboard.
+"""Builds the C kernels (firmware_c/src: the portable kernel, also built for the Cortex-M4;
+firmware_c/host: the host-only C of the gateways, device clocks and bindings) into
+limbstream/_kernels*.so on pip install, and maps the repository's part folders into the one
+import package: services/ -> limbstream.services, device_emulator/ ->
+limbstream.device_emulator, dashboard/ (the page) -> limbstream.dashboard.
 
 The library has no Python API of its own: limbstream.kernel loads it with ctypes.
 The compile flags are the ones the Cortex-M4 build uses for its arithmetic
@@ -44,9 +46,9 @@ setup(
     ext_modules=[
         Extension(
             "limbstream._kernels",
-            sources=sorted(glob("firmware_c/src/*.c")),
-            include_dirs=["firmware_c/include"],
-            depends=sorted(glob("firmware_c/include/*.h") + glob("firmware_c/src/*.h")),
+            sources=sorted(glob("firmware_c/src/*.c")) + sorted(glob("firmware_c/host/*.c")),
+            include_dirs=["firmware_c/include", "firmware_c/host"],
+            depends=sorted(glob("firmware_c/include/*.h") + glob("firmware_c/src/*.h") + glob("firmware_c/host/*.h")),
             extra_compile_args=KERNEL_CFLAGS,
         )
     ]

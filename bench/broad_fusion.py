@@ -15,11 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from limbstream.evaluation.fusion import VQF_VERSION, fusion_error, reference_vqf
+from limbstream.sources import load_raw
 
-from limbstream.evaluation.fusion import VQF_VERSION, fusion_error, reference_vqf  # noqa: E402
-from limbstream.sources import load_raw  # noqa: E402
 
 
 def trial(path: Path) -> list[float]:

@@ -39,17 +39,14 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+import numpy as np
+import zenoh
 
-import numpy as np  # noqa: E402
-import zenoh  # noqa: E402
+from limbstream import wire, zconfig
+from limbstream.launch import Launcher, free_port
 
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port  # noqa: E402
+from soak import cpu_s
 
-sys.path.insert(0, str(ROOT / "bench"))
-from soak import cpu_s  # noqa: E402
 
 SETUPS = {
     "perfect": [],
@@ -259,7 +256,7 @@ def per_call(f, sleep_s: float, calls: int = 500) -> float:
 
 def stamp_row(n: int) -> str:
     """One table row: stamping ``n`` devices, warm and after a 2 ms sleep, with references."""
-    from limbstream.device_emulator.sync_client import SLEW
+    from limbstream.device.sync import SLEW
     from limbstream.kernel import Stamper
     st = Stamper(n, SLEW)
     st.ever[:], st.a[:], st.b[:], st.ref[:] = True, 1000.0, 50e-6, 1e9
@@ -292,6 +289,54 @@ def windows(text: str) -> list[tuple[float, float]]:
     return spans
 
 
+class SyncWatch:
+    """Every device's sync, as its own status says (asked at each look) and as the aggregator's
+    stats say (``own``, ``reported``: device -> synced)."""
+
+    def __init__(self, session: zenoh.Session, stats, devices: int):
+        self.session, self.stats, self.devices = session, stats, devices
+        self.own: dict[str, bool] = {}
+        self.reported: dict[str, bool] = {}
+
+    def look(self) -> None:
+        for reply in self.session.get(wire.device_selector("config"), timeout=1.0):
+            if reply.ok is not None:
+                status = wire.decode_status(reply.ok.payload.to_bytes())
+                self.own[status.device] = bool(status.clock and status.clock.synced)
+        while (s := self.stats.try_recv()) is not None:
+            for d in wire.decode_stats(s.payload.to_bytes())["devices"]:
+                self.reported[d["device"]] = bool(d["synced"] and d["online"])
+
+    def wait(self, predicate, timeout: float, what: str) -> float:
+        """Look every 50 ms until ``predicate()`` holds; the monotonic time it first did."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.look()
+            if predicate():
+                return time.monotonic()
+            time.sleep(0.05)
+        raise SystemExit(f"timed out waiting for {what}")
+
+    def every(self, view: dict, value: bool):
+        return lambda: len(view) == self.devices and all(v == value for v in view.values())
+
+    def resync(self, service, launched: float) -> list[float]:
+        """Seconds from a time service's launch until it is reachable, every device synced by its
+        own status, and by the aggregator's stats."""
+        times: dict[str, float] = {}
+        while len(times) < 3:
+            at = self.wait(lambda: True, 1, "")
+            if "reachable" not in times and service.matching_status.matching:
+                times["reachable"] = at
+            if "own" not in times and self.every(self.own, True)():
+                times["own"] = at
+            if "stats" not in times and self.every(self.reported, True)():
+                times["stats"] = at
+            if at - launched > 60:
+                raise SystemExit("timed out waiting for the resync")
+        return [times[x] - launched for x in ("reachable", "own", "stats")]
+
+
 def outage(args) -> int:
     with tempfile.TemporaryDirectory(prefix="clock-outage-") as tmp, Launcher(logdir=Path(tmp)) as launcher:
         endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -304,51 +349,16 @@ def outage(args) -> int:
         launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(args.subjects), "--no-truth",
                        "--clock-offset-ms", "1000", "--clock-drift-ppm", "100", "--sync-holdover-s", "4")
         devices = 10 * args.subjects
-        own: dict[str, bool] = {}       # device -> synced, as its own status says (asked every 50 ms)
-        reported: dict[str, bool] = {}  # device -> synced, as the aggregator's stats say
-
-        def look() -> None:
-            for reply in session.get(wire.device_selector("config"), timeout=1.0):
-                if reply.ok is not None:
-                    status = wire.decode_status(reply.ok.payload.to_bytes())
-                    own[status.device] = bool(status.clock and status.clock.synced)
-            while (s := stats.try_recv()) is not None:
-                for d in wire.decode_stats(s.payload.to_bytes())["devices"]:
-                    reported[d["device"]] = bool(d["synced"] and d["online"])
-
-        def wait(predicate, timeout: float, what: str) -> float:
-            """Look until ``predicate()`` holds; the monotonic time it first did."""
-            deadline = time.monotonic() + timeout
-            while time.monotonic() < deadline:
-                look()
-                if predicate():
-                    return time.monotonic()
-                time.sleep(0.05)
-            raise SystemExit(f"timed out waiting for {what}")
-
-        def every(view: dict, value: bool):
-            return lambda: len(view) == devices and all(v == value for v in view.values())
-
-        wait(every(reported, True), 60, "the first sync")
+        sync = SyncWatch(session, stats, devices)
+        sync.wait(sync.every(sync.reported, True), 60, "the first sync")
         rows = []
         for k in range(args.outages):
             clock.signal(15)
             clock.popen.wait(10)
-            wait(every(reported, False), 60, "every device unsynced")
+            sync.wait(sync.every(sync.reported, False), 60, "every device unsynced")
             launched = time.monotonic()
             clock = launcher.start("clock", "clock", "--connect", endpoint)
-            times = {}
-            while len(times) < 3:
-                at = wait(lambda: True, 1, "")
-                if "reachable" not in times and service.matching_status.matching:
-                    times["reachable"] = at
-                if "own" not in times and every(own, True)():
-                    times["own"] = at
-                if "stats" not in times and every(reported, True)():
-                    times["stats"] = at
-                if at - launched > 60:
-                    raise SystemExit("timed out waiting for the resync")
-            rows.append([times[x] - launched for x in ("reachable", "own", "stats")])
+            rows.append(sync.resync(service, launched))
             print(f"outage {k + 1}: service reachable {rows[-1][0]:.2f} s, all {devices} devices synced by their own "
                   f"status {rows[-1][1]:.2f} s, in the aggregator's stats {rows[-1][2]:.2f} s after the launch", flush=True)
         session.close()

@@ -21,10 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from limbstream.launch import Launcher, free_port, wait_until
 
-from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def pct(values, q) -> float:

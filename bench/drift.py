@@ -16,16 +16,12 @@ sensors' compression error:
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from limbstream import calibration, kernel, quat
+from limbstream.sources import load
 
-from limbstream import calibration, kernel, quat  # noqa: E402
-from limbstream.sources import load  # noqa: E402
 
 FS = 50.0
 HOLD_S, MOVE_S = 4.0, 0.5

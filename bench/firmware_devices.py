@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import wire
-from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.device.feeds import GeneratorFeed, LoopFeed
 from limbstream.services.gateway import firmware
 from limbstream.services.gateway.serial_port import SerialLink
 from limbstream.sources import load

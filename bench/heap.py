@@ -20,11 +20,9 @@ import threading
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from limbstream import heap, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, stop_all  # noqa: E402
-from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
+from limbstream import heap, zconfig
+from limbstream.launch import Launcher, free_port, stop_all
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 
 
 class MallInfo2(ctypes.Structure):
@@ -80,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         agg.close()
         session.close()
         launcher.stop()
-    print(f"\naggregator: {agg.loop.ticks} ticks, {100 * agg.loop.late / max(agg.loop.ticks, 1):.2f} % late, "
+    print(f"\naggregator: {agg.loop.pacing.ticks} ticks, {100 * agg.loop.pacing.late / max(agg.loop.pacing.ticks, 1):.2f} % late, "
           f"{agg.loop.missed} missed")
     return 0
 

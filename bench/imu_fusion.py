@@ -22,14 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from limbstream import imu
+from limbstream.calibration import SensorModel
+from limbstream.evaluation.fusion import fusion_error, reference_vqf
+from limbstream.sources import bvh, load
+from limbstream.sources.generator import generate
 
-from limbstream import imu  # noqa: E402
-from limbstream.calibration import SensorModel  # noqa: E402
-from limbstream.evaluation.fusion import fusion_error, reference_vqf  # noqa: E402
-from limbstream.sources import bvh, load  # noqa: E402
-from limbstream.sources.generator import generate  # noqa: E402
 
 
 def motions(path: str, minutes: float) -> list:

@@ -16,19 +16,15 @@ every command maps them (limbstream.sources.names; ``opensense``: OpenSim's own 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from limbstream import joints  # noqa: E402
-from limbstream.cli.values import add_names_argument  # noqa: E402
-from limbstream.services.outputs.export import from_motion, take_angles  # noqa: E402
-from limbstream.sources import load  # noqa: E402
+from limbstream import joints, wire
+from limbstream.cli.flags import add_names
+from limbstream.services.outputs.export import from_motion, take_angles
+from limbstream.sources import load
 
 SHOWN = ("knee_angle_l", "knee_angle_r", "hip_flexion_l", "hip_flexion_r", "hip_adduction_l", "hip_adduction_r",
          "hip_rotation_l", "hip_rotation_r")
@@ -73,7 +69,7 @@ def plot(t: np.ndarray, angles: np.ndarray, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def speed(subjects: int = 200, rate_hz: float = 50.0, repeats: int = 300) -> str:
+def speed(subjects: int = 200, rate_hz: float = wire.DEVICE_RATE_HZ, repeats: int = 300) -> str:
     """The cost of :func:`limbstream.joints.joint_angles` for ``subjects`` subjects at once (one
     frame each, as an aggregator's frame tick) and of the functional calibration's running sums
     (one second of frames per call), as a table."""
@@ -103,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("path", nargs="?", help="a recording of real sensors that starts standing still (x-IMU3, "
                                                 "Xsens folder)")
     parser.add_argument("--speed", action="store_true", help="time the angles of 200 subjects instead")
-    add_names_argument(parser)
+    add_names(parser)
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw knee and hip flexion into this PNG")
     args = parser.parse_args(argv)
     if args.speed:

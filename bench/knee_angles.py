@@ -21,17 +21,12 @@ command's does (limbstream.sources.names; ``opensense``: OpenSim's OpenSense exa
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from limbstream import calibration, quat  # noqa: E402
-from limbstream.sources import load, names as sensor_names  # noqa: E402
+from limbstream import calibration, quat
+from limbstream.sources import load, names as sensor_names
 
 
 def knee_angles(thigh: np.ndarray, shank: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

@@ -19,13 +19,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+import zenoh
 
-import zenoh  # noqa: E402
+from limbstream import wire, zconfig
+from limbstream.launch import Launcher, free_port, wait_until
 
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
 
 
 def main() -> int:

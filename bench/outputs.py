@@ -26,13 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
+from limbstream import wire, zconfig
+from limbstream.launch import Launcher, free_port, wait_until
+from limbstream.skeleton import Skeleton
+from limbstream.sources import generator
 
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
-from limbstream.skeleton import Skeleton  # noqa: E402
-from limbstream.sources import generator  # noqa: E402
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 RATE_HZ = 50.0
 

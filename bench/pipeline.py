@@ -23,16 +23,16 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
+from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
+from limbstream.device.feeds import GeneratorFeed
+from limbstream.device.host import HostSettings
+from limbstream.device_emulator.main import subject_names
+from limbstream import wire, zconfig
+from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until
+from limbstream.sources import SEGMENTS
+from limbstream.services.aggregator.aggregator import STATS_BATCHES, Aggregator, AggregatorSettings
 
-from limbstream.device_emulator.emulator import Emulator, EmulatorSettings  # noqa: E402
-from limbstream.device_emulator.feeds import GeneratorFeed  # noqa: E402
-from limbstream.device_emulator.main import subject_names  # noqa: E402
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
-from limbstream.sources import SEGMENTS  # noqa: E402
-from limbstream.services.aggregator.aggregator import STATS_BATCHES, Aggregator, AggregatorSettings  # noqa: E402
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 class Router:
@@ -113,7 +113,7 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
             config = wire.DeviceConfig(live_bound_deg=bound).validate()
-            emulator = Emulator(session, feeds, EmulatorSettings(truth=truth, config=config))
+            emulator = Emulator(session, feeds, EmulatorSettings(HostSettings(truth=truth, config=config)))
             emulator.declare()
             stop = threading.Event()
             timer = threading.Timer(seconds, stop.set)
@@ -161,7 +161,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = F
             while time.monotonic() < deadline and not (
                     len(agg.subjects) == subjects and (agg.fusion.frames.made > 0).all()):
                 time.sleep(0.1)
-            p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.late, agg.loop.ticks
+            p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.pacing.late, agg.loop.pacing.ticks
             cpu0, wall0 = cpu_now(), time.monotonic()
             ecpu0, rcpu0 = process_cpu_s(emu.pid), router.cpu_s()
             stop.wait(seconds)
@@ -169,7 +169,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = F
             cpu = cpu_now() - cpu0
             ecpu, rcpu = process_cpu_s(emu.pid) - ecpu0, router.cpu_s() - rcpu0
             points, frames = agg.loop.points - p0, agg.loop.frames - f0
-            late, ticks = agg.loop.late - l0, agg.loop.ticks - t0
+            late, ticks = agg.loop.pacing.late - l0, agg.loop.pacing.ticks - t0
             stop.set()
             thread.join()
             tracks = [t for f in agg.subjects.values() for t in f.tracks.values()]

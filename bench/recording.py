@@ -32,16 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
+from limbstream import evaluation, kernel, wire, zconfig
+from limbstream.launch import Launcher, free_port, wait_until
+from limbstream.skeleton import Skeleton
+from limbstream.sources import SEGMENTS, Motion
+from limbstream.sources.generator import GeneratorSource
+from limbstream.services.outputs.record import Recorder
+from limbstream.services.outputs.recording import KINDS, Recording, RecordingWriter
 
-from limbstream import evaluation, kernel, wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
-from limbstream.skeleton import Skeleton  # noqa: E402
-from limbstream.sources import SEGMENTS, Motion  # noqa: E402
-from limbstream.sources.generator import GeneratorSource  # noqa: E402
-from limbstream.services.outputs.record import Recorder  # noqa: E402
-from limbstream.services.outputs.recording import KINDS, Recording, RecordingWriter  # noqa: E402
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 FS = 50.0
 START_US = 1_800_000_000_000_000

@@ -1,4 +1,4 @@
-"""The SlimeVR gateway with simulated trackers (tests/slimevr_tracker.py) through a real router,
+"""The SlimeVR gateway with simulated trackers (limbstream.device_emulator.slimevr_tracker) through a real router,
 time service and aggregator, on loopback. Three parts, each printing a table, and a replay:
 
     python bench/slimevr.py accuracy --source ../shared/data/cmu_10seg_50hz.npz
@@ -41,17 +41,15 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+import zenoh
+
+from limbstream import quat, wire, zconfig
+from limbstream.launch import Launcher, free_port, wait_until
+from limbstream.sources import load
+from limbstream.device_emulator.slimevr_tracker import Fleet
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
-
-import numpy as np  # noqa: E402
-import zenoh  # noqa: E402
-
-from limbstream import quat, wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, wait_until  # noqa: E402
-from limbstream.sources import load  # noqa: E402
-from slimevr_tracker import Fleet  # noqa: E402
 
 
 def free_udp_port() -> int:
@@ -265,9 +263,10 @@ def replay(args) -> None:
     import socket
     import struct
 
-    from limbstream.device_emulator.device_clocks import ClockSettings
+    from limbstream.device.clocks import ClockSettings
+    from limbstream.device.host import HostSettings
     from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
-    from slimevr_tracker import handshake_payload, rotation_payload, to_tracker_axes
+    from limbstream.device_emulator.slimevr_tracker import handshake_payload, rotation_payload, to_tracker_axes
     segments = list(wire.SEGMENTS)
     macs = [bytes([2, 0x5E, 0, 0, k // len(segments), k % len(segments)]) for k in range(args.trackers)]
     assign = {(":".join(f"{b:02X}" for b in mac), None): (f"s{mac[4] + 1:02d}", segments[mac[5]]) for mac in macs}
@@ -285,7 +284,8 @@ def replay(args) -> None:
     with session, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         gateway = SlimeVRGateway(session, sock, GatewaySettings(
-            "s01", assign=assign, fs=args.fs, clock=ClockSettings(sync=False), config=wire.DeviceConfig(**wire.LIVE_MODE)))
+            "s01", assign=assign, host=HostSettings(fs=args.fs, config=wire.DeviceConfig(**wire.LIVE_MODE)),
+            clock=ClockSettings(sync=False)))
         gateway.declare()
         for address, mac in zip(addresses, macs):
             gateway.handle(struct.pack(">iq", 3, 0) + handshake_payload(mac), address, 0.0, 0.0)

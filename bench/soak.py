@@ -24,15 +24,14 @@ import statistics
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+import zenoh
 
-import zenoh  # noqa: E402
+from limbstream import wire, zconfig
+from limbstream.launch import Launcher, free_port, stop_all
 
-from limbstream import wire, zconfig  # noqa: E402
-from limbstream.launch import Launcher, free_port, stop_all  # noqa: E402
 
 SEGMENTS_PER_SUBJECT = 10
 GRACE_S = 20.0  # emulators of 1,000 devices take a while to stop
@@ -114,7 +113,7 @@ def parse_emulator(text: str) -> tuple[int, float]:
     return (int(m.group(1)), float(m.group(2))) if m else (0, float("nan"))
 
 
-def main(argv: list[str] | None = None) -> int:
+def arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--devices", type=int, default=2000, help="devices (multiple of 10; default 2000)")
     parser.add_argument("--minutes", type=float, default=10.0, help="duration, minutes (default 10)")
@@ -139,146 +138,188 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--devices must be a positive multiple of {SEGMENTS_PER_SUBJECT}, got {args.devices}")
     if args.procs < 1 or args.minutes <= 0:
         parser.error("--procs must be >= 1 and --minutes > 0")
-    subjects = args.devices // SEGMENTS_PER_SUBJECT
-    duration = args.minutes * 60
-    warmup = args.warmup if args.warmup is not None else min(0.3 * duration, 180.0)
+    return args
 
+
+@dataclass
+class Run:
+    """What a soak run started and what it saw: its processes, and per sample its time, RSS of
+    each process, the aggregator's backlog and longest tick; the loss counters at the end of the
+    warm-up; each process's CPU share."""
+
+    launcher: Launcher
+    workdir: Path
+    share: list[int]
+    emulators: list = field(default_factory=list)
+    times: list[float] = field(default_factory=list)
+    rss: dict[str, list[float]] = field(default_factory=dict)
+    backlog: list[int] = field(default_factory=list)
+    tick_ms: list[float] = field(default_factory=list)
+    at_warmup: tuple | None = None
+    cpu: dict[str, float] = field(default_factory=dict)
+    threads: dict[str, float] = field(default_factory=dict)
+
+
+def start(args: argparse.Namespace, endpoint: str) -> Run:
+    """Router, aggregator and the emulator processes sharing the subjects."""
+    subjects = args.devices // SEGMENTS_PER_SUBJECT
     workdir = Path(tempfile.mkdtemp(prefix="limbstream-soak-"))
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     launcher = Launcher(workdir)
     launcher.router(endpoint)
     launcher.start("aggregator", "aggregate", "--connect", endpoint, "--live-rate", f"{args.live_rate:g}",
                    "--frame-batch", str(args.frame_batch))
-    share, first = [subjects // args.procs + (i < subjects % args.procs) for i in range(args.procs)], 1
-    emulators = []
-    for i, n in enumerate(share):
+    run = Run(launcher, workdir, [subjects // args.procs + (i < subjects % args.procs) for i in range(args.procs)])
+    first = 1
+    for i, n in enumerate(run.share):
         if n:
             extra = [] if args.truth else ["--no-truth"]
-            emulators.append(launcher.start(f"emulator{i}", "emulate", "--connect", endpoint, "--subjects", str(n),
-                                            "--first-subject", str(first), "--rate", str(args.rate),
-                                            "--cache", str(args.cache), *extra))
+            run.emulators.append(launcher.start(f"emulator{i}", "emulate", "--connect", endpoint, "--subjects", str(n),
+                                                "--first-subject", str(first), "--rate", str(args.rate),
+                                                "--cache", str(args.cache), *extra))
             first += n
-    procs = launcher.children
-    rss: dict[str, list[float]] = {p.name: [] for p in procs}
-    reader = StatsReader(endpoint)
-    print(f"soak: {args.devices} devices ({subjects} subjects, {len(emulators)} emulator processes), "
+    run.rss = {p.name: [] for p in launcher.children}
+    print(f"soak: {args.devices} devices ({subjects} subjects, {len(run.emulators)} emulator processes), "
           f"{args.minutes:g} min, truth tap {'on' if args.truth else 'off'}, logs in {workdir}", flush=True)
+    return run
 
-    times, backlog, tick_ms = [], [], []
-    at_warmup = None
+
+def watch(run: Run, reader: StatsReader, duration: float, warmup: float, samples: int) -> None:
+    """Sample the processes' RSS and the aggregator's figures over the run (more often at its start)."""
+    procs = run.launcher.children
     t0 = time.monotonic()
-    sample_at = [warmup + k * (duration - warmup) / max(args.samples - 1, 1) for k in range(args.samples)]
-    sample_at = sorted({0.0, 10.0, *sample_at})
+    sample_at = [warmup + k * (duration - warmup) / max(samples - 1, 1) for k in range(samples)]
     cpu0 = {p.name: cpu_s(p.pid) for p in procs}
-    threads0 = thread_cpu_s(next(p for p in procs if p.name == "aggregator").pid)
-    try:
-        for at in sample_at:
-            while time.monotonic() - t0 < at:
-                reader.poll()
-                time.sleep(0.2)
-                dead = [p.name for p in procs if not p.alive()]
-                if dead:
-                    raise SystemExit(f"soak: {dead} exited early; logs in {workdir}")
+    aggregator = next(p for p in procs if p.name == "aggregator")
+    threads0 = thread_cpu_s(aggregator.pid)
+    for at in sorted({0.0, 10.0, *sample_at}):
+        while time.monotonic() - t0 < at:
             reader.poll()
-            times.append(time.monotonic() - t0)
-            most, longest = reader.take_recent()
-            backlog.append(most)
-            tick_ms.append(longest)
-            for p in procs:
-                rss[p.name].append(rss_mib(p.pid))
-            if at >= warmup and at_warmup is None:  # loss counters at the end of the warm-up
-                at_warmup = (sum(d["gaps"] or 0 for d in reader.devices.values()),
+            time.sleep(0.2)
+            dead = [p.name for p in procs if not p.alive()]
+            if dead:
+                raise SystemExit(f"soak: {dead} exited early; logs in {run.workdir}")
+        reader.poll()
+        run.times.append(time.monotonic() - t0)
+        most, longest = reader.take_recent()
+        run.backlog.append(most)
+        run.tick_ms.append(longest)
+        for p in procs:
+            run.rss[p.name].append(rss_mib(p.pid))
+        if at >= warmup and run.at_warmup is None:  # loss counters at the end of the warm-up
+            run.at_warmup = (sum(d["gaps"] or 0 for d in reader.devices.values()),
                              reader.aggregator.get("missed", 0), reader.aggregator.get("late", 0),
                              reader.aggregator.get("ticks", 0))
-            online = sum(1 for d in reader.devices.values() if d["online"])
-            print(f"  t={times[-1]:6.0f} s  devices online {online:5d}  RSS MiB "
-                  + " ".join(f"{p.name} {rss[p.name][-1]:.0f}" for p in procs)
-                  + f"  backlog {backlog[-1]}", flush=True)
-        cpu = {p.name: (cpu_s(p.pid) - cpu0[p.name]) / (time.monotonic() - t0) * 100 for p in procs}
-        aggregator = next(p for p in procs if p.name == "aggregator")
-        threads = {name: 100 * (v - threads0.get(name, 0.0)) / (time.monotonic() - t0)
+        online = sum(1 for d in reader.devices.values() if d["online"])
+        print(f"  t={run.times[-1]:6.0f} s  devices online {online:5d}  RSS MiB "
+              + " ".join(f"{p.name} {run.rss[p.name][-1]:.0f}" for p in procs)
+              + f"  backlog {run.backlog[-1]}", flush=True)
+    run.cpu = {p.name: (cpu_s(p.pid) - cpu0[p.name]) / (time.monotonic() - t0) * 100 for p in procs}
+    run.threads = {name: 100 * (v - threads0.get(name, 0.0)) / (time.monotonic() - t0)
                    for name, v in thread_cpu_s(aggregator.pid).items()}
-        reader.poll()
-    finally:
-        stop_all(emulators, GRACE_S)
-        time.sleep(1.0)
-        reader.poll()
-        launcher.stop(GRACE_S)
-        reader.close()
+    reader.poll()
 
-    # ------------------------------------------------------------------ results
-    base = next(i for i, t in enumerate(times) if t >= warmup - 1e-6)
+
+def rss_rows(run: Run, base: int) -> list[tuple]:
+    """Per process: (name, RSS series, RSS after warm-up, growth %: median of the last third of
+    the samples after warm-up vs the first, peak % over the warm-up's)."""
     rows = []
-    for p in procs:  # growth: median of the last third of the samples after warm-up vs the first
-        after = rss[p.name][base:]
+    for p in run.launcher.children:
+        after = run.rss[p.name][base:]
         k = max(1, len(after) // 3)
         first, last = statistics.median(after[:k]), statistics.median(after[-k:])
         growth = 100.0 * (last - first) / first if first else float("nan")
         peak = 100.0 * (max(after) - after[0]) / after[0] if after[0] else float("nan")
-        rows.append((p.name, rss[p.name], after[0], growth, peak))
-    em_ticks = [parse_emulator(p.log.read_text(errors="replace")) for p in emulators]
-    em_samples = sum(t * n * SEGMENTS_PER_SUBJECT for (t, _), n in zip(em_ticks, [n for n in share if n]))
-    em_late = sum(t * late / 100 for t, late in em_ticks) / max(sum(t for t, _ in em_ticks), 1) * 100
-    agg = reader.aggregator
-    agg_late = 100.0 * agg.get("late", 0) / max(agg.get("ticks", 1), 1)
-    devices = reader.devices
-    dropped = sum(d["dropped"] or 0 for d in devices.values())
-    gaps = sum(d["gaps"] or 0 for d in devices.values())
-    points = sum(d["points"] or 0 for d in devices.values())
-    gaps0, missed0, late0, ticks0 = at_warmup or (0, 0, 0, 0)
-    frames = sum(s.get("frames", 0) for s in reader.subjects.values())
-    skipped = sum(s.get("skipped_frames", 0) for s in reader.subjects.values())
-    max_tick_after = max(tick_ms[base + 1:] or [float("nan")])
-    third = max(1, (len(backlog) - base) // 3)
-    early, late_q = max(backlog[base:base + third] or [0]), max(backlog[-third:] or [0])
+        rows.append((p.name, run.rss[p.name], after[0], growth, peak))
+    return rows
 
+
+def results(run: Run, reader: StatsReader, base: int, duration: float) -> dict:
+    """The run's measures (the table printed and kept in the JSON file)."""
+    em_ticks = [parse_emulator(p.log.read_text(errors="replace")) for p in run.emulators]
+    em_samples = sum(t * n * SEGMENTS_PER_SUBJECT for (t, _), n in zip(em_ticks, [n for n in run.share if n]))
+    agg, devices = reader.aggregator, reader.devices
+    gaps0, missed0, late0, ticks0 = run.at_warmup or (0, 0, 0, 0)
+    points = sum(d["points"] or 0 for d in devices.values())
+    gaps = sum(d["gaps"] or 0 for d in devices.values())
+    third = max(1, (len(run.backlog) - base) // 3)
+    return {
+        "devices seen": len(devices),
+        "segment points received": points,
+        "samples taken (emulator ticks x devices)": em_samples,
+        "ICR": points / em_samples if em_samples else float("nan"),
+        "emulator late ticks %": sum(t * late / 100 for t, late in em_ticks) / max(sum(t for t, _ in em_ticks), 1) * 100,
+        "aggregator late ticks %": 100.0 * agg.get("late", 0) / max(agg.get("ticks", 1), 1),
+        "aggregator late ticks % after warm-up":
+            100.0 * (agg.get("late", 0) - late0) / max(agg.get("ticks", 0) - ticks0, 1),
+        "aggregator busy % of wall time (main loop)": 100.0 * agg.get("busy_s", 0.0) / duration,
+        "aggregator longest tick after warm-up (ms)": max(run.tick_ms[base + 1:] or [float("nan")]),
+        "aggregator max backlog (msgs/tick), first / last third":
+            f"{max(run.backlog[base:base + third] or [0])} / {max(run.backlog[-third:] or [0])}",
+        "aggregator max backlog overall": agg.get("max_backlog", 0),
+        "dropped (all reasons)": sum(d["dropped"] or 0 for d in devices.values()),
+        "gaps (lost seq numbers)": gaps,
+        "gaps after warm-up": gaps - gaps0,
+        "missed (zenoh miss detection)": agg.get("missed", 0),
+        "missed after warm-up": agg.get("missed", 0) - missed0,
+        "exact frames": sum(s.get("frames", 0) for s in reader.subjects.values()),
+        "skipped frames": sum(s.get("skipped_frames", 0) for s in reader.subjects.values()),
+    }
+
+
+def verdict(rows: list[tuple], measures: dict, run: Run, base: int, devices: int) -> list[str]:
+    """The targets missed (none: PASS)."""
+    failures = [f"{name} RSS grew {g:.1f} %" for name, _, _, g, _ in rows if not g < 10.0]
+    failures += [f"{k} = {measures[k]}" for k in ("dropped (all reasons)", "gaps (lost seq numbers)",
+                                                  "missed (zenoh miss detection)") if measures[k]]
+    failures += [f"late ticks {measures[k]:.2f} %" for k in ("emulator late ticks %", "aggregator late ticks %")
+                 if not measures[k] < 1.0]
+    third = max(1, (len(run.backlog) - base) // 3)
+    early, late = max(run.backlog[base:base + third] or [0]), max(run.backlog[-third:] or [0])
+    if late > 2 * early + 50:
+        failures.append(f"backlog grew: {early} -> {late} messages per tick")
+    if measures["devices seen"] != devices:
+        failures.append(f"{measures['devices seen']} of {devices} devices seen")
+    return failures
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = arguments(argv)
+    duration = args.minutes * 60
+    warmup = args.warmup if args.warmup is not None else min(0.3 * duration, 180.0)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run = start(args, endpoint)
+    reader = StatsReader(endpoint)
+    try:
+        watch(run, reader, duration, warmup, args.samples)
+    finally:
+        stop_all(run.emulators, GRACE_S)
+        time.sleep(1.0)
+        reader.poll()
+        run.launcher.stop(GRACE_S)
+        reader.close()
+
+    base = next(i for i, t in enumerate(run.times) if t >= warmup - 1e-6)
+    rows = rss_rows(run, base)
     print("\naggregator CPU % by thread (Python's main thread: its own work; rx/tx: Zenoh's): "
-          + ", ".join(f"{name} {v:.1f}" for name, v in sorted(threads.items(), key=lambda x: -x[1]) if v >= 0.1))
-    print("\nRSS (MiB) at t = " + ", ".join(f"{t:.0f}" for t in times) + " s")
+          + ", ".join(f"{name} {v:.1f}" for name, v in sorted(run.threads.items(), key=lambda x: -x[1]) if v >= 0.1))
+    print("\nRSS (MiB) at t = " + ", ".join(f"{t:.0f}" for t in run.times) + " s")
     print("| process | RSS after warm-up | max after | growth (median of last vs first third) | peak over "
           "warm-up | CPU % | RSS series |")
     print("|---|---|---|---|---|---|---|")
     for name, series, ref, growth, peak in rows:
         print(f"| {name} | {ref:.0f} | {max(series[base:]):.0f} | {growth:+.1f} % | {peak:+.1f} % | "
-              f"{cpu[name]:.0f} | " + " ".join(f"{v:.0f}" for v in series) + " |")
+              f"{run.cpu[name]:.0f} | " + " ".join(f"{v:.0f}" for v in series) + " |")
+    measures = results(run, reader, base, duration)
     print("\n| measure | value |")
     print("|---|---|")
-    results = {
-        "devices seen": len(devices),
-        "segment points received": points,
-        "samples taken (emulator ticks x devices)": em_samples,
-        "ICR": points / em_samples if em_samples else float("nan"),
-        "emulator late ticks %": em_late,
-        "aggregator late ticks %": agg_late,
-        "aggregator late ticks % after warm-up":
-            100.0 * (agg.get("late", 0) - late0) / max(agg.get("ticks", 0) - ticks0, 1),
-        "aggregator busy % of wall time (main loop)": 100.0 * agg.get("busy_s", 0.0) / duration,
-        "aggregator longest tick after warm-up (ms)": max_tick_after,
-        "aggregator max backlog (msgs/tick), first / last third": f"{early} / {late_q}",
-        "aggregator max backlog overall": agg.get("max_backlog", 0),
-        "dropped (all reasons)": dropped,
-        "gaps (lost seq numbers)": gaps,
-        "gaps after warm-up": gaps - gaps0,
-        "missed (zenoh miss detection)": agg.get("missed", 0),
-        "missed after warm-up": agg.get("missed", 0) - missed0,
-        "exact frames": frames,
-        "skipped frames": skipped,
-    }
-    for k, v in results.items():
+    for k, v in measures.items():
         print(f"| {k} | {v:.4f} |" if isinstance(v, float) else f"| {k} | {v} |")
     if args.json:
-        Path(args.json).write_text(json.dumps({"args": vars(args), "times": times, "backlog": backlog, "tick_ms": tick_ms,
-                                               "rss": {n: s for n, s, *_ in rows}, "cpu": cpu,
-                                               "aggregator threads cpu": threads,
-                                               "results": results}, indent=1))
-    failures = [f"{name} RSS grew {g:.1f} %" for name, _, _, g, _ in rows if not g < 10.0]
-    failures += [f"{k} = {results[k]}" for k in ("dropped (all reasons)", "gaps (lost seq numbers)",
-                                                 "missed (zenoh miss detection)") if results[k]]
-    failures += [f"late ticks {v:.2f} %" for v in (em_late, agg_late) if not v < 1.0]
-    if late_q > 2 * early + 50:
-        failures.append(f"backlog grew: {early} -> {late_q} messages per tick")
-    if len(devices) != args.devices:
-        failures.append(f"{len(devices)} of {args.devices} devices seen")
+        Path(args.json).write_text(json.dumps({"args": vars(args), "times": run.times, "backlog": run.backlog,
+                                               "tick_ms": run.tick_ms, "rss": {n: s for n, s, *_ in rows},
+                                               "cpu": run.cpu, "aggregator threads cpu": run.threads,
+                                               "results": measures}, indent=1))
+    failures = verdict(rows, measures, run, base, args.devices)
     print("\n" + ("PASS" if not failures else "FAIL: " + "; ".join(failures)))
     return 1 if args.check and failures else 0
 

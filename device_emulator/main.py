@@ -7,8 +7,7 @@ import socket
 import threading
 
 from limbstream import wire, zconfig
-from limbstream.signals import stop_on_signals
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
 from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
 
 
@@ -33,15 +32,14 @@ def run(feeds: dict, settings: EmulatorSettings, zenoh: zconfig.ZenohSettings,
         duration: float | None = None, verbose: bool = False, stop: threading.Event | None = None) -> int:
     """Open the session (waiting for the router) and run the devices of ``feeds`` ({subject: feed})
     until ``stop``, a signal or ``duration`` s of device time; exit code."""
-    stop = stop_on_signals(stop)
-    session = zconfig.open_session(zenoh, stop)
+    stop, session = zconfig.part_session(zenoh, stop)
     if session is None:  # stopped while waiting for the router
         return 0
     with session:
         emulator = Emulator(session, feeds, settings)
         emulator.declare()
         print(f"emulating {len(emulator.devices)} devices of {len(feeds)} subjects "
-              f"({', '.join(feeds)}) at {settings.fs:g} Hz x{settings.speed:g}", flush=True)
+              f"({', '.join(feeds)}) at {settings.host.fs:g} Hz x{settings.speed:g}", flush=True)
         print_clocks(emulator, settings.clock, verbose)
         emulator.start_clocks(stop)
         if emulator.sync is not None:

@@ -2,23 +2,23 @@
 
     python examples/live_frames.py s01 tcp/127.0.0.1:7447
 """
-import sys
-
 import zenoh
+from common import arguments
 
 from limbstream import wire
 
-subject, router = sys.argv[1], sys.argv[2]
-config = zenoh.Config()
-config.insert_json5("mode", '"client"')
-config.insert_json5("connect/endpoints", f'["{router}"]')
-config.insert_json5("scouting/multicast/enabled", "false")
-with zenoh.open(config) as session:
-    frames = session.declare_subscriber(wire.pose_key(subject), zenoh.handlers.FifoChannel(256))
-    shown = 0
-    while shown < 5:
-        frame = wire.decode_pose(frames.recv().payload.to_bytes())
-        if frame.kind == wire.KIND_LIVE:
-            x, y, z = frame.joints[wire.JOINTS.index("l_wrist")]
-            print(f"{subject} t={frame.t_us / 1e6:.3f} s  l_wrist x={x:+.3f} y={y:+.3f} z={z:+.3f} m")
-            shown += 1
+
+def main(config: zenoh.Config, subject: str, count: int = 5) -> None:
+    with zenoh.open(config) as session:
+        frames = session.declare_subscriber(wire.pose_key(subject), zenoh.handlers.FifoChannel(256))
+        shown = 0
+        while shown < count:
+            frame = wire.decode_pose(frames.recv().payload.to_bytes())
+            if frame.kind == wire.KIND_LIVE:
+                x, y, z = frame.joints[wire.JOINTS.index("l_wrist")]
+                print(f"{subject} t={frame.t_us / 1e6:.3f} s  l_wrist x={x:+.3f} y={y:+.3f} z={z:+.3f} m")
+                shown += 1
+
+
+if __name__ == "__main__":
+    main(*arguments())

@@ -76,14 +76,14 @@ class CalibrationError(ValueError):
     """A calibration that cannot be made (device not still, bad samples): the sentence says why."""
 
 
-def axis_angle(axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+def axis_angle(axis: np.ndarray, angle_rad: np.ndarray | float) -> np.ndarray:
     """(..., 4) rotation by ``angle_rad`` (...) about unit ``axis`` (..., 3) or (3,)."""
     half = 0.5 * np.asarray(angle_rad, np.float64)
     axis = np.asarray(axis, np.float64)
     return np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis], axis=-1)
 
 
-def yaw(angle_rad: np.ndarray) -> np.ndarray:
+def yaw(angle_rad: np.ndarray | float) -> np.ndarray:
     """(..., 4) rotation about the vertical by ``angle_rad`` (...)."""
     return axis_angle(VERTICAL, angle_rad)
 
@@ -130,29 +130,6 @@ class SensorModel:
         heading = np.radians(self.heading_deg) * rng.uniform(-1.0, 1.0, n)
         drift = np.radians(self.yaw_drift_dps) * rng.uniform(-1.0, 1.0, n)
         return Sensors(axis_angle(axis, angle), heading, drift)
-
-
-def add_arguments(parser) -> None:
-    """The sensor model's flags (``emulate``, ``up``, ``eval``)."""
-    group = parser.add_argument_group("sensors (docs/evaluation.md, 'Calibration'; default: perfect sensors)")
-    group.add_argument("--mounting-deg", type=float, default=0.0, metavar="MAX",
-                       help="each sensor sits on its segment turned by a random rotation of angle <= MAX")
-    group.add_argument("--heading-deg", type=float, default=0.0, metavar="MAX",
-                       help="each sensor's world frame is turned about the vertical by a uniform +-MAX")
-    group.add_argument("--yaw-drift-dps", type=float, default=0.0, metavar="MAX",
-                       help="... and that heading drifts at a uniform +-MAX deg/s")
-    group.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
-
-
-def from_args(args) -> SensorModel:
-    """The SensorModel of the flags (ValueError naming a bad one)."""
-    return SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
-
-
-def flags(model: SensorModel) -> list[str]:
-    """The flags that give ``model`` (for a child process)."""
-    return ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
-            "--yaw-drift-dps", f"{model.yaw_drift_dps:g}", "--sensor-seed", str(model.seed)]
 
 
 @dataclass(frozen=True)
@@ -365,7 +342,7 @@ def calibrate(q: np.ndarray, rest: slice, mounting: slice | None, pose: np.ndarr
     pose) and, if given, ``mounting`` (the known ``pose`` (4,)); ``t`` (m,) their device times, s
     (the heading's time for drift compensation later; None: unknown)."""
     cal = Calibration.rest(still_mean(q[rest], f"{what}, rest pose"), _middle(t, rest))
-    if mounting is not None:
+    if mounting is not None and pose is not None:
         cal = cal.with_mounting(still_mean(q[mounting], f"{what}, mounting pose"), pose)
     return cal
 

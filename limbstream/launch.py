@@ -27,6 +27,7 @@ import time
 import urllib.error
 import urllib.request
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -191,8 +192,8 @@ class Child:
 
     def start(self) -> Child:
         env = dict(os.environ if self.env is None else self.env, PYTHONUNBUFFERED="1")
-        options = dict(cwd=self.cwd, env=env, stdin=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                       start_new_session=True, preexec_fn=_die_with_parent())
+        options: dict[str, Any] = dict(cwd=self.cwd, env=env, stdin=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                                       start_new_session=True, preexec_fn=_die_with_parent())
         if self.log is None:
             self.popen = subprocess.Popen(list(self.argv), stdout=subprocess.PIPE, **options)
             self._reader = threading.Thread(target=self._forward, args=(self.popen.stdout,),
@@ -267,18 +268,18 @@ class Child:
 def stop_all(children: Sequence[Child], grace: float = STOP_GRACE_S) -> None:
     """SIGTERM every child's process group (last started first), then SIGKILL what is left after
     ``grace`` seconds (a group may hold processes even after its leader exited)."""
-    started = [c for c in reversed(children) if c.popen is not None]
-    for child in started:
+    started = [(c, c.popen) for c in reversed(children) if c.popen is not None]
+    for child, _ in started:
         if child.alive():
             child.signal(signal.SIGTERM)
     deadline = time.monotonic() + grace
-    for child in started:
+    for child, popen in started:
         try:
-            child.popen.wait(max(0.0, deadline - time.monotonic()))
+            popen.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             pass
         child.signal(signal.SIGKILL)
-        child.popen.wait()
+        popen.wait()
 
 
 # ----------------------------------------------------------------------------- one run

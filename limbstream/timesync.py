@@ -42,9 +42,9 @@ class SyncEstimator:
     """
 
     def __init__(self, window: int = WINDOW):
-        self.x = collections.deque(maxlen=window)      # midpoint, local us
-        self.theta = collections.deque(maxlen=window)  # offset, us
-        self.delay = collections.deque(maxlen=window)  # round trip, us
+        self.x: collections.deque[float] = collections.deque(maxlen=window)      # midpoint, local us
+        self.theta: collections.deque[float] = collections.deque(maxlen=window)  # offset, us
+        self.delay: collections.deque[float] = collections.deque(maxlen=window)  # round trip, us
         self.a = self.b = self.ref = 0.0
         self.fitted = False
         self.jitter = math.inf
@@ -79,7 +79,8 @@ class SyncEstimator:
                 if max(shifted) - min(shifted) > max(4.0 * self.jitter, JUMP_FLOOR_US):
                     self.held = self.held[1:]
                     return "held"
-                self.x.clear(), self.theta.clear(), self.delay.clear()
+                for window in (self.x, self.theta, self.delay):
+                    window.clear()
                 for hx, th, d in self.held:
                     self._append(hx, th, d)
                 self.held = []

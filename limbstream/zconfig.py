@@ -16,6 +16,9 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from limbstream import wire
+from limbstream.signals import stop_on_signals
+
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 ROUTER_ENV = "LIMBSTREAM_ROUTER"
 """Environment variable naming the router endpoint(s), comma-separated."""
@@ -50,17 +53,17 @@ class Qos:
 _BLOCK, _DROP = zenoh.CongestionControl.BLOCK, zenoh.CongestionControl.DROP
 QOS: dict[str, Qos] = {
     # the record: frames, replay and recordings are rebuilt from them; never dropped
-    "seg": Qos(_BLOCK, zenoh.Priority.DATA),
+    wire.SEG: Qos(_BLOCK, zenoh.Priority.DATA),
     # truth batches: the evaluation's record, recovered from the device's cache like points
-    "raw": Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+    wire.RAW: Qos(_BLOCK, zenoh.Priority.DATA_LOW),
     # final frames: recorders and the dashboard's history keep them, incl. the burst after a restart
-    "pose_exact": Qos(_BLOCK, zenoh.Priority.DATA),
+    wire.pose_stream(wire.KIND_EXACT): Qos(_BLOCK, zenoh.Priority.DATA),
     # superseded 20 ms later: never wait for them; their own queue, ahead of the bulk. Not express:
     # the frames of all subjects leave in one burst per tick, and batching (at most 1 ms) sends
     # them in a few writes instead of one per frame
-    "pose_live": Qos(_DROP, zenoh.Priority.INTERACTIVE_HIGH),
+    wire.pose_stream(wire.KIND_LIVE): Qos(_DROP, zenoh.Priority.INTERACTIVE_HIGH),
     # once a second per subject; the dashboard's history and recordings keep them
-    "stats": Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+    wire.STATS: Qos(_BLOCK, zenoh.Priority.DATA_LOW),
 }
 """Publisher options per message kind (docs/protocol.md, "Congestion control and priority")."""
 
@@ -227,3 +230,24 @@ def read_extra(path: str) -> dict:
     if not isinstance(extra, dict):
         raise ValueError(f"{path}: expected a JSON object")
     return extra
+
+
+def part_session(settings: ZenohSettings, stop: threading.Event | None = None
+                 ) -> tuple[threading.Event, zenoh.Session | None]:
+    """What a long-running part starts with: its stop event (``stop``, else a new one; set by
+    SIGINT and SIGTERM) and its session, opened once its router answers (None: stopped first)."""
+    stop = stop_on_signals(stop)
+    return stop, open_session(settings, stop)
+
+
+def settings(mode: str = "client", connect: str = "", listen: str = "", config_file: str = "",
+             connect_timeout_s: float | None = None) -> ZenohSettings:
+    """ZenohSettings of a mode, comma-separated endpoints, a JSON file of extra settings (key ->
+    value; "": none) and the bound on the wait for a router (None or 0: however long it takes);
+    ValueError naming the file when it cannot be read or holds no JSON object."""
+    try:
+        extra = read_extra(config_file) if config_file else {}
+    except ValueError as exc:
+        raise ValueError(f"--zenoh-config {exc}") from None
+    return ZenohSettings(mode=mode, connect=split_list(connect), listen=split_list(listen), extra=extra,
+                         connect_timeout_s=connect_timeout_s or None)

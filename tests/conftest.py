@@ -1,47 +1,22 @@
 """Shared fixtures: the shared motion data (skipped where absent, required in CI)."""
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import pytest
 
-pytest_plugins = ("stack",)  # the `stack` and `watch` fixtures of real processes
+from support import profiles, require_data  # noqa: F401  (profiles: registers the Hypothesis profiles)
 
-ROOT = Path(__file__).resolve().parent.parent
-DATA = Path(os.environ.get("LIMBSTREAM_DATA", ROOT.parent / "shared" / "data"))
-IN_CI = os.environ.get("CI", "").lower() == "true"
+pytest_plugins = ("support.stack", "support.dashboard")  # fixtures: `stack` and `watch` (real processes), `router`
 
 
-def require_data(relative: str) -> Path:
-    """Path of a file under the shared data folder; skip if absent, fail if absent in CI."""
-    path = DATA / relative
-    if not path.exists():
-        message = f"shared motion data not found: {path} (set LIMBSTREAM_DATA)"
-        if IN_CI:
-            pytest.fail(message)
-        pytest.skip(message)
-    return path
+def _data(relative: str):
+    """A session fixture: the path of ``relative`` in the shared data (skip, or fail in CI)."""
+    return pytest.fixture(scope="session")(lambda: require_data(relative))
 
 
-@pytest.fixture(scope="session")
-def cmu_npz() -> Path:
-    return require_data("cmu_10seg_50hz.npz")
-
-
-@pytest.fixture(scope="session")
-def xio_dir() -> Path:
-    return require_data("xio_lower_body")
-
-
-@pytest.fixture(scope="session")
-def cmu_bvh_dir() -> Path:
-    return require_data("cmu")
-
-
-@pytest.fixture(scope="session")
-def xsens_dir() -> Path:
-    return require_data("xsens_opensense")
+cmu_npz = _data("cmu_10seg_50hz.npz")
+xio_dir = _data("xio_lower_body")
+cmu_bvh_dir = _data("cmu")
+xsens_dir = _data("xsens_opensense")
 
 
 LANES = {"stack": "e2e", "watch": "e2e", "netns": "root"}

@@ -1,4 +1,4 @@
-"""The aggregator's batched computation against the plain one it replaced (tests/reference_aggregator,
+"""The aggregator's batched computation against the plain one it replaced (tests/support/reference_aggregator,
 the code of 8cc7f27 that took messages one by one): the same messages, tick by tick, into both; the
 same pose frames (bit for bit, or within 1e-6 of each quaternion and joint coordinate) and the same
 stats values (within 1e-9 relative) must come out.
@@ -17,7 +17,7 @@ import random
 
 import numpy as np
 import pytest
-from reference_aggregator.aggregator import ReferenceAggregator
+from support.reference_aggregator.aggregator import ReferenceAggregator
 
 from limbstream import calibration, kernel, quat, wire
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings

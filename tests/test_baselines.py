@@ -1,7 +1,7 @@
 """The CPLR and Swing filter baselines (firmware_c/src/cplr.c, swing.c) through limbstream.kernel.
 
-References: brute-force float64 re-implementations written from the definitions in cplr.h and
-swing.h (every decision recomputed from the buffered samples), plus the error guarantees each
+References: brute-force float64 re-implementations written from the definitions in
+baselines.h (every decision recomputed from the buffered samples), plus the error guarantees each
 algorithm promises, checked on its output alone.
 """
 
@@ -34,7 +34,7 @@ def smooth_quaternions(m: int, seed: int, speed: float = 2.0) -> tuple[np.ndarra
 
 
 def reference(kind: str, t: np.ndarray, y: np.ndarray, threshold: float, max_len: int):
-    """Float64 brute force of cplr.h / swing.h.
+    """Float64 brute force of baselines.h.
 
     Returns
     -------

@@ -9,8 +9,9 @@ import math
 
 import pytest
 from fastapi.testclient import TestClient
-from stack import stack, wait_until  # noqa: F401  (the fixture)
+from support.stack import stack, wait_until  # noqa: F401  (the fixture)
 
+from limbstream.cli import flags
 from limbstream import kernel, wire, zconfig
 from limbstream.cli import up
 from limbstream.services.dashboard.app import create_app
@@ -40,7 +41,7 @@ def expected_message(t: wire.Tunable, value) -> str:
 def test_cli_refuses_with_the_contract_message(t, value, capsys):
     """``limbstream emulate`` and ``limbstream up`` (the same flags): exit 2, the flag and the
     contract's sentence."""
-    for add_arguments in (wire.add_arguments, up.add_arguments):
+    for add_arguments in (flags.add_device_config, up.add_arguments):
         parser = argparse.ArgumentParser(prog="limbstream")
         add_arguments(parser)
         with pytest.raises(SystemExit) as exit_info:

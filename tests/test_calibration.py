@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from stack import StatsWatch, stack, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import StatsWatch, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 from limbstream import calibration as cal
 from limbstream import quat
@@ -335,7 +335,7 @@ def test_calibration_on_request_from_rest_api_and_command(stack, tmp_path, drift
     import zenoh
 
     from limbstream import wire, zconfig
-    from stack import http_json
+    from support.stack import http_json
 
     path = tmp_path / "poses.npz"
     poses_file(path)

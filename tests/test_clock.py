@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
-from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks, TimeBase
-from limbstream.device_emulator.sync_client import RESUME_SPREAD_S, RETRY_S, SLEW, SyncClient
+from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
+from limbstream.device.sync import RESUME_SPREAD_S, RETRY_S, SLEW, SyncClient
 from limbstream.timesync import JUMP_CONFIRM, SyncEstimator
 from limbstream import kernel, wire, zconfig
 
@@ -225,12 +225,13 @@ def test_devices_sample_on_their_own_clock_grid(tmp_path):
     """A fast clock takes more samples than a slow one; stamps increase; each sample's stamp
     minus its reference time is the clock's error (no sync)."""
     from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
-    from limbstream.device_emulator.feeds import GeneratorFeed
+    from limbstream.device.feeds import GeneratorFeed
+    from limbstream.device.host import HostSettings
 
     session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
     try:
         cs = ClockSettings(offset_ms=50, drift_ppm=1000, sync=False, seed=3)
-        e = Emulator(session, {"s01": GeneratorFeed(1, 50.0)}, EmulatorSettings(truth=False, clock=cs))
+        e = Emulator(session, {"s01": GeneratorFeed(1, 50.0)}, EmulatorSettings(HostSettings(truth=False), clock=cs))
         e.declare()
         e.clocks.boot(T0)
         e.start_us = T0

@@ -30,7 +30,7 @@ import dockerfile
 import numpy as np
 import pytest
 import zenoh
-from stack import ROOT, Stack, free_port, http_json, wait_until
+from support.stack import ROOT, Stack, free_port, http_json, wait_until
 
 from limbstream import wire, zconfig
 

@@ -11,7 +11,7 @@ import threading
 import time
 
 import pytest
-from stack import ROOT, free_port
+from support.stack import ROOT, free_port
 
 from limbstream.launch import LIMBSTREAM
 

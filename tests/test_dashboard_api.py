@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 import pytest
-import zenoh
 from fastapi.testclient import TestClient
-from stack import ROOT, free_port, wait_until
+from support.stack import ROOT, wait_until
+from support.dashboard import AUTH, TOKEN, Device, device_stats, make_client, pose_frame
 from starlette.websockets import WebSocketDisconnect
 
 from limbstream import wire, zconfig
@@ -23,17 +23,7 @@ from limbstream.services.dashboard.app import create_app
 from limbstream.cli.dashboard import parse_http
 from limbstream.services.dashboard.settings import DashboardSettings
 from limbstream.services.dashboard.state import LiveState
-
-TOKEN = "test-token-123"
-AUTH = {"Authorization": f"Bearer {TOKEN}"}
-
-
-@pytest.fixture(scope="module")
-def router():
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    session = zconfig.open_session(zconfig.ZenohSettings(mode="router", connect=(), listen=(endpoint,)))
-    yield endpoint
-    session.close()
+from limbstream.services.dashboard.views import Views
 
 
 @pytest.fixture(scope="module")
@@ -43,25 +33,11 @@ def pub(router):
     session.close()
 
 
-def make_client(router: str, **overrides) -> TestClient:
-    settings = DashboardSettings(router=router, api_token=TOKEN, config_timeout_s=1.0, **overrides)
-    return TestClient(create_app(settings))
-
-
 @pytest.fixture
 def client(router):
     with make_client(router) as c:
         wait_until(lambda: c.get("/health").status_code == 200, 10, "zenoh session")
         yield c
-
-
-def device_stats(subject: str, segment: str, **values) -> dict:
-    base = {k: None for k in wire.STATS_FIELDS}
-    base.update(device=f"{subject}/{segment}", segment=segment, online=True, samples=500, points=50,
-                icr=0.1, msgs_per_s=5.0, bytes_per_s=180.0, aad_deg=1.5, p99_deg=4.0, max_deg=6.0,
-                live_err_deg=9.0, watermark_lag_s=0.4, gaps=0, dropped=0, threshold=0.01)
-    base.update(values)
-    return base
 
 
 def publish_until(client: TestClient, publish, predicate, what: str, timeout: float = 10.0):
@@ -70,15 +46,6 @@ def publish_until(client: TestClient, publish, predicate, what: str, timeout: fl
         publish()
         return predicate()
     return wait_until(step, timeout, what, interval=0.05)
-
-
-def pose_frame(seq: int, kind: int = wire.KIND_EXACT, seed: int = 0) -> wire.PoseFrame:
-    rng = np.random.default_rng(seed + seq)
-    q = rng.normal(size=(10, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    joints = rng.uniform(-1, 1, size=(len(wire.JOINTS), 3))
-    return wire.PoseFrame(seq, 1_700_000_000_000_000 + seq * 20_000, kind, 0, q.astype(np.float32),
-                          joints.astype(np.float32))
 
 
 # ----------------------------------------------------------------------------- REST
@@ -247,7 +214,9 @@ def test_bad_payloads_are_counted_not_fatal(client, pub):
     def publish():
         pub.put(wire.pose_key("junkD"), b"\x01\x02\x03")
         pub.put(wire.stats_key("junkD"), b"{not json")
-    publish_until(client, publish, lambda: 'reason="pose_size"' in client.get("/metrics").text, "pose error count")
+    # the two keys' messages come on two subscriptions: wait for both counts
+    publish_until(client, publish, lambda: 'reason="pose_size"' in (text := client.get("/metrics").text)
+                  and 'reason="json"' in text, "pose and stats error counts")
     text = client.get("/metrics").text
     assert 'limbstream_dashboard_errors_total{reason="json"}' in text, text[-800:]
     assert client.get("/health").status_code == 200
@@ -279,28 +248,6 @@ def test_liveliness_marks_devices_alive(client, pub):
 
 
 # ----------------------------------------------------------------------------- control
-
-
-class Device:
-    """A device's config queryable, as the contract describes it (the emulator implements the
-    same in the end-to-end test)."""
-
-    def __init__(self, session: zenoh.Session, subject: str, segment: str, reject: str | None = None):
-        self.config = wire.DeviceConfig(0.01, 25)
-        self.reject = reject
-        self.queryable = session.declare_queryable(wire.config_key(subject, segment), self.on_query)
-
-    def on_query(self, query: zenoh.Query) -> None:
-        if query.payload is not None:
-            if self.reject:
-                query.reply_err(json.dumps({"error": self.reject}))
-                return
-            try:
-                self.config = wire.decode_config(query.payload.to_bytes(), self.config)
-            except wire.WireError as exc:
-                query.reply_err(json.dumps({"error": str(exc)}))
-                return
-        query.reply(query.key_expr, wire.encode_status(wire.DeviceStatus("x/hip", self.config, 7, 10, 1)))
 
 
 def announce(client, pub, subject, segment):
@@ -474,11 +421,11 @@ def test_exact_latency_is_measured_per_subject():
         state.apply_pose(wire.pose_key("latO"), wire.encode_pose(frame), rx=t0 + i * 0.02 + (100 + i) / 1e3)
         live = wire.PoseFrame(i, int((t0 + i * 0.02) * 1e6), wire.KIND_LIVE, 0, frame.q, frame.joints)
         state.apply_pose(wire.pose_key("latO"), wire.encode_pose(live), rx=t0 + 60.0)
-    view = {s["subject"]: s for s in state.subject_views()}["latO"]
+    view = {s["subject"]: s for s in Views(state).subject_views()}["latO"]
     assert math.isclose(view["exact_latency_p50_ms"], 200.0, abs_tol=1.01), view
     assert math.isclose(view["exact_latency_p99_ms"], 298.0, abs_tol=1.01), view
     state.apply_pose(wire.pose_key("liveOnlyO"), wire.encode_pose(pose_frame(1, wire.KIND_LIVE)))
-    view = {s["subject"]: s for s in state.subject_views()}["liveOnlyO"]
+    view = {s["subject"]: s for s in Views(state).subject_views()}["liveOnlyO"]
     assert view["exact_latency_p50_ms"] is None and view["exact_latency_p99_ms"] is None, view
 
 
@@ -500,7 +447,7 @@ def test_subjects_carry_the_exact_latency(client, pub):
 
 def test_slow_client_skips_frames_without_stalling_others():
     state = LiveState(ws_queue=4)
-    slow, fast = state.add_client("s", "exact"), state.add_client("s", "exact")
+    slow, fast = state.fanout.add("s", "exact", None), state.fanout.add("s", "exact", None)
     received = []
     for seq in range(100):
         state.apply_pose(wire.pose_key("s"), wire.encode_pose(pose_frame(seq)))
@@ -508,9 +455,9 @@ def test_slow_client_skips_frames_without_stalling_others():
     assert received == list(range(100)), received[:10]
     kept = [json.loads(slow.queue.get_nowait())["seq"] for _ in range(slow.queue.qsize())]
     assert kept == [96, 97, 98, 99] and slow.skipped == 96, (kept, slow.skipped)
-    state.remove_client(slow)
-    state.remove_client(fast)
-    assert state.client_count() == 0 and state.clients_skipped == 96
+    state.fanout.remove(slow)
+    state.fanout.remove(fast)
+    assert state.fanout.count() == 0 and state.fanout.skipped_total() == 96
 
 
 # ----------------------------------------------------------------------------- python client

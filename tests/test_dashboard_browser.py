@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 pytestmark = pytest.mark.browser
 
@@ -226,10 +226,9 @@ def test_trackers_panel_assigns_a_sensor(stack):  # noqa: F811
     choosing none unassigns it."""
     import threading
 
-    from test_slimevr_e2e import free_udp_port
-    from test_slimevr_gateway import _stream
+    from support.slimevr import free_udp_port, stream
 
-    from slimevr_tracker import Tracker
+    from limbstream.device_emulator.slimevr_tracker import Tracker
     chromium = require_chromium()
     stack.router()
     port = free_udp_port()
@@ -239,7 +238,7 @@ def test_trackers_panel_assigns_a_sensor(stack):  # noqa: F811
     a = Tracker(("127.0.0.1", port), bytes([2, 0, 0, 0, 3, 1]), {0: 0})   # no body position
     b = Tracker(("127.0.0.1", port), bytes([2, 0, 0, 0, 3, 2]), {0: 7})   # left thigh
     stop = threading.Event()
-    sender = threading.Thread(target=_stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0]}, 60.0),
+    sender = threading.Thread(target=stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0]}, 60.0),
                               kwargs={"stop": stop})
     errors = []
     try:

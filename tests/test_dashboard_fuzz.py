@@ -9,11 +9,12 @@ import time
 import pytest
 import uvicorn
 from hypothesis import HealthCheck, settings
-from stack import free_port, http_json, wait_until
-from test_dashboard_api import Device, device_stats, pose_frame
+from support.profiles import scaled
+from support.stack import free_port, http_json, wait_until
+from support.dashboard import Device, device_stats, pose_frame
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
 from limbstream.services.dashboard.app import create_app
 from limbstream.services.dashboard.settings import DashboardSettings
@@ -82,7 +83,7 @@ schema = schemathesis.pytest.from_fixture("api_schema").exclude(path_regex="^/ss
 
 
 @schema.parametrize()
-@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=scaled(40), deadline=None, suppress_health_check=list(HealthCheck))
 def test_no_server_errors(case, served):
     for headers in ({"Authorization": f"Bearer {TOKEN}"}, None):
         response = case.call(base_url=served, headers=headers, timeout=10)

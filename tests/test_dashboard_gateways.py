@@ -7,14 +7,14 @@ import socket
 import threading
 
 import zenoh
-from stack import wait_until
-from test_dashboard_api import AUTH, make_client, router  # noqa: F401  (router is a fixture)
-from test_slimevr_gateway import _stream
+from support.stack import wait_until
+from support.dashboard import AUTH, make_client
+from support.slimevr import stream
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
-from slimevr_tracker import Tracker
+from limbstream.device_emulator.slimevr_tracker import Tracker
 
 
 def test_sensors_are_listed_and_assigned_through_rest(router):  # noqa: F811
@@ -38,7 +38,7 @@ def test_sensors_are_listed_and_assigned_through_rest(router):  # noqa: F811
     a = Tracker(udp.getsockname(), bytes([2, 0, 0, 0, 2, 1]), {0: 0})   # no body position
     b = Tracker(udp.getsockname(), bytes([2, 0, 0, 0, 2, 2]), {0: 7})   # left thigh
     sending = threading.Event()
-    sender = threading.Thread(target=_stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0]}, 30.0),
+    sender = threading.Thread(target=stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0]}, 30.0),
                               kwargs={"stop": sending})
     try:
         a.connect()

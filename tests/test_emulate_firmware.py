@@ -16,8 +16,8 @@ import zenoh
 import zenoh.ext as zext
 
 from limbstream import wire, zconfig
-from firmware import require_tools
-from stack import wait_until
+from support.firmware import require_tools
+from support.stack import wait_until
 
 pytestmark = pytest.mark.qemu
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from limbstream.cli import emulate
-from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed, resample
+from limbstream.device.feeds import GeneratorFeed, LoopFeed, resample
 from limbstream import kernel, quat
 from limbstream.sources import Motion
 from limbstream.sources.generator import GeneratorSource

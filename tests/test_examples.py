@@ -5,7 +5,7 @@ import re
 import subprocess
 import sys
 
-from stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire
 

@@ -3,12 +3,10 @@ back with limbstream's own loaders (the BVH loader maps the exported joints to s
 from __future__ import annotations
 
 import csv
-import subprocess
-import sys
 
 import numpy as np
 import pytest
-from stack import ROOT
+from support.export import T0_US, cli
 
 from limbstream import quat, wire
 from limbstream.skeleton import Skeleton
@@ -16,14 +14,6 @@ from limbstream.sources import load, load_npz
 from limbstream.sources.bvh import load_bvh, parse_bvh
 from limbstream.services.outputs.export import BVH_JOINTS, ROTATION_CHANNELS, csv_header, skeleton_of
 from limbstream.services.outputs.recording import RecordingWriter
-
-T0_US = 1_700_000_000_000_000
-
-
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "limbstream.cli", "export", *args], cwd=ROOT, capture_output=True,
-                          text=True, timeout=60)
-
 
 @pytest.fixture(scope="module")
 def clip(cmu_npz):

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import opensim
 import pytest
-from conftest import require_data
-from test_export import T0_US, cli
+from support import require_data
+from support.export import T0_US, cli
 
 from limbstream import joints, quat, wire
 from limbstream.services.outputs.export import export, from_motion, read_take

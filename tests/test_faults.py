@@ -15,13 +15,13 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from stack import ROOT, StatsWatch, stack, wait_until  # noqa: F401  (fixture)
+from support import require
+from support.stack import ROOT, StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, quat, wire
 from limbstream.sources import load_npz
 from limbstream.sources.generator import GeneratorSource
 
-IN_CI = os.environ.get("CI", "").lower() == "true"
 
 
 def report(fault: str, how: str, detection: str, recovery: str, lost: str) -> None:
@@ -185,8 +185,7 @@ def _ip(*args: str) -> None:
 @pytest.fixture
 def netns():
     """A network namespace linked to this one by a veth pair (10.213.x.1 here, .2 inside)."""
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        (pytest.fail if IN_CI else pytest.skip)("network namespaces need root and iproute2")
+    require(os.geteuid() == 0 and shutil.which("ip") is not None, "network namespaces need root and iproute2")
     tag = f"ls{os.getpid() % 100000}"
     ns, host_if, ns_if = f"{tag}dev", f"{tag}h", f"{tag}d"
     net = 64 + os.getpid() % 128
@@ -203,7 +202,7 @@ def netns():
     except subprocess.CalledProcessError as exc:
         subprocess.run(["ip", "netns", "del", ns], capture_output=True)
         subprocess.run(["ip", "link", "del", host_if], capture_output=True)
-        (pytest.fail if IN_CI else pytest.skip)(f"cannot create a network namespace: {exc.stderr!r}")
+        require(False, f"cannot create a network namespace: {exc.stderr!r}")
     try:
         yield {"ns": ns, "host_if": host_if, "host_ip": host_ip}
     finally:

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from limbstream import kernel, wire
-from limbstream.device_emulator.feeds import LoopFeed
+from limbstream.device.feeds import LoopFeed
 from limbstream.services.gateway import firmware
 from limbstream.services.gateway.serial_port import SerialLink
 from limbstream.sources import load
 from limbstream.wire import serial_link as link
-from firmware import drain, final_point, require_tools
+from support.firmware import drain, final_point, require_tools
 
 pytestmark = pytest.mark.qemu
 

@@ -14,8 +14,8 @@ from limbstream.kernel import fusion
 from limbstream.services.gateway import firmware
 from limbstream.services.gateway.serial_port import SerialLink
 from limbstream.wire import serial_link as link
-from conftest import require_data
-from firmware import drain, final_point, require_tools
+from support import require_data
+from support.firmware import drain, final_point, require_tools
 
 pytestmark = pytest.mark.qemu
 
@@ -51,14 +51,14 @@ def host_points(d: dict, stream: int, nine_d: bool, bad=None) -> tuple[list[byte
     """The host pipeline's messages for the raw samples, one ImuBank call each, then END's."""
     bank = fusion.ImuBank(1, d["rate"], nine_d=nine_d, threshold=LIVE.threshold, max_len=LIVE.max_len,
                           live_bound_deg=LIVE.live_bound_deg, ring=4)
-    bank.stream[0] = stream
+    bank.segments.stream[0] = stream
     out: list[bytes] = []
     for tick, g, a, m in samples(d, bad):
         _, payload, _ = bank.update_raw_wire(np.array([tick]), np.array([T0_US + tick]), g[None], a[None],
                                              m[None] if nine_d else None)
         if payload:  # one device: at most one message per call
             out.append(payload)
-    out.append(final_point(bank, 0, stream, out[-1]))
+    out.append(final_point(bank.segments, 0, stream, out[-1]))
     return out, bank
 
 

@@ -21,7 +21,7 @@ from limbstream.cli import main
 from limbstream.skeleton import Skeleton
 from limbstream.sources import generator
 from limbstream.services.outputs import foxglove as fox
-from stack import free_port
+from support.stack import free_port
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 T0_US = 1_700_000_000_000_000

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conftest import require_data
+from support import require_data
 from limbstream import quat
 from limbstream.evaluation.fusion import (ALIGN_S, error_quaternion, fusion_error, heading_inclination,
                                           reference_vqf)

@@ -14,8 +14,8 @@ import zenoh
 
 from limbstream import wire, zconfig
 from limbstream.services.gateway import firmware
-from firmware import require_tools
-from stack import StatsWatch, wait_until
+from support.firmware import require_tools
+from support.stack import StatsWatch, wait_until
 
 pytestmark = pytest.mark.qemu
 

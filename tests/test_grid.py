@@ -1,6 +1,6 @@
 """The C pieces of the SlimeVR gateway: irregular arrivals on a uniform grid per device
-(limbstream.kernel.GridBank, firmware_c/src/lsw_grid.c) and the rotation datagrams read in C
-(services/gateway/slimevr_rx.py, firmware_c/src/lsw_slimevr.c) against the Python decoder."""
+(limbstream.kernel.GridBank, firmware_c/host/lsw_grid.c) and the rotation datagrams read in C
+(services/gateway/slimevr_rx.py, firmware_c/host/lsw_slimevr.c) against the Python decoder."""
 from __future__ import annotations
 
 import fcntl
@@ -17,8 +17,8 @@ from limbstream import quat
 from limbstream.kernel import GridBank, SvrTracker
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr_rx import Receiver, ipv4
-from slimevr_tracker import rotation_payload, rotation_q15_payload
-from stack import wait_until
+from limbstream.device_emulator.slimevr_tracker import rotation_payload, rotation_q15_payload
+from support.stack import wait_until
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
 
@@ -58,12 +58,12 @@ def test_grid_samples_follow_the_packets():
     assert taken and yaw(y) == pytest.approx(0.3, abs=1e-6) and stamp == 31_000
     assert grid.truth(0)[0].tolist() == [1_000, 21_000, 41_000] and grid.devices[0].held == 0
     taken, y, stamp = sample_at(grid, 33_000.0)  # the packet at 40 ms came 7 ms late for this instant
-    assert yaw(y) == pytest.approx(0.4, abs=1e-6) and stamp == 34_000
+    assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and stamp == 34_000
     assert grid.truth(0)[0].tolist() == [1_000, 21_000, 34_000]
     taken, y, _ = sample_at(grid, 40_500.0)  # it arrived just before this instant: its own
-    assert yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.truth(0)[0].tolist() == [1_000, 21_000, 41_500]
+    assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.truth(0)[0].tolist() == [1_000, 21_000, 41_500]
     taken, y, _ = sample_at(grid, 44_000.0)  # within a quarter period after the newest packet: on time
-    assert yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.devices[0].held == 0
+    assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.devices[0].held == 0
     taken, y, _ = sample_at(grid, 50_000.0)
     assert taken and yaw(y) == pytest.approx(0.4, abs=1e-6) and grid.devices[0].held == 1
     assert not sample_at(grid, 56_000.0)[0]  # held too long: the tracker went quiet

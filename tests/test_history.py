@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 
 import zenoh
-from stack import wait_until
+from support.stack import wait_until
 
 from limbstream import wire, zconfig
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware import FIRMWARE, load_tool, require_tools
+from support.firmware import FIRMWARE, load_tool, make_m4, require_tools
 
 pytestmark = pytest.mark.qemu
 
@@ -38,11 +38,7 @@ LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "l
 @pytest.fixture(scope="module")
 def build_dir(tmp_path_factory) -> Path:
     require_tools(*TOOLS)
-    build = tmp_path_factory.mktemp("icount")
-    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}"],
-                          capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, f"make m4 failed:\n{done.stdout}\n{done.stderr}"
-    return build
+    return make_m4(tmp_path_factory, "icount")
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import scipy.io
 
 from limbstream import kernel, quat, wire
 from limbstream.kernel import fusion
-from tests.conftest import DATA, require_data
+from support import DATA, require_data
 
 vqf = pytest.importorskip("vqf")
 
@@ -83,7 +83,7 @@ def test_device_instants():
     for i in range(n):
         status, _, _ = bank.update_raw(ticks[i:i + 1], d["imu_gyr"][i:i + 1], d["imu_acc"][i:i + 1])
         if status[0] == kernel.POINT:
-            stamps.append(int(bank.points_t()[0]))
+            stamps.append(int(bank.segments.points_t()[0]))
     instants = np.arange(len(stamps)) * 20000
     period = 1e6 / d["rate"]
     made = int(bank.imu_status()["outputs"][0])
@@ -109,7 +109,7 @@ def test_pipeline_equals_fusion_then_fastsw():
         if status[0] != fusion.NO_OUTPUT:
             outputs.append(i)
         if status[0] == kernel.POINT:
-            points.append((int(index[0]), y[0].copy(), bank.points_omega()[0]))
+            points.append((int(index[0]), y[0].copy(), bank.segments.points_omega()[0]))
     q = fusion.fuse(g, a, rate_hz=d["rate"], t=ticks / 1e6).astype(np.float32)
     rows = np.asarray(outputs)
     ref = kernel.segment(ticks[rows] / 1e6, q[rows], 9e-4, 25, live_bound_deg=5.0)
@@ -127,7 +127,7 @@ def test_bank_wire_messages():
     count = 3
     bank = fusion.ImuBank(count, rate_hz=200.0, threshold=9e-4, max_len=25, live_bound_deg=5.0, ring=4)
     plain = fusion.ImuBank(count, rate_hz=200.0, threshold=9e-4, max_len=25, live_bound_deg=5.0)
-    bank.stream[:count] = (7, 8, 9)
+    bank.segments.stream[:count] = (7, 8, 9)
     epoch = 1_700_000_000_000_000
     seen = 0
     for i in range(len(gyr)):
@@ -141,7 +141,7 @@ def test_bank_wire_messages():
         for slot, s, e in zip(slots, starts, ends):
             point = wire.decode_point(payload[s:e])
             assert point.stream == 7 + slot and point.index == int(index[slot])
-            assert point.t_us == epoch + int(plain.points_t()[slot])
+            assert point.t_us == epoch + int(plain.segments.points_t()[slot])
             assert np.array_equal(np.float32(point.q), y[slot]) and point.omega is not None
             seen += 1
     assert seen > 3 * count

@@ -7,7 +7,7 @@ import ctypes
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from sw_oracle import live_sliding_window, live_view, sliding_window, ssr, view_error
+from support.sw_oracle import live_sliding_window, live_view, sliding_window, ssr, view_error
 
 from limbstream import kernel
 from limbstream.kernel import Segmenter, SegmenterBank, segment

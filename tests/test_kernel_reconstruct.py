@@ -4,8 +4,8 @@ NumPy forward kinematics (tests/reference_aggregator/skeleton.py), on random row
 from __future__ import annotations
 
 import numpy as np
-from reference_aggregator.skeleton import Skeleton as NumpySkeleton
-from reference_aggregator.store import PointStore as NumpyStore
+from support.reference_aggregator.skeleton import Skeleton as NumpySkeleton
+from support.reference_aggregator.store import PointStore as NumpyStore
 
 from limbstream import quat
 from limbstream.kernel import reconstruct
@@ -102,7 +102,7 @@ def test_forward_kinematics_in_c_is_numpys_bit_for_bit():
 
 
 def test_error_windows_filled_in_c_are_numpys():
-    from reference_aggregator.store import ErrorRings as NumpyRings
+    from support.reference_aggregator.store import ErrorRings as NumpyRings
 
     from limbstream.services.aggregator.rings import ErrorRings
     rng = np.random.default_rng(6)

@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 import zenoh
-from stack import ROOT, http_json, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import ROOT, http_json, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 from limbstream.sources import SEGMENTS

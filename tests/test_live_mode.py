@@ -7,7 +7,7 @@ import numpy as np
 
 from limbstream import wire
 from limbstream.sources import load_npz
-from stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+from support.stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 BOUND_DEG = 5.0
 

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from limbstream import kernel
-from conftest import ROOT
-from firmware import FIRMWARE, load_tool, require_tools
+from support import ROOT
+from support.firmware import FIRMWARE, load_tool, make_m4, require_tools
 
 pytestmark = pytest.mark.qemu
 
@@ -34,11 +34,7 @@ vectors = load_tool("vectors")
 def build_dir(tmp_path_factory) -> Path:
     """A fresh `make m4` into a temporary build folder."""
     require_tools(*TOOLS)
-    build = tmp_path_factory.mktemp("m4build")
-    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}"],
-                          capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, f"make m4 failed:\n{done.stdout}\n{done.stderr}"
-    return build
+    return make_m4(tmp_path_factory, "m4build")
 
 
 def run_qemu(elf: Path, vector_file: Path | None = None, timeout: float = 60.0) -> list[str]:

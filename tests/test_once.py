@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import zenoh
-from stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+from support.stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, wire
 from limbstream.sources import SEGMENTS, load_npz

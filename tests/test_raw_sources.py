@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from conftest import require_data
+from support import require_data
 from limbstream.sources import SEGMENTS, MotionFileError, RawRecording, load, load_raw
 from limbstream.sources.qmt import QMT_OFF_BODY, QMT_SEGMENTS
 

@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
-from stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+from support.stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import quat, wire, zconfig
 from limbstream.sources.bvh import load_bvh
@@ -119,6 +119,9 @@ def test_record_then_replay_rebuilds_the_same_frames(stack, watch, cmu_npz, tmp_
                15, "the live recorder to hold the 10 final points", on_fail=stack.logs)
     wait_until(lambda: len(recorded(late, "seg")) == sum(d["points"] for d in original), 15,
                "the late recorder to get every point from the devices' caches", on_fail=stack.logs)
+    # (the recorder asks the devices' config statuses every 5 s: the clip may end before its second poll)
+    wait_until(lambda: len({e.key for e in recorded(live, "config")}) == 10, 15,
+               "the live recorder to hold every device's config status", on_fail=stack.logs)
     for child in (recorder, late_recorder):
         child.signal(signal.SIGTERM)
         assert child.popen.wait(20) == 0, stack.logs()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import zenoh
 from scipy.spatial.transform import Rotation
-from stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 from limbstream.skeleton import Skeleton

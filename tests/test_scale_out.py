@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import zenoh
-from stack import free_port, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+from support.stack import free_port, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, wire, zconfig
 from limbstream.sources import load_npz
@@ -134,4 +134,5 @@ def test_two_aggregators_shard_subjects(stack, tap_factory):  # noqa: F811
         assert len(np.unique(t)) == len(t), f"{s}: {len(t) - len(np.unique(t))} frame times published twice"
         assert np.all(np.diff(t) == 20_000), f"{s}: exact frames off the 50 Hz grid"
         assert [f.seq for f in frames] == list(range(frames[0].seq, frames[0].seq + len(frames))), s
-        assert all(d["online"] and d["gaps"] == 0 for d in tap.devices(s)), tap.devices(s)
+        assert all(d["online"] and d["gaps"] == 0 for d in tap.devices(s)), [
+            (d["device"], d["online"], d["gaps"]) for d in tap.devices(s)]

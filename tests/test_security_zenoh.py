@@ -14,7 +14,7 @@ import time
 
 import pytest
 import zenoh
-from stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 

@@ -5,15 +5,13 @@ appears and publishes; moved, the old device's stream ends (FINAL, token gone) a
 starts a stream; a device fed by another sensor and bad payloads are refused with a sentence."""
 from __future__ import annotations
 
-import contextlib
 import json
-import threading
 
-from test_slimevr_gateway import Running, _stream
+from support.slimevr import Running, stream, streaming
 
 from limbstream import wire
-from slimevr_tracker import Tracker
-from stack import wait_until
+from limbstream.device_emulator.slimevr_tracker import Tracker
+from support.stack import wait_until
 
 
 def ask(g: Running, payload: bytes | None = None) -> tuple[dict | None, str | None]:
@@ -34,23 +32,6 @@ def listed(listing: dict) -> dict[str, tuple]:
 
 def finals(g: Running, device: str) -> list[wire.SegmentPoint]:
     return [p for p in g.poll().get(device, []) if p.flags & wire.FLAG_FINAL]
-
-
-@contextlib.contextmanager
-def streaming(trackers: list[Tracker], sensors: dict):
-    """The trackers connect, then stream their sensors (``{mac: [sensor ids]}``) from a thread
-    until the block ends."""
-    stop = threading.Event()
-    sender = threading.Thread(target=_stream, args=(trackers, sensors, 30.0), kwargs={"stop": stop})
-    try:
-        for t in trackers:
-            t.connect()
-        sender.start()
-        yield
-    finally:
-        stop.set()
-        if sender.is_alive():
-            sender.join()
 
 
 def test_sensors_are_listed_assigned_moved_and_refused():
@@ -135,7 +116,7 @@ def test_bad_assignments_get_a_sentence_and_change_nothing():
     t = Tracker(g.address, bytes([2, 0, 0, 0, 1, 3]), {0: 0})
     try:
         t.connect()
-        _stream([t], {t.mac_text: [0]}, 0.1)
+        stream([t], {t.mac_text: [0]}, 0.1)
         wait_until(lambda: listed(ask(g)[0]), 10, "the tracker's sensor listed")
         for payload, error in BAD:
             listing, message = ask(g, payload)

@@ -13,14 +13,9 @@ import pytest
 
 from limbstream import wire, zconfig
 from limbstream.launch import free_port
-from slimevr_tracker import Fleet
-from stack import StatsWatch, stack, wait_until  # noqa: F401  (the fixture)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from limbstream.device_emulator.slimevr_tracker import Fleet
+from support.stack import StatsWatch, stack, wait_until  # noqa: F401  (the fixture)
+from support.slimevr import free_udp_port
 
 
 def motion(fs: float, seconds: float) -> np.ndarray:
@@ -74,7 +69,7 @@ def test_ten_trackers_reach_the_aggregator(stack):  # noqa: F811
 def test_up_starts_the_gateway(stack, tmp_path):  # noqa: F811
     """``limbstream up --subjects 0 --slimevr PORT``: the gateway alone behind the router and the
     aggregator; a tracker finds it and its device reaches the stats."""
-    from stack import free_port
+    from support.stack import free_port
     port = free_udp_port()
     stack.start("up", "up", "--router", stack.endpoint, "--http", f"127.0.0.1:{free_port()}", "--no-dashboard",
                 "--subjects", "0", "--slimevr", f"127.0.0.1:{port}", "--slimevr-subject", "sv07",

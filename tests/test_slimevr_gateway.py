@@ -1,59 +1,55 @@
 """The SlimeVR gateway: its protocol codec against packets written from the firmware's side
-(tests/slimevr_tracker.py), and the gateway itself, in a thread with a real Zenoh session, serving
+(limbstream.device_emulator.slimevr_tracker), and the gateway itself, in a thread with a real Zenoh session, serving
 simulated trackers over real UDP sockets on loopback: handshake and keepalive answers, segments
 from body positions and --assign, segment points, link figures in the device status, silent
 trackers going offline and coming back as a new stream, and bad datagrams counted by reason
 without disturbing the trackers that behave."""
 from __future__ import annotations
 
+import collections
 import json
 import math
 import random
 import socket
 import struct
-import threading
 import time
 
 import pytest
-import zenoh
 
 from limbstream import wire, zconfig
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.services.gateway.slimevr import GatewaySettings, SlimeVRGateway
-from slimevr_tracker import Tracker, handshake_payload, rotation_payload, sensor_info_payload
-from stack import wait_until
-
-
-def _header(kind: int, number: int) -> bytes:
-    return struct.pack(">iq", kind, number)
+from limbstream.device_emulator.slimevr_tracker import Tracker, handshake_payload, rotation_payload, sensor_info_payload
+from support.stack import wait_until
+from support.slimevr import Running, header, stream, streaming
 
 
 # ---------------------------------------------------------------- codec
 
 def test_decode_what_the_firmware_sends():
-    hs = proto.decode(_header(3, 0) + handshake_payload(bytes([0xAA, 1, 2, 3, 4, 0xFF])))
+    hs = proto.decode(header(3, 0) + handshake_payload(bytes([0xAA, 1, 2, 3, 4, 0xFF])))
     assert hs.messages == (proto.Handshake(4, 10, 2, 21, "0.6.0", "AA:01:02:03:04:FF"),)
-    info = proto.decode(_header(15, 7) + sensor_info_payload(1, 9)).messages[0]
+    info = proto.decode(header(15, 7) + sensor_info_payload(1, 9)).messages[0]
     assert (info.sensor, info.status, info.position) == (1, 1, 9)
-    assert proto.decode(_header(15, 7) + sensor_info_payload(1, 0)).messages[0].position is None
-    rot = proto.decode(_header(17, 8) + rotation_payload(2, (0.0, 0.0, 0.0, 2.0))).messages[0]
+    assert proto.decode(header(15, 7) + sensor_info_payload(1, 0)).messages[0].position is None
+    rot = proto.decode(header(17, 8) + rotation_payload(2, (0.0, 0.0, 0.0, 2.0))).messages[0]
     assert rot == proto.Rotation(2, (0.0, 0.0, 0.0, 1.0))  # normalised, (w, x, y, z)
-    q15 = proto.decode(_header(23, 9) + struct.pack(">B4h3h", 0, 0, 23170, 0, 23170, 0, 0, 0)).messages[0]
+    q15 = proto.decode(header(23, 9) + struct.pack(">B4h3h", 0, 0, 23170, 0, 23170, 0, 0, 0)).messages[0]
     assert q15.q == pytest.approx((math.sqrt(0.5), 0.0, math.sqrt(0.5), 0.0), abs=1e-4)
-    bat = proto.decode(_header(12, 10) + struct.pack(">ff", 3.9, 0.8)).messages[0]
+    bat = proto.decode(header(12, 10) + struct.pack(">ff", 3.9, 0.8)).messages[0]
     assert (bat.voltage, bat.level) == pytest.approx((3.9, 0.8))
-    assert proto.decode(_header(19, 11) + struct.pack(">Bb", 255, -61)).messages[0] == proto.Signal(-61)
-    assert proto.decode(_header(10, 0) + struct.pack(">i", -5)).messages[0] == proto.Pong(-5)
-    assert proto.decode(_header(0, 12)).messages[0] == proto.Other(0)
+    assert proto.decode(header(19, 11) + struct.pack(">Bb", 255, -61)).messages[0] == proto.Signal(-61)
+    assert proto.decode(header(10, 0) + struct.pack(">i", -5)).messages[0] == proto.Pong(-5)
+    assert proto.decode(header(0, 12)).messages[0] == proto.Other(0)
     correction = struct.pack(">BB4fB", 0, 2, 0, 0, 0, 1, 0)  # magnetometer correction: read, not used
-    assert proto.decode(_header(17, 13) + correction).messages[0] == proto.Other(17)
+    assert proto.decode(header(17, 13) + correction).messages[0] == proto.Other(17)
 
 
 def test_decode_bundles():
     items = [(17, rotation_payload(0, (0, 0, 0, 1))), (17, rotation_payload(1, (0, 1, 0, 0))), (19, b"\xff\xc4")]
-    wide = _header(100, 5) + b"".join(struct.pack(">Hi", len(p) + 4, k) + p for k, p in items)
-    compact = _header(101, 6) + b"".join(bytes([len(p) + 1, k]) + p for k, p in items)
+    wide = header(100, 5) + b"".join(struct.pack(">Hi", len(p) + 4, k) + p for k, p in items)
+    compact = header(101, 6) + b"".join(bytes([len(p) + 1, k]) + p for k, p in items)
     for data, number in ((wide, 5), (compact, 6)):
         dg = proto.decode(data)
         assert dg.number == number
@@ -64,15 +60,15 @@ def test_decode_bundles():
 
 @pytest.mark.parametrize("data, reason", [
     (b"\x00\x00\x00", "truncated"),
-    (_header(17, 1) + b"\x00\x01\x00", "truncated"),
-    (_header(17, 1) + struct.pack(">BB4fB", 0, 1, 0, 0, 0, 0, 0), "bad_quaternion"),
-    (_header(17, 1) + struct.pack(">BB4fB", 0, 1, math.nan, 0, 0, 1, 0), "bad_quaternion"),
-    (_header(77, 1), "unknown_type"),
-    (_header(17, 1) + bytes(2000), "oversized"),
-    (_header(100, 1) + b"\x00", "bad_bundle"),
-    (_header(100, 1) + struct.pack(">H", 50) + bytes(10), "truncated"),
-    (_header(100, 1) + struct.pack(">Hi", 4, 100), "bad_bundle"),
-    (_header(101, 1) + bytes([2, 3, 0]), "bad_bundle"),
+    (header(17, 1) + b"\x00\x01\x00", "truncated"),
+    (header(17, 1) + struct.pack(">BB4fB", 0, 1, 0, 0, 0, 0, 0), "bad_quaternion"),
+    (header(17, 1) + struct.pack(">BB4fB", 0, 1, math.nan, 0, 0, 1, 0), "bad_quaternion"),
+    (header(77, 1), "unknown_type"),
+    (header(17, 1) + bytes(2000), "oversized"),
+    (header(100, 1) + b"\x00", "bad_bundle"),
+    (header(100, 1) + struct.pack(">H", 50) + bytes(10), "truncated"),
+    (header(100, 1) + struct.pack(">Hi", 4, 100), "bad_bundle"),
+    (header(101, 1) + bytes([2, 3, 0]), "bad_bundle"),
 ])
 def test_bad_datagrams_have_a_reason(data, reason):
     with pytest.raises(proto.ProtocolError) as info:
@@ -81,8 +77,12 @@ def test_bad_datagrams_have_a_reason(data, reason):
 
 
 def test_random_bytes_never_escape_as_another_error():
+    """Mutated bundles and random bytes: each decodes into known messages or is refused with one
+    of the reasons; both happen, with every reason."""
     rng = random.Random(7)
-    good = _header(100, 3) + struct.pack(">Hi", 22, 17) + rotation_payload(0, (1, 0, 0, 0))
+    good = header(100, 3) + struct.pack(">Hi", 22, 17) + rotation_payload(0, (1, 0, 0, 0))
+    messages = (proto.Handshake, proto.SensorInfo, proto.Rotation, proto.Battery, proto.Signal, proto.Pong, proto.Other)
+    outcomes: collections.Counter = collections.Counter()
     for _ in range(3000):
         data = bytearray(good if rng.random() < 0.5 else bytes(rng.randrange(40)))
         for _ in range(rng.randrange(1, 6)):
@@ -90,79 +90,27 @@ def test_random_bytes_never_escape_as_another_error():
                 data[rng.randrange(len(data))] = rng.randrange(256)
         data = bytes(data[:rng.randrange(len(data) + 1)] if rng.random() < 0.3 else data)
         try:
-            proto.decode(data)
+            dg = proto.decode(data)
         except proto.ProtocolError as exc:
             assert exc.reason in {"truncated", "oversized", "unknown_type", "bad_quaternion", "bad_bundle"}
+            outcomes[exc.reason] += 1
+        else:
+            assert isinstance(dg.number, int), dg
+            assert all(isinstance(m, messages) for m in dg.messages), dg
+            outcomes["decoded"] += 1
+    assert {"decoded", "truncated", "unknown_type", "bad_quaternion", "bad_bundle"} <= set(outcomes), outcomes
 
 
 def test_server_answers_are_what_the_firmware_checks():
     answer = proto.handshake_answer()
     assert len(answer) == 64 and answer[0] == 3 and answer[1:13] == b"Hey OVR =D 5"
     assert proto.heartbeat()[3] == 1 and len(proto.heartbeat()) == 12
-    assert proto.ping(42) == _header(10, 0) + struct.pack(">i", 42)
+    assert proto.ping(42) == header(10, 0) + struct.pack(">i", 42)
     assert proto.sensor_info_answer(1, 1) == struct.pack(">iBB", 15, 1, 1)
     assert proto.feature_flags()[12:] == b"\x03"
 
 
 # ---------------------------------------------------------------- the gateway
-
-class Running:
-    """A gateway in a thread on a peer Zenoh session (its own subscribers see what it publishes),
-    with a subscriber to every segment point and liveliness token. ``reads``: "ticks" (kernel
-    arrival stamps and the whole receive buffer), "between" (a buffer capped by the system: also
-    reads between ticks), "as they come" (as on a system without kernel arrival stamps)."""
-
-    def __init__(self, reads: str = "ticks", **overrides):
-        self.session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.address = self.sock.getsockname()
-        settings = GatewaySettings(**{"subject": "s01", "clock": ClockSettings(sync=False), "timeout_s": 0.6,
-                                      "config": wire.DeviceConfig(**{**wire.LIVE_MODE, "max_len": 25}),
-                                      **overrides})
-        self.gateway = SlimeVRGateway(self.session, self.sock, settings)
-        self.gateway.rx.kernel_stamps &= reads != "as they come"
-        if reads == "between":
-            self.gateway.rcvbuf = 0
-        self.points = self.session.declare_subscriber(wire.device_selector("seg"), zenoh.handlers.FifoChannel(100000))
-        self.received: dict[str, list] = {}
-        self.stop = threading.Event()
-        self.reports: list[dict] = []
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self):
-        try:
-            self.gateway.run(self.stop, on_report=self.reports.append, report_s=0.2)
-        except BaseException as exc:  # the test fails on it
-            self.error = exc
-            raise
-
-    def poll(self) -> dict[str, list]:
-        while (s := self.points.try_recv()) is not None:
-            subject, segment, _ = wire.parse_device_key(str(s.key_expr))
-            self.received.setdefault(f"{subject}/{segment}", []).append(wire.decode_point(s.payload.to_bytes()))
-        return self.received
-
-    def report(self) -> dict:
-        return self.reports[-1] if self.reports else {}
-
-    def status(self, device: str) -> dict:
-        replies = list(self.session.get(wire.config_key(*device.split("/")), timeout=5.0))
-        return json.loads(replies[0].ok.payload.to_bytes())
-
-    def alive(self) -> set[str]:
-        return {"/".join(wire.parse_device_key(str(r.ok.key_expr))[:2])
-                for r in self.session.liveliness().get(wire.device_selector("alive"), timeout=2.0) if r.ok}
-
-    def close(self):
-        self.stop.set()
-        self.thread.join(10)
-        assert not self.thread.is_alive() and self.error is None
-        self.gateway.undeclare()
-        self.sock.close()
-        self.session.close()
 
 
 @pytest.fixture
@@ -170,22 +118,6 @@ def gateway(request):
     g = Running(reads=getattr(request, "param", "ticks"))
     yield g
     g.close()
-
-
-def _stream(trackers: list[Tracker], sensors: dict, seconds: float, rate: float = 50.0, q15: bool = False,
-            stop: threading.Event | None = None) -> None:
-    """Every tracker sends its sensors' orientations (a turn about Y, 1 rad/s) at ``rate`` Hz."""
-    start = time.monotonic()
-    k = 0
-    while time.monotonic() - start < seconds and not (stop and stop.is_set()):
-        angle = 1.0 * k / rate
-        q = (math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0)
-        for t in trackers:
-            for sensor in sensors[t.mac_text]:
-                t.rotation(sensor, q, q15=q15)
-            t.pump()
-        k += 1
-        time.sleep(max(0.0, start + k / rate - time.monotonic()))
 
 
 @pytest.mark.parametrize("gateway", ["ticks", "between", "as they come"], indirect=True)
@@ -198,7 +130,7 @@ def test_trackers_become_devices(gateway):
         assert a.features == b"\x03"
         a.battery(3.8, 0.55)
         a.signal(-58)
-        _stream([a, b], {a.mac_text: [0, 1], b.mac_text: [0]}, 2.0)
+        stream([a, b], {a.mac_text: [0, 1], b.mac_text: [0]}, 2.0)
         received = wait_until(lambda: (r := gateway.poll()) and {"s01/l_thigh", "s01/l_lowerarm"} <= set(r) and r,
                               10, "segment points of both sensors of tracker a")
         assert set(received) == {"s01/l_thigh", "s01/l_lowerarm"}  # the head sensor is not published
@@ -232,13 +164,7 @@ def test_assign_overrides_and_config_is_tunable():
     a = Tracker(g.address, bytes([2, 0, 0, 0, 0, 3]), {0: 7})
     b = Tracker(g.address, bytes([2, 0, 0, 0, 0, 4]), {0: 0, 1: 0})
     try:
-        a.connect()
-        b.connect()
-        stop = threading.Event()
-        sender = threading.Thread(target=_stream, args=([a, b], {a.mac_text: [0], b.mac_text: [0, 1]}, 6.0),
-                                  kwargs={"q15": True, "stop": stop})
-        sender.start()
-        try:
+        with streaming([a, b], {a.mac_text: [0], b.mac_text: [0, 1]}, 6.0, q15=True):
             wait_until(lambda: {"s07/r_shank", "s01/hip"} <= set(g.poll()), 10, "points of the assigned devices")
             replies = list(g.session.get(wire.config_key("s07", "r_shank"), payload=wire.encode_config({"max_len": 5}),
                                          timeout=5.0))
@@ -248,9 +174,6 @@ def test_assign_overrides_and_config_is_tunable():
             assert g.status("s07/r_shank")["max_len"] == 5
             assert wait_until(lambda: g.report().get("unassigned"), 5, "sensor 0 of b listed") == {
                 f"{b.mac_text}/0": "no body position and no --assign"}
-        finally:
-            stop.set()
-            sender.join()
     finally:
         a.close()
         b.close()
@@ -262,7 +185,7 @@ def test_a_silent_tracker_goes_offline_and_comes_back_as_a_new_stream(gateway):
     try:
         t.connect()
         sensors = {t.mac_text: [0]}
-        _stream([t], sensors, 1.0)
+        stream([t], sensors, 1.0)
         wait_until(lambda: gateway.poll().get("s01/r_shank"), 10, "points of the first stream")
         assert gateway.alive() == {"s01/r_shank"}
         # silent: the gateway ends the stream (FINAL) and drops the token
@@ -270,7 +193,7 @@ def test_a_silent_tracker_goes_offline_and_comes_back_as_a_new_stream(gateway):
                    "the first stream's FINAL point")
         wait_until(lambda: not gateway.alive(), 10, "the liveliness token gone")
         first = gateway.poll()["s01/r_shank"][0].stream
-        _stream([t], sensors, 1.0)
+        stream([t], sensors, 1.0)
         wait_until(lambda: any(p.stream != first for p in gateway.poll()["s01/r_shank"]), 10, "a new stream")
         second = [p for p in gateway.poll()["s01/r_shank"] if p.stream != first]
         assert second[0].seq == 0 and second[0].index == 0
@@ -283,25 +206,20 @@ def test_a_silent_tracker_goes_offline_and_comes_back_as_a_new_stream(gateway):
 
 
 def test_bad_datagrams_are_counted_and_never_stop_the_others(gateway):
-    good = Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 6]), {0: 2})
-    bad = Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 7]), {0: 6})
-    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        good.connect()
+    with (Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 6]), {0: 2}) as good,
+          Tracker(gateway.address, bytes([2, 0, 0, 0, 0, 7]), {0: 6}) as bad,
+          socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger):
         bad.connect()
-        stop = threading.Event()
-        sender = threading.Thread(target=_stream, args=([good], {good.mac_text: [0]}, 30.0), kwargs={"stop": stop})
-        sender.start()
         rng = random.Random(3)
         sent = {"truncated": 0, "oversized": 0, "unknown_type": 0, "bad_quaternion": 0, "out_of_order": 0,
                 "no_handshake": 0}
-        try:
+        with streaming([good], {good.mac_text: [0]}):
             wait_until(lambda: gateway.poll().get("s01/neck"), 10, "points of the good tracker")
             before = len(gateway.poll()["s01/neck"])
             for _ in range(200):
                 choice = rng.choice(sorted(sent))
                 if choice == "truncated":
-                    bad.send_raw(_header(17, bad.number + 1)[: rng.randrange(12)])
+                    bad.send_raw(header(17, bad.number + 1)[: rng.randrange(12)])
                 elif choice == "oversized":
                     bad.send_raw(bytes(rng.randrange(1473, 4000)))
                 elif choice == "unknown_type":
@@ -311,25 +229,20 @@ def test_bad_datagrams_are_counted_and_never_stop_the_others(gateway):
                 elif choice == "out_of_order":
                     bad.send(17, rotation_payload(0, (1, 0, 0, 0)), number=1)
                 else:
-                    stranger.sendto(_header(17, 5) + rotation_payload(0, (1, 0, 0, 0)), gateway.address)
+                    stranger.sendto(header(17, 5) + rotation_payload(0, (1, 0, 0, 0)), gateway.address)
                 sent[choice] += 1
                 time.sleep(0.001)  # a burst, not a flood: the socket buffer keeps every datagram
             bad.send_raw(bytes(rng.randrange(256) for _ in range(rng.randrange(1, 64))))  # noise: some reason
-            dropped = wait_until(lambda: (d := gateway.report().get("dropped", {})) and all(
-                d.get(reason, 0) >= n for reason, n in sent.items()) and d, 10, "every bad datagram counted",
+            dropped = wait_until(lambda: (d := gateway.report().get("dropped", {})) and sum(d.values()) > sum(
+                sent.values()) and d, 10, "every bad datagram counted",
                 on_fail=lambda: f"sent {sent}, counted {gateway.report().get('dropped')}")
-            assert sum(dropped.values()) >= sum(sent.values()) + 1
+            # each one counted once, by its reason; the noise once, by some reason
+            assert sum(dropped.values()) == sum(sent.values()) + 1, (sent, dropped)
+            assert all(dropped.get(reason, 0) - n in (0, 1) for reason, n in sent.items()), (sent, dropped)
             # the good tracker kept streaming through it all
             wait_until(lambda: len(gateway.poll()["s01/neck"]) > before + 3, 10, "more points of the good tracker")
             assert gateway.status("s01/neck")["link_loss"] == 0.0
-        finally:
-            stop.set()
-            sender.join()
         assert gateway.thread.is_alive()
-    finally:
-        good.close()
-        bad.close()
-        stranger.close()
 
 
 def test_packet_loss_is_counted_from_packet_numbers(gateway):
@@ -378,15 +291,15 @@ def test_a_tracker_whose_address_another_takes_goes_offline():
                                                                    ("02:00:00:00:00:02", None): ("s01", "hip")}))
         g.declare()
         here, there = ("127.0.0.1", 9), ("127.0.0.2", 9)  # the discard port: answers go nowhere
-        g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), here, 0.0, 0.0)
-        g.handle(_header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 1.0, 0.0)
-        assert g.devices["s01/hip"].online and g.devices["s01/hip"].sensor.tracker.name == "02:00:00:00:00:01"
-        g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 2])), here, 2.0, 0.1)
-        first = g.devices["s01/hip"].sensor.tracker
-        assert not first.online and not g.devices["s01/hip"].online  # its stream ended
-        g.handle(_header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 3.0, 0.1)
-        assert g.devices["s01/hip"].sensor.tracker.name == "02:00:00:00:00:02" and g.devices["s01/hip"].online
-        g.handle(_header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), there, 4.0, 0.2)  # back elsewhere
-        assert {t.name: t.online for t in g.trackers.values()} == {"02:00:00:00:00:01": True,
+        g.handle(header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), here, 0.0, 0.0)
+        g.handle(header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 1.0, 0.0)
+        assert g.host.by_id["s01/hip"].online and g.host.by_id["s01/hip"].source.tracker.name == "02:00:00:00:00:01"
+        g.handle(header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 2])), here, 2.0, 0.1)
+        first = g.host.by_id["s01/hip"].source.tracker
+        assert not first.online and not g.host.by_id["s01/hip"].online  # its stream ended
+        g.handle(header(17, 1) + rotation_payload(0, (1.0, 0.0, 0.0, 0.0)), here, 3.0, 0.1)
+        assert g.host.by_id["s01/hip"].source.tracker.name == "02:00:00:00:00:02" and g.host.by_id["s01/hip"].online
+        g.handle(header(3, 0) + handshake_payload(bytes([2, 0, 0, 0, 0, 1])), there, 4.0, 0.2)  # back elsewhere
+        assert {t.name: t.online for t in g.sessions.trackers.values()} == {"02:00:00:00:00:01": True,
                                                                    "02:00:00:00:00:02": True}
         g.undeclare()

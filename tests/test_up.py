@@ -19,9 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from stack import StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
+from limbstream.cli import flags
 from limbstream.launch import Child, ChildExited, CrashLoop, RestartPolicy, Supervisor, port_open
 
 PERIOD_US = 20_000  # exact frames at 50 Hz
@@ -138,9 +139,9 @@ def test_up_runs_live_mode_unless_told_otherwise():
         args = parser.parse_args(["--no-sync", *argv])
         [emulate] = [a for name, a in up_cli.plan(args) if name == "emulator"]
         sub = argparse.ArgumentParser()
-        wire.add_arguments(sub)
+        flags.add_device_config(sub)
         known, _ = sub.parse_known_args(emulate)
-        return wire.config_from_args(known)
+        return flags.device_config(known)
 
     assert emulator_config() == wire.DeviceConfig(**wire.LIVE_MODE)
     off = emulator_config("--live-bound-deg", "0", "--threshold", "0.01")

@@ -18,7 +18,7 @@ from limbstream.cli import main
 from limbstream.sources import generator
 from limbstream.services.outputs import vmc
 from limbstream.services.outputs.kinds import LiveFirst
-from stack import wait_until
+from support.stack import wait_until
 
 PARENT = {  # Unity's humanoid hierarchy (the bones sent)
     "Hips": None, "Spine": "Hips", "Chest": "Spine", "Neck": "Chest", "Head": "Neck",
@@ -236,5 +236,5 @@ def test_missing_subject_is_an_error(stack):
     assert child.returncode == 2
     errors = [line for line in child.tail() if "error" in line]
     assert errors == ["limbstream vmc: error: --subject nobody: no pose frame in 0.5 s "
-                      "(is it running? limbstream watch nobody --kind any)"]
+                      "(is it running? limbstream watch nobody --kind auto)"]
     assert not any("Traceback" in line for line in child.tail())

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.profiles import scaled
 
 from limbstream import kernel, wire
 from limbstream.sources import SEGMENTS
@@ -41,7 +42,7 @@ def c_encode(p: wire.SegmentPoint) -> bytes:
     return out.raw
 
 
-@settings(max_examples=2000, deadline=None)
+@settings(max_examples=scaled(2000), deadline=None)
 @given(u16, u32, u32, i64, unit_quaternions(), st.integers(0, 255))
 def test_c_encoder_and_python_codec_agree_byte_for_byte(stream, seq, index, t_us, q, flags):
     p = wire.SegmentPoint(stream, seq, index, t_us, tuple(float(v) for v in q), flags)
@@ -56,7 +57,7 @@ _lib.lsw_encode_point_rate.argtypes = [ctypes.c_char_p, ctypes.c_uint8, ctypes.c
 _lib.lsw_encode_point_rate.restype = ctypes.c_uint32
 
 
-@settings(max_examples=2000, deadline=None)
+@settings(max_examples=scaled(2000), deadline=None)
 @given(u16, u32, u32, i64, unit_quaternions(), st.integers(0, 255),
        st.lists(st.floats(width=32, allow_nan=False, allow_infinity=False), min_size=3, max_size=3))
 def test_c_encoder_and_python_codec_agree_on_points_with_a_rate(stream, seq, index, t_us, q, flags, omega):

@@ -14,6 +14,7 @@
 #ifndef SW_H
 #define SW_H
 
+#include "baselines.h"
 #include "fastsw.h"
 
 #ifdef __cplusplus
@@ -22,12 +23,7 @@ extern "C" {
 
 /** Caller-owned SW state; holds up to SW_MAX_LEN samples. Fields are private. */
 typedef struct {
-    FastswSettings settings;
-    uint32_t next_index;
-    uint32_t count;                             /**< buffered samples after the anchor */
-    uint32_t started;
-    FastswPoint anchor;
-    FastswPoint prev;
+    BaselineStream stream;                      /**< count: buffered samples after the anchor */
     float t_rel[SW_MAX_LEN];                    /**< t_i - t_a of the buffered samples */
     float y_rel[SW_MAX_LEN][FASTSW_MAX_DIM];    /**< y_i - y_a of the buffered samples */
 } SwState;

@@ -3,27 +3,11 @@
  */
 #include "sw.h"
 
-#include "fastsw_batch.h"
-#include "kernel_common.h"
+#include "baseline_common.h"
 
 FastswStatus sw_init(SwState *state, const FastswSettings *settings)
 {
-    FastswSettings capped = *settings;
-    FastswState probe; /* reuse fastSW's validation and sanitising */
-
-    if (capped.max_len > SW_MAX_LEN) {
-        capped.max_len = SW_MAX_LEN;
-    }
-    if (fastsw_init(&probe, &capped) != FASTSW_NONE) {
-        return FASTSW_BAD_SETTINGS;
-    }
-    state->settings = probe.settings;
-    state->next_index = 0u;
-    state->count = 0u;
-    state->started = 0u;
-    state->anchor = probe.anchor;
-    state->prev = probe.prev;
-    return FASTSW_NONE;
+    return baseline_init(&state->stream, settings, SW_MAX_LEN);
 }
 
 /** SSR of the buffered samples against the line from the anchor to (tn, yn): eq. (9). */
@@ -32,7 +16,7 @@ static float buffered_ssr(const SwState *s, uint32_t dim, float tn, const float 
     const float r = 1.0f / tn;
     float ssr = 0.0f;
     uint32_t i, d;
-    for (i = 0u; i < s->count; i++) {
+    for (i = 0u; i < s->stream.count; i++) {
         const float u = s->t_rel[i] * r;
         for (d = 0u; d < dim; d++) {
             const float e = s->y_rel[i][d] - u * yn[d];
@@ -44,69 +28,53 @@ static float buffered_ssr(const SwState *s, uint32_t dim, float tn, const float 
 
 FastswStatus sw_update(SwState *s, uint32_t t, const float *y, FastswPoint *point)
 {
-    const uint32_t dim = FASTSW_DIM(&s->settings);
-    const uint32_t index = s->next_index++;
+    BaselineStream *b = &s->stream;
+    const uint32_t dim = FASTSW_DIM(&b->settings);
+    const uint32_t index = b->next_index++;
     float yn[FASTSW_MAX_DIM];
     float tn, nn;
-    FastswStatus status = FASTSW_NONE;
+    FastswStatus status = baseline_open(b, dim, index, t, y, point, yn, &nn);
     uint32_t d;
 
-    if (!s->started) {
-        status = start_stream(&s->anchor, &s->prev, dim, index, t, y, point);
-        s->started = (status == FASTSW_POINT);
+    if (status != FASTSW_NONE) {
         return status;
     }
-    if ((int32_t)(t - s->prev.t) <= 0) {
-        return FASTSW_REJECTED;
-    }
-    tn = (float)(uint32_t)(t - s->anchor.t);
-    nn = relative_sample(s->anchor.y, dim, y, yn);
-    if (!(nn <= FASTSW_NN_LIMIT)) {
-        return FASTSW_REJECTED;
-    }
-    if (s->count >= s->settings.max_len || buffered_ssr(s, dim, tn, yn) > s->settings.threshold) {
+    tn = (float)(uint32_t)(t - b->anchor.t);
+    if (b->count >= b->settings.max_len || buffered_ssr(s, dim, tn, yn) > b->settings.threshold) {
         status = FASTSW_POINT;
-        *point = s->prev;
-        s->anchor = s->prev;
-        s->count = 0u;
-        tn = (float)(uint32_t)(t - s->anchor.t);
-        nn = relative_sample(s->anchor.y, dim, y, yn);
+        *point = b->prev;
+        b->anchor = b->prev;
+        b->count = 0u;
+        tn = (float)(uint32_t)(t - b->anchor.t);
+        (void)relative_sample(b->anchor.y, dim, y, yn);
     }
-    s->t_rel[s->count] = tn;
+    s->t_rel[b->count] = tn;
     for (d = 0u; d < dim; d++) {
-        s->y_rel[s->count][d] = yn[d];
+        s->y_rel[b->count][d] = yn[d];
     }
-    s->count++;
-    store_point(&s->prev, dim, index, t, y);
+    b->count++;
+    store_point(&b->prev, dim, index, t, y);
     return status;
 }
 
 FastswStatus sw_flush(SwState *s, FastswPoint *point)
 {
-    if (!s->started || s->prev.index == s->anchor.index) {
+    BaselineStream *b = &s->stream;
+    if (!b->started || b->prev.index == b->anchor.index) {
         return FASTSW_NONE;
     }
-    *point = s->prev;
-    s->anchor = s->prev;
-    s->count = 0u;
+    *point = b->prev;
+    b->anchor = b->prev;
+    b->count = 0u;
     return FASTSW_POINT;
 }
 
-/** sw_update / sw_flush over an opaque state, for the batch driver. */
-static FastswStatus update_any(void *state, uint32_t t, const float *y, FastswPoint *point)
-{
-    return sw_update((SwState *)state, t, y, point);
-}
-
-static FastswStatus flush_any(void *state, FastswPoint *point)
-{
-    return sw_flush((SwState *)state, point);
-}
+BASELINE_BATCH_ADAPTERS(sw, SwState)
 
 size_t sw_segment(SwState *work, const FastswSettings *settings, const uint32_t *t, const float *y,
                   size_t m, uint32_t *out_index, size_t *rejected)
 {
-    static const FastswKernel kernel = {update_any, flush_any, NULL};
+    static const FastswKernel kernel = {sw_update_any, sw_flush_any, NULL};
 
     if (sw_init(work, settings) != FASTSW_NONE) {
         if (rejected != NULL) {

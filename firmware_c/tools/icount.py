@@ -285,24 +285,23 @@ def report_imu(result: dict) -> str:
     return "\n".join(lines)
 
 
+def _branch_table(result: dict, title: str, branches: tuple, width: int, kind: str) -> list[str]:
+    """A table of calls, min and max instructions per branch, and their total line, then a blank line."""
+    lines = [title, f"{'branch':<{width}}{'calls':>7}{'min':>7}{'max':>7}"]
+    for branch in branches:
+        c = result["fastsw"][branch]
+        lines.append(f"{branch:<{width}}{len(c):>7}{min(c):>7}{max(c):>7}")
+    lines.append(f"{'all':<{width}}{sum(len(result['fastsw'][b]) for b in branches):>7}"
+                 f"{result[kind + '_min']:>7}{result[kind + '_max']:>7}   max: {result[kind + '_max_branch']}")
+    return lines + [""]
+
+
 def report(result: dict) -> str:
     """The printed table."""
-    lines = ["fastsw_update, instructions per call (Cortex-M4, QEMU mps2-an386)",
-             f"{'branch':<15}{'calls':>7}{'min':>7}{'max':>7}"]
-    for branch in FASTSW_BRANCHES:
-        c = result["fastsw"][branch]
-        lines.append(f"{branch:<15}{len(c):>7}{min(c):>7}{max(c):>7}")
-    lines.append(f"{'all':<15}{sum(len(result['fastsw'][b]) for b in FASTSW_BRANCHES):>7}"
-                 f"{result['fastsw_min']:>7}{result['fastsw_max']:>7}   max: {result['fastsw_max_branch']}")
-    lines.append("")
-    lines.append("fastsw_update with the live rule on, instructions per call")
-    lines.append(f"{'branch':<20}{'calls':>7}{'min':>7}{'max':>7}")
-    for branch in LIVE_BRANCHES:
-        c = result["fastsw"][branch]
-        lines.append(f"{branch:<20}{len(c):>7}{min(c):>7}{max(c):>7}")
-    lines.append(f"{'all':<20}{sum(len(result['fastsw'][b]) for b in LIVE_BRANCHES):>7}"
-                 f"{result['live_min']:>7}{result['live_max']:>7}   max: {result['live_max_branch']}")
-    lines.append("")
+    lines = _branch_table(result, "fastsw_update, instructions per call (Cortex-M4, QEMU mps2-an386)",
+                          FASTSW_BRANCHES, 15, "fastsw")
+    lines += _branch_table(result, "fastsw_update with the live rule on, instructions per call",
+                           LIVE_BRANCHES, 20, "live")
     lines.append("sw_update, instructions per call vs samples n in the current segment")
     counts = dict(zip(result["sw_n"], result["sw_count"]))
     lines.append("  ".join(f"n={n}: {counts[n]}" for n in (1, 2, 10, 50, 100, 200) if n in counts))

@@ -63,8 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except zconfig.ConnectError as exc:
-        from limbstream.cli.zenoh_args import HINT
-        print(f"limbstream {name}: error: {exc} ({HINT})", file=sys.stderr)
+        from limbstream.cli.flags import CONNECT_HINT
+        print(f"limbstream {name}: error: {exc} ({CONNECT_HINT})", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130

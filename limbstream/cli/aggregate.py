@@ -7,7 +7,7 @@ import logging
 import threading
 
 from limbstream import wire
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator import main as aggregator
 from limbstream.services.aggregator.aggregator import AggregatorSettings
@@ -17,8 +17,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--subjects", default="*",
                         help="comma-separated subject key chunks or patterns this instance serves "
                              "(default '*': all; e.g. 's0*' or 's01,s02' to shard)")
-    parser.add_argument("--rate", type=float, default=50.0, help="exact frame rate, Hz (default 50)")
-    parser.add_argument("--live-rate", type=float, default=50.0, help="live frame rate, Hz (0: none; default 50, the devices' rate)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"exact frame rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
+    parser.add_argument("--live-rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"live frame rate, Hz (0: none; default {wire.DEVICE_RATE_HZ:g}, the devices' rate)")
     parser.add_argument("--tick", type=float, default=0.02, help="loop period, s (default 0.02)")
     parser.add_argument("--frame-batch", type=float, default=0.0,
                         help="build exact frames at most every this many s (0: every tick)")
@@ -37,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep the devices' calibrations in this JSON file, so that a restarted aggregator "
                              "has them (default: not kept)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zenoh_args.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
@@ -64,4 +66,4 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(message)s")
     settings = settings_from_args(args)
-    return aggregator.run(settings, zenoh_args.session_settings(args, "limbstream aggregate"), stop)
+    return aggregator.run(settings, flags.session_settings(args, "limbstream aggregate"), stop)

@@ -9,7 +9,7 @@ import time
 import zenoh
 
 from limbstream import wire, zconfig
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 
 PROG = "limbstream calibrate"
 
@@ -21,12 +21,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "yaw: heading only, in the rest pose")
     parser.add_argument("--countdown", type=float, default=0.0, metavar="S",
                         help="count down this many seconds first, to get into the pose (default 0)")
-    zenoh_args.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def answers(replies, poll_s: float = 0.05) -> list:
     """Every reply of a query, taken without blocking in Zenoh (so that Ctrl-C stops the wait)."""
-    got = []
+    got: list = []
     while True:
         try:
             reply = replies.try_recv()
@@ -47,7 +47,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.countdown >= 0:
         print(f"limbstream calibrate: error: --countdown must be >= 0, got {args.countdown}", file=sys.stderr)
         return 2
-    session = zconfig.open_session(zenoh_args.session_settings(args, PROG))
+    session = zconfig.open_session(flags.session_settings(args, PROG))
+    if session is None:  # (only with a stop event)
+        return 0
     try:
         for left in range(int(round(args.countdown)), 0, -1):
             print(f"hold the {args.pose} pose in {left} ...", flush=True)
@@ -62,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     reply = replies[0]
     if reply.ok is None:
-        print(f"limbstream calibrate: error: {reply.err.payload.to_string()}", file=sys.stderr)
+        error = reply.err.payload.to_string() if reply.err is not None else "no answer"
+        print(f"limbstream calibrate: error: {error}", file=sys.stderr)
         return 1
     answer = wire.decode_calibrate_answer(reply.ok.payload.to_bytes())
     if not answer.ok:

@@ -6,7 +6,7 @@ import argparse
 import logging
 import threading
 
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 from limbstream.services.clock import main as clock
 from limbstream.services.clock.service import ClockServiceSettings
 
@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     test.add_argument("--jump-ms", type=float, default=0.0, help="the served clock jumps by this much once")
     test.add_argument("--jump-after-s", type=float, default=0.0, help="... this many wall seconds after the start")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zenoh_args.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> ClockServiceSettings:
@@ -47,4 +47,4 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(message)s")
     settings = settings_from_args(args)
-    return clock.run(settings, zenoh_args.session_settings(args, "limbstream clock"), stop)
+    return clock.run(settings, flags.session_settings(args, "limbstream clock"), stop)

@@ -9,12 +9,12 @@ import threading
 from pathlib import Path
 
 from limbstream import calibration, wire
-from limbstream.cli import zenoh_args
-from limbstream.cli.values import add_names_argument
+from limbstream.cli import flags
 from limbstream.device_emulator import main as emulator
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.device.clocks import ClockSettings
+from limbstream.device.host import HostSettings
 from limbstream.device_emulator.emulator import EmulatorSettings
-from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.device.feeds import GeneratorFeed, LoopFeed
 from limbstream.device_emulator.main import subject_names
 from limbstream.sources import MotionFileError, load
 
@@ -26,6 +26,7 @@ def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
     clips the subjects share in turn (:func:`clip_of`); ``scripted``: each begins with the
     calibration script (limbstream.calibration)."""
     names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
+    feeds: dict[str, GeneratorFeed | LoopFeed]
     if args.source == "generator":
         feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
                  for i, name in enumerate(names)}
@@ -68,9 +69,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_source_arguments(parser)
     parser.add_argument("--once", action="store_true", help="play a file source once, then flush and idle")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
-    parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"device sample rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = real time)")
-    wire.add_arguments(parser)  # --threshold, --max-len: the device tunables
+    flags.add_device_config(parser)  # --threshold, --max-len: the device tunables
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
@@ -82,14 +84,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the device firmware to run (default: build firmware_c/build/device.elf with make)")
     parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
     add_clock_arguments(parser)
-    calibration.add_arguments(parser)
+    flags.add_sensor_model(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
-    zenoh_args.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> None:
     """The flags of a file source that ``limbstream up`` passes on (``--names``, ``--same-start``)."""
-    add_names_argument(parser)
+    flags.add_names(parser)
     parser.add_argument("--same-start", action="store_true",
                         help="subjects that share a clip play it in step (default: each further one starts "
                              f"{100 * START_STEP:.1f} %% of the clip further in)")
@@ -178,21 +180,21 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
                         format="%(asctime)s %(name)s %(message)s")
     validate(args)
     try:
-        sensors = calibration.from_args(args)
+        sensors = flags.sensor_model(args)
         feeds = build_feeds(args, scripted=sensors.on)
     except (MotionFileError, ValueError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if args.firmware:
         return run_firmware(args, feeds, settings_of(args, sensors), stop)
     settings = settings_of(args, sensors)
-    return emulator.run(feeds, settings, zenoh_args.session_settings(args, PROG), args.duration, args.verbose, stop)
+    return emulator.run(feeds, settings, flags.session_settings(args, PROG), args.duration, args.verbose, stop)
 
 
 def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
     """The EmulatorSettings of the flags."""
-    return EmulatorSettings(fs=args.rate, speed=args.speed, config=wire.config_from_args(args),
-                            truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
-                            clock=clock_settings(args),
+    return EmulatorSettings(HostSettings(fs=args.rate, config=flags.device_config(args), truth=args.truth,
+                                         raw_batch=args.raw_batch, cache=args.cache),
+                            speed=args.speed, clock=clock_settings(args),
                             anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
                             clock_id=args.first_subject, sensors=sensors)
 
@@ -212,4 +214,5 @@ def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettin
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if not elf.exists():
         raise SystemExit(f"limbstream emulate: error: no firmware at {elf}")
-    return firmware_devices.run(feeds, settings, zenoh_args.session_settings(args, PROG), elf, args.duration, stop)
+    return firmware_devices.run(feeds, settings.host, settings.speed, flags.session_settings(args, PROG), elf,
+                               args.duration, stop)

@@ -16,7 +16,7 @@ import numpy as np
 
 from limbstream import calibration, kernel
 from limbstream.calibration import CalibrationError
-from limbstream.cli.values import add_names_argument, comma_list
+from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
                                    format_joint_errors, format_table, frontier, streams_of, write_json)
 from limbstream.evaluation.table import Progress
@@ -146,21 +146,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``limbstream eval``; every list flag takes ``A,B,C``."""
     parser.add_argument("paths", nargs="+", metavar="PATH",
                         help="motion files (.npz, .bvh, x-IMU3 .csv, Xsens .txt) or folders of them")
-    parser.add_argument("--algorithms", type=comma_list(_algorithm), default=None, metavar="NAME[,NAME...]",
+    parser.add_argument("--algorithms", type=flags.comma_list(_algorithm), default=None, metavar="NAME[,NAME...]",
                         help=f"algorithms to compare (default: {','.join(ALGORITHMS)}; fastsw with --live-bound)")
-    parser.add_argument("--live-bound", type=comma_list(_live_bound), default=None, metavar="DEG[,DEG...]",
+    parser.add_argument("--live-bound", type=flags.comma_list(_live_bound), default=None, metavar="DEG[,DEG...]",
                         help="run fastSW's live rule at these bounds, degrees (0: the plain rules); rows gain the "
                              "live error; --plot draws the live frontier")
     parser.add_argument("--predictor", choices=PREDICTORS, default="rate",
                         help="the points' rates for the live error: rate (the live rule's, through the "
                              "neighbouring sample; the C kernel), slope (the closed segment's) or hold (default rate)")
-    parser.add_argument("--thresholds", type=comma_list(_threshold), default=None, metavar="TH[,TH...]",
+    parser.add_argument("--thresholds", type=flags.comma_list(_threshold), default=None, metavar="TH[,TH...]",
                         help="evaluate these thresholds, one row each, instead of the paper's sweep (0 and 205 "
                              "values 1e-6..1e3) shown at the ICRs 0.05, 0.10, 0.25, 0.50")
     parser.add_argument("--max-len", type=_positive_int, default=MAX_LEN,
                         help=f"largest segment length, samples (default {MAX_LEN})")
-    add_names_argument(parser)
-    calibration.add_arguments(parser)
+    flags.add_names(parser)
+    flags.add_sensor_model(parser)
     parser.add_argument("--calibration", type=_calibration, default=None, metavar="none|rest|rest,mounting",
                         help="with a sensor model: the calibration before the body error (default rest,mounting)")
     parser.add_argument("--joint-angles", action="store_true",
@@ -172,8 +172,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _fail(message: str) -> int:
-    print(f"limbstream eval: error: {message}", file=sys.stderr)
-    return 2
+    return flags.fail("limbstream eval", message)
 
 
 def _note(message: str) -> None:
@@ -227,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"--joint-angles: {', '.join(real)}: a recording of real sensors has no true joint angles "
                      "(its orientations are not the segments' own); score motion files (.npz, .bvh)")
     try:
-        sensors = calibration.from_args(args)
+        sensors = flags.sensor_model(args)
     except ValueError as exc:
         return _fail(str(exc))
     poses = CALIBRATIONS[-1] if args.calibration is None else args.calibration
@@ -270,7 +269,7 @@ def _report(args: argparse.Namespace, motions: list[Motion], streams: list, n_sa
     print("rows: each threshold given" if explicit else
           f"rows: the measures at ICR {', '.join(f'{c:.2f}' for c in ICR_TARGETS)}, interpolated over the paper's "
           "threshold sweep")
-    print(format_table(rows, algorithms, None if explicit else ICR_TARGETS, live_bounds=bounds))
+    print(format_table(rows, algorithms, None if explicit else ICR_TARGETS, live_bound_deg=bounds))
     if args.joint_angles:
         print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")
         print(format_joint_errors(rows))

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from limbstream import wire
-from limbstream.cli.values import add_names_argument
+from limbstream.cli import flags
 from limbstream.services.outputs.export import FORMATS, ExportError, export, read_take
 
 PROG = "limbstream export"
@@ -26,23 +26,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=None,
                         help="override the input's rest pose (default: the data's own: tpose for BVH and npz "
                              "without a rest_pose entry, standing for IMU files; recordings: their frames' flags)")
-    add_names_argument(parser)
-
-
-def fail(message: str) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return 2
+    flags.add_names(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     fmt = args.format or Path(args.output).suffix.lower().lstrip(".")
     if fmt not in FORMATS:
-        return fail(f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
+        return flags.fail(PROG, f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
     try:
         take = read_take(args.source, args.subject, args.rest_pose, args.names)
         export(take, fmt, args.output)
     except ExportError as exc:
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     for note in take.notes + [f"calibration: {take.basis}"]:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     seconds = len(take) * take.period_us / 1e6

@@ -7,8 +7,9 @@ import argparse
 import logging
 
 from limbstream import wire, zconfig
-from limbstream.cli import zenoh_args
-from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
+from limbstream.cli import flags
+from limbstream.device.feeds import GeneratorFeed, LoopFeed
+from limbstream.device.host import HostSettings
 from limbstream.signals import stop_on_signals
 from limbstream.sources import MotionFileError, load
 
@@ -22,11 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="feed the device this motion, standing in for its IMU: 'generator' or a motion file "
                              "(its truth tap is published); default: the device samples its own IMU")
     parser.add_argument("--once", action="store_true", help="play a file source once, then end the stream and idle")
-    parser.add_argument("--rate", type=float, default=50.0, help="sample rate fed, Hz (default 50)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"sample rate fed, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the feeding (default 1 = real time)")
     parser.add_argument("--seed", type=int, default=1, help="generator seed (default 1: subject s01's)")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
-    wire.add_arguments(parser)  # the device tunables, given to the device at every (re)start
+    flags.add_device_config(parser)  # the device tunables, given to the device at every (re)start
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept for recovery (default 512)")
@@ -36,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a device not heard from for this long (it sends a heartbeat every second) is offline: "
                              "its link is reopened as a new stream (default 10)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zenoh_args.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def feeding(args: argparse.Namespace):
@@ -52,7 +54,7 @@ def feeding(args: argparse.Namespace):
     if args.segment not in feed.segments:
         raise SystemExit(f"limbstream gateway serial: error: --segment {args.segment!r} is not in the source's "
                          f"segments {list(feed.segments)}")
-    return Feeding(feed, list(feed.segments).index(args.segment), args.rate), feed.rest_pose
+    return Feeding(feed, list(feed.segments).index(args.segment)), feed.rest_pose
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,22 +74,32 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"limbstream gateway serial: error: {exc}") from None
     feed, rest_pose = feeding(args)
     stop = stop_on_signals()
-    session = zconfig.open_session(zenoh_args.session_settings(args, "limbstream gateway serial"), stop)
+    session = zconfig.open_session(flags.session_settings(args, "limbstream gateway serial"), stop)
     if session is None:
         return 0
     with session:
-        gateway = serial_gateway.SerialGateway(
-            session, lambda: SerialLink(args.port, args.link_timeout if not gateway.counters.links else 0.5), args.subject, args.segment,
-            wire.config_from_args(args), feed, truth=args.truth, raw_batch=args.raw_batch, cache=args.cache,
-            rest_pose=rest_pose, silence_s=args.silence_s)
+        host = serial_gateway.serial_host(session, HostSettings(
+            fs=args.rate, config=flags.device_config(args), truth=args.truth and feed is not None,
+            raw_batch=args.raw_batch, cache=args.cache))
+        host.declare()
+        links: list[SerialLink] = []  # a longer wait for the first link, then the reconnects' short one
+
+        def connect() -> SerialLink:
+            links.append(SerialLink(args.port, args.link_timeout if not links else 0.5))
+            return links[-1]
+
+        gateway = serial_gateway.SerialGateway(host, connect, args.subject, args.segment, feed, rest_pose=rest_pose,
+                                               silence_s=args.silence_s)
         if not gateway.open():
             gateway.close()
+            host.close()
             raise SystemExit(f"limbstream gateway serial: error: no device on {args.port}")
         print(f"gateway serial: {gateway.id} on {args.port}, stream {gateway.stream}"
               + ("" if feed is None else f", fed {args.source} at {args.rate:g} Hz x{args.speed:g}"), flush=True)
         try:
-            serial_gateway.run([gateway], stop, args.rate, args.speed, args.duration)
+            serial_gateway.run(host, [gateway], stop, args.speed, args.duration)
         finally:
             print(f"gateway serial: {gateway.summary()}", flush=True)
             gateway.close()
+            host.close()
     return 0

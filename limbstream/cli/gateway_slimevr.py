@@ -9,8 +9,9 @@ import socket
 import threading
 
 from limbstream import wire, zconfig
-from limbstream.cli import zenoh_args
-from limbstream.device_emulator.device_clocks import ClockSettings
+from limbstream.cli import flags
+from limbstream.device.clocks import ClockSettings
+from limbstream.device.host import HostSettings
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.signals import stop_on_signals
 
@@ -64,10 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--assignments-file", metavar="PATH",
                         help="keep the assignments made at run time (dashboard, REST) in this JSON file: "
                              "loaded at start, over --assign; rewritten after each change")
-    parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
+    parser.add_argument("--rate", type=float, default=wire.DEVICE_RATE_HZ,
+                        help=f"device sample rate, Hz (default {wire.DEVICE_RATE_HZ:g})")
     parser.add_argument("--delay-ms", type=float, default=30.0,
                         help="grid samples are taken this long in the past (default 30 ms)")
-    wire.add_arguments(parser, defaults=wire.LIVE_MODE)  # live mode, as under limbstream up
+    flags.add_device_config(parser, defaults=wire.LIVE_MODE)  # live mode, as under limbstream up
     parser.add_argument("--no-truth", dest="truth", action="store_false",
                         help="do not publish the truth tap (every tracker packet)")
     parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
@@ -83,7 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--sync-wait-s", type=float, default=10.0,
                        help="at start, wait at most this long for the first time answers (default 10)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zenoh_args.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def validate(args: argparse.Namespace) -> None:
@@ -104,9 +106,10 @@ def validate(args: argparse.Namespace) -> None:
 def settings_from_args(args: argparse.Namespace):
     from limbstream.services.gateway.slimevr import GatewaySettings
     assign = {key: (subject or args.subject, segment) for key, (subject, segment) in args.assign}
-    return GatewaySettings(subject=args.subject, name=args.name, assign=assign, fs=args.rate, delay_ms=args.delay_ms,
-                           config=wire.config_from_args(args), truth=args.truth, raw_batch=args.raw_batch,
-                           cache=args.cache, timeout_s=args.timeout, max_devices=args.max_devices,
+    host = HostSettings(fs=args.rate, config=flags.device_config(args), truth=args.truth, raw_batch=args.raw_batch,
+                        cache=args.cache)
+    return GatewaySettings(subject=args.subject, name=args.name, assign=assign, host=host, delay_ms=args.delay_ms,
+                           timeout_s=args.timeout, max_devices=args.max_devices,
                            clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)),
                            assignments_file=args.assignments_file)
 
@@ -124,7 +127,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         raise SystemExit(f"limbstream gateway slimevr: error: cannot listen on {args.udp[0]}:{args.udp[1]}: "
                          f"{exc.strerror or exc}") from None
     stop = stop_on_signals(stop)
-    session = zconfig.open_session(zenoh_args.session_settings(args, "limbstream gateway slimevr"), stop)
+    session = zconfig.open_session(flags.session_settings(args, "limbstream gateway slimevr"), stop)
     if session is None:
         return 0
     with session, sock:
@@ -134,7 +137,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             raise SystemExit(f"limbstream gateway slimevr: error: {exc}") from None
         gateway.declare()
         host, port = sock.getsockname()[:2]
-        print(f"slimevr gateway {settings.name} on udp {host}:{port}, subject {settings.subject}, {settings.fs:g} Hz, "
+        print(f"slimevr gateway {settings.name} on udp {host}:{port}, subject {settings.subject}, {settings.host.fs:g} Hz, "
               f"{len(settings.assign)} assignments", flush=True)
         gateway.run(stop, on_report=lambda r: print("slimevr " + json.dumps(r, default=str), flush=True),
                     report_s=args.report_s)

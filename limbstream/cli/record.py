@@ -9,7 +9,7 @@ import sys
 import threading
 
 from limbstream import wire
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs.record import Recorder, summary_line
 from limbstream.services.outputs.recording import RecordingError, RecordingWriter
@@ -31,37 +31,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ask devices for their settings every this many s, record changes (0: never; default 5)")
     parser.add_argument("--no-skeleton", dest="skeleton", action="store_false",
                         help="do not write the Foxglove skeleton channel")
-    zenoh_args.add_arguments(parser)
-
-
-def fail(message: str) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return 2
+    flags.add_zenoh(parser)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     try:
         wire.subject_pattern(args.subjects)
     except ValueError as exc:
-        return fail(f"--subjects: {exc}")
+        return flags.fail(PROG, f"--subjects: {exc}")
     if args.duration is not None and not args.duration > 0:
-        return fail(f"--duration must be > 0, got {args.duration:g}")
+        return flags.fail(PROG, f"--duration must be > 0, got {args.duration:g}")
     if args.history < 1 or args.config_poll < 0:
-        return fail("--history must be >= 1 and --config-poll >= 0")
-    settings = zenoh_args.from_args(args)
+        return flags.fail(PROG, "--history must be >= 1 and --config-poll >= 0")
+    settings = flags.zenoh_settings(args)
     metadata = {"subjects": args.subjects, "truth": str(args.truth).lower(), "host": socket.gethostname(),
                 "connect": ",".join(settings.connect)}
     try:
         writer = RecordingWriter(args.out, metadata, skeleton=args.skeleton)
     except RecordingError as exc:
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     stop = stop_on_signals(stop)
     try:
-        zenoh_args.announce(PROG, settings)
+        flags.announce(PROG, settings)
         session = open_session(settings, stop)
     except ValueError as exc:
         writer.discard()
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     except BaseException:  # no router in time (zconfig.ConnectError), Ctrl-C: no file is left
         writer.discard()
         raise

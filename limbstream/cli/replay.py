@@ -8,7 +8,7 @@ import sys
 import threading
 
 from limbstream import wire
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs.recording import Recording, RecordingError
 from limbstream.services.outputs.replay import Replayer, ReplaySettings
@@ -28,33 +28,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="publish the recorded truth batches too (default: yes)")
     parser.add_argument("--hold", type=float, default=2.0,
                         help="keep the devices online this many s after the last message (default 2)")
-    zenoh_args.add_arguments(parser)
-
-
-def fail(message: str) -> int:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    return 2
+    flags.add_zenoh(parser)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     if not args.speed > 0:
-        return fail(f"--speed must be > 0, got {args.speed:g}")
+        return flags.fail(PROG, f"--speed must be > 0, got {args.speed:g}")
     if not args.hold >= 0:
-        return fail(f"--hold must be >= 0, got {args.hold:g}")
+        return flags.fail(PROG, f"--hold must be >= 0, got {args.hold:g}")
     try:
         wire.check_chunk(args.subject_prefix + "s", "--subject-prefix (+ a subject)")
     except ValueError as exc:
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     try:
         recording = Recording(args.recording)
         recording.check()
     except RecordingError as exc:
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     stop = stop_on_signals(stop)
     try:
-        session = open_session(zenoh_args.session_settings(args, PROG), stop)
+        session = open_session(flags.session_settings(args, PROG), stop)
     except ValueError as exc:
-        return fail(str(exc))
+        return flags.fail(PROG, str(exc))
     if session is None:
         return 0
     settings = ReplaySettings(speed=args.speed, loop=args.loop, subject_prefix=args.subject_prefix,
@@ -66,7 +61,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             stats = replayer.run(stop, lambda line: print(line, flush=True))
         except RecordingError as exc:
             replayer.close()
-            return fail(str(exc))
+            return flags.fail(PROG, str(exc))
     if recording.truncated:
         print(f"{PROG}: warning: {args.recording}: {recording.truncated}; replayed what it holds", file=sys.stderr)
     bad = {**stats.undecodable, **{f"{k}_key": n for k, n in stats.skipped.items()}}

@@ -9,7 +9,7 @@ import threading
 import zenoh
 
 from limbstream import zconfig
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 from limbstream.signals import stop_on_signals
 
 
@@ -24,13 +24,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     """Serve until SIGINT/SIGTERM (or ``stop`` is set)."""
     args.mode = "router"
-    settings = zenoh_args.from_args(args)
+    settings = flags.zenoh_settings(args)
     stop = stop_on_signals(stop)
     try:
         session = zconfig.open_session(settings)
     except zenoh.ZError as exc:  # e.g. the port is taken: one line, without Zenoh's source locations
         raise SystemExit(f"limbstream router: error: --listen {args.listen}: "
                          f"{re.sub(r' at [^ ]+[.]rs:[0-9]+[.]?', '', str(exc))}") from None
+    if session is None:  # (a router does not wait for another)
+        return 0
     with session:
         print(f"zenoh router {session.zid()} listening on {', '.join(settings.listen)}", flush=True)
         stop.wait()

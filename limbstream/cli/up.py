@@ -33,8 +33,8 @@ from pathlib import Path
 
 from limbstream.cli.emulate import add_clock_arguments, add_source_arguments, check_clock, clip_of, clock_flags
 from limbstream.cli.gateway_slimevr import parse_address
-from limbstream.cli.values import names_flags
-from limbstream import calibration, sources, wire, zconfig
+from limbstream import sources, wire, zconfig
+from limbstream.cli import flags
 from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
 from limbstream.services.dashboard.supervision import STATUS_ENV  # the status file's path, for the dashboard
@@ -61,12 +61,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
     # the device tunables, passed on to the emulators; live mode on by default (wire.LIVE_MODE)
-    wire.add_arguments(parser, defaults=wire.LIVE_MODE)
+    flags.add_device_config(parser, defaults=wire.LIVE_MODE)
     parser.add_argument("--no-truth", action="store_true", help="devices do not publish the truth tap")
     parser.add_argument("--firmware", action="store_true",
                         help="the devices run their firmware under QEMU (emulate --firmware: one process per device)")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
-    calibration.add_arguments(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
+    flags.add_sensor_model(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
                         help="also start the SlimeVR gateway: trackers send to this UDP port (their default: 6969); "
@@ -85,7 +85,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     """(name, ``limbstream`` arguments) of the time service, the emulators and the aggregator, in
     start order."""
     connect = ["--connect", args.router, "--connect-timeout", "0"]  # parts wait for a restarted router
-    sensors = calibration.from_args(args)
+    sensors = flags.sensor_model(args)
     parts = []
     # a scaled time base (--speed) is shared by the time service and the devices: one anchor
     anchor = [] if args.speed == 1 else ["--time-anchor", f"{time.time():.3f}"]
@@ -98,18 +98,18 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         if count <= 0:
             break
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
-                *names_flags(args.names), *(["--same-start"] if args.same_start else []),
-                "--speed", str(args.speed), *wire.config_from_args(args).flags(), *clock_flags(args), *anchor]
+                *flags.names_argv(args.names), *(["--same-start"] if args.same_start else []),
+                "--speed", str(args.speed), *flags.device_config(args).flags(), *clock_flags(args), *anchor]
         if args.no_truth:
             argv.append("--no-truth")
         if args.firmware:
             argv.append("--firmware")
         if sensors.on:
-            argv += calibration.flags(sensors)
+            argv += flags.sensor_model_argv(sensors)
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
     if args.slimevr is not None:
         argv = ["gateway", "slimevr", "--udp", args.slimevr, "--subject", args.slimevr_subject,
-                *wire.config_from_args(args).flags()]
+                *flags.device_config(args).flags()]
         argv += (["--no-truth"] if args.no_truth else []) + ([] if args.sync else ["--no-sync"])
         if args.status_file is not None:  # run-time assignments kept beside the status file, as calibrations
             argv += ["--assignments-file", str(Path(args.status_file).with_name("slimevr-assignments.json"))]
@@ -201,7 +201,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     if args.slimevr is not None:
         parse_address(args.slimevr)
         wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
-    calibration.from_args(args)  # a bad sensor bound
+    flags.sensor_model(args)  # a bad sensor bound
     check_clock(args)
     if args.source == "generator":
         if args.names is not None:
@@ -233,6 +233,21 @@ def running(devices: list[tuple[str, ...]], args: argparse.Namespace) -> str:
     if args.slimevr is not None:
         what += " and the SlimeVR trackers"
     return f"{what}, source {args.source}"
+
+
+def supervise(supervisor: Supervisor, status_file: Path, stop: threading.Event) -> int:
+    """Restart the parts that exit until ``stop``; 1 when one keeps exiting (its last lines said)."""
+    while not stop.wait(POLL_S):
+        try:
+            if supervisor.poll():
+                write_status(status_file, "running", supervisor)
+        except CrashLoop as exc:
+            say(f"{exc}; stopping")
+            print(f"last lines of {exc.child.name}'s output:", file=sys.stderr)
+            for line in exc.child.tail(10):
+                print(f"  {line}", file=sys.stderr)
+            return 1
+    return 0
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
@@ -268,17 +283,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         write_status(status_file, "running", supervisor)
         banner(args, launcher, devices, dashboard_vars if dashboard else None, status_file)
         print("\nCtrl-C stops everything.\n", flush=True)
-        while not stop.wait(POLL_S):
-            try:
-                if supervisor.poll():
-                    write_status(status_file, "running", supervisor)
-            except CrashLoop as exc:
-                say(f"{exc}; stopping")
-                print(f"last lines of {exc.child.name}'s output:", file=sys.stderr)
-                for line in exc.child.tail(10):
-                    print(f"  {line}", file=sys.stderr)
-                return 1
-        return 0
+        return supervise(supervisor, status_file, stop)
     except KeyboardInterrupt:
         return 130
     finally:

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from limbstream import wire, zconfig
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs import vmc
 from limbstream.services.outputs.subscription import Subscription
@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wait", type=float, default=30.0,
                         help="exit with an error if a subject sends no pose frame within this many "
                              "seconds (0: wait forever; default 30)")
-    zenoh_args.add_arguments(parser)
+    flags.add_zenoh(parser)
 
 
 def _error(message: str) -> int:
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
             targets[subject] = vmc.parse_target(to)
         except ValueError as exc:
             return _error(f"--to {to}: {exc}")
-    settings = zenoh_args.session_settings(args, "limbstream vmc")
+    settings = flags.session_settings(args, "limbstream vmc")
     stop = stop_on_signals()
     session = zconfig.open_session(settings, stop)
     if session is None:
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         session.close()
     if missing is not None:
         return _error(f"--subject {missing}: no pose frame in {args.wait:g} s (is it running? "
-                      f"limbstream watch {missing} --kind any)")
+                      f"limbstream watch {missing} --kind auto)")
     c = sender.counters
     dropped = sum(sum(sub.errors.values()) for sub in subs)
     print(f"limbstream vmc: {c.sent} bundles sent, {c.bad} bad frames, {c.send_errors} send errors, "

@@ -2,21 +2,26 @@
 Zenoh through the outputs' subscription (:mod:`limbstream.services.outputs.subscription`, which also
 holds :func:`subscribe_pose` for Python programs). It shows live frames (``--kind live``, the
 default: the aggregator's frames at the devices' "now"), exact frames (``--kind exact``: final,
-behind by up to the max segment length) or both (``--kind any``); the header line names the
-kind of the frame shown. A frame flagged MISSING says which segments have no data and why (no
-device, or its device offline), from the subject's stats."""
+behind by up to the max segment length) or ``--kind auto`` (live while they come, else exact: the
+pose stream API's rule); the header line names the kind of the frame shown. A frame flagged
+MISSING says which segments have no data and why (no device, or its device offline), from the
+subject's stats."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
+import numpy as np
+
 from limbstream import quat, wire, zconfig
-from limbstream.cli import zenoh_args
+from limbstream.cli import flags
 from limbstream.sources import SEGMENTS
 from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
 
-KINDS = {"any": None, "exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
+KINDS: dict[str, int | None] = {**wire.FRAME_KINDS, wire.AUTO: None}
+"""``--kind``: a frame kind, or ``auto`` (the pose stream API's rule: :func:`limbstream.wire.auto_kind`)."""
 SHOWN_JOINTS = ("head", "l_wrist", "r_wrist", "l_ankle", "r_ankle")
 
 
@@ -35,14 +40,14 @@ def why_missing(devices: dict[str, bool] | None) -> str:
 def render(subject: str, frame: wire.PoseFrame, rate_hz: float, devices: dict[str, bool] | None = None) -> str:
     """A few lines describing ``frame``: header, segment rotation angles, key joint positions;
     ``devices`` ({segment: online}, the subject's stats) say why a segment is missing."""
-    flags = [name for bit, name in ((wire.FRAME_GAP, "GAP"), (wire.FRAME_MISSING, "MISSING"))
+    marks = [name for bit, name in ((wire.FRAME_GAP, "GAP"), (wire.FRAME_MISSING, "MISSING"))
              if frame.flags & bit]
     if frame.flags & wire.FRAME_MISSING:
-        flags.append(why_missing(devices))
-    kind = "live" if frame.kind == wire.KIND_LIVE else "exact"
+        marks.append(why_missing(devices))
+    kind = wire.kind_name(frame.kind)
     stamp = time.strftime("%H:%M:%S", time.localtime(frame.t_us / 1e6)) + f".{frame.t_us // 1000 % 1000:03d}"
-    lines = [f"{subject}  {kind} #{frame.seq}  t={stamp}  {rate_hz:5.1f} frames/s  {' '.join(flags)}".rstrip()]
-    identity = [[1.0, 0.0, 0.0, 0.0]] * len(SEGMENTS)
+    lines = [f"{subject}  {kind} #{frame.seq}  t={stamp}  {rate_hz:5.1f} frames/s  {' '.join(marks)}".rstrip()]
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))
     angles = quat.angle_deg(frame.q.astype(float), identity)
     cells = [f"{name:>11s} {a:6.1f}°" for name, a in zip(SEGMENTS, angles)]
     lines += ["  rotation from rest:"] + ["  " + "  ".join(cells[i:i + 5]) for i in range(0, len(cells), 5)]
@@ -56,13 +61,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", help="subject key chunk, e.g. s01")
     parser.add_argument("--kind", choices=tuple(KINDS), default="live",
                         help="which frames to show: live (default; at the devices' now), exact (final, "
-                             "behind by up to the max segment length) or any")
+                             "behind by up to the max segment length) or auto (live while they come, else exact)")
     parser.add_argument("--refresh", type=float, default=5.0, help="screen updates per second (default 5)")
     parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
                         help="exit with status 1 if the router does not answer or no frame arrives for this many "
                              f"seconds (0: wait for frames forever, for the router {zconfig.CONNECT_TIMEOUT_S:g} s)")
-    zenoh_args.add_arguments(parser, timeout=False)
+    flags.add_zenoh(parser, timeout=False)
+
+
+class _Newest:
+    """What the screen shows: the newest frame of the kind asked for (``wanted``; None: auto), the
+    frames counted, and the subject's devices ({segment: online}) from its newest stats."""
+
+    def __init__(self, wanted: int | None):
+        self.wanted = wanted
+        self.count = 0
+        self.devices: dict[str, bool] | None = None
+        self.last_live = -math.inf  # monotonic time of the newest live frame (auto)
+
+    def take(self, items: list) -> wire.PoseFrame | None:
+        """The newest frame to show among ``items`` (None: none), the stats noted."""
+        frame = None
+        for item in items:
+            if item.kind == wire.STATS:
+                self.devices = {d["segment"]: bool(d["online"]) for d in item.value["devices"]}
+                continue
+            if item.value.kind == wire.KIND_LIVE:
+                self.last_live = time.monotonic()
+            kind = self.wanted if self.wanted is not None else wire.auto_kind(time.monotonic() - self.last_live)
+            if item.value.kind == kind:
+                frame, self.count = item.value, self.count + 1
+        return frame
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,22 +102,16 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"limbstream watch: {exc}") from None
     if args.refresh <= 0:
         raise SystemExit("limbstream watch: --refresh must be > 0")
-    wanted = KINDS[args.kind]
-    tty = sys.stdout.isatty()
-    count, last_count, last_time, last_seen = 0, 0, time.monotonic(), time.monotonic()
     if not args.timeout >= 0:
         raise SystemExit("limbstream watch: --timeout must be >= 0")
-    settings = zenoh_args.session_settings(args, "limbstream watch", args.timeout or zconfig.CONNECT_TIMEOUT_S)
-    devices = None  # {segment: online}, from the newest stats
-    with Subscription(settings, args.subject, ("pose", "stats")) as sub:
+    newest = _Newest(KINDS[args.kind])
+    tty = sys.stdout.isatty()
+    last_count, last_time, last_seen = 0, time.monotonic(), time.monotonic()
+    settings = flags.session_settings(args, "limbstream watch", args.timeout or zconfig.CONNECT_TIMEOUT_S)
+    with Subscription(settings, args.subject, (wire.POSE, wire.STATS)) as sub:
         while True:
-            frame = None
             first = sub.get(timeout=1.0 / args.refresh)
-            for item in ([first] if first is not None else []) + sub.drain():  # keep the newest
-                if item.kind == "stats":
-                    devices = {d["segment"]: bool(d["online"]) for d in item.value["devices"]}
-                elif wanted is None or item.value.kind == wanted:
-                    frame, count = item.value, count + 1
+            frame = newest.take(([first] if first is not None else []) + sub.drain())  # keep the newest
             now = time.monotonic()
             if frame is None:
                 if args.timeout and now - last_seen > args.timeout:
@@ -96,9 +120,9 @@ def run(args: argparse.Namespace) -> int:
                     return 1
                 continue
             last_seen = now
-            rate = (count - last_count) / max(now - last_time, 1e-6)
-            last_count, last_time = count, now
-            print(("\x1b[H\x1b[2J" if tty else "") + render(args.subject, frame, rate, devices), flush=True)
-            if args.count and count >= args.count:
+            rate = (newest.count - last_count) / max(now - last_time, 1e-6)
+            last_count, last_time = newest.count, now
+            print(("\x1b[H\x1b[2J" if tty else "") + render(args.subject, frame, rate, newest.devices), flush=True)
+            if args.count and newest.count >= args.count:
                 return 0
             time.sleep(max(0.0, 1.0 / args.refresh - (time.monotonic() - now)))

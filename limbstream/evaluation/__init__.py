@@ -18,7 +18,7 @@ SLERP between their (normalised) segment points and compared with the original s
   (the newest one extrapolated at its rate, :func:`limbstream.quat.predict`), against the
   sample. A point is known from the update call that emitted it (``Segmentation.known_from``):
   one closed by the SSR or max_len rule from the sample after it, one closed by fastSW's live
-  rule (``live_bound`` > 0) from its own. ``predictor`` names the points' rates: ``rate`` (the
+  rule (``live_bound_deg`` > 0) from its own. ``predictor`` names the points' rates: ``rate`` (the
   live rule's own: through the neighbouring sample), ``slope`` (the closed segment's slope,
   through the point before) or ``hold`` (none). fastSW's live rule with ``rate`` is the C
   kernel; with ``slope`` or ``hold`` it is :func:`simulate_live` (float64).

@@ -15,7 +15,7 @@ from limbstream.joints import GIMBAL_DEG
 EVAL_COLUMNS: tuple[Column, ...] = (
     Column("algorithm", "algorithm", "", "segmentation algorithm (fastsw, sw: the paper's; cplr, swing: baselines)",
            ""),
-    Column("live_bound", "bound", "deg", "fastSW's live rule: no sample's live error beyond it (0: off)", "g"),
+    Column("live_bound_deg", "bound", "deg", "fastSW's live rule: no sample's live error beyond it (0: off)", "g"),
     Column("icr", "ICR", "", "inverse compression ratio: segment points sent / samples taken", ".4f"),
     Column("threshold", "TH", "", "the algorithm's threshold (SSR bound for fastsw, sw, cplr; largest deviation "
            "per quaternion component for swing); at a target ICR: interpolated", ".2e"),
@@ -37,7 +37,7 @@ EVAL_COLUMNS: tuple[Column, ...] = (
 
 _ROW = {c.key: c for c in EVAL_COLUMNS}
 JOINT_COLUMNS: tuple[Column, ...] = (
-    _ROW["algorithm"], _ROW["live_bound"], _ROW["threshold"],
+    _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
     Column("angle", "angle", "", "joint angle, named as the Rajagopal model's coordinate (docs/evaluation.md, "
            "'Joint angles')", ""),
     Column("mean", "mean", "deg", "mean absolute error of the reconstruction's angle (with a sensor model: the "
@@ -53,15 +53,15 @@ JOINT_COLUMNS: tuple[Column, ...] = (
 
 def format_table(
     rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] | None = ICR_TARGETS,
-    live_bounds: Sequence[float] = (0.0,),
+    live_bound_deg: Sequence[float] = (0.0,),
 ) -> str:
     """The comparison table with its legend: the measures interpolated at the ``targets`` ICRs
     per algorithm and live bound, or (``targets`` None) every row as swept."""
     if targets is None:
         shown = list(rows)
     else:
-        shown = [r | {"live_bound": bound} for a in algorithms for bound in live_bounds
-                 for r in at_icr(rows, a, targets, live_bound=bound)]
+        shown = [r | {"live_bound_deg": bound} for a in algorithms for bound in live_bound_deg
+                 for r in at_icr(rows, a, targets, live_bound_deg=bound)]
     return render(EVAL_COLUMNS, shown)
 
 
@@ -85,7 +85,8 @@ def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01)
     ok = [r for r in rows if np.isfinite(r["icr"]) and np.isfinite(r["aad"])
           and (bound is None or r["live_max"] <= bound + tolerance)]
     ok.sort(key=lambda r: (r["icr"], r["aad"]))
-    icr, aad = [], []
+    icr: list[float] = []
+    aad: list[float] = []
     for r in ok:
         if not aad or r["aad"] < aad[-1]:
             icr.append(r["icr"])

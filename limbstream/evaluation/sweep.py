@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
 from limbstream.sources import Motion
-from limbstream.evaluation.live_model import _accepted, _segment_live
+from limbstream.evaluation.live_model import accepted, segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
 """The paper's sweep: 0 and 205 log-spaced values from 1e-6 to 1e3 (206 thresholds)."""
@@ -34,7 +34,7 @@ PREDICTORS: tuple[str, ...] = ("rate", "slope", "hold")
 KEYS: tuple[str, ...] = (
     "algorithm",
     "threshold",
-    "live_bound",
+    "live_bound_deg",
     "predictor",
     "icr",
     "aad",
@@ -108,7 +108,7 @@ def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | Non
 def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int) -> list[Stream]:
     """A motion's streams as its sensors report them, after the calibration script."""
     t = np.asarray(motion.t, np.float64)
-    fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else 50.0
+    fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else wire.DEVICE_RATE_HZ
     q, rest, mounting = calibration.with_script(motion.q, fs, motion.segments)
     start = len(q) - len(t)
     t = np.concatenate([t[0] - np.arange(start, 0, -1) / fs, t]) if len(t) else np.arange(len(q)) / fs
@@ -148,7 +148,7 @@ class _Pool:
         self.n_samples = int(lengths.sum())
         self.accepted = np.zeros(self.n_samples, bool)  # what a kernel accepts (time increasing too)
         for j, s in enumerate(streams):
-            self.accepted[self.start[j] + _accepted(s.t, np.asarray(s.q, np.float64))] = True
+            self.accepted[self.start[j] + accepted(s.t, np.asarray(s.q, np.float64))] = True
 
 
 def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
@@ -158,8 +158,83 @@ def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
     return float(dev.mean()), float(dev.std()), float(np.percentile(dev, 99)), float(dev.max())
 
 
+@dataclass
+class _Points:
+    """The segment points of every stream of a pool at one threshold: per stream with points, their
+    time keys on the pool's shared axis, unit quaternions and deviations from the samples; with
+    ``live``, what the live view needs (sample positions they are known from, quaternions, times,
+    rates, owners); and how many."""
+
+    key: list[np.ndarray] = field(default_factory=list)
+    q: list[np.ndarray] = field(default_factory=list)
+    dev: list[np.ndarray] = field(default_factory=list)
+    owners: list[int] = field(default_factory=list)
+    live_pos: list[np.ndarray] = field(default_factory=list)
+    live_q: list[np.ndarray] = field(default_factory=list)
+    live_t: list[np.ndarray] = field(default_factory=list)
+    live_omega: list[np.ndarray] = field(default_factory=list)
+    live_owner: list[np.ndarray] = field(default_factory=list)
+    n: int = 0
+
+
+def _segment_pool(pool: _Pool, algorithm: str, threshold: float, max_len: int, live_bound_deg: float,
+                  predictor: str | None) -> _Points:
+    """Every stream of ``pool`` segmented (:func:`segment_live`; ``predictor`` None: no live view)."""
+    pts = _Points()
+    for j, stream in enumerate(pool.streams):
+        if len(stream.t) == 0:
+            continue
+        index, seg_t, seg_q, known, omega = segment_live(stream.t, stream.q, algorithm, threshold, max_len,
+                                                         live_bound_deg, predictor)
+        k = len(seg_t)
+        if k == 0:  # every sample rejected: nothing to rebuild this stream from
+            continue
+        pts.n += k
+        if predictor is not None and omega is not None:
+            pts.live_pos.append(pool.start[j] + known)
+            pts.live_q.append(quat.normalize(seg_q))
+            pts.live_t.append(seg_t)
+            pts.live_omega.append(omega)
+            pts.live_owner.append(np.full(k, j))
+        pts.dev.append(quat.angle_deg(stream.q[index], seg_q))
+        q_points = quat.normalize(seg_q)
+        key = seg_t - pool.t0[j] + pool.offset[j]
+        if k == 1:  # a single point: hold it (zero-length span)
+            key, q_points = np.repeat(key, 2), np.repeat(q_points, 2, axis=0)
+        pts.key.append(key)
+        pts.q.append(q_points)
+        pts.owners.append(j)
+    return pts
+
+
+def _reconstruct(pool: _Pool, pts: _Points) -> tuple[np.ndarray, np.ndarray]:
+    """(mask, recon): the samples of the streams with points, and their reconstruction by SLERP
+    between the points of their own stream."""
+    keys = np.concatenate(pts.key)
+    q_points = np.concatenate(pts.q)
+    counts = np.array([len(p) for p in pts.key])
+    have = np.zeros(len(pool.streams), bool)
+    first = np.zeros(len(pool.streams), np.int64)
+    have[pts.owners] = True
+    first[pts.owners] = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    last = first.copy()
+    last[pts.owners] += counts - 1
+    mask = pool.valid & have[pool.stream_of]
+    sample_key = pool.key[mask]
+    owner = pool.stream_of[mask]
+    k = np.searchsorted(keys, sample_key, side="right") - 1
+    k = np.clip(k, first[owner], last[owner] - 1)  # stay inside the sample's own stream
+    span = keys[k + 1] - keys[k]
+    u = np.clip((sample_key - keys[k]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
+    return mask, quat.slerp(q_points[k], q_points[k + 1], u)
+
+
+def _mean_max(values: np.ndarray) -> tuple[float, float]:
+    return (float(values.mean()), float(values.max())) if values.size else (math.nan, math.nan)
+
+
 def evaluate_threshold(
-    pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound: float = 0.0,
+    pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound_deg: float = 0.0,
     predictor: str = "rate", live: bool = False, poses: Sequence[str] = CALIBRATIONS[-1], angles: bool = False,
 ) -> dict:
     """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result
@@ -173,62 +248,19 @@ def evaluate_threshold(
     -------
     dict with the fields of :data:`KEYS` (degrees for the angular measures), and ``joints``.
     """
-    if live_bound > 0 and algorithm != "fastsw":
+    if live_bound_deg > 0 and algorithm != "fastsw":
         raise ValueError(f"the live rule is fastSW's, not {algorithm!r}'s")
-    point_key, point_q, point_dev, owners = [], [], [], []
-    live_pos, live_q, live_t, live_omega, live_owner = [], [], [], [], []
-    n_points = 0
-    for j, stream in enumerate(pool.streams):
-        if len(stream.t) == 0:
-            continue
-        index, seg_t, seg_q, known, omega = _segment_live(stream, algorithm, threshold, max_len,
-                                                          live_bound, predictor if live else None)
-        k = len(seg_t)
-        if k == 0:  # every sample rejected: nothing to rebuild this stream from
-            continue
-        n_points += k
-        if live:
-            live_pos.append(pool.start[j] + known)
-            live_q.append(quat.normalize(seg_q))
-            live_t.append(seg_t)
-            live_omega.append(omega)
-            live_owner.append(np.full(k, j))
-        point_dev.append(quat.angle_deg(stream.q[index], seg_q))
-        q_points = quat.normalize(seg_q)
-        key = seg_t - pool.t0[j] + pool.offset[j]
-        if k == 1:  # a single point: hold it (zero-length span)
-            key, q_points = np.repeat(key, 2), np.repeat(q_points, 2, axis=0)
-        point_key.append(key)
-        point_q.append(q_points)
-        owners.append(j)
-    icr = n_points / pool.n_samples if pool.n_samples else math.nan
-    row = {"algorithm": algorithm, "threshold": float(threshold), "live_bound": float(live_bound),
+    pts = _segment_pool(pool, algorithm, threshold, max_len, live_bound_deg, predictor if live else None)
+    icr = pts.n / pool.n_samples if pool.n_samples else math.nan
+    row = {"algorithm": algorithm, "threshold": float(threshold), "live_bound_deg": float(live_bound_deg),
            "predictor": predictor if live else None, "icr": icr}
-    if not point_key:
+    if not pts.key:
         return row | dict.fromkeys(MEASURES, math.nan)
-    errors = _live_errors(pool, np.concatenate(live_pos), np.concatenate(live_q), np.concatenate(live_t),
-                          np.concatenate(live_omega), np.concatenate(live_owner)) if live else np.zeros(0)
-
-    keys = np.concatenate(point_key)
-    q_points = np.concatenate(point_q)
-    counts = np.array([len(p) for p in point_key])
-    have = np.zeros(len(pool.streams), bool)
-    first = np.zeros(len(pool.streams), np.int64)
-    have[owners] = True
-    first[owners] = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    last = first.copy()
-    last[owners] += counts - 1
-
-    mask = pool.valid & have[pool.stream_of]
-    sample_key = pool.key[mask]
-    owner = pool.stream_of[mask]
-    k = np.searchsorted(keys, sample_key, side="right") - 1
-    k = np.clip(k, first[owner], last[owner] - 1)  # stay inside the sample's own stream
-    span = keys[k + 1] - keys[k]
-    u = np.clip((sample_key - keys[k]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
-    recon = quat.slerp(q_points[k], q_points[k + 1], u)
-    dev = quat.angle_deg(pool.q_unit[mask], recon)
-    aad, std, p99, mx = _stats(dev)
+    errors = (_live_errors(pool, np.concatenate(pts.live_pos), np.concatenate(pts.live_q), np.concatenate(pts.live_t),
+                           np.concatenate(pts.live_omega), np.concatenate(pts.live_owner))
+              if live and pts.live_pos else np.zeros(0))
+    mask, recon = _reconstruct(pool, pts)
+    aad, std, p99, mx = _stats(quat.angle_deg(pool.q_unit[mask], recon))
     rec = np.full((pool.n_samples, 4), np.nan)
     rec[mask] = recon
     calibrated = _calibrated(pool, rec, poses)
@@ -236,19 +268,13 @@ def evaluate_threshold(
             if calibrated else np.zeros(0))
     if angles:
         row["joints"] = joints.pooled_errors(_bodies(pool, rec, calibrated))
-    pdev = np.concatenate(point_dev)
-    pdev = pdev[np.isfinite(pdev)]
+    pdev = np.concatenate(pts.dev)
+    point_aad, point_max = _mean_max(pdev[np.isfinite(pdev)])
+    live_aad, live_max = _mean_max(errors)
     return row | {
-        "aad": aad,
-        "std": std,
-        "p99": p99,
-        "max": mx,
-        "point_aad": float(pdev.mean()) if pdev.size else math.nan,
-        "point_max": float(pdev.max()) if pdev.size else math.nan,
-        "live_aad": float(errors.mean()) if errors.size else math.nan,
-        "live_p99": float(np.percentile(errors, 99)) if errors.size else math.nan,
-        "live_max": float(errors.max()) if errors.size else math.nan,
-        "body_aad": float(body.mean()) if body.size else math.nan,
+        "aad": aad, "std": std, "p99": p99, "max": mx, "point_aad": point_aad, "point_max": point_max,
+        "live_aad": live_aad, "live_p99": float(np.percentile(errors, 99)) if errors.size else math.nan,
+        "live_max": live_max, "body_aad": float(body.mean()) if body.size else math.nan,
     }
 
 
@@ -265,7 +291,7 @@ def _calibrated(pool: _Pool, rec: np.ndarray,
             continue
         r = rec[pool.start[j]:pool.start[j + 1]]
         cal = (calibration.calibrate(r, s.rest, s.mounting if "mounting" in poses else None, s.pose, s.name)
-               if "rest" in poses else calibration.Calibration.none())
+               if "rest" in poses and s.rest is not None else calibration.Calibration.none())
         motion, truth = r[s.motion_from:], s.truth[s.motion_from:]
         ok = np.isfinite(motion).all(axis=1) & np.isfinite(truth).all(axis=1)
         calibrated = np.full(motion.shape, np.nan)
@@ -312,9 +338,9 @@ def _live_errors(pool: _Pool, known: np.ndarray, q_points: np.ndarray, t_points:
 def evaluate(
     motions: Iterable[Motion] | Sequence[Stream],
     algorithms: Sequence[str] = ALGORITHMS,
-    thresholds: Sequence[float] = THRESHOLDS,
+    thresholds: Sequence[float] | np.ndarray = THRESHOLDS,
     max_len: int = MAX_LEN,
-    live_bounds: Sequence[float] | None = None,
+    live_bound_deg: Sequence[float] | None = None,
     predictor: str = "rate",
     poses: Sequence[str] = CALIBRATIONS[-1],
     progress: Callable[[int, int], None] | None = None,
@@ -328,7 +354,7 @@ def evaluate(
     algorithms : keys of :data:`limbstream.kernel.ALGORITHMS`.
     thresholds : (T,) thresholds, >= 0, each algorithm's own unit.
     max_len : largest segment length, samples.
-    live_bounds : fastSW live rule bounds, degrees in [0, 180) (0: the plain rules; a bound
+    live_bound_deg : fastSW live rule bounds, degrees in [0, 180) (0: the plain rules; a bound
         above 0 needs algorithms == ["fastsw"]); None: the plain rules, and no live error
         (the ``live_*`` fields are NaN).
     predictor : the points' rates for the live error, one of :data:`PREDICTORS`.
@@ -350,14 +376,14 @@ def evaluate(
             raise ValueError(f"algorithm must be one of {sorted(kernel.ALGORITHMS)}, got {name!r}")
     if predictor not in PREDICTORS:
         raise ValueError(f"predictor must be one of {', '.join(PREDICTORS)}, got {predictor!r}")
-    live = live_bounds is not None
-    for bound in live_bounds or ():
+    live = live_bound_deg is not None
+    for bound in live_bound_deg or ():
         if kernel.LIVE_BOUND.check(bound) > 0 and set(algorithms) != {"fastsw"}:
             raise ValueError(f"a live bound needs algorithms ['fastsw'], got {list(algorithms)}")
     pool = _Pool(streams)
     if tuple(poses) not in CALIBRATIONS:
         raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {tuple(poses)}")
-    runs = [(a, bound, th) for a in algorithms for bound in (live_bounds or (0.0,)) for th in thresholds]
+    runs = [(a, bound, th) for a in algorithms for bound in (live_bound_deg or (0.0,)) for th in thresholds]
     rows = []
     for a, bound, th in runs:
         rows.append(evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses, angles))
@@ -368,7 +394,7 @@ def evaluate(
 
 def at_icr(
     rows: Sequence[dict], algorithm: str, targets: Sequence[float] = ICR_TARGETS,
-    live_bound: float | None = None,
+    live_bound_deg: float | None = None,
 ) -> list[dict]:
     """Measures of one algorithm (and live bound, unless None) interpolated at given ICRs
     (linear in log ICR).
@@ -382,7 +408,7 @@ def at_icr(
     """
     own = [
         r for r in rows if r["algorithm"] == algorithm and np.isfinite(r["icr"]) and r["icr"] > 0
-        and (live_bound is None or r.get("live_bound", 0.0) == live_bound)
+        and (live_bound_deg is None or r.get("live_bound_deg", 0.0) == live_bound_deg)
     ]
     out = []
     if not own:
@@ -406,8 +432,8 @@ def at_icr(
     for c in targets:
         row = {"algorithm": algorithm, "icr": float(c)}
         inside = unique[0] <= c <= unique[-1]
-        for field in MEASURES:
-            row[field] = float(np.interp(np.log(c), x, curve(field))) if inside else math.nan
+        for measure in MEASURES:
+            row[measure] = float(np.interp(np.log(c), x, curve(measure))) if inside else math.nan
         th = (
             float(np.exp(np.interp(np.log(c), x, curve("threshold", log=True))))
             if inside

@@ -5,6 +5,7 @@ body rates)."""
 from __future__ import annotations
 
 import ctypes
+from typing import Any
 import importlib.machinery
 from pathlib import Path
 
@@ -122,7 +123,7 @@ GRID_HISTORY, GRID_TRUTH, GRID_JITTER = 16, 512, 500
 class GridSettings(ctypes.Structure):
     """LswGridSettings (lsw_grid.h): what every device of a grid bank shares."""
 
-    _fields_ = [(name, ctypes.c_double) for name in ("period_us", "hold_us", "late_us", "early_us", "phase_gain",
+    _fields_ = [(name, ctypes.c_double) for name in ("period_us", "hold_us", "late_us", "early_us", "phase_gain",  # type: ignore[assignment]  # fields of mixed types
                                                      "offset_us")] + [
         ("axes", ctypes.c_double * 4), ("rise_after", ctypes.c_uint32), ("truth", ctypes.c_uint32)]
 
@@ -130,7 +131,7 @@ class GridSettings(ctypes.Structure):
 class GridDevice(ctypes.Structure):
     """LswGridDevice (lsw_grid.h): one device's history, grid and truth samples."""
 
-    _fields_ = [("hist_t", ctypes.c_double * GRID_HISTORY), ("hist_q", (ctypes.c_double * 4) * GRID_HISTORY),
+    _fields_ = [("hist_t", ctypes.c_double * GRID_HISTORY), ("hist_q", (ctypes.c_double * 4) * GRID_HISTORY),  # type: ignore[assignment]  # fields of mixed types
                 ("truth_t", ctypes.c_int64 * GRID_TRUTH), ("truth_a", ctypes.c_double * GRID_TRUTH),
                 ("truth_q", (ctypes.c_float * 4) * GRID_TRUTH), ("jitter", ctypes.c_float * GRID_JITTER)] + [
         (name, ctypes.c_double) for name in ("instant", "anchor", "shift", "truth_since")] + [
@@ -143,7 +144,7 @@ class GridDevice(ctypes.Structure):
 class SvrTracker(ctypes.Structure):
     """LswSvrTracker (lsw_slimevr.h): a SlimeVR tracker's link counters."""
 
-    _fields_ = [(name, ctypes.c_int64) for name in ("last_number", "lost", "packets", "arrived")] + [
+    _fields_ = [(name, ctypes.c_int64) for name in ("last_number", "lost", "packets", "arrived")] + [  # type: ignore[assignment]  # fields of mixed types
         ("last_seen", ctypes.c_double), ("online", ctypes.c_uint32), ("pad", ctypes.c_uint32)]
 
 
@@ -197,12 +198,21 @@ class ImuSettings(ctypes.Structure):
                 ("acc_limit", ctypes.c_float), ("nine_d", ctypes.c_uint32)]
 
 
-for _name, _args, _res in (
+class FuseRows(ctypes.Structure):
+    """LswFuseRows (lsw_fuse.h): the aggregator's point rows (times, orientations, rates, counts,
+    capacity; limbstream.kernel.reconstruct)."""
+
+    _fields_ = [("t", ctypes.c_void_p), ("q", ctypes.c_void_p), ("w", ctypes.c_void_p), ("n", ctypes.c_void_p),
+                ("cap", ctypes.c_int64)]
+
+
+_imu_calls: tuple[tuple[str, list[Any], Any], ...] = (
         ("lsw_imu_state_size", [], _sz),
         ("lsw_imu_init", [_vp, ctypes.POINTER(ImuSettings)], None),
         ("lsw_imu_fuse_batch", [_vp, _vp, _sz, _vp], _sz),
         ("lsw_imu_bank_update", [_vp, _vp, _sz, _vp, _vp, _u8p, _vp, _vp, _vp, _vp, _vp, _vp], _sz),
-        ("lsw_imu_bank_status", [_vp, _sz, _vp, _vp, _vp, _vp], None)):
+        ("lsw_imu_bank_status", [_vp, _sz, _vp, _vp, _vp, _vp], None))
+for _name, _args, _res in _imu_calls:
     getattr(_lib, _name).argtypes = _args
     getattr(_lib, _name).restype = _res
 
@@ -222,7 +232,7 @@ def _check_abi() -> None:
     _lib.lsw_abi_size.argtypes = [ctypes.c_int]
     _lib.lsw_abi_size.restype = ctypes.c_size_t
     for which, struct in enumerate((Settings, Point, BatchOut, BankWire, _Sync, GridSettings, GridDevice, SvrTracker,
-                                    SvrRoute, SvrSlow, RawSample, ImuSettings)):
+                                    SvrRoute, SvrSlow, RawSample, ImuSettings, FuseRows)):
         size = _lib.lsw_abi_size(which)
         if size != ctypes.sizeof(struct):
             raise ImportError(f"limbstream C kernels: {struct.__name__} is {size} bytes in C, "

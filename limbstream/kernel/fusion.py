@@ -32,7 +32,7 @@ RAW_DTYPE = np.dtype({"names": ["t", "gyr", "acc", "mag"],
 _DEFAULTS = ImuSettings.in_dll(_lib, "lsw_imu_default_settings")
 
 
-def imu_settings(rate_hz: float, device_rate_hz: float = 50.0, nine_d: bool = False, max_gap_s: float | None = None,
+def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False, max_gap_s: float | None = None,
                  acc_limit: float | None = None) -> ImuSettings:
     """Validated pipeline settings (LswImuSettings).
 
@@ -100,13 +100,14 @@ def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_h
     return q.astype(np.float64)
 
 
-class ImuBank(SegmenterBank):
+class ImuBank:
     """Many devices' raw-sample pipelines (VQF + fastSW), one raw sample each per C call.
 
     Each device fuses its raw samples at ``rate_hz`` and takes the orientation at its own
     instants, every 1 / ``device_rate_hz`` from its first sample (the first raw sample at or after
-    each instant, stamped with that sample's own time); those go through its fastSW state (the
-    :class:`SegmenterBank` part: settings, points, rates, wire encoding, retune, flush).
+    each instant, stamped with that sample's own time); those go through its fastSW state in
+    ``segments`` (a :class:`SegmenterBank`: settings, points, rates, wire encoding, retune, flush),
+    advanced by the same C call.
 
     Parameters
     ----------
@@ -115,18 +116,18 @@ class ImuBank(SegmenterBank):
     threshold, max_len, live_bound_deg, ring : as :class:`SegmenterBank`.
     """
 
-    def __init__(self, count: int, rate_hz: float, device_rate_hz: float = 50.0, nine_d: bool = False,
+    def __init__(self, count: int, rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False,
                  threshold=wire.THRESHOLD.default, max_len=wire.MAX_LEN.default,
                  live_bound_deg=wire.LIVE_BOUND_DEG.default, ring: int = 0, max_gap_s: float | None = None,
                  acc_limit: float | None = None):
-        super().__init__(count, threshold, max_len, 4, live_bound_deg, ring)
+        self.count = count
+        self.segments = SegmenterBank(count, threshold, max_len, 4, live_bound_deg, ring)
         self.nine_d = bool(nine_d)
         self.imu_settings = imu_settings(rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit)
         self._imus = ctypes.create_string_buffer(IMU_STATE_SIZE * max(count, 1))
         for k in range(count):
             self.reset_imu(k)
         self._t_us = np.zeros(max(count, 1), np.int64)
-        self._no_wire = (None, None, None, None)
 
     @property
     def mode(self) -> str:
@@ -135,7 +136,7 @@ class ImuBank(SegmenterBank):
 
     def reset_imu(self, k: int) -> None:
         """Device k's filter from scratch (identity, zero bias, counters zero); its fastSW stream
-        is :meth:`reset`'s."""
+        is ``segments.reset``'s."""
         _lib.lsw_imu_init(ctypes.addressof(self._imus) + k * IMU_STATE_SIZE, ctypes.byref(self.imu_settings))
 
     def _raw(self, ticks, gyr, acc, mag) -> tuple[np.ndarray, int]:
@@ -162,11 +163,8 @@ class ImuBank(SegmenterBank):
         index, y : as :meth:`SegmenterBank.update` where status == POINT.
         """
         raw, n = self._raw(ticks, gyr, acc, mag)
-        _lib.lsw_imu_bank_update(self._imus, self._states, n, raw.ctypes.data, self._t_us.ctypes.data, self._status,
-                                 self._points, self._rates_ptr, *self._no_wire)
-        self._n = n
-        view = self._point_view[:n]
-        return self._status[:n], view["index"], view["y"][:, :4]
+        return self.segments.advance(lambda states, *out: _lib.lsw_imu_bank_update(
+            self._imus, states, n, raw.ctypes.data, self._t_us.ctypes.data, *out), n)
 
     def update_raw_wire(self, ticks: np.ndarray, t_us: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
                         mag: np.ndarray | None = None) -> tuple[np.ndarray, bytes, np.ndarray]:
@@ -174,15 +172,10 @@ class ImuBank(SegmenterBank):
         writes the wire ring (``sample``: each device's device-rate sample number plus ``base``;
         ``t_us``: the stamp of its raw sample). ``t_us`` (n,) int64: each raw sample's stamp, us
         since the epoch. Returns slots, payload, ends as :meth:`SegmenterBank.update_wire`."""
-        if self._wire is None:
-            raise ValueError("update_raw_wire needs a bank made with ring >= 1")
         raw, n = self._raw(ticks, gyr, acc, mag)
         self._t_us[:n] = t_us
-        k = _lib.lsw_imu_bank_update(self._imus, self._states, n, raw.ctypes.data, self._t_us.ctypes.data,
-                                     self._status, self._points, self._rates_ptr, *self._wire_ptrs)
-        self._n = n
-        end = int(self._ends[k - 1]) if k else 0
-        return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()
+        return self.segments.advance_wire(lambda states, *out: _lib.lsw_imu_bank_update(
+            self._imus, states, n, raw.ctypes.data, self._t_us.ctypes.data, *out), n)
 
     def imu_status(self) -> dict[str, np.ndarray]:
         """Every device's fusion report: ``bias`` (count, 3) rad/s, ``rest`` (count,) bool,

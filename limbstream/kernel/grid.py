@@ -1,5 +1,5 @@
 """Samples that arrive at a sender's own irregular times, put on a uniform grid per device, in C
-(``firmware_c/src/lsw_grid.c``; the SlimeVR gateway's devices, docs/protocol.md "Timing").
+(``firmware_c/host/lsw_grid.c``; the SlimeVR gateway's devices, docs/protocol.md "Timing").
 
 Each device keeps its sender's last 16 samples, a grid of instants one period apart locked to the
 lower edge of their arrivals, and its truth samples until they are taken. At each tick every
@@ -80,7 +80,7 @@ class GridBank:
 
     def push(self, k: int, t_us: float, q: Sequence[float], now: float) -> None:
         """Device k's sender's sample ``q`` (unit, its axes) arrived at ``t_us``, at monotonic ``now`` (s)."""
-        self._q[:] = q
+        self._q[:] = list(q)
         _lib.lsw_grid_push(self.settings_ptr, self.address(k), t_us, self._q, now)
 
     def tick(self, m: int, at_us: float) -> int:

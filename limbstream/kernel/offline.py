@@ -124,12 +124,12 @@ def _run_fitted(kernel: Callable, t, q, threshold, max_len) -> Segmentation:
 
 
 def _cplr(t, q, threshold, max_len) -> Segmentation:
-    """CPLR (cplr.h): threshold is the SSR bound of the regression line."""
+    """CPLR (baselines.h): threshold is the SSR bound of the regression line."""
     return _run_fitted(_lib.cplr_segment, t, q, threshold, max_len)
 
 
 def _swing(t, q, threshold, max_len) -> Segmentation:
-    """Swing filter (swing.h): threshold is the largest absolute deviation per dimension."""
+    """Swing filter (baselines.h): threshold is the largest absolute deviation per dimension."""
     return _run_fitted(_lib.swing_segment, t, q, threshold, max_len)
 
 

@@ -1,4 +1,4 @@
-"""Reconstruction of devices' streams from their segment points in C (``firmware_c/src/lsw_fuse.c``):
+"""Reconstruction of devices' streams from their segment points in C (``firmware_c/host/lsw_fuse.c``):
 the aggregator's point store asks many rows at many times in one call.
 
 Row ``r`` holds ``n[r]`` points in time order: times ``t[r, :n[r]]`` (int64 us), orientations
@@ -12,20 +12,13 @@ import ctypes
 
 import numpy as np
 
-from limbstream.kernel._lib import _lib
+from limbstream.kernel._lib import FuseRows, _lib
 
 EXACT, LIVE, PREDICTED = 0, 1, 2
 """What a query asks (LswFuseMode): the SLERP between the points around its time (held outside
 them; identity for an empty row); that, or where no point at or after the time is known, the
 newest point extrapolated with its rate (a live frame's segment); the newest point at or before
 the time extrapolated (identity if none)."""
-
-
-class _Rows(ctypes.Structure):
-    """LswFuseRows (lsw_fuse.h)."""
-
-    _fields_ = [("t", ctypes.c_void_p), ("q", ctypes.c_void_p), ("w", ctypes.c_void_p), ("n", ctypes.c_void_p),
-                ("cap", ctypes.c_int64)]
 
 
 _vp = ctypes.c_void_p
@@ -57,7 +50,7 @@ class PointRows:
         if q.shape != (*t.shape, 4) or w.shape != (*t.shape, 3) or n.shape != t.shape[:1]:
             raise ValueError(f"shapes t {t.shape}, q {q.shape}, w {w.shape}, n {n.shape} do not match")
         self._arrays = (t, q, w, n)  # kept alive while C points into them
-        self._rows = _Rows(t.ctypes.data, q.ctypes.data, w.ctypes.data, n.ctypes.data, t.shape[1])
+        self._rows = FuseRows(t.ctypes.data, q.ctypes.data, w.ctypes.data, n.ctypes.data, t.shape[1])
         self._ref = ctypes.addressof(self._rows)
 
     def reconstruct(self, slots: np.ndarray, t_us: np.ndarray, mode: np.ndarray | int) -> np.ndarray:

@@ -3,6 +3,7 @@ C call per tick, with the segment point messages encoded in the same call (:clas
 from __future__ import annotations
 
 import ctypes
+from collections.abc import Callable
 
 import numpy as np
 
@@ -19,7 +20,7 @@ class Segmenter:
     >>> seg.point_omega()                        # its body rate, rad/s (live rule)
     """
 
-    def __init__(self, threshold: float = wire.THRESHOLD.default, max_len: int = wire.MAX_LEN.default, dim: int = 4,
+    def __init__(self, threshold: float = wire.THRESHOLD.default, max_len: int = int(wire.MAX_LEN.default), dim: int = 4,
                  live_bound_deg: float = wire.LIVE_BOUND_DEG.default):
         self.dim = dim
         self._settings = make_settings(threshold, max_len, dim, live_bound_deg)
@@ -106,9 +107,9 @@ class SegmenterBank:
         base = ctypes.addressof(self._states)
         for k, settings in enumerate(self._settings):
             _lib.fastsw_init(base + k * STATE_SIZE, ctypes.byref(settings))
-        self._point_view = np.frombuffer(self._points, dtype=_POINT_DTYPE)
+        self._point_view = np.frombuffer(memoryview(self._points), dtype=_POINT_DTYPE)
         size = max(count, 1)
-        self._live = np.array([live_rule(st) for st in self._settings] or [0], np.uint8)
+        self._live = np.array([int(live_rule(st)) for st in self._settings] or [0], np.uint8)
         if ring >= 1:
             self.stream = np.zeros(size, np.uint16)
             self.seq = np.zeros(size, np.uint32)
@@ -118,7 +119,7 @@ class SegmenterBank:
             self._out = np.zeros(size * wire.POINT_SIZE_RATE, np.uint8)
             self._slots = np.zeros(size, np.uint32)
             self._ends = np.zeros(size, np.uint32)
-            self._wire = BankWire(*(a.ctypes.data for a in (self.stream, self.seq, self.base, self.sample,
+            self._wire: BankWire | None = BankWire(*(a.ctypes.data for a in (self.stream, self.seq, self.base, self.sample,
                                                              self.t_us, self._live)), ring, size)
             # addresses taken once (numpy's .ctypes costs tens of microseconds per call when the
             # tick loop wakes with cold caches)
@@ -151,10 +152,8 @@ class SegmenterBank:
         y : (n, D) float32 value of each stream's point (where status == POINT).
         """
         ticks, y, n = self._samples(ticks, y)
-        _lib.fastsw_update_many(self._states, n, ticks, y, self._status, self._points, self._rates_ptr)
-        self._n = n
-        view = self._point_view[:n]
-        return self._status[:n], view["index"], view["y"][:, : self.dim]
+        return self.advance(lambda states, status, points, rates, *_: _lib.fastsw_update_many(
+            states, n, ticks, y, status, points, rates), n)
 
     def update_wire(self, ticks: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, bytes, np.ndarray]:
         """:meth:`update`, and every point emitted as its segment point message (flags 0), encoded
@@ -169,11 +168,28 @@ class SegmenterBank:
         ends : (K,) uint32 offset in payload just after each message
             (message i is ``payload[ends[i - 1]:ends[i]]``, from 0 for i = 0).
         """
+        ticks, y, n = self._samples(ticks, y)
+        return self.advance_wire(lambda states, *out: _lib.lsw_bank_update(states, n, ticks, y, *out), n)
+
+    def advance(self, call: Callable[..., object], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the first n streams with a C call that feeds them (a stage in front of fastSW,
+        e.g. :class:`~limbstream.kernel.fusion.ImuBank`'s fusion): ``call(states, status, points,
+        rates, wire, out, slots, ends)`` (the last four NULL here). Returns as :meth:`update`."""
+        if n > self.count:
+            raise ValueError(f"at most {self.count} streams, got {n}")
+        call(self._states, self._status, self._points, self._rates_ptr, None, None, None, None)
+        self._n = n
+        view = self._point_view[:n]
+        return self._status[:n], view["index"], view["y"][:, : self.dim]
+
+    def advance_wire(self, call: Callable[..., int], n: int) -> tuple[np.ndarray, bytes, np.ndarray]:
+        """:meth:`advance` with the points encoded as wire messages in the call (it returns how
+        many). Needs ``ring`` >= 1. Returns as :meth:`update_wire`."""
         if self._wire is None:
             raise ValueError("update_wire needs a bank made with ring >= 1")
-        ticks, y, n = self._samples(ticks, y)
-        k = _lib.lsw_bank_update(self._states, n, ticks, y, self._status, self._points, self._rates_ptr,
-                                 *self._wire_ptrs)
+        if n > self.count:
+            raise ValueError(f"at most {self.count} streams, got {n}")
+        k = call(self._states, self._status, self._points, self._rates_ptr, *self._wire_ptrs)
         self._n = n
         end = int(self._ends[k - 1]) if k else 0
         return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from limbstream import quat
+from limbstream import quat, wire
 from limbstream.sources import SEGMENTS, Motion, MotionFileError, is_number
 
 CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
@@ -109,88 +109,20 @@ def parse_bvh(path: str | Path) -> BvhClip:
         raise MotionFileError.at(path, None, f"cannot read ({exc})") from exc
     tokens: list[tuple[str, int]] = []
     motion_line = None
-    for number, line in enumerate(lines, 1):
-        if line.strip() == "MOTION":
+    for number, text in enumerate(lines, 1):
+        if text.strip() == "MOTION":
             motion_line = number
             break
-        tokens.extend((tok, number) for tok in line.split())
+        tokens.extend((tok, number) for tok in text.split())
     if not tokens or tokens[0][0] != "HIERARCHY":
         raise MotionFileError.at(path, 1, "not a BVH file (expected HIERARCHY on the first line)")
     if motion_line is None:
         raise MotionFileError.at(path, None, "no MOTION section")
-
-    joints: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[tuple[str, ...]] = []
-    stack: list[int] = []  # joint index per open brace; -2 for an end site
-    pos = 1
-
-    def take() -> tuple[str, int]:
-        nonlocal pos
-        if pos >= len(tokens):
-            raise MotionFileError.at(path, motion_line, "hierarchy ends early (unbalanced braces?)")
-        pos += 1
-        return tokens[pos - 1]
-
-    def numbers(count: int, what: str) -> list[float]:
-        values = []
-        for _ in range(count):
-            tok, line = take()
-            try:
-                values.append(float(tok))
-            except ValueError:
-                raise MotionFileError.at(path, line, f"{what}: {tok!r} is not a number") from None
-        return values
-
-    while pos < len(tokens):
-        tok, line = take()
-        if tok in ("ROOT", "JOINT"):
-            name, line = take()
-            if tok == "JOINT" and (not stack or stack[-1] < 0):
-                raise MotionFileError.at(path, line, f"JOINT {name} outside a joint")
-            parents.append(stack[-1] if stack else -1)
-            joints.append(name)
-            offsets.append([0.0, 0.0, 0.0])
-            channels.append(())
-            if take()[0] != "{":
-                raise MotionFileError.at(path, line, f"expected '{{' after {tok} {name}")
-            stack.append(len(joints) - 1)
-        elif tok == "End":
-            site, line = take()
-            if site != "Site" or take()[0] != "{":
-                raise MotionFileError.at(path, line, "expected 'End Site {'")
-            stack.append(-2)
-        elif tok == "OFFSET":
-            values = numbers(3, "OFFSET")
-            if not stack:
-                raise MotionFileError.at(path, line, "OFFSET outside a joint")
-            if stack[-1] >= 0:
-                offsets[stack[-1]] = values
-        elif tok == "CHANNELS":
-            count_tok, _ = take()
-            if not count_tok.isdigit():
-                raise MotionFileError.at(path, line, f"CHANNELS count {count_tok!r} is not a number")
-            names = tuple(take()[0] for _ in range(int(count_tok)))
-            bad = [n for n in names if n not in _AXES and n not in _POSITIONS]
-            if bad:
-                raise MotionFileError.at(path, line, f"unknown channel {bad[0]!r}")
-            if not stack or stack[-1] < 0:
-                raise MotionFileError.at(path, line, "CHANNELS outside a joint")
-            channels[stack[-1]] = names
-        elif tok == "}":
-            if not stack:
-                raise MotionFileError.at(path, line, "unbalanced '}'")
-            stack.pop()
-        else:
-            raise MotionFileError.at(path, line, f"unexpected {tok!r} in HIERARCHY")
-    if stack:
-        raise MotionFileError.at(path, motion_line, "hierarchy ends with unclosed braces")
-    if not joints:
-        raise MotionFileError.at(path, motion_line, "no joints in HIERARCHY")
+    h = _Hierarchy(path, tokens, motion_line)
+    h.parse()
 
     frames, frame_time = _motion_header(path, lines, motion_line)
-    n_channels = sum(len(c) for c in channels)
+    n_channels = sum(len(c) for c in h.channels)
     body = lines[motion_line + 2 :]
     while body and not body[-1].strip():
         body.pop()
@@ -201,14 +133,102 @@ def parse_bvh(path: str | Path) -> BvhClip:
     if motion is None or motion.size != frames * n_channels or not np.all(np.isfinite(motion)):
         raise _bad_frame(path, body, motion_line + 3, n_channels, frames)
     return BvhClip(
-        joints=tuple(joints),
-        parents=np.array(parents, dtype=int),
-        offsets=np.array(offsets, dtype=np.float64),
-        channels=tuple(channels),
+        joints=tuple(h.joints),
+        parents=np.array(h.parents, dtype=int),
+        offsets=np.array(h.offsets, dtype=np.float64),
+        channels=tuple(h.channels),
         frame_time=frame_time,
         motion=motion.reshape(frames, n_channels),
         path=path,
     )
+
+
+class _Hierarchy:
+    """The HIERARCHY section of a BVH file, from its tokens (each with its line): joints, their
+    parents (-1: the root), offsets and channels. MotionFileError names the line of a mistake."""
+
+    def __init__(self, path: Path, tokens: list[tuple[str, int]], motion_line: int):
+        self.path, self.tokens, self.motion_line = path, tokens, motion_line
+        self.joints: list[str] = []
+        self.parents: list[int] = []
+        self.offsets: list[list[float]] = []
+        self.channels: list[tuple[str, ...]] = []
+        self.stack: list[int] = []  # joint index per open brace; -2 for an end site
+        self.pos = 1
+
+    def error(self, line: int | None, message: str) -> MotionFileError:
+        return MotionFileError.at(self.path, line, message)
+
+    def take(self) -> tuple[str, int]:
+        if self.pos >= len(self.tokens):
+            raise self.error(self.motion_line, "hierarchy ends early (unbalanced braces?)")
+        self.pos += 1
+        return self.tokens[self.pos - 1]
+
+    def numbers(self, count: int, what: str) -> list[float]:
+        values = []
+        for _ in range(count):
+            tok, line = self.take()
+            try:
+                values.append(float(tok))
+            except ValueError:
+                raise self.error(line, f"{what}: {tok!r} is not a number") from None
+        return values
+
+    def parse(self) -> None:
+        while self.pos < len(self.tokens):
+            tok, line = self.take()
+            if tok in ("ROOT", "JOINT"):
+                self.joint(tok)
+            elif tok == "End":
+                site, line = self.take()
+                if site != "Site" or self.take()[0] != "{":
+                    raise self.error(line, "expected 'End Site {'")
+                self.stack.append(-2)
+            elif tok == "OFFSET":
+                values = self.numbers(3, "OFFSET")
+                if not self.stack:
+                    raise self.error(line, "OFFSET outside a joint")
+                if self.stack[-1] >= 0:
+                    self.offsets[self.stack[-1]] = values
+            elif tok == "CHANNELS":
+                self.channel_list(line)
+            elif tok == "}":
+                if not self.stack:
+                    raise self.error(line, "unbalanced '}'")
+                self.stack.pop()
+            else:
+                raise self.error(line, f"unexpected {tok!r} in HIERARCHY")
+        if self.stack:
+            raise self.error(self.motion_line, "hierarchy ends with unclosed braces")
+        if not self.joints:
+            raise self.error(self.motion_line, "no joints in HIERARCHY")
+
+    def joint(self, tok: str) -> None:
+        """``ROOT name {`` or ``JOINT name {`` (inside a joint)."""
+        name, line = self.take()
+        if tok == "JOINT" and (not self.stack or self.stack[-1] < 0):
+            raise self.error(line, f"JOINT {name} outside a joint")
+        self.parents.append(self.stack[-1] if self.stack else -1)
+        self.joints.append(name)
+        self.offsets.append([0.0, 0.0, 0.0])
+        self.channels.append(())
+        if self.take()[0] != "{":
+            raise self.error(line, f"expected '{{' after {tok} {name}")
+        self.stack.append(len(self.joints) - 1)
+
+    def channel_list(self, line: int) -> None:
+        """``CHANNELS n name...`` of the open joint."""
+        count_tok, _ = self.take()
+        if not count_tok.isdigit():
+            raise self.error(line, f"CHANNELS count {count_tok!r} is not a number")
+        names = tuple(self.take()[0] for _ in range(int(count_tok)))
+        bad = [n for n in names if n not in _AXES and n not in _POSITIONS]
+        if bad:
+            raise self.error(line, f"unknown channel {bad[0]!r}")
+        if not self.stack or self.stack[-1] < 0:
+            raise self.error(line, "CHANNELS outside a joint")
+        self.channels[self.stack[-1]] = names
 
 
 def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int, float]:
@@ -338,7 +358,7 @@ def resample(t: np.ndarray, q: np.ndarray, fs: float) -> tuple[np.ndarray, np.nd
 
 def load_bvh(
     path: str | Path,
-    fs: float | None = 50.0,
+    fs: float | None = wire.DEVICE_RATE_HZ,
     segment_map: Mapping[str, str] | None = None,
     drop_first: bool | None = None,
 ) -> Motion:

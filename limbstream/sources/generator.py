@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from limbstream import quat
+from limbstream import quat, wire
 from limbstream.sources import SEGMENTS, Motion
 
 JOINT_RANGES: dict[str, tuple[float, float]] = {
@@ -313,7 +313,7 @@ class GeneratorSource:
     def __init__(
         self,
         seed: int = 0,
-        fs: float = 50.0,
+        fs: float = wire.DEVICE_RATE_HZ,
         activities=None,
         noise_deg: float = 0.0,
         mounting_offsets: bool = False,
@@ -482,7 +482,7 @@ class GeneratorSource:
 
 def generate(
     duration_s: float = 60.0,
-    fs: float = 50.0,
+    fs: float = wire.DEVICE_RATE_HZ,
     seed: int = 0,
     activities=None,
     noise_deg: float = 0.0,

@@ -250,9 +250,9 @@ def read_xsens_txt(path: str | Path, fs: float = 100.0) -> SensorStream:
     matrix = np.array(mats).reshape(-1, 3, 3)
     error = np.abs(matrix @ matrix.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(matrix)
-    bad = np.flatnonzero((error > ORTHONORMAL_TOL) | (det < 0))
-    if len(bad):
-        k = bad[0]
+    wrong = np.flatnonzero((error > ORTHONORMAL_TOL) | (det < 0))
+    if len(wrong):
+        k = int(wrong[0])
         raise MotionFileError.at(
             path,
             line_no[k],

@@ -22,20 +22,20 @@ package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
 from .calibrate import (CALIBRATION_ANSWER_TIMEOUT_S, CALIBRATION_HOLD_S, CALIBRATION_POSES, CalibrateAnswer, decode_calibrate_answer,
                         decode_calibrate_request, encode_calibrate_answer, encode_calibrate_request)
 from .body import BONES, DEFAULT_REST_POSE, JOINTS, REST_POSES, SEGMENTS, check_rest_pose
-from .config import (LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
-                     DeviceStatus, LinkStatus, Tunable, add_arguments, config_from_args, decode_config, decode_status,
+from .config import (DEVICE_RATE_HZ, LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
+                     DeviceStatus, LinkStatus, Tunable, decode_config, decode_status,
                      encode_config, encode_status)
 from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
 from .gateway import Assignment, decode_assignment, decode_sensors, encode_assignment, encode_sensors
-from .keys import (CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
+from .keys import (ALIVE, CALIBRATE, CONFIG, POSE, RAW, SEG, STATS, CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
                    device_selector, gateway_key, gateway_selector, history_selector, parse_device_key, parse_gateway_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, PointColumns,
                     SegmentPoint, decode_point, decode_points, encode_point)
-from .pose import (AUTO_LIVE_WINDOW_S, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
-                   PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, rest_pose_flag)
+from .pose import (AUTO, AUTO_LIVE_WINDOW_S, FRAME_KINDS, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
+                   PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, kind_name, pose_stream, rest_pose_flag)
 from .raw import (MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, RawColumns, decode_raw,
                   decode_raws, encode_raw)
 from .stats import (STATS_NUMBERS, STATS_TEXTS, STATS_VERSION, decode_stats, encode_stats, encode_stats_json,

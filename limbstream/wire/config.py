@@ -1,7 +1,7 @@
 """Device settings: each tunable with its default and bounds, written once, and the config /
 status messages of a device's queryable (``limbstream/<subject>/<segment>/config``).
 
-The command line (:func:`add_arguments`), the queryable (:func:`decode_config`), the dashboard's
+The command line (:mod:`limbstream.cli.flags`), the queryable (:func:`decode_config`), the dashboard's
 REST model and the kernel binding all check a value with :meth:`Tunable.check`, so a bad value
 gets the same refusal on every path. (The C kernel keeps its own defined behaviour for values
 outside these bounds: firmware_c/include/fastsw.h.)
@@ -13,7 +13,6 @@ their value) and answers with its status, or answers with an error reply
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import numbers
@@ -21,6 +20,10 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 from .body import DEFAULT_REST_POSE, check_rest_pose
 from .errors import WireError
+
+DEVICE_RATE_HZ = 50.0
+"""A device's sample rate unless it is told another (every device, gateway grid and aggregator
+frame rate defaults to it), Hz."""
 
 
 @dataclass(frozen=True)
@@ -66,21 +69,6 @@ class Tunable:
             raise ValueError(f"{self.name} must be {self.describe()}, got {value!r}")
         return self.type(value)
 
-    def parse(self, text: str):
-        """A command-line value; argparse.ArgumentTypeError with :meth:`check`'s message."""
-        try:
-            value = float(text) if self.type is float else int(text)
-        except ValueError:
-            try:
-                value = float(text)
-            except ValueError:
-                raise argparse.ArgumentTypeError(f"{self.name} must be {self.describe()}, got {text!r}") from None
-        try:
-            return self.check(value)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-
 THRESHOLD = Tunable("threshold", float, 1e-2, 0.0, 1e6, "",
                     "fastSW SSR threshold: largest sum of squared residuals of a segment")
 MAX_LEN = Tunable("max_len", int, 25, 1, 100_000, "samples",
@@ -118,21 +106,6 @@ class DeviceConfig:
     def flags(self) -> list[str]:
         """The command-line flags that give this config (``["--threshold", "0.01", ...]``)."""
         return [a for name, t in TUNABLES.items() for a in (t.flag, str(getattr(self, name)))]
-
-
-def add_arguments(parser: argparse.ArgumentParser, defaults: dict | None = None) -> None:
-    """One flag per tunable (``--threshold``, ``--max-len``, ...), checked by :meth:`Tunable.parse`.
-    ``defaults``: overrides of the tunables' defaults, by name."""
-    for t in TUNABLES.values():
-        default = (defaults or {}).get(t.name, t.default)
-        unit = f", {t.unit}" if t.unit else ""
-        parser.add_argument(t.flag, dest=t.name, type=t.parse, default=t.check(default),
-                            help=f"{t.help}{unit} ({t.describe()}, default {default:g})")
-
-
-def config_from_args(args: argparse.Namespace) -> DeviceConfig:
-    """The DeviceConfig of parsed :func:`add_arguments` flags."""
-    return DeviceConfig(**{name: getattr(args, name) for name in TUNABLES})
 
 
 def encode_config(update: DeviceConfig | dict) -> bytes:

@@ -9,6 +9,7 @@ key                                                     payload                 
 ``limbstream/<subject>/<segment>/config``               queryable: config/status   device
 ``limbstream/<subject>/pose``                           pose frame                 aggregator
 ``limbstream/<subject>/stats``                          stats (JSON on query)      aggregator
+``limbstream/<subject>/calibrate``                      queryable: calibration     aggregator
 ``limbstream/@time``                                    queryable: time exchange   time service
 ``limbstream/@gateway/<gateway>``                       queryable: sensors/assign  gateway
 =====================================================  =========================  ==========
@@ -27,9 +28,13 @@ import re
 from .errors import WireError
 
 PREFIX = "limbstream"
-DEVICE_KINDS: tuple[str, ...] = ("seg", "raw", "alive", "config")
+SEG, RAW, ALIVE, CONFIG = "seg", "raw", "alive", "config"
+"""The message kinds of a device: the last chunk of its keys."""
+POSE, STATS, CALIBRATE = "pose", "stats", "calibrate"
+"""The message kinds of a subject: the last chunk of its keys."""
+DEVICE_KINDS: tuple[str, ...] = (SEG, RAW, ALIVE, CONFIG)
 """Last chunk of a device key."""
-SUBJECT_KINDS: tuple[str, ...] = ("pose", "stats", "calibrate")
+SUBJECT_KINDS: tuple[str, ...] = (POSE, STATS, CALIBRATE)
 """Last chunk of a subject key."""
 TIME_CHUNK = "@time"
 """Second chunk of the time service's key (a verbatim chunk: wildcards never match it)."""
@@ -82,32 +87,32 @@ def subject_key(subject: str, kind: str) -> str:
 
 
 def seg_key(subject: str, segment: str) -> str:
-    return device_key(subject, segment, "seg")
+    return device_key(subject, segment, SEG)
 
 
 def raw_key(subject: str, segment: str) -> str:
-    return device_key(subject, segment, "raw")
+    return device_key(subject, segment, RAW)
 
 
 def alive_key(subject: str, segment: str) -> str:
-    return device_key(subject, segment, "alive")
+    return device_key(subject, segment, ALIVE)
 
 
 def config_key(subject: str, segment: str) -> str:
-    return device_key(subject, segment, "config")
+    return device_key(subject, segment, CONFIG)
 
 
 def pose_key(subject: str) -> str:
-    return subject_key(subject, "pose")
+    return subject_key(subject, POSE)
 
 
 def stats_key(subject: str) -> str:
-    return subject_key(subject, "stats")
+    return subject_key(subject, STATS)
 
 
 def calibrate_key(subject: str) -> str:
     """``limbstream/<subject>/calibrate``: the queryable of the aggregator serving the subject."""
-    return subject_key(subject, "calibrate")
+    return subject_key(subject, CALIBRATE)
 
 
 def history_selector(subject: str, segment: str, most: int, sn: tuple[int, int] | None = None) -> str:

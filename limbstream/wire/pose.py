@@ -7,9 +7,15 @@ import numpy as np
 
 from .body import JOINTS, SEGMENTS
 from .errors import WireError
+from .keys import POSE
 from .point import VERSION
 
 KIND_EXACT, KIND_LIVE = 0, 1
+FRAME_KINDS: dict[str, int] = {"exact": KIND_EXACT, "live": KIND_LIVE}
+"""The pose frame kinds by name, the one table of them (the pose stream API's and ``limbstream
+watch``'s ``kind``, the kinds' publisher options); ``auto`` (:data:`AUTO`) picks one by
+:func:`auto_kind`."""
+AUTO = "auto"
 FRAME_GAP = 0x01
 """Pose frame flag: a device's sequence gap affects this frame (reconstruction may be wrong)."""
 FRAME_MISSING = 0x02
@@ -24,6 +30,17 @@ AUTO_LIVE_WINDOW_S = 1.0
 subject's live frames while one of them came within this many seconds, else its exact frames.
 Live frames are current (exact frames are final but about 0.4 s late); exact frames stand in for
 a subject whose aggregator publishes no live frames (``--live-rate 0``) or stopped."""
+
+
+def kind_name(kind: int) -> str:
+    """The name of pose frame kind ``kind`` (:data:`FRAME_KINDS`)."""
+    return "live" if kind == KIND_LIVE else "exact"
+
+
+def pose_stream(kind: int) -> str:
+    """``pose_exact`` / ``pose_live``: the pose stream of frames of ``kind`` (their publisher
+    options, their sequence numbering)."""
+    return f"{POSE}_{kind_name(kind)}"
 
 
 def auto_kind(since_live_s: float) -> int:
@@ -80,7 +97,7 @@ class PoseFrame:
             "subject": subject,
             "seq": self.seq,
             "t": self.t_us / 1e6,
-            "kind": "live" if self.kind == KIND_LIVE else "exact",
+            "kind": kind_name(self.kind),
             "gap": bool(self.flags & FRAME_GAP),
             "missing": bool(self.flags & FRAME_MISSING),
             "segments": {s: [round(float(v), 6) for v in self.q[i]] for i, s in enumerate(SEGMENTS)},

@@ -21,6 +21,7 @@ import zenoh
 import zenoh.ext as zext
 
 from limbstream import heap, wire, zconfig
+from limbstream.pacing import LoopStats, PacedLoop
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.devices import NO_TIME
 from limbstream.services.aggregator.frames import FrameBatch, FrameStage
@@ -70,8 +71,8 @@ class AggregatorSettings:
     """
 
     subjects: tuple[str, ...] = ("*",)
-    rate: float = 50.0
-    live_rate: float = 50.0
+    rate: float = wire.DEVICE_RATE_HZ
+    live_rate: float = wire.DEVICE_RATE_HZ
     tick_s: float = 0.02
     stats_period_s: float = 1.0
     history: int = 512
@@ -86,43 +87,25 @@ class AggregatorSettings:
 
 
 @dataclass
-class LoopStats:
-    """Counters of the aggregator itself."""
+class AggregatorCounters:
+    """Counters of the aggregator itself; its loop's pacing figures (:class:`limbstream.pacing.LoopStats`) in ``pacing``."""
 
-    ticks: int = 0
-    late: int = 0
     points: int = 0
     raw_batches: int = 0
     frames: int = 0
     missed: int = 0          # reported by Zenoh's miss detection (not recoverable)
     max_backlog: int = 0     # most messages drained in one tick
     recent_backlog: int = 0  # most messages drained in one tick since the last stats message
-    busy_s: float = 0.0      # time spent working (not waiting for the next tick), seconds
-    load: float = 0.0        # share of the last stats period spent working (0..1; >= 1: cannot keep up)
-    max_tick_ms: float = 0.0      # longest tick's work, ms
-    recent_max_tick_ms: float = 0.0  # longest tick's work since the last stats round, ms
-
-    _round_start: float = field(default_factory=time.perf_counter, repr=False)
-    _round_busy: float = field(default=0.0, repr=False)
-
-    def record(self, work_s: float) -> None:
-        """One tick done, after ``work_s`` seconds of work."""
-        self.ticks += 1
-        self.busy_s += work_s
-        self._round_busy += work_s
-        self.max_tick_ms = max(self.max_tick_ms, 1e3 * work_s)
-        self.recent_max_tick_ms = max(self.recent_max_tick_ms, 1e3 * work_s)
+    pacing: LoopStats = field(default_factory=LoopStats)
 
     def end_round(self, now: float) -> None:
-        """A stats round is out: ``load`` over it, and the ``recent_*`` figures start over."""
-        self.load = round(self._round_busy / max(now - self._round_start, 1e-9), 4)
-        self._round_start, self._round_busy = now, 0.0
+        """A stats round is out: the pacing's ``load`` over it, and the ``recent_*`` figures start over."""
+        self.pacing.end_round(now)
         self.recent_backlog = 0
-        self.recent_max_tick_ms = 0.0
 
     def as_dict(self) -> dict:
         """The counters as published in every stats message (``"aggregator"`` entry)."""
-        return {k: getattr(self, k) for k in self.__dataclass_fields__ if not k.startswith("_")}
+        return self.pacing.as_dict() | {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pacing"}
 
 
 class Aggregator:
@@ -136,7 +119,7 @@ class Aggregator:
                              calibration_file=settings.calibration_file)
         self.subjects: dict[str, Subject] = self.fusion.subjects
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
-        self.loop = LoopStats()
+        self.loop = AggregatorCounters()
         self._calibrating: list = []  # (query, CalibrationRequest) under way
         self._calibrate_qs: list = []
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
@@ -236,34 +219,49 @@ class Aggregator:
             while (sample := sub.try_recv()) is not None:
                 self.on_alive(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
                 handled += 1
-        keys, payloads, samples = [], [], []
-        for sub in self._seg_subs:
-            while handled < budget and (sample := sub.try_recv()) is not None:
-                keys.append(str(sample.key_expr))
-                payloads.append(sample.payload.to_bytes())
-                samples.append(sample)
-                handled += 1
+        keys, payloads, samples = self._receive(self._seg_subs, budget - handled)
+        handled += len(keys)
         if keys:
             self.intake.take_points(keys, payloads, now, samples)
-        keys, payloads = [], []
-        for sub in self._raw_subs:
-            while handled < budget and (sample := sub.try_recv()) is not None:
-                keys.append(str(sample.key_expr))
-                payloads.append(sample.payload.to_bytes())
-                handled += 1
+        keys, payloads, _ = self._receive(self._raw_subs, budget - handled)
+        handled += len(keys)
         if keys:
             self.intake.take_raw(keys, payloads, now)
         if self.history is not None:
             self.history.ask()
             self.loop.points += self.history.drain(now)
+        self._count_misses(now)
+        self._take_statuses()
+        self.loop.max_backlog = max(self.loop.max_backlog, handled)
+        self.loop.recent_backlog = max(self.loop.recent_backlog, handled)
+        return handled
+
+    @staticmethod
+    def _receive(subscribers: list, budget: int) -> tuple[list[str], list[bytes], list[zenoh.Sample]]:
+        """(keys, payloads, samples) of at most ``budget`` messages waiting in ``subscribers``."""
+        keys: list[str] = []
+        payloads: list[bytes] = []
+        samples: list[zenoh.Sample] = []
+        for sub in subscribers:
+            while len(keys) < budget and (sample := sub.try_recv()) is not None:
+                keys.append(str(sample.key_expr))
+                payloads.append(sample.payload.to_bytes())
+                samples.append(sample)
+        return keys, payloads, samples
+
+    def _count_misses(self, now: float) -> None:
+        """Points Zenoh's miss detection reports lost for good: counted, logged at most every 5 s."""
         for listener in self._misses:
             while (miss := listener.try_recv()) is not None:
                 self.loop.missed += miss.nb
                 self._missed_unlogged += miss.nb
-        if self._missed_unlogged and now >= self._next_miss_log:  # at most one line per 5 s
+        if self._missed_unlogged and now >= self._next_miss_log:
             log.warning("zenoh reports %d segment points missed for good (%d in all)",
                         self._missed_unlogged, self.loop.missed)
             self._missed_unlogged, self._next_miss_log = 0, now + 5.0
+
+    def _take_statuses(self) -> None:
+        """Device statuses that answered a config query, at most STATUSES_PER_TICK."""
         open_replies, statuses = [], STATUSES_PER_TICK
         for replies in self._config_replies:
             try:
@@ -275,9 +273,6 @@ class Aggregator:
             except zenoh.ZError:  # the query is complete and its channel empty
                 pass
         self._config_replies = open_replies
-        self.loop.max_backlog = max(self.loop.max_backlog, handled)
-        self.loop.recent_backlog = max(self.loop.recent_backlog, handled)
-        return handled
 
     def _ask_status(self, subject: str, segment: str) -> None:
         """Ask one device for its status (the answer arrives in a channel, read by drain; no
@@ -433,7 +428,7 @@ class Aggregator:
 
     # ------------------------------------------------------------------ loop
 
-    def run(self, stop: threading.Event) -> LoopStats:
+    def run(self, stop: threading.Event) -> AggregatorCounters:
         """Loop until ``stop``: drain, advance frames every tick, stats about once a second."""
         s = self.settings
         start = time.perf_counter()
@@ -443,16 +438,9 @@ class Aggregator:
         ticks = max(1, round(s.stats_period_s / s.tick_s))  # a stats round per period, in batches
         stats_parts = min(STATS_BATCHES, ticks)
         stats_every = ticks // stats_parts
-        k = 0
-        while not stop.is_set():
-            deadline = start + k * s.tick_s
-            now = time.perf_counter()
-            if now < deadline:
-                if stop.wait(deadline - now):
-                    break
-            elif now - deadline > s.tick_s:
-                self.loop.late += 1
-            now = time.perf_counter()
+
+        def tick(k: int, now: float) -> None:
+            nonlocal next_live, next_config, next_frames, next_prune, next_trim, next_unsynced, watch_until
             with self.lock:
                 self.drain(now)
                 live = s.live_rate > 0 and now >= next_live
@@ -482,8 +470,8 @@ class Aggregator:
             elif now >= next_trim:
                 heap.release_free_heap()
                 next_trim = now + s.trim_s
-            self.loop.record(time.perf_counter() - now)
-            k += 1
+
+        PacedLoop(s.tick_s, stats=self.loop.pacing).run(stop, tick)
         return self.loop
 
 

@@ -20,6 +20,6 @@ def run(settings: AggregatorSettings, zenoh: zconfig.ZenohSettings, stop: thread
         print(f"aggregating subjects {','.join(settings.subjects)} at {settings.rate:g} Hz", flush=True)
         loop = aggregator.run(stop)
         aggregator.close()
-    print(f"aggregator: {loop.ticks} ticks ({loop.late} late), {loop.points} points, {loop.frames} frames, "
+    print(f"aggregator: {loop.pacing.ticks} ticks ({loop.pacing.late} late), {loop.points} points, {loop.frames} frames, "
           f"{loop.missed} missed, max backlog {loop.max_backlog}", flush=True)
     return 0

@@ -4,14 +4,12 @@ from __future__ import annotations
 import threading
 
 from limbstream import wire, zconfig
-from limbstream.signals import stop_on_signals
 from limbstream.services.clock.service import ClockServiceSettings, TimeService
 
 
 def run(settings: ClockServiceSettings, zenoh: zconfig.ZenohSettings, stop: threading.Event | None = None) -> int:
     """Open the session (waiting for the router), serve time until ``stop`` or a signal; exit code."""
-    stop = stop_on_signals(stop)
-    session = zconfig.open_session(zenoh, stop)
+    stop, session = zconfig.part_session(zenoh, stop)
     if session is None:  # stopped while waiting for the router
         return 0
     with session:

@@ -23,6 +23,7 @@ from .routes import devices, gateways, live, ops, subjects
 from .settings import DashboardSettings
 from .state import LiveState
 from .supervision import UpCollector, UpStatus
+from .views import Views
 from .zenoh_io import open_bridge
 
 
@@ -31,10 +32,10 @@ async def lifespan(app: FastAPI):
     """Open the Zenoh session in the background (a client waits for its router; ``/health``
     answers 503 meanwhile), subscribe, and close everything on shutdown."""
     settings: DashboardSettings = app.state.settings
-    state = LiveState(settings.history_seconds, settings.max_devices, settings.max_subjects,
-                      settings.stale_after_s, settings.ws_queue)
+    state = LiveState(settings.history_seconds, settings.max_devices, settings.max_subjects, settings.ws_queue)
     app.state.live = state
-    app.state.registry = build_registry(state)
+    app.state.views = Views(state, settings.stale_after_s)
+    app.state.registry = build_registry(state, app.state.views)
     app.state.up = UpStatus.from_env()
     app.state.registry.register(UpCollector(app.state.up))
     app.state.bridge = None

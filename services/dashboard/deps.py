@@ -13,6 +13,7 @@ from limbstream import wire
 
 from .settings import DashboardSettings
 from .state import LiveState
+from .views import Views
 
 CHUNK = wire.CHUNK_PATTERN
 
@@ -25,8 +26,13 @@ async def _live(conn: HTTPConnection) -> LiveState:
     return conn.app.state.live
 
 
+async def _views(conn: HTTPConnection) -> Views:
+    return conn.app.state.views
+
+
 SettingsDep = Annotated[DashboardSettings, Depends(_settings)]
 LiveDep = Annotated[LiveState, Depends(_live)]
+ViewsDep = Annotated[Views, Depends(_views)]
 SubjectPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="subject name", examples=["s01"])]
 SegmentPath = Annotated[str, Path(pattern=CHUNK, max_length=128, description="segment name", examples=["hip"])]
 

@@ -11,7 +11,7 @@ from limbstream import wire
 HISTORY_FIELDS = wire.HISTORY_FIELDS
 """Per-device series kept for the charts (plus the stats time ``t``): the charted stats fields."""
 
-KINDS = {"exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
+KINDS = wire.FRAME_KINDS
 LATENCY_FRAMES = 500
 """Exact frames per subject the exact-frame latency is taken over (10 s at 50 Hz)."""
 

@@ -7,6 +7,7 @@ from prometheus_client.registry import Collector, CollectorRegistry
 from limbstream import wire
 
 from .state import LiveState
+from .views import Views
 
 LABELS = ["subject", "segment"]
 DEVICE_METRICS = tuple(f for f in wire.DEVICE_FIELDS if f.metric)
@@ -19,14 +20,14 @@ def _family(f: wire.StatsField, labels: list[str]):
 
 
 class LiveCollector(Collector):
-    """Reads :class:`LiveState` on each scrape (``/metrics`` is async: it runs on the event loop,
-    which owns the state)."""
+    """Reads :class:`LiveState` and its views on each scrape (``/metrics`` is async: it runs on the
+    event loop, which owns the state)."""
 
-    def __init__(self, live: LiveState):
-        self.live = live
+    def __init__(self, live: LiveState, views: Views):
+        self.live, self.views = live, views
 
     def collect(self):
-        views = self.live.device_views()
+        views = self.views.device_views()
         for f in DEVICE_METRICS:
             family = _family(f, LABELS)
             for v in views:
@@ -38,7 +39,7 @@ class LiveCollector(Collector):
             online.add_metric([v["subject"], v["segment"]], 1.0 if v["online"] else 0.0)
         yield online
         live = self.live
-        aggregators = live.aggregator_views()
+        aggregators = self.views.aggregator_views()
         for f in AGGREGATOR_METRICS:
             family = _family(f, ["aggregator"])
             for a in aggregators:
@@ -52,10 +53,9 @@ class LiveCollector(Collector):
                 bad.add_metric([a["id"], reason], n)
         yield bad
         yield GaugeMetricFamily("limbstream_dashboard_stream_clients", "connected WebSocket/SSE clients",
-                                value=live.client_count())
-        skipped = live.clients_skipped + sum(c.skipped for g in live.clients.values() for c in g)
+                                value=live.fanout.count())
         yield CounterMetricFamily("limbstream_dashboard_frames_skipped", "frames skipped for slow clients",
-                                  value=skipped)
+                                  value=live.fanout.skipped_total())
         received = CounterMetricFamily("limbstream_dashboard_received", "Zenoh messages received", labels=["kind"])
         for kind, n in sorted(live.received.items()):
             received.add_metric([kind], n)
@@ -77,7 +77,7 @@ class LiveCollector(Collector):
             yield dropped
 
 
-def build_registry(live: LiveState) -> CollectorRegistry:
+def build_registry(live: LiveState, views: Views) -> CollectorRegistry:
     registry = CollectorRegistry(auto_describe=False)
-    registry.register(LiveCollector(live))
+    registry.register(LiveCollector(live, views))
     return registry

@@ -91,10 +91,10 @@ class DashboardSettings(BaseSettings):
         return self, False
 
     def zenoh_settings(self) -> zconfig.ZenohSettings:
-        """The Zenoh session settings: a client waits for its router however long it takes
-        (``/health`` answers 503 meanwhile). SystemExit naming a bad ``zenoh_config`` file."""
+        """The Zenoh session settings (:func:`limbstream.zconfig.settings`): a client waits for its
+        router however long it takes (``/health`` answers 503 meanwhile). SystemExit naming a bad
+        ``zenoh_config`` file."""
         try:
-            extra = zconfig.read_extra(self.zenoh_config) if self.zenoh_config else {}
+            return zconfig.settings(self.zenoh_mode, self.router, "", self.zenoh_config)
         except ValueError as exc:
-            raise SystemExit(f"--zenoh-config {exc}") from None
-        return zconfig.ZenohSettings(mode=self.zenoh_mode, connect=zconfig.split_list(self.router), extra=extra)
+            raise SystemExit(str(exc)) from None

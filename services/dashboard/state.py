@@ -2,8 +2,8 @@
 and kept on the event loop, which owns every structure here.
 
 Zenoh callbacks hand payloads over through an :class:`~.inbox.Inbox`; :meth:`LiveState.drain`
-applies them. The REST views of this state: :mod:`.views`; the fan-out of pose frames to
-WebSocket and SSE clients: :mod:`.fanout`.
+applies them. The REST views of this state: :class:`~.views.Views`; the fan-out of pose frames to
+WebSocket and SSE clients: :class:`~.fanout.FanOut`, held here (``fanout``).
 """
 from __future__ import annotations
 
@@ -14,35 +14,32 @@ from collections import Counter, deque
 
 from limbstream import wire
 
-from .entries import (AGGREGATOR_FIGURES, HISTORY_FIELDS, LATENCY_FRAMES, MAX_AGGREGATORS, MAX_BAD_KEY_REASONS,
-                      AggregatorEntry, DeviceEntry, PoseEntry)
-from .fanout import FanOut, PoseClient
+from .entries import (AGGREGATOR_FIGURES, HISTORY_FIELDS, KINDS, LATENCY_FRAMES, MAX_AGGREGATORS,
+                      MAX_BAD_KEY_REASONS, AggregatorEntry, DeviceEntry, PoseEntry)
+from .fanout import FanOut
 from .inbox import Inbox
-from .views import Views
 
 
 def _clean(value):
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
-class LiveState(Views, FanOut):
-    """Latest stats per device, bounded history per device, latest pose per subject.
+class LiveState:
+    """Latest stats per device, bounded history per device, latest pose per subject, and the
+    clients its pose frames fan out to.
 
     Parameters
     ----------
     history_seconds : seconds of history kept per device.
     max_devices, max_subjects : bounds on tracked devices / subjects.
-    stale_after_s : age (s) beyond which a device's stats count as stale.
     ws_queue : per-client queue length.
     """
 
     def __init__(self, history_seconds: int = 900, max_devices: int = 10_000, max_subjects: int = 1_000,
-                 stale_after_s: float = 5.0, ws_queue: int = 16):
+                 ws_queue: int = 16):
         self.history_seconds = history_seconds
         self.max_devices = max_devices
         self.max_subjects = max_subjects
-        self.stale_after_s = stale_after_s
-        self.ws_queue = ws_queue
         self.devices: dict[str, DeviceEntry] = {}
         self.alive: set[str] = set()
         self.poses: dict[str, dict[int, PoseEntry]] = {}
@@ -50,12 +47,11 @@ class LiveState(Views, FanOut):
         self.subject_stats: dict[str, dict] = {}  # the subject fields of each subject's latest stats
         self.exact_latency: dict[str, deque[float]] = {}  # ms, frame time -> received, last exact frames
         self.aggregators: dict[str, AggregatorEntry] = {}
-        self.clients: dict[str, set[PoseClient]] = {}
+        self.fanout = FanOut(ws_queue)
         self.received = Counter()
         self.errors = Counter()
         self.missed = Counter()  # messages lost on the way, by stream: stats, pose_exact, pose_live
         self._next_seq: dict[tuple[str, str], int] = {}
-        self.clients_skipped = 0
         self.inbox: Inbox | None = None
 
     # ------------------------------------------------------------------ hand-off
@@ -159,14 +155,27 @@ class LiveState(Views, FanOut):
                 self.errors["too_many_subjects"] += 1
                 return
             slots = self.poses[subject] = {}
-        self._count_missed(subject, "pose_live" if frame.kind == wire.KIND_LIVE else "pose_exact", frame.seq)
+        self._count_missed(subject, wire.pose_stream(frame.kind), frame.seq)
         entry = slots[frame.kind] = PoseEntry(frame, rx)
         if frame.kind == wire.KIND_EXACT:
             lat = self.exact_latency.get(subject)
             if lat is None:
                 lat = self.exact_latency[subject] = deque(maxlen=LATENCY_FRAMES)
             lat.append(1e3 * rx - frame.t_us / 1e3)
-        self._fan_out(subject, entry)
+        if self.fanout.watched(subject):
+            self.fanout.publish(subject, entry, self.auto_kind(subject))
+
+    def auto_kind(self, subject: str) -> int:
+        """The kind ``kind=auto`` shows now: the contract's one rule (``wire.auto_kind``)."""
+        live = self.poses.get(subject, {}).get(wire.KIND_LIVE)
+        return wire.auto_kind(math.inf if live is None else time.time() - live.rx)
+
+    def latest_pose(self, subject: str, kind: str = "auto") -> PoseEntry | None:
+        """The subject's latest frame of ``kind`` (``auto``: the kind it shows now, else any)."""
+        slots = self.poses.get(subject, {})
+        if kind == "auto":
+            return slots.get(self.auto_kind(subject)) or next(iter(slots.values()), None)
+        return slots.get(KINDS[kind])
 
     def _count_missed(self, subject: str, stream: str, seq: int | None) -> None:
         """Sequence check of one of a subject's streams: a jump forward counts the messages
@@ -188,6 +197,7 @@ class LiveState(Views, FanOut):
                 return None
             entry = self.devices[did] = DeviceEntry(subject, segment)
         return entry
+
 
 def _num(value) -> float | None:
     if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):

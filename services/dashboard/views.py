@@ -1,32 +1,29 @@
-"""The REST forms of the dashboard's live state: devices, their history, subjects, aggregators,
-and the latest pose of a subject by kind."""
+"""The REST forms of the dashboard's live state: devices, their history, subjects, aggregators."""
 from __future__ import annotations
 
-import math
 import time
 
 from limbstream import wire
 
-from .entries import HISTORY_FIELDS, KINDS, PoseEntry
+from .entries import HISTORY_FIELDS
+from .state import LiveState
 
 
 class Views:
-    """Reads of a :class:`~.state.LiveState` (mixed into it)."""
+    """The REST forms of a :class:`~.state.LiveState` (reads only).
 
-    def auto_kind(self, subject: str) -> int:
-        """The kind ``kind=auto`` shows now: the contract's one rule (``wire.auto_kind``)."""
-        live = self.poses.get(subject, {}).get(wire.KIND_LIVE)
-        return wire.auto_kind(math.inf if live is None else time.time() - live.rx)
+    Parameters
+    ----------
+    live : the state read.
+    stale_after_s : age (s) beyond which a device's stats count as stale.
+    """
 
-    def latest_pose(self, subject: str, kind: str = "auto") -> PoseEntry | None:
-        slots = self.poses.get(subject, {})
-        if kind == "auto":
-            return slots.get(self.auto_kind(subject)) or next(iter(slots.values()), None)
-        return slots.get(KINDS[kind])
+    def __init__(self, live: LiveState, stale_after_s: float = 5.0):
+        self.live, self.stale_after_s = live, stale_after_s
 
     def device_view(self, did: str, now: float | None = None) -> dict | None:
         """The REST form of one device: every stats field, plus subject, alive, age_s, stale."""
-        entry = self.devices.get(did)
+        entry = self.live.devices.get(did)
         if entry is None:
             return None
         now = time.time() if now is None else now
@@ -35,7 +32,7 @@ class Views:
         view |= {k: v for k, v in stats.items() if k not in view}
         age = now - entry.updated if entry.stats is not None else None
         stale = age is None or age > self.stale_after_s
-        alive = did in self.alive
+        alive = did in self.live.alive
         view.update(device=did, segment=entry.segment, subject=entry.subject, alive=alive,
                     age_s=None if age is None else round(age, 3), stale=stale,
                     online=bool(stats.get("online")) if not stale else alive)
@@ -44,12 +41,12 @@ class Views:
     def device_views(self, subject: str | None = None) -> list[dict]:
         """Every device's view, by id; ``subject``: only that subject's."""
         now = time.time()
-        return [self.device_view(did, now) for did, e in sorted(self.devices.items())
+        return [self.device_view(did, now) for did, e in sorted(self.live.devices.items())
                 if subject is None or e.subject == subject]
 
     def history(self, did: str, seconds: float) -> dict | None:
         """Column form ``{"t": [...], <field>: [...]}`` of the last ``seconds`` of a device."""
-        entry = self.devices.get(did)
+        entry = self.live.devices.get(did)
         if entry is None:
             return None
         rows = list(entry.history)
@@ -63,7 +60,7 @@ class Views:
 
     def subject_names(self) -> list[str]:
         """Every subject with a device or a pose frame, sorted."""
-        return sorted({e.subject for e in self.devices.values()} | set(self.poses))
+        return sorted({e.subject for e in self.live.devices.values()} | set(self.live.poses))
 
     def subject_views(self) -> list[dict]:
         return [self.subject_view(name) for name in self.subject_names()]
@@ -73,20 +70,20 @@ class Views:
         (``device_list``) and the body's segments it has no device for (``missing_segments``)."""
         now = time.time()
         views = self.device_views(name)
-        pose = self.latest_pose(name)
+        pose = self.live.latest_pose(name)
         view = {
             "subject": name,
             "devices": len(views),
             "online": sum(1 for v in views if v["online"]),
             "msgs_per_s": round(sum(v["msgs_per_s"] or 0.0 for v in views), 3),
             "bytes_per_s": round(sum(v["bytes_per_s"] or 0.0 for v in views), 3),
-            "stats_age_s": round(now - self.stats_times[name], 3) if name in self.stats_times else None,
+            "stats_age_s": round(now - self.live.stats_times[name], 3) if name in self.live.stats_times else None,
             "pose": None if pose is None else {
                 "seq": pose.frame.seq, "t": pose.frame.t_us / 1e6,
-                "kind": "live" if pose.frame.kind == wire.KIND_LIVE else "exact",
+                "kind": wire.kind_name(pose.frame.kind),
                 "age_s": round(now - pose.rx, 3)},
             **self.exact_latency_view(name),
-            **self.subject_stats.get(name, {}),
+            **self.live.subject_stats.get(name, {}),
         }
         if with_devices:
             have = {v["segment"] for v in views}
@@ -96,7 +93,7 @@ class Views:
     def exact_latency_view(self, subject: str) -> dict:
         """``exact_latency_p50_ms``, ``exact_latency_p99_ms``: frame time -> received here, over
         the subject's last :data:`LATENCY_FRAMES` exact frames (None before the first)."""
-        lat = self.exact_latency.get(subject)
+        lat = self.live.exact_latency.get(subject)
         if not lat:
             return {"exact_latency_p50_ms": None, "exact_latency_p99_ms": None}
         xs = sorted(lat)
@@ -107,7 +104,7 @@ class Views:
         """The REST form of every aggregator: its figures, late ticks in %, age and staleness."""
         now = time.time()
         out = []
-        for aid, agg in sorted(self.aggregators.items()):
+        for aid, agg in sorted(self.live.aggregators.items()):
             f = agg.figures
             late_pct = 100.0 * f["late"] / f["ticks"] if f["ticks"] and f["late"] is not None else None
             age = now - agg.updated

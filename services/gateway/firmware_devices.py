@@ -15,10 +15,9 @@ import threading
 from pathlib import Path
 
 from limbstream import zconfig
-from limbstream.device_emulator.emulator import EmulatorSettings
+from limbstream.device.host import HostSettings
 from limbstream.services.gateway import firmware, serial_gateway
 from limbstream.services.gateway.serial_port import SerialLink
-from limbstream.signals import stop_on_signals
 
 
 class FirmwareConnector:
@@ -51,41 +50,40 @@ class FirmwareConnector:
             self.device = None
 
 
-def run(feeds: dict, settings: EmulatorSettings, zenoh: zconfig.ZenohSettings, elf: Path,
+def run(feeds: dict, settings: HostSettings, speed: float, zenoh: zconfig.ZenohSettings, elf: Path,
         duration: float | None = None, stop: threading.Event | None = None) -> int:
-    """Run one firmware device per segment of each feed ({subject: feed}) until ``stop``, a
-    signal or ``duration`` s of device time (a finite feed: its end, then idle); exit code."""
-    stop = stop_on_signals(stop)
-    session = zconfig.open_session(zenoh, stop)
+    """Run one firmware device per segment of each feed ({subject: feed}) at ``speed`` until
+    ``stop``, a signal or ``duration`` s of device time (a finite feed: its end, then idle); exit code."""
+    stop, session = zconfig.part_session(zenoh, stop)
     if session is None:
         return 0
     connectors: list[FirmwareConnector] = []
     gateways: list[serial_gateway.SerialGateway] = []
     with session:
+        host = serial_gateway.serial_host(session, settings)
+        host.declare()
         try:
             for subject, feed in feeds.items():
                 for column, segment in enumerate(feed.segments):
                     connector = FirmwareConnector(elf)
                     connectors.append(connector)
-                    gateways.append(serial_gateway.SerialGateway(
-                        session, connector, subject, segment, settings.config,
-                        serial_gateway.Feeding(feed, column, settings.fs), truth=settings.truth,
-                        raw_batch=settings.raw_batch, cache=settings.cache, heartbeat_s=settings.heartbeat_s,
-                        rest_pose=feed.rest_pose))
+                    gateways.append(serial_gateway.SerialGateway(host, connector, subject, segment,
+                                                                 serial_gateway.Feeding(feed, column), feed.rest_pose))
             for connector in connectors:
                 connector.launch()
             online = sum(g.open() for g in gateways)
             for feed in feeds.values():
                 feed.sample(0)  # the first chunk before the clock starts
             print(f"emulating {len(gateways)} firmware devices ({online} online) of {len(feeds)} subjects "
-                  f"({', '.join(feeds)}) at {settings.fs:g} Hz x{settings.speed:g} under QEMU", flush=True)
-            ticks = serial_gateway.run(gateways, stop, settings.fs, settings.speed, duration)
+                  f"({', '.join(feeds)}) at {settings.fs:g} Hz x{speed:g} under QEMU", flush=True)
+            ticks = serial_gateway.run(host, gateways, stop, speed, duration)
             restarts = sum(c.starts for c in connectors) - len(connectors)
             print(f"emulator: {ticks} ticks, {restarts} firmware restarts", flush=True)
         finally:
             for g in gateways:
                 print(f"emulator: {g.summary()}", flush=True)
                 g.close()
+            host.close()
             for connector in connectors:
                 connector.stop()
     return 0

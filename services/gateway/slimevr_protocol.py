@@ -7,7 +7,7 @@ sends number 0. Bundles (100: ``u16 length, i32 type, payload`` repeated; 101, c
 ``u8 length, u8 type, payload`` repeated) carry several packets under one number.
 
 Datagrams of rotations only, nearly all of the traffic, are read the same way in C
-(``firmware_c/src/lsw_slimevr.c``; tests/test_grid.py checks that both agree).
+(``firmware_c/host/lsw_slimevr.c``; tests/test_grid.py checks that both agree).
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """The SlimeVR gateway's datagrams of routed sensors' rotations, read and handled in C
-(``firmware_c/src/lsw_slimevr.c``): nearly all of a tracker's traffic, without a Python step per
+(``firmware_c/host/lsw_slimevr.c``): nearly all of a tracker's traffic, without a Python step per
 packet. Every other datagram comes back to the gateway's Python, in order.
 
 A route says that rotations of (IPv4 address, port, sensor) go to a device of the gateway's

@@ -35,7 +35,7 @@ from .opensim import mot_text, segments_with_data, sto_text
 from .recording import Recording, RecordingError
 
 FORMATS = ("bvh", "csv", "npz", "mot", "sto")
-FS = 50.0
+FS = wire.DEVICE_RATE_HZ
 """Frame rate of exports from motion files, Hz (recordings keep their aggregator's rate)."""
 
 

@@ -85,7 +85,7 @@ class Recorder:
                  history: int = 512, config_poll_s: float = 5.0):
         self.session, self.writer, self.subjects = session, writer, subjects
         self.config_poll_s = config_poll_s
-        kinds = ("seg", "raw", "pose", "stats") if truth else ("seg", "pose", "stats")
+        kinds = (wire.SEG, wire.RAW, wire.POSE, wire.STATS) if truth else (wire.SEG, wire.POSE, wire.STATS)
         self.subscription = Subscription(session, subjects, kinds, capacity=1 << 18, history=history)
         self.stats = RecorderStats()
         self._points: dict[tuple[str, int], SeqTracker] = {}

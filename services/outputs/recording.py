@@ -28,10 +28,12 @@ from mcap.stream_reader import StreamReader
 
 from limbstream import wire
 
-KINDS: tuple[str, ...] = ("seg", "raw", "pose", "stats", "config")
+KINDS: tuple[str, ...] = (wire.SEG, wire.RAW, wire.POSE, wire.STATS, wire.CONFIG)
 """Key kinds a recording holds, one channel each."""
 TOPICS: dict[str, str] = {kind: f"/limbstream/{kind}" for kind in KINDS}
 """MCAP topic of each kind."""
+TOPIC_KINDS: dict[str, str] = {topic: kind for kind, topic in TOPICS.items()}
+"""The kind of each MCAP topic."""
 
 
 def skeleton_topic(subject: str) -> str:
@@ -249,38 +251,21 @@ class Recording:
         the iteration (see :attr:`truncated`). ``until_channel``: stop at the first limbstream
         channel (:meth:`check`)."""
         wanted = set(kinds)
-        topics = {topic: kind for kind, topic in TOPICS.items()}
         channels: dict[int, str] = {}  # channel id -> kind, for limbstream channels
         foreign: set[str] = set()
         ended = False
         with open(self.path, "rb") as f:
-            records = StreamReader(f, record_size_limit=1 << 30).records
-            while True:
-                at = f.tell()  # where the next record starts (or records of a chunk already read)
-                try:
-                    record = next(records)
-                except StopIteration:
+            for record in self._records(f):
+                if record is None or isinstance(record, DataEnd | Footer):
                     ended = True
                     break
-                except (McapError, struct.error, ValueError, EOFError) as exc:
-                    if at >= os.fstat(f.fileno()).st_size and isinstance(exc, EndOfFile):
-                        break  # the file ends between two records: the writer stopped there
-                    self.truncated = (f"cut inside a record at byte {at} "
-                                      f"({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})")
-                    break
                 if isinstance(record, Message):
-                    kind = channels.get(record.channel_id)
-                    if kind is None or kind not in wanted:
-                        continue
-                    try:
-                        key, payload = open_envelope(record.data)
-                    except wire.WireError:
-                        self.bad[kind] += 1
-                        continue
-                    yield Entry(kind, key, payload, record.log_time)
+                    entry = self._entry(record, channels.get(record.channel_id), wanted)
+                    if entry is not None:
+                        yield entry
                 elif isinstance(record, Channel):
-                    if record.topic in topics and record.message_encoding == MESSAGE_ENCODING:
-                        channels[record.id] = topics[record.topic]
+                    if record.topic in TOPIC_KINDS and record.message_encoding == MESSAGE_ENCODING:
+                        channels[record.id] = TOPIC_KINDS[record.topic]
                         if until_channel:
                             return
                     elif not record.topic.endswith("/skeleton"):
@@ -289,10 +274,42 @@ class Recording:
                     self.metadata = dict(record.metadata)
                 elif isinstance(record, Header) and record.profile not in (PROFILE, ""):
                     foreign.add(f"profile {record.profile!r}")
-                elif isinstance(record, DataEnd | Footer):
-                    ended = True
-                    break
-        if not channels:
+        self._found(bool(channels), foreign, ended)
+
+    def _records(self, f) -> Iterator[object]:
+        """The records of the open file ``f`` in order, then None at the end of its records; a file
+        cut between two records (the writer stopped there) or inside one (:attr:`truncated`) just
+        stops."""
+        records = StreamReader(f, record_size_limit=1 << 30).records
+        while True:
+            at = f.tell()  # where the next record starts (or records of a chunk already read)
+            try:
+                record = next(records)
+            except StopIteration:
+                yield None
+                return
+            except (McapError, struct.error, ValueError, EOFError) as exc:
+                if not (at >= os.fstat(f.fileno()).st_size and isinstance(exc, EndOfFile)):
+                    self.truncated = (f"cut inside a record at byte {at} "
+                                      f"({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})")
+                return
+            yield record
+
+    def _entry(self, record: Message, kind: str | None, wanted: set[str]) -> Entry | None:
+        """The entry of a message on a limbstream channel of a wanted kind (a bad envelope is counted)."""
+        if kind is None or kind not in wanted:
+            return None
+        try:
+            key, payload = open_envelope(record.data)
+        except wire.WireError:
+            self.bad[kind] += 1
+            return None
+        return Entry(kind, key, payload, record.log_time)
+
+    def _found(self, limbstream: bool, foreign: set[str], ended: bool) -> None:
+        """After reading: RecordingError if no limbstream channel was found (a foreign recording,
+        or one cut before its first complete chunk); else note a file the recorder did not close."""
+        if not limbstream:
             if foreign:
                 raise RecordingError(f"{self.path}: not a limbstream recording: no {TOPICS['seg']} or other "
                                      f"limbstream channel (it holds {', '.join(sorted(foreign)[:5])})")

@@ -2,10 +2,10 @@
 their keys, at the recorded receive times scaled by a speed — so an aggregator rebuilds the
 same frames.
 
-Each replayed device is declared like an emulated one (device_emulator/emulator.py): an
-advanced publisher with a cache and miss detection for its segment points, one for its truth
-batches (publisher options from zconfig.QOS), a liveliness token, and a config queryable per
-subject. Payloads go out as recorded (the aggregator decodes and checks them like any device's).
+Each replayed device is a device of a device host (:mod:`limbstream.device.host`), as an
+emulated one: an advanced publisher with a cache and miss detection for its segment points, one
+for its truth batches, a liveliness token, and a config queryable per subject. Payloads go out as
+recorded (the aggregator decodes and checks them like any device's).
 With ``loop``, every later pass is a new stream of each device (stream id + pass) with its times
 shifted past the previous pass (:data:`PASS_GAP_NS` after it).
 
@@ -19,16 +19,15 @@ recorded settings.
 from __future__ import annotations
 
 import collections
-import json
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import zenoh
-import zenoh.ext as zext
 
-from limbstream import wire, zconfig
+from limbstream import wire
+from limbstream.device.host import Device, DeviceHost, HostSettings, Refused
 
 from .recording import Entry, Recording
 
@@ -95,17 +94,23 @@ class Replayer:
     def __init__(self, session: zenoh.Session, recording: Recording, settings: ReplaySettings):
         self.session, self.recording, self.settings = session, recording, settings
         self.stats = ReplayStats()
-        self._publishers: dict[tuple[str, str], object] = {}  # (key, kind) -> advanced publisher
-        self._tokens: dict[str, object] = {}  # alive key -> liveliness token
-        self._queryables: dict[str, zenoh.Queryable] = {}  # subject (renamed) -> its config queryable
+        self.host: DeviceHost = DeviceHost(session, HostSettings(truth=settings.truth, cache=settings.cache,
+                                                                 heartbeat_s=settings.heartbeat_s),
+                                           self._refuse, self._status)
+        self.host.declare()
         self._state: dict[str, ReplayedDevice] = collections.defaultdict(ReplayedDevice)  # by device id
         self._next_answer = 0.0
-        self.devices: set[str] = set()
+
+    @property
+    def devices(self) -> set[str]:
+        """The ids of the devices replayed so far."""
+        return set(self.host.by_id)
 
     # ------------------------------------------------------------------ devices
 
-    def _target(self, entry: Entry) -> str | None:
-        """The key ``entry`` goes out on (subject renamed), or None (counted) if it is not a device key."""
+    def _target(self, entry: Entry) -> Device | None:
+        """The device ``entry`` goes out from (subject renamed; online from its first message), or
+        None (counted) if its key is not a device key."""
         try:
             subject, segment, kind = wire.parse_device_key(entry.key)
             if kind != entry.kind:
@@ -114,33 +119,15 @@ class Replayer:
         except (wire.WireError, ValueError):
             self.stats.skipped[entry.kind] += 1
             return None
-        key = wire.device_key(subject, segment, entry.kind)
-        if (key, entry.kind) not in self._publishers:
-            self._declare(subject, segment, entry.kind, key)
-        return key
-
-    def _declare(self, subject: str, segment: str, kind: str, key: str) -> None:
-        s = self.settings
-        pub = zext.declare_advanced_publisher(
-            self.session, key, cache=zext.CacheConfig(max_samples=s.cache if kind == "seg" else 64),
-            sample_miss_detection=zext.MissDetectionConfig(heartbeat=s.heartbeat_s), publisher_detection=True,
-            **zconfig.publisher_options(kind))
-        self._publishers[(key, kind)] = pub
-        alive = wire.alive_key(subject, segment)
-        if alive not in self._tokens:
-            self._tokens[alive] = self.session.liveliness().declare_token(alive)
-            self.devices.add(wire.device_id(subject, segment))
-        if subject not in self._queryables:
-            self._queryables[subject] = self.session.declare_queryable(
-                wire.device_selector("config", subject), zenoh.handlers.FifoChannel(1024))
+        d = self.host.by_id.get(wire.device_id(subject, segment))
+        if d is None:
+            d = self.host.add(subject, segment)
+            self.host.online(d)
+        return d
 
     def close(self) -> None:
-        """Devices go offline: tokens and publishers undeclared."""
-        for entity in [*self._tokens.values(), *self._publishers.values(), *self._queryables.values()]:
-            entity.undeclare()
-        self._tokens.clear()
-        self._publishers.clear()
-        self._queryables.clear()
+        """Devices go offline: tokens, publishers and queryables undeclared."""
+        self.host.close()
 
     # ------------------------------------------------------------------ config queries
 
@@ -173,37 +160,29 @@ class Replayer:
         except (ValueError, KeyError, TypeError):  # a stats row without valid tunables
             self.stats.undecodable[f"{entry.kind}_row"] += 1
 
-    def _replayed(self, key: str, payload: bytes) -> None:
-        """A segment point went out on ``key``: the device's stream, samples and points."""
+    def _replayed(self, d: Device, payload: bytes) -> None:
+        """A segment point went out from device d: its stream, samples and points."""
         try:
             point = wire.decode_point(payload)
-            subject, segment, _ = wire.parse_device_key(key)
         except wire.WireError:
             return
-        state = self._state[wire.device_id(subject, segment)]
+        state = self._state[d.id]
         if point.stream != state.stream:
             state.stream, state.points = point.stream, 0
         state.samples, state.points = point.index + 1, state.points + 1
 
+    def _refuse(self, d: Device, config: wire.DeviceConfig) -> None:
+        raise Refused(FIXED)
+
+    def _status(self, d: Device) -> wire.DeviceStatus:
+        state = self._state[d.id]
+        if state.config is None:
+            raise Refused(f"replayed device {d.id}: the recording holds no settings of it (yet)")
+        return wire.DeviceStatus(d.id, state.config, state.stream, state.samples, state.points, state.clock)
+
     def answer_queries(self) -> None:
         """Answer the config queries that arrived (status, or :data:`FIXED` for a change)."""
-        for subject, queryable in list(self._queryables.items()):
-            while (query := queryable.try_recv()) is not None:
-                if query.payload is not None and query.payload.to_bytes():
-                    query.reply_err(json.dumps({"error": FIXED}))
-                    continue
-                for did in sorted(d for d in self.devices if wire.split_device_id(d)[0] == subject):
-                    key = wire.config_key(*wire.split_device_id(did))
-                    if not zenoh.KeyExpr(key).intersects(query.key_expr):
-                        continue
-                    state = self._state[did]
-                    if state.config is None:
-                        query.reply_err(json.dumps({"error": f"replayed device {did}: the recording holds no "
-                                                             f"settings of it (yet)"}))
-                        continue
-                    status = wire.DeviceStatus(did, state.config, state.stream, state.samples, state.points,
-                                               state.clock)
-                    query.reply(key, wire.encode_status(status))
+        self.host.answer_queries()
 
     def _wait(self, stop: threading.Event, seconds: float) -> bool:
         """Wait ``seconds`` (True if ``stop`` was set meanwhile), answering config queries every
@@ -247,7 +226,7 @@ class Replayer:
         """Publish pass after pass (one without ``loop``) until the end or ``stop``; then hold the
         devices online for ``hold_s`` and take them offline."""
         s = self.settings
-        kinds = ("seg", "raw", "config", "stats") if s.truth else ("seg", "config", "stats")
+        kinds = (wire.SEG, wire.RAW, wire.CONFIG, wire.STATS) if s.truth else (wire.SEG, wire.CONFIG, wire.STATS)
         start = time.monotonic()
         offset_ns = 0  # recorded time of the passes before this one
         next_progress = start + progress_s
@@ -265,15 +244,17 @@ class Replayer:
                 due = start + (offset_ns + entry.log_ns - t0) / 1e9 / s.speed
                 if self._wait(stop, due - time.monotonic()):
                     break
-                key = self._target(entry)
-                if key is None:
+                d = self._target(entry)
+                if d is None:
                     continue
                 if n_pass == 0:
                     self._check(entry)
                 payload = self._payload(entry, n_pass, offset_ns // 1000)
-                self._publishers[(key, entry.kind)].put(payload)
                 if entry.kind == "seg":
-                    self._replayed(key, payload)
+                    self.host.publish(d, payload)
+                    self._replayed(d, payload)
+                else:
+                    self.host.publish_raw(d, payload)
                 self.stats.published[entry.kind] += 1
                 self.stats.recorded_s = (offset_ns + entry.log_ns - t0) / 1e9
                 if on_progress is not None and time.monotonic() >= next_progress:

@@ -30,11 +30,11 @@ import zenoh.ext as zext
 
 from limbstream import wire, zconfig
 
-KINDS: tuple[str, ...] = ("pose", "stats", "seg", "raw")
+KINDS: tuple[str, ...] = (wire.POSE, wire.STATS, wire.SEG, wire.RAW)
 """What a subscription can carry: subject kinds (pose, stats) and device kinds (seg, raw)."""
 
 _DECODERS: dict[str, Callable[[bytes], object]] = {
-    "pose": wire.decode_pose, "stats": wire.decode_stats, "seg": wire.decode_point, "raw": wire.decode_raw,
+    wire.POSE: wire.decode_pose, wire.STATS: wire.decode_stats, wire.SEG: wire.decode_point, wire.RAW: wire.decode_raw,
 }
 
 

@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 
 from limbstream import wire
 
-from ..deps import LiveDep, SegmentPath, SettingsDep, SubjectPath, TokenDep
+from ..deps import LiveDep, SegmentPath, SettingsDep, SubjectPath, TokenDep, ViewsDep
 from ..models import ConfigUpdate, DeviceConfig, DeviceHistory, DeviceStats
 from ..zenoh_io import ConfigError, query_config
 
@@ -25,24 +25,25 @@ def _known(live, subject: str, segment: str) -> str:
 
 
 @router.get("", response_model=list[DeviceStats])
-async def list_devices(live: LiveDep, subject: Annotated[str | None, Query(
+async def list_devices(views: ViewsDep, subject: Annotated[str | None, Query(
         pattern=wire.CHUNK_PATTERN, max_length=128, description="only this subject's devices")] = None) -> list[dict]:
     """Every device seen (stats or liveliness), sorted by id; ``subject``: only that subject's."""
-    return live.device_views(subject)
+    return views.device_views(subject)
 
 
 @router.get("/{subject}/{segment}", response_model=DeviceStats, responses=NOT_FOUND)
-async def get_device(subject: SubjectPath, segment: SegmentPath, live: LiveDep) -> dict:
+async def get_device(subject: SubjectPath, segment: SegmentPath, live: LiveDep, views: ViewsDep) -> dict:
     """One device; its id is ``<subject>/<segment>``."""
-    return live.device_view(_known(live, subject, segment))
+    return views.device_view(_known(live, subject, segment))
 
 
 @router.get("/{subject}/{segment}/history", response_model=DeviceHistory, responses=NOT_FOUND)
-async def device_history(subject: SubjectPath, segment: SegmentPath, live: LiveDep, settings: SettingsDep,
+async def device_history(subject: SubjectPath, segment: SegmentPath, live: LiveDep, views: ViewsDep,
+                         settings: SettingsDep,
                    seconds: Annotated[float, Query(gt=0, le=86_400, description="window, s")] = 300) -> dict:
     """Time series for the charts, the last ``seconds`` (at most the kept history)."""
     did = _known(live, subject, segment)
-    return {"device": did} | live.history(did, min(seconds, settings.history_seconds))
+    return {"device": did} | views.history(did, min(seconds, settings.history_seconds))
 
 
 @router.put("/{subject}/{segment}/config", response_model=DeviceConfig, dependencies=[TokenDep],

@@ -44,7 +44,7 @@ async def ws_pose(websocket: WebSocket, subject: str, live: LiveDep, settings: S
         await websocket.close(POLICY_VIOLATION, "origin not allowed")
         return
     await websocket.accept()
-    client = live.add_client(subject, kind)
+    client = live.fanout.add(subject, kind, live.latest_pose(subject, kind))
 
     async def pump() -> None:
         while True:
@@ -66,7 +66,7 @@ async def ws_pose(websocket: WebSocket, subject: str, live: LiveDep, settings: S
             with contextlib.suppress(asyncio.CancelledError, asyncio.TimeoutError, WebSocketDisconnect,
                                      RuntimeError, OSError):
                 await task
-        live.remove_client(client)
+        live.fanout.remove(client)
         with contextlib.suppress(RuntimeError, OSError, WebSocketDisconnect):
             await websocket.close()
 
@@ -78,7 +78,7 @@ async def sse_pose(subject: SubjectPath, request: Request, live: LiveDep,
                    limit: Annotated[int | None, Query(ge=1, le=1_000_000,
                                                       description="end after this many frames")] = None):
     """Server-sent events: one ``data:`` line of pose JSON per frame."""
-    client = live.add_client(subject, kind)
+    client = live.fanout.add(subject, kind, live.latest_pose(subject, kind))
 
     async def events():
         sent = 0
@@ -96,7 +96,7 @@ async def sse_pose(subject: SubjectPath, request: Request, live: LiveDep,
                 sent += 1
                 client.sent += 1
         finally:
-            live.remove_client(client)
+            live.fanout.remove(client)
 
     return StreamingResponse(events(), media_type="text/event-stream",
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})

@@ -6,7 +6,7 @@ import time
 from fastapi import APIRouter, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from ..deps import LiveDep, SettingsDep
+from ..deps import LiveDep, SettingsDep, ViewsDep
 from limbstream import wire
 
 from ..models import Aggregator, Tunable
@@ -29,9 +29,9 @@ async def health(request: Request, response: Response, live: LiveDep, settings: 
 
 
 @router.get("/api/aggregators", response_model=list[Aggregator])
-async def aggregators(live: LiveDep) -> list[dict]:
+async def aggregators(views: ViewsDep) -> list[dict]:
     """Every aggregator heard from: its load, late ticks, backlog and losses."""
-    return live.aggregator_views()
+    return views.aggregator_views()
 
 
 @router.get("/api/tunables", response_model=list[Tunable])

@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 
 from limbstream import wire
 
-from ..deps import LiveDep, SubjectPath, TokenDep
+from ..deps import LiveDep, SubjectPath, TokenDep, ViewsDep
 from ..models import CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject, SubjectDetail
 from ..zenoh_io import ConfigError, query_calibrate
 
@@ -16,18 +16,18 @@ router = APIRouter(prefix="/api", tags=["subjects"])
 
 
 @router.get("/subjects", response_model=list[Subject])
-async def list_subjects(live: LiveDep) -> list[dict]:
+async def list_subjects(views: ViewsDep) -> list[dict]:
     """Every subject with device counts, total data rate and its latest frame's age."""
-    return live.subject_views()
+    return views.subject_views()
 
 
 @router.get("/subjects/{subject}", response_model=SubjectDetail, responses={404: {"description": "unknown subject"}})
-async def get_subject(subject: SubjectPath, live: LiveDep) -> dict:
+async def get_subject(subject: SubjectPath, views: ViewsDep) -> dict:
     """One subject as in the list, with each of its devices and the body's segments it has no
     device for."""
-    if subject not in live.subject_names():
+    if subject not in views.subject_names():
         raise HTTPException(404, f"unknown subject {subject!r}")
-    return live.subject_view(subject, with_devices=True)
+    return views.subject_view(subject, with_devices=True)
 
 
 @router.get("/subjects/{subject}/pose", response_model=Pose,

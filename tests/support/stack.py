@@ -3,7 +3,7 @@
 
 Usage in a test module::
 
-    from stack import Stack, stack  # noqa: F401  (the fixture)
+    from support.stack import Stack, stack  # noqa: F401  (the fixture)
 
     def test_something(stack):
         stack.router()
@@ -30,8 +30,8 @@ import zenoh
 from limbstream import wire, zconfig
 from limbstream import launch
 from limbstream.launch import Child, free_port  # noqa: F401  (re-exported for the tests)
+from support import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def wait_until(predicate, timeout: float, what: str, interval: float = 0.05, on_fail=None):

@@ -22,6 +22,7 @@ typedef enum {
     LSW_ABI_SVR_SLOW = 9,      /**< LswSvrSlow */
     LSW_ABI_RAW_SAMPLE = 10,   /**< LswRawSample */
     LSW_ABI_IMU_SETTINGS = 11, /**< LswImuSettings */
+    LSW_ABI_FUSE_ROWS = 12,    /**< LswFuseRows */
 } LswAbiStruct;
 
 /** sizeof the struct ``which``; 0 for an unknown one. */

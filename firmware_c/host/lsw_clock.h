@@ -1,7 +1,7 @@
 /*
  * lsw_clock.h - stamping samples on the common time base, for many emulated devices in one call:
  * each device's correction (service time minus device time) follows its sync estimate's line
- * with a bounded slew (docs/protocol.md, "Time exchange"; device_emulator/clock.py).
+ * with a bounded slew (docs/protocol.md, "Time exchange"; limbstream/device/sync.py).
  *
  * Host only (the device emulator's inner loop; not part of the Cortex-M4 build).
  */

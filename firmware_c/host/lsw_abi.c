@@ -5,6 +5,7 @@
 #include "fastsw_batch.h"
 #include "lsw_bank.h"
 #include "lsw_clock.h"
+#include "lsw_fuse.h"
 #include "lsw_grid.h"
 #include "lsw_imu.h"
 #include "lsw_slimevr.h"
@@ -24,6 +25,7 @@ size_t lsw_abi_size(int which)
     case LSW_ABI_SVR_SLOW: return sizeof(LswSvrSlow);
     case LSW_ABI_RAW_SAMPLE: return sizeof(LswRawSample);
     case LSW_ABI_IMU_SETTINGS: return sizeof(LswImuSettings);
+    case LSW_ABI_FUSE_ROWS: return sizeof(LswFuseRows);
     default: return 0;
     }
 }

@@ -1,5 +1,5 @@
-"""The emulated devices' own clocks (docs/reliability.md, "Device clocks") and the emulation's
-true time.
+"""Device clocks (docs/reliability.md, "Device clocks") and the true time they are measured
+against.
 
 - :class:`DeviceClocks`: every emulated device's own clock, vectorised: a fixed offset drawn
   uniform in +-MAX, a drift drawn uniform in +-MAX ppm (seeded), optional read jitter uniform
@@ -21,7 +21,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class ClockSettings:
-    """Clocks and sync of one emulator.
+    """Clocks and sync of the devices of one process (a gateway has one clock: its own).
 
     Attributes
     ----------

@@ -9,6 +9,8 @@ import socket
 import struct
 import time
 
+from limbstream.pacing import PacedLoop
+
 GREETING = b"Hey OVR =D 5"
 AXES_INVERSE = (math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0)
 """+90 degrees about X: what a tracker sends for limbstream orientation q is AXES_INVERSE * q."""
@@ -70,6 +72,12 @@ class Tracker:
 
     def close(self) -> None:
         self.sock.close()
+
+    def __enter__(self) -> Tracker:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def send_raw(self, data: bytes) -> None:
         self.sock.sendto(data, self.server)
@@ -172,7 +180,7 @@ class Fleet:
         self.trackers = [Tracker(server, bytes([2, 0x5E, 0, 0, s, k]), {0: SEGMENT_POSITIONS[seg]})
                          for s in range(subjects) for k, seg in enumerate(self.segments)]
         self.sent = 0
-        self.late = 0
+        self.loop = PacedLoop(1.0 / fs, clock=time.monotonic)
 
     def mac(self, subject: int, segment: str) -> str:
         return self.trackers[subject * len(self.segments) + self.segments.index(segment)].mac_text
@@ -184,11 +192,9 @@ class Fleet:
     def run(self, stop, seconds: float | None = None, spin_s: float = 0.0) -> None:
         """Send until ``stop`` is set or ``seconds`` have passed; ``spin_s``: wait the last this
         long before each send in a busy loop (a steadier send time than sleeping, at a CPU's cost)."""
-        start = time.monotonic()
-        period = 1.0 / self.fs
-        k = 0
         n_seg = len(self.segments)
-        while not stop.is_set() and (seconds is None or time.monotonic() - start < seconds):
+
+        def send(k: int, now: float) -> None:
             row = self.q[k % len(self.q)]
             for i, t in enumerate(self.trackers):
                 t.rotation(0, row[i % n_seg], q15=self.q15)
@@ -197,15 +203,20 @@ class Fleet:
                     t.signal(-60)
                 t.pump()
             self.sent += len(self.trackers)
-            k += 1
-            deadline = start + k * period
+
+        def wait(deadline: float) -> None:
             delay = deadline - time.monotonic()
             if delay > spin_s:
-                time.sleep(delay - spin_s)
-            if delay < -period:
-                self.late += 1
-            while time.monotonic() < deadline:
+                stop.wait(delay - spin_s)
+            while time.monotonic() < deadline and not stop.is_set():
                 pass
+
+        self.loop.run(stop, send, None if seconds is None else int(round(seconds * self.fs)), wait)
+
+    @property
+    def late(self) -> int:
+        """Sends that began more than a period late."""
+        return self.loop.stats.late
 
     def close(self) -> None:
         for t in self.trackers:

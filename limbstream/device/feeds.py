@@ -1,4 +1,5 @@
-"""Motion feeds: what each emulated subject's IMUs measure at sample k.
+"""Motion feeds: what each subject's IMUs measure at sample k, where this process stands in for
+the IMUs (emulated devices; a device on a serial link fed its motion).
 
 A feed turns a motion source into a sample stream on a uniform grid at the device rate:
 files are resampled (SLERP) to that rate and looped, or played once (a stream of

@@ -6,9 +6,9 @@ from __future__ import annotations
 import collections
 
 from limbstream import wire
-from reference_aggregator.skeleton import Skeleton
-from reference_aggregator.fusion import Fusion, Subject
-from reference_aggregator.track import DeviceTrack
+from support.reference_aggregator.skeleton import Skeleton
+from support.reference_aggregator.fusion import Fusion, Subject
+from support.reference_aggregator.track import DeviceTrack
 
 
 class ReferenceAggregator:

@@ -5,11 +5,12 @@ import dataclasses
 import importlib.util
 import queue
 import shutil
+import subprocess
 import sys
+from pathlib import Path
 from types import ModuleType
 
-import pytest
-from conftest import IN_CI, ROOT
+from support import ROOT, require
 
 from limbstream import kernel, wire
 
@@ -19,11 +20,16 @@ FIRMWARE = ROOT / "firmware_c"
 def require_tools(*tools: str) -> None:
     """Skip without the cross toolchain and QEMU; fail in CI."""
     missing = [tool for tool in tools if shutil.which(tool) is None]
-    if missing:
-        message = f"Cortex-M4 tools not installed: {missing} (apt install gcc-arm-none-eabi qemu-system-arm)"
-        if IN_CI:
-            pytest.fail(message)
-        pytest.skip(message)
+    require(not missing, f"Cortex-M4 tools not installed: {missing} (apt install gcc-arm-none-eabi qemu-system-arm)")
+
+
+def make_m4(tmp_path_factory, name: str) -> Path:
+    """A fresh ``make m4`` (the Cortex-M4 images) into a temporary build folder ``name``."""
+    build = tmp_path_factory.mktemp(name)
+    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, f"make m4 failed:\n{done.stdout}\n{done.stderr}"
+    return build
 
 
 def load_tool(name: str) -> ModuleType:

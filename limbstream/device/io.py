@@ -1,10 +1,11 @@
-"""The Zenoh side of a device, shared by every process that runs devices (the emulator, the
-gateways): its publishers and the answer to its config queries (docs/protocol.md)."""
+"""The Zenoh objects of a device (its publishers, its liveliness token) and the answer to its
+config queries (docs/protocol.md), for the device host (:mod:`limbstream.device.host`)."""
 from __future__ import annotations
 
 import json
 import logging
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import zenoh
 import zenoh.ext as zext
@@ -23,9 +24,9 @@ def point_publisher(session: zenoh.Session, subject: str, segment: str, cache: i
     return zext.declare_advanced_publisher(
         session, wire.seg_key(subject, segment),
         cache=zext.CacheConfig(max_samples=cache),
-        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),
+        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]  # (the stubs want every option)
         publisher_detection=True,
-        **zconfig.publisher_options("seg"),
+        **zconfig.publisher_options(wire.SEG),
     )
 
 
@@ -34,8 +35,8 @@ def raw_publisher(session: zenoh.Session, subject: str, segment: str, heartbeat_
     evaluation samples."""
     return zext.declare_advanced_publisher(
         session, wire.raw_key(subject, segment), cache=zext.CacheConfig(max_samples=RAW_CACHE),
-        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s), publisher_detection=True,
-        **zconfig.publisher_options("raw"))
+        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]
+        publisher_detection=True, **zconfig.publisher_options(wire.RAW))
 
 
 def alive_token(session: zenoh.Session, subject: str, segment: str):
@@ -43,20 +44,29 @@ def alive_token(session: zenoh.Session, subject: str, segment: str):
     return session.liveliness().declare_token(wire.alive_key(subject, segment))
 
 
-def answer_config(query: zenoh.Query, targets: Sequence, apply: Callable[[object, wire.DeviceConfig], None],
-                  status: Callable[[object], wire.DeviceStatus]) -> None:
+class Refused(Exception):
+    """A device cannot apply or answer a config query now; the message is the error reply."""
+
+
+def answer_config(query: zenoh.Query, targets: Sequence, apply: Callable[[Any, wire.DeviceConfig], None],
+                  status: Callable[[Any], wire.DeviceStatus]) -> None:
     """Apply and answer one config query for the devices it names (``targets``: objects with
     ``config``, ``subject`` and ``segment``): a payload is decoded against each device's config
-    and applied (``apply(device, config)``; a bad one gets an error reply and changes nothing);
-    every target replies with its status."""
+    and applied (``apply(device, config)``); every target replies with its status. A bad payload,
+    or a device that refuses (:class:`Refused`), gets an error reply ``{"error": reason}``; a bad
+    payload ends the query there (it is bad for every device)."""
     payload = query.payload.to_bytes() if query.payload is not None else b""
     for d in targets:
-        if payload:
-            try:
+        try:
+            if payload:
                 config = wire.decode_config(payload, d.config)
-            except wire.WireError as exc:
-                query.reply_err(json.dumps({"error": str(exc)}))
-                return
-            apply(d, config)
-            log.info("%s/%s: %s", d.subject, d.segment, config)
-        query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(status(d)))
+                apply(d, config)
+                log.info("%s/%s: %s", d.subject, d.segment, config)
+            answer = status(d)
+        except wire.WireError as exc:
+            query.reply_err(json.dumps({"error": str(exc)}))
+            return
+        except Refused as exc:
+            query.reply_err(json.dumps({"error": str(exc)}))
+            continue
+        query.reply(wire.config_key(d.subject, d.segment), wire.encode_status(answer))

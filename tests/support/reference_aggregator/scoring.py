@@ -26,10 +26,10 @@ import numpy as np
 
 from limbstream import calibration, quat, wire
 from limbstream.wire import SEGMENTS
-from reference_aggregator.store import ErrorRings, PointStore, TruthQueue
+from support.reference_aggregator.store import ErrorRings, PointStore, TruthQueue
 
 if TYPE_CHECKING:
-    from reference_aggregator.fusion import Subject
+    from support.reference_aggregator.fusion import Subject
 
 FRAME_ERROR_WAIT_S = 10.0
 """An exact frame waits at most this long (frame time behind its subject's newest frame) for the

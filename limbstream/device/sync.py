@@ -1,5 +1,6 @@
-"""The time exchanges of an emulator's devices with the time service (docs/protocol.md, "Time
-exchange") and the stamps they give.
+"""The time exchanges of a process's devices with the time service (docs/protocol.md, "Time
+exchange") and the stamps they give: each emulated device has its own clock; a gateway has one
+clock for all its devices.
 
 :class:`SyncClient`: two worker threads send the time queries and stamp the answers (the tick
 loop never calls Zenoh and never waits); the tick loop takes the results between ticks, updates
@@ -18,15 +19,16 @@ import logging
 import random
 import threading
 import time
+from typing import Any
 
 import numpy as np
 import zenoh
 
 from limbstream import kernel, wire
 from limbstream.timesync import SyncEstimator
-from limbstream.device_emulator.device_clocks import ClockSettings, DeviceClocks
+from limbstream.device.clocks import ClockSettings, DeviceClocks
 
-log = logging.getLogger("limbstream.emulator.clock")
+log = logging.getLogger("limbstream.device.clock")
 
 BURST = 4
 """Exchanges 0.25 s apart when a device starts; it streams once they are in (or after the wait)."""
@@ -65,8 +67,8 @@ class SyncClient:
     Per device the tick loop reads :meth:`stamp` (vectorised). The correction ``C`` a device
     stamps with follows the estimator's line: at each sample it advances by the estimated drift
     and moves towards the line by at most SLEW times the elapsed time (a first sync, or a resync
-    after the holdover that moved more than STEP_US, sets it at once: a step, which the emulator
-    turns into a new stream).
+    after the holdover that moved more than STEP_US, sets it at once: a step, which the device
+    host turns into a new stream).
 
     Parameters
     ----------
@@ -92,7 +94,7 @@ class SyncClient:
         self.valid = np.zeros(n, np.int64)     # valid answers
         self.last_valid = np.full(n, -np.inf)  # local time of the last valid answer
         self.rtt_us = np.full(n, np.nan)
-        self.bad = [collections.Counter() for _ in range(n)]
+        self.bad: list[collections.Counter[str]] = [collections.Counter() for _ in range(n)]
         self.lost = np.zeros(n, np.int64)      # queries without an answer
         self.backoff = np.full(n, MIN_POLL_S)
         self.interval = np.full(n, MIN_POLL_S)
@@ -110,8 +112,8 @@ class SyncClient:
         self._results: collections.deque = collections.deque()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self.querier = None
-        self.listener = None
+        self.querier: zenoh.Querier | None = None
+        self.listener: Any = None
 
     # ------------------------------------------------------------------ threads
 
@@ -121,10 +123,10 @@ class SyncClient:
         # remote only: the time service is another process, and a session holding thousands of
         # publishers (each with its cache's queryable) would otherwise match every query against
         # them (~300 us of CPU per query and per matching check, instead of ~40 and ~1)
-        self.querier = self.session.declare_querier(
+        self.querier = querier = self.session.declare_querier(
             wire.time_key(), target=zenoh.QueryTarget.BEST_MATCHING, consolidation=zenoh.ConsolidationMode.NONE,
             timeout=self.settings.timeout_s, allowed_destination=zenoh.Locality.REMOTE)
-        self.listener = self.querier.declare_matching_listener(self._on_matching)
+        self.listener = querier.declare_matching_listener(self._on_matching)
         now = time.monotonic()
         rng = random.Random(self.settings.seed)
         for slot in range(len(self.names)):
@@ -149,7 +151,7 @@ class SyncClient:
 
     def service_present(self) -> bool:
         """A time service's queryable is reachable now."""
-        return self.querier is not None and bool(self.querier.matching_status.matching)
+        return self.querier is not None and bool(self.querier.matching_status.matching)  # type: ignore[attr-defined]  # (a MatchingStatus, not the stubs' bool)
 
     def _on_matching(self, status: zenoh.MatchingStatus) -> None:
         """Matching listener (Zenoh thread): hand the event to the workers, nothing more."""
@@ -163,6 +165,8 @@ class SyncClient:
         within RESUME_SPREAD_S of that instant (worker thread, lock held). Devices whose exchange
         is under way are rescheduled the same way when its result comes (:meth:`poll`)."""
         seen, self._resume_at = self._resume_at, None
+        if seen is None:
+            return
         self.resumes.append(seen)
         self._heap = [(min(due, seen + self._offset_s[slot]), slot) for due, slot in self._heap]
         heapq.heapify(self._heap)
@@ -197,12 +201,13 @@ class SyncClient:
         """One exchange of device ``slot`` (worker thread)."""
         rid = int(self._ids[slot] + 1) & 0xFFFFFFFF
         self._ids[slot] = rid
-        if not self.querier.matching_status.matching:  # no time service: no query sent
+        querier = self.querier
+        if querier is None or not querier.matching_status.matching:  # type: ignore[attr-defined]  # no time service: no query sent (a MatchingStatus, not the stubs' bool)
             self._results.append((slot, rid, 0, 0, None))
             return
         t1 = self.clocks.read(slot)
         self.sent_at[slot] = time.monotonic()
-        replies = self.querier.get(zenoh.handlers.FifoChannel(4),
+        replies = querier.get(zenoh.handlers.FifoChannel(4),
                                    payload=wire.encode_time_request(wire.TimeRequest(rid, t1)))
         answer, t4 = None, 0
         try:
@@ -335,7 +340,7 @@ class SyncClient:
         return wire.ClockStatus(offset, rtt, self.synced(slot, now), dict(self.bad[slot]))
 
     def summary(self) -> str:
-        bad = collections.Counter()
+        bad: collections.Counter[str] = collections.Counter()
         for c in self.bad:
             bad.update(c)
         return (f"time sync: {self.exchanges} answers, {int(self.lost.sum())} lost, discarded "

@@ -18,12 +18,12 @@ import math
 import numpy as np
 
 from limbstream import wire
-from reference_aggregator.skeleton import Skeleton
+from support.reference_aggregator.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
-from reference_aggregator.calibrating import Calibrating
-from reference_aggregator.scoring import Scoring
-from reference_aggregator.store import IDENTITY, PointStore
-from reference_aggregator.track import DeviceTrack
+from support.reference_aggregator.calibrating import Calibrating
+from support.reference_aggregator.scoring import Scoring
+from support.reference_aggregator.store import IDENTITY, PointStore
+from support.reference_aggregator.track import DeviceTrack
 
 MAX_FRAMES_PER_CALL = 500
 """Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""

@@ -1,0 +1,189 @@
+"""The flags several commands share and the settings they make, written once: the device
+tunables (:data:`limbstream.wire.TUNABLES`), the sensor model (:class:`limbstream.calibration.SensorModel`),
+the Zenoh session (:class:`limbstream.zconfig.ZenohSettings`, with the line that says where a
+command connects), one list syntax (``A,B,C``) for every flag that takes several values, the
+sensor-to-segment mapping of ``--names``; and a command's one-line error.
+The core library knows no argparse: its settings are built here from the parsed flags."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TypeVar
+
+from limbstream import wire, zconfig
+from limbstream.sources import names
+
+if TYPE_CHECKING:  # (calibration brings scipy: the commands without sensors start without it)
+    from limbstream.calibration import SensorModel
+
+
+def fail(prog: str, message: str) -> int:
+    """Print ``PROG: error: MESSAGE`` on stderr; the exit status 2 of a bad flag."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return 2
+
+
+# ----------------------------------------------------------------------------- device tunables
+
+def tunable(t: wire.Tunable):
+    """The argparse type of tunable ``t``: its value, or ArgumentTypeError with :meth:`Tunable.check`'s sentence."""
+    def parse(text: str):
+        try:
+            value = float(text) if t.type is float else int(text)
+        except ValueError:
+            try:
+                value = float(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{t.name} must be {t.describe()}, got {text!r}") from None
+        try:
+            return t.check(value)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    parse.__name__ = t.name
+    return parse
+
+
+def add_device_config(parser: argparse.ArgumentParser, defaults: dict | None = None) -> None:
+    """One flag per tunable (``--threshold``, ``--max-len``, ...); ``defaults``: overrides of the
+    tunables' defaults, by name."""
+    for t in wire.TUNABLES.values():
+        default = (defaults or {}).get(t.name, t.default)
+        unit = f", {t.unit}" if t.unit else ""
+        parser.add_argument(t.flag, dest=t.name, type=tunable(t), default=t.check(default),
+                            help=f"{t.help}{unit} ({t.describe()}, default {default:g})")
+
+
+def device_config(args: argparse.Namespace) -> wire.DeviceConfig:
+    """The DeviceConfig of the flags of :func:`add_device_config`."""
+    return wire.DeviceConfig(**{name: getattr(args, name) for name in wire.TUNABLES})
+
+
+# ----------------------------------------------------------------------------- sensor model
+
+def add_sensor_model(parser: argparse.ArgumentParser) -> None:
+    """The sensor model's flags (``emulate``, ``up``, ``eval``)."""
+    group = parser.add_argument_group("sensors (docs/evaluation.md, 'Calibration'; default: perfect sensors)")
+    for flag, text in (("--mounting-deg", "each sensor sits on its segment turned by a random rotation of angle <= MAX"),
+                       ("--heading-deg", "each sensor's world frame is turned about the vertical by a uniform +-MAX"),
+                       ("--yaw-drift-dps", "... and that heading drifts at a uniform +-MAX deg/s")):
+        group.add_argument(flag, type=float, default=0.0, metavar="MAX", help=text)
+    group.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
+
+
+def sensor_model(args: argparse.Namespace) -> SensorModel:
+    """The SensorModel of the flags (ValueError naming a bad one)."""
+    from limbstream.calibration import SensorModel
+    return SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
+
+
+def sensor_model_argv(model: SensorModel) -> list[str]:
+    """The flags that give ``model`` (for a child process)."""
+    return ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
+            "--yaw-drift-dps", f"{model.yaw_drift_dps:g}", "--sensor-seed", str(model.seed)]
+
+
+# ----------------------------------------------------------------------------- zenoh
+
+CONNECT_HINT = (f"set the router's endpoint with --connect or {zconfig.ROUTER_ENV}; `limbstream up` or "
+                "`limbstream router` starts one")
+"""What a user can do when no router answers (printed after :class:`zconfig.ConnectError`)."""
+
+
+def add_zenoh(parser: argparse.ArgumentParser, mode: str = "client", timeout: bool = True) -> None:
+    """The shared Zenoh flags (``--connect``, ``--listen``, ``--mode``, ``--zenoh-config``,
+    ``--connect-timeout``; the router's default from $LIMBSTREAM_ROUTER); without ``timeout``, the
+    command bounds the wait for its router with a flag of its own (``watch --timeout``)."""
+    group = parser.add_argument_group("zenoh")
+    default = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER if mode != "router" else "")
+    group.add_argument("--connect", default=default, metavar="ENDPOINT[,ENDPOINT...]",
+                       help=f"router endpoint(s) to connect to (env {zconfig.ROUTER_ENV}; default {default or 'none'})")
+    group.add_argument("--listen", default="", metavar="ENDPOINT[,ENDPOINT...]", help="endpoint(s) to listen on")
+    group.add_argument("--mode", default=mode, choices=("client", "peer", "router"), help=f"zenoh mode (default {mode})")
+    group.add_argument("--zenoh-config", default=os.environ.get(zconfig.CONFIG_ENV, ""), metavar="FILE",
+                       help=f"JSON file of extra zenoh settings (key -> value), e.g. TLS/auth (env {zconfig.CONFIG_ENV})")
+    if timeout:
+        group.add_argument("--connect-timeout", type=float, default=zconfig.CONNECT_TIMEOUT_S, metavar="S",
+                           help=f"give up when no router answers within S seconds (default "
+                                f"{zconfig.CONNECT_TIMEOUT_S:g}; 0: wait however long it takes)")
+
+
+def zenoh_settings(args: argparse.Namespace, connect_timeout_s: float | None = None) -> zconfig.ZenohSettings:
+    """ZenohSettings from the flags of :func:`add_zenoh`; ``connect_timeout_s`` stands in for
+    ``--connect-timeout`` where the command has no such flag (None or 0: wait). SystemExit naming
+    a bad ``--zenoh-config`` or ``--connect-timeout``."""
+    timeout = getattr(args, "connect_timeout", connect_timeout_s)
+    if timeout is not None and not timeout >= 0:
+        raise SystemExit(f"--connect-timeout must be >= 0, got {timeout:g}")
+    try:
+        return zconfig.settings(args.mode, args.connect, args.listen, args.zenoh_config, timeout)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
+
+
+def announce(prog: str, settings: zconfig.ZenohSettings) -> None:
+    """One line on stderr: where ``prog`` connects, how to change it, and how long it waits."""
+    if settings.mode == "router" or not settings.connect:
+        return
+    wait = ("waiting for it however long it takes" if settings.connect_timeout_s is None
+            else f"up to {settings.connect_timeout_s:g} s")
+    print(f"{prog}: connecting to {', '.join(settings.connect)} (--connect, env {zconfig.ROUTER_ENV}; {wait})",
+          file=sys.stderr, flush=True)
+
+
+def session_settings(args: argparse.Namespace, prog: str, connect_timeout_s: float | None = None
+                     ) -> zconfig.ZenohSettings:
+    """:func:`zenoh_settings`, announced (:func:`announce`): what a command calls right before it
+    opens its session."""
+    settings = zenoh_settings(args, connect_timeout_s)
+    announce(prog, settings)
+    return settings
+
+
+# ----------------------------------------------------------------------------- lists and names
+
+T = TypeVar("T")
+
+
+def comma_list(item: Callable[[str], T]) -> Callable[[str], list[T]]:
+    """An argparse ``type`` that reads ``A,B,C`` (spaces around the commas allowed) with ``item``
+    for each value; ``item`` raises ValueError or ArgumentTypeError with its own sentence."""
+
+    def parse(text: str) -> list[T]:
+        values = []
+        for part in (p.strip() for p in text.split(",")):
+            if not part:
+                continue
+            try:
+                values.append(item(part))
+            except ValueError as exc:
+                raise argparse.ArgumentTypeError(str(exc)) from None
+        if not values:
+            raise argparse.ArgumentTypeError(f"no value in {text!r}")
+        return values
+
+    return parse
+
+
+def sensor_names(text: str) -> dict[str, str]:
+    """The ``--names`` mapping (:func:`limbstream.sources.names.parse`), as an argparse type."""
+    try:
+        return names.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_names(parser: argparse.ArgumentParser) -> None:
+    """``--names NAME|FILE|SENSOR=SEGMENT,...``: which segment each sensor of an IMU recording
+    measures (the mapping itself: :mod:`limbstream.sources.names`)."""
+    parser.add_argument("--names", type=sensor_names, default=None, metavar="NAME|FILE|SENSOR=SEGMENT,...",
+                        help="which segment each sensor of an IMU recording measures: a named mapping "
+                             f"({', '.join(names.NAMED)}), a file of SENSOR=SEGMENT lines, or a list "
+                             "(SENSOR: a file name without extension, e.g. an Xsens serial number; default: "
+                             "x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh)")
+
+
+def names_argv(mapping: dict[str, str] | None) -> list[str]:
+    """The flags that give ``mapping`` to a child process (none for None)."""
+    return [] if mapping is None else ["--names", ",".join(f"{sensor}={segment}" for sensor, segment in mapping.items())]

@@ -1,0 +1,99 @@
+"""The paced loop of every process that works in ticks: the emulator, the gateways and the
+aggregator.
+
+Tick k is due at ``start + k * period``. The loop waits for it (or does what its owner does
+between ticks), runs it, and counts a tick that began more than one period after it was due as
+late. A loop that fell behind runs its ticks back to back until it has caught up: it never skips
+one. Times are seconds.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+
+@dataclass
+class LoopStats:
+    """Pacing figures of one loop (the aggregator publishes them in its stats: ``wire.AGGREGATOR_FIELDS``)."""
+
+    ticks: int = 0
+    late: int = 0                    # ticks that began more than one period late
+    busy_s: float = 0.0              # time spent working (not waiting for the next tick), s
+    load: float = 0.0                # share of the last round spent working (0..1; >= 1: cannot keep up)
+    max_tick_ms: float = 0.0         # longest tick's work, ms
+    recent_max_tick_ms: float = 0.0  # longest tick's work since the last round, ms
+
+    _round_start: float = field(default_factory=time.perf_counter, repr=False)
+    _round_busy: float = field(default=0.0, repr=False)
+
+    def record(self, work_s: float) -> None:
+        """One tick done, after ``work_s`` seconds of work."""
+        self.ticks += 1
+        self.busy_s += work_s
+        self._round_busy += work_s
+        self.max_tick_ms = max(self.max_tick_ms, 1e3 * work_s)
+        self.recent_max_tick_ms = max(self.recent_max_tick_ms, 1e3 * work_s)
+
+    def end_round(self, now: float) -> None:
+        """A reporting round ends at ``now`` (the loop's clock): ``load`` over it, and the
+        ``recent_*`` figures start over."""
+        self.load = round(self._round_busy / max(now - self._round_start, 1e-9), 4)
+        self._round_start, self._round_busy = now, 0.0
+        self.recent_max_tick_ms = 0.0
+
+    def as_dict(self) -> dict:
+        """The figures by name."""
+        return {k: getattr(self, k) for k in self.__dataclass_fields__ if not k.startswith("_")}
+
+
+class PacedLoop:
+    """Ticks every ``period_s``.
+
+    Parameters
+    ----------
+    period_s : tick period, s.
+    clock : the clock ticks are due on and ``now`` is read from (``time.perf_counter``).
+    work_clock : the clock a tick's work is measured with (default ``clock``; ``time.thread_time``
+        counts the loop thread's CPU only).
+
+    stats : where the ticks of every :meth:`run` are counted (default: a new :class:`LoopStats`).
+    """
+
+    def __init__(self, period_s: float, clock: Callable[[], float] = time.perf_counter,
+                 work_clock: Callable[[], float] | None = None, stats: LoopStats | None = None):
+        if not period_s > 0:
+            raise ValueError(f"period_s must be > 0, got {period_s}")
+        self.period_s, self.clock = float(period_s), clock
+        self.work_clock = work_clock or clock
+        self.stats = LoopStats() if stats is None else stats
+
+    def run(self, stop: threading.Event, tick: Callable[[int, float], bool | None], ticks: int | None = None,
+            between: Callable[[float], None] | None = None) -> int:
+        """Call ``tick(k, now)`` for k = 0, 1, ... as each comes due, until ``stop`` is set,
+        ``ticks`` ticks ran (None: no limit) or a tick returns False; the ticks run.
+
+        ``between(deadline)`` runs while the next tick is not due and returns at the latest at
+        ``deadline`` (the loop's clock); by default the loop waits on ``stop``.
+        """
+        start = self.clock()
+        k = 0
+        while not stop.is_set() and (ticks is None or k < ticks):
+            deadline = start + k * self.period_s
+            now = self.clock()
+            if now < deadline:
+                if between is None:
+                    stop.wait(deadline - now)
+                else:
+                    between(deadline)
+                continue
+            if now - deadline > self.period_s:
+                self.stats.late += 1
+            began = self.work_clock()
+            more = tick(k, now)
+            self.stats.record(self.work_clock() - began)
+            k += 1
+            if more is False:
+                break
+        return k
