@@ -1,5 +1,6 @@
-"""The dashboard's tests' pieces: a Zenoh router for a module, a dashboard client, device
-stats and pose frames as the aggregator sends them, a device's config queryable."""
+"""The dashboard's tests' pieces: fixtures of a Zenoh router for a module, a session publishing
+on it (``pub``) and a dashboard client (``client``); device stats and pose frames as the
+aggregator sends them, a device's config queryable."""
 from __future__ import annotations
 
 import json
@@ -10,7 +11,7 @@ import zenoh
 from fastapi.testclient import TestClient
 
 from limbstream import wire, zconfig
-from limbstream.launch import free_port
+from limbstream.launch import free_port, wait_until
 from limbstream.services.dashboard.app import create_app
 from limbstream.services.dashboard.settings import DashboardSettings
 
@@ -29,6 +30,28 @@ def router():
 def make_client(router: str, **overrides) -> TestClient:
     settings = DashboardSettings(router=router, api_token=TOKEN, config_timeout_s=1.0, **overrides)
     return TestClient(create_app(settings))
+
+
+@pytest.fixture(scope="module")
+def pub(router):
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(router,)))
+    yield session
+    session.close()
+
+
+@pytest.fixture
+def client(router):
+    with make_client(router) as c:
+        wait_until(lambda: c.get("/health").status_code == 200, 10, "zenoh session")
+        yield c
+
+
+def publish_until(client: TestClient, publish, predicate, what: str, timeout: float = 10.0):
+    """Publish repeatedly until ``predicate()`` holds (the subscriber may join late)."""
+    def step():
+        publish()
+        return predicate()
+    return wait_until(step, timeout, what, interval=0.05)
 
 
 def device_stats(subject: str, segment: str, **values) -> dict:
