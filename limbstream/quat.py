@@ -7,6 +7,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+Z_UP_TO_Y_UP = np.array([np.sqrt(0.5), -np.sqrt(0.5), 0.0, 0.0])
+"""-90 degrees about X: ``multiply(Z_UP_TO_Y_UP, q)`` turns an orientation in a Z-up world (a
+fusion filter's earth frame: VQF's, an IMU recording's, a SlimeVR tracker's) into limbstream's
+Y-up world; its conjugate turns it back. The one definition of that turn."""
+
 
 def normalize(q: np.ndarray) -> np.ndarray:
     """(..., 4) -> (..., 4) float64 unit quaternions. Raises ValueError on zero norm."""

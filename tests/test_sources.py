@@ -259,7 +259,7 @@ def test_xsens_folder(xsens_dir):
     first = imu_files.read_xsens_txt(xsens_dir / "00B421E6.txt")
     n = min(len(first.t), len(motion.t))
     # shared counter: the same samples, made segment orientations (turned Y up, calibrated at the start)
-    body = quat.multiply(imu_files.Z_UP_TO_Y_UP, first.q[:n])
+    body = quat.multiply(quat.Z_UP_TO_Y_UP, first.q[:n])
     relative = quat.multiply(quat.conjugate(body[:n]), motion.q[:n, 0])  # the constant right factor S0^-1
     assert quat.angle_deg(relative, np.broadcast_to(relative[0], relative.shape)).max() < 1e-4
     assert quat.angle_deg(motion.q[:50, 0], np.broadcast_to([1.0, 0, 0, 0], (50, 4))).max() < 2.0
@@ -324,7 +324,7 @@ def test_a_recording_that_does_not_start_still_is_left_uncalibrated_with_a_warni
     with pytest.warns(UserWarning, match="not calibrated, the sensors do not start in a still rest pose"):
         (motion,) = load(tmp_path)
     assert motion.orientations == "sensors"
-    raw = quat.multiply(imu_files.Z_UP_TO_Y_UP, imu_files.read_xio_csv(tmp_path / "Left_Upper.csv").q)
+    raw = quat.multiply(quat.Z_UP_TO_Y_UP, imu_files.read_xio_csv(tmp_path / "Left_Upper.csv").q)
     assert quat.angle_deg(motion.q[:, 0], raw[: len(motion.t)]).max() < 1e-4
 
 

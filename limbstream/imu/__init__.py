@@ -14,11 +14,11 @@ from __future__ import annotations
 
 from limbstream.imu.devices import ImuDevices, earth_heading
 from limbstream.imu.feed import ReadingFeed, record, scripted
-from limbstream.imu.kinematics import GRAVITY, Z_UP, Readings, SmoothMotion, readings, to_earth
+from limbstream.imu.kinematics import GRAVITY, Readings, SmoothMotion, readings, to_earth
 from limbstream.imu.models import MODELS, ImuModel, model
 
 DEFAULT_RATE_HZ = 200.0
 """The emulated sensors' rate unless told (``--imu-rate``); the device rate stays 50 Hz."""
 
-__all__ = ["DEFAULT_RATE_HZ", "GRAVITY", "MODELS", "Z_UP", "ImuDevices", "ImuModel", "ReadingFeed", "Readings",
+__all__ = ["DEFAULT_RATE_HZ", "GRAVITY", "MODELS", "ImuDevices", "ImuModel", "ReadingFeed", "Readings",
            "SmoothMotion", "earth_heading", "model", "readings", "record", "scripted", "to_earth"]

@@ -16,7 +16,7 @@ plus the motion's root path where it has one (BVH clips), else a fixed root. Sam
 made twice differentiable by :class:`SmoothMotion`; ``a`` is the second central difference of
 the place over :data:`DIFF_H_S` (the interpolant's own second derivative to about 1e-7 m/s^2).
 
-World frame: the motion's (Y up). The filter's earth frame is Z up: :data:`Z_UP` turns one into
+World frame: the motion's (Y up). The filter's earth frame is Z up: :func:`to_earth` turns one into
 the other.
 """
 from __future__ import annotations
@@ -36,8 +36,6 @@ GRAVITY = 9.80665
 """Standard gravity, m/s^2 (the g of datasheets)."""
 UP = np.array([0.0, 1.0, 0.0])
 """The world's up axis (the skeleton's Y)."""
-Z_UP = np.array([np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0])
-"""Earth frame (Z up, VQF's) <- world frame (Y up): a quarter turn about X, taking Y to Z."""
 DIFF_H_S = 1e-4
 """Step of the central differences that give accelerations, s."""
 SMOOTH_HZ = 6.0
@@ -166,4 +164,4 @@ def sample_times(start: float, end: float, rate: float) -> np.ndarray:
 
 def to_earth(q: np.ndarray) -> np.ndarray:
     """(..., 4) orientations in the world frame (Y up) -> the same in the earth frame (Z up)."""
-    return quat.multiply(Z_UP, q)
+    return quat.multiply(quat.conjugate(quat.Z_UP_TO_Y_UP), q)

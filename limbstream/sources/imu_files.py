@@ -31,9 +31,6 @@ from limbstream import calibration, quat
 from limbstream.sources import Motion, MotionFileError, is_number, names as sensor_names
 
 XIO_HEADER = ("Timestamp (us)", "W", "X", "Y", "Z")
-Z_UP_TO_Y_UP = calibration.axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2))
-"""(4,) the rotation that takes the recordings' world (Z up: x-IMU3's and Xsens' earth frames)
-onto the skeleton's (Y up), by -90 degrees about X."""
 
 ORTHONORMAL_TOL = 1e-2
 """Largest |M M^T - I| entry accepted for an Xsens rotation matrix."""
@@ -330,11 +327,11 @@ def load_imu(path: str | Path, names: Mapping[str, str] | None = None) -> Motion
 
 def to_body(motion: Motion) -> Motion:
     """A recording's sensor orientations (Z-up world) as segment orientations: the world turned Y
-    up (:data:`Z_UP_TO_Y_UP`), then, if every sensor starts still, each calibrated from that start
+    up (:data:`limbstream.quat.Z_UP_TO_Y_UP`), then, if every sensor starts still, each calibrated from that start
     (:func:`limbstream.calibration.calibrate_start`: the recording starts in the standing rest
     pose; ``orientations="rest"``: the segments up to the subject's facing); a recording that does
     not start still is warned about and left uncalibrated (``orientations="sensors"``)."""
-    q = quat.multiply(Z_UP_TO_Y_UP, motion.q)
+    q = quat.multiply(quat.Z_UP_TO_Y_UP, motion.q)
     try:
         q, orientations = calibration.calibrate_start(q, motion.fs, motion.segments), "rest"
     except calibration.CalibrationError as exc:

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from limbstream import wire
+from limbstream import quat, wire
 from limbstream.device.bank import DeviceBank
 from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device.host import Device, DeviceHost, HostSettings
@@ -65,9 +65,8 @@ from limbstream.services.gateway.slimevr_sessions import Sensor, Tracker, Tracke
 
 log = logging.getLogger("limbstream.gateway.slimevr")
 
-AXES = (math.cos(math.pi / 4), -math.sin(math.pi / 4), 0.0, 0.0)
-"""-90 degrees about X (w, x, y, z): a tracker's axes (Z up) to limbstream's (Y up), as the
-SlimeVR server turns them."""
+AXES = tuple(float(v) for v in quat.Z_UP_TO_Y_UP)
+"""A tracker's axes (Z up) to limbstream's (Y up), as the SlimeVR server turns them (w, x, y, z)."""
 RING = 64
 """Ticks of samples each device keeps: a segment point refers to the device's newest sample or the
 one before, at most QUIET_TICKS ticks back."""
