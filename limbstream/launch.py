@@ -1,5 +1,5 @@
 """Child processes of limbstream: the one launcher of ``limbstream up``, the tests' stack
-(``tests/stack.py``) and the benchmarks (``bench/``).
+(``tests/support/stack.py``) and the benchmarks (``bench/``).
 
 - :class:`Child`: one command (by default ``python -m limbstream.cli <command> ...``) in its own
   process group, with ``PYTHONUNBUFFERED=1``; its output is appended to a log file, or forwarded
