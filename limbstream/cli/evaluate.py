@@ -77,14 +77,14 @@ def plot_frontier(rows: Sequence[dict], bounds: Sequence[float], path: str | Pat
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
-    plain = sorted((r for r in rows if r["live_bound"] == 0 and r["icr"] > 0), key=lambda r: r["icr"])
+    plain = sorted((r for r in rows if r["live_bound_deg"] == 0 and r["icr"] > 0), key=lambda r: r["icr"])
     if plain:
         left.plot([r["icr"] for r in plain], [r["aad"] for r in plain], "k-", label="plain fastSW (no live bound)")
         right.plot([r["icr"] for r in plain], [r["live_p99"] for r in plain], "k-", label="plain fastSW")
     for n, bound in enumerate(b for b in bounds if b > 0):
         icr, aad = frontier(rows, bound)
         left.plot(icr, aad, ".-", ms=3, color=f"C{n}", label=f"live error <= {bound:g} deg")
-        own = sorted((r for r in rows if r["live_bound"] == bound and r["icr"] > 0), key=lambda r: r["icr"])
+        own = sorted((r for r in rows if r["live_bound_deg"] == bound and r["icr"] > 0), key=lambda r: r["icr"])
         right.plot([r["icr"] for r in own], [r["live_p99"] for r in own], ".-", ms=3, color=f"C{n}",
                    label=f"live rule {bound:g} deg")
         right.axhline(bound, color=f"C{n}", ls=":", lw=0.8)
