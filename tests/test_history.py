@@ -9,7 +9,7 @@ import zenoh
 from support.stack import wait_until
 
 from limbstream import wire, zconfig
-from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings, snapshot
 from limbstream.services.aggregator.track import HISTORY_WAIT_S
 from limbstream.sources import SEGMENTS
 
@@ -45,4 +45,27 @@ def test_a_stream_joined_late_gets_its_start_from_the_devices_cache(watch, stack
         assert took < HISTORY_WAIT_S, f"settled after {took:.2f} s: by the bound, not by the query's end"
     finally:
         live.undeclare()
+        session.close()
+
+
+def test_a_joining_aggregator_knows_the_devices_present_before_their_points(watch, stack):
+    """An aggregator that opens while devices stream asks for their liveliness tokens before it
+    subscribes to their points: every device is known and online before any point is taken in,
+    so its first stats and frames never call a streaming device offline (a point's history used
+    to arrive before the token's, now and then: the stats' first message said online false)."""
+    stack.emulator(subjects=1)
+    wait_until(lambda: all(watch.device_status(f"s01/{s}")["points"] >= 5 for s in SEGMENTS), 60,
+               "every device past its first points", interval=0.2, on_fail=stack.logs)
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
+    agg = Aggregator(session, AggregatorSettings(subjects=("s01",)))
+    try:
+        agg.open()
+        tracks = [agg.known("s01", s) for s in SEGMENTS]
+        assert all(t is not None and t.online and t.first_seq is None for t in tracks), [
+            (s, t and (t.online, t.first_seq)) for s, t in zip(SEGMENTS, tracks)]
+        wait_until(lambda: agg.drain(time.perf_counter()) and all(d["points"] for d in snapshot(agg).values()), 10,
+                   "points of every device", on_fail=stack.logs)
+        assert all(d["online"] for d in snapshot(agg).values()), snapshot(agg)
+    finally:
+        agg.close()
         session.close()

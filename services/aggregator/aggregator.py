@@ -43,6 +43,8 @@ STATS_BATCHES = 10
 """A stats period's messages (one per subject) go out in this many batches, a tick each: often
 enough that no tick carries them all, few enough that each batch's figures are computed for many
 devices at once."""
+ALIVE_WAIT_S = 5.0
+"""How long opening waits, at most, for the router's answer of the liveliness tokens present, s."""
 
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
@@ -140,7 +142,20 @@ class Aggregator:
     # ------------------------------------------------------------------ zenoh
 
     def open(self) -> None:
+        """Declare the aggregator's subscribers and queryables. The devices present are known
+        (online) before any of their points is taken in: their liveliness tokens are asked for
+        first, and only then are the points subscribed (with a liveliness subscriber's history
+        instead, a point's history often came first, and the first stats and frames called
+        streaming devices offline). The subscriber, declared before the question, brings every
+        change after it (with history, it would also keep the question from being answered)."""
         s = self.settings
+        for pattern in s.subjects:
+            selector = wire.device_selector("alive", pattern)
+            self._alive_subs.append(self.session.liveliness().declare_subscriber(
+                selector, zenoh.handlers.FifoChannel(1 << 14)))
+            for reply in self.session.liveliness().get(selector, timeout=ALIVE_WAIT_S):
+                if reply.ok is not None:
+                    self.on_alive(str(reply.ok.key_expr), True)
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
                 self.session, wire.device_selector("seg", pattern), zenoh.handlers.FifoChannel(1 << 16),
@@ -154,8 +169,6 @@ class Aggregator:
                 self.session, wire.device_selector("raw", pattern), zenoh.handlers.FifoChannel(1 << 14),
                 history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
                 recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
-            self._alive_subs.append(self.session.liveliness().declare_subscriber(
-                wire.device_selector("alive", pattern), zenoh.handlers.FifoChannel(1 << 14), history=True))
             self._calibrate_qs.append(self.session.declare_queryable(
                 wire.subject_selector("calibrate", pattern), zenoh.handlers.FifoChannel(256)))
             self._stats_qs.append(self.session.declare_queryable(  # the stats as JSON, on request
