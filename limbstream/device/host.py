@@ -146,7 +146,7 @@ class DeviceHost(Generic[S]):
             d.raw_pub = io.raw_publisher(self.session, d.subject, d.segment, s.heartbeat_s)
 
     def _declare_queryable(self, subject: str) -> None:
-        self._queryables[subject] = self.session.declare_queryable(wire.device_selector("config", subject),
+        self._queryables[subject] = self.session.declare_queryable(wire.device_selector(wire.CONFIG, subject),
                                                                    zenoh.handlers.FifoChannel(1024))
 
     def online(self, d: Device[S]) -> None:

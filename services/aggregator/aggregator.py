@@ -150,7 +150,7 @@ class Aggregator:
         change after it (with history, it would also keep the question from being answered)."""
         s = self.settings
         for pattern in s.subjects:
-            selector = wire.device_selector("alive", pattern)
+            selector = wire.device_selector(wire.ALIVE, pattern)
             self._alive_subs.append(self.session.liveliness().declare_subscriber(
                 selector, zenoh.handlers.FifoChannel(1 << 14)))
             for reply in self.session.liveliness().get(selector, timeout=ALIVE_WAIT_S):
@@ -158,7 +158,7 @@ class Aggregator:
                     self.on_alive(str(reply.ok.key_expr), True)
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
-                self.session, wire.device_selector("seg", pattern), zenoh.handlers.FifoChannel(1 << 16),
+                self.session, wire.device_selector(wire.SEG, pattern), zenoh.handlers.FifoChannel(1 << 16),
                 history=zext.HistoryConfig(detect_late_publishers=True, max_samples=s.history),
                 recovery=zext.RecoveryConfig(heartbeat=True),
                 subscriber_detection=True,
@@ -166,13 +166,13 @@ class Aggregator:
             self._seg_subs.append(sub)
             self._misses.append(sub.sample_miss_listener(zenoh.handlers.FifoChannel(1024)))
             self._raw_subs.append(zext.declare_advanced_subscriber(  # truth tap: recovered like points
-                self.session, wire.device_selector("raw", pattern), zenoh.handlers.FifoChannel(1 << 14),
+                self.session, wire.device_selector(wire.RAW, pattern), zenoh.handlers.FifoChannel(1 << 14),
                 history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
                 recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
             self._calibrate_qs.append(self.session.declare_queryable(
-                wire.subject_selector("calibrate", pattern), zenoh.handlers.FifoChannel(256)))
+                wire.subject_selector(wire.CALIBRATE, pattern), zenoh.handlers.FifoChannel(256)))
             self._stats_qs.append(self.session.declare_queryable(  # the stats as JSON, on request
-                wire.subject_selector("stats", pattern), zenoh.handlers.FifoChannel(256)))
+                wire.subject_selector(wire.STATS, pattern), zenoh.handlers.FifoChannel(256)))
         # the time service's return: devices resync at once; their stats should follow
         self._time_querier = self.session.declare_querier(wire.time_key(), allowed_destination=zenoh.Locality.REMOTE)
         self._time_service = self._time_querier.declare_matching_listener(zenoh.handlers.FifoChannel(16))
@@ -308,13 +308,13 @@ class Aggregator:
                     if t.online and t.clock is not None and not t.clock.synced}
         for subject in subjects:
             self._config_replies.append(self.session.get(
-                wire.device_selector("config", subject), zenoh.handlers.FifoChannel(64), timeout=2.0))
+                wire.device_selector(wire.CONFIG, subject), zenoh.handlers.FifoChannel(64), timeout=2.0))
         return len(subjects)
 
     def poll_configs(self) -> None:
         """Ask every device for its config (answers arrive in a channel, read by drain)."""
         self._config_replies += [
-            self.session.get(wire.device_selector("config", pattern), zenoh.handlers.FifoChannel(4096), timeout=2.0)
+            self.session.get(wire.device_selector(wire.CONFIG, pattern), zenoh.handlers.FifoChannel(4096), timeout=2.0)
             for pattern in self.settings.subjects
         ]
 

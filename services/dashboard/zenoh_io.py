@@ -17,9 +17,9 @@ from .inbox import Inbox
 
 log = logging.getLogger("limbstream.dashboard")
 
-STATS_SELECTOR = wire.subject_selector("stats")
-POSE_SELECTOR = wire.subject_selector("pose")
-ALIVE_SELECTOR = wire.device_selector("alive")
+STATS_SELECTOR = wire.subject_selector(wire.STATS)
+POSE_SELECTOR = wire.subject_selector(wire.POSE)
+ALIVE_SELECTOR = wire.device_selector(wire.ALIVE)
 
 
 class ConfigError(Exception):

@@ -144,7 +144,7 @@ class Recorder:
         now = time.monotonic()
         if self.config_poll_s > 0 and now >= self._next_poll:
             self._next_poll = now + self.config_poll_s
-            self._replies.append(self.session.get(wire.device_selector("config", self.subjects),
+            self._replies.append(self.session.get(wire.device_selector(wire.CONFIG, self.subjects),
                                                   zenoh.handlers.FifoChannel(1 << 14), timeout=2.0))
         still_open = []
         for replies in self._replies:
