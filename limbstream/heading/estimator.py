@@ -1,0 +1,261 @@
+"""Heading correction: per subject, each segment's heading offset, held by the body's joints.
+
+Input per tick: every device's calibrated orientation (its heading still drifting), as arrays
+(subjects, segments, 4), with which devices are present. Output: per device a turn about the
+vertical ``c`` (rad) to apply before fusion, like a calibration: ``yaw(c) * q``
+(:meth:`HeadingCorrection.apply`). Only relative headings are observable, joint by joint
+(:mod:`.filter`); each subject's corrections are built down its tree of joints and then shifted
+so that they average 0 over its present devices (the body faces the mean of its sensors'
+headings: which way it faces is not observable).
+
+Ticks are gathered in blocks of ``Settings.update_s``; each full block is measured at once
+(vectorised over its ticks, subjects and joints) and moves every filter one step. Between steps a
+correction follows its learnt rate. :meth:`HeadingCorrection.batch` runs the same blocks over a
+recording, so the offline form gives what the live one gives.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from limbstream import quat
+from limbstream.calibration import axis_angle, yaw
+from limbstream.heading import hinge
+from limbstream.heading.filter import ABSOLUTE, MEAN_REFERENCED, JointFilters, wrap
+from limbstream.heading.joints import Layout, relative, twist, vertical_in
+from limbstream.heading.still import Stillness, leaning_alike
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The estimator's tunables (angles in degrees, rates in deg/s, times in s).
+
+    An ``*_sd_deg`` of a measurement is its standard deviation when held for one second (the
+    samples of a second are not independent: their information is spread over them)."""
+
+    update_s: float = 0.2
+    delta0_deg: float = 1.0
+    rate0_dps: float = 0.1
+    mean0_deg: float = 30.0
+    delta_walk: float = 0.02
+    rate_walk: float = 5e-4
+    mean_walk: float = 0.05
+    knee_spread_deg: tuple[float, float] = (10.0, 3.0)
+    elbow_spread_deg: tuple[float, float] = (30.0, 5.0)
+    hinge_corr_s: float = 1.0
+    axis_memory_s: float = 120.0
+    axis_min_amount: float = 1.0
+    axis_min_share: float = 0.8
+    twist_sd_deg: tuple[tuple[str, float], ...] = (("hip", 10.0), ("shoulder", 30.0), ("neck", 15.0),
+                                                   ("ankle", 10.0))
+    twist_corr_s: float = 2.0
+    still_dps: float = 2.0
+    still_s: float = 1.0
+    lock_sd_deg: float = 0.5
+    relaxed_sd_deg: float = 3.0
+    relaxed_lean_deg: float = 15.0
+    relaxed_gate_deg: float = 25.0
+    confidence_deg: float = 3.0
+
+
+class HeadingCorrection:
+    """The heading correction of ``subjects`` subjects wearing the segments of ``layout``.
+
+    Parameters
+    ----------
+    layout : the segments (and so the joints) every subject may have.
+    subjects : how many subjects (rows of the arrays).
+    fs : the tick rate, Hz.
+    settings : the tunables.
+    """
+
+    def __init__(self, layout: Layout, subjects: int = 1, fs: float = 50.0, settings: Settings = Settings()):
+        self.layout, self.fs, self.settings = layout, fs, settings
+        self.block = max(1, round(settings.update_s * fs))
+        n_joints = len(layout.joints)
+        rad = np.radians
+        self.filters = JointFilters((subjects, n_joints),
+                                    rad([settings.delta0_deg, settings.rate0_dps, settings.mean0_deg]),
+                                    rad([settings.delta_walk, settings.rate_walk, settings.mean_walk]))
+        self.hinges = np.flatnonzero(layout.hinge)
+        self.balls = np.flatnonzero(~layout.hinge)
+        self.axes = hinge.HingeAxes((subjects, len(self.hinges)), settings.axis_memory_s,
+                                    settings.axis_min_amount, settings.axis_min_share)
+        bones = layout.bone_axes()
+        self.bones = bones[self.hinges]
+        self.spread = rad(np.array([settings.knee_spread_deg if "knee" in layout.joints[j] else settings.elbow_spread_deg
+                                    for j in self.hinges]).reshape(-1, 2)) ** 2
+        twist_sd = dict(settings.twist_sd_deg)
+        self.twist_var = rad(np.array([twist_sd[layout.joints[j].split("_")[-1]] for j in self.balls])) ** 2
+        self.still = Stillness((subjects, len(layout.segments)), settings.still_dps)
+        self.last: np.ndarray | None = None
+        self.had = np.zeros((subjects, len(layout.segments)), bool)
+        self.locked = np.zeros((subjects, n_joints), bool)
+        self.lock_ref = np.zeros((subjects, n_joints))
+        self.order = sorted(range(n_joints), key=lambda j: self._depth(layout.segments[layout.child[j]]))
+        self._pending: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def _depth(self, segment: str) -> int:
+        index = {self.layout.segments[c]: j for j, c in enumerate(self.layout.child)}
+        return 0 if segment not in index else 1 + self._depth(self.layout.segments[self.layout.parent[index[segment]]])
+
+    # -- per tick -------------------------------------------------------------------------------
+
+    def update(self, q: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
+        """Take one tick: ``q`` (subjects, segments, 4) calibrated orientations, ``present``
+        (subjects, segments) bool (default all). Returns (subjects, segments) the corrections
+        (rad) to apply to this tick's ``q``."""
+        q = np.asarray(q, np.float64)
+        present = np.ones(q.shape[:2], bool) if present is None else np.asarray(present, bool)
+        self._pending.append((q, present))
+        out = self.corrections(len(self._pending))
+        if len(self._pending) == self.block:
+            qs, ps = zip(*self._pending)
+            self._pending = []
+            self.process(np.stack(qs), np.stack(ps))
+        return out
+
+    def restart(self, subject: int, segment: int) -> None:
+        """Device ``segment`` of ``subject`` restarted (its heading is anywhere now): its joints
+        are learnt afresh, their corrections start from none."""
+        mask = np.zeros(self.locked.shape, bool)
+        mask[subject] = (self.layout.parent == segment) | (self.layout.child == segment)
+        self.filters.forget(mask)
+        self.locked &= ~mask
+        seg = np.zeros(self.still.still_s.shape, bool)
+        seg[subject, segment] = True
+        self.still.forget(seg)
+
+    @staticmethod
+    def apply(q: np.ndarray, corrections: np.ndarray) -> np.ndarray:
+        """(..., 4) orientations ``q`` turned about the vertical by ``corrections`` (...) rad."""
+        return quat.multiply(yaw(corrections), q)
+
+    # -- per block ------------------------------------------------------------------------------
+
+    def process(self, q: np.ndarray, present: np.ndarray) -> None:
+        """Measure one block of ticks, ``q`` (T, subjects, segments, 4) and ``present`` (T,
+        subjects, segments), and move every filter one step."""
+        lay, dt = self.layout, 1.0 / self.fs
+        r = relative(q, lay)  # (T, B, J, 4)
+        g_parent = vertical_in(q[..., lay.parent, :])
+        g_child = vertical_in(q[..., lay.child, :])
+        joined = present[..., lay.parent] & present[..., lay.child]
+        delta = self.filters.x[..., 0]
+        applied = delta + self.filters.x[..., 1] * (np.arange(1, len(q) + 1)[:, None, None] * dt)  # (T, B, J)
+        turn = twist(r, g_parent)
+        rates, steady = self._rates(q, present)
+        absolute = np.zeros(r.shape[:-1], complex), np.zeros(r.shape[:-1])
+
+        h = self.hinges
+        y, info = hinge.measure(r[..., h, :], g_parent[..., h, :], self.axes.axis, self.bones, self.spread)
+        info *= dt / self.settings.hinge_corr_s * self.axes.ready * joined[..., h]
+        _add(absolute, (Ellipsis, h), y, info)
+
+        b = self.balls
+        mean_info = np.zeros(r.shape[:-1])
+        mean_info[..., b] = dt / (self.twist_var * self.settings.twist_corr_s) * joined[..., b]
+        mean_referenced = mean_info * np.exp(-1j * turn), mean_info
+
+        self._stillness(np.linalg.norm(rates, axis=-1), steady, turn, g_parent, g_child, joined, delta, absolute)
+
+        self.filters.predict(len(q) * dt)
+        self.filters.update(ABSOLUTE, np.angle(absolute[0].sum(axis=0)), absolute[1].sum(axis=0))
+        self.filters.update(MEAN_REFERENCED, np.angle(mean_referenced[0].sum(axis=0)),
+                            mean_referenced[1].sum(axis=0))
+        held = axis_angle(g_parent[..., h, :], applied[..., h])
+        self.axes.add(quat.multiply(held, r[..., h, :]), g_parent[..., h, :], joined[..., h], dt)
+
+    def _rates(self, q: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T, B, S, 3) each segment's angular rate in its own frame, rad/s, from one tick to the
+        next (the first from the last tick of the block before), and (T, B, S) where it is
+        valid (present at both ticks)."""
+        steps = np.concatenate([q[:1] if self.last is None else self.last[None], q])
+        valid = present & np.concatenate([self.had[None], present[:-1]])
+        self.last, self.had = q[-1].copy(), present[-1].copy()
+        d = quat.multiply(quat.conjugate(steps[:-1]), steps[1:])
+        return 2.0 * self.fs * d[..., 1:] * np.where(d[..., :1] < 0, -1.0, 1.0), valid
+
+    def _stillness(self, speed, present, turn, g_parent, g_child, joined, delta, absolute) -> None:
+        """Fold in the still joints and the relaxed pose (:mod:`.still`) of one block."""
+        s, lay, dt = self.settings, self.layout, 1.0 / self.fs
+        self.still.add(speed, present, dt)
+        still = self.still.still_s >= s.still_s  # (B, S)
+        seen = present.any(axis=0)
+        whole = np.all(still | ~seen, axis=-1) & np.any(seen, axis=-1)  # (B,)
+        joint_still = still[..., lay.parent] & still[..., lay.child] & joined.all(axis=0)
+        near = np.all(np.abs(wrap(-turn - delta)) < np.radians(s.relaxed_gate_deg), axis=0)
+        relaxed = whole[:, None] & joint_still & near & np.all(leaning_alike(g_parent, g_child, s.relaxed_lean_deg), axis=0)
+        locking = joint_still & ~relaxed
+        self.lock_ref = np.where(locking & ~self.locked, turn[0] + delta, self.lock_ref)
+        self.locked = locking
+        _add(absolute, (Ellipsis,), -turn, relaxed * dt / np.radians(s.relaxed_sd_deg) ** 2)
+        _add(absolute, (Ellipsis,), self.lock_ref - turn, locking * dt / np.radians(s.lock_sd_deg) ** 2)
+
+    # -- state ----------------------------------------------------------------------------------
+
+    def joint_offsets(self, ahead: int = 0) -> np.ndarray:
+        """(subjects, joints) each joint's correction ``ahead`` ticks after the last step, rad."""
+        x = self.filters.x
+        return x[..., 0] + x[..., 1] * (ahead / self.fs)
+
+    def corrections(self, ahead: int = 0) -> np.ndarray:
+        """(subjects, segments) the corrections ``ahead`` ticks after the last step, rad."""
+        return self._down_the_tree(self.joint_offsets(ahead))
+
+    def _down_the_tree(self, joint_values: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
+        """(subjects, segments) per-segment values of per-joint differences ``joint_values``
+        (subjects, joints): each child's is its parent's plus its joint's, then each subject's
+        are shifted to average 0."""
+        lay = self.layout
+        out = np.zeros(joint_values.shape[:-1] + (len(lay.segments),))
+        for j in self.order:
+            out[..., lay.child[j]] = out[..., lay.parent[j]] + joint_values[..., j]
+        return out - out.mean(axis=-1, keepdims=True)
+
+    def status(self) -> dict[str, np.ndarray]:
+        """Per device (subjects, segments): ``offset_deg`` the correction applied now, ``rate_dpm``
+        its rate (deg/min) and ``confidence`` (0..1: 1 when its joint's heading is known to
+        within ``Settings.confidence_deg``, 1/2 at that, towards 0 as it is lost)."""
+        lay = self.layout
+        conf_joint = 1.0 / (1.0 + (self.filters.delta_sd() / np.radians(self.settings.confidence_deg)) ** 2)
+        conf = np.zeros(conf_joint.shape[:-1] + (len(lay.segments),))
+        weight = np.zeros_like(conf)
+        for j in range(len(lay.joints)):  # a device: its joint to its parent; a root: its joints' mean
+            conf[..., lay.child[j]] = conf_joint[..., j]
+            weight[..., lay.child[j]] = np.inf
+        for j in range(len(lay.joints)):
+            root = ~np.isinf(weight[..., lay.parent[j]])
+            conf[..., lay.parent[j]] += np.where(root, conf_joint[..., j], 0.0)
+            weight[..., lay.parent[j]] += np.where(root, 1.0, 0.0)
+        conf = np.where(np.isinf(weight), conf, conf / np.maximum(weight, 1.0))
+        return {"offset_deg": np.degrees(self.corrections(len(self._pending))),
+                "rate_dpm": 60.0 * np.degrees(self._down_the_tree(self.filters.x[..., 1])),
+                "confidence": conf}
+
+    # -- offline --------------------------------------------------------------------------------
+
+    @classmethod
+    def batch(cls, q: np.ndarray, layout: Layout, fs: float = 50.0, settings: Settings = Settings()) -> np.ndarray:
+        """(m, S, 4) a recording's calibrated orientations ``q`` (m, S, 4) at ``fs`` Hz,
+        corrected as the live estimator would have, tick by tick."""
+        q = np.asarray(q, np.float64)
+        est = cls(layout, 1, fs, settings)
+        out = np.empty_like(q)
+        present = np.ones((est.block, 1, q.shape[1]), bool)
+        for k in range(0, len(q), est.block):
+            block = q[k:k + est.block, None]
+            ahead = np.arange(1, len(block) + 1)[:, None, None]
+            c = est._down_the_tree(est.filters.x[..., 0] + est.filters.x[..., 1] * (ahead / fs))
+            out[k:k + len(block)] = cls.apply(block[:, 0], c[:, 0])
+            if len(block) == est.block:
+                est.process(block, present)
+        return out
+
+
+def _add(acc: tuple[np.ndarray, np.ndarray], where, measured: np.ndarray, information: np.ndarray) -> None:
+    """Add measurements (angles, rad) with their information to a circular accumulator
+    ``acc`` (weighted unit vectors, weights), at index ``where``."""
+    acc[0][where] += information * np.exp(1j * measured)
+    acc[1][where] += information
