@@ -15,13 +15,13 @@ recording, so the offline form gives what the live one gives.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from limbstream import quat
 from limbstream.calibration import axis_angle, yaw
-from limbstream.heading import hinge
+from limbstream.heading import hinge, rom
 from limbstream.heading.filter import ABSOLUTE, MEAN_REFERENCED, JointFilters, wrap
 from limbstream.heading.joints import Layout, relative, twist, vertical_in
 from limbstream.heading.still import Stillness, leaning_alike
@@ -38,6 +38,8 @@ class Settings:
     delta0_deg: float = 1.0
     rate0_dps: float = 0.1
     mean0_deg: float = 30.0
+    hinge_mean0_deg: float = 3.0
+    hinge_bias: bool = True
     delta_walk: float = 0.02
     rate_walk: float = 5e-4
     mean_walk: float = 0.05
@@ -45,11 +47,15 @@ class Settings:
     elbow_spread_deg: tuple[float, float] = (30.0, 5.0)
     hinge_corr_s: float = 1.0
     axis_memory_s: float = 120.0
-    axis_min_amount: float = 1.0
+    axis_min_amount: float = 3.0
     axis_min_share: float = 0.8
     twist_sd_deg: tuple[tuple[str, float], ...] = (("hip", 10.0), ("shoulder", 30.0), ("neck", 15.0),
                                                    ("ankle", 10.0))
     twist_corr_s: float = 2.0
+    twist_gate: float = 4.0
+    rom_sd_deg: float = 3.0
+    rom_memory_s: float = 10.0
+    rom_min_share: float = 0.2
     still_dps: float = 2.0
     still_s: float = 1.0
     lock_sd_deg: float = 0.5
@@ -75,8 +81,9 @@ class HeadingCorrection:
         self.block = max(1, round(settings.update_s * fs))
         n_joints = len(layout.joints)
         rad = np.radians
-        self.filters = JointFilters((subjects, n_joints),
-                                    rad([settings.delta0_deg, settings.rate0_dps, settings.mean0_deg]),
+        sd0 = np.tile(rad([settings.delta0_deg, settings.rate0_dps, settings.mean0_deg]), (n_joints, 1))
+        sd0[layout.hinge, 2] = rad(settings.hinge_mean0_deg)
+        self.filters = JointFilters((subjects, n_joints), sd0,
                                     rad([settings.delta_walk, settings.rate_walk, settings.mean_walk]))
         self.hinges = np.flatnonzero(layout.hinge)
         self.balls = np.flatnonzero(~layout.hinge)
@@ -88,6 +95,11 @@ class HeadingCorrection:
                                     for j in self.hinges]).reshape(-1, 2)) ** 2
         twist_sd = dict(settings.twist_sd_deg)
         self.twist_var = rad(np.array([twist_sd[layout.joints[j].split("_")[-1]] for j in self.balls])) ** 2
+        self.box = rom.limits([layout.joints[j] for j in self.balls])
+        self.to_standing = np.array([rom.TO_STANDING[1.0 if layout.segments[layout.child[j]].startswith("l_") else -1.0]
+                                     if layout.rest_pose == "tpose" and layout.segments[layout.child[j]].endswith("arm")
+                                     else [1.0, 0.0, 0.0, 0.0] for j in self.balls]).reshape(-1, 4)
+        self.ranges = rom.RangeCounts((subjects, len(self.balls)), settings.rom_memory_s, settings.rom_min_share)
         self.still = Stillness((subjects, len(layout.segments)), settings.still_dps)
         self.last: np.ndarray | None = None
         self.had = np.zeros((subjects, len(layout.segments)), bool)
@@ -138,34 +150,57 @@ class HeadingCorrection:
         """Measure one block of ticks, ``q`` (T, subjects, segments, 4) and ``present`` (T,
         subjects, segments), and move every filter one step."""
         lay, dt = self.layout, 1.0 / self.fs
+        x = self.filters.x
         r = relative(q, lay)  # (T, B, J, 4)
-        g_parent = vertical_in(q[..., lay.parent, :])
-        g_child = vertical_in(q[..., lay.child, :])
-        joined = present[..., lay.parent] & present[..., lay.child]
-        delta = self.filters.x[..., 0]
-        applied = delta + self.filters.x[..., 1] * (np.arange(1, len(q) + 1)[:, None, None] * dt)  # (T, B, J)
-        turn = twist(r, g_parent)
+        b = _Block(r=r, g_parent=vertical_in(q[..., lay.parent, :]), g_child=vertical_in(q[..., lay.child, :]),
+                   joined=present[..., lay.parent] & present[..., lay.child],
+                   applied=x[..., 0] + x[..., 1] * (np.arange(1, len(q) + 1)[:, None, None] * dt),
+                   absolute=(np.zeros(r.shape[:-1], complex), np.zeros(r.shape[:-1])),
+                   referenced=(np.zeros(r.shape[:-1], complex), np.zeros(r.shape[:-1])))
+        b.turn = twist(r, b.g_parent)
         rates, steady = self._rates(q, present)
-        absolute = np.zeros(r.shape[:-1], complex), np.zeros(r.shape[:-1])
-
-        h = self.hinges
-        y, info = hinge.measure(r[..., h, :], g_parent[..., h, :], self.axes.axis, self.bones, self.spread)
-        info *= dt / self.settings.hinge_corr_s * self.axes.ready * joined[..., h]
-        _add(absolute, (Ellipsis, h), y, info)
-
-        b = self.balls
-        mean_info = np.zeros(r.shape[:-1])
-        mean_info[..., b] = dt / (self.twist_var * self.settings.twist_corr_s) * joined[..., b]
-        mean_referenced = mean_info * np.exp(-1j * turn), mean_info
-
-        self._stillness(np.linalg.norm(rates, axis=-1), steady, turn, g_parent, g_child, joined, delta, absolute)
-
+        self._hinges(b)
+        self._twists(b)
+        self._range(b)
+        self._stillness(b, np.linalg.norm(rates, axis=-1), steady)
         self.filters.predict(len(q) * dt)
-        self.filters.update(ABSOLUTE, np.angle(absolute[0].sum(axis=0)), absolute[1].sum(axis=0))
-        self.filters.update(MEAN_REFERENCED, np.angle(mean_referenced[0].sum(axis=0)),
-                            mean_referenced[1].sum(axis=0))
-        held = axis_angle(g_parent[..., h, :], applied[..., h])
-        self.axes.add(quat.multiply(held, r[..., h, :]), g_parent[..., h, :], joined[..., h], dt)
+        self.filters.update(ABSOLUTE, np.angle(b.absolute[0].sum(axis=0)), b.absolute[1].sum(axis=0))
+        self.filters.update(MEAN_REFERENCED, np.angle(b.referenced[0].sum(axis=0)), b.referenced[1].sum(axis=0))
+        h = self.hinges
+        held = axis_angle(b.g_parent[..., h, :], b.applied[..., h])
+        self.axes.add(quat.multiply(held, r[..., h, :]), b.g_parent[..., h, :], b.joined[..., h], dt)
+
+    def _hinges(self, b: _Block) -> None:
+        """The hinge measure of every hinge (:mod:`.hinge`), where its axis is known."""
+        h, dt = self.hinges, 1.0 / self.fs
+        y, info = hinge.measure(b.r[..., h, :], b.g_parent[..., h, :], self.axes.axis, self.bones, self.spread)
+        info *= dt / self.settings.hinge_corr_s * self.axes.ready * b.joined[..., h]
+        _add(b.referenced if self.settings.hinge_bias else b.absolute, (Ellipsis, h), y, info)
+
+    def _twists(self, b: _Block) -> None:
+        """The twist every ball joint shows about the vertical, against its mean; samples further
+        from what the filter expects than ``Settings.twist_gate`` of their spread (a joint held
+        far out, at its limit) are left out."""
+        j, dt, x = self.balls, 1.0 / self.fs, self.filters.x
+        expected = x[..., j, 0] - x[..., j, 2]
+        p = self.filters.p[..., j, :, :]
+        spread = self.twist_var + p[..., 0, 0] + p[..., 2, 2] - 2 * p[..., 0, 2]
+        measured = -b.turn[..., j]
+        near = np.abs(wrap(measured - expected)) < self.settings.twist_gate * np.sqrt(spread)
+        _add(b.referenced, (Ellipsis, j), measured,
+             near * b.joined[..., j] * dt / (self.twist_var * self.settings.twist_corr_s))
+
+    def _range(self, b: _Block) -> None:
+        """Each ball joint's range of motion (:mod:`.rom`), counted at the block's last tick."""
+        j = self.balls
+        g = b.g_parent[-1][..., j, :]
+        now = b.applied[-1][..., j]
+        corrected = quat.multiply(axis_angle(g, now), b.r[-1][..., j, :])
+        out = rom.out_of_range(quat.multiply(corrected, self.to_standing), g, self.box)
+        self.ranges.add(out, b.joined[-1][..., j], len(b.r) / self.fs)
+        turn, asked = self.ranges.asked()
+        information = asked * b.joined[-1][..., j] / np.radians(self.settings.rom_sd_deg) ** 2
+        _add((b.absolute[0][-1], b.absolute[1][-1]), (Ellipsis, j), now + turn, information)
 
     def _rates(self, q: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T, B, S, 3) each segment's angular rate in its own frame, rad/s, from one tick to the
@@ -177,21 +212,22 @@ class HeadingCorrection:
         d = quat.multiply(quat.conjugate(steps[:-1]), steps[1:])
         return 2.0 * self.fs * d[..., 1:] * np.where(d[..., :1] < 0, -1.0, 1.0), valid
 
-    def _stillness(self, speed, present, turn, g_parent, g_child, joined, delta, absolute) -> None:
+    def _stillness(self, b: _Block, speed: np.ndarray, steady: np.ndarray) -> None:
         """Fold in the still joints and the relaxed pose (:mod:`.still`) of one block."""
         s, lay, dt = self.settings, self.layout, 1.0 / self.fs
-        self.still.add(speed, present, dt)
+        self.still.add(speed, steady, dt)
         still = self.still.still_s >= s.still_s  # (B, S)
-        seen = present.any(axis=0)
+        seen = steady.any(axis=0)
         whole = np.all(still | ~seen, axis=-1) & np.any(seen, axis=-1)  # (B,)
-        joint_still = still[..., lay.parent] & still[..., lay.child] & joined.all(axis=0)
-        near = np.all(np.abs(wrap(-turn - delta)) < np.radians(s.relaxed_gate_deg), axis=0)
-        relaxed = whole[:, None] & joint_still & near & np.all(leaning_alike(g_parent, g_child, s.relaxed_lean_deg), axis=0)
+        joint_still = still[..., lay.parent] & still[..., lay.child] & b.joined.all(axis=0)
+        near = np.all(np.abs(wrap(-b.turn - b.applied)) < np.radians(s.relaxed_gate_deg), axis=0)
+        alike = np.all(leaning_alike(b.g_parent, b.g_child, s.relaxed_lean_deg), axis=0)
+        relaxed = whole[:, None] & joint_still & near & alike
         locking = joint_still & ~relaxed
-        self.lock_ref = np.where(locking & ~self.locked, turn[0] + delta, self.lock_ref)
+        self.lock_ref = np.where(locking & ~self.locked, b.turn[0] + b.applied[0], self.lock_ref)
         self.locked = locking
-        _add(absolute, (Ellipsis,), -turn, relaxed * dt / np.radians(s.relaxed_sd_deg) ** 2)
-        _add(absolute, (Ellipsis,), self.lock_ref - turn, locking * dt / np.radians(s.lock_sd_deg) ** 2)
+        _add(b.absolute, (Ellipsis,), -b.turn, relaxed * dt / np.radians(s.relaxed_sd_deg) ** 2)
+        _add(b.absolute, (Ellipsis,), self.lock_ref - b.turn, locking * dt / np.radians(s.lock_sd_deg) ** 2)
 
     # -- state ----------------------------------------------------------------------------------
 
@@ -252,6 +288,23 @@ class HeadingCorrection:
             if len(block) == est.block:
                 est.process(block, present)
         return out
+
+
+@dataclass
+class _Block:
+    """One block's arrays, (T, B, J, ...): relative orientations ``r``, the vertical in the
+    parents' and children's frames, where both segments are ``joined``, the corrections
+    ``applied`` at each tick, the twist ``turn`` about the vertical, and the two accumulators
+    (weighted unit vectors, weights) of absolute and mean-referenced measurements."""
+
+    r: np.ndarray
+    g_parent: np.ndarray
+    g_child: np.ndarray
+    joined: np.ndarray
+    applied: np.ndarray
+    absolute: tuple[np.ndarray, np.ndarray]
+    referenced: tuple[np.ndarray, np.ndarray]
+    turn: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def _add(acc: tuple[np.ndarray, np.ndarray], where, measured: np.ndarray, information: np.ndarray) -> None:

@@ -8,12 +8,14 @@ State per joint ``x = [delta, rate, mean]``:
   restart put there);
 - ``rate`` (rad/s): its rate, the difference of the two sensors' vertical gyro biases, a random
   walk;
-- ``mean`` (rad): the joint's mean twist about the vertical (how far its child usually turns
-  from the rest pose, e.g. a hip's habitual external rotation), a near-constant.
+- ``mean`` (rad): what the joint's own measure shows when no correction is needed, a
+  near-constant: for a ball joint its mean twist about the vertical (how far its child usually
+  turns from the rest pose, e.g. a hip's habitual external rotation), for a hinge the bias that
+  its deviations from a perfect hinge leave in the hinge measure.
 
 Measurements are angles, each with its information (1/rad^2): *absolute* ones of ``delta``
-(the hinge, the range of motion, a still joint, the relaxed pose) and *mean-referenced* ones of
-``delta - mean`` (the twist the joint shows). Innovations are wrapped to (-pi, pi], and an
+(the range of motion, a still joint, the relaxed pose) and *mean-referenced* ones of
+``delta - mean`` (the twist a ball joint shows; the hinge measure). Innovations are wrapped to (-pi, pi], and an
 innovation beyond :data:`GATE` standard deviations is taken as if it were at the gate, so one
 wrong window moves the state a bounded step.
 """
@@ -41,7 +43,8 @@ class JointFilters:
     Parameters
     ----------
     shape : leading shape of the state arrays.
-    sd0 : (3,) initial standard deviations of ``delta`` (rad), ``rate`` (rad/s), ``mean`` (rad).
+    sd0 : (..., 3) initial standard deviations of ``delta`` (rad), ``rate`` (rad/s), ``mean``
+        (rad), broadcast to ``shape``.
     walk : (3,) random-walk densities of the three (rad/sqrt(s), rad/s/sqrt(s), rad/sqrt(s)).
     """
 
@@ -50,7 +53,8 @@ class JointFilters:
         self.walk = np.asarray(walk, np.float64)
         self.x = np.zeros(shape + (3,))
         self.p = np.zeros(shape + (3, 3))
-        self.p[...] = np.diag(self.sd0 ** 2)
+        diagonal = np.arange(3)
+        self.p[..., diagonal, diagonal] = self.sd0 ** 2
 
     def predict(self, dt: float) -> None:
         """Move every state ``dt`` seconds on: ``delta += rate * dt``; uncertainties grow."""
@@ -77,7 +81,9 @@ class JointFilters:
         """Start the joints of ``mask`` (...) afresh: ``delta`` unknown (half a turn either way),
         ``rate`` 0 at its initial uncertainty; the mean twist is kept unless ``keep_mean`` is
         False."""
-        fresh = np.diag(np.array([np.pi, self.sd0[1], self.sd0[2]]) ** 2)
+        fresh = np.zeros(self.p.shape)
+        diagonal = np.arange(3)
+        fresh[..., diagonal, diagonal] = np.stack(np.broadcast_arrays(np.pi, self.sd0[..., 1], self.sd0[..., 2]), -1) ** 2
         p = np.where(mask[..., None, None], fresh, self.p)
         x = np.where(mask[..., None], 0.0, self.x)
         if keep_mean:
