@@ -94,13 +94,14 @@ def sessions(clip: Motion, minutes: float, segments: tuple[str, ...] | None) -> 
 
 
 def calibrated(s: Session, names: tuple[str, ...], drift: DriftModel,
-               seed: int) -> tuple[np.ndarray, list[calibration.Calibration]]:
+               stream: int) -> tuple[np.ndarray, list[calibration.Calibration]]:
     """(n, S, 4) what the system holds of each stream after fastSW, SLERP and the script's
-    calibration (its heading still drifting), and the calibrations."""
+    calibration (its heading still drifting), and the calibrations; the sensors are drawn from
+    the seeds of ``drift`` and ``stream``."""
     t = np.arange(len(s.q)) / FS
     n_seg = s.q.shape[1]
-    sensors = calibration.SensorModel(90, 180, 0.0, seed).draw(n_seg)
-    drifted = drift.draw(t, n_seg).apply(s.q)
+    sensors = calibration.SensorModel(90, 180, 0.0, drift.seed).draw(n_seg, stream)
+    drifted = drift.draw(t, n_seg, stream).apply(s.q)
     pose = calibration.mounting_pose(names)
     out, cals = np.empty_like(s.q), []
     for k in range(n_seg):
@@ -151,13 +152,14 @@ CASES = ("loop: no correction", "loop: heading correction", "holds: no correctio
          "holds: yaw resets, drift compensated", "holds: heading correction")
 
 
-def clip_rows(clip: Motion, minutes: float, body: str, drift: DriftModel, seed: int,
+def clip_rows(clip: Motion, minutes: float, body: str, drift: DriftModel, stream: int,
               settings: Settings) -> tuple[dict[str, dict[str, np.ndarray]], Layout]:
-    """Case -> joint class -> (minutes,) mean joint angle error of one clip looped."""
+    """Case -> joint class -> (minutes,) mean joint angle error of one clip looped, its sensors
+    drawn from stream ``stream``."""
     runs, layout = sessions(clip, minutes, BODIES[body])
     rows: dict[str, dict[str, np.ndarray]] = {}
     for name, s in runs.items():
-        q_cal, cals = calibrated(s, layout.segments, drift, seed)
+        q_cal, cals = calibrated(s, layout.segments, drift, stream)
         rows[f"{name}: no correction"] = per_minute(s, q_cal, layout)
         if s.holds:
             rows[f"{name}: yaw resets, drift compensated"] = per_minute(s, with_resets(s, q_cal, cals), layout)
@@ -165,13 +167,13 @@ def clip_rows(clip: Motion, minutes: float, body: str, drift: DriftModel, seed: 
     return rows, layout
 
 
-def run(path: str, minutes: float, body: str, drift: DriftModel, seed: int, settings: Settings,
+def run(path: str, minutes: float, body: str, drift: DriftModel, settings: Settings,
         verbose: bool = False) -> str:
     clips = load(path)
     began = time.perf_counter()
     per_clip = []
-    for clip in clips:
-        rows, layout = clip_rows(clip, minutes, body, drift, seed, settings)
+    for k, clip in enumerate(clips):
+        rows, layout = clip_rows(clip, minutes, body, drift, k, settings)
         per_clip.append(rows)
         if verbose:
             print(clip.name, {k: {c: np.round(v, 1).tolist() for c, v in r.items()} for k, r in rows.items()},
@@ -180,7 +182,7 @@ def run(path: str, minutes: float, body: str, drift: DriftModel, seed: int, sett
     n_min = min(len(v) for rows in per_clip for r in rows.values() for v in r.values())
     lines = [f"{len(clips)} clips, each looped for {minutes:g} min; {body} body ({len(layout.segments)} sensors); "
              f"bias up to +-{drift.bias_dps:g} deg/s wandering {drift.walk:g} deg/s/sqrt(s), tilt "
-             f"{drift.tilt_deg:g} deg, seed {seed}; fastSW TH 9e-4, max_len 25, live bound 5. "
+             f"{drift.tilt_deg:g} deg, seed {drift.seed} (each clip its own sensors); fastSW TH 9e-4, max_len 25, live bound 5. "
              "Joint angle error (deg), mean of the clips, per minute:", ""]
     for cls in layout.classes():
         members = [j for j, h in zip(layout.joints, layout.hinge) if (cls == "hinge") == h]
@@ -205,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--verbose", action="store_true", help="also each clip's rows (to stderr)")
     args = parser.parse_args(argv)
     drift = DriftModel(bias_dps=args.bias_dps, seed=args.seed)
-    print(run(args.path, args.minutes, args.body, drift.bad_day() if args.bad_day else drift, args.seed, Settings(),
+    print(run(args.path, args.minutes, args.body, drift.bad_day() if args.bad_day else drift, Settings(),
               args.verbose))
     return 0
 

@@ -22,7 +22,7 @@ import numpy as np
 from limbstream import quat
 from limbstream.calibration import axis_angle, yaw
 from limbstream.heading import hinge, rom
-from limbstream.heading.filter import ABSOLUTE, MEAN_REFERENCED, JointFilters, wrap
+from limbstream.heading.filter import ABSOLUTE, GATE as filter_gate, MEAN_REFERENCED, JointFilters, wrap
 from limbstream.heading.joints import Layout, relative, twist, vertical_in
 from limbstream.heading.still import Stillness, leaning_alike
 
@@ -37,7 +37,6 @@ class Settings:
     update_s: float = 0.2
     delta0_deg: float = 1.0
     rate0_dps: float = 0.1
-    mean0_deg: float = 30.0
     hinge_mean0_deg: float = 3.0
     hinge_bias: bool = True
     delta_walk: float = 0.02
@@ -49,8 +48,8 @@ class Settings:
     axis_memory_s: float = 120.0
     axis_min_amount: float = 3.0
     axis_min_share: float = 0.8
-    twist_sd_deg: tuple[tuple[str, float], ...] = (("hip", 10.0), ("shoulder", 30.0), ("neck", 15.0),
-                                                   ("ankle", 10.0))
+    twist_deg: tuple[tuple[str, float, float], ...] = (("hip", 10.0, 10.0), ("shoulder", 30.0, 30.0),
+                                                       ("neck", 10.0, 15.0), ("ankle", 10.0, 10.0))
     twist_corr_s: float = 2.0
     twist_gate: float = 4.0
     rom_sd_deg: float = 3.0
@@ -58,8 +57,7 @@ class Settings:
     rom_min_share: float = 0.2
     still_dps: float = 2.0
     still_s: float = 1.0
-    lock_sd_deg: float = 0.5
-    relaxed_sd_deg: float = 3.0
+    relaxed_sd_deg: float = 1.0
     relaxed_lean_deg: float = 15.0
     relaxed_gate_deg: float = 25.0
     confidence_deg: float = 3.0
@@ -81,9 +79,12 @@ class HeadingCorrection:
         self.block = max(1, round(settings.update_s * fs))
         n_joints = len(layout.joints)
         rad = np.radians
-        sd0 = np.tile(rad([settings.delta0_deg, settings.rate0_dps, settings.mean0_deg]), (n_joints, 1))
-        sd0[layout.hinge, 2] = rad(settings.hinge_mean0_deg)
-        self.filters = JointFilters((subjects, n_joints), sd0,
+        twist = {kind: (mean, spread) for kind, mean, spread in settings.twist_deg}
+        kinds = [name.split("_")[-1] for name in layout.joints]
+        sd0 = np.array([[settings.delta0_deg, settings.rate0_dps,
+                         settings.hinge_mean0_deg if is_hinge else twist[kind][0]]
+                        for kind, is_hinge in zip(kinds, layout.hinge)]).reshape(-1, 3)
+        self.filters = JointFilters((subjects, n_joints), rad(sd0),
                                     rad([settings.delta_walk, settings.rate_walk, settings.mean_walk]))
         self.hinges = np.flatnonzero(layout.hinge)
         self.balls = np.flatnonzero(~layout.hinge)
@@ -93,8 +94,7 @@ class HeadingCorrection:
         self.bones = bones[self.hinges]
         self.spread = rad(np.array([settings.knee_spread_deg if "knee" in layout.joints[j] else settings.elbow_spread_deg
                                     for j in self.hinges]).reshape(-1, 2)) ** 2
-        twist_sd = dict(settings.twist_sd_deg)
-        self.twist_var = rad(np.array([twist_sd[layout.joints[j].split("_")[-1]] for j in self.balls])) ** 2
+        self.twist_var = rad(np.array([twist[kinds[j]][1] for j in self.balls])) ** 2
         self.box = rom.limits([layout.joints[j] for j in self.balls])
         self.to_standing = np.array([rom.TO_STANDING[1.0 if layout.segments[layout.child[j]].startswith("l_") else -1.0]
                                      if layout.rest_pose == "tpose" and layout.segments[layout.child[j]].endswith("arm")
@@ -105,6 +105,7 @@ class HeadingCorrection:
         self.had = np.zeros((subjects, len(layout.segments)), bool)
         self.locked = np.zeros((subjects, n_joints), bool)
         self.lock_ref = np.zeros((subjects, n_joints))
+        self.lock_p = np.zeros((subjects, n_joints, 3, 3))
         self.order = sorted(range(n_joints), key=lambda j: self._depth(layout.segments[layout.child[j]]))
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []
 
@@ -121,7 +122,7 @@ class HeadingCorrection:
         q = np.asarray(q, np.float64)
         present = np.ones(q.shape[:2], bool) if present is None else np.asarray(present, bool)
         self._pending.append((q, present))
-        out = self.corrections(len(self._pending))
+        out = self.corrections(len(self._pending), present)
         if len(self._pending) == self.block:
             qs, ps = zip(*self._pending)
             self._pending = []
@@ -163,9 +164,11 @@ class HeadingCorrection:
         self._twists(b)
         self._range(b)
         self._stillness(b, np.linalg.norm(rates, axis=-1), steady)
+        free = ~self.locked
         self.filters.predict(len(q) * dt)
-        self.filters.update(ABSOLUTE, np.angle(b.absolute[0].sum(axis=0)), b.absolute[1].sum(axis=0))
-        self.filters.update(MEAN_REFERENCED, np.angle(b.referenced[0].sum(axis=0)), b.referenced[1].sum(axis=0))
+        self.filters.update(ABSOLUTE, np.angle(b.absolute[0].sum(axis=0)), b.absolute[1].sum(axis=0) * free)
+        self.filters.update(MEAN_REFERENCED, np.angle(b.referenced[0].sum(axis=0)), b.referenced[1].sum(axis=0) * free)
+        self.filters.hold(self.locked, self.lock_ref - b.turn[-1], self.lock_p)
         h = self.hinges
         held = axis_angle(b.g_parent[..., h, :], b.applied[..., h])
         self.axes.add(quat.multiply(held, r[..., h, :]), b.g_parent[..., h, :], b.joined[..., h], dt)
@@ -220,14 +223,16 @@ class HeadingCorrection:
         seen = steady.any(axis=0)
         whole = np.all(still | ~seen, axis=-1) & np.any(seen, axis=-1)  # (B,)
         joint_still = still[..., lay.parent] & still[..., lay.child] & b.joined.all(axis=0)
-        near = np.all(np.abs(wrap(-b.turn - b.applied)) < np.radians(s.relaxed_gate_deg), axis=0)
+        gate = np.maximum(np.radians(s.relaxed_gate_deg), filter_gate * self.filters.delta_sd())
+        near = np.all(np.abs(wrap(-b.turn - b.applied)) < gate, axis=0)
         alike = np.all(leaning_alike(b.g_parent, b.g_child, s.relaxed_lean_deg), axis=0)
         relaxed = whole[:, None] & joint_still & near & alike
         locking = joint_still & ~relaxed
-        self.lock_ref = np.where(locking & ~self.locked, b.turn[0] + b.applied[0], self.lock_ref)
+        onset = locking & ~self.locked
+        self.lock_ref = np.where(onset, b.turn[0] + b.applied[0], self.lock_ref)
+        self.lock_p = np.where(onset[..., None, None], self.filters.p, self.lock_p)
         self.locked = locking
         _add(b.absolute, (Ellipsis,), -b.turn, relaxed * dt / np.radians(s.relaxed_sd_deg) ** 2)
-        _add(b.absolute, (Ellipsis,), self.lock_ref - b.turn, locking * dt / np.radians(s.lock_sd_deg) ** 2)
 
     # -- state ----------------------------------------------------------------------------------
 
@@ -236,19 +241,30 @@ class HeadingCorrection:
         x = self.filters.x
         return x[..., 0] + x[..., 1] * (ahead / self.fs)
 
-    def corrections(self, ahead: int = 0) -> np.ndarray:
-        """(subjects, segments) the corrections ``ahead`` ticks after the last step, rad."""
-        return self._down_the_tree(self.joint_offsets(ahead))
+    def corrections(self, ahead: int = 0, present: np.ndarray | None = None) -> np.ndarray:
+        """(subjects, segments) the corrections ``ahead`` ticks after the last step, rad, of the
+        segments ``present`` (subjects, segments) (default: those of the last tick)."""
+        return self._down_the_tree(self.joint_offsets(ahead), self.had if present is None else present)
 
-    def _down_the_tree(self, joint_values: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
-        """(subjects, segments) per-segment values of per-joint differences ``joint_values``
-        (subjects, joints): each child's is its parent's plus its joint's, then each subject's
-        are shifted to average 0."""
+    def _down_the_tree(self, joint_values: np.ndarray, present: np.ndarray) -> np.ndarray:
+        """(..., subjects, segments) per-segment values of per-joint differences ``joint_values``
+        (..., subjects, joints): each child's is its parent's plus its joint's where both are
+        ``present`` (subjects, segments); then each group of segments so joined is shifted to
+        average 0 (absent segments get 0)."""
         lay = self.layout
-        out = np.zeros(joint_values.shape[:-1] + (len(lay.segments),))
+        n = len(lay.segments)
+        shape = joint_values.shape[:-1] + (n,)
+        present = np.broadcast_to(present, shape)
+        out = np.zeros(shape)
+        root = np.broadcast_to(np.arange(n), shape).copy()
         for j in self.order:
-            out[..., lay.child[j]] = out[..., lay.parent[j]] + joint_values[..., j]
-        return out - out.mean(axis=-1, keepdims=True)
+            p, c = lay.parent[j], lay.child[j]
+            linked = present[..., p] & present[..., c]
+            out[..., c] = np.where(linked, out[..., p] + joint_values[..., j], 0.0)
+            root[..., c] = np.where(linked, root[..., p], c)
+        member = (root[..., :, None] == np.arange(n)) & present[..., :, None]  # (..., segment, group)
+        mean = np.einsum("...s,...sg->...g", out, member) / np.maximum(member.sum(axis=-2), 1)
+        return np.where(present, out - np.take_along_axis(mean, root, axis=-1), 0.0)
 
     def status(self) -> dict[str, np.ndarray]:
         """Per device (subjects, segments): ``offset_deg`` the correction applied now, ``rate_dpm``
@@ -267,7 +283,7 @@ class HeadingCorrection:
             weight[..., lay.parent[j]] += np.where(root, 1.0, 0.0)
         conf = np.where(np.isinf(weight), conf, conf / np.maximum(weight, 1.0))
         return {"offset_deg": np.degrees(self.corrections(len(self._pending))),
-                "rate_dpm": 60.0 * np.degrees(self._down_the_tree(self.filters.x[..., 1])),
+                "rate_dpm": 60.0 * np.degrees(self._down_the_tree(self.filters.x[..., 1], self.had)),
                 "confidence": conf}
 
     # -- offline --------------------------------------------------------------------------------
@@ -283,7 +299,7 @@ class HeadingCorrection:
         for k in range(0, len(q), est.block):
             block = q[k:k + est.block, None]
             ahead = np.arange(1, len(block) + 1)[:, None, None]
-            c = est._down_the_tree(est.filters.x[..., 0] + est.filters.x[..., 1] * (ahead / fs))
+            c = est._down_the_tree(est.filters.x[..., 0] + est.filters.x[..., 1] * (ahead / fs), present[0])
             out[k:k + len(block)] = cls.apply(block[:, 0], c[:, 0])
             if len(block) == est.block:
                 est.process(block, present)

@@ -77,6 +77,12 @@ class JointFilters:
         self.x = self.x + gain * z[..., None]
         self.p = self.p - gain[..., :, None] * ph[..., None, :]
 
+    def hold(self, mask: np.ndarray, delta: np.ndarray, p: np.ndarray) -> None:
+        """Where ``mask`` (...), set ``delta`` (...) rad as measured exactly relative to an
+        earlier state whose covariance was ``p`` (..., 3, 3): the uncertainty stays that one."""
+        self.x[..., 0] = np.where(mask, delta, self.x[..., 0])
+        self.p = np.where(mask[..., None, None], p, self.p)
+
     def forget(self, mask: np.ndarray, keep_mean: bool = True) -> None:
         """Start the joints of ``mask`` (...) afresh: ``delta`` unknown (half a turn either way),
         ``rate`` 0 at its initial uncertainty; the mean twist is kept unless ``keep_mean`` is

@@ -60,6 +60,11 @@ OFFSETS = np.radians([-6.0, -3.0, -1.5, 0.0, 1.5, 3.0, 6.0])
 """Heading offsets (rad) at which :class:`HingeAxes` tries the accumulated orientations."""
 
 
+def _outer_sum(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) the sum over the first axis of the outer products of ``a``, ``b`` (T, ..., 3)."""
+    return np.einsum("t...i,t...j->...ij", a, b)
+
+
 class HingeAxes:
     """The learnt axes of ``shape`` hinges (e.g. (subjects, hinges)), learnt together with the
     heading error left in the orientations they are learnt from.
@@ -92,10 +97,9 @@ class HingeAxes:
         r = r * sign[..., None]
         v = r[..., 1:]
         d = r[..., :1] * g + np.cross(g, v)
-        outer = (lambda a, b: np.einsum("t...i,t...j->...ij", a, b))
         keep = np.exp(-len(r) * dt / self.memory_s)
-        cross = outer(v, d)
-        self.sums = keep * self.sums + dt * np.stack([outer(v, v), cross + np.swapaxes(cross, -1, -2), outer(d, d)])
+        cross = _outer_sum(v, d)
+        self.sums = keep * self.sums + dt * np.stack([_outer_sum(v, v), cross + np.swapaxes(cross, -1, -2), _outer_sum(d, d)])
         c, s = np.cos(OFFSETS / 2), np.sin(OFFSETS / 2)
         scatter = (c[:, None, None] ** 2 * self.sums[0][..., None, :, :]
                    + (c * s)[:, None, None] * self.sums[1][..., None, :, :]
