@@ -18,7 +18,7 @@ STAMP := build/.installed
 .venv/bin/python:
 	$(SYSTEM_PYTHON) -m venv .venv
 
-$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.h firmware_c/include/*.h) | $(VENV)
+$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/include/*.h) | $(VENV)
 	$(PYTHON) -m pip install -q --upgrade pip
 	$(PYTHON) -m pip install -e '.[test]'
 	@mkdir -p build && touch $@

@@ -5,12 +5,32 @@ device_emulator/ -> limbstream.device_emulator, dashboard/ (the page) -> limbstr
 The library has no Python API of its own: limbstream.kernel loads it with ctypes.
 The compile flags are the ones the Cortex-M4 build uses for its arithmetic
 (-ffp-contract=off), so both targets compute the same segment points.
+
+VQF, the orientation filter, is C++ from the `vqf` package (a build requirement, pinned in
+pyproject.toml): its vqf.cpp, as it ships, compiled inside the C wrapper firmware_c/src/lsw_vqf.cpp
+into a static library (build_clib, with C++ flags) that setuptools links into the extension.
 """
+import sys
 from glob import glob
+from pathlib import Path
 
 from setuptools import Extension, find_packages, setup
 
+sys.path.insert(0, str(Path(__file__).resolve().parent / "firmware_c" / "tools"))
+from vqf_cpp import vqf_cpp_dir  # noqa: E402  (firmware_c/tools: shared with the M4 build)
+
 KERNEL_CFLAGS = ["-std=c99", "-O3", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra"]
+VQF_CXXFLAGS = ["-std=c++17", "-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-exceptions", "-fno-rtti",
+                "-Wall"]
+"""The M4 build's (firmware_c/Makefile VQF_CXXFLAGS): VQF in single precision, no FMA, no asserts."""
+VQF_DIR = vqf_cpp_dir()
+VQF_LIBRARY = ("lsw_vqf", {
+    "sources": ["firmware_c/src/lsw_vqf.cpp"],  # includes VQF_DIR/vqf.cpp
+    "include_dirs": ["firmware_c/include", VQF_DIR],
+    "macros": [("VQF_SINGLE_PRECISION", None), ("NDEBUG", None)],
+    "cflags": VQF_CXXFLAGS,
+    "obj_deps": {"": sorted(glob("firmware_c/include/*.h")) + [str(Path(VQF_DIR) / name) for name in ("vqf.cpp", "vqf.hpp")]},
+})
 
 PARTS = ("services", "device_emulator", "dashboard")
 """Folders of the repository that install as subpackages of limbstream."""
@@ -20,6 +40,7 @@ PACKAGES = find_packages(include=["limbstream", "limbstream.*"]) + [
 setup(
     packages=PACKAGES,
     package_dir={f"limbstream.{part}": part for part in PARTS},
+    libraries=[VQF_LIBRARY],
     ext_modules=[
         Extension(
             "limbstream._kernels",

@@ -22,7 +22,8 @@ def resample(motion: Motion, fs: float) -> Motion:
         return motion
     t = motion.t[0] + np.arange(int(np.floor((motion.t[-1] - motion.t[0]) * fs)) + 1) / fs
     q = np.stack([quat.interpolate(motion.t, motion.q[:, s], t) for s in range(motion.q.shape[1])], axis=1)
-    return dataclasses.replace(motion, t=t, q=q)
+    root = None if motion.root is None else np.stack([np.interp(t, motion.t, r) for r in motion.root.T], axis=1)
+    return dataclasses.replace(motion, t=t, q=q, root=root)
 
 
 class LoopFeed:

@@ -20,6 +20,20 @@ _S = {name: i for i, name in enumerate(SEGMENTS)}
 _J = {name: i for i, name in enumerate(JOINTS)}
 
 
+def rest_offsets(rest_pose: str) -> np.ndarray:
+    """(10, 4) scalar-first rotation from the T-pose to ``rest_pose`` per segment (SEGMENTS order):
+    identity for ``tpose``; for ``standing`` the arms lowered by 90 deg about +Z (left arm +X -> -Y).
+    An orientation referred to the T-pose is ``q_standing * rest_offsets("standing")``; one referred
+    to the standing pose is ``q_tpose * conjugate(rest_offsets("standing"))``."""
+    wire.check_rest_pose(rest_pose)
+    out = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))
+    if rest_pose == "standing":
+        h = np.sqrt(0.5)
+        for s, sign in (("l", -1.0), ("r", 1.0)):
+            out[_S[f"{s}_upperarm"]] = out[_S[f"{s}_lowerarm"]] = (h, 0.0, 0.0, sign * h)
+    return out
+
+
 @dataclass(frozen=True)
 class Skeleton:
     """Bone lengths in metres (defaults: an adult of about 1.75 m) and the default rest pose
@@ -41,7 +55,8 @@ class Skeleton:
             if not getattr(self, name) > 0:
                 raise ValueError(f"bone length {name} must be > 0 m, got {getattr(self, name)}")
 
-    def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None) -> np.ndarray:
+    def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None,
+                  dtype: type = np.float32) -> np.ndarray:
         """Joint positions, pelvis at the origin.
 
         Parameters
@@ -49,10 +64,11 @@ class Skeleton:
         q : (..., 10, 4) segment orientations, SEGMENTS order, scalar-first.
         tpose : (...) bool or a bool: the orientations refer to the T-pose (else to the standing
             rest pose); None: the skeleton's ``rest_pose``.
+        dtype : of the result (float32 for pose frames; float64 where positions are differentiated).
 
         Returns
         -------
-        (..., 15, 3) float32 metres, wire.JOINTS order.
+        (..., 15, 3) metres, wire.JOINTS order.
         """
         q = np.asarray(q, np.float64)
         out = np.zeros(q.shape[:-2] + (len(JOINTS), 3))
@@ -81,7 +97,7 @@ class Skeleton:
             put(f"{side}_shoulder", get("neck_base") + quat.rotate(hip, [lateral * self.shoulder_width / 2, -0.05, 0.0]))
             put(f"{side}_elbow", get(f"{side}_shoulder") + quat.rotate(seg(f"{side}_upperarm"), arm * self.upperarm))
             put(f"{side}_wrist", get(f"{side}_elbow") + quat.rotate(seg(f"{side}_lowerarm"), arm * self.lowerarm))
-        return out.astype(np.float32)
+        return out.astype(dtype)
 
 
 PARENT: dict[str, str] = {

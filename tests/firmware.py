@@ -1,13 +1,17 @@
 """Shared by the Cortex-M4 tests: the toolchain check and the firmware's Python tools."""
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
+import queue
 import shutil
 import sys
 from types import ModuleType
 
 import pytest
 from conftest import IN_CI, ROOT
+
+from limbstream import kernel, wire
 
 FIRMWARE = ROOT / "firmware_c"
 
@@ -29,3 +33,30 @@ def load_tool(name: str) -> ModuleType:
     sys.modules[spec.name] = module  # dataclasses look their module up
     spec.loader.exec_module(module)
     return module
+
+
+def final_point(bank: kernel.SegmenterBank, slot: int, stream: int, last: bytes) -> bytes:
+    """The message a stream's END makes, as the emulator ends a stream: its last sample flushed
+    as a held FINAL point, or, when that already was a point, its last message ``last`` repeated
+    as FINAL with the next sequence number (the bank's wire ring gives sample and stamp)."""
+    flushed = bank.flush(slot)
+    if flushed is None:
+        point = dataclasses.replace(wire.decode_point(last), seq=int(bank.seq[slot]), flags=wire.FLAG_FINAL)
+    else:
+        row = flushed[0] % bank.sample.shape[0]
+        point = wire.SegmentPoint(stream, int(bank.seq[slot]), int(bank.sample[row, slot] - bank.base[slot]),
+                                  int(bank.t_us[row, slot]), tuple(float(v) for v in flushed[2]), wire.FLAG_FINAL,
+                                  (0.0, 0.0, 0.0) if bank.live(slot) else None)
+    return wire.encode_point(point)
+
+
+def drain(port) -> list[bytes]:
+    """The points a device on the serial link (a SerialLink) has sent so far (heartbeats skipped)."""
+    points = []
+    while True:
+        try:
+            kind, message = port.inbox.get_nowait()
+        except queue.Empty:
+            return points
+        if kind == "point":
+            points.append(message)

@@ -9,7 +9,6 @@ refused with the contract's sentences, and the stream goes on unchanged.
 from __future__ import annotations
 
 import dataclasses
-import queue
 
 import numpy as np
 import pytest
@@ -20,7 +19,7 @@ from limbstream.services.gateway import firmware
 from limbstream.services.gateway.serial_port import SerialLink
 from limbstream.sources import load
 from limbstream.wire import serial_link as link
-from firmware import require_tools
+from firmware import drain, final_point, require_tools
 
 pytestmark = pytest.mark.qemu
 
@@ -68,15 +67,7 @@ def host_points(q: np.ndarray, streams: list[int], config: wire.DeviceConfig) ->
         for slot, start, end in zip(slots, [0, *ends[:-1]], ends):
             out[slot].append(payload[start:end])
     for s in range(count):
-        last = bank.flush(s)
-        if last is not None:
-            row = last[0] % 4
-            point = wire.SegmentPoint(streams[s], int(bank.seq[s]), int(bank.sample[row, s]), int(bank.t_us[row, s]),
-                                      tuple(float(v) for v in last[2]), wire.FLAG_FINAL,
-                                      (0.0, 0.0, 0.0) if bank.live(s) else None)
-        else:
-            point = dataclasses.replace(wire.decode_point(out[s][-1]), seq=int(bank.seq[s]), flags=wire.FLAG_FINAL)
-        out[s].append(wire.encode_point(point))
+        out[s].append(final_point(bank, s, streams[s], out[s][-1] if out[s] else b""))
     return out
 
 
@@ -84,18 +75,6 @@ def other_version(kind: int, body: bytes) -> bytes:
     """A well-formed frame of link version 2."""
     payload = bytes([2, kind]) + body
     return link.cobs_encode(payload + link.crc16(payload).to_bytes(2, "little")) + b"\0"
-
-
-def drain(port: SerialLink) -> list[bytes]:
-    """The points the device has sent so far (heartbeats skipped)."""
-    points = []
-    while True:
-        try:
-            kind, message = port.inbox.get_nowait()
-        except queue.Empty:
-            return points
-        if kind == "point":
-            points.append(message)
 
 
 def stream_through(port: SerialLink, stream: int, q: np.ndarray, between=None) -> list[bytes]:

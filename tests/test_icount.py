@@ -25,6 +25,12 @@ FASTSW_LIVE_MAX_INSTRUCTIONS = 176
 DEVICE_MAX_INSTRUCTIONS = 7704
 """Reached maximum of the device firmware per SAMPLE frame, live mode (link decode, fastSW,
 the point's encoding with its float64 body rate, framing)."""
+VQF_MAX_INSTRUCTIONS = 19154
+"""Reached maximum of VQF 6D per raw sample (updateGyr + updateAcc, VQF's own double-precision
+filter states in libgcc's soft-float; LSW_VQF_FLOAT off)."""
+IMU_MAX_INSTRUCTIONS = 77513
+"""Reached maximum of the raw-sample pipeline per device sample (200 Hz raw, 50 Hz device: the four
+VQF updates since the last device sample, the checks, fastSW live)."""
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
                  "live_reject_nan", "live_reject_time")
 
@@ -88,9 +94,11 @@ def test_sw_cost_is_linear_in_segment_length(counts):
     assert counts["sw_count"][-1] > 20 * counts["fastsw_max"]
 
 
+@pytest.mark.slow
 def test_make_icount_prints_table(build_dir):
+    """All three harnesses (the raw-sample pipeline's traces about 25 million instructions)."""
     done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "icount", f"BUILD={build_dir}"],
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     lines = re.findall(r"^fastsw max instructions per sample: (\d+)$", done.stdout, re.MULTILINE)
     assert len(lines) == 1, done.stdout
@@ -100,6 +108,11 @@ def test_make_icount_prints_table(build_dir):
     assert "ssr_break" in done.stdout and "least-squares fit" in done.stdout, done.stdout
     device = re.findall(r"^device max instructions per sample: (\d+)$", done.stdout, re.MULTILINE)
     assert len(device) == 1 and int(device[0]) <= DEVICE_MAX_INSTRUCTIONS, done.stdout
+    vqf = re.findall(r"^vqf 6d max instructions per raw sample: (\d+)$", done.stdout, re.MULTILINE)
+    assert len(vqf) == 1 and int(vqf[0]) <= VQF_MAX_INSTRUCTIONS, done.stdout
+    imu = re.findall(r"^imu max instructions per device sample: (\d+)$", done.stdout, re.MULTILINE)
+    assert len(imu) == 1 and int(imu[0]) <= IMU_MAX_INSTRUCTIONS, done.stdout
+    assert "rest detected in the still phase: yes" in done.stdout, done.stdout
 
 
 def test_device_firmware_cost_per_sample(build_dir):

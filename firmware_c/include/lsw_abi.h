@@ -20,6 +20,8 @@ typedef enum {
     LSW_ABI_SVR_TRACKER = 7,   /**< LswSvrTracker */
     LSW_ABI_SVR_ROUTE = 8,     /**< LswSvrRoute */
     LSW_ABI_SVR_SLOW = 9,      /**< LswSvrSlow */
+    LSW_ABI_RAW_SAMPLE = 10,   /**< LswRawSample */
+    LSW_ABI_IMU_SETTINGS = 11, /**< LswImuSettings */
 } LswAbiStruct;
 
 /** sizeof the struct ``which``; 0 for an unknown one. */

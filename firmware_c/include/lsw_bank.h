@@ -27,8 +27,8 @@ typedef struct {
     const uint16_t *stream; /**< count: stream id */
     uint32_t *seq;          /**< count: sequence number of the stream's next message; +1 per point */
     const int64_t *base;    /**< count: sample number of the stream's sample 0 */
-    const int64_t *sample;  /**< ring x count: sample number taken at the call of that row */
-    const int64_t *t_us;    /**< ring x count: its device time, microseconds since the epoch */
+    int64_t *sample;        /**< ring x count: sample number taken at the call of that row */
+    int64_t *t_us;          /**< ring x count: its device time, microseconds since the epoch */
     const uint8_t *rate;    /**< count: 1: version 2 (with body rate), 0: version 1 */
     uint32_t ring;          /**< rows of the ring, >= 1 */
     uint32_t stride;        /**< entries per ring row (the bank's stream capacity) */
@@ -44,6 +44,15 @@ typedef struct {
  */
 size_t lsw_bank_update(FastswState *states, size_t count, const uint32_t *t, const float *y,
                        uint8_t *status, FastswPoint *points, float *rates, const LswBankWire *wire,
+                       uint8_t *out, uint32_t *slots, uint32_t *ends);
+
+/**
+ * The encoding half of lsw_bank_update: every stream k with status[k] == FASTSW_POINT has its
+ * point (points[k], rate rates[k*dim..]) encoded into out as there. Returns the number of
+ * messages. (lsw_imu_bank_update shares it.)
+ */
+size_t lsw_bank_encode(const FastswState *states, size_t count, const uint8_t *status,
+                       const FastswPoint *points, const float *rates, const LswBankWire *wire,
                        uint8_t *out, uint32_t *slots, uint32_t *ends);
 
 #ifdef __cplusplus

@@ -32,11 +32,15 @@ extern "C" {
 #define LSW_MSG_END 0x04u      /**< u16 request: end the stream (its last point, FINAL) */
 #define LSW_MSG_STATUS_REQ 0x05u   /**< u16 request */
 #define LSW_MSG_IDENTIFY 0x06u /**< u16 request */
+#define LSW_MSG_RAW 0x07u      /**< u32 tick, i64 t_us, f32 gyr[3], acc[3], mag[3]: a raw IMU sample */
+#define LSW_MSG_FUSION 0x08u   /**< u16 request, f64 raw rate Hz, f64 device rate Hz, u8 9D */
+#define LSW_MSG_FUSION_REQ 0x09u /**< u16 request */
 /* device -> host */
 #define LSW_MSG_POINT 0x81u    /**< a segment point message, 36 or 48 bytes (lsw_wire.h) */
 #define LSW_MSG_ACK 0x82u      /**< u16 request, u8 its type, u8 result, u8 tunable, f64 value */
 #define LSW_MSG_STATUS 0x83u   /**< u16 request (0: heartbeat), counters and config */
 #define LSW_MSG_IDENTITY 0x84u /**< u16 request, u8 link version, u8 point version, text */
+#define LSW_MSG_FUSION_STATUS 0x85u /**< u16 request, u8 mode, u8 rest, f32 bias[3], u32 counts */
 
 /** Why a frame was dropped (LswLinkReader.bad[reason]). */
 typedef enum {

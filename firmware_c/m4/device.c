@@ -3,9 +3,13 @@
  */
 #include "device.h"
 
+#include <string.h>
+
 #include "lsw_bank.h"
 
 #define SAMPLE_BODY 28u
+#define RAW_BODY 48u
+#define FUSION_BODY 19u
 #define CONFIG_BODY 26u
 #define START_BODY 4u
 #define REQUEST_BODY 2u
@@ -13,7 +17,7 @@
 #define ACK_REFUSED 1u
 #define NO_TUNABLE 0xFFu
 
-static const char IDENTITY[] = "limbstream-fw 1 fastSW live; board mps2-an386 cortex-m4";
+static const char IDENTITY[] = "limbstream-fw 2 fastSW live, VQF; board mps2-an386 cortex-m4";
 
 extern uint32_t _stack_top[];
 
@@ -44,6 +48,8 @@ static void start_stream(Device *d, uint16_t id)
     d->seq = 0u;
     d->samples = d->points = d->rejected = 0u;
     d->last_len = 0u;
+    lsw_imu_init(&d->imu, &d->imu_settings);
+    d->raw = 0u;
 }
 
 /** ACK of a request: result ACK_OK, or ACK_REFUSED naming the tunable and the value refused. */
@@ -109,6 +115,18 @@ static void send_identity(Device *d, uint16_t request)
     send_message(d, LSW_MSG_IDENTITY, body, sizeof body);
 }
 
+/** A point the stream's fastSW made (out, n bytes): kept for END, sent. */
+static inline __attribute__((always_inline)) void send_point(Device *d, const uint8_t *out, uint32_t n)
+{
+    uint32_t k;
+    for (k = 0u; k < n; k++) {
+        d->last_point[k] = out[k];
+    }
+    d->last_len = n;
+    d->points++;
+    send_message(d, LSW_MSG_POINT, out, n);
+}
+
 /** One sample: the kernel, and its point (if any) as its wire message. */
 static void on_sample(Device *d, const uint8_t *body)
 {
@@ -127,15 +145,86 @@ static void on_sample(Device *d, const uint8_t *body)
     d->ring_sample[row] = (int64_t)d->samples;
     d->ring_t_us[row] = (int64_t)lsw_get_u64(body + 4);
     if (lsw_bank_update(&d->state, 1u, &tick, y, &status, &point, rates, &wire, out, &slot, &end) != 0u) {
-        for (k = 0u; k < end; k++) {
-            d->last_point[k] = out[k];
-        }
-        d->last_len = end;
-        d->points++;
-        send_message(d, LSW_MSG_POINT, out, end);
+        send_point(d, out, end);
     }
     d->rejected += status == (uint8_t)FASTSW_REJECTED;
     d->samples++;
+}
+
+/**
+ * One raw IMU sample: the host's raw-sample pipeline for one device (VQF; at the device's
+ * instants fastSW, its wire ring row and its point's message).
+ */
+static void on_raw(Device *d, const uint8_t *body)
+{
+    LswRawSample raw;
+    const int64_t t_us = (int64_t)lsw_get_u64(body + 4);
+    float rates[4];
+    uint8_t status, out[LSW_POINT_RATE_SIZE];
+    uint32_t slot, end, k;
+    FastswPoint point;
+    const LswBankWire wire = {&d->stream_id, &d->seq, &d->base, d->ring_sample, d->ring_t_us, &d->live,
+                              DEVICE_RING, 1u};
+    raw.t = lsw_get_u32(body);
+    for (k = 0u; k < 3u; k++) {
+        raw.gyr[k] = lsw_get_f32(body + 12u + 4u * k);
+        raw.acc[k] = lsw_get_f32(body + 24u + 4u * k);
+        raw.mag[k] = lsw_get_f32(body + 36u + 4u * k);
+    }
+    d->raw++;
+    if (lsw_imu_bank_update(&d->imu, &d->state, 1u, &raw, &t_us, &status, &point, rates, &wire, out, &slot,
+                            &end) != 0u) {
+        send_point(d, out, end);
+    }
+    if (status != LSW_IMU_NO_OUTPUT && status != LSW_IMU_SKIPPED) {
+        d->rejected += status == (uint8_t)FASTSW_REJECTED;
+        d->samples++; /* a device-rate sample: fastSW's */
+    }
+}
+
+/** FUSION: the raw-sample pipeline's settings as the host computed them; a fresh filter. */
+static void on_fusion(Device *d, uint16_t request, const uint8_t *body)
+{
+    LswImuSettings s;
+    s.raw_period_s = lsw_get_f32(body);
+    s.out_period = lsw_get_u32(body + 4);
+    s.max_gap = lsw_get_u32(body + 8);
+    s.acc_limit = lsw_get_f32(body + 12);
+    s.nine_d = body[16];
+    if (!(s.raw_period_s > 0.0f && s.raw_period_s <= 1.0f) || s.out_period == 0u || s.max_gap == 0u ||
+        !(s.acc_limit > 0.0f && s.acc_limit <= LSW_IMU_RANGE) || s.nine_d > 1u) {
+        d->refused++;
+        send_ack(d, request, LSW_MSG_FUSION, ACK_REFUSED, NO_TUNABLE, 0.0);
+        return;
+    }
+    d->imu_settings = s;
+    lsw_imu_init(&d->imu, &s);
+    send_ack(d, request, LSW_MSG_FUSION, ACK_OK, NO_TUNABLE, 0.0);
+}
+
+/** FUSION_STATUS: the fusion's mode (6 or 9), rest, bias (rad/s), this stream's raw and
+ * device-rate samples, and its bad raw samples by kind (LswImuFault order). */
+static void send_fusion_status(Device *d, uint16_t request)
+{
+    uint8_t body[2 + 2 + 12 + 8 + 4 * LSW_IMU_FAULTS];
+    uint8_t *p = body;
+    float bias[3];
+    uint32_t k;
+    lsw_imu_bias(&d->imu, bias);
+    lsw_put_u16(p, request), p += 2;
+    *p++ = d->imu.settings.nine_d ? 9u : 6u;
+    *p++ = (uint8_t)lsw_imu_rest(&d->imu);
+    for (k = 0u; k < 3u; k++) {
+        uint32_t bits;
+        memcpy(&bits, &bias[k], sizeof bits);
+        lsw_put_u32(p, bits), p += 4;
+    }
+    lsw_put_u32(p, d->raw), p += 4;
+    lsw_put_u32(p, d->imu.outputs), p += 4;
+    for (k = 0u; k < LSW_IMU_FAULTS; k++) {
+        lsw_put_u32(p, d->imu.faults[k]), p += 4;
+    }
+    send_message(d, LSW_MSG_FUSION_STATUS, body, sizeof body);
 }
 
 /** End of stream: the last sample as a FINAL point, or the last point repeated as FINAL. */
@@ -189,10 +278,13 @@ static uint32_t body_length(uint8_t type)
 {
     switch (type) {
     case LSW_MSG_SAMPLE: return SAMPLE_BODY;
+    case LSW_MSG_RAW: return RAW_BODY;
+    case LSW_MSG_FUSION: return FUSION_BODY;
     case LSW_MSG_CONFIG: return CONFIG_BODY;
     case LSW_MSG_START: return START_BODY;
     case LSW_MSG_END:
     case LSW_MSG_STATUS_REQ:
+    case LSW_MSG_FUSION_REQ:
     case LSW_MSG_IDENTIFY: return REQUEST_BODY;
     default: return 0u;
     }
@@ -217,6 +309,10 @@ static void on_frame(Device *d)
         on_sample(d, body);
         return;
     }
+    if (type == LSW_MSG_RAW) {
+        on_raw(d, body);
+        return;
+    }
     request = lsw_get_u16(body);
     switch (type) {
     case LSW_MSG_CONFIG:
@@ -232,6 +328,12 @@ static void on_frame(Device *d)
         break;
     case LSW_MSG_STATUS_REQ:
         send_status(d, request);
+        break;
+    case LSW_MSG_FUSION:
+        on_fusion(d, request, body + 2);
+        break;
+    case LSW_MSG_FUSION_REQ:
+        send_fusion_status(d, request);
         break;
     default:
         send_identity(d, request);
@@ -292,6 +394,7 @@ void device_init(Device *device, DeviceWrite write)
         device->config[k] = lsw_tunable(k)->value;
     }
     device->base = 0;
+    device->imu_settings = lsw_imu_default_settings;
     apply_config(device, 0);
     start_stream(device, 0u);
     device->refused = 0u;

@@ -4,7 +4,8 @@
  *
  * It runs fastSW with the live rule on its samples through the same C code as the host's
  * emulated devices (lsw_bank_update for one stream: the same kernel, wire fields and encoder),
- * so its points are the host's bit for bit. Its settings are the contract's tunables
+ * so its points are the host's bit for bit. Raw IMU samples (RAW) go through VQF first, then
+ * the same fastSW stream: lsw_imu_bank_update for one device, the host's raw-sample pipeline. Its settings are the contract's tunables
  * (lsw_tunables.h, generated from limbstream/wire/config.py), checked with the same bounds.
  *
  * Transport-free: it reads bytes given to device_byte and writes frames through the function
@@ -17,6 +18,7 @@
 #include <stdint.h>
 
 #include "fastsw.h"
+#include "lsw_imu.h"
 #include "lsw_link.h"
 #include "lsw_tunables.h"
 #include "lsw_wire.h"
@@ -43,6 +45,9 @@ typedef struct {
     uint32_t refused;                     /**< configs refused since power-up */
     uint8_t last_point[LSW_POINT_RATE_SIZE];
     uint32_t last_len;                    /**< 0: no point in this stream yet */
+    LswImu imu;                           /**< the raw-sample fusion (VQF), fresh with each stream */
+    LswImuSettings imu_settings;          /**< as the last FUSION set them */
+    uint32_t raw;                         /**< raw samples received in this stream */
 } Device;
 
 /** Power up: default settings, stream 0, counters zero; announces its identity through write. */

@@ -6,6 +6,7 @@
 #include "lsw_bank.h"
 #include "lsw_clock.h"
 #include "lsw_grid.h"
+#include "lsw_imu.h"
 #include "lsw_slimevr.h"
 
 size_t lsw_abi_size(int which)
@@ -21,6 +22,8 @@ size_t lsw_abi_size(int which)
     case LSW_ABI_SVR_TRACKER: return sizeof(LswSvrTracker);
     case LSW_ABI_SVR_ROUTE: return sizeof(LswSvrRoute);
     case LSW_ABI_SVR_SLOW: return sizeof(LswSvrSlow);
+    case LSW_ABI_RAW_SAMPLE: return sizeof(LswRawSample);
+    case LSW_ABI_IMU_SETTINGS: return sizeof(LswImuSettings);
     default: return 0;
     }
 }

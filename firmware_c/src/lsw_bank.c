@@ -22,14 +22,15 @@ static void body_rate_f64(const float *y, const float *v, float *omega)
     omega[2] = (float)(2.0 * (aw * bz + ax * by - ay * bx + az * bw));
 }
 
-size_t lsw_bank_update(FastswState *states, size_t count, const uint32_t *t, const float *y,
-                       uint8_t *status, FastswPoint *points, float *rates, const LswBankWire *wire,
-                       uint8_t *out, uint32_t *slots, uint32_t *ends)
+/** lsw_bank_encode's work, inlined into lsw_bank_update (the device's per-sample path). */
+static inline size_t encode(const FastswState *states, size_t count, const uint8_t *status,
+                            const FastswPoint *points, const float *rates, const LswBankWire *wire,
+                            uint8_t *out, uint32_t *slots, uint32_t *ends)
 {
     size_t k, n = 0u;
     uint32_t end = 0u;
 
-    fastsw_update_many(states, count, t, y, status, points, rates);
+    (void)states; /* read for the dimension only where it is not fixed at compile time */
     for (k = 0u; k < count; k++) {
         const FastswPoint *point = &points[k];
         size_t at;
@@ -55,4 +56,19 @@ size_t lsw_bank_update(FastswState *states, size_t count, const uint32_t *t, con
         n++;
     }
     return n;
+}
+
+size_t lsw_bank_update(FastswState *states, size_t count, const uint32_t *t, const float *y,
+                       uint8_t *status, FastswPoint *points, float *rates, const LswBankWire *wire,
+                       uint8_t *out, uint32_t *slots, uint32_t *ends)
+{
+    fastsw_update_many(states, count, t, y, status, points, rates);
+    return encode(states, count, status, points, rates, wire, out, slots, ends);
+}
+
+size_t lsw_bank_encode(const FastswState *states, size_t count, const uint8_t *status,
+                       const FastswPoint *points, const float *rates, const LswBankWire *wire,
+                       uint8_t *out, uint32_t *slots, uint32_t *ends)
+{
+    return encode(states, count, status, points, rates, wire, out, slots, ends);
 }

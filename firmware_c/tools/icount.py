@@ -5,7 +5,8 @@ guest instruction per translation block (``-singlestep``, or ``-accel tcg,one-in
 on QEMU >= 8.1) and ``-d exec,nochain``, so the log has one line per executed instruction.
 ``-dfilter`` keeps only the measured functions, everything they call, and the return
 addresses of their call sites: a call's count is the number of lines from the function's
-entry up to (not including) the return address. The harness announces each call on the
+entry up to (not including) the return address (a measured function called inside another is
+counted in both). The harness announces each call on the
 semihosting console ("F ssr_break", "S 17", ...), in call order, which labels the counts.
 A naked function of known length (icount_probe: 3 + 3k instructions) checks the counting.
 
@@ -17,6 +18,9 @@ prints the tables, ``fastsw max instructions per sample: N`` (live rule off) and
 ``fastsw live max instructions per sample: N`` (live rule on, every branch). With ``--device``
 it traces ``build/icount_device.elf`` (m4/icount_device_main.c) instead: the device firmware's
 whole work per sample, link decode to framed point, ``device max instructions per sample: N``.
+With ``--imu`` it traces ``build/icount_imu.elf`` (m4/icount_imu_main.c): VQF per raw sample (6D,
+9D) and the raw-sample pipeline per raw and per device sample, ``vqf 6d max instructions per raw
+sample: N`` and ``imu max instructions per device sample: N``.
 """
 from __future__ import annotations
 
@@ -36,6 +40,9 @@ MEASURED = {"icount_probe": "K", "fastsw_update": "F", "sw_update": "S"}
 """Function -> the letter its calls are announced with."""
 DEVICE_MEASURED = {"icount_device_frame": "D"}
 """The same for the device harness."""
+IMU_MEASURED = {"icount_imu": "P", "lsw_vqf_gyr": "G", "lsw_vqf_acc": "A"}
+"""The same for the raw-sample pipeline's harness; VQF's two updates (6D) are counted inside it and
+are not announced."""
 
 FASTSW_BRANCHES = ("first", "normal", "ssr_break", "max_len_break", "reject_nan", "reject_time")
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
@@ -135,23 +142,23 @@ def run_trace(elf: Path, timeout: float = 120.0, measured: dict[str, str] | None
         if done.returncode != 0:
             raise RuntimeError(f"{elf} under QEMU exited with {done.returncode}: {done.stderr[-500:]}")
         counts: dict[str, list[int]] = defaultdict(list)
-        inside, n = None, 0
+        stack: list[list] = []  # [name, count] of the measured calls in progress, innermost last
         with open(log) as trace:
             for line in trace:
                 match = TRACE_LINE.match(line)
                 if not match:
                     continue
                 pc = int(match.group(1), 16)
-                if inside is None:
-                    if pc in entries:
-                        inside, n = entries[pc], 1
-                elif pc in ret_to and ret_to[pc] == inside:
-                    counts[inside].append(n)
-                    inside = None
-                else:
-                    n += 1
+                if stack and ret_to.get(pc) == stack[-1][0]:
+                    name, n = stack.pop()
+                    counts[name].append(n)
+                    continue
+                if pc in entries:  # a measured call, maybe inside another (counted in both)
+                    stack.append([entries[pc], 0])
+                for call in stack:
+                    call[1] += 1
     console = done.stderr + done.stdout
-    letters = [f"{letter} " for letter in measured.values()] + ["E "]
+    letters = [f"{letter} " for letter in measured.values()] + ["E ", "R "]
     announced = [tuple(line.split(maxsplit=1)) for line in console.splitlines() if line[:2] in letters]
     return counts, announced
 
@@ -233,6 +240,51 @@ def report_device(result: dict) -> str:
     return "\n".join(lines)
 
 
+def measure_imu(elf: Path) -> dict:
+    """Instructions per raw sample of VQF 6D alone and of the device's pipeline, and per device
+    sample: the pipeline calls since the previous device sample, this one's included
+    (icount_imu_main.c).
+
+    Returns
+    -------
+    dict with keys vqf6d: [counts per raw sample]; imu: {outcome: [counts]} (none, sample, point);
+    per_output: [counts per device sample]; rest: whether VQF detected the still phase.
+    """
+    counts, announced = run_trace(elf, timeout=600.0, measured=IMU_MEASURED)
+    outcomes = [arg.strip() for letter, arg in announced if letter == "E"]
+    calls = counts["icount_imu"]
+    n = len(calls)
+    gyr, acc = counts["lsw_vqf_gyr"][-n:], counts["lsw_vqf_acc"][-n:]  # the warm-up's calls come first
+    if len(outcomes) != n or len(gyr) != n or len(acc) != n or not calls:
+        raise RuntimeError(f"icount_imu: {n} traced calls but {len(outcomes)} announced")
+    console_rest = [arg.strip() for letter, arg in announced if letter == "R"]
+    imu = {kind: [n for n, o in zip(calls, outcomes) if o == kind] for kind in ("none", "sample", "point")}
+    per_output, since = [], 0
+    for n, outcome in zip(calls, outcomes):
+        since += n
+        if outcome != "none":
+            per_output.append(since)
+            since = 0
+    return {"vqf6d": [g + a for g, a in zip(gyr, acc)], "imu": imu,
+            "per_output": per_output[1:], "rest": console_rest == ["rest"]}  # the first: one raw sample
+
+
+def report_imu(result: dict) -> str:
+    rows = [("VQF 6D alone, per raw sample", result["vqf6d"])]
+    rows += [(f"pipeline, raw sample: {label}", result["imu"][kind])
+             for kind, label in (("none", "no device sample"), ("sample", "device sample"), ("point", "a point"))]
+    rows.append(("pipeline, per device sample", result["per_output"]))
+    lines = ["raw-sample pipeline (lsw_imu.h), instructions (Cortex-M4, QEMU mps2-an386; 200 Hz raw, 50 Hz device, "
+             "fastSW live 5 deg)", f"{'':<40}{'calls':>7}{'min':>8}{'mean':>8}{'max':>8}"]
+    for label, c in rows:
+        if c:
+            lines.append(f"{label:<40}{len(c):>7}{min(c):>8}{np.mean(c):>8.0f}{max(c):>8}")
+    lines.append(f"rest detected in the still phase: {'yes' if result['rest'] else 'no'}")
+    lines.append(f"vqf 6d max instructions per raw sample: {max(result['vqf6d'])}")
+    lines.append(f"imu max instructions per device sample: {max(result['per_output'])}")
+    return "\n".join(lines)
+
+
 def report(result: dict) -> str:
     """The printed table."""
     lines = ["fastsw_update, instructions per call (Cortex-M4, QEMU mps2-an386)",
@@ -269,7 +321,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("elf", type=Path, help="build/icount.elf")
     parser.add_argument("--json", action="store_true", help="print the measurements as JSON")
     parser.add_argument("--device", action="store_true", help="ELF is build/icount_device.elf: the device firmware")
+    parser.add_argument("--imu", action="store_true", help="ELF is build/icount_imu.elf: the raw-sample pipeline")
     args = parser.parse_args(argv)
+    if args.imu:
+        result = measure_imu(args.elf)
+        print(json.dumps(result) if args.json else report_imu(result))
+        return 0
     if args.device:
         result = measure_device(args.elf)
         print(json.dumps(result) if args.json else report_device(result))

@@ -19,6 +19,7 @@ from limbstream import calibration
 from limbstream.calibration import CalibrationError
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate, format_table, frontier,
                                    streams_of, write_json)
+from limbstream.joints import format_errors
 from limbstream.sources import Motion, MotionFileError, load
 
 
@@ -193,6 +194,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", choices=[",".join(p) or "none" for p in CALIBRATIONS],
                          default="rest,mounting",
                          help="with a sensor model: the calibration before body_aad (default rest,mounting)")
+    parser.add_argument("--joint-angles", action="store_true",
+                        help="with --thresholds: each row's joint angle errors (mean, p99, bias per angle) against "
+                             "the true angles (docs/evaluation.md, 'Joint angles')")
     parser.add_argument(
         "--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here"
     )
@@ -220,6 +224,8 @@ def run(args: argparse.Namespace) -> int:
     for out, what in ((args.json, "--json"), (args.plot, "--plot")):
         if out is not None and not out.parent.resolve().is_dir():
             return _fail(f"{what} {out}: folder {out.parent} does not exist")
+    if args.joint_angles and args.thresholds is None:
+        return _fail("--joint-angles prints a table per row: give the rows' --thresholds")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         return _fail(f"--plot {args.plot}: must end in .png")
     motions: list[Motion] = []
@@ -244,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         rows = evaluate(streams, algorithms, thresholds, args.max_len, args.live_bound and bounds, args.predictor,
-                        poses)
+                        poses, args.joint_angles)
     except CalibrationError as exc:
         return _fail(f"calibration refused: {exc}")
     elapsed = time.perf_counter() - start
@@ -270,6 +276,10 @@ def run(args: argparse.Namespace) -> int:
             )
     else:
         print(format_table(rows, algorithms, live_bounds=bounds))
+    for r in rows if args.joint_angles else ():
+        against = "the calibrated reconstruction" if sensors.on else "the reconstruction"
+        print("\n" + format_errors(r["joints"], f"joint angles of {against} against the truth's (deg): "
+                                                f"{r['algorithm']}, TH {r['threshold']:.2e}, bound {r['live_bound']:g}"))
     if args.json is not None:
         write_json(rows, args.json)
         print(f"wrote {len(rows)} rows to {args.json}")

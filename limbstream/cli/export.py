@@ -1,5 +1,6 @@
 """``limbstream export IN -o OUT``: one subject of a recording (its exact pose frames) or of a
-motion file, as BVH, CSV or npz (services/outputs/export.py; layouts in docs/outputs.md)."""
+motion file, as BVH, CSV, npz, OpenSim joint angles (.mot) or OpenSense orientations (.sto)
+(services/outputs/export.py; layouts in docs/outputs.md)."""
 from __future__ import annotations
 
 import argparse
@@ -34,13 +35,13 @@ def fail(message: str) -> int:
 def run(args: argparse.Namespace) -> int:
     fmt = args.format or Path(args.output).suffix.lower().lstrip(".")
     if fmt not in FORMATS:
-        return fail(f"--format: say bvh, csv or npz (OUT {args.output!r} does not tell)")
+        return fail(f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
     try:
         take = read_take(args.source, args.subject, args.rest_pose)
         export(take, fmt, args.output)
     except ExportError as exc:
         return fail(str(exc))
-    for note in take.notes:
+    for note in take.notes + ([f"calibration: {take.basis}"] if fmt in ("mot", "sto") else []):
         print(f"{PROG}: note: {note}", file=sys.stderr)
     seconds = len(take) * take.period_us / 1e6
     print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:g} Hz ({seconds:.1f} s, "

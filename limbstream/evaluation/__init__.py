@@ -28,7 +28,9 @@ largest absolute deviation per component for swing), so algorithms are compared 
 :func:`at_icr` interpolates each measure at given ICRs.
 
 Modules: :mod:`.sweep` (the sweep and the measures), :mod:`.live_model` (the live view),
-:mod:`.report` (table, frontier, JSON). Command line: ``limbstream eval`` (:mod:`limbstream.cli.evaluate`).
+:mod:`.report` (table, frontier, JSON), :mod:`.fusion` (a fusion filter's orientation error against
+a reference, as the BROAD benchmark scores it). Command line: ``limbstream eval``
+(:mod:`limbstream.cli.evaluate`).
 """
 from __future__ import annotations
 

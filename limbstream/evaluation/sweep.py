@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from limbstream import calibration, kernel, quat
+from limbstream import calibration, joints, kernel, quat, wire
 from limbstream.sources import Motion
 from limbstream.evaluation.live_model import _accepted, _segment_live
 
@@ -70,6 +70,7 @@ class Stream:
         with the calibration script, whose still windows are ``rest`` and ``mounting`` (sample
         slices; ``pose`` (4,): the segment in the mounting pose) and whose motion starts at
         sample ``motion_from``.
+    rest_pose : what identity means for the motion's orientations (joint angles).
     """
 
     t: np.ndarray
@@ -80,6 +81,7 @@ class Stream:
     mounting: slice | None = None
     pose: np.ndarray | None = None
     motion_from: int = 0
+    rest_pose: str = wire.DEFAULT_REST_POSE
 
 
 def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None) -> list[Stream]:
@@ -97,6 +99,7 @@ def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | Non
                     np.asarray(motion.t, np.float64),
                     np.asarray(motion.q[:, s, :], np.float64),
                     f"{motion.name}/{segment}",
+                    rest_pose=motion.rest_pose,
                 )
             )
     return out
@@ -112,7 +115,7 @@ def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int
     draws = sensors.draw(len(motion.segments), stream=index)
     pose = calibration.mounting_pose(motion.segments)
     return [Stream(t, draws.report(s, t - t[0], q[:, s]), f"{motion.name}/{segment}", truth=q[:, s], rest=rest,
-                   mounting=mounting, pose=pose[s], motion_from=start)
+                   mounting=mounting, pose=pose[s], motion_from=start, rest_pose=motion.rest_pose)
             for s, segment in enumerate(motion.segments)]
 
 
@@ -157,16 +160,18 @@ def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
 
 def evaluate_threshold(
     pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound: float = 0.0,
-    predictor: str = "rate", live: bool = False, poses: Sequence[str] = CALIBRATIONS[-1],
+    predictor: str = "rate", live: bool = False, poses: Sequence[str] = CALIBRATIONS[-1], angles: bool = False,
 ) -> dict:
     """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result
     (the live error only if ``live``: it costs about as much as the reconstruction; else the
     ``live_*`` fields are NaN). Streams with a truth (a sensor model) are calibrated from their
-    reconstruction with ``poses`` (one of :data:`CALIBRATIONS`) for ``body_aad``.
+    reconstruction with ``poses`` (one of :data:`CALIBRATIONS`) for ``body_aad``. With ``angles``
+    the row also holds ``joints``: per joint angle the error figures of the (calibrated)
+    reconstruction's angles against the truth's (:func:`limbstream.joints.pooled_errors`).
 
     Returns
     -------
-    dict with the fields of :data:`KEYS` (degrees for the angular measures).
+    dict with the fields of :data:`KEYS` (degrees for the angular measures), and ``joints``.
     """
     if live_bound > 0 and algorithm != "fastsw":
         raise ValueError(f"the live rule is fastSW's, not {algorithm!r}'s")
@@ -224,7 +229,13 @@ def evaluate_threshold(
     recon = quat.slerp(q_points[k], q_points[k + 1], u)
     dev = quat.angle_deg(pool.q_unit[mask], recon)
     aad, std, p99, mx = _stats(dev)
-    body = _body_errors(pool, mask, recon, poses)
+    rec = np.full((pool.n_samples, 4), np.nan)
+    rec[mask] = recon
+    calibrated = _calibrated(pool, rec, poses)
+    body = (np.concatenate([quat.angle_deg(c[ok], t[ok]) for c, t, ok in calibrated.values()])
+            if calibrated else np.zeros(0))
+    if angles:
+        row["joints"] = joints.pooled_errors(_bodies(pool, rec, calibrated))
     pdev = np.concatenate(point_dev)
     pdev = pdev[np.isfinite(pdev)]
     return row | {
@@ -241,16 +252,14 @@ def evaluate_threshold(
     }
 
 
-def _body_errors(pool: _Pool, mask: np.ndarray, recon: np.ndarray, poses: Sequence[str]) -> np.ndarray:
-    """Angle (degrees) between each motion sample's calibrated reconstruction and its segment's
-    true orientation, for the streams with a truth; the calibration is made from the
+def _calibrated(pool: _Pool, rec: np.ndarray,
+                poses: Sequence[str]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per stream with a truth: its calibrated reconstruction (from ``rec`` (n, 4), the pooled
+    reconstruction, NaN where none) over the motion after the calibration script, the truth there
+    (each (m, 4)) and where both are finite (m,) bool. The calibration is made from the
     reconstruction in the script's still windows, as the system would (CalibrationError if it
     cannot be)."""
-    if not any(s.truth is not None for s in pool.streams):
-        return np.zeros(0)
-    rec = np.full((pool.n_samples, 4), np.nan)
-    rec[mask] = recon
-    out = []
+    out = {}
     for j, s in enumerate(pool.streams):
         if s.truth is None:
             continue
@@ -259,8 +268,28 @@ def _body_errors(pool: _Pool, mask: np.ndarray, recon: np.ndarray, poses: Sequen
                if "rest" in poses else calibration.Calibration.none())
         motion, truth = r[s.motion_from:], s.truth[s.motion_from:]
         ok = np.isfinite(motion).all(axis=1) & np.isfinite(truth).all(axis=1)
-        out.append(quat.angle_deg(cal.apply(motion[ok]), truth[ok]))
-    return np.concatenate(out)
+        calibrated = np.full(motion.shape, np.nan)
+        calibrated[ok] = cal.apply(motion[ok])
+        out[j] = (calibrated, truth, ok)
+    return out
+
+
+def _bodies(pool: _Pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]):
+    """(estimate, truth, rest_pose) per motion, each (m, 10, 4) in SEGMENTS order: the streams of
+    one motion (``<motion>/<segment>``) put together; without a truth (no sensor model) the
+    reconstruction is the estimate and the samples the truth."""
+    motions: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+    for j, s in enumerate(pool.streams):
+        motion, _, segment = s.name.rpartition("/")
+        if segment not in wire.SEGMENTS:
+            continue
+        estimate, truth, _ = calibrated[j] if j in calibrated else (rec[pool.start[j]:pool.start[j + 1]], s.q, None)
+        if motion not in motions:
+            empty = np.full((len(truth), len(wire.SEGMENTS), 4), np.nan)
+            motions[motion] = (empty, empty.copy(), s.rest_pose)
+        motions[motion][0][:, wire.SEGMENTS.index(segment)] = estimate
+        motions[motion][1][:, wire.SEGMENTS.index(segment)] = truth
+    return motions.values()
 
 
 def _live_errors(pool: _Pool, known: np.ndarray, q_points: np.ndarray, t_points: np.ndarray,
@@ -288,6 +317,7 @@ def evaluate(
     live_bounds: Sequence[float] | None = None,
     predictor: str = "rate",
     poses: Sequence[str] = CALIBRATIONS[-1],
+    angles: bool = False,
 ) -> list[dict]:
     """Run the protocol: one row per (algorithm, live bound, threshold), in that order.
 
@@ -302,6 +332,7 @@ def evaluate(
         (the ``live_*`` fields are NaN).
     predictor : the points' rates for the live error, one of :data:`PREDICTORS`.
     poses : the calibration before ``body_aad`` (streams with a truth), one of :data:`CALIBRATIONS`.
+    angles : also score the joint angles (each row's ``joints``, :func:`evaluate_threshold`).
 
     Returns
     -------
@@ -324,7 +355,7 @@ def evaluate(
     pool = _Pool(streams)
     if tuple(poses) not in CALIBRATIONS:
         raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {tuple(poses)}")
-    return [evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses)
+    return [evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses, angles)
             for a in algorithms for bound in (live_bounds or (0.0,)) for th in thresholds]
 
 

@@ -182,6 +182,30 @@ for _name, _args, _res in (
     getattr(_lib, _name).argtypes = _args
     getattr(_lib, _name).restype = _res
 
+class RawSample(ctypes.Structure):
+    """LswRawSample (lsw_imu.h): one raw IMU sample (tick; gyr rad/s, acc m/s^2, mag uT)."""
+
+    _fields_ = [("t", ctypes.c_uint32), ("gyr", ctypes.c_float * 3), ("acc", ctypes.c_float * 3),
+                ("mag", ctypes.c_float * 3)]
+
+
+class ImuSettings(ctypes.Structure):
+    """LswImuSettings (lsw_imu.h): sensor period (s), device period, largest time step (ticks),
+    accelerometer saturation (m/s^2), 9D."""
+
+    _fields_ = [("raw_period_s", ctypes.c_float), ("out_period", ctypes.c_uint32), ("max_gap", ctypes.c_uint32),
+                ("acc_limit", ctypes.c_float), ("nine_d", ctypes.c_uint32)]
+
+
+for _name, _args, _res in (
+        ("lsw_imu_state_size", [], _sz),
+        ("lsw_imu_init", [_vp, ctypes.POINTER(ImuSettings)], None),
+        ("lsw_imu_fuse_batch", [_vp, _vp, _sz, _vp], _sz),
+        ("lsw_imu_bank_update", [_vp, _vp, _sz, _vp, _vp, _u8p, _vp, _vp, _vp, _vp, _vp, _vp], _sz),
+        ("lsw_imu_bank_status", [_vp, _sz, _vp, _vp, _vp, _vp], None)):
+    getattr(_lib, _name).argtypes = _args
+    getattr(_lib, _name).restype = _res
+
 STATE_SIZE: int = _lib.fastsw_state_size()
 SW_STATE_SIZE: int = _lib.sw_state_size()
 
@@ -198,7 +222,7 @@ def _check_abi() -> None:
     _lib.lsw_abi_size.argtypes = [ctypes.c_int]
     _lib.lsw_abi_size.restype = ctypes.c_size_t
     for which, struct in enumerate((Settings, Point, BatchOut, BankWire, _Sync, GridSettings, GridDevice, SvrTracker,
-                                    SvrRoute, SvrSlow)):
+                                    SvrRoute, SvrSlow, RawSample, ImuSettings)):
         size = _lib.lsw_abi_size(which)
         if size != ctypes.sizeof(struct):
             raise ImportError(f"limbstream C kernels: {struct.__name__} is {size} bytes in C, "

@@ -1,7 +1,9 @@
 """Motion sources: every loader returns a :class:`Motion`.
 
 ``load(path)`` picks the loader from the file (or folder) type; ``generator`` is the
-built-in synthetic full-body motion (the default of demos and tests).
+built-in synthetic full-body motion (the default of demos and tests). Raw sensor recordings
+(angular rate and specific force, ``.mat``) are read by ``load_raw(path)`` into a
+:class:`~limbstream.sources.raw.RawRecording` instead.
 """
 from __future__ import annotations
 
@@ -50,6 +52,14 @@ class Motion:
     rest_pose : str
         What identity orientations mean (``wire.REST_POSES``): ``tpose`` for BVH clips and the
         files converted from them, ``standing`` for the generator and IMU recordings.
+    root : (m, 3) float64 or None
+        The body's root (pelvis) position in the same world frame, metres at the scale of the
+        default :class:`limbstream.skeleton.Skeleton`, where the source has one (BVH clips);
+        None: the body turns about a fixed root (emulated sensors then feel no travel).
+    sensor_up : str or None
+        None: ``q`` are the segments' own orientations (the skeleton's frame, Y up). ``"z"``:
+        they are real sensors' orientations in their fusion's world, whose up axis is +Z (x-IMU3,
+        Xsens): anything about the body (joint angles) needs a calibration first.
     """
 
     t: np.ndarray
@@ -57,12 +67,16 @@ class Motion:
     segments: tuple[str, ...]
     name: str = ""
     rest_pose: str = wire.DEFAULT_REST_POSE
+    root: np.ndarray | None = None
+    sensor_up: str | None = None
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:
             raise ValueError(f"Motion needs t (m,) and q (m, S, 4); got {self.t.shape}, {self.q.shape}")
         if self.q.shape[1] != len(self.segments):
             raise ValueError(f"{len(self.segments)} segment names for {self.q.shape[1]} streams")
+        if self.root is not None and np.shape(self.root) != (len(self.t), 3):
+            raise ValueError(f"Motion root must be (m, 3) = ({len(self.t)}, 3), got {np.shape(self.root)}")
         wire.check_rest_pose(self.rest_pose)
 
     @property
@@ -140,5 +154,13 @@ def load(path: str | Path) -> list[Motion]:
     if suffix in (".csv", ".txt"):
         read = imu_files.read_xio_csv if suffix == ".csv" else imu_files.read_xsens_txt
         s = read(path)
-        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem)]
+        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem, sensor_up="z")]
+    if suffix == ".mat":
+        raise MotionFileError(f"{path}: a raw sensor recording (angular rate, specific force), not orientations: "
+                              "read it with limbstream.sources.load_raw")
     raise MotionFileError(f"{path}: unknown motion file type (expected .npz, .bvh, .csv, .txt or a folder)")
+
+
+from limbstream.sources.raw import RawRecording, load_raw  # noqa: E402  (needs MotionFileError above)
+
+__all__ = ["SEGMENTS", "Motion", "MotionFileError", "RawRecording", "is_number", "load", "load_npz", "load_raw"]

@@ -355,7 +355,9 @@ def load_bvh(
 
     Returns
     -------
-    Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame.
+    Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame
+    and, where the root joint has position channels and the map names both legs' thigh and
+    shank, the root's path (:func:`root_path`, linearly resampled with the orientations).
 
     Raises
     ------
@@ -374,8 +376,36 @@ def load_bvh(
         drop_first = is_synthetic_tpose(clip)
     first = 1 if drop_first and clip.n_frames > 1 else 0
     q = q[first:]
+    root = root_path(clip, segment_map)
+    root = None if root is None else root[first:]
     t = np.arange(len(q)) * clip.frame_time
     if fs is None:
-        return Motion(t, quat.continuous(q), segments, clip.path.stem, "tpose")
-    t, q = resample(t, q, fs)
-    return Motion(t, q, segments, clip.path.stem, "tpose")
+        return Motion(t, quat.continuous(q), segments, clip.path.stem, "tpose", root)
+    t_out, q = resample(t, q, fs)
+    if root is not None:
+        root = np.stack([np.interp(t_out, t, axis) for axis in root.T], axis=1)
+    return Motion(t_out, q, segments, clip.path.stem, "tpose", root)
+
+
+def root_path(clip: BvhClip, segment_map: Mapping[str, str]) -> np.ndarray | None:
+    """(F, 3) float64 the root joint's position channels in metres of the default skeleton.
+
+    BVH files do not say their unit (CMU's are 1/0.45 inch), so the path is scaled by the
+    default :class:`~limbstream.skeleton.Skeleton`'s leg (thigh + shank) over the clip's own
+    (the offsets of the ``l_shank`` joint and of its child): the skeleton that emulated sensors
+    ride then travels as far as the clip's legs carried it. None if the root has no position
+    channels or the map has no ``l_thigh`` -> ``l_shank`` chain with a child below it.
+    """
+    from limbstream.skeleton import Skeleton
+
+    names = clip.channels[0]
+    cols = [names.index(axis) for axis in ("Xposition", "Yposition", "Zposition") if axis in names]
+    shank = clip.joints.index(segment_map["l_shank"]) if segment_map.get("l_shank") in clip.joints else -1
+    below = [j for j in range(len(clip.joints)) if clip.parents[j] == shank] if shank >= 0 else []
+    if len(cols) != 3 or shank < 0 or not below or clip.joints[clip.parents[shank]] != segment_map.get("l_thigh"):
+        return None
+    leg = np.linalg.norm(clip.offsets[shank]) + np.linalg.norm(clip.offsets[below[0]])
+    if not leg > 0:
+        return None
+    default = Skeleton()
+    return clip.motion[:, cols] * ((default.thigh + default.shank) / leg)

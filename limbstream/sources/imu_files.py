@@ -178,7 +178,8 @@ def align(streams: list[SensorStream], fs: float | None = None, name: str = "") 
 
     Returns
     -------
-    Motion with t (n,) seconds from the start of the overlap and q (n, S, 4).
+    Motion with t (n,) seconds from the start of the overlap and q (n, S, 4): the sensors'
+    orientations in their fusion's Z-up world (``sensor_up="z"``).
     """
     start = max(s.t[0] for s in streams)
     end = min(s.t[-1] for s in streams)
@@ -193,7 +194,7 @@ def align(streams: list[SensorStream], fs: float | None = None, name: str = "") 
     names = tuple(s.name for s in streams)
     if len(set(names)) != len(names):
         raise MotionFileError(f"{where}: two sensors map to the same segment ({names})")
-    return Motion(t - start, q, names, name)
+    return Motion(t - start, q, names, name, sensor_up="z")
 
 
 def load_xio_folder(folder: str | Path, fs: float | None = None) -> Motion:

@@ -6,9 +6,10 @@ A frame on the line is ``COBS(payload + crc16) + b"\\0"``; the payload is the li
 CRC-16/CCITT-FALSE of the payload. A bad frame is counted by reason (:data:`BAD_REASONS`) and
 dropped; reading resumes at the next delimiter.
 
-Host to device: :func:`encode_sample`, :func:`encode_config`, :func:`encode_start`,
-:func:`encode_request` (END, STATUS_REQ, IDENTIFY). Device to host: POINT (a segment point
-message, as published), :class:`Ack`, :class:`LinkStatus`, :class:`Identity`.
+Host to device: :func:`encode_sample`, :func:`encode_raw`, :func:`encode_config`,
+:func:`encode_fusion`, :func:`encode_start`, :func:`encode_request` (END, STATUS_REQ, IDENTIFY,
+FUSION_REQ). Device to host: POINT (a segment point message, as published), :class:`Ack`,
+:class:`LinkStatus`, :class:`Identity`, :class:`FusionStatus`.
 """
 from __future__ import annotations
 
@@ -31,17 +32,24 @@ MAX_FRAME = MAX_PAYLOAD + 5
 """Largest frame on the line: COBS overhead, CRC and the delimiter included."""
 
 SAMPLE, CONFIG, START, END, STATUS_REQ, IDENTIFY = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+RAW, FUSION, FUSION_REQ = 0x07, 0x08, 0x09
 """Host -> device message types."""
-POINT, ACK, STATUS, IDENTITY = 0x81, 0x82, 0x83, 0x84
+POINT, ACK, STATUS, IDENTITY, FUSION_STATUS = 0x81, 0x82, 0x83, 0x84, 0x85
 """Device -> host message types."""
 NAMES = {SAMPLE: "sample", CONFIG: "config", START: "start", END: "end", STATUS_REQ: "status_req",
-         IDENTIFY: "identify", POINT: "point", ACK: "ack", STATUS: "status", IDENTITY: "identity"}
+         IDENTIFY: "identify", RAW: "raw", FUSION: "fusion", FUSION_REQ: "fusion_req", POINT: "point", ACK: "ack",
+         STATUS: "status", IDENTITY: "identity", FUSION_STATUS: "fusion_status"}
+FUSION_FAULTS: tuple[str, ...] = ("invalid", "time_back", "gap", "saturated", "gyr_stuck")
+"""Bad raw samples by kind, in the firmware's order (LswImuFault, lsw_imu.h)."""
 
 BAD_REASONS: tuple[str, ...] = ("cobs", "length", "crc", "version", "type")
 """Why a frame is dropped, in the firmware's order (LswBadReason): not COBS; too long, too short
 or a body of the wrong length for its type; checksum; another link version; unknown type."""
 
 _SAMPLE = struct.Struct("<Iq4f")
+_RAW = struct.Struct("<Iq9f")
+_FUSION = struct.Struct("<HfIIfB")
+_FUSION_STATUS = struct.Struct(f"<HBB3fII{len(FUSION_FAULTS)}I")
 _CONFIG = struct.Struct("<H3d")
 _START = struct.Struct("<HH")
 _REQUEST = struct.Struct("<H")
@@ -50,10 +58,12 @@ _STATUS = struct.Struct(f"<HH6I{len(BAD_REASONS)}I{len(TUNABLES)}dI")
 _IDENTITY = struct.Struct("<HBBB")
 
 HOST_BODIES: dict[int, tuple[int, ...]] = {SAMPLE: (_SAMPLE.size,), CONFIG: (_CONFIG.size,), START: (_START.size,),
-                                           END: (2,), STATUS_REQ: (2,), IDENTIFY: (2,)}
+                                           END: (2,), STATUS_REQ: (2,), IDENTIFY: (2,), RAW: (_RAW.size,),
+                                           FUSION: (_FUSION.size,), FUSION_REQ: (2,)}
 """Body lengths of the host's messages (what a device accepts)."""
 DEVICE_BODIES: dict[int, tuple[int, ...]] = {POINT: (POINT_SIZE, POINT_SIZE_RATE), ACK: (_ACK.size,),
-                                             STATUS: (_STATUS.size,), IDENTITY: tuple(range(5, MAX_PAYLOAD - 1))}
+                                             STATUS: (_STATUS.size,), IDENTITY: tuple(range(5, MAX_PAYLOAD - 1)),
+                                             FUSION_STATUS: (_FUSION_STATUS.size,)}
 """Body lengths of the device's messages (what a gateway accepts)."""
 
 
@@ -155,6 +165,23 @@ def encode_sample(tick: int, t_us: int, q) -> bytes:
     return frame(SAMPLE, _SAMPLE.pack(tick & 0xFFFFFFFF, int(t_us), w, x, y, z))
 
 
+def encode_raw(tick: int, t_us: int, gyr, acc, mag=None) -> bytes:
+    """A RAW frame: one raw IMU sample, tick and stamp as :func:`encode_sample`'s, then gyr (rad/s),
+    acc (m/s^2) and mag (uT; zeros without one), 3 float32 each, sensor frame."""
+    values = np.concatenate([np.asarray(v if v is not None else np.zeros(3), np.float32).reshape(3)
+                             for v in (gyr, acc, mag)])
+    return frame(RAW, _RAW.pack(tick & 0xFFFFFFFF, int(t_us), *(float(v) for v in values)))
+
+
+def encode_fusion(request: int, raw_period_s: float, out_period_us: int, max_gap_us: int, acc_limit: float,
+                  nine_d: bool) -> bytes:
+    """A FUSION frame: the raw-sample pipeline's settings (LswImuSettings, lsw_imu.h, as
+    :func:`limbstream.kernel.fusion.imu_settings` computes them): sensor period (s, float32), device
+    period (us), largest time step (us), accelerometer saturation (m/s^2, float32), 9D. The device
+    takes them as they are (so it computes what the host does) and starts a fresh filter."""
+    return frame(FUSION, _FUSION.pack(request, raw_period_s, out_period_us, max_gap_us, acc_limit, int(bool(nine_d))))
+
+
 def encode_config(request: int, config: DeviceConfig) -> bytes:
     """A CONFIG frame: every tunable, in :data:`TUNABLES` order, as float64 (the device checks
     them with the contract's bounds and answers with an :class:`Ack`)."""
@@ -167,8 +194,8 @@ def encode_start(request: int, stream: int) -> bytes:
 
 
 def encode_request(kind: int, request: int) -> bytes:
-    """An END, STATUS_REQ or IDENTIFY frame."""
-    if kind not in (END, STATUS_REQ, IDENTIFY):
+    """An END, STATUS_REQ, IDENTIFY or FUSION_REQ frame."""
+    if kind not in (END, STATUS_REQ, IDENTIFY, FUSION_REQ):
         raise ValueError(f"not a request type: {kind}")
     return frame(kind, _REQUEST.pack(request))
 
@@ -231,12 +258,34 @@ class Identity:
     text: str
 
 
-DeviceMessage = bytes | Ack | LinkStatus | Identity
+@dataclass(frozen=True)
+class FusionStatus:
+    """The device's fusion (FUSION_REQ's answer): ``mode`` "6D" or "9D", ``rest`` (VQF's rest
+    detection), ``bias`` (3 float, rad/s: the gyro bias estimate), this stream's ``raw`` samples
+    and ``samples`` at the device rate, and its bad raw samples by kind (:data:`FUSION_FAULTS`)."""
+
+    request: int
+    mode: str
+    rest: bool
+    bias: tuple[float, float, float]
+    raw: int
+    samples: int
+    faults: dict[str, int]
+
+
+DeviceMessage = bytes | Ack | LinkStatus | Identity | FusionStatus
 
 
 def _ack(body: bytes) -> Ack:
     request, kind, result, tunable, value = _ACK.unpack(body)
-    return Ack(request, kind, result == 0, None if result == 0 else refusal(tunable, value))
+    if result == 0:
+        return Ack(request, kind, True)
+    return Ack(request, kind, False, "fusion settings refused" if kind == FUSION else refusal(tunable, value))
+
+
+def _fusion_status(body: bytes) -> FusionStatus:
+    request, mode, rest, bx, by, bz, raw, samples, *faults = _FUSION_STATUS.unpack(body)
+    return FusionStatus(request, f"{mode}D", bool(rest), (bx, by, bz), raw, samples, dict(zip(FUSION_FAULTS, faults)))
 
 
 def _status(body: bytes) -> LinkStatus:
@@ -255,10 +304,11 @@ def _identity(body: bytes) -> Identity:
 
 
 _DECODERS: dict[int, Callable[[bytes], DeviceMessage]] = {POINT: bytes, ACK: _ack, STATUS: _status,
-                                                         IDENTITY: _identity}
+                                                         IDENTITY: _identity, FUSION_STATUS: _fusion_status}
 
 
 def decode_device(kind: int, body: bytes) -> DeviceMessage:
     """A device message read by a :class:`FrameReader` (DEVICE_BODIES): a POINT's body (the
-    segment point message, bytes), an :class:`Ack`, :class:`LinkStatus` or :class:`Identity`."""
+    segment point message, bytes), an :class:`Ack`, :class:`LinkStatus`, :class:`Identity` or
+    :class:`FusionStatus`."""
     return _DECODERS[kind](body)

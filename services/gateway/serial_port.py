@@ -165,6 +165,10 @@ class SerialLink:
         """One sample (see :func:`limbstream.wire.serial_link.encode_sample`)."""
         self.send(link.encode_sample(tick, t_us, q))
 
+    def raw(self, tick: int, t_us: int, gyr, acc, mag=None) -> None:
+        """One raw IMU sample (see :func:`limbstream.wire.serial_link.encode_raw`)."""
+        self.send(link.encode_raw(tick, t_us, gyr, acc, mag))
+
     def _ask(self, encode, timeout_s: float = ANSWER_TIMEOUT_S):
         request = next(self._requests) & 0xFFFF or next(self._requests)
         event: threading.Event = threading.Event()
@@ -196,6 +200,15 @@ class SerialLink:
 
     def identify(self) -> link.Identity:
         return self._ask(lambda r: link.encode_request(link.IDENTIFY, r))
+
+    def fusion(self, settings) -> link.Ack:
+        """Set the device's raw-sample fusion (an ``ImuSettings`` of
+        :func:`limbstream.kernel.fusion.imu_settings`); a fresh filter."""
+        return self._ask(lambda r: link.encode_fusion(r, settings.raw_period_s, settings.out_period, settings.max_gap,
+                                                      settings.acc_limit, bool(settings.nine_d)))
+
+    def fusion_status(self) -> link.FusionStatus:
+        return self._ask(lambda r: link.encode_request(link.FUSION_REQ, r))
 
     def close(self) -> None:
         """Stop the reader, then close the port (never under a reader still using it)."""

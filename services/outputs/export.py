@@ -1,5 +1,10 @@
 """Export one subject's motion to files other tools read: BVH (Blender, MotionBuilder, ...),
-CSV (one row per frame) and npz (``limbstream.sources.load`` reads it back).
+CSV (one row per frame), npz (``limbstream.sources.load`` reads it back), and OpenSim's joint-angle
+motion file (``.mot``) and OpenSense's orientation file (``.sto``) (:mod:`.opensim`).
+
+A recording of real sensors (``Motion.sensor_up``: IMU files) starts standing still: its sensors
+are calibrated from the first second (the rest pose) and the subject's facing is found from the
+knees' and elbows' motion (:mod:`limbstream.joints.functional`) before anything is exported.
 
 Sources: the exact pose frames of a subject in a recording (:mod:`.recording`), or any motion
 file ``limbstream.sources.load`` reads (resampled to 50 Hz where it is not). Layouts, units and
@@ -18,14 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
-from limbstream import quat, wire
+from limbstream import joints, quat, wire
+from limbstream.calibration import CalibrationError
 from limbstream.skeleton import Skeleton
 from limbstream.sources import Motion, MotionFileError, load
 from limbstream.sources.bvh import resample
 
+from .opensim import mot_text, segments_with_data, sto_text
 from .recording import Recording, RecordingError
 
-FORMATS = ("bvh", "csv", "npz")
+FORMATS = ("bvh", "csv", "npz", "mot", "sto")
 FS = 50.0
 """Frame rate of exports from motion files, Hz (recordings keep their aggregator's rate)."""
 
@@ -50,6 +57,10 @@ class Take:
     filled : (F,) bool, True where no frame was recorded and the previous one is repeated.
     skeleton : the body whose rest pose the orientations refer to.
     notes : what the export should tell its user (gaps, segments the source lacks).
+    present : (F, 10) bool, the segments with data in each frame (None: all).
+    basis : which calibration the orientations rest on (one line).
+    anatomical : the orientations are anatomical (joint angles can be taken); False: ``basis``
+        says why not.
     """
 
     name: str
@@ -62,6 +73,9 @@ class Take:
     filled: np.ndarray
     skeleton: Skeleton
     notes: list[str] = field(default_factory=list)
+    present: np.ndarray | None = None
+    basis: str = "the source's own segment orientations"
+    anatomical: bool = True
 
     def __len__(self) -> int:
         return len(self.t_us)
@@ -123,7 +137,8 @@ def from_recording(recording: Recording, subject: str | None, rest_pose: str | N
     take = Take(subject, period, times[0] + grid * period, np.stack([f.q for f in chosen]).astype(np.float64),
                 np.stack([f.joints for f in chosen]), np.array([f.seq for f in chosen]),
                 np.array([f.flags for f in chosen]) | np.where(filled, wire.FRAME_GAP, 0), filled,
-                skeleton_of(chosen[0], rest_pose))
+                skeleton_of(chosen[0], rest_pose), basis="the aggregator's segments (its device calibrations)")
+    take.present = ~((take.flags & wire.FRAME_MISSING != 0)[:, None] & (take.q == _IDENTITY).all(axis=-1))
     if filled.any():
         take.notes.append(f"{int(filled.sum())} of {len(grid)} frames were not recorded: each repeats the frame "
                           f"before (flag GAP; npz 'filled')")
@@ -150,16 +165,23 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
     else:
         raise ExportError(f"--subject {subject}: no such clip in {path} "
                           f"(clips: {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}; or s01..s{len(names):02d})")
-    t, q_in = motion.t, motion.q
+    basis, anatomical, segments, q_in = _segments_of(motion)
+    t = motion.t
+    have = [k for k in range(len(segments)) if np.isfinite(q_in[:, k]).all()]
     if len(t) > 1 and abs(motion.fs - FS) > 1e-6:
-        t, q_in = resample(t, q_in, FS)
+        t, q_have = resample(t, q_in[:, have], FS)
+        q_in = np.full((len(t), len(segments), 4), np.nan)
+        q_in[:, have] = q_have
     q = np.zeros((len(t), len(wire.SEGMENTS), 4))
     q[..., 0] = 1.0
+    present = np.zeros(len(wire.SEGMENTS), bool)
     lacking = []
     for seg, parent in _SEGMENT_PARENT.items():  # parents first
         i = wire.SEGMENTS.index(seg)
-        if seg in motion.segments:
-            q[:, i] = quat.normalize(q_in[:, motion.segments.index(seg)])
+        k = segments.index(seg) if seg in segments else -1
+        if k in have:
+            q[:, i] = quat.normalize(q_in[:, k])
+            present[i] = True
         else:
             lacking.append(seg)
             if parent is not None:
@@ -168,12 +190,33 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
     n = len(t)
     take = Take(motion.name or path.stem, int(round(1e6 / FS)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
                 skeleton.positions(q), np.arange(n), np.full(n, wire.FRAME_MISSING if lacking else 0),
-                np.zeros(n, bool), skeleton)
+                np.zeros(n, bool), skeleton, present=np.broadcast_to(present, (n, len(present))).copy(), basis=basis,
+                anatomical=anatomical)
     if lacking:
         take.notes.append(f"{path} has no {', '.join(lacking)}: each follows its parent segment (flag MISSING)")
     return take
 
 
+def _segments_of(motion: Motion) -> tuple[str, bool, tuple[str, ...], np.ndarray]:
+    """(basis, anatomical, segment names, (m, S, 4) orientations) of a motion: its own segments,
+    or for real sensors, the sensors calibrated from the first second (rest pose) and the facing
+    from the hinges (:mod:`limbstream.joints.functional`); what was left undone is said."""
+    if motion.sensor_up is None:
+        return "the source's own segment orientations", True, motion.segments, motion.q
+    try:
+        rest, present = joints.rest_calibrated(motion.q, motion.segments, motion.fs, motion.sensor_up)
+    except CalibrationError as exc:
+        return f"the sensors' raw orientations: no rest calibration ({exc})", False, motion.segments, motion.q
+    stats = joints.HingeStats.empty()
+    stats.add(rest, present)
+    facing = stats.facing()
+    where = "rest pose from the first 1 s standing still"
+    if not facing.found:
+        return f"{where}; {facing.describe()}", False, wire.SEGMENTS, rest
+    return f"{where}, functional {facing.describe()}", True, wire.SEGMENTS, joints.face(rest, facing.heading)
+
+
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _SEGMENT_PARENT = {"hip": None, "neck": "hip", "l_thigh": "hip", "r_thigh": "hip", "l_upperarm": "hip",
                    "r_upperarm": "hip", "l_shank": "l_thigh", "r_shank": "r_thigh", "l_lowerarm": "l_upperarm",
                    "r_lowerarm": "r_upperarm"}
@@ -310,6 +353,55 @@ def write_npz(take: Take, path: Path) -> None:
                             seq=take.seq, flags=take.flags, filled=take.filled)
 
 
+def take_angles(take: Take) -> tuple[np.ndarray, np.ndarray]:
+    """(F, A) joint angles (degrees, :data:`limbstream.joints.ANGLES`) and flags of ``take``;
+    ExportError saying why if its orientations are not anatomical."""
+    if not take.anatomical:
+        raise ExportError(f"{take.name}: no joint angles: {take.basis}")
+    return joints.joint_angles(take.q, take.present, take.skeleton.rest_pose)
+
+
+def _complete_rows(take: Take, valid: np.ndarray, what: str) -> np.ndarray:
+    """(F,) bool, the recorded frames in which every written column has data (OpenSim's readers
+    take no NaN); a note says how many were left out."""
+    rows = valid.all(axis=1) & ~take.filled
+    if not rows.any():
+        raise ExportError(f"{take.name}: no frame has every {what} written")
+    if (~rows & ~take.filled).any():
+        take.notes.append(f"{int((~rows & ~take.filled).sum())} frames lack a segment's data: left out of the file")
+    return rows
+
+
+def write_mot(take: Take, path: Path) -> None:
+    """The joint angles the take has (columns without any valid frame left out) as an OpenSim
+    motion file, time 0 at its first frame (:func:`.opensim.mot_text`)."""
+    angles, flags = take_angles(take)
+    valid = np.isfinite(angles)
+    columns = np.flatnonzero(valid.any(axis=0))
+    if not len(columns):
+        raise ExportError(f"{take.name}: no joint has both of its segments")
+    rows = _complete_rows(take, valid[:, columns], "joint angle")
+    gimbal = [f"{joints.ANGLES[k]} {int(n)}" for k, n in zip(columns, (flags[rows][:, columns] & joints.GIMBAL != 0).sum(0))
+              if n]
+    if gimbal:
+        take.notes.append(f"frames near gimbal lock (ill-conditioned, docs/evaluation.md): {', '.join(gimbal)}")
+    t = (take.t_us[rows] - take.t_us[0]) / 1e6
+    path.write_text(mot_text(take.name, t, angles[rows][:, columns], tuple(joints.ANGLES[k] for k in columns),
+                             f"calibration: {take.basis}"))
+
+
+def write_sto(take: Take, path: Path) -> None:
+    """The segments' anatomical frames as OpenSense's orientation file (:func:`.opensim.sto_text`)."""
+    if not take.anatomical:
+        raise ExportError(f"{take.name}: no anatomical frames: {take.basis}")
+    present = np.ones((len(take), len(wire.SEGMENTS)), bool) if take.present is None else take.present
+    names = segments_with_data(present)
+    index = [wire.SEGMENTS.index(s) for s in names]
+    rows = _complete_rows(take, present[:, index], "segment")
+    frames = joints.anatomical(take.q[rows], take.skeleton.rest_pose)[:, index]
+    path.write_text(sto_text((take.t_us[rows] - take.t_us[0]) / 1e6, frames, names, 1e6 / take.period_us))
+
+
 def export(take: Take, fmt: str, path: str | Path) -> None:
     """Write ``take`` as ``fmt`` (:data:`FORMATS`) to ``path``; ExportError naming it if it cannot."""
     path = Path(path)
@@ -320,6 +412,10 @@ def export(take: Take, fmt: str, path: str | Path) -> None:
             write_csv(take, path)
         elif fmt == "npz":
             write_npz(take, path)
+        elif fmt == "mot":
+            write_mot(take, path)
+        elif fmt == "sto":
+            write_sto(take, path)
         else:
             raise ExportError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
     except OSError as exc:

@@ -35,7 +35,7 @@ from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from limbstream import quat, wire
-from limbstream.skeleton import Skeleton
+from limbstream.skeleton import Skeleton, rest_offsets
 from limbstream.services.outputs.kinds import LiveFirst
 from limbstream.services.outputs.subscription import Subscription
 
@@ -111,19 +111,6 @@ _PRODUCT = quat.multiply(np.eye(4)[:, None, :], np.eye(4)[None, :, :])
 """(4, 4, 4) structure constants: the Hamilton product a * b is sum_ij a_i b_j _PRODUCT[i, j]."""
 _LOCAL = (_PRODUCT * quat.conjugate(np.ones(4))[:, None, None] * _MIRROR_Q).reshape(16, 4)
 """mirror(conj(a) * b) as one (16, 4) matrix applied to the outer product of a and b."""
-
-
-def rest_offsets(rest_pose: str) -> np.ndarray:
-    """(10, 4) scalar-first rotation from the T-pose to ``rest_pose`` per segment (SEGMENTS order):
-    identity for ``tpose``; for ``standing`` the arms lowered by 90 deg about +Z (left arm +X -> -Y)."""
-    if rest_pose not in ("standing", "tpose"):
-        raise ValueError(f"rest_pose must be 'standing' or 'tpose', got {rest_pose!r}")
-    out = np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))
-    if rest_pose == "standing":
-        h = np.sqrt(0.5)
-        for s, sign in (("l", -1.0), ("r", 1.0)):
-            out[_SEG[f"{s}_upperarm"]] = out[_SEG[f"{s}_lowerarm"]] = (h, 0.0, 0.0, sign * h)
-    return out
 
 
 @functools.cache

@@ -1,0 +1,125 @@
+"""Joint angles of a real recording, as `limbstream export -o X.mot` writes them (docs/evaluation.md,
+"Joint angles"): the knees' and hips' ranges, and optionally a plot of their flexion.
+
+The recording starts standing still: each sensor is calibrated from the first second (rest pose),
+the subject's facing is found from the knees' motion (limbstream.joints.functional), and the
+angles are the Rajagopal model's coordinates (degrees), time 0 at the first common sample.
+
+    python bench/joint_angles.py ../shared/data/xsens_opensense --names opensense --plot docs/joint_angles_xsens_walk.png
+    python bench/joint_angles.py ../shared/data/xio_lower_body
+    python bench/joint_angles.py --speed   # the cost of the angles of 200 subjects per frame
+
+``--names opensense``: the Xsens MTw files name their sensors by serial number only; the mapping
+is OpenSim's own example code's (bench/knee_angles.py).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from knee_angles import NAMES  # noqa: E402
+
+from limbstream import joints  # noqa: E402
+from limbstream.services.outputs.export import from_motion, take_angles  # noqa: E402
+from limbstream.sources import load  # noqa: E402
+from limbstream.sources.imu_files import load_xsens_folder  # noqa: E402
+
+SHOWN = ("knee_angle_l", "knee_angle_r", "hip_flexion_l", "hip_flexion_r", "hip_adduction_l", "hip_adduction_r",
+         "hip_rotation_l", "hip_rotation_r")
+
+
+def table(path: str, names: dict[str, str] | None) -> tuple[str, np.ndarray, np.ndarray]:
+    """(markdown table, (F,) seconds, (F, A) angles) of one recording."""
+    motions = [load_xsens_folder(path, names)] if names else load(path)
+    take = from_motion(motions, None, Path(path), None)
+    angles, _ = take_angles(take)
+    t = (take.t_us - take.t_us[0]) / 1e6
+    lines = [f"{take.name}: {len(t)} frames at {1e6 / take.period_us:g} Hz ({t[-1]:.1f} s); calibration: {take.basis}",
+             "", "| angle | p2 / p50 / p98 (deg) | min / max (deg) | range p2-p98 (deg) |", "|---|---|---|---|"]
+    for name in SHOWN:
+        v = angles[:, joints.ANGLES.index(name)]
+        v = v[np.isfinite(v)]
+        p = np.percentile(v, [2, 50, 98])
+        lines.append(f"| {name} | {p[0]:.1f} / {p[1]:.1f} / {p[2]:.1f} | {v.min():.1f} / {v.max():.1f} | "
+                     f"{p[2] - p[0]:.1f} |")
+    return "\n".join(lines), t, angles
+
+
+def plot(t: np.ndarray, angles: np.ndarray, path: Path, title: str) -> None:
+    """Knee and hip flexion over time, both sides, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True, constrained_layout=True)
+    for ax, joint in zip(axes, ("knee_angle", "hip_flexion")):
+        for side, color in (("l", "C0"), ("r", "C3")):
+            ax.plot(t, angles[:, joints.ANGLES.index(f"{joint}_{side}")], color=color, lw=1.1,
+                    label=f"{joint}_{side}")
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.set_ylabel("degrees")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[1].set_xlabel("time (s)")
+    fig.suptitle(title)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def speed(subjects: int = 200, rate_hz: float = 50.0, repeats: int = 300) -> str:
+    """The cost of :func:`limbstream.joints.joint_angles` for ``subjects`` subjects at once (one
+    frame each, as an aggregator's frame tick) and of the functional calibration's running sums
+    (one second of frames per call), as a table."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    q = Rotation.random(subjects * 10, random_state=rng).as_quat()[:, [3, 0, 1, 2]].reshape(subjects, 10, 4)
+    joints.joint_angles(q)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        joints.joint_angles(q)
+    tick = (time.perf_counter() - start) / repeats
+    stats = joints.HingeStats.empty((subjects,))
+    second = np.broadcast_to(q[:, None], (subjects, round(rate_hz), 10, 4))
+    start = time.perf_counter()
+    for _ in range(10):
+        stats.add(second)
+        stats.facing()
+    learn = (time.perf_counter() - start) / 10
+    return "\n".join([f"| work ({subjects} subjects, {rate_hz:g} Hz) | per call | share of one core |", "|---|---:|---:|",
+                      f"| joint angles, one frame tick | {tick * 1e6:.0f} us | {100 * tick * rate_hz:.2f} % |",
+                      f"| functional sums + facing, one second of frames | {learn * 1e3:.1f} ms | {100 * learn:.2f} % |"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("path", nargs="?", help="a recording of real sensors that starts standing still (x-IMU3, "
+                                                "Xsens folder)")
+    parser.add_argument("--speed", action="store_true", help="time the angles of 200 subjects instead")
+    parser.add_argument("--names", choices=sorted(NAMES), help="segment names of an Xsens folder's sensors")
+    parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw knee and hip flexion into this PNG")
+    args = parser.parse_args(argv)
+    if args.speed:
+        print(speed())
+        return 0
+    if args.path is None:
+        parser.error("give a recording (or --speed)")
+    text, t, angles = table(args.path, NAMES.get(args.names) if args.names else None)
+    print(text)
+    if args.plot is not None:
+        plot(t, angles, args.plot, f"{Path(args.path).name}: knee and hip flexion (Rajagopal conventions)")
+        print(f"wrote {args.plot}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,78 @@
+"""The kernel library's VQF against the PyPI ``vqf`` package (double precision) on BROAD's trials:
+9D total RMSE against the optical truth, and host speed of the fusion.
+
+    python bench/vqf_broad.py [--data ../shared/data]
+
+BROAD's error: the angle of estimate * truth^-1 (earth frame), RMS over the movement phases where
+the markers were seen. Prints one row per trial, the largest difference, and the host cost of
+:func:`limbstream.kernel.fuse` and of :class:`limbstream.kernel.ImuBank` per raw sample.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+import vqf
+
+from limbstream import quat
+from limbstream.kernel import fusion
+
+DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+
+
+def total_rmse_deg(est: np.ndarray, truth: np.ndarray, movement: np.ndarray) -> float:
+    ok = movement & np.isfinite(truth).all(axis=1)
+    return float(np.sqrt(np.mean(quat.angle_deg(est[ok], truth[ok]) ** 2)))
+
+
+def accuracy(data: Path) -> None:
+    print(f"{'trial':<44}{'online VQF':>11}{'kernel':>9}{'diff':>9}   (9D total RMSE, deg)")
+    worst = 0.0
+    for path in sorted((data / "broad").glob("*.mat")):
+        d = scipy.io.loadmat(path, squeeze_me=True)
+        g, a, m = (np.ascontiguousarray(d[k], np.float64) for k in ("imu_gyr", "imu_acc", "imu_mag"))
+        rate, truth, movement = float(d["sampling_rate"]), d["opt_quat"], d["movement"].astype(bool)
+        online = total_rmse_deg(vqf.VQF(1.0 / rate).updateBatch(g, a, m)["quat9D"], truth, movement)
+        ours = total_rmse_deg(fusion.fuse(g, a, m, rate_hz=rate), truth, movement)
+        worst = max(worst, abs(ours - online))
+        print(f"{path.stem:<44}{online:>11.4f}{ours:>9.4f}{ours - online:>+9.4f}")
+    print(f"largest |difference|: {worst:.4f} deg")
+
+
+def speed(data: Path) -> None:
+    d = scipy.io.loadmat(sorted((data / "broad").glob("*.mat"))[0], squeeze_me=True)
+    g, a = d["imu_gyr"], d["imu_acc"]
+    rate = float(d["sampling_rate"])
+    best = min(_timed(lambda: fusion.fuse(g, a, rate_hz=rate)) for _ in range(5))
+    print(f"fuse (6D), one device: {best / len(g) * 1e9:.0f} ns per raw sample")
+    count, steps = 2000, 50
+    bank = fusion.ImuBank(count, rate_hz=200.0, threshold=9e-4, max_len=25, live_bound_deg=5.0)
+    rows = np.arange(steps * count) % len(g)
+    gyr, acc = g[rows].reshape(steps, count, 3), a[rows].reshape(steps, count, 3)
+    ticks = np.zeros(count, np.int64)
+    start = time.perf_counter()
+    for s in range(steps):
+        bank.update_raw(ticks + s * 5000, gyr[s], acc[s])
+    spent = time.perf_counter() - start
+    print(f"ImuBank.update_raw, {count} devices: {spent / (steps * count) * 1e9:.0f} ns per device and raw sample")
+
+
+def _timed(call) -> float:
+    start = time.perf_counter()
+    call()
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DATA, help="the shared data folder (with broad/)")
+    args = parser.parse_args()
+    accuracy(args.data)
+    speed(args.data)
+
+
+if __name__ == "__main__":
+    main()

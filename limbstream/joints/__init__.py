@@ -1,0 +1,21 @@
+"""Joint angles: anatomical segment frames, angles in OpenSim's conventions, a functional
+calibration of the facing from the hinges, and scoring against true angles.
+
+==================  ===========================================================
+module              what it holds
+==================  ===========================================================
+:mod:`.convention`  the angle names, the joints, anatomical frames, the angles
+:mod:`.functional`  the facing from the knees' and elbows' motion (offline, live)
+:mod:`.scoring`     true angles of a motion, per-angle error figures
+==================  ===========================================================
+"""
+from limbstream.joints.convention import (ANGLES, GIMBAL, GIMBAL_DEG, JOINT_TABLE, MISSING, TO_OPENSIM, UNCALIBRATED,
+                                          Joint, anatomical, euler_zxy, joint_angles, standing)
+from limbstream.joints.functional import (HINGES, Facing, HingeStats, face, from_readings, functional_calibration,
+                                          rest_calibrated, rotation_vector)
+from limbstream.joints.scoring import FIGURES, angle_errors, format_errors, in_layout, pooled_errors, true_angles
+
+__all__ = ["ANGLES", "FIGURES", "GIMBAL", "GIMBAL_DEG", "HINGES", "JOINT_TABLE", "MISSING", "TO_OPENSIM", "UNCALIBRATED",
+           "Facing", "HingeStats", "Joint", "anatomical", "angle_errors", "euler_zxy", "face", "format_errors",
+           "from_readings", "functional_calibration", "in_layout", "joint_angles", "pooled_errors", "rest_calibrated", "rotation_vector", "standing",
+           "true_angles"]

@@ -1,0 +1,199 @@
+"""Sensor fusion on the device: VQF (built from the ``vqf`` package's C++ into the kernel library)
+on raw IMU samples, offline (:func:`fuse`) and as a device's raw-sample pipeline, raw samples ->
+VQF -> orientation at the device's instants -> fastSW with the live rule -> segment points, for
+many devices in one C call per raw sample (:class:`ImuBank`; C: ``firmware_c/include/lsw_imu.h``,
+the firmware runs the same code).
+
+Orientations are scalar-first (w, x, y, z): the sensor frame in VQF's earth frame, z up (9D:
+east, north, up, heading from the magnetometer; 6D: the heading is wherever the sensor started).
+"""
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from limbstream import wire
+from limbstream.kernel._lib import TICK_HZ, ImuSettings, RawSample, _lib
+from limbstream.kernel.streaming import SegmenterBank
+
+IMU_STATE_SIZE: int = _lib.lsw_imu_state_size()
+FAULTS: tuple[str, ...] = ("invalid", "time_back", "gap", "saturated", "gyr_stuck")
+"""Bad raw samples by kind, in the C order (LswImuFault; docs/kernel.md, "Raw samples")."""
+SAMPLE, NO_OUTPUT, SKIPPED = 0, 3, 4
+"""lsw_imu statuses beyond fastSW's NONE/POINT/REJECTED: a device-rate sample made (offline),
+a raw sample fused without a device instant, a raw sample skipped (bad)."""
+
+RAW_DTYPE = np.dtype({"names": ["t", "gyr", "acc", "mag"],
+                      "formats": [np.uint32, (np.float32, 3), (np.float32, 3), (np.float32, 3)],
+                      "offsets": [0, 4, 16, 28], "itemsize": ctypes.sizeof(RawSample)})
+"""numpy layout of :class:`RawSample` (LswRawSample, lsw_imu.h): tick, gyr rad/s, acc m/s^2, mag uT."""
+
+_DEFAULTS = ImuSettings.in_dll(_lib, "lsw_imu_default_settings")
+
+
+def imu_settings(rate_hz: float, device_rate_hz: float = 50.0, nine_d: bool = False, max_gap_s: float | None = None,
+                 acc_limit: float | None = None) -> ImuSettings:
+    """Validated pipeline settings (LswImuSettings).
+
+    Parameters
+    ----------
+    rate_hz : the sensor's sample rate, Hz (> 0).
+    device_rate_hz : the device's output rate, Hz (> 0, at most ``rate_hz``).
+    nine_d : fuse the magnetometer (9D) instead of 6D.
+    max_gap_s : a time step longer than this resets the filter (default 0.1 s).
+    acc_limit : an accelerometer component at or beyond this (m/s^2) is saturated (default 156).
+    """
+    rate_hz, device_rate_hz = float(rate_hz), float(device_rate_hz)
+    if not np.isfinite(rate_hz) or rate_hz <= 0:
+        raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
+    if not np.isfinite(device_rate_hz) or not 0 < device_rate_hz <= rate_hz:
+        raise ValueError(f"device_rate_hz must be in (0, rate_hz={rate_hz}], got {device_rate_hz}")
+    gap = _DEFAULTS.max_gap if max_gap_s is None else int(round(float(max_gap_s) * TICK_HZ))
+    return ImuSettings(1.0 / rate_hz, int(round(TICK_HZ / device_rate_hz)), gap,
+                       _DEFAULTS.acc_limit if acc_limit is None else float(acc_limit), int(bool(nine_d)))
+
+
+def raw_samples(ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None) -> np.ndarray:
+    """(n,) :data:`RAW_DTYPE` from ticks (n,) uint32 (us), gyr and acc (n, 3) and optional mag (n, 3);
+    ValueError naming the argument whose shape is wrong."""
+    n = len(ticks)
+    raw = np.zeros(n, RAW_DTYPE)
+    raw["t"] = np.asarray(ticks, np.uint32)
+    for name, values in (("gyr", gyr), ("acc", acc), ("mag", mag)):
+        if values is None:
+            continue
+        values = np.asarray(values)
+        if values.shape != (n, 3):
+            raise ValueError(f"{name} must be ({n}, 3), got {values.shape}")
+        raw[name] = values
+    return raw
+
+
+def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_hz: float = 200.0,
+         t: np.ndarray | None = None) -> np.ndarray:
+    """The device's orientation after each raw sample (VQF in the kernel library, exactly as a
+    device computes it, bad samples handled as there).
+
+    Parameters
+    ----------
+    gyr : (n, 3) angular rate, rad/s, sensor frame.
+    acc : (n, 3) specific force, m/s^2, sensor frame.
+    mag : (n, 3) magnetic field (uT), or None: 9D with it, else 6D.
+    rate_hz : the sensor's sample rate, Hz (VQF's time step is 1 / rate_hz).
+    t : (n,) sample times, s (default: uniform at rate_hz); used for the bad-time checks.
+
+    Returns
+    -------
+    (n, 4) float64, w x y z, unit norm: sensor frame in VQF's earth frame (z up).
+    """
+    gyr = np.asarray(gyr, np.float64)
+    n = len(gyr)
+    times = np.arange(n) / float(rate_hz) if t is None else np.asarray(t, np.float64)
+    ticks = np.round((times - (times[0] if n else 0.0)) * TICK_HZ).astype(np.int64) & 0xFFFFFFFF
+    raw = raw_samples(ticks, gyr, acc, mag)
+    state = ctypes.create_string_buffer(IMU_STATE_SIZE)
+    settings = imu_settings(rate_hz, rate_hz, nine_d=mag is not None)
+    _lib.lsw_imu_init(state, ctypes.byref(settings))
+    q = np.zeros((n, 4), np.float32)
+    _lib.lsw_imu_fuse_batch(state, raw.ctypes.data, n, q.ctypes.data)
+    return q.astype(np.float64)
+
+
+class ImuBank(SegmenterBank):
+    """Many devices' raw-sample pipelines (VQF + fastSW), one raw sample each per C call.
+
+    Each device fuses its raw samples at ``rate_hz`` and takes the orientation at its own
+    instants, every 1 / ``device_rate_hz`` from its first sample (the first raw sample at or after
+    each instant, stamped with that sample's own time); those go through its fastSW state (the
+    :class:`SegmenterBank` part: settings, points, rates, wire encoding, retune, flush).
+
+    Parameters
+    ----------
+    count : int, number of devices.
+    rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit : as :func:`imu_settings`, shared.
+    threshold, max_len, live_bound_deg, ring : as :class:`SegmenterBank`.
+    """
+
+    def __init__(self, count: int, rate_hz: float, device_rate_hz: float = 50.0, nine_d: bool = False,
+                 threshold=wire.THRESHOLD.default, max_len=wire.MAX_LEN.default,
+                 live_bound_deg=wire.LIVE_BOUND_DEG.default, ring: int = 0, max_gap_s: float | None = None,
+                 acc_limit: float | None = None):
+        super().__init__(count, threshold, max_len, 4, live_bound_deg, ring)
+        self.nine_d = bool(nine_d)
+        self.imu_settings = imu_settings(rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit)
+        self._imus = ctypes.create_string_buffer(IMU_STATE_SIZE * max(count, 1))
+        for k in range(count):
+            self.reset_imu(k)
+        self._t_us = np.zeros(max(count, 1), np.int64)
+        self._no_wire = (None, None, None, None)
+
+    @property
+    def mode(self) -> str:
+        """The fusion every device runs: ``"9D"`` (magnetometer) or ``"6D"``."""
+        return "9D" if self.nine_d else "6D"
+
+    def reset_imu(self, k: int) -> None:
+        """Device k's filter from scratch (identity, zero bias, counters zero); its fastSW stream
+        is :meth:`reset`'s."""
+        _lib.lsw_imu_init(ctypes.addressof(self._imus) + k * IMU_STATE_SIZE, ctypes.byref(self.imu_settings))
+
+    def _raw(self, ticks, gyr, acc, mag) -> tuple[np.ndarray, int]:
+        if mag is None and self.nine_d:
+            raise ValueError("mag is required: this bank fuses 9D")
+        raw = raw_samples(ticks, gyr, acc, mag)
+        if len(raw) > self.count:
+            raise ValueError(f"at most {self.count} devices, got {len(raw)} samples")
+        return raw, len(raw)
+
+    def update_raw(self, ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fuse one raw sample of each of the first n devices (n = len(ticks)).
+
+        Parameters
+        ----------
+        ticks : (n,) uint32, each sample's time, us (each device's own clock).
+        gyr, acc : (n, 3) rad/s and m/s^2; mag : (n, 3) uT (9D banks only).
+
+        Returns
+        -------
+        status : (n,) uint8 view: NONE / POINT / REJECTED (a device-rate sample went to fastSW),
+            :data:`NO_OUTPUT` or :data:`SKIPPED`; valid until the next call.
+        index, y : as :meth:`SegmenterBank.update` where status == POINT.
+        """
+        raw, n = self._raw(ticks, gyr, acc, mag)
+        _lib.lsw_imu_bank_update(self._imus, self._states, n, raw.ctypes.data, self._t_us.ctypes.data, self._status,
+                                 self._points, self._rates_ptr, *self._no_wire)
+        self._n = n
+        view = self._point_view[:n]
+        return self._status[:n], view["index"], view["y"][:, :4]
+
+    def update_raw_wire(self, ticks: np.ndarray, t_us: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+                        mag: np.ndarray | None = None) -> tuple[np.ndarray, bytes, np.ndarray]:
+        """:meth:`update_raw`, every point encoded as :meth:`SegmenterBank.update_wire` does; the C side
+        writes the wire ring (``sample``: each device's device-rate sample number plus ``base``;
+        ``t_us``: the stamp of its raw sample). ``t_us`` (n,) int64: each raw sample's stamp, us
+        since the epoch. Returns slots, payload, ends as :meth:`SegmenterBank.update_wire`."""
+        if self._wire is None:
+            raise ValueError("update_raw_wire needs a bank made with ring >= 1")
+        raw, n = self._raw(ticks, gyr, acc, mag)
+        self._t_us[:n] = t_us
+        k = _lib.lsw_imu_bank_update(self._imus, self._states, n, raw.ctypes.data, self._t_us.ctypes.data,
+                                     self._status, self._points, self._rates_ptr, *self._wire_ptrs)
+        self._n = n
+        end = int(self._ends[k - 1]) if k else 0
+        return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()
+
+    def imu_status(self) -> dict[str, np.ndarray]:
+        """Every device's fusion report: ``bias`` (count, 3) rad/s, ``rest`` (count,) bool,
+        ``outputs`` (count,) device-rate samples made, and one (count,) count per :data:`FAULTS`."""
+        count = self.count
+        bias = np.zeros((count, 3), np.float32)
+        rest = np.zeros(count, np.uint8)
+        faults = np.zeros((count, len(FAULTS)), np.uint32)
+        outputs = np.zeros(count, np.uint32)
+        _lib.lsw_imu_bank_status(self._imus, count, bias.ctypes.data, rest.ctypes.data, faults.ctypes.data,
+                                 outputs.ctypes.data)
+        report = {"bias": bias.astype(np.float64), "rest": rest.astype(bool), "outputs": outputs}
+        report.update({name: faults[:, i] for i, name in enumerate(FAULTS)})
+        return report

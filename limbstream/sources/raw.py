@@ -1,0 +1,147 @@
+"""Raw sensor recordings: angular rate and specific force (and magnetic field) per sensor.
+
+A :class:`RawRecording` is what IMUs measure, before any fusion: the BROAD benchmark's trials
+(:mod:`.broad`), the qmt full-body recording (:mod:`.qmt`) and emulated sensors
+(:func:`limbstream.imu.record`) all give one. :func:`load_raw` reads a file.
+
+Frames: each sensor's readings are in its own frame; ``truth`` is the sensor's orientation in an
+earth frame with Z up (a 9D filter's: East-North-Up for BROAD), the frame a fusion filter's
+estimate is compared in (:mod:`limbstream.evaluation.fusion`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from limbstream.sources import MotionFileError
+from limbstream.wire import SEGMENTS
+
+CHANNELS: dict[str, str] = {
+    "gyr": "angular rate, rad/s",
+    "acc": "specific force, m/s^2",
+    "mag": "magnetic field, uT",
+    "truth": "reference orientation, w x y z",
+}
+"""What each channel holds (error messages name them)."""
+
+
+@dataclass(frozen=True)
+class RawRecording:
+    """Raw readings of S sensors on one time base.
+
+    Attributes
+    ----------
+    t : (n,) float64
+        Sample times, s from the first sample, increasing.
+    gyr : (n, S, 3) float64
+        Angular rate, rad/s, sensor frame.
+    acc : (n, S, 3) float64
+        Specific force, m/s^2, sensor frame (+9.81 on the up axis at rest).
+    sensors : tuple of S str
+        The sensors' names in the file.
+    segments : tuple of S str
+        The body segment each sensor is on (:data:`~limbstream.wire.SEGMENTS`), or the sensor's
+        own name where it is on none of them.
+    mag : (n, S, 3) float64 or None
+        Magnetic field, uT, sensor frame.
+    truth : (n, S, 4) float64 or None
+        Reference orientation of each sensor in the Z-up earth frame, scalar-first; NaN where
+        the reference did not see it.
+    movement : (n,) bool or None
+        The samples an error is scored over (a benchmark's movement phases); None: all.
+    name : str
+        Where it came from.
+    """
+
+    t: np.ndarray
+    gyr: np.ndarray
+    acc: np.ndarray
+    sensors: tuple[str, ...]
+    segments: tuple[str, ...]
+    mag: np.ndarray | None = None
+    truth: np.ndarray | None = None
+    movement: np.ndarray | None = None
+    name: str = ""
+
+    def __post_init__(self):
+        n, s = len(self.t), len(self.sensors)
+        if np.ndim(self.t) != 1 or (n > 1 and not np.all(np.diff(self.t) > 0)):
+            raise ValueError(f"raw recording {self.name!r}: t must be (n,) increasing")
+        if len(self.segments) != s:
+            raise ValueError(f"raw recording {self.name!r}: {len(self.segments)} segments for {s} sensors")
+        for channel, width in (("gyr", 3), ("acc", 3), ("mag", 3), ("truth", 4)):
+            value = getattr(self, channel)
+            if value is not None and np.shape(value) != (n, s, width):
+                raise ValueError(f"raw recording {self.name!r}: {channel} ({CHANNELS[channel]}) must be "
+                                 f"({n}, {s}, {width}), got {np.shape(value)}")
+        if self.movement is not None and np.shape(self.movement) != (n,):
+            raise ValueError(f"raw recording {self.name!r}: movement must be ({n},), got {np.shape(self.movement)}")
+
+    @property
+    def fs(self) -> float:
+        """Mean sample rate, Hz."""
+        return (len(self.t) - 1) / (self.t[-1] - self.t[0]) if len(self.t) > 1 else float("nan")
+
+    def select(self, sensors: list[int] | np.ndarray) -> RawRecording:
+        """The recording of the sensors at indices ``sensors`` only, in that order."""
+        idx = np.asarray(sensors, int)
+
+        def pick(value):
+            return None if value is None else value[:, idx]
+
+        return replace(self, gyr=self.gyr[:, idx], acc=self.acc[:, idx], mag=pick(self.mag), truth=pick(self.truth),
+                       sensors=tuple(self.sensors[i] for i in idx), segments=tuple(self.segments[i] for i in idx))
+
+    def body(self) -> RawRecording:
+        """The sensors on the 10-IMU body, in :data:`~limbstream.wire.SEGMENTS` order (those of the
+        segments it has)."""
+        return self.select([self.segments.index(s) for s in SEGMENTS if s in self.segments])
+
+
+def channel(path: Path, values, name: str, n: int | None = None) -> np.ndarray:
+    """``values`` as an (n, 3) float64 array of channel ``name`` (MotionFileError naming the file,
+    the channel and the problem)."""
+    try:
+        array = np.asarray(values, np.float64)
+    except (TypeError, ValueError):
+        raise MotionFileError(f"{path}: {name} is not numeric") from None
+    width = 4 if name.endswith("quat") else 3
+    if array.ndim != 2 or array.shape[1] != width or (n is not None and len(array) != n):
+        want = f"({n if n is not None else 'n'}, {width})"
+        raise MotionFileError(f"{path}: {name} has shape {array.shape}, expected {want}")
+    return array
+
+
+def load_raw(path: str | Path) -> RawRecording:
+    """A raw recording from a file: a BROAD trial or a qmt-style full-body ``.mat`` (one struct
+    per sensor with ``acc`` and ``gyr``).
+
+    Raises
+    ------
+    MotionFileError naming the file and what is wrong (a missing channel by name).
+    """
+    from limbstream.sources import broad, qmt
+
+    path = Path(path)
+    if not path.is_file():
+        raise MotionFileError(f"{path}: no such file")
+    if path.suffix.lower() != ".mat":
+        raise MotionFileError(f"{path}: not a raw sensor recording (expected a BROAD or qmt-style .mat file)")
+    data = read_mat(path)
+    if any(key.startswith("imu_") or key == "opt_quat" for key in data):
+        return broad.from_mat(path, data)
+    return qmt.from_mat(path, data)
+
+
+def read_mat(path: Path) -> dict:
+    """The variables of a MATLAB file (structs as objects), or MotionFileError."""
+    from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError
+
+    try:
+        data = loadmat(path, squeeze_me=True, struct_as_record=False)
+    except (MatReadError, OSError, ValueError, NotImplementedError, TypeError, IndexError, KeyError) as exc:
+        raise MotionFileError(f"{path}: not a readable MATLAB file ({exc})") from exc
+    return {k: v for k, v in data.items() if not k.startswith("__")}
