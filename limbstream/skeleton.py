@@ -100,28 +100,15 @@ class Skeleton:
         return out.astype(dtype)
 
 
-PARENT: dict[str, str] = {
-    "l_thigh": "hip", "r_thigh": "hip", "l_shank": "l_thigh", "r_shank": "r_thigh",
-    "l_foot": "l_shank", "r_foot": "r_shank", "l_upperarm": "hip", "r_upperarm": "hip",
-    "l_lowerarm": "l_upperarm", "r_lowerarm": "r_upperarm", "neck": "hip",
-}
-"""Each segment's parent in the body's tree, whose root is the hip (pelvis); the spine has no
-sensor and follows the hip, so the upper arms and the neck hang from it. Feet (``l_foot``,
-``r_foot``) are not in the 10-sensor layout but recordings may carry them."""
-
-
 def bone_axis(segment: str, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:
     """(3,) the unit direction of ``segment``'s bone in its own frame, from its proximal joint
-    on: down (-Y) for legs and, standing, arms; along +-X for the arms of the T-pose; up (+Y)
-    for the hip (the spine) and the neck; forward (+Z) for a foot."""
+    on (as :meth:`Skeleton.positions` draws it): down (-Y) for legs and, standing, arms; along
+    +-X for the arms of the T-pose; up (+Y) for the hip (the spine) and the neck."""
     wire.check_rest_pose(rest_pose)
-    side = 1.0 if segment.startswith("l_") else -1.0
+    if segment not in SEGMENTS:
+        raise ValueError(f"unknown segment {segment!r}")
     if segment in ("hip", "neck"):
         return np.array([0.0, 1.0, 0.0])
-    if segment.endswith("_foot"):
-        return np.array([0.0, 0.0, 1.0])
     if segment.endswith("arm") and rest_pose == "tpose":
-        return np.array([side, 0.0, 0.0])
-    if segment in PARENT:
-        return np.array([0.0, -1.0, 0.0])
-    raise ValueError(f"unknown segment {segment!r}")
+        return np.array([1.0 if segment.startswith("l_") else -1.0, 0.0, 0.0])
+    return np.array([0.0, -1.0, 0.0])

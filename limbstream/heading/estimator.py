@@ -23,7 +23,7 @@ from limbstream import quat
 from limbstream.calibration import axis_angle, yaw
 from limbstream.heading import hinge, rom
 from limbstream.heading.filter import ABSOLUTE, GATE as filter_gate, MEAN_REFERENCED, JointFilters, wrap
-from limbstream.heading.joints import Layout, relative, twist, vertical_in
+from limbstream.heading.joints import Layout, kind, relative, twist, vertical_in
 from limbstream.heading.still import Stillness, leaning_alike
 
 
@@ -49,7 +49,7 @@ class Settings:
     axis_min_amount: float = 3.0
     axis_min_share: float = 0.8
     twist_deg: tuple[tuple[str, float, float], ...] = (("hip", 10.0, 10.0), ("shoulder", 30.0, 30.0),
-                                                       ("neck", 10.0, 15.0), ("ankle", 10.0, 10.0))
+                                                       ("neck", 10.0, 15.0))
     twist_corr_s: float = 2.0
     twist_gate: float = 4.0
     rom_sd_deg: float = 3.0
@@ -80,7 +80,7 @@ class HeadingCorrection:
         n_joints = len(layout.joints)
         rad = np.radians
         twist = {kind: (mean, spread) for kind, mean, spread in settings.twist_deg}
-        kinds = [name.split("_")[-1] for name in layout.joints]
+        kinds = [kind(name) for name in layout.joints]
         sd0 = np.array([[settings.delta0_deg, settings.rate0_dps,
                          settings.hinge_mean0_deg if is_hinge else twist[kind][0]]
                         for kind, is_hinge in zip(kinds, layout.hinge)]).reshape(-1, 3)
@@ -96,9 +96,8 @@ class HeadingCorrection:
                                     for j in self.hinges]).reshape(-1, 2)) ** 2
         self.twist_var = rad(np.array([twist[kinds[j]][1] for j in self.balls])) ** 2
         self.box = rom.limits([layout.joints[j] for j in self.balls])
-        self.to_standing = np.array([rom.TO_STANDING[1.0 if layout.segments[layout.child[j]].startswith("l_") else -1.0]
-                                     if layout.rest_pose == "tpose" and layout.segments[layout.child[j]].endswith("arm")
-                                     else [1.0, 0.0, 0.0, 0.0] for j in self.balls]).reshape(-1, 4)
+        before, after = layout.to_standing()
+        self.to_standing = before[self.balls], after[self.balls]
         self.ranges = rom.RangeCounts((subjects, len(self.balls)), settings.rom_memory_s, settings.rom_min_share)
         self.still = Stillness((subjects, len(layout.segments)), settings.still_dps)
         self.last: np.ndarray | None = None
@@ -199,7 +198,8 @@ class HeadingCorrection:
         g = b.g_parent[-1][..., j, :]
         now = b.applied[-1][..., j]
         corrected = quat.multiply(axis_angle(g, now), b.r[-1][..., j, :])
-        out = rom.out_of_range(quat.multiply(corrected, self.to_standing), g, self.box)
+        before, after = self.to_standing
+        out = rom.out_of_range(quat.multiply(quat.multiply(before, corrected), after), quat.rotate(before, g), self.box)
         self.ranges.add(out, b.joined[-1][..., j], len(b.r) / self.fs)
         turn, asked = self.ranges.asked()
         information = asked * b.joined[-1][..., j] / np.radians(self.settings.rom_sd_deg) ** 2

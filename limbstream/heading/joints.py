@@ -1,6 +1,7 @@
 """The joints between a subject's segments, their relative orientations and the joint angle error.
 
-A joint joins a parent segment to a child (the body's tree, :data:`limbstream.skeleton.PARENT`).
+A joint joins a parent segment to a child (:data:`limbstream.joints.JOINT_TABLE`: the hip is the
+root, and the shoulders and the neck hang from it as the spine has no sensor).
 Its relative orientation is ``R = q_parent^-1 * q_child`` (child frame -> parent frame): it is
 what a joint angle is made of, and it does not depend on which way the whole body faces. A
 heading error ``e`` of the child relative to its parent (a turn about the world's vertical)
@@ -14,30 +15,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from limbstream import quat, skeleton, wire
+from limbstream.joints.convention import JOINT_TABLE, Joint
 
 UP = np.array([0.0, 1.0, 0.0])
 """The world's vertical (the skeleton's Y)."""
 
 HINGE, BALL = "hinge", "3-DoF"
 """Joint classes: a hinge (knee, elbow: one axis fixed in both segments) and a ball joint (hip,
-shoulder, neck, ankle: bounded by its range of motion only)."""
+shoulder, neck: bounded by its range of motion only)."""
 
-JOINT_KINDS: dict[str, tuple[str, str, str]] = {
-    "l_knee": ("l_thigh", "l_shank", HINGE), "r_knee": ("r_thigh", "r_shank", HINGE),
-    "l_elbow": ("l_upperarm", "l_lowerarm", HINGE), "r_elbow": ("r_upperarm", "r_lowerarm", HINGE),
-    "l_hip": ("hip", "l_thigh", BALL), "r_hip": ("hip", "r_thigh", BALL),
-    "l_shoulder": ("hip", "l_upperarm", BALL), "r_shoulder": ("hip", "r_upperarm", BALL),
-    "neck": ("hip", "neck", BALL),
-    "l_ankle": ("l_shank", "l_foot", BALL), "r_ankle": ("r_shank", "r_foot", BALL),
-}
-"""Every joint the estimator knows: name -> (parent segment, child segment, class). The
-shoulders and the neck hang from the hip, as the spine has no sensor (they take up its twist)."""
+
+def is_hinge(joint: Joint) -> bool:
+    """A joint of :data:`limbstream.joints.JOINT_TABLE` is a hinge if it reports one angle."""
+    return joint.angles[1] is None and joint.angles[2] is None
+
+
+def kind(name: str) -> str:
+    """A joint's kind, its name without the side: ``hip``, ``knee``, ``shoulder``, ``elbow``,
+    ``neck``."""
+    return name.split("_")[0]
 
 
 @dataclass(frozen=True)
 class Layout:
     """The joints among ``segments`` (those whose parent and child are both there), in
-    :data:`JOINT_KINDS` order, and the arrays that index them.
+    :data:`limbstream.joints.JOINT_TABLE` order, and the arrays that index them.
 
     Attributes
     ----------
@@ -60,12 +62,20 @@ class Layout:
         """The layout of ``segments`` (names; unknown ones take part in no joint)."""
         segments = tuple(segments)
         index = {name: i for i, name in enumerate(segments)}
-        names = tuple(j for j, (p, c, _) in JOINT_KINDS.items() if p in index and c in index)
-        return Layout(segments, names,
-                      np.array([index[JOINT_KINDS[j][0]] for j in names], int),
-                      np.array([index[JOINT_KINDS[j][1]] for j in names], int),
-                      np.array([JOINT_KINDS[j][2] == HINGE for j in names], bool),
+        joints = [j for j in JOINT_TABLE if j.parent in index and j.child in index]
+        return Layout(segments, tuple(j.name for j in joints),
+                      np.array([index[j.parent] for j in joints], int),
+                      np.array([index[j.child] for j in joints], int),
+                      np.array([is_hinge(j) for j in joints], bool),
                       wire.check_rest_pose(rest_pose))
+
+    def to_standing(self) -> tuple[np.ndarray, np.ndarray]:
+        """(J, 4) twice: ``a``, ``b`` such that ``a * R * b`` is a relative orientation ``R``
+        referred to the standing rest pose (T-pose arms lowered; identities for standing data)."""
+        offsets = quat.conjugate(skeleton.rest_offsets("standing")) if self.rest_pose == "tpose" else \
+            np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))
+        per_segment = np.array([offsets[wire.SEGMENTS.index(s)] for s in self.segments]).reshape(-1, 4)
+        return quat.conjugate(per_segment[self.parent]), per_segment[self.child]
 
     def bone_axes(self) -> np.ndarray:
         """(J, 3) each joint's child bone direction in the child's frame."""

@@ -29,7 +29,6 @@ MARGIN_DEG = 10.0
 LIMITS_DEG: dict[str, tuple[tuple[float, float], tuple[float, float], tuple[float, float]]] = {
     "hip": ((-140.0, 40.0), (-50.0, 60.0), (-60.0, 60.0)),
     "neck": ((-70.0, 90.0), (-60.0, 60.0), (-110.0, 110.0)),
-    "ankle": ((-40.0, 60.0), (-40.0, 40.0), (-45.0, 45.0)),
 }
 """Joint kind -> (X, Z, Y) angle limits, degrees, left side (X: turning the bone backwards is
 positive, so flexion is negative for a leg and positive for the neck). Wide: a rest pose is not
@@ -41,23 +40,18 @@ TRIALS_DEG = np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 5.0, -5.0, 7.0, -7.
                        20.0, -20.0, 28.0, -28.0, 40.0, -40.0, 56.0, -56.0, 80.0, -80.0, 110.0, -110.0])
 """Offsets tried, nearest first, degrees."""
 
-TO_STANDING = {1.0: axis_angle(np.array([0.0, 0.0, 1.0]), np.pi / 2),
-               -1.0: axis_angle(np.array([0.0, 0.0, 1.0]), -np.pi / 2)}
-"""A T-pose arm's frame -> its standing frame, by side (left +1)."""
-
-
 def limits(joints: list[str]) -> np.ndarray:
     """(J, 3, 2) radians: each joint's range (mirrored for the right side; +-pi where it has
     none)."""
     out = []
     for name in joints:
-        kind = name.split("_")[-1]
+        kind = name.split("_")[0]
         if kind not in LIMITS_DEG:
             out.append(np.tile([-np.pi, np.pi], (3, 1)))
             continue
         box = np.radians(np.array(LIMITS_DEG[kind]))
         box = box + np.radians(MARGIN_DEG) * np.array([-1.0, 1.0])
-        if name.startswith("r_"):
+        if name.endswith("_r"):
             box[1:] = -box[1:, ::-1]
         out.append(box)
     return np.array(out).reshape(-1, 3, 2)

@@ -3,7 +3,7 @@
 At each seam the next clip is first turned about the vertical so that its hip faces where the
 previous one's did (which way a body faces is arbitrary), then the last ``blend_s`` of the one and
 the first ``blend_s`` of the other are cross-faded in joint space: the hip's orientation and every
-joint's relative orientation (parent -> child, :data:`limbstream.skeleton.PARENT`) are SLERPed
+joint's relative orientation (parent -> child, :data:`limbstream.joints.JOINT_TABLE`) are SLERPed
 with the smoothstep weight ``3u^2 - 2u^3``. The weight and its rate are 0 at the start of the fade
 and 1 and 0 at its end, so the orientation and its angular rate are continuous across the seam:
 a filter sees no spike, and no still pose appears that the clips do not hold. A hinge stays a
@@ -15,9 +15,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from limbstream import quat, skeleton
+from limbstream import quat
 from limbstream.calibration import yaw, yaw_of
+from limbstream.joints.convention import JOINT_TABLE
 from limbstream.sources import Motion
+
+PARENT = {joint.child: joint.parent for joint in JOINT_TABLE}
+"""Each segment's parent in the body's tree (the hip is the root)."""
 
 
 def looped(motions: Sequence[Motion], seconds: float, blend_s: float = 1.0) -> Motion:
@@ -70,7 +74,7 @@ def looped(motions: Sequence[Motion], seconds: float, blend_s: float = 1.0) -> M
 def _depth_order(segments: tuple[str, ...]) -> list[int]:
     """Indices of ``segments``, parents (present ones) before their children."""
     def depth(name: str) -> int:
-        parent = skeleton.PARENT.get(name)
+        parent = PARENT.get(name)
         return 0 if parent not in segments else 1 + depth(parent)
     return sorted(range(len(segments)), key=lambda i: depth(segments[i]))
 
@@ -81,7 +85,7 @@ def _blend(a: np.ndarray, b: np.ndarray, weight: np.ndarray, segments: tuple[str
     (n,) going 0 -> 1."""
     out = np.empty_like(a)
     for i in order:
-        parent = skeleton.PARENT.get(segments[i])
+        parent = PARENT.get(segments[i])
         if parent in segments:
             p = segments.index(parent)
             local_a = quat.multiply(quat.conjugate(a[:, p]), a[:, i])
