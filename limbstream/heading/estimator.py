@@ -36,11 +36,12 @@ class Settings:
 
     update_s: float = 0.2
     delta0_deg: float = 1.0
-    rate0_dps: float = 0.1
+    rate0_dps: float = 0.05
+    hinge_rate0_dps: float = 0.1
     hinge_mean0_deg: float = 3.0
     hinge_bias: bool = True
     delta_walk: float = 0.02
-    rate_walk: float = 5e-4
+    rate_walk: float = 1e-3
     mean_walk: float = 0.05
     knee_spread_deg: tuple[float, float] = (10.0, 3.0)
     elbow_spread_deg: tuple[float, float] = (30.0, 5.0)
@@ -81,9 +82,9 @@ class HeadingCorrection:
         rad = np.radians
         twist = {kind: (mean, spread) for kind, mean, spread in settings.twist_deg}
         kinds = [kind(name) for name in layout.joints]
-        sd0 = np.array([[settings.delta0_deg, settings.rate0_dps,
-                         settings.hinge_mean0_deg if is_hinge else twist[kind][0]]
-                        for kind, is_hinge in zip(kinds, layout.hinge)]).reshape(-1, 3)
+        sd0 = np.array([[settings.delta0_deg, settings.hinge_rate0_dps, settings.hinge_mean0_deg] if hinged else
+                        [settings.delta0_deg, settings.rate0_dps, twist[name][0]]
+                        for name, hinged in zip(kinds, layout.hinge)]).reshape(-1, 3)
         self.filters = JointFilters((subjects, n_joints), rad(sd0),
                                     rad([settings.delta_walk, settings.rate_walk, settings.mean_walk]))
         self.hinges = np.flatnonzero(layout.hinge)
