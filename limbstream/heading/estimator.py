@@ -59,9 +59,17 @@ class Settings:
     still_dps: float = 2.0
     still_s: float = 1.0
     relaxed_sd_deg: float = 1.0
-    relaxed_lean_deg: float = 15.0
+    relaxed_pose_deg: float = 2.0
+    relaxed_lean_deg: float = 5.0
     relaxed_gate_deg: float = 25.0
-    confidence_deg: float = 3.0
+    confidence_deg: float = 5.0
+
+    def __post_init__(self):
+        for name in ("update_s", "delta0_deg", "rate0_dps", "hinge_rate0_dps", "hinge_mean0_deg", "hinge_corr_s",
+                     "axis_memory_s", "twist_corr_s", "twist_gate", "rom_sd_deg", "rom_memory_s", "still_s",
+                     "relaxed_sd_deg", "relaxed_pose_deg", "confidence_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"Settings.{name} must be > 0, got {getattr(self, name)}")
 
 
 class HeadingCorrection:
@@ -106,8 +114,12 @@ class HeadingCorrection:
         self.locked = np.zeros((subjects, n_joints), bool)
         self.lock_ref = np.zeros((subjects, n_joints))
         self.lock_p = np.zeros((subjects, n_joints, 3, 3))
+        self.was_still = np.zeros((subjects, n_joints), bool)
+        self.relaxed_left = np.zeros((subjects, n_joints))
         self.order = sorted(range(n_joints), key=lambda j: self._depth(layout.segments[layout.child[j]]))
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []
+        self.dropped = 0
+        """Orientations given as present that were not finite unit quaternions (taken as absent)."""
 
     def _depth(self, segment: str) -> int:
         index = {self.layout.segments[c]: j for j, c in enumerate(self.layout.child)}
@@ -120,7 +132,16 @@ class HeadingCorrection:
         (subjects, segments) bool (default all). Returns (subjects, segments) the corrections
         (rad) to apply to this tick's ``q``."""
         q = np.asarray(q, np.float64)
-        present = np.ones(q.shape[:2], bool) if present is None else np.asarray(present, bool)
+        shape = self.had.shape
+        if q.shape != shape + (4,):
+            raise ValueError(f"q must have shape {shape + (4,)} (subjects, segments, 4), got {q.shape}")
+        present = np.ones(shape, bool) if present is None else np.asarray(present, bool)
+        if present.shape != shape:
+            raise ValueError(f"present must have shape {shape}, got {present.shape}")
+        unit = np.all(np.isfinite(q), axis=-1) & (np.abs(np.sum(q * q, axis=-1) - 1.0) < 1e-2)
+        self.dropped += int(np.sum(present & ~unit))
+        present = present & unit
+        q = np.where(present[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
         self._pending.append((q, present))
         out = self.corrections(len(self._pending), present)
         if len(self._pending) == self.block:
@@ -136,6 +157,7 @@ class HeadingCorrection:
         mask[subject] = (self.layout.parent == segment) | (self.layout.child == segment)
         self.filters.forget(mask)
         self.locked &= ~mask
+        self.was_still &= ~mask
         seg = np.zeros(self.still.still_s.shape, bool)
         seg[subject, segment] = True
         self.still.forget(seg)
@@ -227,13 +249,18 @@ class HeadingCorrection:
         gate = np.maximum(np.radians(s.relaxed_gate_deg), filter_gate * self.filters.delta_sd())
         near = np.all(np.abs(wrap(-b.turn - b.applied)) < gate, axis=0)
         alike = np.all(leaning_alike(b.g_parent, b.g_child, s.relaxed_lean_deg), axis=0)
-        relaxed = whole[:, None] & joint_still & near & alike
+        episode = joint_still & ~self.was_still  # a still spell begins: the relaxed pose counts once in it
+        self.relaxed_left = np.where(episode, 1.0 / np.radians(s.relaxed_pose_deg) ** 2, self.relaxed_left)
+        self.was_still = joint_still
+        relaxed = whole[:, None] & joint_still & near & alike & (self.relaxed_left > 0)
+        spent = np.where(relaxed, np.minimum(self.relaxed_left, len(b.r) * dt / np.radians(s.relaxed_sd_deg) ** 2), 0.0)
+        self.relaxed_left = self.relaxed_left - spent
         locking = joint_still & ~relaxed
         onset = locking & ~self.locked
         self.lock_ref = np.where(onset, b.turn[0] + b.applied[0], self.lock_ref)
         self.lock_p = np.where(onset[..., None, None], self.filters.p, self.lock_p)
         self.locked = locking
-        _add(b.absolute, (Ellipsis,), -b.turn, relaxed * dt / np.radians(s.relaxed_sd_deg) ** 2)
+        _add(b.absolute, (Ellipsis,), -b.turn, np.broadcast_to(spent / len(b.r), b.turn.shape))
 
     # -- state ----------------------------------------------------------------------------------
 

@@ -56,8 +56,8 @@ def measure(r: np.ndarray, g: np.ndarray, axis: np.ndarray, bone: np.ndarray,
     return measured, information
 
 
-OFFSETS = np.radians([-6.0, -3.0, -1.5, 0.0, 1.5, 3.0, 6.0])
-"""Heading offsets (rad) at which :class:`HingeAxes` tries the accumulated orientations."""
+OFFSETS = np.radians(np.arange(-6.0, 6.1, 1.5))
+"""Heading offsets (rad, evenly spaced) at which :class:`HingeAxes` tries the accumulated orientations."""
 
 
 def _outer_sum(a: np.ndarray, b: np.ndarray) -> np.ndarray:

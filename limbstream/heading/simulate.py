@@ -8,9 +8,10 @@ that lies along the vertical. :class:`DriftModel` draws, per sensor:
   leaves: VQF 6D drifts a median 1.7 deg/min on BROAD, i.e. 0.03 deg/s);
 - its wander, a random walk of ``walk`` deg/s per sqrt(s) (a MEMS gyro's bias instability and
   temperature);
-- an inclination error: a small turn about a horizontal axis, each component an
-  Ornstein-Uhlenbeck process of RMS ``tilt_deg`` and correlation time ``tilt_tau_s`` (the
-  accelerometer's view of the limb's own acceleration).
+- an inclination error: a small turn about a horizontal axis, each component of RMS ``tilt_deg``
+  and correlation time ``tilt_tau_s``, smooth as a filter's output is (white noise through two
+  first-order low-passes: the accelerometer's view of the limb's own acceleration, smoothed by
+  the filter).
 
 A sensor then reports ``yaw(h(t)) * tilt(t) * q`` for its segment's orientation ``q``, with
 ``h(t) = integral of b``: before the strap's mounting and the filter's arbitrary initial heading,
@@ -78,7 +79,9 @@ class DriftModel:
         a = np.exp(-dt / self.tilt_tau_s)
         noise = np.radians(self.tilt_deg) * np.sqrt(1 - a * a) * rng.normal(size=(len(t), n, 2))
         noise[0] /= np.sqrt(1 - a * a)  # start in the stationary distribution
-        xz = lfilter([1.0], [1.0, -a], noise, axis=0)
+        once = lfilter([1.0], [1.0, -a], noise, axis=0)
+        xz = lfilter([1.0 - a], [1.0, -a], once, axis=0, zi=a * once[:1])[0]
+        xz *= (1.0 + a) / np.sqrt(1.0 + a * a)  # the second pass's loss of variance
         tilt_vec = np.stack([xz[..., 0], np.zeros_like(xz[..., 0]), xz[..., 1]], axis=-1)
         angle = np.linalg.norm(tilt_vec, axis=-1)
         axis = tilt_vec / np.where(angle > 0, angle, 1.0)[..., None]
