@@ -31,15 +31,32 @@ from limbstream.heading.still import Stillness, leaning_alike
 class Settings:
     """The estimator's tunables (angles in degrees, rates in deg/s, times in s).
 
-    An ``*_sd_deg`` of a measurement is its standard deviation when held for one second (the
-    samples of a second are not independent: their information is spread over them)."""
+    - ``update_s``: a filter step per this much of ticks.
+    - Filters (:mod:`.filter`): the start's standard deviations of a joint's offset
+      (``delta0_deg``: the calibration's), rate (``rate0_dps`` for ball joints,
+      ``hinge_rate0_dps`` for hinges) and a hinge's bias (``hinge_mean0_deg``; a ball joint's
+      mean twist: ``twist_deg``); their random walks per sqrt(s) (``delta_walk``, ``rate_walk``
+      in deg/s, ``mean_walk``).
+    - Hinges (:mod:`.hinge`): the spread of a knee's and an elbow's turns about the bone and
+      across it (``knee_spread_deg``, ``elbow_spread_deg``), the time over which the hinge measure's
+      errors are alike (``hinge_corr_s``), the axis learner's memory and trust thresholds
+      (``axis_*``).
+    - Ball joints: per kind, the prior of the mean twist and the twist's spread about it
+      (``twist_deg``: (kind, mean sd, spread)), the time over which it stays alike
+      (``twist_corr_s``), the gate in standard deviations beyond which a twist is left out
+      (``twist_gate``); the range of motion's (:mod:`.rom`) measure, memory and share out of range
+      that asks for a turn (``rom_*``).
+    - Stillness (:mod:`.still`): below ``still_dps`` for ``still_s``; the relaxed pose measured at
+      ``relaxed_sd_deg`` per second held, up to ``relaxed_pose_deg`` per still spell, within
+      ``relaxed_lean_deg`` of the rest pose's lean and ``relaxed_gate_deg`` of the expected twist.
+    - ``confidence_deg``: the offset's standard deviation at which a device's confidence is 1/2.
+    """
 
     update_s: float = 0.2
     delta0_deg: float = 1.0
     rate0_dps: float = 0.05
     hinge_rate0_dps: float = 0.1
     hinge_mean0_deg: float = 3.0
-    hinge_bias: bool = True
     delta_walk: float = 0.02
     rate_walk: float = 1e-3
     mean_walk: float = 0.05
@@ -88,10 +105,10 @@ class HeadingCorrection:
         self.block = max(1, round(settings.update_s * fs))
         n_joints = len(layout.joints)
         rad = np.radians
-        twist = {kind: (mean, spread) for kind, mean, spread in settings.twist_deg}
+        twists = {name: (mean, spread) for name, mean, spread in settings.twist_deg}
         kinds = [kind(name) for name in layout.joints]
         sd0 = np.array([[settings.delta0_deg, settings.hinge_rate0_dps, settings.hinge_mean0_deg] if hinged else
-                        [settings.delta0_deg, settings.rate0_dps, twist[name][0]]
+                        [settings.delta0_deg, settings.rate0_dps, twists[name][0]]
                         for name, hinged in zip(kinds, layout.hinge)]).reshape(-1, 3)
         self.filters = JointFilters((subjects, n_joints), rad(sd0),
                                     rad([settings.delta_walk, settings.rate_walk, settings.mean_walk]))
@@ -103,7 +120,7 @@ class HeadingCorrection:
         self.bones = bones[self.hinges]
         self.spread = rad(np.array([settings.knee_spread_deg if "knee" in layout.joints[j] else settings.elbow_spread_deg
                                     for j in self.hinges]).reshape(-1, 2)) ** 2
-        self.twist_var = rad(np.array([twist[kinds[j]][1] for j in self.balls])) ** 2
+        self.twist_var = rad(np.array([twists[kinds[j]][1] for j in self.balls])) ** 2
         self.box = rom.limits([layout.joints[j] for j in self.balls])
         before, after = layout.to_standing()
         self.to_standing = before[self.balls], after[self.balls]
@@ -122,6 +139,7 @@ class HeadingCorrection:
         """Orientations given as present that were not finite unit quaternions (taken as absent)."""
 
     def _depth(self, segment: str) -> int:
+        """How many joints lie between ``segment`` and the root of its tree."""
         index = {self.layout.segments[c]: j for j, c in enumerate(self.layout.child)}
         return 0 if segment not in index else 1 + self._depth(self.layout.segments[self.layout.parent[index[segment]]])
 
@@ -200,7 +218,7 @@ class HeadingCorrection:
         h, dt = self.hinges, 1.0 / self.fs
         y, info = hinge.measure(b.r[..., h, :], b.g_parent[..., h, :], self.axes.axis, self.bones, self.spread)
         info *= dt / self.settings.hinge_corr_s * self.axes.ready * b.joined[..., h]
-        _add(b.referenced if self.settings.hinge_bias else b.absolute, (Ellipsis, h), y, info)
+        _add(b.referenced, (Ellipsis, h), y, info)
 
     def _twists(self, b: _Block) -> None:
         """The twist every ball joint shows about the vertical, against its mean; samples further
