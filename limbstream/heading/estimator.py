@@ -58,7 +58,7 @@ class Settings:
     hinge_rate0_dps: float = 0.1
     hinge_mean0_deg: float = 3.0
     delta_walk: float = 0.02
-    rate_walk: float = 1e-3
+    rate_walk: float = 5e-3
     mean_walk: float = 0.05
     knee_spread_deg: tuple[float, float] = (10.0, 3.0)
     elbow_spread_deg: tuple[float, float] = (30.0, 5.0)
@@ -68,7 +68,7 @@ class Settings:
     axis_min_share: float = 0.8
     twist_deg: tuple[tuple[str, float, float], ...] = (("hip", 10.0, 10.0), ("shoulder", 30.0, 30.0),
                                                        ("neck", 10.0, 15.0))
-    twist_corr_s: float = 2.0
+    twist_corr_s: float = 1.0
     twist_gate: float = 4.0
     rom_sd_deg: float = 3.0
     rom_memory_s: float = 10.0
