@@ -5,6 +5,7 @@ relative headings of adjacent segments (docs/evaluation.md, "Heading without res
 
 - :mod:`.joints`: the joints of a subject's segments, relative orientations, the joint angle error;
 - :mod:`.hinge`: knees and elbows, one axis fixed in both segments;
+- :mod:`.rom`: the hips' and the neck's range of motion;
 - :mod:`.still`: a still joint keeps its heading; a still subject in the rest pose is a known pose;
 - :mod:`.filter`: one Kalman filter per joint (offset, rate, mean twist);
 - :mod:`.estimator`: :class:`HeadingCorrection`, per tick over (subjects, segments) arrays, and
