@@ -1,16 +1,17 @@
 """Joint angles of a real recording, as `limbstream export -o X.mot` writes them (docs/evaluation.md,
 "Joint angles"): the knees' and hips' ranges, and optionally a plot of their flexion.
 
-The recording starts standing still: each sensor is calibrated from the first second (rest pose),
-the subject's facing is found from the knees' motion (limbstream.joints.functional), and the
-angles are the Rajagopal model's coordinates (degrees), time 0 at the first common sample.
+The recording starts standing still: loading it calibrates each sensor from the first second
+(rest pose; limbstream.sources.imu_files.to_body), the export finds the subject's facing from the
+knees' motion (limbstream.joints.functional), and the angles are the Rajagopal model's
+coordinates (degrees), time 0 at the first common sample.
 
     python bench/joint_angles.py ../shared/data/xsens_opensense --names opensense --plot docs/joint_angles_xsens_walk.png
     python bench/joint_angles.py ../shared/data/xio_lower_body
     python bench/joint_angles.py --speed   # the cost of the angles of 200 subjects per frame
 
-``--names opensense``: the Xsens MTw files name their sensors by serial number only; the mapping
-is OpenSim's own example code's (bench/knee_angles.py).
+``--names``: the Xsens MTw files name their sensors by serial number only; they are mapped as
+every command maps them (limbstream.sources.names; ``opensense``: OpenSim's own example code's).
 """
 from __future__ import annotations
 
@@ -23,23 +24,20 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
-
-from knee_angles import NAMES  # noqa: E402
 
 from limbstream import joints  # noqa: E402
+from limbstream.cli.values import add_names_argument  # noqa: E402
 from limbstream.services.outputs.export import from_motion, take_angles  # noqa: E402
 from limbstream.sources import load  # noqa: E402
-from limbstream.sources.imu_files import load_xsens_folder  # noqa: E402
 
 SHOWN = ("knee_angle_l", "knee_angle_r", "hip_flexion_l", "hip_flexion_r", "hip_adduction_l", "hip_adduction_r",
          "hip_rotation_l", "hip_rotation_r")
 
 
 def table(path: str, names: dict[str, str] | None) -> tuple[str, np.ndarray, np.ndarray]:
-    """(markdown table, (F,) seconds, (F, A) angles) of one recording."""
-    motions = [load_xsens_folder(path, names)] if names else load(path)
-    take = from_motion(motions, None, Path(path), None)
+    """(markdown table, (F,) seconds, (F, A) angles) of one recording (``names``: its sensors'
+    segments, limbstream.sources.names)."""
+    take = from_motion(load(path, names), None, Path(path), None)
     angles, _ = take_angles(take)
     t = (take.t_us - take.t_us[0]) / 1e6
     lines = [f"{take.name}: {len(t)} frames at {1e6 / take.period_us:g} Hz ({t[-1]:.1f} s); calibration: {take.basis}",
@@ -105,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("path", nargs="?", help="a recording of real sensors that starts standing still (x-IMU3, "
                                                 "Xsens folder)")
     parser.add_argument("--speed", action="store_true", help="time the angles of 200 subjects instead")
-    parser.add_argument("--names", choices=sorted(NAMES), help="segment names of an Xsens folder's sensors")
+    add_names_argument(parser)
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw knee and hip flexion into this PNG")
     args = parser.parse_args(argv)
     if args.speed:
@@ -113,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.path is None:
         parser.error("give a recording (or --speed)")
-    text, t, angles = table(args.path, NAMES.get(args.names) if args.names else None)
+    text, t, angles = table(args.path, args.names)
     print(text)
     if args.plot is not None:
         plot(t, angles, args.plot, f"{Path(args.path).name}: knee and hip flexion (Rajagopal conventions)")

@@ -1,8 +1,9 @@
 """Knee angles of a real recording after calibration, for plausibility (docs/evaluation.md,
 "Calibration").
 
-Each sensor is calibrated from the recording's first still second, where the subject stands in
-the rest pose (the full reset: segment = reading * S0^-1, the still mean S0). The knee's
+Loading the recording turns its world Y up and calibrates each sensor from its first still second,
+where the subject stands in the rest pose (the full reset: segment = reading * S0^-1, the still
+mean S0; limbstream.sources.imu_files.to_body). The knee's
 rotation (thigh -> shank) is then taken as a rotation vector; without a magnetometer-free body
 frame (which way the subject faces is unknown in the recording's world frame), the flexion axis
 is found from the motion itself, as functional calibrations do: the principal axis of those
@@ -11,12 +12,11 @@ forward. Flexion is the rotation about that axis, ab/adduction about the horizon
 perpendicular to it (the subject's forward), both in degrees; printed as the 2nd / 50th / 98th
 percentiles and the range.
 
-    python bench/knee_angles.py ../shared/data/xio_lower_body --up z
-    python bench/knee_angles.py ../shared/data/xsens_opensense --up z --names opensense
+    python bench/knee_angles.py ../shared/data/xio_lower_body
+    python bench/knee_angles.py ../shared/data/xsens_opensense --names opensense
 
-The Xsens MTw files name their sensors by serial number only; ``--names opensense`` maps those of
-OpenSim's OpenSense example (the assignment of OpenSim's own example and test code: 00B4227C right
-femur, 00B4227D right tibia, 00B421EE left femur, 00B421ED left tibia, 00B42279 pelvis).
+The Xsens MTw files name their sensors by serial number only; ``--names`` maps them as every
+command's does (limbstream.sources.names; ``opensense``: OpenSim's OpenSense example).
 """
 from __future__ import annotations
 
@@ -31,14 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from limbstream import calibration, quat  # noqa: E402
-from limbstream.sources import load  # noqa: E402
-from limbstream.sources.imu_files import load_xsens_folder  # noqa: E402
-
-NAMES = {"opensense": {"00B4227C": "r_thigh", "00B4227D": "r_shank", "00B421EE": "l_thigh",
-                       "00B421ED": "l_shank", "00B42279": "hip"}}
-"""Sensor file stem -> segment, per recording whose files carry no segment names."""
-
-UP = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
+from limbstream.sources import load, names as sensor_names  # noqa: E402
 
 
 def knee_angles(thigh: np.ndarray, shank: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -56,20 +49,20 @@ def knee_angles(thigh: np.ndarray, shank: np.ndarray, up: np.ndarray) -> tuple[n
     return flexion, v @ forward, tilt
 
 
-def knee_table(path: str, up: np.ndarray, still_s: float = 1.0, names: dict[str, str] | None = None) -> str:
-    """The table of one recording's knees (markdown); ``names``: an Xsens folder's stem -> segment."""
-    (motion,) = [load_xsens_folder(path, names)] if names else load(path)
+def knee_table(path: str, names: dict[str, str] | None = None) -> str:
+    """The table of one recording's knees (markdown); ``names``: its sensors' segments."""
+    (motion,) = load(path, names)
     fs = 1.0 / float(np.median(np.diff(motion.t)))
-    still = slice(0, round(still_s * fs))
-    cal = {s: calibration.calibrate(motion.q[:, k], still, None, None, s) for k, s in enumerate(motion.segments)}
-    seg = {s: cal[s].apply(motion.q[still.stop:, k]) for k, s in enumerate(motion.segments)}
-    lines = [f"{motion.name}: {len(motion.t)} samples at {fs:.1f} Hz, calibrated from the first {still_s:g} s",
+    still = slice(0, round(calibration.START_STILL_S * fs))
+    seg = {s: motion.q[still.stop:, k] for k, s in enumerate(motion.segments)}
+    lines = [f"{motion.name}: {len(motion.t)} samples at {fs:.1f} Hz, calibrated from the first "
+             f"{calibration.START_STILL_S:g} s",
              "", "| knee | flexion p2 / p50 / p98 (deg) | flexion range | ab/adduction p2 / p50 / p98 (deg) | "
              "flexion axis tilt (deg) |", "|---|---|---|---|---|"]
     for side in ("l", "r"):
         thigh, shank = seg[f"{side}_thigh"], seg[f"{side}_shank"]
         ok = np.isfinite(thigh).all(axis=1) & np.isfinite(shank).all(axis=1)
-        flexion, abduction, tilt = knee_angles(thigh[ok], shank[ok], up)
+        flexion, abduction, tilt = knee_angles(thigh[ok], shank[ok], calibration.VERTICAL)
         f = np.percentile(flexion, [2, 50, 98])
         a = np.percentile(abduction, [2, 50, 98])
         lines.append(f"| {side} | {f[0]:.1f} / {f[1]:.1f} / {f[2]:.1f} | {f[2] - f[0]:.1f} | "
@@ -80,11 +73,14 @@ def knee_table(path: str, up: np.ndarray, still_s: float = 1.0, names: dict[str,
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("path", help="a recording with l_/r_thigh and l_/r_shank sensors (e.g. x-IMU3 lower body)")
-    parser.add_argument("--up", choices=sorted(UP), default="z", help="the recording's up axis (x-IMU3: z)")
-    parser.add_argument("--still-s", type=float, default=1.0, help="the still rest pose at the start, s (default 1)")
-    parser.add_argument("--names", choices=sorted(NAMES), help="segment names of an Xsens folder's sensors")
+    parser.add_argument("--names", default=None, metavar="NAME|FILE|SENSOR=SEGMENT,...",
+                        help=f"the sensors' segments (named: {', '.join(sensor_names.NAMED)})")
     args = parser.parse_args(argv)
-    print(knee_table(args.path, UP[args.up], args.still_s, NAMES.get(args.names)))
+    try:
+        names = None if args.names is None else sensor_names.parse(args.names)
+    except ValueError as exc:
+        parser.error(str(exc))
+    print(knee_table(args.path, names))
     return 0
 
 

@@ -32,7 +32,7 @@ from limbstream.device_emulator.main import subject_names  # noqa: E402
 from limbstream import wire, zconfig  # noqa: E402
 from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until  # noqa: E402
 from limbstream.sources import SEGMENTS  # noqa: E402
-from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings  # noqa: E402
+from limbstream.services.aggregator.aggregator import STATS_BATCHES, Aggregator, AggregatorSettings  # noqa: E402
 
 
 class Router:
@@ -159,7 +159,7 @@ def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = F
             thread.start()
             deadline = time.monotonic() + 60  # warm-up: every device seen and frames flowing
             while time.monotonic() < deadline and not (
-                    len(agg.subjects) == subjects and all(f.frames > 0 for f in agg.subjects.values())):
+                    len(agg.subjects) == subjects and (agg.fusion.frames.made > 0).all()):
                 time.sleep(0.1)
             p0, f0, l0, t0 = agg.loop.points, agg.loop.frames, agg.loop.late, agg.loop.ticks
             cpu0, wall0 = cpu_now(), time.monotonic()
@@ -215,8 +215,9 @@ def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list
 
 
 def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: float = 50.0) -> None:
-    """The aggregator's own work without Zenoh: replayed messages, frames built and encoded (live
-    frames at ``live_rate`` Hz, a divisor of 50), stats encoded once a second; CPU per second of
+    """The aggregator's own work without Zenoh: replayed messages taken in tick by tick as a drain
+    takes them, frames built and encoded (live frames at ``live_rate`` Hz, a divisor of 50), stats
+    of every subject once a second, spread over the ticks as the loop does; CPU per second of
     stream = load at real time."""
     every = max(1, round(50.0 / live_rate))
     print(f"\n### Aggregator core, replayed messages ({seconds:g} s of stream, 50 Hz, truth tap on, "
@@ -227,7 +228,7 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
     for subjects in subject_counts:
         events, m = replay_events(subjects, seconds)
         agg = Aggregator(None, AggregatorSettings(live_rate=50.0 / every))
-        agg._publish = lambda subject, payload: None
+        agg._publish = agg._publish_stats = lambda subject, payload: None
         for name in (f"s{s + 1:03d}" for s in range(subjects)):
             for seg in SEGMENTS:
                 agg.fusion.set_online(agg.track(name, seg), True)
@@ -235,25 +236,20 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
         cpu0 = cpu_now()
         for k in range(m):
             now = k / 50.0
-            while i < len(events) and events[i][0] <= k:
+            points, raw = [], []
+            while i < len(events) and events[i][0] <= k:  # a tick's messages, taken in as a drain does
                 _, kind, key, payload = events[i]
-                if kind == 0:
-                    agg.on_point(key, payload, now)
-                    n_points += 1
-                else:
-                    agg.on_raw(key, payload, now)
+                (points if kind == 0 else raw).append((key, payload))
                 i += 1
-            if k % every == 0:  # live frames
-                agg.advance(True, prune=k % 25 == 0, now=now)
-            else:
-                agg.advance(False, prune=False, now=now)
-            if k % 50 == 0:
-                for subject in agg.subjects:
-                    stats = agg.subject_stats(subject, now)
-                    wire.encode_stats(subject, now, stats.pop("devices"), stats)
+            agg.take_points([key for key, _ in points], [payload for _, payload in points], now)
+            agg.take_raw([key for key, _ in raw], [payload for _, payload in raw], now)
+            n_points += len(points)
+            agg.advance(k % every == 0, prune=k % 25 == 0, now=now)  # live frames every ``every`` ticks
+            if k % (50 // STATS_BATCHES) == 0:  # one round a second, in batches as the loop sends it
+                agg.publish_stats(now, k // (50 // STATS_BATCHES) % STATS_BATCHES, STATS_BATCHES)
         load = (cpu_now() - cpu0) / seconds
         print(f"| {subjects} | {10 * subjects} | {n_points / seconds:.0f} | {500 * subjects:.0f} | "
-              f"{agg.loop.frames / seconds:.0f} | {100 * load:.0f} % | {subjects / load:.0f} |")
+              f"{agg.loop.frames / seconds:.0f} | {100 * load:.1f} % | {subjects / load:.0f} |")
 
 
 # ----------------------------------------------------------------------------- latency
@@ -284,7 +280,7 @@ def bench_latency(seconds: float, subjects: int, max_len: int, live: bool = Fals
                 else:
                     live_lag.append(time.time() - f.t_us / 1e6)
             while (s := stats.try_recv()) is not None:
-                last_stats = json.loads(s.payload.to_bytes())
+                last_stats = wire.decode_stats(s.payload.to_bytes())
             time.sleep(0.001)  # poll period of this measuring client (1 ms resolution)
         stop_all([emu, agg])
         session.close()

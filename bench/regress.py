@@ -10,6 +10,10 @@ before resolving any change that touches the device, router or aggregator path
 
     python bench/regress.py --base edac059            # HEAD vs edac059, about 12 minutes
     python bench/regress.py --base main --head HEAD --soak-minutes 1 --devices 1000
+    python bench/regress.py --base 8a3b1d4 --live-rate 10   # live frames as older tables ran them
+
+Both the soak and the core bench run with live frames at ``--live-rate`` (default 50 Hz, as
+``make run`` runs the aggregator), on both revisions where their benches have the flag.
 """
 from __future__ import annotations
 
@@ -69,23 +73,27 @@ def numbers(python: Path, cwd: Path, args) -> dict[str, float]:
     """The figures compared, from one revision's runs."""
     fig: dict[str, float] = {}
     soak_json = cwd / "soak.json"
+    live = ("--live-rate", f"{args.live_rate:g}")
     run(python, cwd, "bench/soak.py", "--devices", str(args.devices), "--minutes", f"{args.soak_minutes:g}",
-        "--json", str(soak_json))
+        "--json", str(soak_json), *(live if "--live-rate" in (cwd / "bench/soak.py").read_text() else ()))
     soak = json.loads(soak_json.read_text())
     r = soak["results"]
     fig["soak: emulator late ticks %"] = r["emulator late ticks %"]
     fig["soak: aggregator late ticks % after warm-up"] = r["aggregator late ticks % after warm-up"]
     fig["soak: aggregator busy %"] = r["aggregator busy % of wall time (main loop)"]
     fig["soak: aggregator CPU %"] = soak["cpu"].get("aggregator", float("nan"))
+    threads = soak.get("aggregator threads cpu", {})  # (revisions whose soak records them)
+    fig["soak: aggregator CPU % of its Python thread"] = threads.get("python", float("nan"))
+    fig["soak: aggregator CPU % of Zenoh's threads"] = sum(v for k, v in threads.items() if k != "python") if threads else float("nan")
     fig["soak: emulators CPU %"] = sum(v for k, v in soak["cpu"].items() if k.startswith("emulator"))
     fig["soak: router CPU %"] = soak["cpu"].get("router", float("nan"))
     fig["soak: aggregator RSS after warm-up MiB"] = max(soak["rss"]["aggregator"])
     fig["soak: aggregator max backlog"] = r["aggregator max backlog overall"]
     # the same live frame rate on both sides: revisions before --live-rate fixed 10 Hz in this bench
-    rate = ("--live-rate", f"{args.core_live_rate:g}") if "--live-rate" in (cwd / "bench/pipeline.py").read_text() else ()
+    rate = live if "--live-rate" in (cwd / "bench/pipeline.py").read_text() else ()
     core = table_row(run(python, cwd, "bench/pipeline.py", "core", "--subjects", "200", "--seconds",
                          f"{args.seconds:g}", *rate), "subjects", "200")
-    fig[f"core bench, 200 subjects, live frames at {args.core_live_rate:g} Hz: CPU per second of stream"] = core.get("CPU per second of stream", float("nan"))
+    fig[f"core bench, 200 subjects, live frames at {args.live_rate:g} Hz: CPU per second of stream"] = core.get("CPU per second of stream", float("nan"))
     emu = table_row(run(python, cwd, "bench/pipeline.py", "emulator", "--devices", "2000", "--seconds",
                         f"{args.seconds:g}"), "devices", "2000")
     for name in ("late ticks", "emulator CPU", "router CPU"):
@@ -100,9 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--devices", type=int, default=2000, help="soak devices (default 2000)")
     parser.add_argument("--soak-minutes", type=float, default=3.0, help="soak duration (default 3)")
     parser.add_argument("--seconds", type=float, default=20.0, help="per pipeline bench row (default 20)")
-    parser.add_argument("--core-live-rate", type=float, default=10.0,
-                        help="live frame rate of the core bench, Hz (default 10: the rate revisions without "
-                             "its --live-rate flag used)")
+    parser.add_argument("--live-rate", type=float, default=50.0,
+                        help="the aggregator's live frame rate in the soak and the core bench, Hz (default 50, "
+                             "make run's; revisions whose core bench lacks the flag ran it at 10)")
     args = parser.parse_args(argv)
     results = {}
     with tempfile.TemporaryDirectory(prefix="limbstream-regress-") as tmp:

@@ -59,6 +59,21 @@ def cpu_s(pid: int) -> float:
         return 0.0
 
 
+def thread_cpu_s(pid: int) -> dict[str, float]:
+    """CPU seconds of a process by thread name (Python's main thread is "python"; Zenoh's are
+    "rx-0", "tx-0", "app-0", ...), {} if it is gone."""
+    out: dict[str, float] = {}
+    try:
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            stat = open(f"/proc/{pid}/task/{tid}/stat").read()
+            name = stat[stat.index("(") + 1:stat.rindex(")")]
+            fields = stat.rsplit(")", 1)[1].split()
+            out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except OSError:
+        pass
+    return out
+
+
 class StatsReader:
     """Latest stats per device and per subject from the aggregator's stats messages."""
 
@@ -155,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     sample_at = [warmup + k * (duration - warmup) / max(args.samples - 1, 1) for k in range(args.samples)]
     sample_at = sorted({0.0, 10.0, *sample_at})
     cpu0 = {p.name: cpu_s(p.pid) for p in procs}
+    threads0 = thread_cpu_s(next(p for p in procs if p.name == "aggregator").pid)
     try:
         for at in sample_at:
             while time.monotonic() - t0 < at:
@@ -179,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
                   + " ".join(f"{p.name} {rss[p.name][-1]:.0f}" for p in procs)
                   + f"  backlog {backlog[-1]}", flush=True)
         cpu = {p.name: (cpu_s(p.pid) - cpu0[p.name]) / (time.monotonic() - t0) * 100 for p in procs}
+        aggregator = next(p for p in procs if p.name == "aggregator")
+        threads = {name: 100 * (v - threads0.get(name, 0.0)) / (time.monotonic() - t0)
+                   for name, v in thread_cpu_s(aggregator.pid).items()}
         reader.poll()
     finally:
         stop_all(emulators, GRACE_S)
@@ -213,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
     third = max(1, (len(backlog) - base) // 3)
     early, late_q = max(backlog[base:base + third] or [0]), max(backlog[-third:] or [0])
 
+    print("\naggregator CPU % by thread (Python's main thread: its own work; rx/tx: Zenoh's): "
+          + ", ".join(f"{name} {v:.1f}" for name, v in sorted(threads.items(), key=lambda x: -x[1]) if v >= 0.1))
     print("\nRSS (MiB) at t = " + ", ".join(f"{t:.0f}" for t in times) + " s")
     print("| process | RSS after warm-up | max after | growth (median of last vs first third) | peak over "
           "warm-up | CPU % | RSS series |")
@@ -248,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps({"args": vars(args), "times": times, "backlog": backlog, "tick_ms": tick_ms,
                                                "rss": {n: s for n, s, *_ in rows}, "cpu": cpu,
+                                               "aggregator threads cpu": threads,
                                                "results": results}, indent=1))
     failures = [f"{name} RSS grew {g:.1f} %" for name, _, _, g, _ in rows if not g < 10.0]
     failures += [f"{k} = {results[k]}" for k in ("dropped (all reasons)", "gaps (lost seq numbers)",

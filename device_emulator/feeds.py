@@ -35,11 +35,15 @@ class LoopFeed:
     fs : float, device rate, Hz.
     once : bool, end after one pass instead of looping: ``length`` is then the number of
         samples of the stream (the resampled clip's), else None.
+    start : where in the clip the stream begins, a fraction of it in [0, 1) (a pass still plays
+        the whole clip, wrapping round).
     """
 
-    def __init__(self, motion: Motion, fs: float, once: bool = False):
+    def __init__(self, motion: Motion, fs: float, once: bool = False, start: float = 0.0):
+        if not 0.0 <= start < 1.0:
+            raise ValueError(f"start must be in [0, 1), got {start}")
         self.motion = resample(motion, fs)
-        self.q = self.motion.q.astype(np.float32)
+        self.q = np.roll(self.motion.q.astype(np.float32), -int(start * len(self.motion.q)), axis=0)
         self.segments = self.motion.segments
         self.rest_pose = self.motion.rest_pose
         self.length = len(self.q) if once else None

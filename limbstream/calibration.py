@@ -53,6 +53,9 @@ STILL_MARGIN_S = 0.25
 """The still windows used by calibration leave this much out at each end, s."""
 STILL_DEG = 2.0
 """A calibration is refused when a device turned more than this within its still window, deg."""
+START_STILL_S = 1.0
+"""A recording that starts in its rest pose holds it still at least this long, s: the window
+:func:`calibrate_start` calibrates from."""
 
 MOUNTING_PITCH_DEG = {"hip": 30.0, "neck": 30.0, "l_thigh": 60.0, "r_thigh": 60.0, "l_shank": 30.0,
                       "r_shank": 30.0, "l_upperarm": 60.0, "r_upperarm": 60.0, "l_lowerarm": 90.0,
@@ -60,6 +63,13 @@ MOUNTING_PITCH_DEG = {"hip": 30.0, "neck": 30.0, "l_thigh": 60.0, "r_thigh": 60.
 """The mounting pose: each segment turned forward from its rest orientation about the lateral
 axis by this much, degrees (a bow with bent knees and the arms raised forward; the pose must
 turn every segment about a horizontal axis, or its heading cannot be told)."""
+
+
+def absent_segments(present) -> list[str]:
+    """The body's segments (:data:`SEGMENTS`, in that order) not among ``present`` (segment
+    names): what the calibration of a partial body leaves out."""
+    present = set(present)
+    return [s for s in SEGMENTS if s not in present]
 
 
 class CalibrationError(ValueError):
@@ -358,6 +368,17 @@ def calibrate(q: np.ndarray, rest: slice, mounting: slice | None, pose: np.ndarr
     if mounting is not None:
         cal = cal.with_mounting(still_mean(q[mounting], f"{what}, mounting pose"), pose)
     return cal
+
+
+def calibrate_start(q: np.ndarray, fs: float, segments, still_s: float = START_STILL_S) -> np.ndarray:
+    """(m, S, 4) the segment orientations of readings ``q`` (m, S, 4) at ``fs`` Hz of sensors on
+    ``segments`` whose first ``still_s`` seconds are the rest pose held still: each sensor's full
+    reset (``rest``) from that window. CalibrationError naming the first sensor that is not still
+    there."""
+    q = np.asarray(q, np.float64)
+    window = slice(0, max(1, round(still_s * fs)))
+    return np.stack([calibrate(q[:, k], window, None, None, segment).apply(q[:, k])
+                     for k, segment in enumerate(segments)], axis=1)
 
 
 def _middle(t: np.ndarray | None, window: slice) -> float:

@@ -10,10 +10,13 @@ carry it. No sensor on the trunk, so the spine follows the hip (pelvis) segment.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
 
 import numpy as np
 
-from limbstream import quat, wire
+from limbstream import wire
+from limbstream.kernel import fuse
 from limbstream.wire import JOINTS, SEGMENTS
 
 _S = {name: i for i, name in enumerate(SEGMENTS)}
@@ -57,7 +60,9 @@ class Skeleton:
 
     def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None,
                   dtype: type = np.float32) -> np.ndarray:
-        """Joint positions, pelvis at the origin.
+        """Joint positions, pelvis at the origin: each joint its parent's position plus its bone
+        turned by its segment's orientation (``limbstream.quat.rotate``; the bones in C:
+        ``limbstream.kernel.fuse.Chain``).
 
         Parameters
         ----------
@@ -70,34 +75,29 @@ class Skeleton:
         -------
         (..., 15, 3) metres, wire.JOINTS order.
         """
-        q = np.asarray(q, np.float64)
-        out = np.zeros(q.shape[:-2] + (len(JOINTS), 3))
-
-        def seg(name):
-            return q[..., _S[name], :]
-
-        def put(joint, value):
-            out[..., _J[joint], :] = value
-
-        def get(joint):
-            return out[..., _J[joint], :]
-
-        down = np.array([0.0, -1.0, 0.0])
         if tpose is None:
             tpose = self.rest_pose == "tpose"
-        tpose = np.asarray(tpose, bool)[..., None]  # (..., 1)
-        hip = seg("hip")
-        put("neck_base", quat.rotate(hip, [0.0, self.spine, 0.0]))
-        put("head", get("neck_base") + quat.rotate(seg("neck"), [0.0, self.neck, 0.0]))
+        return self._chain.positions(q, tpose, dtype)
+
+    @cached_property
+    def _chain(self) -> fuse.Chain:
+        """The bones in the order their joints are placed: the segment that turns each, its joint
+        and parent joint (the pelvis: the origin), its vector in its segment's frame at rest, m,
+        standing and with the arms out (T-pose)."""
+        down = np.array([0.0, -1.0, 0.0])
+        rows: list[tuple[str, str | None, str, Any, Any]] = [("neck_base", None, "hip", [0.0, self.spine, 0.0], None),
+                ("head", "neck_base", "neck", [0.0, self.neck, 0.0], None)]
         for side, lateral in (("l", 1.0), ("r", -1.0)):
-            put(f"{side}_hip", quat.rotate(hip, [lateral * self.hip_width / 2, 0.0, 0.0]))
-            put(f"{side}_knee", get(f"{side}_hip") + quat.rotate(seg(f"{side}_thigh"), down * self.thigh))
-            put(f"{side}_ankle", get(f"{side}_knee") + quat.rotate(seg(f"{side}_shank"), down * self.shank))
-            arm = np.where(tpose, np.array([lateral, 0.0, 0.0]), down)
-            put(f"{side}_shoulder", get("neck_base") + quat.rotate(hip, [lateral * self.shoulder_width / 2, -0.05, 0.0]))
-            put(f"{side}_elbow", get(f"{side}_shoulder") + quat.rotate(seg(f"{side}_upperarm"), arm * self.upperarm))
-            put(f"{side}_wrist", get(f"{side}_elbow") + quat.rotate(seg(f"{side}_lowerarm"), arm * self.lowerarm))
-        return out.astype(dtype)
+            out = np.array([lateral, 0.0, 0.0])
+            rows += [(f"{side}_hip", None, "hip", [lateral * self.hip_width / 2, 0.0, 0.0], None),
+                     (f"{side}_knee", f"{side}_hip", f"{side}_thigh", down * self.thigh, None),
+                     (f"{side}_ankle", f"{side}_knee", f"{side}_shank", down * self.shank, None),
+                     (f"{side}_shoulder", "neck_base", "hip", [lateral * self.shoulder_width / 2, -0.05, 0.0], None),
+                     (f"{side}_elbow", f"{side}_shoulder", f"{side}_upperarm", down * self.upperarm, out * self.upperarm),
+                     (f"{side}_wrist", f"{side}_elbow", f"{side}_lowerarm", down * self.lowerarm, out * self.lowerarm)]
+        return fuse.Chain([_S[seg] for _, _, seg, _, _ in rows], [_J[joint] for joint, *_ in rows],
+                          [-1 if up is None else _J[up] for _, up, *_ in rows], np.array([r[3] for r in rows]),
+                          np.array([r[3] if r[4] is None else r[4] for r in rows]), len(JOINTS))
 
 
 def bone_axis(segment: str, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:

@@ -2,14 +2,14 @@
 publisher takes its congestion control, priority and express flag from :data:`QOS`.
 
 Multicast scouting is always off (endpoints are explicit; Docker carries no multicast).
-Clients retry the router forever with a short back-off, so they survive router restarts
-and may start before the router (back ~0.3 s after the router returns).
+Once connected, clients retry a lost router forever with a short back-off, so they survive router
+restarts (back ~0.3 s after the router returns). Opening a session waits for the router at most
+``ZenohSettings.connect_timeout_s`` (None: as long as it takes, the parts ``limbstream up``
+supervises), in a helper thread, so that Ctrl-C stops the caller at any moment.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import signal
 import threading
 from dataclasses import dataclass, field
@@ -21,6 +21,8 @@ ROUTER_ENV = "LIMBSTREAM_ROUTER"
 """Environment variable naming the router endpoint(s), comma-separated."""
 CONFIG_ENV = "LIMBSTREAM_ZENOH_CONFIG"
 """Environment variable naming a JSON file of extra Zenoh settings (TLS, auth)."""
+CONNECT_TIMEOUT_S = 10.0
+"""How long a command waits for its router by default, s (``--connect-timeout``)."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,9 @@ class ZenohSettings:
     listen : endpoints to listen on (routers)
     lease_ms : transport lease; a frozen process is declared gone after it
     extra : further ``insert_json5`` entries (key -> JSON value), e.g. TLS or auth settings
+    connect_timeout_s : a client or peer that reaches none of ``connect`` within this many
+        seconds fails to open (:class:`ConnectError`); None: it waits, retrying, however long it
+        takes. Either way, once connected it reconnects by itself after losing the router.
     """
 
     mode: str = "client"
@@ -89,6 +94,21 @@ class ZenohSettings:
     listen: tuple[str, ...] = ()
     lease_ms: int = 1000
     extra: dict = field(default_factory=dict)
+    connect_timeout_s: float | None = None
+
+    def __post_init__(self):
+        if self.connect_timeout_s is not None and not self.connect_timeout_s > 0:
+            raise ValueError(f"connect_timeout_s must be > 0 or None, got {self.connect_timeout_s}")
+
+
+class ConnectError(ConnectionError):
+    """No router answered within the settings' ``connect_timeout_s``; the sentence names the
+    endpoints and the time waited."""
+
+    def __init__(self, settings: ZenohSettings):
+        super().__init__(f"no Zenoh router answered at {', '.join(settings.connect) or '(no endpoint)'} "
+                         f"within {settings.connect_timeout_s:g} s")
+        self.settings = settings
 
 
 def build_config(settings: ZenohSettings) -> zenoh.Config:
@@ -102,7 +122,9 @@ def build_config(settings: ZenohSettings) -> zenoh.Config:
     config.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
     config.insert_json5("transport/link/tx/lease", str(int(settings.lease_ms)))
     if settings.mode != "router":
-        config.insert_json5("connect/timeout_ms", "-1")
+        # the wait of zenoh.open only: a session that lost its router retries forever either way
+        timeout = settings.connect_timeout_s
+        config.insert_json5("connect/timeout_ms", "-1" if timeout is None else str(max(1, round(timeout * 1e3))))
         config.insert_json5("connect/exit_on_failure", "false")
         config.insert_json5(
             "connect/retry",
@@ -114,6 +136,7 @@ def build_config(settings: ZenohSettings) -> zenoh.Config:
 
 
 _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+_WAIT_SLICE_S = 0.05
 
 
 def _open_masked(config: zenoh.Config) -> zenoh.Session:
@@ -127,60 +150,80 @@ def _open_masked(config: zenoh.Config) -> zenoh.Session:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
+class _Opening:
+    """One zenoh.open on a helper thread; a session that arrives after its caller left (a
+    signal, ``stop``) is closed there."""
+
+    def __init__(self, config: zenoh.Config):
+        self.done = threading.Event()
+        self.session: zenoh.Session | None = None
+        self.error: BaseException | None = None
+        self._lock = threading.Lock()
+        self._abandoned = False
+        threading.Thread(target=self._open, args=(config,), name="zenoh-open", daemon=True).start()
+
+    def _open(self, config: zenoh.Config) -> None:
+        try:
+            session = _open_masked(config)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
+            self.error = exc
+            self.done.set()
+            return
+        with self._lock:
+            if not self._abandoned:
+                self.session = session
+                self.done.set()
+                return
+        session.close()
+
+    def abandon(self) -> None:
+        with self._lock:
+            self._abandoned = True
+
+
 def open_session(settings: ZenohSettings, stop: threading.Event | None = None) -> zenoh.Session | None:
-    """Open a session; a client waits for its router (retrying) instead of failing.
+    """Open a session: a client or peer waits for its router (retrying) at most
+    ``settings.connect_timeout_s`` (None: however long it takes).
 
-    With ``stop``, the wait happens in a helper thread so that setting ``stop`` (a signal
-    handler does) ends it: the result is then None and the caller should exit.
+    zenoh.open runs on a helper thread while this one waits in short slices, so that a signal
+    handler runs at once: Ctrl-C raises KeyboardInterrupt here, or sets ``stop`` (whose setting
+    ends the wait: the result is then None and the caller should exit).
+
+    Raises
+    ------
+    ConnectError if no router answered in time; zenoh.ZError for other failures (a ``listen``
+    port in use, refused credentials, a bad setting).
     """
-    config = build_config(settings)
-    if stop is None:
-        return _open_masked(config)
-    result: dict = {}
-    done = threading.Event()
-
-    def opener():
-        try:
-            result["session"] = _open_masked(config)
-        except Exception as exc:  # noqa: BLE001 - re-raised in the caller's thread
-            result["error"] = exc
-        finally:
-            done.set()
-
-    threading.Thread(target=opener, name="zenoh-open", daemon=True).start()
-    while not done.wait(0.1):
-        if stop.is_set():
-            return None
-    if "error" in result:
-        raise result["error"]
-    return result["session"]
+    opening = _Opening(build_config(settings))
+    try:
+        while not opening.done.wait(_WAIT_SLICE_S):
+            if stop is not None and stop.is_set():
+                opening.abandon()
+                return None
+    except BaseException:
+        opening.abandon()
+        raise
+    if opening.error is not None:
+        if (isinstance(opening.error, zenoh.ZError) and settings.connect_timeout_s is not None
+                and "Unable to connect" in str(opening.error)):
+            raise ConnectError(settings) from None
+        raise opening.error
+    return opening.session
 
 
-def add_arguments(parser: argparse.ArgumentParser, mode: str = "client") -> None:
-    """The shared ``--connect/--listen/--mode`` flags (router default from $LIMBSTREAM_ROUTER)."""
-    group = parser.add_argument_group("zenoh")
-    default = os.environ.get(ROUTER_ENV, DEFAULT_ROUTER if mode != "router" else "")
-    group.add_argument("--connect", default=default,
-                       help=f"endpoint(s) to connect to, comma-separated (env {ROUTER_ENV}; default {default or 'none'})")
-    group.add_argument("--listen", default="", help="endpoint(s) to listen on, comma-separated")
-    group.add_argument("--mode", default=mode, choices=("client", "peer", "router"), help=f"zenoh mode (default {mode})")
-    group.add_argument("--zenoh-config", default=os.environ.get(CONFIG_ENV, ""),
-                       help=f"JSON file of extra zenoh settings (key -> value), e.g. TLS/auth (env {CONFIG_ENV})")
+def split_list(value: str) -> tuple[str, ...]:
+    """``"a, b,,c"`` -> ``("a", "b", "c")``: endpoints as flags and variables give them."""
+    return tuple(e.strip() for e in value.split(",") if e.strip())
 
 
-def from_args(args: argparse.Namespace) -> ZenohSettings:
-    """ZenohSettings from the flags of :func:`add_arguments`."""
-
-    def split(value: str) -> tuple[str, ...]:
-        return tuple(e.strip() for e in value.split(",") if e.strip())
-
-    extra = {}
-    if args.zenoh_config:
-        try:
-            with open(args.zenoh_config) as f:
-                extra = json.load(f)
-        except (OSError, ValueError) as exc:
-            raise SystemExit(f"--zenoh-config {args.zenoh_config}: {exc}") from None
-        if not isinstance(extra, dict):
-            raise SystemExit(f"--zenoh-config {args.zenoh_config}: expected a JSON object")
-    return ZenohSettings(mode=args.mode, connect=split(args.connect), listen=split(args.listen), extra=extra)
+def read_extra(path: str) -> dict:
+    """The ``{"config/path": value}`` object of a JSON file of extra Zenoh settings; ValueError
+    naming the file if it cannot be read or is not one."""
+    try:
+        with open(path) as f:
+            extra = json.load(f)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    if not isinstance(extra, dict):
+        raise ValueError(f"{path}: expected a JSON object")
+    return extra

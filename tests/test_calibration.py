@@ -145,6 +145,11 @@ def feed_aggregator(agg, reading: np.ndarray, t0_us: int, stream: int, segment: 
             agg.advance(live=False, now=k / FS)
 
 
+def calibration_of(fusion, slot: int) -> dict:
+    """The calibration fields of one device's stats."""
+    return {name: values[0] for name, values in fusion.calibrating.figures([slot]).items()}
+
+
 def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_one_without():
     from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
     agg = Aggregator(None, AggregatorSettings(calibrate_on_start=True))
@@ -157,7 +162,7 @@ def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_o
     feed_aggregator(agg, reading, t0, 1, "r_upperarm")
     track = agg.track("s01", "r_upperarm")
     fusion = agg.fusion
-    figures = fusion.calibration_figures(track.slot)
+    figures = calibration_of(fusion, track.slot)
     assert figures["calibrated"] and figures["calibration_refused"] is None, figures
     n = fusion.store.n[track.slot]
     stored_t = (fusion.store.t[track.slot, :n] - t0) / 1e6
@@ -166,12 +171,39 @@ def test_the_aggregator_calibrates_each_new_stream_from_its_script_and_refuses_o
     assert err.max() < 0.05, f"stored points against the true segment: max {err.max():.3f} deg"
     # the device restarts mid-motion: a new stream that does not begin with the script
     feed_aggregator(agg, reading[start:], t0 + 60_000_000, 2, "r_upperarm")
-    figures = fusion.calibration_figures(track.slot)
+    figures = calibration_of(fusion, track.slot)
     assert not figures["calibrated"] and "not still" in figures["calibration_refused"], figures
     # a device whose stream's start never comes (joined late, no history): refused once settled
     late = agg.track("s01", "l_thigh")
     feed_aggregator(agg, reading[start:], t0, 3, "l_thigh", first_seq=40)
-    assert "never arrived" in fusion.calibration_figures(late.slot)["calibration_refused"]
+    assert "never arrived" in calibration_of(fusion, late.slot)["calibration_refused"]
+
+
+def test_a_partial_body_calibrates_the_devices_it_has_and_names_the_segments_it_lacks():
+    """A lower body (hip, thighs, shanks) held still: a rest calibration on request calibrates
+    those five devices and answers with the body's other segments as absent; a subject without a
+    streaming device is refused."""
+    from limbstream import wire
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+    agg = Aggregator(None, AggregatorSettings())
+    agg._publish = lambda subject, payload: None
+    legs = ("hip", "l_thigh", "r_thigh", "l_shank", "r_shank")
+    still = np.tile(quat.normalize(np.array([0.9, 0.1, 0.3, -0.2])), (int(4 * FS), 1))
+    t0 = 1_700_000_000_000_000
+    for segment in legs:
+        agg.on_alive(wire.alive_key("s01", segment), True)
+        feed_aggregator(agg, still[: int(FS)], t0, 1, segment)
+    assert agg.fusion.start_request("s02", "rest", 0.0) == "s02: no such subject here"
+    req = agg.fusion.start_request("s01", "rest", 0.0)
+    assert sorted(t.segment for t in req.tracks) == sorted(legs), req
+    for segment in legs:  # the stream again: its first second repeats (duplicates, dropped), then the hold
+        feed_aggregator(agg, still, t0, 1, segment)
+    answer = agg.fusion.finish_request(req, 1.0)
+    assert answer.ok and sorted(answer.devices) == sorted(f"s01/{s}" for s in legs), answer
+    assert answer.absent == ["l_lowerarm", "r_lowerarm", "l_upperarm", "r_upperarm", "neck"], answer
+    assert wire.decode_calibrate_answer(wire.encode_calibrate_answer(answer)) == answer
+    corrected = agg.fusion.calibrations[agg.track("s01", "hip").slot].apply(still[:1])
+    assert quat.angle_deg(corrected, [[1.0, 0.0, 0.0, 0.0]])[0] < 0.01
 
 
 def frames_compared(watch: StatsWatch, n: int, on_fail) -> dict:

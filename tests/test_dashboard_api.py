@@ -2,6 +2,7 @@
 on loopback), with the app's lifespan on."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -115,6 +116,39 @@ def test_devices_carry_every_stats_field(client, pub):
     subjects = {s["subject"]: s for s in client.get("/api/subjects").json()}
     assert subjects["apiA"]["devices"] == 2 and subjects["apiA"]["online"] == 1, subjects
     assert math.isclose(subjects["apiA"]["msgs_per_s"], 10.0), subjects
+
+
+def test_one_subject_with_its_devices_and_the_filters(client, pub):
+    """``GET /api/subjects/{s}``: the subject as listed, its devices and the segments it has none
+    for; ``/api/devices?subject=`` filters; an unknown query parameter is refused (422 naming it),
+    on REST and WebSocket alike, so a misspelt filter never answers as if it were not given."""
+    def publish(subject: str, segments: tuple[str, ...]) -> None:
+        payload = wire.encode_stats(subject, time.time(), [device_stats(subject, seg) for seg in segments])
+        publish_until(client, lambda: pub.put(wire.stats_key(subject), payload),
+                      lambda: any(s["subject"] == subject for s in client.get("/api/subjects").json()),
+                      f"devices of {subject}")
+    publish("apiS1", ("hip", "l_thigh"))
+    publish("apiS2", ("neck",))
+    one = client.get("/api/subjects/apiS1").json()
+    listed = next(s for s in client.get("/api/subjects").json() if s["subject"] == "apiS1")
+    assert {k: v for k, v in one.items() if k not in ("device_list", "missing_segments", "stats_age_s")} == \
+        {k: v for k, v in listed.items() if k != "stats_age_s"}, (one, listed)
+    assert [d["device"] for d in one["device_list"]] == ["apiS1/hip", "apiS1/l_thigh"], one
+    assert one["missing_segments"] == [s for s in wire.SEGMENTS if s not in ("hip", "l_thigh")], one
+    assert client.get("/api/subjects/nosuch").status_code == 404
+    assert [d["device"] for d in client.get("/api/devices", params={"subject": "apiS2"}).json()] == ["apiS2/neck"]
+    assert client.get("/api/devices", params={"subject": "nosuch"}).json() == []
+    assert client.get("/api/devices", params={"subject": "bad name"}).status_code == 422
+    for url, params in (("/api/devices", {"subjects": "apiS1"}), ("/api/subjects/apiS1", {"x": "1"}),
+                        ("/api/devices/apiS1/hip/history", {"second": "5"}), ("/health", {"verbose": "1"})):
+        res = client.get(url, params=params)
+        assert res.status_code == 422, (url, res.status_code, res.text)
+        [error] = res.json()["detail"]
+        assert error["loc"] == ["query", next(iter(params))] and "unknown query parameter" in error["msg"], error
+    assert client.get("/api/devices/apiS1/hip/history", params={"seconds": "5"}).status_code == 200
+    with pytest.raises(WebSocketDisconnect) as closed, client.websocket_connect("/ws/pose/apiS1?kinds=live") as ws:
+        ws.receive_text()
+    assert closed.value.code == 1008
 
 
 def test_aggregators_report_their_loop_and_bad_entries_are_counted(client, pub):
@@ -502,6 +536,11 @@ def test_subscribe_pose_and_watch_command(router, pub):
     text = render("watchM", pose_frame(5), 50.0)
     assert "watchM  exact #5" in text and "l_wrist" in text and "°" in text, text
     assert render("watchM", pose_frame(6, wire.KIND_LIVE), 50.0).startswith("watchM  live #6")
+    missing = dataclasses.replace(pose_frame(7), flags=wire.FRAME_MISSING)
+    devices = {s: s != "hip" for s in ("hip", "l_thigh", "r_thigh", "l_shank", "r_shank", "l_foot")}
+    assert render("watchM", missing, 50.0, devices).splitlines()[0].endswith(
+        "MISSING (no device: l_lowerarm, r_lowerarm, l_upperarm, r_upperarm, neck; offline: hip)")
+    assert render("watchM", missing, 50.0).splitlines()[0].endswith("MISSING (no stats yet)")
 
     def watch(*flags: str) -> str:
         """Run ``limbstream watch watchM`` while exact and live frames come interleaved."""

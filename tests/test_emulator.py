@@ -46,6 +46,17 @@ def test_once_feed_ends_at_its_own_last_sample():
             feed.sample(k)
 
 
+def test_a_feed_can_start_into_its_clip_and_still_plays_all_of_it():
+    rng = np.random.default_rng(2)
+    q = quat.normalize(np.cumsum(rng.normal(0, 0.02, (100, 1, 4)), axis=0) + [1, 0, 0, 0])
+    motion = Motion(np.arange(100) / 50.0, q, ("hip",), "short")
+    feed = LoopFeed(motion, 50.0, start=0.25)
+    assert np.array_equal(feed.sample(0), q[25].astype(np.float32))
+    assert np.array_equal(feed.sample(75), q[0].astype(np.float32)) and np.array_equal(feed.sample(100), feed.sample(0))
+    with pytest.raises(ValueError, match="start"):
+        LoopFeed(motion, 50.0, start=1.0)
+
+
 def test_bank_advances_only_the_streams_still_running():
     """The emulator's ended devices are the bank's last slots: update(n rows) leaves the others as they are."""
     rng = np.random.default_rng(2)

@@ -190,12 +190,9 @@ def test_cli_writes_table_json_and_plot(cmu_npz, tmp_path, capsys):
             "eval",
             str(cmu_npz),
             "--algorithms",
-            "fastsw",
-            "swing",
+            "fastsw,swing",
             "--thresholds",
-            "0",
-            "1e-2",
-            "1",
+            "0,1e-2,1",
             "--json",
             str(out_json),
             "--plot",
@@ -205,6 +202,10 @@ def test_cli_writes_table_json_and_plot(cmu_npz, tmp_path, capsys):
     text = capsys.readouterr().out
     assert code == 0, text
     assert "60 streams" in text and "fastsw" in text and "swing" in text, text
+    table = [line.split() for line in text.splitlines() if line.startswith(("fastsw ", "swing "))]
+    assert len(table) == 6 and all(line[-4:] == ["–"] * 4 for line in table), text  # no live error, no body
+    assert "  –" in text and "does not apply to the row" in text and "nan" not in text, text
+    assert "  AAD (deg)" in text and "  ICR  " in text, "a legend under the table"
     rows = json.loads(out_json.read_text())
     assert len(rows) == 6, rows
     assert all(list(r) == list(evaluation.KEYS) for r in rows), rows[0]
@@ -218,11 +219,12 @@ def test_cli_table_at_icr(cmu_npz, capsys):
     code = cli.main(["eval", str(cmu_npz), "--algorithms", "fastsw,cplr", "--max-len", "1000"])
     text = capsys.readouterr().out
     assert code == 0, text
-    lines = [ln.split() for ln in text.splitlines() if ln.startswith(("fastsw", "cplr"))]
-    assert [(ln[0], ln[1], ln[2]) for ln in lines] == [
-        (a, "0", f"{c:.2f}") for a in ("fastsw", "cplr") for c in evaluation.ICR_TARGETS
+    lines = [ln.split() for ln in text.splitlines() if ln.startswith(("fastsw ", "cplr "))]
+    assert [(ln[0], ln[1], float(ln[2])) for ln in lines] == [
+        (a, "0", c) for a in ("fastsw", "cplr") for c in evaluation.ICR_TARGETS
     ], text
-    assert 2.2 < float(lines[1][3]) < 2.6, f"fastSW AAD at ICR 0.10: {lines[1]}"
+    assert 2.2 < float(lines[1][4]) < 2.6, f"fastSW AAD at ICR 0.10: {lines[1]}"
+    assert "does not apply to the row" in text, "the same legend as with --thresholds"
 
 
 @pytest.mark.parametrize(
@@ -246,6 +248,8 @@ def test_cli_bad_paths_exit_2(cmu_npz, tmp_path, capsys, argv, message):
         ["eval", "x.npz", "--algorithms", "bogus"],
         ["eval", "x.npz", "--thresholds", "-1"],
         ["eval", "x.npz", "--thresholds", "abc"],
+        ["eval", "x.npz", "--thresholds", "1e-2", "1e-3"],  # one list syntax: A,B
+        ["eval", "x.npz", "--calibration", "mounting"],
         ["eval", "x.npz", "--max-len", "0"],
     ],
 )
@@ -355,11 +359,12 @@ def test_cli_live_bounds_json_table_and_frontier(cmu_npz, tmp_path, capsys):
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     code = cli.main(["eval", str(cmu_npz), "--live-bound", "5", "--max-len", "25"])
     text = capsys.readouterr().out
-    assert code == 0 and "fastsw        5  0.25" in text, text
+    lines = [ln.split() for ln in text.splitlines() if ln.startswith("fastsw ")]
+    assert code == 0 and [(ln[1], ln[2]) for ln in lines][2] == ("5", "0.2500"), text
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["eval", "{npz}", "--live-bound", "5", "--algorithms", "fastsw", "cplr"], "fastsw"),
+    (["eval", "{npz}", "--live-bound", "5", "--algorithms", "fastsw,cplr"], "fastsw"),
 ])
 def test_cli_live_bound_needs_fastsw(cmu_npz, capsys, argv, message):
     assert cli.main([a.format(npz=cmu_npz) for a in argv]) == 2
@@ -380,3 +385,43 @@ def test_cli_bad_live_arguments_exit_2(argv, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "error" in err and "Traceback" not in err, err
+
+
+# ----------------------------------------------------------------------------- tables and notes
+
+
+def test_table_columns_legend_and_dashes():
+    """A table says each column's name and unit, shows – where a value does not apply (None,
+    NaN), and its legend lists every column with its unit and meaning."""
+    from limbstream.evaluation.table import DASH, Column, render
+    columns = [Column("name", "what", "", "the thing", ""), Column("err", "error", "deg", "how far off", ".2f")]
+    text = render(columns, [{"name": "a", "err": 1.234}, {"name": "b", "err": float("nan")}, {"name": "c"}])
+    lines = text.splitlines()
+    assert lines[0].split() == ["what", "error"] and lines[1].split() == ["(deg)"], text
+    assert [ln.split() for ln in lines[3:6]] == [["a", "1.23"], ["b", DASH], ["c", DASH]], text
+    assert "  error (deg)  how far off" in text and f"  {DASH}" in text and "does not apply" in text, text
+
+
+def test_progress_speaks_only_on_long_runs():
+    from limbstream.evaluation.table import Progress
+    out: list[str] = []
+    quick = Progress("rows", out.append, after_s=60.0)
+    for k in range(1, 11):
+        quick(k, 10)
+    assert out == []
+    slow = Progress("rows", out.append, after_s=0.0, every_s=0.0)
+    slow(3, 10)
+    assert out and out[0].startswith("rows 3/10 (30 %)") and "left" in out[0], out
+
+
+def test_cli_notes_what_a_sensor_model_adds_and_a_calibration_without_one(cmu_npz, capsys):
+    assert cli.main(["eval", str(cmu_npz), "--thresholds", "1e-2", "--algorithms", "fastsw",
+                     "--calibration", "rest"]) == 0
+    err = capsys.readouterr().err
+    assert "--calibration rest has nothing to act on without a sensor model" in err, err
+    assert cli.main(["eval", str(cmu_npz), "--thresholds", "1e-2", "--algorithms", "fastsw",
+                     "--mounting-deg", "30", "--calibration", "rest"]) == 0
+    captured = capsys.readouterr()
+    assert "calibration script" in captured.err and "48,510 samples instead of 30,510" in captured.err, captured.err
+    row = next(ln.split() for ln in captured.out.splitlines() if ln.startswith("fastsw "))
+    assert row[-1] != "–", captured.out  # the body error, after the rest calibration

@@ -140,3 +140,26 @@ def test_bad_export_input_is_a_one_line_error(tmp_path, cmu_npz):
         err = result.stderr.strip()
         assert result.returncode == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, (result, words)
         assert all(w in err for w in words), (err, words)
+
+
+def test_an_xsens_recording_exports_once_its_sensors_are_mapped(tmp_path, xsens_dir):
+    """Without a mapping the Xsens folder (sensors named by serial number) is an error naming its
+    sensors and --names; with ``--names opensense`` its walk exports as a person: each knee (the
+    angle from thigh to shank) peaks at 55-75 degrees in every stride's swing."""
+    from scipy.signal import find_peaks
+    out = tmp_path / "walk.npz"
+    refused = cli(str(xsens_dir), "-o", str(out))
+    err = refused.stderr.strip()
+    assert refused.returncode == 2 and len(err.splitlines()) == 1 and not out.exists(), refused
+    assert "no sensor maps to a body segment (sensors found: 00B421E6, 00B421ED" in err and "--names" in err, err
+    done = cli(str(xsens_dir), "--names", "opensense", "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    assert "calibration: rest pose from the first 1 s standing still, functional facing" in done.stderr, done.stderr
+    data = np.load(out)
+    q = data["clip_xsens_opensense"].astype(np.float64)
+    fs = float(data["fs"])
+    for side in "lr":
+        knee = quat.angle_deg(q[:, wire.SEGMENTS.index(f"{side}_thigh")], q[:, wire.SEGMENTS.index(f"{side}_shank")])
+        peaks, _ = find_peaks(knee, height=30.0, distance=round(0.8 * fs))  # one swing per stride
+        assert len(peaks) >= 8 and knee[: round(fs)].max() < 10.0, (side, knee[peaks])  # it starts standing
+        assert 55.0 <= np.median(knee[peaks]) <= 75.0 and knee.max() <= 75.0, (side, knee[peaks].round(1))

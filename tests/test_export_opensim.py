@@ -14,12 +14,7 @@ from limbstream.services.outputs.export import export, from_motion, read_take
 from limbstream.services.outputs.opensim import IMU_NAMES
 from limbstream.services.outputs.recording import RecordingWriter
 from limbstream.skeleton import Skeleton
-from limbstream.sources import load_npz
-from limbstream.sources.imu_files import load_xsens_folder
-
-OPENSENSE_NAMES = {"00B4227C": "r_thigh", "00B4227D": "r_shank", "00B421EE": "l_thigh", "00B421ED": "l_shank",
-                   "00B42279": "hip"}
-"""The sensors of OpenSim's OpenSense example walk (its own example code's assignment)."""
+from limbstream.sources import load, load_npz, names
 
 
 def storage_columns(path) -> tuple[opensim.Storage, dict[str, np.ndarray]]:
@@ -93,18 +88,30 @@ def test_a_recording_with_a_missing_segment_leaves_those_frames_out(tmp_path, cm
 
 
 def test_the_xsens_walk_exports_calibrated_functionally(tmp_path):
-    """The OpenSense example walk (5 named sensors, the first second standing still): the rest
-    calibration and the knees' facing give knee flexion peaks of 60-70 deg."""
+    """``limbstream export ../shared/data/xsens_opensense --names opensense -o walk.mot``: the
+    loader calibrates the sensors from the still first second, the export finds the knees' facing
+    (and only turns the segments about the vertical by it), and knee flexion peaks at 60-70 deg."""
     folder = require_data("xsens_opensense")
-    take = from_motion([load_xsens_folder(folder, OPENSENSE_NAMES)], None, folder, None)
-    assert take.anatomical and "functional facing" in take.basis, take.basis
-    export(take, "mot", tmp_path / "walk.mot")
+    result = cli(str(folder), "--names", "opensense", "-o", str(tmp_path / "walk.mot"))
+    assert result.returncode == 0, result.stderr
+    assert "calibration: rest pose from the first 1 s standing still, functional facing" in result.stderr
     storage, columns = storage_columns(tmp_path / "walk.mot")
     assert list(columns)[1:] == [a for a in joints.ANGLES if a.startswith(("hip", "knee"))]
     assert columns["time"][0] == 0.0
     for side in "lr":
         assert 60.0 <= columns[f"knee_angle_{side}"].max() <= 72.0, side
         assert np.ptp(columns[f"hip_flexion_{side}"]) > 30.0
+
+    (motion,) = load(folder, names.NAMED["opensense"])
+    assert motion.orientations == "rest"
+    take = from_motion([motion], None, folder, None)
+    assert take.anatomical and "functional facing" in take.basis, take.basis
+    t = (take.t_us - take.t_us[0]) / 1e6
+    for segment in ("hip", "l_thigh", "r_shank"):  # the facing is a turn about the vertical: angles from rest kept
+        loaded = quat.interpolate(motion.t, motion.segment(segment), t)
+        exported = take.q[:, wire.SEGMENTS.index(segment)]
+        assert np.abs(np.abs(exported[:, 0]) - np.abs(loaded[:, 0])).max() < 1e-6, segment
+        assert np.abs(exported[:, 2]) == pytest.approx(np.abs(loaded[:, 2]), abs=1e-6), segment  # about Y too
     export(take, "sto", tmp_path / "walk.sto")
     table, q = quaternion_table(tmp_path / "walk.sto")
     assert table.getColumnLabels() == ("tibia_l_imu", "tibia_r_imu", "femur_l_imu", "femur_r_imu", "pelvis_imu")
@@ -112,7 +119,19 @@ def test_the_xsens_walk_exports_calibrated_functionally(tmp_path):
 
 
 def test_sensors_without_a_moving_hinge_get_no_angles_and_are_told_why(tmp_path):
-    folder = require_data("xsens_opensense")  # its sensors unnamed: no knee to find the facing from
-    result = cli(str(folder), "-o", str(tmp_path / "walk.mot"))
+    folder = require_data("xsens_opensense")  # only the pelvis and a thigh mapped: no knee to find the facing from
+    result = cli(str(folder), "--names", "00B42279=hip,00B4227C=r_thigh", "-o", str(tmp_path / "walk.mot"))
     assert result.returncode == 2 and "no joint angles" in result.stderr and "no knee or elbow" in result.stderr
     assert not (tmp_path / "walk.mot").exists()
+
+
+def test_a_recording_that_does_not_start_still_gets_no_angles_and_is_told_why(tmp_path):
+    """Its loader leaves it uncalibrated (the sensors' raw orientations): no .mot, the reason said."""
+    for name, phase in (("Left_Upper", 0.0), ("Left_Lower", 1.0)):
+        rows = "".join(f"{1000 + 20000 * k},{np.cos(0.05 * k + phase)},{np.sin(0.05 * k + phase)},0,0\n"
+                       for k in range(100))
+        (tmp_path / f"{name}.csv").write_text("Timestamp (us),W,X,Y,Z\n" + rows)
+    result = cli(str(tmp_path), "-o", str(tmp_path / "turning.mot"))
+    assert result.returncode == 2 and "no joint angles" in result.stderr and "no rest calibration" in result.stderr, \
+        result.stderr
+    assert not (tmp_path / "turning.mot").exists()

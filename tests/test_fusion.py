@@ -9,7 +9,7 @@ import numpy as np
 from limbstream import wire
 from limbstream.sources import SEGMENTS
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
-from limbstream.services.aggregator.fusion import FIRST_FRAME_WAIT_S
+from limbstream.services.aggregator.frames import FIRST_FRAME_WAIT_S
 from limbstream.services.aggregator.track import HISTORY_WAIT_S
 
 T0 = 1_700_000_000_000_000
@@ -121,7 +121,7 @@ def test_truth_before_a_late_joiners_first_point_waits_for_its_history_grace():
     send(agg, SEGMENTS[-1], range(3, 11), now=0.0)
     truth(agg, SEGMENTS[-1], 1, now=0.0)
     agg.advance(live=False, now=0.5)
-    assert not late.dropped and agg.fusion.exact.count[late.slot] == 0, "must wait for the history"
+    assert not late.dropped and agg.fusion.scoring.exact.count[late.slot] == 0, "must wait for the history"
     agg.advance(live=False, now=HISTORY_WAIT_S + 0.01)  # time passes, no message
     assert late.dropped == {"raw_before_first_point": 1}, dict(late.dropped)
 
@@ -137,7 +137,7 @@ def test_history_arriving_after_live_points_completes_the_stream():
     n = agg.fusion.store.n[late.slot]
     assert np.array_equal(agg.fusion.store.t[late.slot, :n], T0 + np.arange(11) * STEP_US), "inserted in order"
     assert late.points == 11 and not late.dropped, dict(late.dropped)
-    assert agg.fusion.exact.count[late.slot] == 1, "the truth sample is judged against the full stream"
+    assert agg.fusion.scoring.exact.count[late.slot] == 1, "the truth sample is judged against the full stream"
 
 
 def test_truth_arriving_before_its_streams_first_point_is_kept_for_it():
@@ -151,7 +151,7 @@ def test_truth_arriving_before_its_streams_first_point_is_kept_for_it():
     send(agg, SEGMENTS[0], range(11), now=0.0)
     agg.advance(live=False, now=0.1)
     assert not track.dropped and not track.held_raw, dict(track.dropped)
-    assert agg.fusion.exact.count[track.slot] == 1, "the early truth sample is judged"
+    assert agg.fusion.scoring.exact.count[track.slot] == 1, "the early truth sample is judged"
 
     restarted = wire.SegmentPoint(2, 0, 0, T0 + 20 * STEP_US, IDENTITY)  # the device rebooted: stream 2
     agg.on_point(wire.seg_key("s01", SEGMENTS[0]), wire.encode_point(restarted), 0.2)
@@ -173,7 +173,7 @@ def test_offline_device_does_not_hold_frames_back_and_they_are_flagged():
     later = exact(sent)[before:]
     assert [f.t_us - T0 for f in later] == list(range(520_000, 1_000_001, 20_000))
     assert all(f.flags & wire.FRAME_MISSING for f in later), "the held segment is flagged"
-    stats = {d["segment"]: d for d in agg.fusion.device_stats(agg.subjects["s01"], 0.1)}
+    stats = {d["segment"]: d for d in agg.fusion.device_stats([agg.subjects["s01"]], 0.1)[0]}
     assert stats[SEGMENTS[0]]["online"] is False and stats[SEGMENTS[1]]["online"] is True
 
 
@@ -228,7 +228,7 @@ def test_live_frames_extrapolate_open_segments_with_the_point_rate():
     for segment in SEGMENTS:  # later points make the truth final, and the segment before them exact
         send(agg, segment, range(1, 3), now=0.2)
     agg.advance(live=True, now=0.2)
-    stats = {d["segment"]: d for d in agg.fusion.device_stats(agg.subjects["s01"], 0.2)}
+    stats = {d["segment"]: d for d in agg.fusion.device_stats([agg.subjects["s01"]], 0.2)[0]}
     assert stats[SEGMENTS[0]]["live_max_deg"] < 1e-3, stats[SEGMENTS[0]]
     assert abs(stats[SEGMENTS[1]]["live_p50_deg"] - 5.7248) < 0.01, "held: the 0.1 rad turn"
     assert stats[SEGMENTS[1]]["live_err_deg"] == stats[SEGMENTS[1]]["live_p99_deg"] == stats[SEGMENTS[1]]["live_max_deg"]
@@ -242,7 +242,7 @@ def test_live_frames_stop_extrapolating_a_device_that_went_silent():
     OVERDUE_GRACE_S; later live frames hold it at that point and are flagged MISSING. The horizon
     follows the max_len the device reports."""
     from limbstream import quat
-    from limbstream.services.aggregator.fusion import OVERDUE_GRACE_S
+    from limbstream.services.aggregator.frames import OVERDUE_GRACE_S
 
     agg, sent = spinning_subject()
     spin = SPIN
@@ -271,3 +271,37 @@ def test_live_frames_stop_extrapolating_a_device_that_went_silent():
     assert not frame.flags & wire.FRAME_MISSING
     expected = quat.predict(np.array(IDENTITY), np.array(spin), (frame.t_us - T0) / 1e6)
     assert quat.angle_deg(frame.q[0].astype(np.float64), expected) < 1e-3
+
+
+def test_a_frame_stage_takes_each_ticks_frames_of_every_subject_before_they_are_encoded():
+    """The place for work on whole frames (joint angles from the live frames, say): every tick's
+    frame batch, all subjects at once, orientations in float64; what it returns is published."""
+    agg, sent = aggregator()
+    online_subject(agg)
+    online_subject(agg, "s02")
+    batches, published = [], []
+
+    def stage(batch):
+        batches.append(batch)
+        return [(wire.subject_key(SUBJECTS[i], "stats"), "stats", bytes([i])) for i in batch.live_owner.tolist()]
+
+    class Publisher:
+        def __init__(self, key, kind):
+            self.key, self.kind = key, kind
+
+        def put(self, payload):
+            published.append((self.key, self.kind, payload))
+
+    agg.frame_stages.append(stage)
+    agg._publisher = Publisher
+    for subject in SUBJECTS:
+        for segment in SEGMENTS:
+            send(agg, segment, range(6), now=0.0, subject=subject)
+    agg.advance(live=True, now=0.1)
+    batch = batches[-1]
+    assert batch.exact.q.dtype == np.float64 and batch.exact.q.shape == (len(exact(sent)), len(SEGMENTS), 4)
+    assert sorted(set(batch.exact_owner.tolist())) == [0, 1] and batch.live_owner.tolist() == [0, 1]
+    assert published == [(wire.stats_key(s), "stats", bytes([i])) for i, s in enumerate(SUBJECTS)]
+
+
+SUBJECTS = ("s01", "s02")

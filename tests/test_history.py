@@ -33,7 +33,7 @@ def test_a_stream_joined_late_gets_its_start_from_the_devices_cache(watch, stack
                 agg.on_point(str(sample.key_expr), sample.payload.to_bytes(), now, sample)
             agg.drain(now)
             agg.advance(live=False, now=now)
-            tracks = [agg._known("s01", s) for s in SEGMENTS]
+            tracks = [agg.known("s01", s) for s in SEGMENTS]
             return all(t is not None and t.first_seq is not None and t.settled(now) for t in tracks) and tracks
 
         tracks = wait_until(settled, 30, "every stream settled", on_fail=stack.logs)

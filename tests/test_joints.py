@@ -3,6 +3,7 @@ Euler sequences, the generator's own joint angles, constructed poses), gimbal lo
 segments, the functional calibration of the facing, and the error figures."""
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -10,10 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from limbstream import calibration, quat, wire
-from limbstream.joints import (ANGLES, GIMBAL, JOINT_TABLE, MISSING, TO_OPENSIM, UNCALIBRATED, HingeStats,
-                               angle_errors, euler_zxy, face, from_readings, functional_calibration, joint_angles,
-                               true_angles)
-from limbstream.sources import Motion, generator
+from limbstream.joints import (ANGLES, GIMBAL, JOINT_TABLE, MISSING, TO_OPENSIM, UNCALIBRATED, Facing, HingeStats,
+                               angle_errors, euler_zxy, face, functional_calibration, joint_angles, true_angles)
+from limbstream.sources import Motion, generator, imu_files
 
 SEG = {name: i for i, name in enumerate(wire.SEGMENTS)}
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
@@ -161,17 +161,34 @@ def walk_with_still_start(seed: int, fs: float = 50.0) -> tuple[np.ndarray, np.n
     return q, knee, math.radians(heading)
 
 
+def facing_of(rest: np.ndarray) -> tuple[np.ndarray, Facing]:
+    """The anatomical orientations of rest-calibrated segments (m, 10, 4) and the facing the
+    hinges told (as the export finds it)."""
+    stats = HingeStats.empty()
+    stats.add(rest)
+    facing = stats.facing()
+    return face(rest, facing.heading), facing
+
+
 @pytest.mark.parametrize("up", ["y", "z"])
 def test_functional_calibration_finds_the_facing_of_shared_heading_sensors(up):
     """Sensors in one world (heading h, their world's up axis ``up``), strapped on with any
-    mounting: the rest calibration of the still second leaves the facing; the knees give it."""
+    mounting: the rest calibration of the still second (an IMU recording's loader for a Z-up
+    world, ``imu_files.to_body``) leaves the facing; the knees give it."""
     q, knee, heading = walk_with_still_start(seed=4)
     h = math.radians(70.0)
     mounting = quat.from_rotation(Rotation.random(len(wire.SEGMENTS), random_state=5))
     world = quat.multiply(calibration.axis_angle(X, math.pi / 2) if up == "z" else IDENTITY, calibration.yaw(h))
     readings = quat.multiply(quat.multiply(world, q), mounting)
-    anatomical, present, facing = from_readings(readings, wire.SEGMENTS, 50.0, up=up)
-    assert present.all() and facing.counted[:2].all()
+    if up == "z":
+        motion = imu_files.to_body(Motion(np.arange(len(q)) / 50.0, readings, wire.SEGMENTS, "walk",
+                                          orientations="sensors"))
+        assert motion.orientations == "rest"
+        rest_q = motion.q
+    else:
+        rest_q = calibration.calibrate_start(readings, 50.0, wire.SEGMENTS)
+    anatomical, facing = facing_of(rest_q)
+    assert facing.counted[:2].all()
     want = math.remainder(h + heading - float(facing.heading), math.tau)
     assert abs(math.degrees(want)) < 0.5, facing.describe()
     got, flags = joint_angles(anatomical)
@@ -180,10 +197,9 @@ def test_functional_calibration_finds_the_facing_of_shared_heading_sensors(up):
     assert np.abs(angle(got, "knee_angle_l") - knee).max() < 0.5
 
 
-def test_functional_calibration_refuses_a_subject_that_did_not_move():
-    still = rest(200)
-    with pytest.raises(calibration.CalibrationError, match="no facing"):
-        from_readings(still, wire.SEGMENTS, 50.0, up="y")
+def test_functional_calibration_finds_no_facing_for_a_subject_that_did_not_move():
+    _, facing = facing_of(rest(200))
+    assert not facing.found and "no facing" in facing.describe()
 
 
 def test_hinge_stats_are_incremental_and_batch_over_subjects():
@@ -230,8 +246,9 @@ def test_true_angles_and_error_figures():
     assert wrapped["knee_angle_l"]["bias"] == pytest.approx(-2.0)
     lacking = Motion(motion.t, motion.q[:, 1:], motion.segments[1:], "no left shank")
     assert np.isnan(angle(true_angles(lacking)[0], "knee_angle_l")).all()
-    with pytest.raises(ValueError, match="real sensors"):
-        true_angles(Motion(motion.t, motion.q, motion.segments, "imu", sensor_up="z"))
+    for orientations in ("rest", "sensors"):
+        with pytest.raises(ValueError, match="real sensors"):
+            true_angles(Motion(motion.t, motion.q, motion.segments, "imu", orientations=orientations))
 
 
 def test_eval_scores_the_calibrated_angles_against_the_truth(cmu_npz):
@@ -255,12 +272,35 @@ def test_eval_scores_the_calibrated_angles_against_the_truth(cmu_npz):
     assert rest_only["joints"]["hip_flexion_r"]["mean"] > 5.0
 
 
-def test_eval_joint_angles_needs_explicit_rows(cmu_npz):
-    from limbstream.cli import evaluate as cli_eval
+def test_eval_joint_angles_table(tmp_path, cmu_npz, xio_dir, capsys):
+    """``eval --joint-angles`` prints one line per (row, angle) with a legend; an angle whose
+    segments the source lacks shows – (a lower body: no arm angles). It needs explicit rows and
+    sources with true angles (motion files, not a recording of real sensors)."""
+    from limbstream import cli
+    from limbstream.sources import load_npz
 
-    parser = __import__("argparse").ArgumentParser()
-    cli_eval.add_arguments(parser)
-    assert cli_eval.run(parser.parse_args([str(cmu_npz), "--joint-angles"])) == 2
+    motion = load_npz(cmu_npz)[0]
+    legs = [wire.SEGMENTS.index(s) for s in ("hip", "l_thigh", "l_shank", "r_thigh", "r_shank")]
+    np.savez(tmp_path / "legs.npz", clip_legs=motion.q[:, legs], fs=np.float64(motion.fs),
+             segment_names=np.array([wire.SEGMENTS[k] for k in legs]), rest_pose=np.array(motion.rest_pose))
+    assert cli.main(["eval", str(tmp_path / "legs.npz"), "--thresholds", "1e-3,1e-2", "--joint-angles",
+                     "--json", str(tmp_path / "rows.json")]) == 0
+    text = capsys.readouterr().out
+    lines = [line.split() for line in text.split("joint angles of the reconstruction")[1].splitlines()
+             if line.startswith("fastsw ")]
+    assert [(ln[2], ln[3]) for ln in lines] == [(th, a) for th in ("1.00e-03", "1.00e-02") for a in ANGLES], text
+    scored = {ln[3]: ln[4:] for ln in lines if ln[2] == "1.00e-02"}
+    assert scored["elbow_flex_r"] == ["–", "–", "–", "0", "0"], scored
+    assert float(scored["knee_angle_l"][0]) > 0 and scored["knee_angle_l"][3] == str(len(motion.t)), scored
+    assert "  bias (deg)" in text and "  frames " in text and "does not apply to the row" in text and "nan" not in text
+    rows = json.loads((tmp_path / "rows.json").read_text())
+    assert rows[1]["joints"]["elbow_flex_r"] == {"mean": None, "p99": None, "bias": None, "n": 0, "gimbal": 0}
+    assert rows[1]["joints"]["knee_angle_l"]["mean"] == pytest.approx(float(scored["knee_angle_l"][0]), abs=0.01)
+
+    assert cli.main(["eval", str(cmu_npz), "--joint-angles"]) == 2
+    assert "--thresholds TH[,TH...]" in capsys.readouterr().err
+    assert cli.main(["eval", str(xio_dir), "--thresholds", "1e-3", "--joint-angles"]) == 2
+    assert "no true joint angles" in capsys.readouterr().err
 
 
 OPENSIM_JOINTS = (  # (joint, parent body, child body, segment, ((coordinate, axis, coefficient) x 1 or 3))

@@ -12,16 +12,19 @@ from stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixtur
 BOUND_DEG = 5.0
 
 
-def test_live_rule_bounds_the_live_view_through_a_router(stack, watch, cmu_npz):  # noqa: F811
+def test_live_rule_bounds_the_live_view_through_a_router(stack, watch, cmu_npz, tmp_path):  # noqa: F811
     """s01 runs --live-bound-deg 5, s02 the same clip without the rule: s01's live view is within
     the bound at every truth sample (p99 and max, with margin for float32), s02's held view is
     far off; both reconstruct the exact frames alike, and the rule costs more points (at most 3x at TH 1e-2)."""
     motion = load_npz(cmu_npz)[0]
     m = len(motion.t)
+    clip = tmp_path / "clip.npz"  # the first clip alone, which both subjects play from its start
+    np.savez(clip, **{f"clip_{motion.name}": motion.q.astype(np.float32)}, fs=motion.fs,
+             segment_names=np.array(motion.segments), rest_pose=np.array(motion.rest_pose))
     stack.aggregator()
     keys = [k for s in ("s01", "s02") for seg in motion.segments for k in (wire.seg_key(s, seg), wire.raw_key(s, seg))]
     wait_for_subscribers(stack.endpoint, keys, "the aggregator's subscriptions", on_fail=stack.logs)
-    common = ("--source", str(cmu_npz), "--once", "--max-len", "25", "--threshold", "1e-2")
+    common = ("--source", str(clip), "--same-start", "--once", "--max-len", "25", "--threshold", "1e-2")
     stack.emulator(1, 10.0, *common, "--live-bound-deg", str(BOUND_DEG))
     stack.emulator(1, 10.0, *common, "--first-subject", "2")
 

@@ -81,6 +81,14 @@ def test_generator_subjects_stream_full_body_frames(stack, watch):  # noqa: F811
     assert loop["id"] == watch.subjects["s02"]["aggregator"]["id"] and loop["subjects"] == 2, loop
     assert loop["ticks"] > 0 and 0 <= loop["late"] < loop["ticks"] and loop["missed"] == 0, loop
     assert 0 < loop["load"] < 1 and 0 < loop["recent_max_tick_ms"] <= loop["max_tick_ms"], loop
+    # stats go out in the compact form; a client that asks gets them as JSON (a query of the stats keys)
+    answers = {str(r.ok.key_expr): r.ok.payload.to_bytes() for r in session.get(wire.subject_selector("stats"),
+                                                                                 timeout=5.0) if r.ok is not None}
+    assert sorted(answers) == [wire.stats_key("s01"), wire.stats_key("s02")], sorted(answers)
+    for key, text in answers.items():
+        data = json.loads(text)
+        assert data == wire.decode_stats(text) and key.endswith(f"/{data['subject']}/stats"), data
+        assert [d["segment"] for d in data["devices"]] == sorted(SEGMENTS) and data["frames"] > 0, data
 
 
 def test_killed_device_goes_offline_while_others_stream_on(stack, watch):  # noqa: F811

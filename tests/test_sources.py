@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from limbstream import quat
-from limbstream.sources import SEGMENTS, MotionFileError, bvh, imu_files, load, load_npz
+from limbstream.sources import SEGMENTS, MotionFileError, bvh, imu_files, load, load_npz, names
 
 CLIPS = ("01_01", "02_01", "05_06", "131_01", "131_02", "131_03")
 BVH_TOL_DEG = 1e-3  # the npz is float32: rounding alone leaves ~1e-5 deg
@@ -188,7 +188,7 @@ def test_xio_raw_streams(xio_dir):
 
 def test_xio_folder_is_slerp_on_common_grid(xio_dir):
     streams = imu_files.xio_streams(xio_dir)
-    (motion,) = load(xio_dir)
+    motion = imu_files.align(streams)
     start = max(s.t[0] for s in streams)
     assert motion.t[0] == 0.0 and motion.t[-1] <= min(s.t[-1] for s in streams) - start + 1e-9
     medians = [1.0 / np.median(np.diff(s.t)) for s in streams]
@@ -253,14 +253,79 @@ def test_xsens_files_rate_counter_and_gravity(xsens_dir):
 
 
 def test_xsens_folder(xsens_dir):
-    (motion,) = load(xsens_dir)
-    assert len(motion.segments) == 8 and motion.segments[0] == "00B421E6"
+    (motion,) = load(xsens_dir, {"00B421E6": "hip", "00B421ED": "l_shank"})
+    assert motion.segments == ("hip", "l_shank"), motion.segments  # a mapping leaves the others out
     assert abs(motion.fs - 100.0) < 1e-6
     first = imu_files.read_xsens_txt(xsens_dir / "00B421E6.txt")
     n = min(len(first.t), len(motion.t))
-    assert quat.angle_deg(motion.q[:n, 0], first.q[:n]).max() < 1e-4  # shared counter: same samples
-    named = imu_files.load_xsens_folder(xsens_dir, names={"00B421E6": "hip"})
-    assert named.segments[0] == "hip"
+    # shared counter: the same samples, made segment orientations (turned Y up, calibrated at the start)
+    body = quat.multiply(imu_files.Z_UP_TO_Y_UP, first.q[:n])
+    relative = quat.multiply(quat.conjugate(body[:n]), motion.q[:n, 0])  # the constant right factor S0^-1
+    assert quat.angle_deg(relative, np.broadcast_to(relative[0], relative.shape)).max() < 1e-4
+    assert quat.angle_deg(motion.q[:50, 0], np.broadcast_to([1.0, 0, 0, 0], (50, 4))).max() < 2.0
+
+
+def test_an_imu_recording_without_body_segments_is_an_error_naming_its_sensors_and_the_flag(xsens_dir):
+    with pytest.raises(MotionFileError) as err:
+        load(xsens_dir)
+    assert "no sensor maps to a body segment (sensors found: 00B421E6, 00B421ED," in str(err.value)
+    assert "--names NAME|FILE|SENSOR=SEGMENT" in str(err.value) and "opensense" in str(err.value)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("opensense", names.NAMED["opensense"]),
+    ("A1=hip, B2 = l_thigh", {"A1": "hip", "B2": "l_thigh"}),
+])
+def test_names_parse_named_mappings_and_lists(text, expected):
+    assert names.parse(text) == expected
+
+
+def test_names_parse_a_file(tmp_path):
+    path = _write(tmp_path / "map.txt", "# my suit\nA1=hip\nB2=r_foot, C3=neck  # the head band\n")
+    assert names.parse(str(path)) == {"A1": "hip", "B2": "r_foot", "C3": "neck"}
+
+
+@pytest.mark.parametrize("text, message", [
+    ("nosuchmapping", "neither a named mapping (opensense), a file, nor a SENSOR=SEGMENT list"),
+    ("A1=hip,B2", "'B2' is not SENSOR=SEGMENT"),
+    ("A1=knee", "'knee' is not a segment"),
+    ("A1=hip,A1=neck", "sensor 'A1' is mapped twice"),
+])
+def test_names_parse_refuses_bad_mappings(text, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        names.parse(text)
+
+
+def test_names_match_file_names_ending_in_the_sensor():
+    stems = ["MT_012005D6_009-001_00B4227C", "Left_Upper", "00B42268"]
+    assert names.name_sensors(stems, {"00b4227c": "r_thigh"}) == ["r_thigh", None, None]
+    assert names.name_sensors(stems, None) == ["MT_012005D6_009-001_00B4227C", "l_thigh", "00B42268"]
+
+
+def test_names_only_for_imu_recordings(cmu_npz):
+    with pytest.raises(MotionFileError, match="--names maps the sensors of IMU recordings"):
+        load(cmu_npz, {"A": "hip"})
+
+
+def test_an_imu_recording_becomes_segment_orientations_from_its_still_start(xio_dir):
+    """Loaded, the x-IMU3 recording (which starts standing still) is on the skeleton's Y-up world
+    and calibrated: every segment at rest at the start, and the legs hang below the hips."""
+    (motion,) = load(xio_dir)
+    assert motion.rest_pose == "standing" and motion.orientations == "rest"
+    start = motion.q[: round(motion.fs)]
+    assert quat.angle_deg(start, np.broadcast_to([1.0, 0, 0, 0], start.shape)).max() < 2.0
+    down = quat.rotate(motion.q[:, motion.segments.index("l_thigh")], [0.0, -1.0, 0.0])
+    assert np.mean(down[:, 1] < 0) > 0.95, "the thigh's bone points down in most samples"
+
+
+def test_a_recording_that_does_not_start_still_is_left_uncalibrated_with_a_warning(tmp_path):
+    rows = "\n".join(f"{1000 + 20000 * k},{np.cos(0.05 * k)},{np.sin(0.05 * k)},0,0" for k in range(100))
+    _write(tmp_path / "Left_Upper.csv", "Timestamp (us),W,X,Y,Z\n" + rows + "\n")
+    with pytest.warns(UserWarning, match="not calibrated, the sensors do not start in a still rest pose"):
+        (motion,) = load(tmp_path)
+    assert motion.orientations == "sensors"
+    raw = quat.multiply(imu_files.Z_UP_TO_Y_UP, imu_files.read_xio_csv(tmp_path / "Left_Upper.csv").q)
+    assert quat.angle_deg(motion.q[:, 0], raw[: len(motion.t)]).max() < 1e-4
 
 
 XSENS_HEAD = (
@@ -328,10 +393,12 @@ def test_load_dispatch(tmp_path, cmu_bvh_dir, xio_dir, xsens_dir, cmu_npz):
     assert [m.name for m in load(cmu_bvh_dir)] == list(CLIPS)
     assert load(cmu_bvh_dir / "02_01.bvh")[0].q.shape == (143, 10, 4)
     (single,) = load(xio_dir / "Left_Foot.csv")
-    assert single.segments == ("l_foot",) and single.t[0] == 0.0
-    (one,) = load(xsens_dir / "00B421E6.txt")
+    raw = imu_files.read_xio_csv(xio_dir / "Left_Foot.csv")
+    assert single.segments == ("l_foot",) and np.array_equal(single.t, raw.t - raw.t[0])  # its own samples
+    (one,) = load(xsens_dir / "00B421E6.txt", {"00B421E6": "l_foot"})
     assert one.q.shape[1] == 1 and abs(one.fs - 100.0) < 1e-6
     assert len(load(cmu_npz)) == len(CLIPS)
+    assert {m.orientations for m in load(cmu_npz) + load(cmu_bvh_dir)} == {"segments"}
     with pytest.raises(MotionFileError, match="no such file"):
         load(tmp_path / "missing.bvh")
     with pytest.raises(MotionFileError, match="unknown motion file type"):

@@ -133,6 +133,71 @@ def test_raw_batch_round_trip_and_errors():
         assert err.value.reason == reason
 
 
+def payloads_of_points(count: int, seed: int) -> list[bytes]:
+    """Valid v1 and v2 points and every kind of bad one, mixed."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(count):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        omega = None if i % 3 else tuple(rng.normal(0, 3, 3))
+        good = wire.encode_point(wire.SegmentPoint(i % 65536, i, 3 * i, 1_800_000_000_000_000 + i, tuple(q), i % 2, omega))
+        bad = [good[:-1], good + b"\0", bytes([7]) + good[1:], b"", good[:20] + struct.pack("<4f", math.nan, 0, 0, 0),
+               good[:20] + struct.pack("<4f", 1.5, 0, 0, 0), good[:36] + struct.pack("<3f", 0, math.inf, 0)]
+        out.append(good if rng.random() < 0.7 else bad[int(rng.integers(len(bad)))])
+    return out
+
+
+def test_points_decoded_together_are_the_points_decoded_one_by_one():
+    payloads = payloads_of_points(3000, 1)
+    cols = wire.decode_points(payloads)
+    for i, payload in enumerate(payloads):
+        try:
+            p = wire.decode_point(payload)
+        except wire.WireError as exc:
+            assert cols.reason[i] == exc.reason, (i, payload)
+            continue
+        assert cols.reason[i] is None
+        got = (cols.stream[i], cols.seq[i], cols.index[i], cols.t_us[i], cols.flags[i], tuple(cols.q[i].tolist()))
+        assert got == (p.stream, p.seq, p.index, p.t_us, p.flags, p.q), i
+        assert tuple(cols.omega[i].tolist()) == (p.omega or (0.0, 0.0, 0.0)) and cols.nbytes[i] == len(payload)
+    assert len(wire.decode_points([]).reason) == 0
+
+
+def test_truth_batches_decoded_together_are_the_batches_decoded_one_by_one():
+    rng = np.random.default_rng(2)
+    payloads = []
+    for i in range(600):
+        n = int(rng.integers(1, 40))
+        t = 1_800_000_000_000_000 + np.cumsum(rng.integers(0, 30_000, n))
+        good = bytearray(wire.encode_raw(wire.RawBatch(i % 9, 10 * i, t, rng.normal(size=(n, 4)).astype(np.float32),
+                                                       t + 3_000 if i % 2 else None)))
+        kind = rng.integers(8)
+        if kind == 1:
+            good = good[:-3]
+        elif kind == 2:
+            good[0] = 9
+        elif kind == 3:
+            good[-4:] = struct.pack("<f", math.nan)
+        elif kind == 4 and n > 1:  # the first two samples' times swapped
+            header, size = (28, 24) if i % 2 else (20, 20)
+            good[header:header + 4], good[header + size:header + size + 4] = (good[header + size:header + size + 4],
+                                                                              good[header:header + 4])
+        payloads.append(bytes(good))
+    cols = wire.decode_raws(payloads + [b""])
+    assert cols.reason[-1] == "size"
+    for i, payload in enumerate(payloads):
+        try:
+            b = wire.decode_raw(payload)
+        except wire.WireError as exc:
+            assert cols.reason[i] == exc.reason, (i, cols.reason[i], exc.reason)
+            continue
+        got = cols.batch(i)
+        assert cols.reason[i] is None and (got.stream, got.first_index) == (b.stream, b.first_index)
+        assert np.array_equal(got.t_us, b.t_us) and np.array_equal(got.q, b.q)
+        assert (got.ref_us is None and b.ref_us is None) or np.array_equal(got.ref_us, b.ref_us)
+
+
 def test_pose_frame_round_trip():
     rng = np.random.default_rng(1)
     q = rng.normal(size=(len(SEGMENTS), 4)).astype(np.float32)
@@ -171,25 +236,38 @@ def test_pose_frames_encode_as_the_documented_layout():
 SAMPLE_VALUES = {float: 0.5, int: 3, bool: True, str: "s01/hip", dict: {"size": 1}}
 
 
-def test_stats_round_trip_and_null_for_non_finite():
-    device = {f.name: SAMPLE_VALUES[f.type] for f in wire.DEVICE_FIELDS} | {"aad_deg": math.nan}
+def test_stats_round_trip_in_both_forms_and_null_for_non_finite():
+    device = {f.name: SAMPLE_VALUES[f.type] for f in wire.DEVICE_FIELDS} | {"aad_deg": math.nan, "gaps": 2**40}
     loop = {f.name: SAMPLE_VALUES[f.type] for f in wire.AGGREGATOR_FIELDS}
-    data = wire.decode_stats(wire.encode_stats("s01", 1.5, [device], {"frames": 3, "aggregator": loop}, seq=7))
+    other = device | {"online": False, "tracker": None, "sync_bad": None, "max_len": None, "icr": math.inf}
+    args = ("s01", 1.5, [device, other], {"frames": 3, "aggregator": loop})
+    compact, text = wire.encode_stats(*args, seq=7), wire.encode_stats_json(*args, seq=7)
+    assert compact[0] == wire.STATS_VERSION and text[:1] == b"{" and len(compact) < len(text)
+    data = wire.decode_stats(compact)
+    assert data == wire.decode_stats(text) == json.loads(wire.stats_json(compact)), "one message, two forms"
+    assert wire.stats_json(text) == text
     assert data["subject"] == "s01" and data["frames"] == 3 and data["seq"] == 7
-    assert data["devices"][0]["aad_deg"] is None
-    assert data["devices"][0] == {k: v for k, v in device.items() if k != "aad_deg"} | {"aad_deg": None}
+    assert data["devices"][0] == device | {"aad_deg": None}
+    assert data["devices"][1] == other | {"aad_deg": None, "icr": None}
     assert data["aggregator"] == loop
+    assert list(data) == ["subject", "t", "seq", "frames", "devices", "aggregator"]
     assert list(data["devices"][0]) == list(wire.STATS_FIELDS), "device fields in table order"
+    assert [type(v) for v in data["devices"][0].values()] == [type(v) for v in (device | {"aad_deg": None}).values()]
+    empty = wire.decode_stats(wire.encode_stats("s02", 2.0, []))
+    assert empty == {"subject": "s02", "t": 2.0, "seq": 0, "devices": []}
 
 
 def test_stats_fields_are_declared_and_typed():
-    """The encoder refuses a field the table lacks; the decoder a value of the wrong type."""
-    with pytest.raises(ValueError, match="not declared"):
-        wire.encode_stats("s01", 1.0, [{"device": "s01/hip", "speed": 3}])
-    with pytest.raises(ValueError, match="not declared"):
-        wire.encode_stats("s01", 1.0, [], {"aggregator": {"colour": 1}})
-    sparse = json.loads(wire.encode_stats("s01", 1.0, [{"device": "s01/hip"}]))
+    """The encoders refuse a field the table lacks; the decoder a value of the wrong type, and a
+    compact message whose parts do not fit."""
+    for encode in (wire.encode_stats, wire.encode_stats_json):
+        with pytest.raises(ValueError, match="not declared"):
+            encode("s01", 1.0, [{"device": "s01/hip", "speed": 3}])
+        with pytest.raises(ValueError, match="not declared"):
+            encode("s01", 1.0, [], {"aggregator": {"colour": 1}})
+    sparse = json.loads(wire.encode_stats_json("s01", 1.0, [{"device": "s01/hip"}]))
     assert set(sparse["devices"][0]) == set(wire.STATS_FIELDS), "missing device fields are sent as null"
+    assert wire.decode_stats(wire.encode_stats("s01", 1.0, [{"device": "s01/hip"}])) == sparse
     for field in wire.DEVICE_FIELDS:
         wrong = "text" if field.type is not str else 5
         bad = dict(sparse, devices=[sparse["devices"][0] | {field.name: wrong}])
@@ -198,6 +276,12 @@ def test_stats_fields_are_declared_and_typed():
     for bad_seq in ("1", 1.5, True):
         with pytest.raises(wire.WireError):
             wire.decode_stats(json.dumps(sparse | {"seq": bad_seq}).encode())
+    good = wire.encode_stats("s01", 1.0, [{"device": "s01/hip", "points": 3}])
+    column = 12 + int.from_bytes(good[8:12], "little") + 8 * wire.STATS_NUMBERS.index("points")
+    half = good[:column] + struct.pack("<d", 2.5) + good[column + 8:]
+    for bad in (good[:-1], good + b"\0" * 8, good[:11], good[:12] + b"[" + good[13:], half):
+        with pytest.raises(wire.WireError):
+            wire.decode_stats(bad)
 
 
 def test_field_table_is_consistent():

@@ -2,11 +2,11 @@
  * lsw_grid.c - irregular arrivals on a uniform grid per device (see lsw_grid.h). Host library only.
  */
 #include "lsw_grid.h"
+#include "lsw_quat.h"
 
 #include <math.h>
 #include <string.h>
 
-#define NEAR_SIN 1e-6 /* SLERP by linear interpolation below this sin(angle), as limbstream.quat.slerp */
 
 /** q = a * b (Hamilton product, w first). */
 static void quat_mul(const double *a, const double *b, double *q)
@@ -20,26 +20,11 @@ static void quat_mul(const double *a, const double *b, double *q)
 /** SLERP along the shorter arc, normalised, into float y: limbstream.quat.slerp step for step. */
 static void slerp(const double *q0, const double *q1, double u, float *y)
 {
-    double dot = q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3];
-    const double sign = dot < 0.0 ? -1.0 : 1.0;
-    double theta, sin_theta, w0, w1, out[4], norm;
+    double out[4];
     int i;
-    dot = fabs(dot);
-    theta = acos(dot > 1.0 ? 1.0 : dot);
-    sin_theta = sin(theta);
-    if (sin_theta < NEAR_SIN) {
-        w0 = 1.0 - u;
-        w1 = u;
-    } else {
-        w0 = sin((1.0 - u) * theta) / sin_theta;
-        w1 = sin(u * theta) / sin_theta;
-    }
+    lsw_quat_slerp(q0, q1, u, out);
     for (i = 0; i < 4; i++) {
-        out[i] = w0 * q0[i] + w1 * sign * q1[i];
-    }
-    norm = sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2] + out[3] * out[3]);
-    for (i = 0; i < 4; i++) {
-        y[i] = (float)(out[i] / norm);
+        y[i] = (float)out[i];
     }
 }
 

@@ -13,6 +13,8 @@ import argparse
 import importlib
 import sys
 
+from limbstream import zconfig
+
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("limbstream.cli.up", "run the whole live system on this machine"),
     "router": ("limbstream.cli.router", "run a Zenoh router (for one machine, no plugins)"),
@@ -32,9 +34,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+DESCRIPTION = ("Live full-body motion capture over Zenoh from wearable IMUs that send only fastSW segment "
+               "points. `limbstream up` runs the whole live system on this machine; `limbstream COMMAND --help` "
+               "lists a command's flags.")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per command."""
-    parser = argparse.ArgumentParser(prog="limbstream", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="limbstream", description=DESCRIPTION)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (_, help_text) in COMMANDS.items():
         sub.add_parser(name, help=help_text, description=help_text)
@@ -55,6 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     args = sub.parse_args(argv[1:])
     try:
         return int(module.run(args) or 0)
+    except zconfig.ConnectError as exc:
+        from limbstream.cli.zenoh_args import HINT
+        print(f"limbstream {name}: error: {exc} ({HINT})", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

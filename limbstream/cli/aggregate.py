@@ -6,7 +6,8 @@ import argparse
 import logging
 import threading
 
-from limbstream import wire, zconfig
+from limbstream import wire
+from limbstream.cli import zenoh_args
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator import main as aggregator
 from limbstream.services.aggregator.aggregator import AggregatorSettings
@@ -36,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep the devices' calibrations in this JSON file, so that a restarted aggregator "
                              "has them (default: not kept)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
@@ -62,4 +63,5 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(message)s")
-    return aggregator.run(settings_from_args(args), zconfig.from_args(args), stop)
+    settings = settings_from_args(args)
+    return aggregator.run(settings, zenoh_args.session_settings(args, "limbstream aggregate"), stop)

@@ -6,7 +6,13 @@ import argparse
 import sys
 import time
 
+import zenoh
+
 from limbstream import wire, zconfig
+from limbstream.cli import zenoh_args
+
+PROG = "limbstream calibrate"
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", help="the subject, e.g. s01")
@@ -15,7 +21,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "yaw: heading only, in the rest pose")
     parser.add_argument("--countdown", type=float, default=0.0, metavar="S",
                         help="count down this many seconds first, to get into the pose (default 0)")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
+
+
+def answers(replies, poll_s: float = 0.05) -> list:
+    """Every reply of a query, taken without blocking in Zenoh (so that Ctrl-C stops the wait)."""
+    got = []
+    while True:
+        try:
+            reply = replies.try_recv()
+        except zenoh.ZError:  # the query is over: "channel is empty and closed"
+            return got
+        if reply is None:
+            time.sleep(poll_s)
+        else:
+            got.append(reply)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -27,13 +47,14 @@ def run(args: argparse.Namespace) -> int:
     if not args.countdown >= 0:
         print(f"limbstream calibrate: error: --countdown must be >= 0, got {args.countdown}", file=sys.stderr)
         return 2
-    for left in range(int(round(args.countdown)), 0, -1):
-        print(f"hold the {args.pose} pose in {left} ...", flush=True)
-        time.sleep(1.0)
-    print(f"hold the {args.pose} pose still for {wire.CALIBRATION_HOLD_S:g} s", flush=True)
-    session = zconfig.open_session(zconfig.from_args(args))
+    session = zconfig.open_session(zenoh_args.session_settings(args, PROG))
     try:
-        replies = list(session.get(key, payload=wire.encode_calibrate_request(args.pose), timeout=wire.CALIBRATION_ANSWER_TIMEOUT_S))
+        for left in range(int(round(args.countdown)), 0, -1):
+            print(f"hold the {args.pose} pose in {left} ...", flush=True)
+            time.sleep(1.0)
+        print(f"hold the {args.pose} pose still for {wire.CALIBRATION_HOLD_S:g} s", flush=True)
+        replies = answers(session.get(key, payload=wire.encode_calibrate_request(args.pose),
+                                      timeout=wire.CALIBRATION_ANSWER_TIMEOUT_S))
     finally:
         session.close()
     if not replies:
@@ -47,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
     if not answer.ok:
         print(f"limbstream calibrate: refused: {answer.reason}", file=sys.stderr)
         return 1
-    print(f"{args.subject}: {len(answer.devices)} devices calibrated ({args.pose})")
+    print(f"{args.subject}: {len(answer.devices)} devices calibrated ({args.pose})"
+          + (f"; no device on {', '.join(answer.absent)} (not calibrated)" if answer.absent else ""))
     for device, info in sorted(answer.devices.items()):
         print(f"  {device}: {'+'.join(info.get('poses', []))}, heading {info.get('heading_deg')} deg")
     return 0

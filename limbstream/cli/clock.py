@@ -6,7 +6,7 @@ import argparse
 import logging
 import threading
 
-from limbstream import zconfig
+from limbstream.cli import zenoh_args
 from limbstream.services.clock import main as clock
 from limbstream.services.clock.service import ClockServiceSettings
 
@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     test.add_argument("--jump-ms", type=float, default=0.0, help="the served clock jumps by this much once")
     test.add_argument("--jump-after-s", type=float, default=0.0, help="... this many wall seconds after the start")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> ClockServiceSettings:
@@ -46,4 +46,5 @@ def settings_from_args(args: argparse.Namespace) -> ClockServiceSettings:
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(message)s")
-    return clock.run(settings_from_args(args), zconfig.from_args(args), stop)
+    settings = settings_from_args(args)
+    return clock.run(settings, zenoh_args.session_settings(args, "limbstream clock"), stop)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from limbstream import zconfig
+from limbstream.cli import zenoh_args
 
 from limbstream.services.dashboard import main as dashboard
 from limbstream.services.dashboard.settings import DashboardSettings
@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cors-origin", action="append", default=None, metavar="ORIGIN",
                         help="allow this extra origin (repeatable; default: same origin only)")
     parser.add_argument("--log-level", default="warning", help="uvicorn log level (default warning)")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser, timeout=False)  # a server: it waits for its router
 
 
 def settings_from_args(args: argparse.Namespace) -> DashboardSettings:

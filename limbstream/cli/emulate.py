@@ -8,7 +8,9 @@ import os
 import threading
 from pathlib import Path
 
-from limbstream import calibration, wire, zconfig
+from limbstream import calibration, wire
+from limbstream.cli import zenoh_args
+from limbstream.cli.values import add_names_argument
 from limbstream.device_emulator import main as emulator
 from limbstream.device_emulator.device_clocks import ClockSettings
 from limbstream.device_emulator.emulator import EmulatorSettings
@@ -16,21 +18,40 @@ from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
 from limbstream.device_emulator.main import subject_names
 from limbstream.sources import MotionFileError, load
 
+PROG = "limbstream emulate"
+
 
 def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
-    """{subject: feed} from --source: the generator (seed = subject number) or a motion file;
-    ``scripted``: each begins with the calibration script (limbstream.calibration)."""
+    """{subject: feed} from --source: the generator (seed = subject number) or a motion file, whose
+    clips the subjects share in turn (:func:`clip_of`); ``scripted``: each begins with the
+    calibration script (limbstream.calibration)."""
     names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
     if args.source == "generator":
         feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
                  for i, name in enumerate(names)}
     else:
-        motions = load(args.source)
-        feeds = {name: LoopFeed(motions[i % len(motions)], args.rate, once=args.once) for i, name in enumerate(names)}
+        motions = load(args.source, args.names)
+        feeds = {}
+        for i, name in enumerate(names):
+            clip, start = clip_of(args.first_subject + i, len(motions), args.same_start)
+            feeds[name] = LoopFeed(motions[clip], args.rate, once=args.once, start=start)
     if not scripted:
         return feeds
     return {name: calibration.ScriptedFeed(f, args.rate, None if f.length is not None or not hasattr(f, "q")
                                            else len(f.q)) for name, f in feeds.items()}
+
+
+START_STEP = (5 ** 0.5 - 1) / 2
+"""How far into a clip each further subject that shares it starts, as a fraction of the clip
+(the golden ratio's: the starts of any number of subjects stay apart)."""
+
+
+def clip_of(number: int, clips: int, same_start: bool = False) -> tuple[int, float]:
+    """(clip index, start as a fraction of the clip) of subject ``number`` (s01 = 1) over a
+    source of ``clips`` clips: the subjects take the clips in turn; the k-th one (from 0) to
+    take a clip starts ``k * START_STEP`` (mod 1) into it, or at its start with ``same_start``."""
+    k, clip = divmod(number - 1, clips)
+    return clip, 0.0 if same_start else (k * START_STEP) % 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,6 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", default=env("LIMBSTREAM_SOURCE", "generator"),
                         help="'generator' (built-in, default) or a motion file/folder (.npz, .bvh, .csv, .txt) "
                              "(env LIMBSTREAM_SOURCE)")
+    add_source_arguments(parser)
     parser.add_argument("--once", action="store_true", help="play a file source once, then flush and idle")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds of device time")
     parser.add_argument("--rate", type=float, default=50.0, help="device sample rate, Hz (default 50)")
@@ -62,7 +84,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_clock_arguments(parser)
     calibration.add_arguments(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
+
+
+def add_source_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags of a file source that ``limbstream up`` passes on (``--names``, ``--same-start``)."""
+    add_names_argument(parser)
+    parser.add_argument("--same-start", action="store_true",
+                        help="subjects that share a clip play it in step (default: each further one starts "
+                             f"{100 * START_STEP:.1f} %% of the clip further in)")
 
 
 def add_clock_arguments(parser: argparse.ArgumentParser, tuning: bool = True) -> None:
@@ -99,12 +129,24 @@ def clock_flags(args: argparse.Namespace) -> list[str]:
     return argv if args.sync else argv + ["--no-sync"]
 
 
-def clock_settings(args: argparse.Namespace) -> ClockSettings:
-    """ClockSettings from the flags; SystemExit naming a bad one."""
-    checks = [
+def check_clock(args: argparse.Namespace) -> None:
+    """ValueError naming the first bad flag of :func:`add_clock_arguments` without tuning."""
+    for ok, message in (
         (0 <= args.clock_offset_ms <= 1e7, f"--clock-offset-ms must be in 0..1e7, got {args.clock_offset_ms}"),
         (0 <= args.clock_drift_ppm <= 1000, f"--clock-drift-ppm must be in 0..1000, got {args.clock_drift_ppm}"),
         (0 <= args.clock_jitter_us <= 1000, f"--clock-jitter-us must be in 0..1000, got {args.clock_jitter_us}"),
+    ):
+        if not ok:
+            raise ValueError(message)
+
+
+def clock_settings(args: argparse.Namespace) -> ClockSettings:
+    """ClockSettings from the flags; SystemExit naming a bad one."""
+    try:
+        check_clock(args)
+    except ValueError as exc:
+        raise SystemExit(f"{PROG}: error: {exc}") from None
+    checks = [
         (args.sync_poll_s >= 1, f"--sync-poll-s must be >= 1, got {args.sync_poll_s}"),
         (args.sync_holdover_s > 0, f"--sync-holdover-s must be > 0, got {args.sync_holdover_s}"),
         (args.sync_wait_s >= 0, f"--sync-wait-s must be >= 0, got {args.sync_wait_s}"),
@@ -142,7 +184,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if args.firmware:
         return run_firmware(args, feeds, settings_of(args, sensors), stop)
-    return emulator.run(feeds, settings_of(args, sensors), zconfig.from_args(args), args.duration, args.verbose, stop)
+    settings = settings_of(args, sensors)
+    return emulator.run(feeds, settings, zenoh_args.session_settings(args, PROG), args.duration, args.verbose, stop)
 
 
 def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
@@ -169,4 +212,4 @@ def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettin
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if not elf.exists():
         raise SystemExit(f"limbstream emulate: error: no firmware at {elf}")
-    return firmware_devices.run(feeds, settings, zconfig.from_args(args), elf, args.duration, stop)
+    return firmware_devices.run(feeds, settings, zenoh_args.session_settings(args, PROG), elf, args.duration, stop)

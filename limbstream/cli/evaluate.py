@@ -1,5 +1,5 @@
-"""``limbstream eval``: evaluate segmentation algorithms on motion files (table, JSON rows, Fig. 4 plot;
-with ``--live-bound``, fastSW's live rule and the frontier plot).
+"""``limbstream eval``: evaluate segmentation algorithms on motion files (table with its legend, JSON
+rows, Fig. 4 plot; with ``--live-bound``, fastSW's live rule and the frontier plot).
 
 The computation is :mod:`limbstream.evaluation`; this module parses, prints and draws.
 """
@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from limbstream import kernel
-from limbstream import calibration
+from limbstream import calibration, kernel
 from limbstream.calibration import CalibrationError
-from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate, format_table, frontier,
-                                   streams_of, write_json)
-from limbstream.joints import format_errors
+from limbstream.cli.values import add_names_argument, comma_list
+from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
+                                   format_joint_errors, format_table, frontier, streams_of, write_json)
+from limbstream.evaluation.table import Progress
 from limbstream.sources import Motion, MotionFileError, load
 
 
@@ -102,37 +102,34 @@ def plot_frontier(rows: Sequence[dict], bounds: Sequence[float], path: str | Pat
     plt.close(fig)
 
 
-def _bound_list(text: str) -> list[float]:
-    values = []
-    for part in (p for p in text.replace(" ", ",").split(",") if p):
-        try:
-            values.append(kernel.LIVE_BOUND.check(float(part)))
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"live bound must be degrees in 0..180 (0: the plain rules), got {part!r}") from None
-    if not values:
-        raise argparse.ArgumentTypeError("no live bound given")
-    return values
+def _live_bound(text: str) -> float:
+    try:
+        return kernel.LIVE_BOUND.check(float(text))
+    except ValueError:
+        raise ValueError(f"live bound must be degrees in 0..180 (0: the plain rules), got {text!r}") from None
 
 
-def _algorithm_list(text: str) -> list[str]:
-    names = [n for n in text.replace(" ", ",").split(",") if n]
-    for n in names:
-        if n not in kernel.ALGORITHMS:
-            raise argparse.ArgumentTypeError(
-                f"unknown algorithm {n!r} (choose from {', '.join(kernel.ALGORITHMS)})"
-            )
-    return names
+def _algorithm(name: str) -> str:
+    if name not in kernel.ALGORITHMS:
+        raise ValueError(f"unknown algorithm {name!r} (choose from {', '.join(kernel.ALGORITHMS)})")
+    return name
 
 
 def _threshold(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        raise ValueError(f"not a number: {text!r}") from None
     if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"threshold must be finite and >= 0, got {text}")
+        raise ValueError(f"threshold must be finite and >= 0, got {text}")
     return value
+
+
+def _calibration(text: str) -> tuple[str, ...]:
+    poses = () if text.strip() == "none" else tuple(p.strip() for p in text.split(",") if p.strip())
+    if poses not in CALIBRATIONS:
+        raise argparse.ArgumentTypeError(f"say none, rest or rest,mounting; got {text!r}")
+    return poses
 
 
 def _positive_int(text: str) -> int:
@@ -146,63 +143,32 @@ def _positive_int(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Arguments of ``limbstream eval``."""
-    parser.add_argument(
-        "paths",
-        nargs="+",
-        metavar="PATH",
-        help="motion files (.npz, .bvh, x-IMU3 .csv, Xsens .txt) or folders of them",
-    )
-    parser.add_argument(
-        "--algorithms",
-        nargs="+",
-        type=_algorithm_list,
-        default=None,
-        metavar="NAME",
-        help=f"algorithms to compare (default: {' '.join(ALGORITHMS)}; fastsw with --live-bound)",
-    )
-    parser.add_argument(
-        "--live-bound",
-        type=_bound_list,
-        default=None,
-        metavar="DEG[,DEG...]",
-        help="run fastSW's live rule at these bounds, degrees (0: the plain rules); rows gain the live "
-        "error; --plot draws the live frontier",
-    )
-    parser.add_argument(
-        "--predictor",
-        choices=PREDICTORS,
-        default="rate",
-        help="the points' rates for the live error: rate (the live rule's, through the neighbouring "
-        "sample; the C kernel), slope (the closed segment's) or hold (default rate)",
-    )
-    parser.add_argument(
-        "--thresholds",
-        nargs="+",
-        type=_threshold,
-        default=None,
-        metavar="TH",
-        help="evaluate these thresholds instead of the paper's sweep (0 and 205 values 1e-6..1e3)",
-    )
-    parser.add_argument(
-        "--max-len",
-        type=_positive_int,
-        default=MAX_LEN,
-        help=f"largest segment length, samples (default {MAX_LEN})",
-    )
+    """Arguments of ``limbstream eval``; every list flag takes ``A,B,C``."""
+    parser.add_argument("paths", nargs="+", metavar="PATH",
+                        help="motion files (.npz, .bvh, x-IMU3 .csv, Xsens .txt) or folders of them")
+    parser.add_argument("--algorithms", type=comma_list(_algorithm), default=None, metavar="NAME[,NAME...]",
+                        help=f"algorithms to compare (default: {','.join(ALGORITHMS)}; fastsw with --live-bound)")
+    parser.add_argument("--live-bound", type=comma_list(_live_bound), default=None, metavar="DEG[,DEG...]",
+                        help="run fastSW's live rule at these bounds, degrees (0: the plain rules); rows gain the "
+                             "live error; --plot draws the live frontier")
+    parser.add_argument("--predictor", choices=PREDICTORS, default="rate",
+                        help="the points' rates for the live error: rate (the live rule's, through the "
+                             "neighbouring sample; the C kernel), slope (the closed segment's) or hold (default rate)")
+    parser.add_argument("--thresholds", type=comma_list(_threshold), default=None, metavar="TH[,TH...]",
+                        help="evaluate these thresholds, one row each, instead of the paper's sweep (0 and 205 "
+                             "values 1e-6..1e3) shown at the ICRs 0.05, 0.10, 0.25, 0.50")
+    parser.add_argument("--max-len", type=_positive_int, default=MAX_LEN,
+                        help=f"largest segment length, samples (default {MAX_LEN})")
+    add_names_argument(parser)
     calibration.add_arguments(parser)
-    parser.add_argument("--calibration", choices=[",".join(p) or "none" for p in CALIBRATIONS],
-                         default="rest,mounting",
-                         help="with a sensor model: the calibration before body_aad (default rest,mounting)")
+    parser.add_argument("--calibration", type=_calibration, default=None, metavar="none|rest|rest,mounting",
+                        help="with a sensor model: the calibration before the body error (default rest,mounting)")
     parser.add_argument("--joint-angles", action="store_true",
-                        help="with --thresholds: each row's joint angle errors (mean, p99, bias per angle) against "
-                             "the true angles (docs/evaluation.md, 'Joint angles')")
-    parser.add_argument(
-        "--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here"
-    )
-    parser.add_argument(
-        "--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG"
-    )
+                        help="with --thresholds TH[,TH...]: each row's joint angle errors (mean, p99, bias per "
+                             "angle) against the true angles, a second table (docs/evaluation.md, 'Joint angles'); "
+                             "motion files only (a recording of real sensors has no true angles)")
+    parser.add_argument("--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here")
+    parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG")
 
 
 def _fail(message: str) -> int:
@@ -210,76 +176,104 @@ def _fail(message: str) -> int:
     return 2
 
 
-def run(args: argparse.Namespace) -> int:
-    """``limbstream eval``: print the ICR table, optionally write JSON rows and the plot."""
-    if args.algorithms is None:
-        algorithms = ["fastsw"] if args.live_bound is not None else list(ALGORITHMS)
-    else:
-        algorithms = list(dict.fromkeys(n for group in args.algorithms for n in group))
-    bounds = list(dict.fromkeys(args.live_bound)) if args.live_bound is not None else [0.0]
+def _note(message: str) -> None:
+    print(f"limbstream eval: note: {message}", file=sys.stderr)
+
+
+def _check(args: argparse.Namespace, algorithms: list[str], bounds: list[float]) -> str | None:
+    """The first problem of the flags, as a sentence (None: none)."""
     if any(b > 0 for b in bounds) and algorithms != ["fastsw"]:
-        return _fail(f"--live-bound is fastSW's rule: use it with --algorithms fastsw, not {' '.join(algorithms)}")
+        return f"--live-bound is fastSW's rule: use it with --algorithms fastsw, not {','.join(algorithms)}"
     if "sw" in algorithms and args.max_len > 1000:
-        return _fail(f"--max-len for algorithm 'sw' is at most 1000, got {args.max_len}")
+        return f"--max-len for algorithm 'sw' is at most 1000, got {args.max_len}"
     for out, what in ((args.json, "--json"), (args.plot, "--plot")):
         if out is not None and not out.parent.resolve().is_dir():
-            return _fail(f"{what} {out}: folder {out.parent} does not exist")
+            return f"{what} {out}: folder {out.parent} does not exist"
     if args.joint_angles and args.thresholds is None:
-        return _fail("--joint-angles prints a table per row: give the rows' --thresholds")
+        return "--joint-angles scores explicit rows: give them with --thresholds TH[,TH...]"
     if args.plot is not None and args.plot.suffix.lower() != ".png":
-        return _fail(f"--plot {args.plot}: must end in .png")
+        return f"--plot {args.plot}: must end in .png"
+    return None
+
+
+def _notes(args: argparse.Namespace, sensors: calibration.SensorModel, motions: list[Motion], n_samples: int) -> None:
+    """What a sensor model adds, or a --calibration with nothing to act on."""
+    if sensors.on:
+        plain = sum(len(m.t) * len(m.segments) for m in motions)
+        _note(f"the sensor model begins every motion with the calibration script (rest {calibration.REST_S:g} s, "
+              f"mounting {calibration.MOUNTING_S:g} s, with the moves between): {n_samples:,} samples instead of "
+              f"{plain:,}; ICR and AAD count the script's samples too")
+    elif args.calibration is not None:
+        _note(f"--calibration {','.join(args.calibration) or 'none'} has nothing to act on without a sensor model "
+              "(--mounting-deg, --heading-deg, --yaw-drift-dps): the body column stays empty")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``limbstream eval``: print the table and its legend, optionally write JSON rows and the plot."""
+    algorithms = (list(dict.fromkeys(args.algorithms)) if args.algorithms is not None
+                  else ["fastsw"] if args.live_bound is not None else list(ALGORITHMS))
+    bounds = list(dict.fromkeys(args.live_bound)) if args.live_bound is not None else [0.0]
+    if (problem := _check(args, algorithms, bounds)) is not None:
+        return _fail(problem)
     motions: list[Motion] = []
     for path in args.paths:
         try:
-            motions.extend(load(path))
+            motions.extend(load(path, args.names))
         except MotionFileError as exc:
             return _fail(str(exc))
         except OSError as exc:
             return _fail(f"{path}: {exc}")
+    if args.joint_angles and (real := [m.name for m in motions if m.orientations != "segments"]):
+        return _fail(f"--joint-angles: {', '.join(real)}: a recording of real sensors has no true joint angles "
+                     "(its orientations are not the segments' own); score motion files (.npz, .bvh)")
     try:
         sensors = calibration.from_args(args)
     except ValueError as exc:
         return _fail(str(exc))
-    poses = () if args.calibration == "none" else tuple(args.calibration.split(","))
+    poses = CALIBRATIONS[-1] if args.calibration is None else args.calibration
     streams = streams_of(motions, sensors)
     if not streams:
         return _fail(f"no motion streams in {' '.join(map(str, args.paths))}")
     thresholds = THRESHOLDS if args.thresholds is None else np.asarray(args.thresholds, np.float64)
     n_samples = sum(len(s.t) for s in streams)
+    _notes(args, sensors, motions, n_samples)
 
+    progress = Progress("limbstream eval: rows", lambda text: print(text, end="", file=sys.stderr, flush=True),
+                        sys.stderr.isatty())
     start = time.perf_counter()
     try:
         rows = evaluate(streams, algorithms, thresholds, args.max_len, args.live_bound and bounds, args.predictor,
-                        poses, args.joint_angles)
+                        poses, progress, args.joint_angles)
     except CalibrationError as exc:
         return _fail(f"calibration refused: {exc}")
+    finally:
+        progress.close()
     elapsed = time.perf_counter() - start
+    _report(args, motions, streams, n_samples, algorithms, bounds, thresholds, sensors, poses, rows, elapsed)
+    return 0
 
-    print(
-        f"{len(motions)} motions, {len(streams)} streams, {n_samples} samples; "
-        f"{len(algorithms)} algorithms x {len(bounds)} live bounds x {len(thresholds)} thresholds, "
-        f"max_len {args.max_len}, predictor {args.predictor}: {elapsed:.1f} s"
-        + (f"; sensors: mounting <= {sensors.mounting_deg:g} deg, heading +-{sensors.heading_deg:g} deg, "
-           f"yaw drift +-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}, "
-           f"calibration {args.calibration}" if sensors.on else "")
-    )
-    if args.thresholds is not None:  # explicit thresholds: show every row
-        print(
-            f"{'algorithm':<9} {'bound':>5} {'TH':>9} {'ICR':>7} {'AAD':>7} {'std':>7} {'p99':>7} {'max':>7} "
-            f"{'pt_AAD':>8} {'pt_max':>8} {'live':>7} {'live99':>7} {'livemax':>7} {'body':>7}"
-        )
-        for r in rows:
-            print(
-                f"{r['algorithm']:<9} {r['live_bound']:>5g} {r['threshold']:>9.2e} {r['icr']:>7.4f} {r['aad']:>7.3f} "
-                f"{r['std']:>7.3f} {r['p99']:>7.3f} {r['max']:>7.3f} {r['point_aad']:>8.3f} {r['point_max']:>8.3f} "
-                f"{r['live_aad']:>7.3f} {r['live_p99']:>7.3f} {r['live_max']:>7.3f} {r['body_aad']:>7.3f}"
-            )
-    else:
-        print(format_table(rows, algorithms, live_bounds=bounds))
-    for r in rows if args.joint_angles else ():
-        against = "the calibrated reconstruction" if sensors.on else "the reconstruction"
-        print("\n" + format_errors(r["joints"], f"joint angles of {against} against the truth's (deg): "
-                                                f"{r['algorithm']}, TH {r['threshold']:.2e}, bound {r['live_bound']:g}"))
+
+def _report(args: argparse.Namespace, motions: list[Motion], streams: list, n_samples: int, algorithms: list[str],
+            bounds: list[float], thresholds: np.ndarray, sensors: calibration.SensorModel, poses: tuple[str, ...],
+            rows: list[dict], elapsed: float) -> None:
+    """The run's line, the table with its legend, the files written."""
+    def count(n: int, what: str) -> str:
+        return f"{n:,} {what}{'' if n == 1 else 's'}"
+    print(f"{count(len(motions), 'motion')}, {count(len(streams), 'stream')}, {count(n_samples, 'sample')}; "
+          f"{count(len(algorithms), 'algorithm')} x {count(len(bounds), 'live bound')} x "
+          f"{count(len(thresholds), 'threshold')}, max_len {args.max_len}, predictor {args.predictor}; "
+          f"ran {elapsed:.1f} s")
+    if sensors.on:
+        print(f"sensors: mounting <= {sensors.mounting_deg:g} deg, heading +-{sensors.heading_deg:g} deg, yaw drift "
+              f"+-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}; calibration {','.join(poses) or 'none'}")
+    explicit = args.thresholds is not None
+    print("rows: each threshold given" if explicit else
+          f"rows: the measures at ICR {', '.join(f'{c:.2f}' for c in ICR_TARGETS)}, interpolated over the paper's "
+          "threshold sweep")
+    print(format_table(rows, algorithms, None if explicit else ICR_TARGETS, live_bounds=bounds))
+    if args.joint_angles:
+        print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")
+        print(format_joint_errors(rows))
     if args.json is not None:
         write_json(rows, args.json)
         print(f"wrote {len(rows)} rows to {args.json}")
@@ -290,4 +284,3 @@ def run(args: argparse.Namespace) -> int:
         else:
             plot(rows, algorithms, args.plot, title=title)
         print(f"wrote {args.plot}")
-    return 0

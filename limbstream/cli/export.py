@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from limbstream import wire
+from limbstream.cli.values import add_names_argument
 from limbstream.services.outputs.export import FORMATS, ExportError, export, read_take
 
 PROG = "limbstream export"
@@ -25,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=None,
                         help="override the input's rest pose (default: the data's own: tpose for BVH and npz "
                              "without a rest_pose entry, standing for IMU files; recordings: their frames' flags)")
+    add_names_argument(parser)
 
 
 def fail(message: str) -> int:
@@ -37,11 +39,11 @@ def run(args: argparse.Namespace) -> int:
     if fmt not in FORMATS:
         return fail(f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
     try:
-        take = read_take(args.source, args.subject, args.rest_pose)
+        take = read_take(args.source, args.subject, args.rest_pose, args.names)
         export(take, fmt, args.output)
     except ExportError as exc:
         return fail(str(exc))
-    for note in take.notes + ([f"calibration: {take.basis}"] if fmt in ("mot", "sto") else []):
+    for note in take.notes + [f"calibration: {take.basis}"]:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     seconds = len(take) * take.period_us / 1e6
     print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:g} Hz ({seconds:.1f} s, "

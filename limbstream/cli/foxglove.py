@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from limbstream import wire, zconfig
+from limbstream.cli import zenoh_args
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs.foxglove import FoxgloveOutput
 from limbstream.services.outputs.subscription import Subscription
@@ -15,7 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--subjects", default="*", help="subject pattern: *, s01, s0* (default *)")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765; 0: a free one)")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def _error(message: str) -> int:
@@ -30,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
         return _error(f"--subjects {args.subjects}: {exc}")
     if not 0 <= args.port < 65536:
         return _error(f"--port must be in 0..65535, got {args.port}")
-    settings = zconfig.from_args(args)
+    settings = zenoh_args.from_args(args)
     try:
         output = FoxgloveOutput(args.host, args.port)
     except OSError as exc:
@@ -38,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     try:
         print(f"limbstream foxglove: serving ws://{args.host}:{output.port} (subjects {args.subjects})", flush=True)
+        zenoh_args.announce("limbstream foxglove", settings)
         session = zconfig.open_session(settings, stop)
         if session is None:
             return 130

@@ -7,6 +7,7 @@ import argparse
 import logging
 
 from limbstream import wire, zconfig
+from limbstream.cli import zenoh_args
 from limbstream.device_emulator.feeds import GeneratorFeed, LoopFeed
 from limbstream.signals import stop_on_signals
 from limbstream.sources import MotionFileError, load
@@ -35,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a device not heard from for this long (it sends a heartbeat every second) is offline: "
                              "its link is reopened as a new stream (default 10)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def feeding(args: argparse.Namespace):
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"limbstream gateway serial: error: {exc}") from None
     feed, rest_pose = feeding(args)
     stop = stop_on_signals()
-    session = zconfig.open_session(zconfig.from_args(args), stop)
+    session = zconfig.open_session(zenoh_args.session_settings(args, "limbstream gateway serial"), stop)
     if session is None:
         return 0
     with session:

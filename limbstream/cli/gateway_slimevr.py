@@ -9,6 +9,7 @@ import socket
 import threading
 
 from limbstream import wire, zconfig
+from limbstream.cli import zenoh_args
 from limbstream.device_emulator.device_clocks import ClockSettings
 from limbstream.services.gateway import slimevr_protocol as proto
 from limbstream.signals import stop_on_signals
@@ -82,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--sync-wait-s", type=float, default=10.0,
                        help="at start, wait at most this long for the first time answers (default 10)")
     parser.add_argument("-v", "--verbose", action="store_true")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def validate(args: argparse.Namespace) -> None:
@@ -123,7 +124,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         raise SystemExit(f"limbstream gateway slimevr: error: cannot listen on {args.udp[0]}:{args.udp[1]}: "
                          f"{exc.strerror or exc}") from None
     stop = stop_on_signals(stop)
-    session = zconfig.open_session(zconfig.from_args(args), stop)
+    session = zconfig.open_session(zenoh_args.session_settings(args, "limbstream gateway slimevr"), stop)
     if session is None:
         return 0
     with session, sock:

@@ -8,7 +8,8 @@ import socket
 import sys
 import threading
 
-from limbstream import wire, zconfig
+from limbstream import wire
+from limbstream.cli import zenoh_args
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs.record import Recorder, summary_line
 from limbstream.services.outputs.recording import RecordingError, RecordingWriter
@@ -30,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ask devices for their settings every this many s, record changes (0: never; default 5)")
     parser.add_argument("--no-skeleton", dest="skeleton", action="store_false",
                         help="do not write the Foxglove skeleton channel")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def fail(message: str) -> int:
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         return fail(f"--duration must be > 0, got {args.duration:g}")
     if args.history < 1 or args.config_poll < 0:
         return fail("--history must be >= 1 and --config-poll >= 0")
-    settings = zconfig.from_args(args)
+    settings = zenoh_args.from_args(args)
     metadata = {"subjects": args.subjects, "truth": str(args.truth).lower(), "host": socket.gethostname(),
                 "connect": ",".join(settings.connect)}
     try:
@@ -56,10 +57,14 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         return fail(str(exc))
     stop = stop_on_signals(stop)
     try:
+        zenoh_args.announce(PROG, settings)
         session = open_session(settings, stop)
     except ValueError as exc:
         writer.discard()
         return fail(str(exc))
+    except BaseException:  # no router in time (zconfig.ConnectError), Ctrl-C: no file is left
+        writer.discard()
+        raise
     if session is None:  # stopped while waiting for the router
         writer.discard()
         return 0

@@ -7,7 +7,8 @@ import argparse
 import sys
 import threading
 
-from limbstream import wire, zconfig
+from limbstream import wire
+from limbstream.cli import zenoh_args
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs.recording import Recording, RecordingError
 from limbstream.services.outputs.replay import Replayer, ReplaySettings
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="publish the recorded truth batches too (default: yes)")
     parser.add_argument("--hold", type=float, default=2.0,
                         help="keep the devices online this many s after the last message (default 2)")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def fail(message: str) -> int:
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         return fail(str(exc))
     stop = stop_on_signals(stop)
     try:
-        session = open_session(zconfig.from_args(args), stop)
+        session = open_session(zenoh_args.session_settings(args, PROG), stop)
     except ValueError as exc:
         return fail(str(exc))
     if session is None:

@@ -9,6 +9,7 @@ import threading
 import zenoh
 
 from limbstream import zconfig
+from limbstream.cli import zenoh_args
 from limbstream.signals import stop_on_signals
 
 
@@ -23,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     """Serve until SIGINT/SIGTERM (or ``stop`` is set)."""
     args.mode = "router"
-    settings = zconfig.from_args(args)
+    settings = zenoh_args.from_args(args)
     stop = stop_on_signals(stop)
     try:
         session = zconfig.open_session(settings)

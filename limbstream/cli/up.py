@@ -31,9 +31,10 @@ import threading
 import time
 from pathlib import Path
 
-from limbstream.cli.emulate import add_clock_arguments, clock_flags
+from limbstream.cli.emulate import add_clock_arguments, add_source_arguments, check_clock, clip_of, clock_flags
 from limbstream.cli.gateway_slimevr import parse_address
-from limbstream import calibration, wire, zconfig
+from limbstream.cli.values import names_flags
+from limbstream import calibration, sources, wire, zconfig
 from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
 from limbstream.services.dashboard.supervision import STATUS_ENV  # the status file's path, for the dashboard
@@ -46,9 +47,16 @@ POLL_S = 0.1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--subjects", type=int, default=2, help="subjects to emulate (10 IMUs each), default 2")
-    parser.add_argument("--source", default="generator", help="'generator' (default) or a motion file/folder")
-    parser.add_argument("--router", default=zconfig.DEFAULT_ROUTER, help=f"router endpoint (default {zconfig.DEFAULT_ROUTER})")
+    parser.add_argument("--subjects", type=int, default=2,
+                        help="subjects to emulate (default 2), each with a device per segment of the source")
+    parser.add_argument("--source", default="generator",
+                        help="'generator' (default: 10 segments) or a motion file/folder (.npz, .bvh, x-IMU3 .csv, "
+                             "Xsens .txt); its clips go to the subjects in turn")
+    add_source_arguments(parser)  # --names, --same-start: passed on
+    router = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER)
+    parser.add_argument("--router", default=router, metavar="ENDPOINT",
+                        help=f"where the router listens; every part connects there (env {zconfig.ROUTER_ENV}, which "
+                             f"every command's --connect also defaults to; default {router})")
     parser.add_argument("--http", default="127.0.0.1:8000", help="dashboard address (default 127.0.0.1:8000)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
@@ -76,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     """(name, ``limbstream`` arguments) of the time service, the emulators and the aggregator, in
     start order."""
-    connect = ["--connect", args.router]
+    connect = ["--connect", args.router, "--connect-timeout", "0"]  # parts wait for a restarted router
     sensors = calibration.from_args(args)
     parts = []
     # a scaled time base (--speed) is shared by the time service and the devices: one anchor
@@ -90,6 +98,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         if count <= 0:
             break
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
+                *names_flags(args.names), *(["--same-start"] if args.same_start else []),
                 "--speed", str(args.speed), *wire.config_from_args(args).flags(), *clock_flags(args), *anchor]
         if args.no_truth:
             argv.append("--no-truth")
@@ -130,6 +139,43 @@ def dashboard_env(status_file: Path) -> dict[str, str]:
     return env
 
 
+def start(args: argparse.Namespace, launcher: Launcher, supervisor: Supervisor, status_file: Path,
+          dashboard: bool) -> dict[str, str]:
+    """Start the router, the parts and the dashboard, each once ready (ChildExited, PortTaken or
+    TimeoutError if one cannot); the dashboard's extra variables."""
+    launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
+    write_status(status_file, "starting", supervisor)
+    for name, argv in plan(args):
+        launcher.start(name, *argv)
+    write_status(status_file, "starting", supervisor)
+    dashboard_vars = dashboard_env(status_file)
+    if dashboard:
+        launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
+    return dashboard_vars
+
+
+def banner(args: argparse.Namespace, launcher: Launcher, devices: list[tuple[str, ...]],
+           dashboard_vars: dict[str, str] | None, status_file: Path) -> None:
+    """What runs and where to look (stdout)."""
+    print(f"\nlimbstream is running ({running(devices, args)}):")
+    for child in launcher.children:
+        print(f"  {child.name:<11} pid {child.pid}")
+    if dashboard_vars is not None:
+        print(f"\n  dashboard   http://{args.http}/   (API docs http://{args.http}/docs)")
+        if TOKEN_ENV in dashboard_vars:
+            print(f"  API token   {dashboard_vars[TOKEN_ENV]}   (development; set {TOKEN_ENV} to choose one)")
+    if args.slimevr is not None:
+        host, port = parse_address(args.slimevr)
+        print(f"  slimevr     udp {host}:{port}  subject {args.slimevr_subject} (point trackers at this "
+              "machine's address and this port)")
+    print(f"  zenoh       {args.router}  keys limbstream/<subject>/pose, limbstream/<subject>/stats")
+    print(f"  status      {status_file}  (restart counts; a part that exits is started again)")
+    commands = client_commands(args)
+    print(f"  try         {commands[0]}")
+    for command in commands[1:]:
+        print(f"              {command}")
+
+
 def _abort_start(*_) -> None:
     raise KeyboardInterrupt
 
@@ -138,17 +184,61 @@ def say(message: str) -> None:
     print(f"limbstream up: {message}", file=sys.stderr, flush=True)
 
 
+def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
+    """Every flag and the source, before any part starts: ValueError naming the first problem
+    (a flag, or the source's file and what is wrong with it). Returns the segments of each
+    emulated subject's devices."""
+    split_endpoint(args.router)
+    split_endpoint(args.http)
+    least = 0 if args.slimevr is not None else 1
+    for flag, value, low in (("--subjects", args.subjects, least), ("--emulators", args.emulators, 1),
+                             ("--max-exits", args.max_exits, 1)):
+        if value < low:
+            extra = " (0: the SlimeVR trackers alone)" if flag == "--subjects" and least == 0 else ""
+            raise ValueError(f"{flag} must be >= {low}{extra}, got {value}")
+    if not args.speed > 0:
+        raise ValueError(f"--speed must be > 0, got {args.speed:g}")
+    if args.slimevr is not None:
+        parse_address(args.slimevr)
+        wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
+    calibration.from_args(args)  # a bad sensor bound
+    check_clock(args)
+    if args.source == "generator":
+        if args.names is not None:
+            raise ValueError("--names maps the sensors of an IMU recording; the generator has none")
+        return [wire.SEGMENTS] * args.subjects
+    motions = sources.load(args.source, args.names)
+    return [motions[clip_of(k, len(motions))[0]].segments for k in range(1, args.subjects + 1)]
+
+
+def client_commands(args: argparse.Namespace) -> list[str]:
+    """Ready-to-paste commands of clients of this system (with ``--connect`` unless they would
+    find its router by default)."""
+    subject = "s01" if args.subjects else args.slimevr_subject
+    default = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER)
+    connect = "" if args.router == default else f" --connect {args.router}"
+    return [f"limbstream watch {subject}{connect}", f"limbstream record session.mcap --duration 60{connect}",
+            f"limbstream calibrate {subject} --pose rest{connect}"]
+
+
+def running(devices: list[tuple[str, ...]], args: argparse.Namespace) -> str:
+    """What runs, for the banner: subjects, the devices that really run, source."""
+    subjects = f"{len(devices)} subject{'s' if len(devices) != 1 else ''}"
+    if len(set(devices)) == 1:
+        what = f"{subjects} x {len(devices[0])} devices"
+        if set(devices[0]) != set(wire.SEGMENTS):
+            what += f" ({', '.join(devices[0])})"
+    else:
+        what = f"{subjects}, {sum(len(d) for d in devices)} devices"
+    if args.slimevr is not None:
+        what += " and the SlimeVR trackers"
+    return f"{what}, source {args.source}"
+
+
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     try:
-        split_endpoint(args.router)
-        split_endpoint(args.http)
-        if args.subjects < (0 if args.slimevr is not None else 1) or args.emulators < 1 or args.max_exits < 1:
-            raise ValueError("--subjects (>= 0 with --slimevr), --emulators and --max-exits must be >= 1")
-        if args.slimevr is not None:
-            parse_address(args.slimevr)
-            wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
-        calibration.from_args(args)  # ValueError naming a bad sensor bound
-    except (ValueError, argparse.ArgumentTypeError) as exc:
+        devices = check(args)
+    except (ValueError, argparse.ArgumentTypeError) as exc:  # MotionFileError is a ValueError
         print(f"limbstream up: error: {exc}", file=sys.stderr)
         return 2
     temp = None
@@ -162,14 +252,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     signal.signal(signal.SIGTERM, _abort_start)  # while starting, Ctrl-C or SIGTERM abort the start
     try:
         try:
-            launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
-            write_status(status_file, "starting", supervisor)
-            for name, argv in plan(args):
-                launcher.start(name, *argv)
-            write_status(status_file, "starting", supervisor)
-            if dashboard:
-                dashboard_vars = dashboard_env(status_file)
-                launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
+            dashboard_vars = start(args, launcher, supervisor, status_file, dashboard)
         except ChildExited as exc:
             say(f"{exc.child.name} failed to start ({exc.child.exit_text()}): {exc.child.last_line()}")
             return 1
@@ -183,19 +266,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             return 1
         stop = stop_on_signals(stop)
         write_status(status_file, "running", supervisor)
-        print(f"\nlimbstream is running ({args.subjects} subjects x 10 IMUs, source {args.source}):")
-        for child in launcher.children:
-            print(f"  {child.name:<11} pid {child.pid}")
-        if dashboard:
-            print(f"\n  dashboard   http://{args.http}/   (API docs http://{args.http}/docs)")
-            if TOKEN_ENV in dashboard_vars:
-                print(f"  API token   {dashboard_vars[TOKEN_ENV]}   (development; set {TOKEN_ENV} to choose one)")
-        if args.slimevr is not None:
-            host, port = parse_address(args.slimevr)
-            print(f"  slimevr     udp {host}:{port}  subject {args.slimevr_subject} (point trackers at this "
-                  "machine's address and this port)")
-        print(f"  zenoh       {args.router}  keys limbstream/<subject>/pose, limbstream/<subject>/stats")
-        print(f"  status      {status_file}  (restart counts; a part that exits is started again)")
+        banner(args, launcher, devices, dashboard_vars if dashboard else None, status_file)
         print("\nCtrl-C stops everything.\n", flush=True)
         while not stop.wait(POLL_S):
             try:

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from limbstream import wire, zconfig
+from limbstream.cli import zenoh_args
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs import vmc
 from limbstream.services.outputs.subscription import Subscription
@@ -21,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wait", type=float, default=30.0,
                         help="exit with an error if a subject sends no pose frame within this many "
                              "seconds (0: wait forever; default 30)")
-    zconfig.add_arguments(parser)
+    zenoh_args.add_arguments(parser)
 
 
 def _error(message: str) -> int:
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
             targets[subject] = vmc.parse_target(to)
         except ValueError as exc:
             return _error(f"--to {to}: {exc}")
-    settings = zconfig.from_args(args)
+    settings = zenoh_args.session_settings(args, "limbstream vmc")
     stop = stop_on_signals()
     session = zconfig.open_session(settings, stop)
     if session is None:

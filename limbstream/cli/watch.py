@@ -3,7 +3,8 @@ Zenoh through the outputs' subscription (:mod:`limbstream.services.outputs.subsc
 holds :func:`subscribe_pose` for Python programs). It shows live frames (``--kind live``, the
 default: the aggregator's frames at the devices' "now"), exact frames (``--kind exact``: final,
 behind by up to the max segment length) or both (``--kind any``); the header line names the
-kind of the frame shown."""
+kind of the frame shown. A frame flagged MISSING says which segments have no data and why (no
+device, or its device offline), from the subject's stats."""
 from __future__ import annotations
 
 import argparse
@@ -11,6 +12,7 @@ import sys
 import time
 
 from limbstream import quat, wire, zconfig
+from limbstream.cli import zenoh_args
 from limbstream.sources import SEGMENTS
 from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
 
@@ -18,10 +20,25 @@ KINDS = {"any": None, "exact": wire.KIND_EXACT, "live": wire.KIND_LIVE}
 SHOWN_JOINTS = ("head", "l_wrist", "r_wrist", "l_ankle", "r_ankle")
 
 
-def render(subject: str, frame: wire.PoseFrame, rate_hz: float) -> str:
-    """A few lines describing ``frame``: header, segment rotation angles, key joint positions."""
+def why_missing(devices: dict[str, bool] | None) -> str:
+    """Which segments have no data and why, from the subject's devices ({segment: online}; None:
+    no stats yet)."""
+    if devices is None:
+        return "(no stats yet)"
+    absent = [s for s in SEGMENTS if s not in devices]
+    offline = [s for s in SEGMENTS if devices.get(s) is False]
+    parts = ([f"no device: {', '.join(absent)}"] if absent else []) + ([f"offline: {', '.join(offline)}"]
+                                                                      if offline else [])
+    return f"({'; '.join(parts)})" if parts else ""
+
+
+def render(subject: str, frame: wire.PoseFrame, rate_hz: float, devices: dict[str, bool] | None = None) -> str:
+    """A few lines describing ``frame``: header, segment rotation angles, key joint positions;
+    ``devices`` ({segment: online}, the subject's stats) say why a segment is missing."""
     flags = [name for bit, name in ((wire.FRAME_GAP, "GAP"), (wire.FRAME_MISSING, "MISSING"))
              if frame.flags & bit]
+    if frame.flags & wire.FRAME_MISSING:
+        flags.append(why_missing(devices))
     kind = "live" if frame.kind == wire.KIND_LIVE else "exact"
     stamp = time.strftime("%H:%M:%S", time.localtime(frame.t_us / 1e6)) + f".{frame.t_us // 1000 % 1000:03d}"
     lines = [f"{subject}  {kind} #{frame.seq}  t={stamp}  {rate_hz:5.1f} frames/s  {' '.join(flags)}".rstrip()]
@@ -43,8 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refresh", type=float, default=5.0, help="screen updates per second (default 5)")
     parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
-                        help="exit with status 1 if no frame arrives for this many seconds (0: wait forever)")
-    zconfig.add_arguments(parser)
+                        help="exit with status 1 if the router does not answer or no frame arrives for this many "
+                             f"seconds (0: wait for frames forever, for the router {zconfig.CONNECT_TIMEOUT_S:g} s)")
+    zenoh_args.add_arguments(parser, timeout=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,12 +75,18 @@ def run(args: argparse.Namespace) -> int:
     wanted = KINDS[args.kind]
     tty = sys.stdout.isatty()
     count, last_count, last_time, last_seen = 0, 0, time.monotonic(), time.monotonic()
-    with Subscription(zconfig.from_args(args), args.subject, ("pose",)) as sub:
+    if not args.timeout >= 0:
+        raise SystemExit("limbstream watch: --timeout must be >= 0")
+    settings = zenoh_args.session_settings(args, "limbstream watch", args.timeout or zconfig.CONNECT_TIMEOUT_S)
+    devices = None  # {segment: online}, from the newest stats
+    with Subscription(settings, args.subject, ("pose", "stats")) as sub:
         while True:
             frame = None
             first = sub.get(timeout=1.0 / args.refresh)
             for item in ([first] if first is not None else []) + sub.drain():  # keep the newest
-                if wanted is None or item.value.kind == wanted:
+                if item.kind == "stats":
+                    devices = {d["segment"]: bool(d["online"]) for d in item.value["devices"]}
+                elif wanted is None or item.value.kind == wanted:
                     frame, count = item.value, count + 1
             now = time.monotonic()
             if frame is None:
@@ -74,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
             last_seen = now
             rate = (count - last_count) / max(now - last_time, 1e-6)
             last_count, last_time = count, now
-            print(("\x1b[H\x1b[2J" if tty else "") + render(args.subject, frame, rate), flush=True)
+            print(("\x1b[H\x1b[2J" if tty else "") + render(args.subject, frame, rate, devices), flush=True)
             if args.count and count >= args.count:
                 return 0
             time.sleep(max(0.0, 1.0 / args.refresh - (time.monotonic() - now)))

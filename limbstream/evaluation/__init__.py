@@ -28,18 +28,18 @@ largest absolute deviation per component for swing), so algorithms are compared 
 :func:`at_icr` interpolates each measure at given ICRs.
 
 Modules: :mod:`.sweep` (the sweep and the measures), :mod:`.live_model` (the live view),
-:mod:`.report` (table, frontier, JSON), :mod:`.fusion` (a fusion filter's orientation error against
+:mod:`.report` (the tables, frontier, JSON), :mod:`.fusion` (a fusion filter's orientation error against
 a reference, as the BROAD benchmark scores it). Command line: ``limbstream eval``
 (:mod:`limbstream.cli.evaluate`).
 """
 from __future__ import annotations
 
 from limbstream.evaluation.live_model import simulate_live
-from limbstream.evaluation.report import format_table, frontier, write_json
+from limbstream.evaluation.report import format_joint_errors, format_table, frontier, write_json
 from limbstream.evaluation.sweep import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, KEYS, MAX_LEN, MEASURES, PREDICTORS, THRESHOLDS,
                                          Stream, at_icr, evaluate, evaluate_threshold, streams_of)
 from limbstream.evaluation.sweep import _Pool  # noqa: F401  (the tests' pooled streams)
 
 __all__ = ["ALGORITHMS", "CALIBRATIONS", "ICR_TARGETS", "KEYS", "MAX_LEN", "MEASURES", "PREDICTORS", "THRESHOLDS", "Stream",
-           "at_icr", "evaluate", "evaluate_threshold", "format_table", "frontier", "simulate_live", "streams_of",
+           "at_icr", "evaluate", "evaluate_threshold", "format_joint_errors", "format_table", "frontier", "simulate_live", "streams_of",
            "write_json"]

@@ -9,30 +9,68 @@ from pathlib import Path
 import numpy as np
 
 from limbstream.evaluation.sweep import ICR_TARGETS, KEYS, at_icr
+from limbstream.evaluation.table import Column, render
+from limbstream.joints import GIMBAL_DEG
+
+EVAL_COLUMNS: tuple[Column, ...] = (
+    Column("algorithm", "algorithm", "", "segmentation algorithm (fastsw, sw: the paper's; cplr, swing: baselines)",
+           ""),
+    Column("live_bound", "bound", "deg", "fastSW's live rule: no sample's live error beyond it (0: off)", "g"),
+    Column("icr", "ICR", "", "inverse compression ratio: segment points sent / samples taken", ".4f"),
+    Column("threshold", "TH", "", "the algorithm's threshold (SSR bound for fastsw, sw, cplr; largest deviation "
+           "per quaternion component for swing); at a target ICR: interpolated", ".2e"),
+    Column("aad", "AAD", "deg", "mean angular deviation of the SLERP reconstruction from every sample"),
+    Column("std", "std", "deg", "standard deviation of that deviation"),
+    Column("p99", "p99", "deg", "its 99th percentile"),
+    Column("max", "max", "deg", "its largest value"),
+    Column("point_aad", "pt AAD", "deg", "mean deviation of the segment points from the samples at their times "
+           "(0: the points are samples)"),
+    Column("point_max", "pt max", "deg", "largest deviation of the segment points"),
+    Column("live_aad", "live", "deg", "mean live error: the receiver's view at each sample's time (newest point "
+           "extrapolated) against the sample; with --live-bound"),
+    Column("live_p99", "live p99", "deg", "99th percentile of the live error"),
+    Column("live_max", "live max", "deg", "largest live error"),
+    Column("body_aad", "body", "deg", "mean error of the calibrated reconstruction against the true segments; with "
+           "a sensor model (--mounting-deg, --heading-deg, --yaw-drift-dps)"),
+)
+"""The columns of every ``limbstream eval`` table, in order (a new measure: one more here)."""
+
+_ROW = {c.key: c for c in EVAL_COLUMNS}
+JOINT_COLUMNS: tuple[Column, ...] = (
+    _ROW["algorithm"], _ROW["live_bound"], _ROW["threshold"],
+    Column("angle", "angle", "", "joint angle, named as the Rajagopal model's coordinate (docs/evaluation.md, "
+           "'Joint angles')", ""),
+    Column("mean", "mean", "deg", "mean absolute error of the reconstruction's angle (with a sensor model: the "
+           "calibrated reconstruction's) against the true angle, the source's own segments'", ".2f"),
+    Column("p99", "p99", "deg", "99th percentile of that absolute error", ".2f"),
+    Column("bias", "bias", "deg", "mean signed error, estimate - truth", "+.2f"),
+    Column("n", "frames", "", "frames scored (the joint's segments present in both, not near gimbal lock)", "d"),
+    Column("gimbal", "near lock", "", f"frames left out within {GIMBAL_DEG:g} deg of gimbal lock (either side's "
+           "flag GIMBAL)", "d"),
+)
+"""The columns of ``limbstream eval --joint-angles``: one line per (row, joint angle)."""
 
 
 def format_table(
-    rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] = ICR_TARGETS,
+    rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] | None = ICR_TARGETS,
     live_bounds: Sequence[float] = (0.0,),
 ) -> str:
-    """The comparison table (measures at the target ICRs, per algorithm and live bound) as
-    aligned text."""
-    head = (f"{'algorithm':<9} {'bound':>5} {'ICR':>5} {'AAD':>7} {'p99':>7} {'max':>7} {'pt_AAD':>8} "
-            f"{'pt_max':>8} {'live':>7} {'live99':>7}  {'~TH':>9}")
-    lines = [head, "-" * len(head)]
-    for a in algorithms:
-        for bound in live_bounds:
-            for r in at_icr(rows, a, targets, live_bound=bound):
-                lines.append(
-                    f"{a:<9} {bound:>5g} {r['icr']:>5.2f} {r['aad']:>7.2f} {r['p99']:>7.2f} {r['max']:>7.2f} "
-                    f"{r['point_aad']:>8.3f} {r['point_max']:>8.3f} {r['live_aad']:>7.2f} {r['live_p99']:>7.2f}  "
-                    f"{r['threshold']:>9.2e}"
-                )
-    lines.append(
-        "(angles in degrees; pt_ = segment points vs. the samples at their timestamps; live = live"
-        " error, mean and p99; bound = live rule bound, 0 off; ~TH = interpolated threshold)"
-    )
-    return "\n".join(lines)
+    """The comparison table with its legend: the measures interpolated at the ``targets`` ICRs
+    per algorithm and live bound, or (``targets`` None) every row as swept."""
+    if targets is None:
+        shown = list(rows)
+    else:
+        shown = [r | {"live_bound": bound} for a in algorithms for bound in live_bounds
+                 for r in at_icr(rows, a, targets, live_bound=bound)]
+    return render(EVAL_COLUMNS, shown)
+
+
+def format_joint_errors(rows: Sequence[dict]) -> str:
+    """The joint angle errors of the rows that have them (``joints``: per angle the figures of
+    :func:`limbstream.joints.angle_errors`), one line per (row, angle), with the legend; an angle
+    no frame scored shows :data:`~limbstream.evaluation.table.DASH`."""
+    lines = [r | {"angle": angle} | figures for r in rows for angle, figures in r.get("joints", {}).items()]
+    return render(JOINT_COLUMNS, lines)
 
 
 def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
@@ -55,10 +93,15 @@ def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01)
     return np.array(icr), np.array(aad)
 
 
+def _finite(value):
+    """``value`` with every non-finite float (also within dicts) as None (JSON null)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
 def write_json(rows: Sequence[dict], path: str | Path) -> None:
-    """All rows as a JSON list of objects with the :data:`KEYS`; NaN becomes null."""
-    clean = [
-        {k: (None if isinstance(r[k], float) and not math.isfinite(r[k]) else r[k]) for k in KEYS}
-        for r in rows
-    ]
+    """All rows as a JSON list of objects with the :data:`KEYS` (and ``joints`` where scored);
+    NaN becomes null."""
+    clean = [_finite({k: r[k] for k in KEYS} | ({"joints": r["joints"]} if "joints" in r else {})) for r in rows]
     Path(path).write_text(json.dumps(clean, indent=1) + "\n")

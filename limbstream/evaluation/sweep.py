@@ -3,7 +3,7 @@ by SLERP and compared with its samples (the measures: :mod:`limbstream.evaluatio
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -317,6 +317,7 @@ def evaluate(
     live_bounds: Sequence[float] | None = None,
     predictor: str = "rate",
     poses: Sequence[str] = CALIBRATIONS[-1],
+    progress: Callable[[int, int], None] | None = None,
     angles: bool = False,
 ) -> list[dict]:
     """Run the protocol: one row per (algorithm, live bound, threshold), in that order.
@@ -332,6 +333,7 @@ def evaluate(
         (the ``live_*`` fields are NaN).
     predictor : the points' rates for the live error, one of :data:`PREDICTORS`.
     poses : the calibration before ``body_aad`` (streams with a truth), one of :data:`CALIBRATIONS`.
+    progress : called with (rows done, rows in all) after each row.
     angles : also score the joint angles (each row's ``joints``, :func:`evaluate_threshold`).
 
     Returns
@@ -355,8 +357,13 @@ def evaluate(
     pool = _Pool(streams)
     if tuple(poses) not in CALIBRATIONS:
         raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {tuple(poses)}")
-    return [evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses, angles)
-            for a in algorithms for bound in (live_bounds or (0.0,)) for th in thresholds]
+    runs = [(a, bound, th) for a in algorithms for bound in (live_bounds or (0.0,)) for th in thresholds]
+    rows = []
+    for a, bound, th in runs:
+        rows.append(evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses, angles))
+        if progress is not None:
+            progress(len(rows), len(runs))
+    return rows
 
 
 def at_icr(

@@ -20,6 +20,9 @@ the mean of the counted hinges' headings, weighted by how much each moved.
 The statistics are running sums (:class:`HingeStats`), so the same code serves a whole recording
 at once and a live subject frame by frame; :meth:`HingeStats.add` takes any leading batch axes
 (subjects). Devices of independent headings (6D fusion) need the mounting pose instead.
+Recordings of real sensors that start standing still come rest-calibrated from their loader
+(``Motion.orientations`` ``rest``, :func:`limbstream.sources.imu_files.to_body`): what
+:meth:`HingeStats.add` takes.
 """
 from __future__ import annotations
 
@@ -176,56 +179,3 @@ def functional_calibration(rest: calibration.Calibration, heading: float) -> cal
     s0 = quat.multiply(calibration.yaw(np.array(rest.heading)), rest.mounting)  # the rest reading
     return calibration.Calibration(("rest", "functional"), quat.multiply(calibration.yaw(np.array(-heading)), s0),
                                    float(heading), 0.0, rest.t_ref)
-
-
-UP_AXES = {"y": np.array([1.0, 0.0, 0.0, 0.0]),
-           "z": calibration.axis_angle(calibration.LATERAL, np.array(math.pi / 2))}
-"""A sensor world's up axis -> the rotation taking the skeleton's up (+Y) to it."""
-
-
-def rest_calibrated(q: np.ndarray, segments: tuple[str, ...], fs: float, up: str = "z",
-                    still_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """A recording of real sensors that starts standing still, each sensor calibrated from the
-    first ``still_s`` seconds (the rest pose, ``Calibration.rest``) and its world turned so that
-    its ``up`` axis is the skeleton's +Y: the segments up to the subject's facing.
-
-    Parameters
-    ----------
-    q : (m, S, 4) the sensors' orientations; segments : (S,) their segment names (others than
-        :data:`wire.SEGMENTS` are left out); fs : sample rate, Hz.
-
-    Returns
-    -------
-    q : (m, 10, 4) float64 (SEGMENTS order; NaN rows for segments without a sensor);
-    present : (10,) bool. CalibrationError naming a sensor that was not still.
-    """
-    q = np.asarray(q, np.float64)
-    turn = UP_AXES[up]
-    out = np.full((len(q), len(wire.SEGMENTS), 4), np.nan)
-    still = slice(0, max(1, round(still_s * fs)))
-    for k, name in enumerate(segments):
-        if name in _SEG:
-            rest = calibration.calibrate(q[:, k], still, None, None, name).apply(q[:, k])
-            out[:, _SEG[name]] = quat.multiply(quat.multiply(quat.conjugate(turn), rest), turn)
-    return out, np.isfinite(out).all(axis=(0, 2))
-
-
-def from_readings(q: np.ndarray, segments: tuple[str, ...], fs: float, up: str = "z",
-                  still_s: float = 1.0) -> tuple[np.ndarray, np.ndarray, Facing]:
-    """A recording of real sensors that starts standing still, as anatomical segment orientations:
-    :func:`rest_calibrated`, then the subject's facing found from the hinges over the whole
-    recording (the sensors must share one world heading) and undone.
-
-    Returns
-    -------
-    q : (m, 10, 4) anatomical orientations (NaN rows for segments without a sensor);
-    present : (10,) bool; facing : what the hinges told. CalibrationError naming the sensor that
-    was not still, or saying that no hinge moved enough.
-    """
-    rest, present = rest_calibrated(q, segments, fs, up, still_s)
-    stats = HingeStats.empty()
-    stats.add(rest, present)
-    facing = stats.facing()
-    if not facing.found:
-        raise calibration.CalibrationError(f"functional calibration: {facing.describe()}")
-    return face(rest, facing.heading), present, facing

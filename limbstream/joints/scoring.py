@@ -28,11 +28,13 @@ def in_layout(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
 
 
 def true_angles(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
-    """The joint angles of a motion source's own segment orientations (BVH clips, npz files: no
-    calibration, they are the segments): (m, A) degrees and (m, A) flags (:func:`joint_angles`).
-    ValueError for a recording of real sensors (their orientations are not the segments')."""
-    if motion.sensor_up is not None:
-        raise ValueError(f"{motion.name}: real sensors' orientations have no true joint angles")
+    """The joint angles of a motion source's own segment orientations (BVH clips, npz files, the
+    generator: ``Motion.orientations`` ``segments``): (m, A) degrees and (m, A) flags
+    (:func:`joint_angles`). ValueError for a recording of real sensors (rest-calibrated, their
+    facing unknown, or uncalibrated: not the segments' own orientations)."""
+    if motion.orientations != "segments":
+        raise ValueError(f"{motion.name}: real sensors' orientations ({motion.orientations}) have no true joint "
+                         "angles")
     q, present = in_layout(motion)
     return joint_angles(q, present, motion.rest_pose)
 
@@ -54,16 +56,6 @@ def angle_errors(estimate: np.ndarray, truth: np.ndarray, flags: np.ndarray | No
                      "bias": float(e.mean()) if e.size else math.nan,
                      "n": int(e.size), "gimbal": int((gimbal[:, k] & np.isfinite(error[:, k])).sum())}
     return out
-
-
-def format_errors(errors: dict[str, dict], title: str = "joint angle errors (deg)") -> str:
-    """The per-angle figures as a table (angles without a scored frame left out)."""
-    lines = [title, f"{'angle':<16} {'mean':>7} {'p99':>7} {'bias':>7} {'frames':>7} {'gimbal':>7}"]
-    for name, e in errors.items():
-        if e["n"]:
-            lines.append(f"{name:<16} {e['mean']:>7.2f} {e['p99']:>7.2f} {e['bias']:>+7.2f} {e['n']:>7d} "
-                         f"{e['gimbal']:>7d}")
-    return "\n".join(lines)
 
 
 def pooled_errors(motions) -> dict[str, dict]:

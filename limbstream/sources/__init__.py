@@ -7,6 +7,7 @@ built-in synthetic full-body motion (the default of demos and tests). Raw sensor
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +36,20 @@ def is_number(text: str) -> bool:
     return True
 
 
+ORIENTATIONS: tuple[str, ...] = ("segments", "rest", "sensors")
+"""What a :class:`Motion`'s orientations are (``Motion.orientations``):
+
+- ``segments``: the segments' own orientations in the skeleton's world (Y up): BVH clips, npz
+  files, the generator; joint angles can be taken from them as they are.
+- ``rest``: real sensors, each calibrated from the still rest pose its recording starts with
+  (:func:`limbstream.calibration.calibrate_start`) in a world turned Y up: the segments up to
+  the subject's facing, the one turn about the vertical a rest pose cannot tell (found from the
+  hinges' motion, :mod:`limbstream.joints.functional`, before joint angles).
+- ``sensors``: real sensors' orientations, not calibrated (a recording that does not start
+  still): nothing about the body can be taken from them.
+"""
+
+
 @dataclass(frozen=True)
 class Motion:
     """Orientation streams of the segments of one subject.
@@ -56,10 +71,10 @@ class Motion:
         The body's root (pelvis) position in the same world frame, metres at the scale of the
         default :class:`limbstream.skeleton.Skeleton`, where the source has one (BVH clips);
         None: the body turns about a fixed root (emulated sensors then feel no travel).
-    sensor_up : str or None
-        None: ``q`` are the segments' own orientations (the skeleton's frame, Y up). ``"z"``:
-        they are real sensors' orientations in their fusion's world, whose up axis is +Z (x-IMU3,
-        Xsens): anything about the body (joint angles) needs a calibration first.
+    orientations : str
+        What ``q`` are, one of :data:`ORIENTATIONS`: the segments' own (motion files, the
+        generator), or real sensors' rest-calibrated or uncalibrated (IMU recordings, set by
+        :func:`.imu_files.to_body`).
     """
 
     t: np.ndarray
@@ -68,7 +83,7 @@ class Motion:
     name: str = ""
     rest_pose: str = wire.DEFAULT_REST_POSE
     root: np.ndarray | None = None
-    sensor_up: str | None = None
+    orientations: str = "segments"
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:
@@ -78,6 +93,8 @@ class Motion:
         if self.root is not None and np.shape(self.root) != (len(self.t), 3):
             raise ValueError(f"Motion root must be (m, 3) = ({len(self.t)}, 3), got {np.shape(self.root)}")
         wire.check_rest_pose(self.rest_pose)
+        if self.orientations not in ORIENTATIONS:
+            raise ValueError(f"Motion orientations must be one of {ORIENTATIONS}, got {self.orientations!r}")
 
     @property
     def fs(self) -> float:
@@ -118,30 +135,32 @@ def load_npz(path: str | Path) -> list[Motion]:
     return motions
 
 
-def load(path: str | Path) -> list[Motion]:
+def load(path: str | Path, names: Mapping[str, str] | None = None) -> list[Motion]:
     """Load every motion in a file or folder.
 
     - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at 50 Hz (:mod:`.bvh`).
-    - x-IMU3 ``.csv`` / Xsens ``.txt`` file: one single-segment Motion of its raw samples.
-    - A folder of ``.csv`` (x-IMU3) or ``.txt`` (Xsens) files: one Motion, one segment per file,
-      aligned on a common time base (see :mod:`.imu_files`).
+    - An x-IMU3 ``.csv`` or Xsens ``.txt`` file (one segment, its own samples), or a folder of
+      either (one segment per sensor, aligned on a common time base): one Motion of segment
+      orientations (see :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`).
     - Any other folder: every ``.npz`` and ``.bvh`` in it, in name order.
 
     Raises
     ------
-    MotionFileError naming the file and what is wrong.
+    MotionFileError naming the file and what is wrong (also: an IMU recording in which no sensor
+    maps to a body segment, and ``names`` for a source whose segments are named already).
     """
     from limbstream.sources import bvh, imu_files
 
     path = Path(path)
     if not path.exists():
         raise MotionFileError(f"{path}: no such file or folder")
+    suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()} if path.is_dir() else {path.suffix.lower()}
+    if suffixes & {".csv", ".txt"}:
+        return [imu_files.load_imu(path, names)]
+    if names is not None:
+        raise MotionFileError(f"{path}: --names maps the sensors of IMU recordings (x-IMU3 .csv, Xsens .txt); "
+                              "this source names its segments itself")
     if path.is_dir():
-        suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()}
-        if ".csv" in suffixes:
-            return [imu_files.load_xio_folder(path)]
-        if ".txt" in suffixes:
-            return [imu_files.load_xsens_folder(path)]
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".npz", ".bvh"))
         if not files:
             raise MotionFileError(f"{path}: folder holds no .npz, .bvh, .csv or .txt motion files")
@@ -151,10 +170,6 @@ def load(path: str | Path) -> list[Motion]:
         return load_npz(path)
     if suffix == ".bvh":
         return [bvh.load_bvh(path)]
-    if suffix in (".csv", ".txt"):
-        read = imu_files.read_xio_csv if suffix == ".csv" else imu_files.read_xsens_txt
-        s = read(path)
-        return [Motion(s.t - s.t[0], s.q[:, None, :], (s.name,), path.stem, sensor_up="z")]
     if suffix == ".mat":
         raise MotionFileError(f"{path}: a raw sensor recording (angular rate, specific force), not orientations: "
                               "read it with limbstream.sources.load_raw")
@@ -163,4 +178,4 @@ def load(path: str | Path) -> list[Motion]:
 
 from limbstream.sources.raw import RawRecording, load_raw  # noqa: E402  (needs MotionFileError above)
 
-__all__ = ["SEGMENTS", "Motion", "MotionFileError", "RawRecording", "is_number", "load", "load_npz", "load_raw"]
+__all__ = ["ORIENTATIONS", "SEGMENTS", "Motion", "MotionFileError", "RawRecording", "is_number", "load", "load_npz", "load_raw"]

@@ -1,7 +1,11 @@
 """Real IMU recordings: x-IMU3 quaternion CSV files and Xsens MTw text exports.
 
 Both give per-sensor raw streams (:class:`SensorStream`, each with its own timestamps) and a
-folder loader that aligns the sensors into one :class:`Motion`:
+loader (:func:`load_imu`) that aligns the sensors of a file or folder into one :class:`Motion` of
+segment orientations (:func:`to_body`): each sensor named by its segment (:mod:`.names`), the
+recording's world (Z up) turned onto the skeleton's (Y up), and each sensor calibrated from the
+still rest pose the recording starts with (:func:`limbstream.calibration.calibrate_start`), once:
+``Motion.orientations`` tells users (the export, joint angles) whether that was done.
 
 - x-IMU3 sensors have independent, jittered clocks and drop samples. The folder's Motion is
   every sensor SLERP-resampled onto one uniform grid over the time all sensors overlap, at the
@@ -17,27 +21,19 @@ from __future__ import annotations
 import re
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from limbstream import quat
-from limbstream.sources import Motion, MotionFileError, is_number
+from limbstream import calibration, quat
+from limbstream.sources import Motion, MotionFileError, is_number, names as sensor_names
 
 XIO_HEADER = ("Timestamp (us)", "W", "X", "Y", "Z")
-XIO_SEGMENTS: dict[str, str] = {
-    "left_upper": "l_thigh",
-    "right_upper": "r_thigh",
-    "left_lower": "l_shank",
-    "right_lower": "r_shank",
-    "left_foot": "l_foot",
-    "right_foot": "r_foot",
-    "pelvis": "hip",
-}
-"""File-stem prefix (case-insensitive) -> segment name for the x-IMU3 lower-body recording;
-other files keep their stem as the segment name."""
+Z_UP_TO_Y_UP = calibration.axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2))
+"""(4,) the rotation that takes the recordings' world (Z up: x-IMU3's and Xsens' earth frames)
+onto the skeleton's (Y up), by -90 degrees about X."""
 
 ORTHONORMAL_TOL = 1e-2
 """Largest |M M^T - I| entry accepted for an Xsens rotation matrix."""
@@ -52,7 +48,8 @@ class SensorStream:
     Attributes
     ----------
     name : str
-        Segment name (see :data:`XIO_SEGMENTS`) or the file stem.
+        Segment name without a mapping (:func:`.names.default_name`: x-IMU3 file prefixes) or
+        the file stem.
     t : (m,) float64
         Sample times, seconds on the device clock (x-IMU3) or counter / rate (Xsens), increasing.
     q : (m, 4) float64
@@ -113,15 +110,6 @@ def _warn_dropped(path: Path, dropped: int, why: str) -> None:
         warnings.warn(f"{path}: dropped {dropped} rows ({why})", stacklevel=3)
 
 
-def xio_segment_name(path: Path) -> str:
-    """Segment name of an x-IMU3 file from its stem (see :data:`XIO_SEGMENTS`)."""
-    stem = path.stem.lower()
-    for prefix, segment in XIO_SEGMENTS.items():
-        if stem.startswith(prefix):
-            return segment
-    return path.stem
-
-
 def read_xio_csv(path: str | Path) -> SensorStream:
     """One x-IMU3 quaternion CSV (``Timestamp (us),W,X,Y,Z``).
 
@@ -152,7 +140,7 @@ def read_xio_csv(path: str | Path) -> SensorStream:
     _warn_dropped(path, dropped, "timestamp not increasing")
     values = values[keep]
     q = quat.continuous(values[:, 1:] / norm[keep, None])
-    return SensorStream(xio_segment_name(path), values[:, 0] * 1e-6, q, path, dropped)
+    return SensorStream(sensor_names.default_name(path.stem), values[:, 0] * 1e-6, q, path, dropped)
 
 
 def _files(folder: Path, suffix: str) -> list[Path]:
@@ -179,7 +167,8 @@ def align(streams: list[SensorStream], fs: float | None = None, name: str = "") 
     Returns
     -------
     Motion with t (n,) seconds from the start of the overlap and q (n, S, 4): the sensors'
-    orientations in their fusion's Z-up world (``sensor_up="z"``).
+    orientations in their fusion's Z-up world (``orientations="sensors"``; :func:`to_body`
+    makes them segments').
     """
     start = max(s.t[0] for s in streams)
     end = min(s.t[-1] for s in streams)
@@ -194,13 +183,7 @@ def align(streams: list[SensorStream], fs: float | None = None, name: str = "") 
     names = tuple(s.name for s in streams)
     if len(set(names)) != len(names):
         raise MotionFileError(f"{where}: two sensors map to the same segment ({names})")
-    return Motion(t - start, q, names, name, sensor_up="z")
-
-
-def load_xio_folder(folder: str | Path, fs: float | None = None) -> Motion:
-    """A folder of x-IMU3 CSV files as one Motion, one segment per file (see :func:`align`)."""
-    folder = Path(folder)
-    return align(xio_streams(folder), fs, folder.name)
+    return Motion(t - start, q, names, name, orientations="sensors")
 
 
 _RATE = re.compile(r"update rate:\s*([0-9.]+)\s*hz", re.IGNORECASE)
@@ -307,21 +290,55 @@ def xsens_streams(folder: str | Path) -> list[SensorStream]:
     return [read_xsens_txt(p) for p in _files(Path(folder), ".txt")]
 
 
-def load_xsens_folder(folder: str | Path, names: Mapping[str, str] | None = None) -> Motion:
-    """A folder of Xsens MTw exports as one Motion on the shared packet counter.
+def load_imu(path: str | Path, names: Mapping[str, str] | None = None) -> Motion:
+    """An x-IMU3 ``.csv`` or Xsens ``.txt`` file, or a folder of either, as one body Motion.
 
     Parameters
     ----------
-    folder : holds one ``.txt`` per sensor.
-    names : file stem -> segment name; stems not in it keep the stem.
+    path : the file or folder.
+    names : sensor -> segment (:func:`.names.parse`); the sensors it does not name are left out.
+        None: x-IMU3 files by their prefixes, others by their stems (:func:`.names.default_name`).
+
+    Raises
+    ------
+    MotionFileError naming the file and the problem, or, when no sensor maps to a body segment,
+    the sensors found and how to map them.
     """
-    folder = Path(folder)
-    streams = xsens_streams(folder)
-    if names:
-        streams = [
-            SensorStream(names.get(s.name, s.name), s.t, s.q, s.path, s.dropped) for s in streams
-        ]
-    rates = {round(1.0 / np.min(np.diff(s.t)), 6) for s in streams}
-    if len(rates) != 1:
-        raise MotionFileError(f"{folder}: sensors have different update rates {sorted(rates)}")
-    return align(streams, rates.pop(), folder.name)
+    path = Path(path)
+    xio = path.suffix.lower() == ".csv" or (path.is_dir() and any(path.glob("*.csv")))
+    if path.is_dir():
+        streams = xio_streams(path) if xio else xsens_streams(path)
+    else:
+        streams = [read_xio_csv(path) if xio else read_xsens_txt(path)]
+    segments = sensor_names.name_sensors([s.path.stem for s in streams], names)
+    try:
+        sensor_names.check_body(str(path), [s for s in segments if s], [s.path.stem for s in streams])
+    except ValueError as exc:
+        raise MotionFileError(str(exc)) from None
+    streams = [replace(s, name=seg) for s, seg in zip(streams, segments) if seg]
+    if path.is_file():  # one sensor: its own samples, as recorded
+        (one,) = streams
+        return to_body(Motion(one.t - one.t[0], one.q[:, None, :], (one.name,), path.stem, orientations="sensors"))
+    fs = None
+    if not xio:  # Xsens: the sensors share the packet counter at one update rate
+        rates = {round(1.0 / np.min(np.diff(s.t)), 6) for s in streams}
+        if len(rates) != 1:
+            raise MotionFileError(f"{path}: sensors have different update rates {sorted(rates)}")
+        fs = rates.pop()
+    return to_body(align(streams, fs, path.name))
+
+
+def to_body(motion: Motion) -> Motion:
+    """A recording's sensor orientations (Z-up world) as segment orientations: the world turned Y
+    up (:data:`Z_UP_TO_Y_UP`), then, if every sensor starts still, each calibrated from that start
+    (:func:`limbstream.calibration.calibrate_start`: the recording starts in the standing rest
+    pose; ``orientations="rest"``: the segments up to the subject's facing); a recording that does
+    not start still is warned about and left uncalibrated (``orientations="sensors"``)."""
+    q = quat.multiply(Z_UP_TO_Y_UP, motion.q)
+    try:
+        q, orientations = calibration.calibrate_start(q, motion.fs, motion.segments), "rest"
+    except calibration.CalibrationError as exc:
+        warnings.warn(f"{motion.name}: not calibrated, the sensors do not start in a still rest pose ({exc})",
+                      stacklevel=2)
+        orientations = "sensors"
+    return replace(motion, q=quat.continuous(q), rest_pose="standing", orientations=orientations)

@@ -8,7 +8,7 @@ module          what it holds
 :mod:`.point`   segment point codec (device -> aggregator)
 :mod:`.raw`     truth-tap batch codec
 :mod:`.pose`    pose frame codec (aggregator -> clients)
-:mod:`.fields`  the stats field table; :mod:`.stats` its JSON codec
+:mod:`.fields`  the stats field table; :mod:`.stats` its codec (compact, JSON)
 :mod:`.config`  device tunables (defaults, bounds), config and status messages
 :mod:`.time`    time exchange codec (device <-> time service)
 :mod:`.calibrate` calibration requests (client -> aggregator) and answers
@@ -32,12 +32,14 @@ from .gateway import Assignment, decode_assignment, decode_sensors, encode_assig
 from .keys import (CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
                    device_selector, gateway_key, gateway_selector, history_selector, parse_device_key, parse_gateway_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
-from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, SegmentPoint,
-                    decode_point, encode_point)
+from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, PointColumns,
+                    SegmentPoint, decode_point, decode_points, encode_point)
 from .pose import (AUTO_LIVE_WINDOW_S, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
                    PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, rest_pose_flag)
-from .raw import MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, decode_raw, encode_raw
-from .stats import decode_stats, encode_stats
+from .raw import (MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, RawColumns, decode_raw,
+                  decode_raws, encode_raw)
+from .stats import (STATS_NUMBERS, STATS_TEXTS, STATS_VERSION, decode_stats, encode_stats, encode_stats_json,
+                    encode_stats_table, stats_devices, stats_json)
 from .time import (MAX_TIME_US, TIME_ANSWER_SIZE, TIME_REQUEST_SIZE, TIME_VERSION, TimeAnswer, TimeRequest,
                    decode_time_answer, decode_time_request, encode_time_answer, encode_time_request, offset_delay)
 

@@ -1,9 +1,9 @@
-"""``python -m limbstream.wire``: the stats field and device tunable tables of
-docs/protocol.md, printed as Markdown from the contract (tests/test_wire.py checks the docs hold
+"""``python -m limbstream.wire``: the stats field, compact stats column and device tunable
+tables of docs/protocol.md, printed as Markdown from the contract (tests/test_wire.py checks the docs hold
 exactly these)."""
 from __future__ import annotations
 
-from . import FIELDS, TUNABLES
+from . import FIELDS, STATS_NUMBERS, STATS_TEXTS, TUNABLES
 
 
 def fields_table(scope: str) -> str:
@@ -14,6 +14,17 @@ def fields_table(scope: str) -> str:
             metric = f"`{f.metric}{'_total' if f.counter else ''}`" if f.metric else ""
             chart = " (charted)" if f.chart else ""
             rows.append(f"| `{f.name}` | {f.type.__name__} | {f.unit} | {f.help}{chart} | {metric} |")
+    return "\n".join(rows)
+
+
+def compact_table() -> str:
+    """Markdown table of a compact stats message's device columns: the numbers' table columns in
+    order, then the fields in the head's ``texts``."""
+    types = {f.name: f.type.__name__ for f in FIELDS if f.scope == "device"}
+    rows = ["| column | field | type | sent as |", "|---:|---|---|---|"]
+    rows += [f"| {i} | `{name}` | {types[name]} | f64{' (0 or 1)' if types[name] == 'bool' else ''} |"
+             for i, name in enumerate(STATS_NUMBERS)]
+    rows += [f"| – | `{name}` | {types[name]} | `texts` |" for name in STATS_TEXTS]
     return "\n".join(rows)
 
 
@@ -29,7 +40,7 @@ def tunables_table() -> str:
 def tables() -> dict[str, str]:
     """Every generated table, by the heading it stands under in docs/protocol.md."""
     return {"Per device": fields_table("device"), "Per subject": fields_table("subject"),
-            "Per aggregator": fields_table("aggregator"), "Tunables": tunables_table()}
+            "Per aggregator": fields_table("aggregator"), "Compact form": compact_table(), "Tunables": tunables_table()}
 
 
 if __name__ == "__main__":

@@ -42,15 +42,18 @@ def decode_calibrate_request(payload: bytes) -> str:
 @dataclass(frozen=True)
 class CalibrateAnswer:
     """The aggregator's answer: ``ok``, else ``reason`` (one sentence); ``devices``: per device id
-    its calibration's poses and heading estimate (degrees)."""
+    its calibration's poses and heading estimate (degrees); ``absent``: the body's segments the
+    subject has no streaming device for (a partial body: they were not calibrated)."""
 
     ok: bool
     reason: str | None = None
     devices: dict[str, dict] = field(default_factory=dict)
+    absent: list[str] = field(default_factory=list)
 
 
 def encode_calibrate_answer(answer: CalibrateAnswer) -> bytes:
-    return json.dumps({"ok": answer.ok, "reason": answer.reason, "devices": answer.devices}).encode()
+    return json.dumps({"ok": answer.ok, "reason": answer.reason, "devices": answer.devices,
+                       "absent": answer.absent}).encode()
 
 
 def decode_calibrate_answer(payload: bytes) -> CalibrateAnswer:
@@ -58,9 +61,11 @@ def decode_calibrate_answer(payload: bytes) -> CalibrateAnswer:
         data = json.loads(bytes(payload))
         if not isinstance(data, dict) or not isinstance(data.get("ok"), bool):
             raise ValueError("needs a boolean 'ok'")
-        reason, devices = data.get("reason"), data.get("devices") or {}
+        reason, devices, absent = data.get("reason"), data.get("devices") or {}, data.get("absent") or []
         if not (reason is None or isinstance(reason, str)) or not isinstance(devices, dict):
             raise ValueError("'reason' must be a string or null, 'devices' an object")
-        return CalibrateAnswer(data["ok"], reason, devices)
+        if not (isinstance(absent, list) and all(isinstance(s, str) for s in absent)):
+            raise ValueError("'absent' must be a list of segment names")
+        return CalibrateAnswer(data["ok"], reason, devices, absent)
     except (ValueError, RecursionError) as exc:
         raise WireError("calibrate", f"bad calibration answer: {exc}") from None

@@ -217,7 +217,8 @@ class LinkStatus:
     link_pps: float | None = None
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        return {"tracker": self.tracker, "battery_pct": self.battery_pct, "signal_dbm": self.signal_dbm,
+                "link_loss": self.link_loss, "link_pps": self.link_pps}
 
 
 @dataclass(frozen=True)
@@ -239,7 +240,8 @@ class ClockStatus:
     sync_bad: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        return {"clock_offset_ms": self.clock_offset_ms, "sync_rtt_ms": self.sync_rtt_ms, "synced": self.synced,
+                "sync_bad": dict(self.sync_bad)}
 
 
 def encode_status(status: DeviceStatus) -> bytes:

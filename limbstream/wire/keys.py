@@ -8,7 +8,7 @@ key                                                     payload                 
 ``limbstream/<subject>/<segment>/alive``                liveliness token           device
 ``limbstream/<subject>/<segment>/config``               queryable: config/status   device
 ``limbstream/<subject>/pose``                           pose frame                 aggregator
-``limbstream/<subject>/stats``                          stats JSON                 aggregator
+``limbstream/<subject>/stats``                          stats (JSON on query)      aggregator
 ``limbstream/@time``                                    queryable: time exchange   time service
 ``limbstream/@gateway/<gateway>``                       queryable: sensors/assign  gateway
 =====================================================  =========================  ==========

@@ -11,6 +11,8 @@ import math
 import struct
 from dataclasses import dataclass
 
+import numpy as np
+
 from .errors import WireError
 
 VERSION = 1
@@ -29,6 +31,10 @@ _POINT_RATE = struct.Struct("<BBHIIq4f3f")
 POINT_SIZE = _POINT.size  # 36 bytes
 POINT_SIZE_RATE = _POINT_RATE.size  # 48 bytes
 _SIZES = {VERSION: POINT_SIZE, VERSION_RATE: POINT_SIZE_RATE}
+_FIELDS = [("version", "u1"), ("flags", "u1"), ("stream", "<u2"), ("seq", "<u4"), ("index", "<u4"), ("t_us", "<i8"),
+           ("q", "<f4", (4,))]
+_DTYPES = {VERSION: np.dtype(_FIELDS), VERSION_RATE: np.dtype(_FIELDS + [("omega", "<f4", (3,))])}
+"""The two layouts as NumPy record types (the same bytes as the structs above)."""
 
 
 @dataclass(frozen=True)
@@ -93,3 +99,91 @@ def decode_point(payload: bytes) -> SegmentPoint:
     if abs(norm - 1.0) > UNIT_TOLERANCE:
         raise WireError("non_unit", f"segment point quaternion norm {norm:.6g}")
     return SegmentPoint(stream, seq, index, t_us, (w, x, y, z), flags, omega)
+
+
+@dataclass(frozen=True)
+class PointColumns:
+    """Segment point messages decoded together (a drain's worth), as columns; row ``i`` is
+    message ``i``.
+
+    Attributes
+    ----------
+    stream, seq, index, t_us, flags : (N,) int64
+        As in :class:`SegmentPoint` (0 for an invalid message).
+    q : (N, 4) float32
+        Orientations (w, x, y, z).
+    omega : (N, 3) float32
+        Body angular rates, rad/s; 0 for a v1 point (no rate: held).
+    nbytes : (N,) int64
+        Payload sizes.
+    reason : list of N (str or None)
+        Why the message is not a valid point (the reasons of :func:`decode_point`); None where
+        it is one.
+    """
+
+    stream: np.ndarray
+    seq: np.ndarray
+    index: np.ndarray
+    t_us: np.ndarray
+    flags: np.ndarray
+    q: np.ndarray
+    omega: np.ndarray
+    nbytes: np.ndarray
+    reason: list
+
+    @classmethod
+    def of(cls, points: list[SegmentPoint], nbytes: list[int]) -> PointColumns:
+        """The columns of decoded points (all valid) of payload sizes ``nbytes``."""
+        def column(name: str) -> np.ndarray:
+            return np.array([getattr(p, name) for p in points], np.int64).reshape(len(points))
+        return cls(column("stream"), column("seq"), column("index"), column("t_us"), column("flags"),
+                   np.array([p.q for p in points], np.float32).reshape(-1, 4),
+                   np.array([p.omega or (0.0, 0.0, 0.0) for p in points], np.float32).reshape(-1, 3),
+                   np.array(nbytes, np.int64).reshape(len(points)), [None] * len(points))
+
+
+def joined(payloads: list[bytes], first: int = 1) -> tuple[np.ndarray, ...]:
+    """Payloads side by side: (their sizes (n,), all their bytes as one uint8 array, where each
+    begins (n,), each one's first byte (its version; -1 where it has fewer than ``first`` bytes))."""
+    n = len(payloads)
+    nbytes = np.fromiter(map(len, payloads), np.int64, n)
+    buf = np.frombuffer(b"".join(payloads), np.uint8)
+    start = np.cumsum(nbytes) - nbytes
+    version = np.full(n, -1, np.int64)
+    version[nbytes >= first] = buf[start[nbytes >= first]]
+    return nbytes, buf, start, version
+
+
+def decode_points(payloads: list[bytes]) -> PointColumns:
+    """Many segment point payloads at once -> :class:`PointColumns`: the same points and the same
+    reasons as :func:`decode_point` of each, in a few NumPy calls for all."""
+    n = len(payloads)
+    nbytes, buf, start, version = joined(payloads)
+    cols = {name: np.zeros(n, np.int64) for name in ("stream", "seq", "index", "t_us", "flags")}
+    q, omega = np.zeros((n, 4), np.float32), np.zeros((n, 3), np.float32)
+    valid = np.zeros(n, bool)
+    for v, dtype in _DTYPES.items():
+        mine = np.flatnonzero((version == v) & (nbytes == dtype.itemsize))
+        if len(mine) == n:  # all of one version (a drain's usual): their bytes as they came
+            rec = buf.view(dtype)
+        elif len(mine):
+            rec = buf[start[mine, None] + np.arange(dtype.itemsize)].view(dtype)[:, 0]
+        if len(mine):
+            for name in cols:
+                cols[name][mine] = rec[name]
+            q[mine] = rec["q"]
+            if v == VERSION_RATE:
+                omega[mine] = rec["omega"]
+            valid[mine] = True
+    finite = np.asarray(np.isfinite(q).all(axis=1) & np.isfinite(omega).all(axis=1))
+    w, x, y, z = q.astype(np.float64).T
+    unit = np.abs(np.sqrt(w * w + x * x + y * y + z * z) - 1.0) <= UNIT_TOLERANCE
+    reason: list[str | None] = [None] * n
+    for i in np.flatnonzero(~(valid & finite & unit)):
+        if version[i] not in _SIZES:
+            reason[i] = "version"
+        elif not valid[i]:
+            reason[i] = "size"
+        else:
+            reason[i] = "non_finite" if not finite[i] else "non_unit"
+    return PointColumns(**cols, q=q, omega=omega, nbytes=nbytes, reason=reason)

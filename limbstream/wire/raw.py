@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import WireError
+from .point import joined
 
 RAW_VERSION = 2
 """Format version of truth-tap batches written with reference times (1: without)."""
@@ -96,3 +97,90 @@ def decode_raw(payload: bytes) -> RawBatch:
     if n > 1 and (np.any(np.diff(dt) < 0) or (ref is not None and np.any(np.diff(ref) < 0))):
         raise WireError("time_backwards", "raw batch timestamps go backwards")
     return RawBatch(stream, first_index, t0 + dt, q, None if ref is None else ref0[0] + ref)
+
+
+@dataclass(frozen=True)
+class RawColumns:
+    """Truth-tap batches decoded together (a drain's worth), as columns: batch ``i`` is message
+    ``i``, its samples rows ``start[i]:start[i] + count[i]`` of the sample columns.
+
+    Attributes
+    ----------
+    stream, first_index, start, count : (B,) int64
+        Per batch, as in :class:`RawBatch` (0 for an invalid message).
+    has_ref : (B,) bool
+        The batch carries reference times (version 2).
+    reason : list of B (str or None)
+        Why the message is not a valid batch (the reasons of :func:`decode_raw`); None where it is.
+    t_us, ref_us : (S,) int64
+        Per sample: device time; reference time (0 in a batch without).
+    q : (S, 4) float32
+        Per sample: orientation.
+    """
+
+    stream: np.ndarray
+    first_index: np.ndarray
+    start: np.ndarray
+    count: np.ndarray
+    has_ref: np.ndarray
+    reason: list
+    t_us: np.ndarray
+    ref_us: np.ndarray
+    q: np.ndarray
+
+    def batch(self, i: int) -> RawBatch:
+        """Batch ``i`` (valid) as a :class:`RawBatch` of its own arrays."""
+        rows = slice(int(self.start[i]), int(self.start[i] + self.count[i]))
+        return RawBatch(int(self.stream[i]), int(self.first_index[i]), self.t_us[rows].copy(), self.q[rows].copy(),
+                        self.ref_us[rows].copy() if self.has_ref[i] else None)
+
+
+_HEADS = {v: np.dtype([("version", "u1"), ("flags", "u1"), ("stream", "<u2"), ("count", "<u2"), ("reserved", "<u2"),
+                       ("first_index", "<u4"), ("t0", "<i8")] + ([("ref0", "<i8")] if v == 2 else []))
+          for v in _LAYOUT}
+"""The headers of both versions as NumPy record types (the bytes of the structs above)."""
+
+
+def decode_raws(payloads: list[bytes]) -> RawColumns:
+    """Many truth-tap payloads at once -> :class:`RawColumns`: the same batches and the same
+    reasons as :func:`decode_raw` of each, in a few NumPy calls for all."""
+    b = len(payloads)
+    nbytes, buf, offset, version = joined(payloads, _HEADER_V1.size)
+    long = nbytes >= _HEADER_V1.size
+    stream, count, first_index, t0, ref0 = (np.zeros(b, np.int64) for _ in range(5))
+    for v, (header, dtype) in _LAYOUT.items():
+        mine = np.flatnonzero((version == v) & (nbytes >= header.size))
+        head = buf[offset[mine, None] + np.arange(header.size)].view(_HEADS[v])[:, 0]
+        ok = (head["count"] > 0) & (nbytes[mine] == header.size + head["count"].astype(np.int64) * dtype.itemsize)
+        mine, head = mine[ok], head[ok]
+        stream[mine], count[mine], first_index[mine], t0[mine] = head["stream"], head["count"], head["first_index"], head["t0"]
+        if v == 2:
+            ref0[mine] = head["ref0"]
+    start = np.cumsum(count) - count
+    total = int(count.sum())
+    sample_batch = np.repeat(np.arange(b), count)
+    rank = np.arange(total) - start[sample_batch]
+    t_us, ref_us, q = np.zeros(total, np.int64), np.zeros(total, np.int64), np.zeros((total, 4), np.float32)
+    for v, (header, dtype) in _LAYOUT.items():
+        batches = np.flatnonzero((version == v) & (count > 0))
+        if len(batches) == 0:
+            continue
+        rows = slice(None) if int(count[batches].sum()) == total else np.flatnonzero(version[sample_batch] == v)
+        body = np.frombuffer(b"".join([payloads[i][header.size:] for i in batches.tolist()]), dtype)
+        t_us[rows] = t0[sample_batch[rows]] + body["dt_us"]
+        q[rows] = body["q"]
+        if v == 2:
+            ref_us[rows] = ref0[sample_batch[rows]] + body["ref_dt_us"]
+    finite = np.bincount(sample_batch[~np.isfinite(q).all(axis=1)], minlength=b) == 0
+    later = rank[1:] > 0  # a sample after the first of its batch: its times may not go back
+    back = later & ((np.diff(t_us) < 0) | (np.diff(ref_us) < 0))
+    backwards = np.bincount(sample_batch[1:][back], minlength=b) > 0
+    reason: list[str | None] = [None] * b
+    for i in np.flatnonzero((count == 0) | ~finite | backwards):
+        if not long[i] or (version[i] in _LAYOUT and count[i] == 0):
+            reason[i] = "size"
+        elif version[i] not in _LAYOUT:
+            reason[i] = "version"
+        else:
+            reason[i] = "non_finite" if not finite[i] else "time_backwards"
+    return RawColumns(stream, first_index, start, count, version == 2, reason, t_us, ref_us, q)

@@ -4,7 +4,8 @@ per-device statistics.
 
 Zenoh delivers into bounded FIFO channels (its callbacks never run our code); one loop
 drains them, advances the frames of every subject, and publishes. Segment points come
-through an advanced subscriber (history for late joining, recovery of missed points).
+through an advanced subscriber (history for late joining, recovery of missed points); a tick's
+points are decoded together and taken in as one batch.
 """
 from __future__ import annotations
 
@@ -21,8 +22,12 @@ import zenoh.ext as zext
 
 from limbstream import heap, wire, zconfig
 from limbstream.skeleton import Skeleton
+from limbstream.services.aggregator.devices import NO_TIME
+from limbstream.services.aggregator.frames import FrameBatch, FrameStage
 from limbstream.services.aggregator.fusion import Fusion, Subject
-from limbstream.services.aggregator.track import HISTORY_WAIT_S, DeviceTrack
+from limbstream.services.aggregator.history import HistoryQueries
+from limbstream.services.aggregator.intake import Intake
+from limbstream.services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator")
 STATUSES_PER_TICK = 100
@@ -33,6 +38,10 @@ UNSYNCED_POLL_S = 1.0
 reported itself not synced is asked for its statuses this often instead of every config_poll_s:
 the stats show the devices' resync within about a second."""
 RESYNC_WATCH_S = 10.0
+STATS_BATCHES = 10
+"""A stats period's messages (one per subject) go out in this many batches, a tick each: often
+enough that no tick carries them all, few enough that each batch's figures are computed for many
+devices at once."""
 
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
@@ -126,16 +135,20 @@ class Aggregator:
                              calibrate_on_start=settings.calibrate_on_start,
                              calibration_file=settings.calibration_file)
         self.subjects: dict[str, Subject] = self.fusion.subjects
-        self.bad_keys: collections.Counter = collections.Counter()
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
         self.loop = LoopStats()
         self._calibrating: list = []  # (query, CalibrationRequest) under way
         self._calibrate_qs: list = []
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
+        self._pose_pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (subject, zconfig.QOS kind)
         self._config_replies: list = []
-        self._history_replies: list = []  # (track, its stream's generation, reply channel)
-        self._history_due: dict = {}      # {track: Zenoh sequence numbers (first, newest) received}
+        self.history = None if session is None else HistoryQueries(session, self.fusion, settings.history)
+        self.intake = Intake(self.fusion, self.loop, settings.max_devices, self._ask_status, self.history)
+        self.bad_keys = self.intake.bad_keys
+        self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
+        self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
+        self._stats_qs: list = []
         self._time_service = None     # the time service's presence (a querier's matching listener)
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
         self.id = f"{socket.gethostname()}:{os.getpid()}"  # names this instance in its stats
@@ -162,6 +175,8 @@ class Aggregator:
                 wire.device_selector("alive", pattern), zenoh.handlers.FifoChannel(1 << 14), history=True))
             self._calibrate_qs.append(self.session.declare_queryable(
                 wire.subject_selector("calibrate", pattern), zenoh.handlers.FifoChannel(256)))
+            self._stats_qs.append(self.session.declare_queryable(  # the stats as JSON, on request
+                wire.subject_selector("stats", pattern), zenoh.handlers.FifoChannel(256)))
         # the time service's return: devices resync at once; their stats should follow
         self._time_querier = self.session.declare_querier(wire.time_key(), allowed_destination=zenoh.Locality.REMOTE)
         self._time_service = self._time_querier.declare_matching_listener(zenoh.handlers.FifoChannel(16))
@@ -171,7 +186,8 @@ class Aggregator:
             with query:
                 query.reply_err("the aggregator is stopping")
         self._calibrating = []
-        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs, self._calibrate_qs):
+        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs, self._calibrate_qs,
+                      self._stats_qs):
             for entity in group:
                 entity.undeclare()
         if self._time_service is not None:
@@ -185,147 +201,33 @@ class Aggregator:
     def track(self, subject: str, segment: str) -> DeviceTrack:
         return self.fusion.track(subject, segment)
 
-    def _parse_key(self, key: str, kind: str) -> tuple[str, str] | None:
-        try:
-            subject, segment, got = wire.parse_device_key(key)
-        except wire.WireError:
-            self.bad_keys["key"] += 1
-            return None
-        if got != kind:
-            self.bad_keys["key"] += 1
-            return None
-        return subject, segment
-
-    def _known(self, subject: str, segment: str) -> DeviceTrack | None:
-        sub = self.subjects.get(subject)
-        return sub.tracks.get(segment) if sub is not None else None
-
-    def _device(self, ids: tuple[str, str], kind: str, reason: str | None) -> DeviceTrack | None:
-        """The track a message of ``kind`` counts against, or None (counted in ``bad_keys``).
-
-        Undecodable messages (``reason``) of devices never seen create no track, and at most
-        ``max_devices`` tracks exist: keys invented by a faulty or hostile client cannot grow
-        the aggregator's memory without bound (tests/test_live_fuzz.py)."""
-        track = self._known(*ids)
-        if track is None:
-            if reason is not None:
-                self.bad_keys[f"{kind}_{reason}"] += 1
-                return None
-            if len(self.fusion.tracks) >= self.settings.max_devices:
-                self.bad_keys["too_many_devices"] += 1
-                return None
-            track = self.track(*ids)
-            self._ask_status(*ids)  # its settings and rest pose, before the next poll
-        if reason is not None:
-            track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
-        return track
+    def known(self, subject: str, segment: str) -> DeviceTrack | None:
+        """The track of a device seen, or None."""
+        return self.intake.known(subject, segment)
 
     def on_point(self, key: str, payload: bytes, now: float, sample: zenoh.Sample | None = None) -> None:
-        """A segment point message (decoded, validated, counted); ``sample``: the Zenoh sample
-        that carried it (its source sequence number bounds a history query)."""
-        ids = self._parse_key(key, "seg")
-        if ids is None:
-            return
-        try:
-            point = wire.decode_point(payload)
-        except wire.WireError as exc:
-            self._device(ids, "seg", exc.reason)
-            return
-        track = self._device(ids, "seg", None)
-        if track is not None and self.fusion.add_point(track, point, len(payload), now):
-            self.loop.points += 1
-            if self.session is not None and track.wants_history():
-                info = sample.source_info if sample is not None else None
-                first, _ = self._history_due.get(track, (None, None))
-                sn = None if info is None else info.source_sn
-                self._history_due[track] = (sn if first is None else first, sn)
+        """One segment point message (a drain of one; ``sample``: the Zenoh sample that carried it)."""
+        self.intake.take_points([key], [payload], now, [sample])
 
-    def _ask_history(self) -> None:
-        """Ask the caches of the devices whose streams began, as received in this drain, after
-        their start, for the points before. Zenoh's history for a joining subscriber brings each
-        device's newest ``history`` points before its live ones, but not always (a publisher it
-        found late, or answers late under load), and a subject's frames begin where its devices'
-        streams begin. So the query asks for what is missing of the ``history`` points before
-        the newest one received (Zenoh's sequence numbers: nothing when Zenoh's history came),
-        and its end, an event, settles the stream (tests/test_history.py)."""
-        for track, (first, newest) in self._history_due.items():
-            track.history = "asked"
-            if first == 0:  # its publisher's first sample: nothing before it
-                self.fusion.history_done(track)
-                continue
-            span = None if first is None else (newest - self.settings.history + 1, first - 1)
-            if span is not None and span[0] > span[1]:  # Zenoh's history brought them all
-                self.fusion.history_done(track)
-                continue
-            selector = wire.history_selector(track.subject, track.segment, self.settings.history, span)
-            replies = self.session.get(selector, zenoh.handlers.FifoChannel(max(1024, self.settings.history)),
-                                       accept_replies=zenoh.ReplyKeyExpr.ANY, target=zenoh.QueryTarget.ALL,
-                                       consolidation=zenoh.ConsolidationMode.NONE, timeout=HISTORY_WAIT_S)
-            self._history_replies.append((track, track.generation, replies))
-        self._history_due.clear()
-
-    def _drain_history(self, now: float) -> None:
-        """Take in the earlier points of late-joined streams as their history queries answer;
-        a query that has completed settles its stream."""
-        still_open = []
-        for track, generation, replies in self._history_replies:
-            try:
-                while (reply := replies.try_recv()) is not None:
-                    if reply.ok is not None and track.generation == generation:
-                        self._history_point(track, reply.ok.payload.to_bytes(), now)
-                still_open.append((track, generation, replies))
-            except zenoh.ZError:  # complete and empty
-                if track.generation == generation:
-                    self.fusion.history_done(track)
-        self._history_replies = still_open
-
-    def _history_point(self, track: DeviceTrack, payload: bytes, now: float) -> None:
-        """A point from a device's cache: taken in if it is of the current stream and before
-        its first point received; the rest of the cache is already here (not a drop)."""
-        try:
-            point = wire.decode_point(payload)
-        except wire.WireError as exc:
-            track.dropped[exc.reason] += 1
-            return
-        if (point.stream == track.stream and track.first_seq is not None and point.seq < track.first_seq
-                and self.fusion.add_point(track, point, len(payload), now)):
-            self.loop.points += 1
+    def take_points(self, keys: list[str], payloads: list[bytes], now: float) -> None:
+        """A drain's segment point messages (Intake.take_points)."""
+        self.intake.take_points(keys, payloads, now)
 
     def on_raw(self, key: str, payload: bytes, now: float) -> None:
-        """A truth-tap batch."""
-        ids = self._parse_key(key, "raw")
-        if ids is None:
-            return
-        try:
-            batch = wire.decode_raw(payload)
-        except wire.WireError as exc:
-            self._device(ids, "raw", exc.reason)
-            return
-        track = self._device(ids, "raw", None)
-        if track is not None and self.fusion.add_raw(track, batch, now):
-            self.loop.raw_batches += 1
+        """One truth-tap message (a drain of one)."""
+        self.intake.take_raw([key], [payload], now)
+
+    def take_raw(self, keys: list[str], payloads: list[bytes], now: float) -> None:
+        """A drain's truth-tap messages (Intake.take_raw)."""
+        self.intake.take_raw(keys, payloads, now)
 
     def on_alive(self, key: str, online: bool) -> None:
-        ids = self._parse_key(key, "alive")
-        if ids is not None and (track := self._device(ids, "alive", None)) is not None:
-            self.fusion.set_online(track, online)
+        """A device's liveliness token appeared or vanished."""
+        self.intake.on_alive(key, online)
 
     def on_config(self, key: str, payload: bytes) -> None:
-        """A device's config reply (its status): the settings it runs."""
-        ids = self._parse_key(key, "config")
-        if ids is None:
-            return
-        try:
-            status = wire.decode_status(payload)
-        except wire.WireError:
-            self.bad_keys["config_reply"] += 1
-            return
-        track = self._known(*ids)
-        if track is not None:
-            self.fusion.set_config(track, status.config)
-            self.fusion.set_rest_pose(track.subject, status.rest_pose)
-            track.clock = status.clock
-            track.link = status.link
+        """A device's config reply (its status)."""
+        self.intake.on_config(key, payload)
 
     def drain(self, now: float, budget: int = 100_000) -> int:
         """Move everything waiting in the channels into the tracks. Returns messages handled."""
@@ -334,16 +236,26 @@ class Aggregator:
             while (sample := sub.try_recv()) is not None:
                 self.on_alive(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
                 handled += 1
+        keys, payloads, samples = [], [], []
         for sub in self._seg_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
-                self.on_point(str(sample.key_expr), sample.payload.to_bytes(), now, sample)
+                keys.append(str(sample.key_expr))
+                payloads.append(sample.payload.to_bytes())
+                samples.append(sample)
                 handled += 1
+        if keys:
+            self.intake.take_points(keys, payloads, now, samples)
+        keys, payloads = [], []
         for sub in self._raw_subs:
             while handled < budget and (sample := sub.try_recv()) is not None:
-                self.on_raw(str(sample.key_expr), sample.payload.to_bytes(), now)
+                keys.append(str(sample.key_expr))
+                payloads.append(sample.payload.to_bytes())
                 handled += 1
-        self._ask_history()
-        self._drain_history(now)
+        if keys:
+            self.intake.take_raw(keys, payloads, now)
+        if self.history is not None:
+            self.history.ask()
+            self.loop.points += self.history.drain(now)
         for listener in self._misses:
             while (miss := listener.try_recv()) is not None:
                 self.loop.missed += miss.nb
@@ -403,7 +315,13 @@ class Aggregator:
     def _publish(self, subject: str, payload: bytes) -> None:
         """An encoded pose frame of ``subject``: exact and live frames share the key, not the QoS."""
         kind = "pose_live" if payload[_POSE_KIND_BYTE] == wire.KIND_LIVE else "pose_exact"
-        self._publisher(wire.pose_key(subject), kind).put(payload)
+        pub = self._pose_pubs.get((subject, kind))
+        if pub is None:
+            pub = self._pose_pubs[subject, kind] = self._publisher(wire.pose_key(subject), kind)
+        pub.put(payload)
+
+    def _publish_stats(self, subject: str, payload: bytes) -> None:
+        self._publisher(wire.stats_key(subject), "stats").put(payload)
 
     def _publisher(self, key: str, kind: str) -> zenoh.Publisher:
         """The publisher of ``key`` for messages of ``kind`` (zconfig.QOS), declared on first use."""
@@ -412,25 +330,28 @@ class Aggregator:
             pub = self._pubs[key, kind] = self.session.declare_publisher(key, **zconfig.publisher_options(kind))
         return pub
 
-    def advance(self, live: bool, prune: bool = True, now: float | None = None) -> int:
+    def advance(self, live: bool, prune: bool = True, now: float | None = None, wall: float | None = None) -> int:
         """Truth evaluation, exact frames (and live frames) of every subject; returns frames published.
-        ``now``: the arrival clock of the messages (perf_counter), if time went on without any."""
+        ``now``: the arrival clock of the messages (perf_counter), if time went on without any;
+        ``wall``: the publication time of live frames (s since the epoch; default: the clock's)."""
         if now is not None:
             self.fusion.advance_clock(now)
-        self.fusion.calibrate_ready()
-        self.fusion.evaluate_truth()
-        owners, frames = self.fusion.exact_frames()
-        self.fusion.evaluate_frames()
-        for sub, payload in zip(owners, frames.encode()):
-            self._publish(sub.name, payload)
-        if live:
-            owners, live_frames = self.fusion.live_frames(self.fusion.clock if now is None else now, time.time())
-            for sub, payload in zip(owners, live_frames.encode()):
-                self._publish(sub.name, payload)
+        batch = self.fusion.tick(live, now, time.time() if wall is None else wall)
+        self._publish_frames(batch)
         if prune:
             self.fusion.prune()
-        self.loop.frames += len(frames)
-        return len(frames)
+        self.loop.frames += len(batch.exact)
+        return len(batch.exact)
+
+    def _publish_frames(self, batch: FrameBatch) -> None:
+        """A tick's frames, per subject exact ones first, and what the frame stages make of them."""
+        for stage in self.frame_stages:
+            for key, kind, payload in stage(batch):
+                self._publisher(key, kind).put(payload)
+        names = list(self.subjects)
+        for frames, owner in ((batch.exact, batch.exact_owner), (batch.live, batch.live_owner)):
+            for i, payload in zip(owner.tolist(), frames.encode()):
+                self._publish(names[i], payload)
 
     def serve_calibrations(self) -> None:
         """Take calibration requests in; answer those whose pose hold is complete (each tick)."""
@@ -464,35 +385,51 @@ class Aggregator:
             query.reply(query.key_expr, wire.encode_calibrate_answer(answer))
 
     def subject_stats(self, subject: str, now: float) -> dict:
+        """The figures of a subject's stats message: ``devices`` (its device entries) and the
+        subject fields."""
         sub = self.subjects[subject]
-        frame_aad, frames_compared = self.fusion.frame_error(sub)
-        return {
-            "devices": self.fusion.device_stats(sub, now),
-            "frames": sub.frames,
-            "skipped_frames": sub.skipped,
-            "watermark_us": self.fusion.watermark(sub),
-            "frame_aad_deg": frame_aad,
-            "frame_error_frames": frames_compared,
-            "facing_deg": self.fusion.facing_deg(sub),
-        }
+        return {"devices": self.fusion.device_stats([sub], now)[0]} | self._subject_fields([sub])[0]
 
-    def publish_stats(self, now: float, part: int = 0, parts: int = 1) -> None:
+    def _subject_fields(self, subjects: list[Subject]) -> list[dict]:
+        """The subject fields of the subjects' stats messages."""
+        view = self.fusion.device_view()
+        scores = self.fusion.scoring.subject_figures([sub.index for sub in subjects])
+        return [{"frames": int(self.fusion.frames.made[sub.index]), "skipped_frames": int(self.fusion.frames.skipped[sub.index]),
+                 "watermark_us": None if view.watermark[sub.index] == NO_TIME else int(view.watermark[sub.index]),
+                 "frame_aad_deg": aad, "frame_error_frames": compared, "facing_deg": facing}
+                for sub, (aad, compared, facing) in zip(subjects, scores)]
+
+    def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop
-        spreads one round over the ticks of a stats period so that no tick carries them all."""
-        wall = time.time()
-        for sub in list(self.subjects.values()):
-            if sub.index % parts != part:
-                continue
-            snapshot = self.subject_stats(sub.name, now)
-            devices = snapshot.pop("devices")
-            # load / soak figures (bench/soak.py) and messages no device could be charged with
-            snapshot["aggregator"] = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {
-                "bad_keys": dict(self.bad_keys)}
-            payload = wire.encode_stats(sub.name, wall, devices, snapshot, seq=self.stats_seq[sub.name])
-            self._publisher(wire.stats_key(sub.name), "stats").put(payload)
+        spreads one round over the ticks of a stats period so that no tick carries them all.
+        ``wall``: their send time (s since the epoch; default: the clock's)."""
+        wall = time.time() if wall is None else wall
+        # load / soak figures (bench/soak.py) and messages no device could be charged with
+        loop = {"id": self.id, "subjects": len(self.subjects)} | self.loop.as_dict() | {"bad_keys": dict(self.bad_keys)}
+        subjects = list(self.subjects.values())[part::parts]
+        counts, numbers, texts = self.fusion.stats_table(subjects, now)
+        start = 0
+        for sub, n, fields in zip(subjects, counts, self._subject_fields(subjects)):
+            mine = {name: values[start:start + n] for name, values in texts.items()}
+            payload = wire.encode_stats_table(sub.name, wall, numbers[start:start + n], mine, fields | {"aggregator": loop},
+                                              self.stats_seq[sub.name])
+            start += n
+            self._publish_stats(sub.name, payload)
+            self._last_stats[sub.name] = payload
             self.stats_seq[sub.name] += 1
         if part == parts - 1:
             self.loop.end_round(now)
+
+    def serve_stats_queries(self) -> None:
+        """Answer queries of stats keys with the newest stats message of each subject they match,
+        as JSON (wire.stats_json: the form for clients that ask for it)."""
+        for queryable in self._stats_qs:
+            while (query := queryable.try_recv()) is not None:
+                with query:
+                    for subject, payload in self._last_stats.items():
+                        key = wire.stats_key(subject)
+                        if query.key_expr.intersects(zenoh.KeyExpr(key)):
+                            query.reply(key, wire.stats_json(payload))
 
     # ------------------------------------------------------------------ loop
 
@@ -503,7 +440,9 @@ class Aggregator:
         next_live = next_config = next_frames = next_prune = next_trim = start
         next_unsynced = start + UNSYNCED_POLL_S
         watch_until = start  # the stats follow devices resyncing until then
-        stats_parts = max(1, round(s.stats_period_s / s.tick_s))  # one stats round per period
+        ticks = max(1, round(s.stats_period_s / s.tick_s))  # a stats round per period, in batches
+        stats_parts = min(STATS_BATCHES, ticks)
+        stats_every = ticks // stats_parts
         k = 0
         while not stop.is_set():
             deadline = start + k * s.tick_s
@@ -526,8 +465,10 @@ class Aggregator:
                     self.advance(live, prune, now)
                     next_frames = now + s.frame_batch_s
                     next_prune = now + 0.5 if prune else next_prune
-                self.publish_stats(now, k % stats_parts, stats_parts)
+                if k % stats_every == 0:
+                    self.publish_stats(now, k // stats_every % stats_parts, stats_parts)
                 self.serve_calibrations()
+                self.serve_stats_queries()
             if now >= next_config:
                 self.poll_configs()
                 next_config = now + s.config_poll_s
@@ -550,6 +491,6 @@ def snapshot(aggregator: Aggregator) -> dict:
     """{device id: stats} of every device, taken under the aggregator's lock (tests and tools)."""
     now = time.perf_counter()
     with aggregator.lock:
-        return {d["device"]: d for sub in aggregator.subjects.values()
-                for d in aggregator.fusion.device_stats(sub, now)}
+        return {d["device"]: d for devices in aggregator.fusion.device_stats(list(aggregator.subjects.values()), now)
+                for d in devices}
 

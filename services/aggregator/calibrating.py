@@ -10,8 +10,9 @@ is calibrated (before, its readings are in the sensor's frame, not the segment's
 
 On request (``limbstream/<subject>/calibrate``, :mod:`limbstream.wire.calibrate`) the subject's
 devices are calibrated from the pose the subject holds for CALIBRATION_HOLD_S from the request
-on: every device of the subject, all or none (a device missing, not still, restarted meanwhile,
-or silent: refused with a sentence, the previous calibrations stay).
+on: every device of the subject that streams, all or none (not still, restarted meanwhile, or
+silent: refused with a sentence, the previous calibrations stay); a partial body (e.g. legs only)
+calibrates the devices it has, and the answer names the body's segments it lacks.
 
 Calibrations live outside the aggregator process when it has a calibration file: every one made
 is written there (atomically, at most once per tick), by device id with the stream it belongs to,
@@ -34,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import calibration, quat, wire
-from limbstream.wire import SEGMENTS
+from limbstream.services.aggregator.store import PointStore
+from limbstream.services.aggregator.track import DeviceTrack
 
 log = logging.getLogger("limbstream.aggregator.calibration")
 
@@ -67,14 +69,25 @@ class CalibrationRequest:
     t_from: int
     t_to: int
     wall: float
+    absent: list[str]
 
 
 class Calibrating:
-    """The calibrations of a :class:`~.fusion.Fusion`'s devices (mixed into it: it reads and
-    rewrites the fusion's point store)."""
+    """The calibrations of the aggregator's devices, by device slot. It reads the segment points
+    (``store``, the fusion's point store) to calibrate, and rewrites a device's stored points when
+    its calibration changes; its owner applies :meth:`correct` to every point before storing it,
+    and is told which devices' calibrations changed (facing fits, views).
 
-    def _init_calibration(self, on_start: bool, path: str | os.PathLike | None = None) -> None:
-        self.calibrate_on_start = on_start
+    Parameters
+    ----------
+    store : the segment points of every device slot.
+    on_start : calibrate each new stream from the calibration script it begins with.
+    path : the calibration file (None or "": calibrations are not kept).
+    """
+
+    def __init__(self, store: PointStore, on_start: bool, path: str | os.PathLike | None = None):
+        self.store = store
+        self.on_start = on_start
         self.calibrations: dict[int, calibration.Calibration] = {}  # by device slot
         self.calibrated_at: dict[int, float] = {}                   # wall time when made, s
         self.calibration_refused: dict[int, str] = {}               # the sentence, by slot
@@ -82,6 +95,11 @@ class Calibrating:
         self.calibration_file = Path(path) if path else None
         self._saved: dict[str, dict] = self._load() if self.calibration_file else {}
         self._dirty = False
+
+    def compares(self, slot: int) -> bool:
+        """Whether the device's truth is compared yet: not before it is calibrated, when streams
+        are calibrated on start (before, its readings are in the sensor's frame)."""
+        return not self.on_start or slot in self.calibrations
 
     def _load(self) -> dict[str, dict]:
         """The saved calibrations ({device id: entry}); a missing file is none, a bad one is
@@ -104,89 +122,80 @@ class Calibrating:
         os.replace(tmp, self.calibration_file)
         self._dirty = False
 
-    def _new_stream_calibration(self, slot: int) -> None:
-        """A new stream of the device in ``slot``: a new script, a new calibration (or the saved
-        one of that very stream, after an aggregator restart)."""
+    def new_stream(self, track: DeviceTrack) -> bool:
+        """A new stream of ``track``'s device: a new script, a new calibration (or the saved one of
+        that very stream, after an aggregator restart: then True, its calibration changed)."""
+        slot = track.slot
         self.calibrations.pop(slot, None)
         self.calibrated_at.pop(slot, None)
         self.calibration_refused.pop(slot, None)
         self._awaiting.pop(slot, None)
-        track = self.tracks[slot]
         saved = self._saved.get(track.id)
         if saved is not None and saved.get("stream") == track.stream:
             try:
                 cal = calibration.Calibration.from_dict(saved)
                 self.calibrations[slot], self.calibrated_at[slot] = cal, float(saved["made_at"])
-                self._calibration_changed(slot)
-                return
+                return True
             except (KeyError, TypeError, ValueError) as exc:
                 log.warning("saved calibration of %s ignored: %s", track.id, exc)
-        if self.calibrate_on_start:
+        if self.on_start:
             self._awaiting[slot] = None
+        return False
 
-    def _remember(self, slot: int, cal: calibration.Calibration) -> None:
+    def _remember(self, track: DeviceTrack, cal: calibration.Calibration) -> None:
         """A calibration made: in use from now on, and saved with its stream."""
-        track = self.tracks[slot]
+        slot = track.slot
         self.calibrations[slot] = cal
         self.calibrated_at[slot] = time.time()
-        self._calibration_changed(slot)
         self.calibration_refused.pop(slot, None)
         self._awaiting.pop(slot, None)
-        self._view = None
         if self.calibration_file is not None:
             self._saved[track.id] = {"stream": track.stream, "made_at": self.calibrated_at[slot]} | cal.as_dict()
             self._dirty = True
 
-    def _calibration_changed(self, slot: int) -> None:
-        """A device's calibration changed: once its subject's devices are all calibrated, its
-        facing is fitted again (:mod:`.scoring`)."""
-        sub = self.subjects[self.tracks[slot].subject]
-        if all(t.slot in self.calibrations for t in sub.tracks.values()):
-            self._fit_facing(sub.index)
-
-    def _first_sample(self, slot: int, seq: int, t_us: int) -> None:
+    def first_sample(self, slot: int, seq: int, t_us: int) -> None:
         """A point arrived; the one of sequence number 0 fixes the stream's script times."""
         if seq == 0 and slot in self._awaiting and self._awaiting[slot] is None:
             self._awaiting[slot] = t_us
 
-    def _corrected(self, slot: int, q, omega, t_us: int):
-        """A point's orientation (4,) and body rate (3,) rad/s or None at device time ``t_us``,
-        corrected if the device is calibrated (the rate turns with the right-hand factor:
+    def correct(self, slots: np.ndarray, t_us: np.ndarray, q: np.ndarray, w: np.ndarray) -> None:
+        """Correct points before they are stored, in place: orientations ``q`` (P, 4) float64 and
+        body rates ``w`` (P, 3) rad/s float64 of devices ``slots`` (P,) at device times ``t_us``
+        (P,) us, where the device is calibrated (the rate turns with the right-hand factor:
         omega' = c^-1 omega c)."""
-        cal = self.calibrations.get(slot)
-        if cal is None:
-            return q, omega
-        q = cal.apply(np.asarray(q, np.float64)[None], np.array([t_us * 1e-6]))[0]
-        if omega is not None:
-            omega = quat.rotate(quat.conjugate(cal.c), np.asarray(omega, np.float64))
-        return q, omega
+        if not self.calibrations:
+            return
+        for slot in np.unique(slots):
+            cal = self.calibrations.get(int(slot))
+            if cal is not None:
+                mine = slots == slot
+                q[mine] = cal.apply(q[mine], t_us[mine] * 1e-6)
+                w[mine] = quat.rotate(quat.conjugate(cal.c), w[mine])
 
-    def _calibration_keep(self, keep: np.ndarray) -> np.ndarray:
+    def keep(self, keep: np.ndarray) -> np.ndarray:
         """``keep`` (slots,) oldest point time each row must keep, us, lowered so that a device
         awaiting its calibration keeps its script."""
         for slot, t0 in self._awaiting.items():
             keep[slot] = min(keep[slot], np.iinfo(np.int64).min if t0 is None else t0)
         return keep
 
-    def calibrate_ready(self) -> int:
-        """Calibrate every awaiting device whose points passed its script's mounting pose; returns
-        how many were calibrated or refused."""
+    def calibrate_ready(self, tracks: list[DeviceTrack], clock: float) -> list[DeviceTrack]:
+        """Calibrate every awaiting device (``tracks``: by slot) whose points passed its script's
+        mounting pose, or refuse it; returns those calibrated (their calibration changed)."""
         if not self._awaiting:
-            return 0
+            return []
         last = self.store.last_t()
-        done = 0
+        made = []
         for slot, t0 in list(self._awaiting.items()):
-            track = self.tracks[slot]
-            if t0 is None and track.first_seq is not None and track.settled(self.clock):
+            track = tracks[slot]
+            if t0 is None and track.first_seq is not None and track.settled(clock):
                 del self._awaiting[slot]  # its history is in, or no longer awaited, without sequence number 0
                 self.calibration_refused[slot] = (f"{track.id}: the start of its stream (the calibration script) "
                                                   "never arrived")
-                done += 1
                 continue
             if t0 is None or last[slot] < t0 + MOUNTING_US[1]:
                 continue
             del self._awaiting[slot]
-            done += 1
             try:
                 rest, t_rest = self._window(slot, t0, REST_US)
                 mounting, t_mounting = self._window(slot, t0, MOUNTING_US)
@@ -198,10 +207,11 @@ class Calibrating:
                 self.calibration_refused[slot] = str(exc)
                 continue
             self._apply_to_store(slot, cal)
-            self._remember(slot, cal)
+            self._remember(track, cal)
+            made.append(track)
         if self._dirty:
             self._save()
-        return done
+        return made
 
     def _window(self, slot: int, t0: int, window: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
         """The device's reconstruction (k, 4) every STEP_S within ``window`` (us after ``t0``,
@@ -219,38 +229,39 @@ class Calibrating:
 
     # ------------------------------------------------------------------ requests
 
-    def start_request(self, subject: str, pose: str, wall: float) -> CalibrationRequest | str:
-        """Begin a calibration of ``subject``'s devices from ``pose`` held from now on; a refusal
-        sentence instead if it cannot begin (unknown subject, a device missing)."""
-        sub = self.subjects.get(subject)
-        if sub is None:
+    def start_request(self, subject: str, tracks: dict[str, DeviceTrack] | None, pose: str, latest_t: np.ndarray,
+                      wall: float) -> CalibrationRequest | str:
+        """Begin a calibration of ``subject``'s devices that stream (``tracks``: by segment, None:
+        no such subject here; streaming: online, with points) from ``pose`` held from now on
+        (``latest_t``: (slots,) newest device time of each device, us); a refusal sentence instead
+        if it cannot begin (unknown subject, no device streams)."""
+        if tracks is None:
             return f"{subject}: no such subject here"
-        missing = [seg for seg in SEGMENTS if seg not in sub.tracks or not sub.tracks[seg].online
-                   or self.latest_t[sub.tracks[seg].slot] < 0]
-        if missing:
-            return f"{subject}: device(s) missing: {', '.join(missing)}"
-        tracks = [sub.tracks[seg] for seg in SEGMENTS]
+        chosen = [t for t in tracks.values() if t.online and latest_t[t.slot] >= 0]
+        if not chosen:
+            return f"{subject}: no device streams (none online with points)"
         if pose == "mounting":
-            uncalibrated = [t.id for t in tracks if "rest" not in getattr(self.calibrations.get(t.slot), "poses", ())]
+            uncalibrated = [t.id for t in chosen if "rest" not in getattr(self.calibrations.get(t.slot), "poses", ())]
             if uncalibrated:
                 return f"mounting: calibrate the rest pose first ({', '.join(uncalibrated)} not calibrated)"
-        t_from = int(max(self.latest_t[t.slot] for t in tracks))
-        return CalibrationRequest(subject, pose, tracks, {t.slot: t.generation for t in tracks}, t_from,
-                                  t_from + round(wire.CALIBRATION_HOLD_S * 1e6), wall)
+        t_from = int(max(latest_t[t.slot] for t in chosen))
+        return CalibrationRequest(subject, pose, chosen, {t.slot: t.generation for t in chosen}, t_from,
+                                  t_from + round(wire.CALIBRATION_HOLD_S * 1e6), wall,
+                                  calibration.absent_segments(t.segment for t in chosen))
 
-    def finish_request(self, req: CalibrationRequest, wall: float) -> wire.CalibrateAnswer | None:
-        """The answer once every device's points passed the hold (None: not yet); on success the
-        new calibrations are in use and saved."""
+    def finish_request(self, req: CalibrationRequest, wall: float) -> tuple[wire.CalibrateAnswer | None, list]:
+        """The answer once every device's points passed the hold (None: not yet), and the devices
+        whose calibrations changed: on success the new calibrations are in use and saved."""
         for t in req.tracks:
             if t.generation != req.generation[t.slot]:
                 return wire.CalibrateAnswer(False, f"{t.id} restarted (a new stream) during the calibration; "
-                                                   "calibrate again")
+                                                   "calibrate again"), []
         last = self.store.last_t()
         late = [t.id for t in req.tracks if last[t.slot] < req.t_to]
         if late:
             if wall - req.wall > wire.CALIBRATION_HOLD_S + REQUEST_TIMEOUT_S:
-                return wire.CalibrateAnswer(False, f"no points past the pose from {', '.join(late)}")
-            return None
+                return wire.CalibrateAnswer(False, f"no points past the pose from {', '.join(late)}"), []
+            return None, []
         made = {}
         try:
             for t in req.tracks:
@@ -267,15 +278,16 @@ class Calibrating:
                     new = old.with_yaw(reading, middle)  # and the drift since the last heading measured
                 made[t.slot] = (old, new)
         except calibration.CalibrationError as exc:
-            return wire.CalibrateAnswer(False, str(exc))
+            return wire.CalibrateAnswer(False, str(exc)), []
+        by_slot = {t.slot: t for t in req.tracks}
         for slot, (old, new) in made.items():
             self._reapply_store(slot, old, new)
-            self._remember(slot, new)
+            self._remember(by_slot[slot], new)
         if self._dirty:
             self._save()
         return wire.CalibrateAnswer(True, None, {
-            self.tracks[slot].id: {"poses": list(new.poses), "heading_deg": round(math.degrees(new.heading), 3)}
-            for slot, (_, new) in made.items()})
+            by_slot[slot].id: {"poses": list(new.poses), "heading_deg": round(math.degrees(new.heading), 3)}
+            for slot, (_, new) in made.items()}, req.absent), [by_slot[slot] for slot in made]
 
     def _reapply_store(self, slot: int, old: calibration.Calibration | None, new: calibration.Calibration) -> None:
         """The row's points corrected by ``new`` instead of ``old`` (None: raw)."""
@@ -287,10 +299,13 @@ class Calibrating:
             self.store.w[slot, :n] = quat.rotate(np.broadcast_to(old.c, (n, 4)), w).astype(np.float32)
         self._apply_to_store(slot, new)
 
-    def calibration_figures(self, slot: int) -> dict:
-        """The device's calibration fields of its stats."""
-        at = self.calibrated_at.get(slot)
-        return {"calibrated": slot in self.calibrations,
-                "calibration_age_s": math.nan if at is None else max(0.0, time.time() - at),
-                "heading_drift_dps": math.degrees(cal.drift) if (cal := self.calibrations.get(slot)) else math.nan,
-                "calibration_refused": self.calibration_refused.get(slot)}
+    def figures(self, slots: list[int]) -> dict[str, list]:
+        """The calibration fields of the stats entries of devices ``slots``, by name: a list of
+        values each."""
+        wall = time.time()
+        at = [self.calibrated_at.get(slot) for slot in slots]
+        cal = [self.calibrations.get(slot) for slot in slots]
+        return {"calibrated": [c is not None for c in cal],
+                "calibration_age_s": [math.nan if a is None else max(0.0, wall - a) for a in at],
+                "heading_drift_dps": [math.nan if c is None else math.degrees(c.drift) for c in cal],
+                "calibration_refused": [self.calibration_refused.get(slot) for slot in slots]}

@@ -1,100 +1,71 @@
 """Full-body frames of every subject from the devices' segment points (DESIGN section 4),
 computed for all subjects at once.
 
-Exact frames lie on a fixed grid (multiples of the output period in device time) and are
-emitted once every active device of the subject has a segment point at or after the frame
-time (the watermark), so the SLERP reconstruction in them is final. A device that is offline
-or has ended its stream does not hold the watermark back; its segment is held at its last
-point and the frame is flagged MISSING. Live frames: at each subject's device time "now" (the
-newest device time seen, advanced by the arrival clock since it arrived), every segment exact
-(SLERP) where a point at or after that time is known, else its newest point extrapolated with
-the point's body rate (``quat.predict``: the prediction the device's live rule keeps within
-``live_bound_deg``; a point without a rate is held). Scoring against the truth tap: :mod:`.scoring`.
+:class:`Fusion` keeps every device's track (:mod:`.track`), its points (:mod:`.store`) and
+columns (:mod:`.devices`), and holds three parts with their own state: the frame builder
+(:mod:`.frames`), the scoring against the truth tap (:mod:`.scoring`) and the calibrations
+(:mod:`.calibrating`). Points and truth batches come a drain's worth at a time: those that
+simply follow their device's stream are taken in for all devices at once, the others checked one
+by one in arrival order; then they are corrected (calibration) and stored in one go. A point's
+correction before fusion (a calibration today; any other per device would join it) is
+:meth:`_corrected`.
 """
 from __future__ import annotations
 
-import math
+from collections.abc import Callable
 
 import numpy as np
 
 from limbstream import wire
 from limbstream.skeleton import Skeleton
-from limbstream.wire import SEGMENTS
-from limbstream.services.aggregator.calibrating import Calibrating
+from limbstream.services.aggregator.calibrating import CalibrationRequest, Calibrating
+from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
+from limbstream.services.aggregator.frames import OVERDUE_GRACE_S, DeviceView, FrameBatch, FrameBuilder
 from limbstream.services.aggregator.scoring import Scoring
-from limbstream.services.aggregator.store import IDENTITY, PointStore
-from limbstream.services.aggregator.track import DeviceTrack
-
-MAX_FRAMES_PER_CALL = 500
-"""Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""
-FIRST_FRAME_WAIT_S = 1.0
-"""How long a subject's first exact frame waits, at most, for all of its devices to settle
-(DeviceTrack.settled) after it could first start, seconds; then it starts from the settled
-ones (a device whose stream keeps restarting must not hold the others back)."""
-
-OVERDUE_GRACE_S = 0.25
-"""A live frame extrapolates an active device's newest point for at most its max segment length
-(``max_len`` samples at the frame rate: by then the device has sent its next point) plus this
-much for transport; a device silent for longer is overdue: held at its newest point, frame
-flagged MISSING."""
-
-_SEGMENT_INDEX = {name: i for i, name in enumerate(SEGMENTS)}
-_NONE = np.iinfo(np.int64).min
+from limbstream.services.aggregator.store import PointStore
+from limbstream.services.aggregator.track import NUMBERS as TRACK_NUMBERS
+from limbstream.services.aggregator.track import TEXTS as TRACK_TEXTS
+from limbstream.services.aggregator.track import MAX_T_US, DeviceTrack, stream_figures
 
 
 class Subject:
-    """A subject's devices and frame counters."""
+    """A subject's devices (by segment) and its first frame's wait."""
 
     def __init__(self, name: str, index: int):
         self.name, self.index = name, index
         self.tracks: dict[str, DeviceTrack] = {}
-        self.frames = 0
-        self.skipped = 0
         self.rest_pose: str | None = None  # as its devices announce it (None: not yet heard)
         self.waiting_since: float | None = None  # arrival clock (s) when its first frame could start
 
 
-class Fusion(Scoring, Calibrating):
-    """Tracks, stores and frame builder of all subjects of one aggregator.
+class Fusion:
+    """Tracks, stores and frames of all subjects of one aggregator.
 
     Parameters
     ----------
     rate : exact frame rate, Hz.
     skeleton : forward-kinematics model for the joint positions.
     capacity : segment points kept per device (history on joining + what frames still need).
-    error_window : samples in each device's angular-error windows.
+    error_window : values in each device's error and latency windows.
     max_backlog_s : frames further behind than this are skipped (counted) instead of built.
+    calibrate_on_start, calibration_file : :class:`~.calibrating.Calibrating`'s.
     """
 
     def __init__(self, rate: float, skeleton: Skeleton, capacity: int = 1024, error_window: int = 3000,
                  max_backlog_s: float = 60.0, calibrate_on_start: bool = False, calibration_file: str = ""):
         self.period_us = 1e6 / rate
         self.skeleton = skeleton
-        self.max_backlog = int(max_backlog_s * rate)
         self.store = PointStore(capacity)
-        self._init_scoring(error_window)
-        self._init_calibration(calibrate_on_start, calibration_file)
+        self.table = DeviceTable()
+        self.frames = FrameBuilder(self.period_us, skeleton, int(max_backlog_s * rate))
+        self.scoring = Scoring(self.store, error_window)
+        self.calibrating = Calibrating(self.store, calibrate_on_start, calibration_file)
         self.subjects: dict[str, Subject] = {}
-        self.tracks: list[DeviceTrack] = []
+        self.tracks: list[DeviceTrack] = []  # by slot
         self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period
-        self.seg_slots = np.full((0, len(SEGMENTS)), -1, np.int64)  # (subjects, 10) device slot or -1
-        self.next_frame = np.zeros(0, np.int64)  # grid index of each subject's next exact frame, -1 unset
-        self.exact_seq = np.zeros(0, np.int64)
-        self.live_seq = np.zeros(0, np.int64)
-        self.rest_flag = np.zeros(0, np.uint8)   # per subject: pose-frame flag bits of its rest pose
-        # per device slot, kept current as messages arrive, so a tick reads them without a loop
-        self.owner = np.zeros(0, np.int64)        # subject index
-        self.online = np.zeros(0, bool)           # liveliness token present
-        self.active = np.zeros(0, bool)           # online and its stream not ended
-        self.generation = np.zeros(0, np.int64)   # stream generation (truth samples of older ones are dropped)
-        self.latest_t = np.zeros(0, np.int64)     # newest device time of a point or truth sample, or _NONE
-        self.latest_arrival = np.zeros(0)         # arrival clock (s) when latest_t arrived
-        self.last_raw_t = np.zeros(0, np.int64)   # newest truth sample time, _NONE before one
-        self.horizon_us = np.zeros(0, np.int64)   # longest extrapolation of the newest point (OVERDUE_GRACE_S)
-        self.settled = np.zeros(0, bool)          # DeviceTrack.settled, refreshed for the _unsettled ones
         self._unsettled: set[DeviceTrack] = set()
-        self._gappy: set[DeviceTrack] = set()     # tracks with lost points (frames in those spans: GAP)
-        self._view: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see _device_view
+        self._gappy: set[DeviceTrack] = set()  # tracks with lost points (frames in those spans: GAP)
+        self._view: DeviceView | None = None
 
     # ------------------------------------------------------------------ devices
 
@@ -102,31 +73,18 @@ class Fusion(Scoring, Calibrating):
         """The track of a device, created (with its rows) on first sight."""
         sub = self.subjects.get(subject)
         if sub is None:
-            sub = self.subjects[subject] = Subject(subject, len(self.subjects))
-            self.seg_slots = np.vstack([self.seg_slots, np.full((1, len(SEGMENTS)), -1, np.int64)])
-            self.next_frame = np.append(self.next_frame, -1)
-            self.exact_seq = np.append(self.exact_seq, 0)
-            self.live_seq = np.append(self.live_seq, 0)
-            self.rest_flag = np.append(self.rest_flag, np.uint8(wire.rest_pose_flag(self.skeleton.rest_pose)))
-            self._add_subject_scores(len(self.subjects))
+            sub = self.subjects[subject] = Subject(subject, self.table.add_subject())
+            self.frames.add_subject(wire.rest_pose_flag(self.skeleton.rest_pose))
+            self.scoring.add_subject(len(self.subjects))
         track = sub.tracks.get(segment)
         if track is None:
             slot = self.store.add_slot()
-            self._add_device_scores(slot)
-            track = sub.tracks[segment] = DeviceTrack(subject, segment, slot)
+            if self.table.add_device(sub.index, segment, self._horizon_us(int(wire.MAX_LEN.default))) != slot:
+                raise RuntimeError("device table and point store out of step")
+            self.scoring.add_device(slot)
+            track = sub.tracks[segment] = DeviceTrack(subject, segment, slot, self.table)
             self.tracks.append(track)
-            self.owner = np.append(self.owner, sub.index)
-            self.online = np.append(self.online, False)
-            self.active = np.append(self.active, False)
-            self.generation = np.append(self.generation, 0)
-            self.latest_t = np.append(self.latest_t, _NONE)
-            self.latest_arrival = np.append(self.latest_arrival, np.nan)
-            self.last_raw_t = np.append(self.last_raw_t, _NONE)
-            self.horizon_us = np.append(self.horizon_us, self._horizon_us(wire.MAX_LEN.default))
-            self.settled = np.append(self.settled, True)
             self._view = None
-            if segment in _SEGMENT_INDEX:
-                self.seg_slots[sub.index, _SEGMENT_INDEX[segment]] = slot
         return track
 
     def _horizon_us(self, max_len: int) -> int:
@@ -135,14 +93,14 @@ class Fusion(Scoring, Calibrating):
     def set_config(self, track: DeviceTrack, config: wire.DeviceConfig) -> None:
         """The settings the device reports it runs (its max_len sets its live horizon)."""
         track.config = config
-        self.horizon_us[track.slot] = self._horizon_us(config.max_len)
+        self.table.horizon_us[track.slot] = self._horizon_us(config.max_len)
 
     def set_rest_pose(self, subject: str, rest_pose: str) -> None:
         """The rest pose a subject's devices announce: its frames' skeleton and flag from now on."""
         sub = self.subjects[subject]
         if sub.rest_pose != rest_pose:
             sub.rest_pose = rest_pose
-            self.rest_flag[sub.index] = wire.rest_pose_flag(rest_pose)
+            self.frames.rest_flag[sub.index] = wire.rest_pose_flag(rest_pose)
 
     def history_done(self, track: DeviceTrack) -> None:
         """The aggregator's history query for the track's stream has completed: it is settled."""
@@ -151,64 +109,203 @@ class Fusion(Scoring, Calibrating):
 
     def set_online(self, track: DeviceTrack, online: bool) -> None:
         """The device's liveliness token appeared (True) or vanished (False)."""
-        track.online = self.online[track.slot] = online
-        self.active[track.slot] = online and not track.final
+        track.online = online
+        self.table.active[track.slot] = online and not track.final
         self._view = None
 
-    def _stream(self, track: DeviceTrack, stream: int, now: float) -> bool:
-        state = track.check_stream(stream)
-        if state == "new":
-            slot = track.slot
-            self.store.reset(slot)
-            self._reset_scores(slot)
-            self._new_stream_calibration(slot)
-            self.generation[slot] = track.generation
-            self.latest_t[slot] = self.last_raw_t[slot] = _NONE
-            self._unsettled.add(track)
-            self._gappy.discard(track)
-            for batch in track.take_held_raw():  # truth that came before the stream's first point
-                self.add_raw(track, batch, now)
-        return state != "stale"
+    def _new_stream(self, track: DeviceTrack, now: float) -> None:
+        """The track's device began a new stream: its rows start over."""
+        slot = track.slot
+        self.store.reset(slot)
+        self.scoring.reset(slot)
+        if self.calibrating.new_stream(track):
+            self._calibrations_changed([track])
+        self._unsettled.add(track)
+        self._gappy.discard(track)
+        for batch in track.take_held_raw():  # truth that came before the stream's first point
+            self.add_raw(track, batch, now)
 
     def add_point(self, track: DeviceTrack, p: wire.SegmentPoint, nbytes: int, now: float) -> bool:
-        """A decoded segment point; False if dropped (counted on the track)."""
+        """One decoded segment point; False if dropped (counted on the track)."""
+        return self.add_points([(track, 0)], wire.PointColumns.of([p], [nbytes]), now) == 1
+
+    def add_points(self, items: list[tuple[DeviceTrack, int]], points: wire.PointColumns, now: float,
+                   taken: Callable[[DeviceTrack, int], None] | None = None) -> int:
+        """The valid points of one drain, in arrival order: (track, row of ``points``) each.
+        The usual ones (:meth:`_usual`) are taken in all at once from the devices' columns; the
+        others one by one by the full rules (:meth:`_accept`). Those kept are corrected
+        (calibration) and stored in one go. ``taken(track, row)`` is called, at once, for each
+        point taken in of a stream whose history is not settled yet (``DeviceTrack.history``
+        "none": it may want its start). Returns how many were taken in."""
         self.advance_clock(now)
-        if not self._stream(track, p.stream, now):
+        if not items:
+            return 0
+        slots = np.fromiter((t.slot for t, _ in items), np.int64, len(items))
+        rows = np.fromiter((i for _, i in items), np.int64, len(items))
+        fast = self._usual(slots, rows, points)
+        self._take_usual(slots[fast], rows[fast], points, now)
+        self._store_rows(slots[fast], rows[fast], points)
+        appended: list[tuple[int, int]] = []
+        stream, seq, index, t_us, flags, nbytes = (getattr(points, name).tolist() for name in
+                                                   ("stream", "seq", "index", "t_us", "flags", "nbytes"))
+        kept = slots[fast].tolist()
+        for j in np.flatnonzero(~fast).tolist():
+            track, i = items[j]
+            if self._accept(track, i, stream, seq, index, t_us, flags, nbytes, now, appended, points):
+                kept.append(track.slot)
+                if taken is not None and track.history == "none":  # (a stream that may want its start)
+                    taken(track, i)
+        self._store(appended, points)
+        table = self.table
+        table.active[kept] = table.online[kept] & ~table.final[kept]
+        self._view = None
+        return len(kept)
+
+    def _usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> np.ndarray:
+        """(P,) which points are the usual case (DeviceTrack.accept_point appends them without a
+        second look): each device's leading run in the drain of points that are the next of its
+        current stream, later in time and index than the one before, without flags, of a stream
+        that wants no history query."""
+        table = self.table
+        order = np.argsort(slots, kind="stable")  # each device's points together, in arrival order
+        s, r = slots[order], rows[order]
+        seq, t, index = points.seq[r], points.t_us[r], points.index[r]
+        first = np.ones(len(s), bool)
+        first[1:] = s[1:] != s[:-1]
+        before = np.roll(np.arange(len(s)), 1)  # the point before in the same device's run
+        next_seq = np.where(first, table.next_seq[s], seq[before] + 1)
+        last_t = np.where(first, table.last_t[s], t[before])
+        last_index = np.where(first, table.last_index[s], index[before])
+        step = ((points.stream[r] == table.stream[s]) & (seq == next_seq) & (points.flags[r] == 0)
+                & (last_t != NO_TIME) & (last_t < t) & (t < MAX_T_US) & (last_index < index)
+                & ((table.history[s] != 0) | (table.first_seq[s] == 0)))
+        run = np.flatnonzero(first)
+        stop = np.minimum.reduceat(np.where(step, len(s), np.arange(len(s))), run)  # each run's first misfit
+        usual = np.empty(len(s), bool)
+        usual[order] = np.arange(len(s)) < np.repeat(stop, np.diff(np.append(run, len(s))))
+        return usual
+
+    def _take_usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns, now: float) -> None:
+        """Take the usual points ``rows`` of devices ``slots`` in (in arrival order): their devices'
+        columns as DeviceTrack.accept_point leaves them after such points."""
+        if len(slots) == 0:
+            return
+        table = self.table
+        devices, newest, count = np.unique(slots[::-1], return_index=True, return_counts=True)
+        last = rows[len(rows) - 1 - newest]  # each device's newest point
+        t = points.t_us[last]
+        table.next_seq[devices] = points.seq[last] + 1
+        table.last_t[devices], table.last_index[devices] = t, points.index[last]
+        table.final[devices] = False
+        table.points[devices] += count
+        later = t >= table.latest_t[devices]
+        table.latest_t[devices[later]] = t[later]
+        table.latest_arrival[devices[later]] = now
+        nbytes = np.bincount(slots, points.nbytes[rows], minlength=len(table))[devices].astype(np.int64)
+        table.arrivals.add(devices, now, count, nbytes)
+
+    def _accept(self, track: DeviceTrack, i: int, stream: list, seq: list, index: list, t_us: list, flags: list,
+                nbytes: list, now: float, appended: list[tuple[int, int]], points: wire.PointColumns) -> bool:
+        """Point ``i`` (its fields: the columns as lists) by the full rules (a new stream, the
+        start of a stream, gaps, duplicates, time going back, the stream's end, an earlier point
+        arriving late); True if it is taken in."""
+        state = track.check_stream(stream[i])
+        if state == "stale":
             return False
-        slot = track.slot
-        how = track.accept_point(p, nbytes, now, lambda t_us: self.store.contains(slot, t_us))
-        if how is not None:
-            self._first_sample(slot, p.seq, p.t_us)
-        q, omega = self._corrected(slot, p.q, p.omega, p.t_us)
-        if how == "append":
-            forgotten = self.store.append(slot, p.t_us, q, omega)
-            if forgotten:
-                track.dropped["buffer_full"] += forgotten
-            self.active[slot] = track.online and not track.final
-            if track.gap_spans:
-                self._gappy.add(track)
-        elif how == "final":
-            self.active[slot] = False
-        elif how == "insert" and not self.store.insert(slot, p.t_us, q, omega):
-            track.dropped["buffer_full"] += 1
+        if state == "new":
+            self._store(appended, points)
+            self._new_stream(track, now)
+        slot, gaps = track.slot, track.gaps
+        how = track.accept_point(seq[i], index[i], t_us[i], flags[i], nbytes[i], now,
+                                 lambda t: self.store.contains(slot, t))
         if how is None:
             return False
-        self.latest_t[slot] = track.latest_t_us
-        self.latest_arrival[slot] = track.latest_arrival
-        self._view = None
+        self.calibrating.first_sample(slot, seq[i], t_us[i])
+        if how == "append":
+            appended.append((slot, i))
+            if track.gaps != gaps:
+                self._gappy.add(track)
+        elif how == "insert":  # an earlier point of the stream's start, in time order
+            self._store(appended, points)
+            self._insert(track, points, i)
         return True
+
+    def _corrected(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> tuple[np.ndarray, ...]:
+        """(times, orientations (P, 4), body rates (P, 3)) of ``points`` ``rows`` of devices
+        ``slots``, as stored: corrected where the device is calibrated (and by every later
+        correction a device gets before fusion)."""
+        t_us = points.t_us[rows]
+        q, w = points.q[rows].astype(np.float64), points.omega[rows].astype(np.float64)
+        self.calibrating.correct(slots, t_us, q, w)
+        return t_us, q, w
+
+    def _store(self, appended: list[tuple[int, int]], points: wire.PointColumns) -> None:
+        """Store the points ``appended`` ((slot, row) each, in order) and forget them."""
+        if appended:
+            slots, rows = np.array(appended, np.int64).T
+            self._store_rows(slots, rows, points)
+            appended.clear()
+
+    def _store_rows(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> None:
+        """Store points ``rows`` (P,) of ``points`` in the rows of devices ``slots`` (P,), in order."""
+        if len(slots):
+            t_us, q, w = self._corrected(slots, rows, points)
+            for slot, forgotten in self.store.append_many(slots, t_us, q, w).items():
+                self.tracks[slot].dropped["buffer_full"] += forgotten
+
+    def _insert(self, track: DeviceTrack, points: wire.PointColumns, i: int) -> None:
+        """Store an earlier point of a stream's start in time order (counted if the row is full)."""
+        t_us, q, w = self._corrected(np.array([track.slot]), np.array([i]), points)
+        if not self.store.insert(track.slot, int(t_us[0]), q[0], w[0]):
+            track.dropped["buffer_full"] += 1
 
     def add_raw(self, track: DeviceTrack, batch: wire.RawBatch, now: float) -> bool:
         """A decoded truth-tap batch; False if dropped (counted) or held until the first point of
         its stream arrives."""
         self.advance_clock(now)
-        if not track.accept_raw(batch, now):
+        taken = track.accept_raw(batch.stream, batch.first_index, len(batch.t_us), int(batch.t_us[0]),
+                                 int(batch.t_us[-1]), now)
+        if taken is None:
+            track.hold_raw(batch)
+        if not taken:
             return False
-        self.last_raw_t[track.slot] = track.last_raw_t_us
-        self.latest_t[track.slot] = track.latest_t_us
-        self.latest_arrival[track.slot] = track.latest_arrival
-        self._take_truth(track.slot, track.generation, batch)
+        if self.calibrating.compares(track.slot):  # readings of a device being calibrated are not the segment's
+            self.scoring.take_truth(track.slot, batch)
         return True
+
+    def add_raws(self, items: list[tuple[DeviceTrack, int]], batches: wire.RawColumns, now: float) -> int:
+        """The valid truth-tap batches of one drain, in arrival order: (track, row of ``batches``)
+        each; the usual ones (of their device's current stream, in time range, one per device)
+        taken in all at once from the devices' columns, the others one by one
+        (DeviceTrack.accept_raw). Returns how many were taken in."""
+        self.advance_clock(now)
+        if not items:
+            return 0
+        table = self.table
+        slots = np.fromiter((t.slot for t, _ in items), np.int64, len(items))
+        rows = np.fromiter((i for _, i in items), np.int64, len(items))
+        first, last = batches.start[rows], batches.start[rows] + batches.count[rows] - 1
+        t_first, t_last = batches.t_us[first], batches.t_us[last]
+        fast = ((np.bincount(slots, minlength=len(table))[slots] == 1) & (table.stream[slots] == batches.stream[rows])
+                & (0 <= t_first) & (t_first <= t_last) & (t_last < MAX_T_US))
+        s = slots[fast]
+        table.last_raw_index[s] = np.maximum(table.last_raw_index[s], batches.first_index[rows[fast]] + batches.count[rows[fast]] - 1)
+        table.last_raw_t[s] = np.maximum(np.where(table.last_raw_t[s] == NO_TIME, 0, table.last_raw_t[s]), t_last[fast])
+        later = (table.latest_t[s] == NO_TIME) | (t_last[fast] >= table.latest_t[s])
+        table.latest_t[s[later]], table.latest_arrival[s[later]] = t_last[fast][later], now
+        taken = fast.copy()
+        for j in np.flatnonzero(~fast).tolist():
+            track, i = items[j]
+            ok = track.accept_raw(int(batches.stream[i]), int(batches.first_index[i]), int(batches.count[i]),
+                                  int(t_first[j]), int(t_last[j]), now)
+            if ok is None:
+                track.hold_raw(batches.batch(i))
+            taken[j] = bool(ok)
+        compared = taken if not self.calibrating.on_start else taken & np.fromiter(
+            (self.calibrating.compares(int(slot)) for slot in slots), bool, len(slots))
+        if compared.any():  # readings of a device being calibrated are not the segment's
+            self.scoring.take_truths(slots[compared], batches, rows[compared])
+        return int(taken.sum())
 
     def advance_clock(self, now: float) -> None:
         """Advance the arrival clock; devices still in their history grace period may settle."""
@@ -219,158 +316,123 @@ class Fusion(Scoring, Calibrating):
 
     # ------------------------------------------------------------------ frames
 
-    def _device_view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """What frames and truth evaluation need of every device, computed once per change:
-        (slots,) newest usable point time (_NONE: no points yet, or earlier points of its stream
-        may still arrive), (subjects,) watermark (us; _NONE if no data) and (subjects, 10) bool
-        stale segments (no device, offline, ended, or not settled: held and flagged)."""
+    def device_view(self) -> DeviceView:
+        """What frames and truth evaluation need of every device (:class:`~.frames.DeviceView`),
+        computed once per change."""
         if self._view is not None:
             return self._view
+        table = self.table
         for track in list(self._unsettled):
-            ok = self.settled[track.slot] = track.settled(self.clock)
+            ok = table.settled[track.slot] = track.settled(self.clock)
             if ok and track.first_seq is not None:
                 self._unsettled.discard(track)
-        last = np.where(self.settled, self.store.last_t(), _NONE)
-        slots = self.seg_slots
+        last = self.store.last_t()
+        usable = np.where(table.settled, last, NO_TIME)
+        slots = table.seg_slots
         have = slots >= 0
-        last_s = np.where(have, last[np.maximum(slots, 0)], _NONE)
-        have &= last_s != _NONE
-        active = have & self.active[np.maximum(slots, 0)]
+        rows = np.maximum(slots, 0)
+        last_s = np.where(have, usable[rows], NO_TIME)
+        have &= last_s != NO_TIME
+        active = have & table.active[rows]
         big = np.iinfo(np.int64).max
         wm_active = np.where(active, last_s, big).min(axis=1, initial=big)
         wm_have = np.where(have, last_s, big).min(axis=1, initial=big)
-        wm = np.where(active.any(axis=1), wm_active, np.where(have.any(axis=1), wm_have, _NONE))
-        self._view = last, wm, ~active
+        wm = np.where(active.any(axis=1), wm_active, np.where(have.any(axis=1), wm_have, NO_TIME))
+        self._view = DeviceView(usable, last, wm, ~active)
         return self._view
 
-    def exact_frames(self) -> tuple[list[Subject], wire.PoseFrames]:
-        """Every exact frame that became final since the last call, per subject oldest first,
-        and the subject of each."""
-        _, wm, stale = self._device_view()
+    def tick(self, live: bool, now: float | None = None, wall: float | None = None) -> FrameBatch:
+        """One tick's work on the points taken in: calibrations due, truth evaluation, every exact
+        frame that became final (per subject oldest first) and, if ``live``, one live frame per
+        subject at the arrival clock ``now`` (s; default: the newest arrival), published at
+        ``wall`` (s since the epoch: each device of a live frame records ``wall`` - frame time
+        as its live latency, ms)."""
+        made = self.calibrating.calibrate_ready(self.tracks, self.clock)
+        if made:
+            self._calibrations_changed(made)
+        self.evaluate_truth()
+        view = self.device_view()
         subjects = list(self.subjects.values())
-        for sub in subjects:  # a subject's first frame: where every device it has is covered,
-            # once every one of them settled (its start in, or its history query answered: a
-            # device whose history is still on its way would otherwise start the frames at its
-            # live points), at the latest FIRST_FRAME_WAIT_S after it could first start
-            if self.next_frame[sub.index] >= 0 or wm[sub.index] == _NONE:
-                continue
-            if sub.waiting_since is None:
-                sub.waiting_since = self.clock
-            if (all(self.settled[t.slot] for t in sub.tracks.values())
-                    or self.clock - sub.waiting_since >= FIRST_FRAME_WAIT_S):
-                ready = [t for t in sub.tracks.values() if self.settled[t.slot]] or sub.tracks.values()
-                first = max(self.store.first_t(t.slot) or 0 for t in ready)
-                self.next_frame[sub.index] = math.ceil(first / self.period_us)
-        last_k = np.where(wm != _NONE, np.floor(wm / self.period_us), -1).astype(np.int64)
-        count = np.where(self.next_frame >= 0, last_k - self.next_frame + 1, 0)
-        behind = count > self.max_backlog
-        if behind.any():  # far behind (e.g. a long outage): jump ahead, count what is skipped
-            for i in np.flatnonzero(behind):
-                subjects[i].skipped += int(count[i] - self.max_backlog)
-            self.next_frame[behind] = last_k[behind] - self.max_backlog + 1
-            count[behind] = self.max_backlog
-        count = np.clip(count, 0, MAX_FRAMES_PER_CALL)
-        total = int(count.sum())
-        if total == 0:
-            return [], wire.PoseFrames.empty(wire.KIND_EXACT)
-        owner = np.repeat(np.arange(len(count)), count)
-        k = self.next_frame[owner] + np.arange(total) - np.repeat(np.cumsum(count) - count, count)
-        t_us = np.round(k * self.period_us).astype(np.int64)
-        seq = self.exact_seq[owner] + (k - self.next_frame[owner])
-        self.next_frame += count
-        self.exact_seq += count
-
-        slots = self.seg_slots[owner]                       # (F, 10)
-        q = np.tile(IDENTITY, (total, len(SEGMENTS), 1))
-        valid = slots >= 0
-        q[valid] = self.store.interpolate(slots[valid], np.broadcast_to(t_us[:, None], slots.shape)[valid])
-        last = self.store.last_t()
-        rows = np.maximum(slots, 0)
-        beyond = valid & (last[rows] < t_us[:, None])
-        before = valid & (self.store.n[rows] > 0) & (self.store.t[rows, 0] > t_us[:, None])
-        missing = ((stale[owner] & beyond) | before).any(axis=1) | (~valid).any(axis=1)
-        gap = np.zeros(total, bool)
-        for track in self._gappy:
-            mine = owner == self.owner[track.slot]
-            if mine.any():
-                gap[mine] |= track.in_gap(t_us[mine])
-        rest = self.rest_flag[owner]
-        flags = np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | rest
-        per_subject = np.bincount(owner, minlength=len(subjects))
-        for i in np.flatnonzero(per_subject):
-            subjects[i].frames += int(per_subject[i])
-        self._score_later(owner, t_us, q)
-        return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
-                                                             self.skeleton.positions(q, rest != 0))
-
-    def live_frames(self, now: float | None = None, wall: float | None = None) -> tuple[list[Subject], wire.PoseFrames]:
-        """One frame per subject at its device time "now": the newest device time of its devices,
-        each advanced by the arrival clock ``now`` (s) since it arrived. Every segment is exact
-        where a point at or after that time is known, else predicted from its newest point (an
-        offline or ended device, or one silent for longer than its horizon, OVERDUE_GRACE_S, is
-        held at its newest point, frame flagged MISSING). ``wall`` (s since the epoch, the
-        publication time): each device of a frame records ``wall`` - frame time as its live
-        latency (ms)."""
-        slots = self.seg_slots
-        valid = slots >= 0
-        rows = np.maximum(slots, 0)
-        has_points = valid & (self.store.n[rows] > 0)
-        ahead = 0.0 if now is None else np.maximum(np.nan_to_num(now - self.latest_arrival[rows]), 0.0)
-        device_now = np.where(has_points, self.latest_t[rows] + np.round(ahead * 1e6).astype(np.int64), _NONE)
-        latest = device_now.max(axis=1, initial=_NONE)
-        index = np.flatnonzero(latest != _NONE)
-        if len(index) == 0:
-            return [], wire.PoseFrames.empty(wire.KIND_LIVE)
-        t_us, slots, valid, has_points = latest[index], slots[index], valid[index], has_points[index]
-        at = np.broadcast_to(t_us[:, None], slots.shape)[valid]
-        last_t = self.store.last_t()[slots[valid]]
-        overdue = np.zeros(slots.shape, bool)
-        since = np.where(has_points[valid], at - np.maximum(last_t, 0), 0)
-        overdue[valid] = since > self.horizon_us[slots[valid]]  # silent too long: no guess
-        held = ~self.active[slots[valid]] | overdue[valid]  # offline, ended or overdue: held
-        at = np.where(held, np.minimum(at, last_t), at)
-        q = np.tile(IDENTITY, (len(index), len(SEGMENTS), 1))
-        q[valid] = self.store.live(slots[valid], at)
-        missing = (~valid | ~self.online[np.maximum(slots, 0)] | overdue).any(axis=1)
-        seq = self.live_seq[index].copy()
-        self.live_seq[index] += 1
-        if wall is not None:
+        self.frames.start(subjects, view, self.table, self.store, self.clock)
+        owner, t_us, seq = self.frames.plan_exact(view.watermark)
+        flags = self.frames.exact_flags(owner, t_us, view, self.table, self.store, self._gappy)
+        planned = self.frames.plan_live(view, self.table, self.store, self.clock if now is None else now) if live else None
+        batch = self.frames.build(self.store, self.table, (owner, t_us, seq, flags), planned)
+        self.scoring.score_later(owner, t_us, batch.exact.q, self.table.seg_slots[owner])
+        self.scoring.evaluate_frames(self.table.seg_slots)
+        if planned is not None and wall is not None:
+            index, l_t, _, _, l_slots, _, has_points = planned
             f, s = np.nonzero(has_points)
-            self.latency.add(slots[f, s], (wall * 1e6 - t_us[f]) / 1e3)
-        subjects = list(self.subjects.values())
-        rest = self.rest_flag[index]
-        return [subjects[i] for i in index], wire.PoseFrames(seq, t_us, wire.KIND_LIVE,
-                                                             np.where(missing, wire.FRAME_MISSING, 0) | rest, q,
-                                                             self.skeleton.positions(q, rest != 0))
+            self.scoring.add_latency(index, (wall * 1e6 - l_t) / 1e3, l_slots[f, s], index[f])
+        return batch
+
+    def evaluate_truth(self) -> None:
+        """Score the truth samples whose reconstruction became final (counting those dropped)."""
+        overflow, early = self.scoring.evaluate_truth(self.device_view().usable_t)
+        for slot in overflow:
+            self.tracks[slot].dropped["raw_overflow"] += 1
+        for slot in early:
+            self.tracks[slot].dropped["raw_before_first_point"] += 1
 
     def prune(self) -> None:
         """Let every row forget points no frame and no waiting truth sample needs."""
-        nf = self.next_frame[self.owner]
+        table = self.table
+        nf = self.frames.next_frame[table.owner]
         keep = np.where(nf >= 0, np.floor(nf * self.period_us), np.iinfo(np.int64).min).astype(np.int64)
         frame_keep = keep.copy()
-        keep = np.where(self.last_raw_t != _NONE, np.minimum(keep, self.last_raw_t), keep)  # truth still to come
-        keep = np.minimum(keep, self.truth.oldest(self.store.size))
-        keep = self._calibration_keep(keep)
+        keep = np.where(table.last_raw_t != NO_TIME, np.minimum(keep, table.last_raw_t), keep)  # truth still to come
+        keep = np.minimum(keep, self.scoring.truth_keep(self.store.size))
+        keep = self.calibrating.keep(keep)
         self.store.prune(keep)
-        self._prune_reference(frame_keep)
+        self.scoring.prune_reference(frame_keep, table.owner, len(self.subjects))
+
+    # ------------------------------------------------------------------ calibration
+
+    def _calibrations_changed(self, tracks: list[DeviceTrack]) -> None:
+        """Devices' calibrations changed: a subject whose devices are all calibrated has its
+        facing fitted again (:mod:`.scoring`); the view changes with the stored points."""
+        for track in tracks:
+            sub = self.subjects[track.subject]
+            if all(t.slot in self.calibrating.calibrations for t in sub.tracks.values()):
+                self.scoring.refit_facing(sub.index)
+        self._view = None
+
+    def start_request(self, subject: str, pose: str, wall: float) -> CalibrationRequest | str:
+        """Begin a calibration of ``subject``'s devices from ``pose`` (Calibrating.start_request)."""
+        sub = self.subjects.get(subject)
+        return self.calibrating.start_request(subject, None if sub is None else sub.tracks, pose,
+                                              self.table.latest_t, wall)
+
+    def finish_request(self, req: CalibrationRequest, wall: float) -> wire.CalibrateAnswer | None:
+        """The request's answer once its pose hold is complete (None: not yet)."""
+        answer, made = self.calibrating.finish_request(req, wall)
+        if made:
+            self._calibrations_changed(made)
+        return answer
 
     # ------------------------------------------------------------------ figures
 
-    def device_stats(self, sub: Subject, now: float) -> list[dict]:
-        tracks = [sub.tracks[name] for name in sorted(sub.tracks)]
-        slots = np.array([t.slot for t in tracks], np.int64)
-        aad, mx, p99 = self.exact.summary(slots, (0.99,))
-        live, live_max, live_p50, live_p99 = self.live.summary(slots, (0.5, 0.99))
-        _, _, lat_p50, lat_p99 = self.latency.summary(slots, (0.5, 0.99))
-        count = self.exact.count[slots]
-        aad_all = np.where(count > 0, self.exact.total[slots] / np.maximum(count, 1), np.nan)
-        return [t.stats(now, (float(aad[i]), float(p99[i]), float(mx[i]), float(live[i]), float(aad_all[i]),
-                              int(count[i])),
-                        {"live_p50_deg": float(live_p50[i]), "live_p99_deg": float(live_p99[i]),
-                         "live_max_deg": float(live_max[i]), "live_latency_p50_ms": float(lat_p50[i]),
-                         "live_latency_p99_ms": float(lat_p99[i])} | self.calibration_figures(t.slot))
-                for i, t in enumerate(tracks)]
+    def stats_table(self, subjects: list[Subject], now: float) -> tuple[list[int], np.ndarray, dict[str, list]]:
+        """The device columns of the stats messages of ``subjects``, their devices by segment name,
+        one subject after the other: (devices of each subject, numbers (N, K) float64 in the order
+        of wire.STATS_NUMBERS (NaN: null), texts {wire.STATS_TEXTS field: N values})."""
+        tracks = [[sub.tracks[name] for name in sorted(sub.tracks)] for sub in subjects]
+        flat = [t for mine in tracks for t in mine]
+        slots = np.array([t.slot for t in flat], np.int64)
+        own = [t.stats() for t in flat]
+        track_numbers = np.array([numbers for numbers, _ in own], np.float64).reshape(len(flat), len(TRACK_NUMBERS))
+        columns = {name: track_numbers[:, j] for j, name in enumerate(TRACK_NUMBERS)}
+        columns |= stream_figures(self.table, slots, now) | self.scoring.device_figures(slots, self.table.owner[slots])
+        texts = {name: [t[j] for _, t in own] for j, name in enumerate(TRACK_TEXTS)}
+        for name, values in self.calibrating.figures(slots.tolist()).items():
+            (texts if name in wire.STATS_TEXTS else columns)[name] = values
+        numbers = np.column_stack([np.asarray(columns[name], np.float64) for name in wire.STATS_NUMBERS])
+        return [len(mine) for mine in tracks], numbers.reshape(len(flat), len(wire.STATS_NUMBERS)), texts
 
-    def watermark(self, sub: Subject) -> int | None:
-        wm = self._device_view()[1]
-        return None if wm[sub.index] == _NONE else int(wm[sub.index])
+    def device_stats(self, subjects: list[Subject], now: float) -> list[list[dict]]:
+        """The device entries of each subject's stats message, by segment name (:meth:`stats_table`
+        as dicts)."""
+        counts, numbers, texts = self.stats_table(subjects, now)
+        entries = iter(wire.stats_devices(list(wire.STATS_NUMBERS), numbers.tolist(), texts))
+        return [[next(entries) for _ in range(n)] for n in counts]
+

@@ -1,5 +1,5 @@
 """Scoring of the aggregator's reconstruction against the truth tap (the devices' raw samples),
-kept apart from frame building (:mod:`.fusion`), which never reads the truth.
+kept apart from frame building (:mod:`.frames`), which never reads the truth.
 
 - Per device, at every truth sample once its reconstruction is final: the angular error of the
   exact reconstruction (SLERP between segment points) and of the live view (the newest point at
@@ -20,121 +20,146 @@ Errors are degrees, times microseconds.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from limbstream import calibration, quat, wire
 from limbstream.wire import SEGMENTS
-from limbstream.services.aggregator.store import ErrorRings, PointStore, TruthQueue
-
-if TYPE_CHECKING:
-    from limbstream.services.aggregator.fusion import Subject
+from limbstream.services.aggregator.rings import ErrorRings, SubjectRings
+from limbstream.services.aggregator.store import PointStore, TruthQueue
 
 FRAME_ERROR_WAIT_S = 10.0
 """An exact frame waits at most this long (frame time behind its subject's newest frame) for the
 truth of its devices to pass it; then it is compared with the truth there is."""
-
 
 FACING_FIT_FRAMES = 50
 """Frames (a second at 50 Hz) a subject's facing is fitted from after its calibration."""
 
 
 class Scoring:
-    """The truth-side state of a :class:`~.fusion.Fusion` (mixed into it: it reads the fusion's
-    point store, device slots and device view). ``exact``, ``live``: per device slot, windows of
-    angular errors; ``latency``: live frame publish time - frame time, ms; ``frame_errors``: per
-    subject, the mean segment error of each frame compared."""
+    """The truth side of the aggregator: it reads the segment points (``store``, the fusion's point
+    store) and never changes them; frame building never reads the truth.
 
-    def _init_scoring(self, error_window: int) -> None:
+    ``exact``, ``live``: per device slot, windows of angular errors; ``latency``: live frame
+    publish time - frame time, ms; ``frame_errors``: per subject, the mean segment error of each
+    frame compared; ``facing``: per subject, truth <- frames, a turn about the vertical.
+
+    Parameters
+    ----------
+    store : the segment points of every device slot.
+    error_window : values in each window.
+    """
+
+    def __init__(self, store: PointStore, error_window: int):
+        self.store = store
         self.truth = TruthQueue()
         self.exact = ErrorRings(error_window)
         self.live = ErrorRings(error_window)
-        self.latency = ErrorRings(error_window)
+        self.latency = SubjectRings(error_window)
         self.reference = PointStore(2048)          # truth samples by reference time, per device slot
         self.frame_errors = ErrorRings(error_window)
-        self.facing = np.zeros((0, 4))                  # per subject: truth <- frames, a turn about the vertical
+        self.facing = np.zeros((0, 4))
         self._facing_fit: dict[int, list[float]] = {}  # subject index -> [sum sin, sum cos, frames]
         # exact frames waiting for the truth: (subject index,), (time us,), (frame, 10, 4) float32
         self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32))
 
-    def _add_subject_scores(self, subjects: int) -> None:
+    def add_subject(self, subjects: int) -> None:
+        """Room for ``subjects`` subjects."""
         self.frame_errors.ensure(subjects)
+        self.latency.add_subject(subjects)
         grown = np.zeros((subjects, 4))
         grown[:, 0] = 1.0
         grown[: len(self.facing)] = self.facing
         self.facing = grown
 
-    def _fit_facing(self, subject: int) -> None:
-        """Fit the subject's facing again from the next frames compared (a calibration changed)."""
-        self._facing_fit[subject] = [0.0, 0.0, 0.0]
-
-    def _add_device_scores(self, slot: int) -> None:
+    def add_device(self, slot: int) -> None:
         self.reference.add_slot()
         self.exact.ensure(slot + 1)
         self.live.ensure(slot + 1)
-        self.latency.ensure(slot + 1)
+        self.latency.add_device()
 
-    def _reset_scores(self, slot: int) -> None:
-        """A new stream of the device in ``slot``: its windows start over."""
+    def reset(self, slot: int) -> None:
+        """A new stream of the device in ``slot``: its windows start over, its old truth is dropped."""
+        self.truth.drop(slot)
         self.reference.reset(slot)
         self.exact.reset(slot)
         self.live.reset(slot)
         self.latency.reset(slot)
 
-    def _take_truth(self, slot: int, generation: int, batch: wire.RawBatch) -> None:
-        """A truth-tap batch of the device's current stream ``generation`` (not compared before
-        the device is calibrated, when calibrations are made)."""
-        if self.calibrate_on_start and slot not in self.calibrations:
-            return
-        self.truth.put(slot, generation, batch.t_us, batch.q)
-        if batch.ref_us is not None:  # reference times: only for the alignment-aware frame error
-            n = self.reference.n[slot]
-            newer = batch.ref_us > (self.reference.t[slot, n - 1] if n else np.iinfo(np.int64).min)
-            if newer.any():
-                self.reference.extend(slot, batch.ref_us[newer], batch.q[newer])
+    def refit_facing(self, subject: int) -> None:
+        """Fit the subject's facing again from the next frames compared (its calibrations changed)."""
+        self._facing_fit[subject] = [0.0, 0.0, 0.0]
 
-    def _score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray) -> None:
-        """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions): those
-        with a device that has reference times wait to be compared (:meth:`evaluate_frames`)."""
-        slots = self.seg_slots[owner]
+    def take_truth(self, slot: int, batch: wire.RawBatch) -> None:
+        """A truth-tap batch of the device's current stream."""
+        self.truth.put(slot, batch.t_us, batch.q)
+        if batch.ref_us is not None:
+            self._reference(slot, batch.ref_us, batch.q)
+
+    def take_truths(self, slots: np.ndarray, batches: wire.RawColumns, rows: np.ndarray) -> None:
+        """Truth-tap batches ``rows`` (B,) of ``batches`` of the devices ``slots`` (B,), each of
+        its device's current stream, in arrival order."""
+        count, start = batches.count[rows], batches.start[rows]
+        samples = np.repeat(start - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+        self.truth.put(np.repeat(slots, count), batches.t_us[samples], batches.q[samples])
+        for slot, i in zip(slots[batches.has_ref[rows]].tolist(), rows[batches.has_ref[rows]].tolist()):
+            part = slice(int(batches.start[i]), int(batches.start[i] + batches.count[i]))
+            self._reference(slot, batches.ref_us[part], batches.q[part])
+
+    def _reference(self, slot: int, ref_us: np.ndarray, q: np.ndarray) -> None:
+        """Truth samples by reference time: only for the alignment-aware frame error."""
+        n = self.reference.n[slot]
+        newer = ref_us > (self.reference.t[slot, n - 1] if n else np.iinfo(np.int64).min)
+        if newer.any():
+            self.reference.extend(slot, ref_us[newer], q[newer])
+
+    def score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, slots: np.ndarray) -> None:
+        """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions, (F, 10)
+        device slots): those with a device that has reference times wait to be compared
+        (:meth:`evaluate_frames`)."""
         with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
         if with_truth.any():
             po, pt, pq = self._pending
             self._pending = (np.concatenate([po, owner[with_truth]]), np.concatenate([pt, t_us[with_truth]]),
                              np.concatenate([pq, q[with_truth].astype(np.float32)]))
 
-    def evaluate_truth(self) -> int:
+    def add_latency(self, subjects: np.ndarray, latency_ms: np.ndarray, slots: np.ndarray,
+                    slot_subjects: np.ndarray) -> None:
+        """The live latency of one live frame per subject (F,) (ms), for the devices ``slots`` of
+        those subjects (``slot_subjects``) that have points."""
+        self.latency.add(subjects, latency_ms, slots, slot_subjects)
+
+    def evaluate_truth(self, usable_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Angular error of the exact reconstruction and of the live view (the newest point at or
         before the sample, extrapolated to it), at every truth sample whose reconstruction became
-        final. Returns how many samples."""
-        slots, t_us, truth, overflow = self.truth.take_ready(self._device_view()[0], self.generation)
-        for slot in overflow:
-            self.tracks[slot].dropped["raw_overflow"] += 1
-        before = t_us < self.store.t[slots, 0]  # older than the stream's first point known: no reconstruction
-        for slot in slots[before]:
-            self.tracks[slot].dropped["raw_before_first_point"] += 1
-        slots, t_us, truth = slots[~before], t_us[~before], truth[~before]
+        final (``usable_t``: (slots,) newest usable point time, us). Returns the slots of the
+        samples dropped: (queue overflow,) and (before the stream's first point known: no
+        reconstruction,), one entry per sample."""
+        slots, t_us, truth, overflow = self.truth.take_ready(usable_t)
+        before = t_us < self.store.t[slots, 0]
+        slots, t_us, truth, early = slots[~before], t_us[~before], truth[~before], slots[before]
         if len(slots):
-            self.exact.add(slots, quat.angle_deg(self.store.interpolate(slots, t_us), truth))
-            self.live.add(slots, quat.angle_deg(self.store.predicted(slots, t_us), truth))
-        return len(slots)
+            exact, predicted = self.store.errors(slots, t_us, truth)
+            self.exact.add(slots, exact)
+            self.live.add(slots, predicted)
+        return overflow, early
 
-    def evaluate_frames(self) -> int:
+    def evaluate_frames(self, seg_slots: np.ndarray) -> int:
         """Alignment-aware error of the exact frames waiting for it: each segment of a frame at
         ``t`` against its device's truth at reference time ``t``, once every device of the frame
-        with reference times has truth past ``t`` (or the frame waited FRAME_ERROR_WAIT_S).
+        with reference times has truth past ``t`` (or the frame waited FRAME_ERROR_WAIT_S);
+        ``seg_slots``: (subjects, 10) device slot of each segment.
         Adds each frame's mean over its compared segments to its subject's window. Returns the
         frames compared."""
         owner, t_us, q = self._pending
         if len(owner) == 0:
             return 0
-        slots = self.seg_slots[owner]                                   # (P, 10)
+        slots = seg_slots[owner]                                        # (P, 10)
         rows = np.maximum(slots, 0)
         n = self.reference.n[rows]
         has = (slots >= 0) & (n > 0)
         last = self.reference.t[rows, np.maximum(n - 1, 0)]
-        newest = np.full(len(self.subjects), np.iinfo(np.int64).min)
+        newest = np.full(len(seg_slots), np.iinfo(np.int64).min)
         np.maximum.at(newest, owner, t_us)
         waited = newest[owner] - t_us > FRAME_ERROR_WAIT_S * 1e6
         ready = (~has | (last >= t_us[:, None])).all(axis=1) | waited
@@ -177,21 +202,36 @@ class Scoring:
                 del self._facing_fit[int(sub)]
         return fitting
 
-    def facing_deg(self, sub: Subject) -> float:
-        """The subject's fitted facing (truth <- frames, about the vertical), degrees."""
-        return math.degrees(float(calibration.yaw_of(self.facing[sub.index])))
+    def subject_figures(self, subjects: list[int]) -> list[tuple[float, int, float]]:
+        """Per subject: (mean alignment-aware frame error over the window, deg; frames compared so
+        far; fitted facing, deg)."""
+        index = np.array(subjects, np.int64)
+        mean, _ = self.frame_errors.summary(index)
+        facing = np.degrees(calibration.yaw_of(self.facing[index]))
+        return list(zip(mean.tolist(), self.frame_errors.count[index].tolist(), facing.tolist()))
 
-    def frame_error(self, sub: Subject) -> tuple[float, int]:
-        """(mean alignment-aware frame error over the window, deg; frames compared so far)."""
-        idx = np.array([sub.index])
-        mean, _ = self.frame_errors.summary(idx)
-        return float(mean[0]), int(self.frame_errors.count[sub.index])
+    def device_figures(self, slots: np.ndarray, owner: np.ndarray) -> dict[str, np.ndarray]:
+        """The error and latency figures of devices ``slots`` (k,) of subjects ``owner`` (k,),
+        by stats field name, each (k,) (NaN: none)."""
+        aad, mx, p99 = self.exact.summary(slots, (0.99,))
+        live, live_max, live_p50, live_p99 = self.live.summary(slots, (0.5, 0.99))
+        lat_p50, lat_p99 = self.latency.quantiles(slots, owner, (0.5, 0.99))
+        count = self.exact.count[slots]
+        aad_all = np.where(count > 0, self.exact.total[slots] / np.maximum(count, 1), np.nan)
+        return {"aad_deg": aad, "p99_deg": p99, "max_deg": mx, "live_err_deg": live, "aad_all_deg": aad_all,
+                "error_samples": count, "live_p50_deg": live_p50, "live_p99_deg": live_p99,
+                "live_max_deg": live_max, "live_latency_p50_ms": lat_p50, "live_latency_p99_ms": lat_p99}
 
-    def _prune_reference(self, frame_keep: np.ndarray) -> None:
+    def truth_keep(self, slots: int) -> np.ndarray:
+        """(slots,) time of each device's oldest truth sample still waiting (int64 max if none)."""
+        return self.truth.oldest(slots)
+
+    def prune_reference(self, frame_keep: np.ndarray, owner: np.ndarray, subjects: int) -> None:
         """Let every row of reference samples forget what no frame still to build or compare needs
-        (``frame_keep``: (slots,) oldest frame time still to build, us)."""
-        owner, t_us, _ = self._pending
-        oldest = np.full(len(self.subjects), np.iinfo(np.int64).max)
-        if len(owner):
-            np.minimum.at(oldest, owner, t_us)
-        self.reference.prune(np.minimum(frame_keep, oldest[self.owner]))
+        (``frame_keep``: (slots,) oldest frame time still to build, us; ``owner``: (slots,) subject
+        index)."""
+        pending, t_us, _ = self._pending
+        oldest = np.full(subjects, np.iinfo(np.int64).max)
+        if len(pending):
+            np.minimum.at(oldest, pending, t_us)
+        self.reference.prune(np.minimum(frame_keep, oldest[owner]))

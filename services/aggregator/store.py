@@ -3,49 +3,68 @@ devices instead of a few per device (200 subjects x 10 IMUs in real time).
 
 - :class:`PointStore`: the segment points of every device, one row per device slot.
 - :class:`TruthQueue`: truth-tap samples waiting until their reconstruction is final.
-- :class:`ErrorRings`: per-device windows of angular errors (exact and live).
+
+(The windows of figures per device: :mod:`.rings`.)
 """
 from __future__ import annotations
 
 import numpy as np
 
-from limbstream import quat
+from limbstream.kernel import fuse
 
-IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+MIN_WIDTH = 64
+"""Points the rows of a store have room for at least (their arrays' width)."""
 
 
 class PointStore:
-    """Segment points per device slot: times ``t`` (slots, cap) int64 us, orientations
-    ``q`` (slots, cap, 4) float32 and body rates ``w`` (slots, cap, 3) float32 rad/s (zero for a
-    point without a rate: held); row ``d`` holds ``n[d]`` points, oldest first."""
+    """Segment points per device slot: times ``t`` (slots, width) int64 us, orientations
+    ``q`` (slots, width, 4) float32 and body rates ``w`` (slots, width, 3) float32 rad/s (zero for
+    a point without a rate: held); row ``d`` holds ``n[d]`` points, oldest first, ``cap`` at most
+    (then it forgets its oldest half). The arrays are as wide as the fullest row needs (from
+    MIN_WIDTH up to ``cap``, doubling, and narrowed again when pruned): a tick's rows of a few
+    dozen points then lie close together in memory (at 2,000 devices, 4 MiB instead of 72)."""
 
     def __init__(self, cap: int = 1024, slots: int = 64):
         self.cap = cap
-        self.t = np.zeros((slots, cap), np.int64)
-        self.q = np.zeros((slots, cap, 4), np.float32)
-        self.w = np.zeros((slots, cap, 3), np.float32)
+        self.width = min(cap, MIN_WIDTH)
+        self.t = np.zeros((slots, self.width), np.int64)
+        self.q = np.zeros((slots, self.width, 4), np.float32)
+        self.w = np.zeros((slots, self.width, 3), np.float32)
         self.n = np.zeros(slots, np.int64)
         self.size = 0
+        self._c = fuse.PointRows(self.t, self.q, self.w, self.n)  # the C library's view of the rows
 
     def add_slot(self) -> int:
         """A new empty row; returns its slot."""
         if self.size == len(self.n):
-            self._grow(2 * len(self.n))
+            self._resize(2 * len(self.n), self.width)
         self.size += 1
         return self.size - 1
 
-    def _grow(self, slots: int) -> None:
-        """``slots`` rows, touching no memory the rows do not use: fresh rows are zero pages the
-        OS maps only when written (``np.zeros``), and only the columns in use are copied. (A
-        concatenation writes every byte: at 2,000 devices that made this store and the truth
-        store resident in full, 216 MiB, whatever was stored.)"""
+    def _resize(self, slots: int, width: int) -> None:
+        """``slots`` rows of room for ``width`` points, touching no memory the rows do not use:
+        fresh rows are zero pages the OS maps only when written (``np.zeros``), and only the
+        columns in use are copied. (A concatenation writes every byte: at 2,000 devices that made
+        this store and the truth store resident in full, 216 MiB, whatever was stored.)"""
         used = int(self.n[:self.size].max(initial=0))
         for name in ("t", "q", "w"):
             old = getattr(self, name)
-            new = np.zeros((slots, *old.shape[1:]), old.dtype)
+            new = np.zeros((slots, width, *old.shape[2:]), old.dtype)
             new[:self.size, :used] = old[:self.size, :used]
             setattr(self, name, new)
         self.n = np.concatenate([self.n, np.zeros(slots - len(self.n), np.int64)])
+        self.width = width
+        self._c = fuse.PointRows(self.t, self.q, self.w, self.n)
+
+    def _room(self, points: int) -> None:
+        """Widen the rows to hold ``points`` (at most ``cap``)."""
+        if points > self.width:
+            width = self.width
+            while width < points:
+                width *= 2
+            self._resize(len(self.n), min(width, self.cap))
 
     def reset(self, slot: int) -> None:
         self.n[slot] = 0
@@ -57,12 +76,41 @@ class PointStore:
         if self.n[slot] == self.cap:  # consumers stalled far behind: forget the oldest half
             forgotten = self.cap // 2
             self.shift(slot, forgotten)
+        self._room(self.n[slot] + 1)
         k = self.n[slot]
         self.t[slot, k] = t_us
         self.q[slot, k] = q
         self.w[slot, k] = 0.0 if omega is None else omega
         self.n[slot] = k + 1
         return forgotten
+
+    def append_many(self, slots: np.ndarray, t_us: np.ndarray, q: np.ndarray, w: np.ndarray) -> dict[int, int]:
+        """Add the points of many rows at once, as :meth:`append` one by one in the given order:
+        rows ``slots`` (P,), times (P,) increasing within a row and after its newest point,
+        orientations ``q`` (P, 4) and body rates ``w`` (P, 3) rad/s. Returns {slot: points
+        forgotten to make room} of the rows that had to forget some."""
+        if len(set(slots.tolist())) == len(slots) and (self.n[slots] < self.width).all():  # a point per row: a tick's usual
+            position = self.n[slots]
+            self.t[slots, position], self.q[slots, position], self.w[slots, position] = t_us, q, w
+            self.n[slots] += 1
+            return {}
+        rows, counts = np.unique(slots, return_counts=True)
+        full = self.n[rows] + counts > self.cap
+        forgotten = {}
+        if full.any():  # consumers stalled: these rows forget points on the way, one by one
+            for slot in rows[full]:
+                forgotten[int(slot)] = sum(self.append(slot, t_us[i], q[i], w[i]) for i in np.flatnonzero(slots == slot))
+            keep = ~np.isin(slots, rows[full])
+            slots, t_us, q, w = slots[keep], t_us[keep], q[keep], w[keep]
+            rows, counts = rows[~full], counts[~full]
+        self._room(int((self.n[rows] + counts).max(initial=0)))
+        order = np.argsort(slots, kind="stable")  # rank of each point within its row, in order
+        rank = np.empty(len(slots), np.int64)
+        rank[order] = np.arange(len(slots)) - np.repeat(np.cumsum(counts) - counts, counts)
+        position = self.n[slots] + rank
+        self.t[slots, position], self.q[slots, position], self.w[slots, position] = t_us, q, w
+        self.n[rows] += counts
+        return {slot: n for slot, n in forgotten.items() if n}
 
     def extend(self, slot: int, t_us: np.ndarray, q: np.ndarray) -> int:
         """Add points (times increasing, after the row's newest) in one go; returns how many old
@@ -77,6 +125,7 @@ class PointStore:
             drop = min(drop, int(self.n[slot]))
             self.shift(slot, drop)
             forgotten += drop
+        self._room(self.n[slot] + count)
         k = self.n[slot]
         self.t[slot, k:k + count] = t_us
         self.q[slot, k:k + count] = q
@@ -94,6 +143,7 @@ class PointStore:
         n = self.n[slot]
         if n == self.cap:
             return False
+        self._room(n + 1)
         k = int(np.searchsorted(self.t[slot, :n], t_us))
         self.t[slot, k + 1: n + 1] = self.t[slot, k:n].copy()
         self.q[slot, k + 1: n + 1] = self.q[slot, k:n].copy()
@@ -122,67 +172,40 @@ class PointStore:
         return int(self.t[slot, 0]) if self.n[slot] else None
 
     def locate(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-        """(Q,) index of the last point at or before each query time in its row (-1: none)."""
-        if len(slots) == 0:
-            return np.zeros(0, np.int64)
+        """(Q,) index of the last point at or before each query time in its row (-1: none); a
+        binary search of all rows at once."""
         n = self.n[slots]
-        width = max(int(n.max()), 1)
-        rows = self.t[slots, :width]
-        valid = np.arange(width)[None, :] < n[:, None]
-        return np.sum((rows <= t_us[:, None]) & valid, axis=1) - 1
+        lo, hi = np.zeros(len(slots), np.int64), n.copy()
+        flat, base = self.t.reshape(-1), slots * self.width
+        for _ in range(int(n.max(initial=0)).bit_length()):
+            mid = (lo + hi) >> 1
+            go = (mid < hi) & (flat[base + np.minimum(mid, self.width - 1)] <= t_us)
+            lo = np.where(go, mid + 1, lo)
+            hi = np.where(go, hi, mid)
+        return lo - 1
 
     def interpolate(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """(Q, 4) float64 SLERP reconstruction of row ``slots[i]`` at ``t_us[i]``; held before the
         first and after the last point; identity for an empty row."""
-        out = np.tile(IDENTITY, (len(slots), 1))
-        have = self.n[slots] > 0
-        slots, t_us = slots[have], t_us[have]
-        if len(slots) == 0:
-            return out
-        n = self.n[slots]
-        k = np.clip(self.locate(slots, t_us), 0, np.maximum(n - 2, 0))
-        k1 = np.minimum(k + 1, n - 1)
-        t0, t1 = self.t[slots, k], self.t[slots, k1]
-        span = (t1 - t0).astype(np.float64)
-        u = np.clip((t_us - t0) / np.where(span > 0, span, 1.0), 0.0, 1.0)
-        q0 = self.q[slots, k].astype(np.float64)
-        q1 = self.q[slots, k1].astype(np.float64)
-        q0 /= np.linalg.norm(q0, axis=1, keepdims=True)
-        q1 /= np.linalg.norm(q1, axis=1, keepdims=True)
-        out[have] = quat.slerp(q0, q1, u)
-        return out
+        return self._c.reconstruct(slots, t_us, fuse.EXACT)
 
     def predicted(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """(Q, 4) float64: what a receiver knowing only the points of row ``slots[i]`` at or before
         ``t_us[i]`` shows then: the newest of them extrapolated with its rate
         (:func:`limbstream.quat.predict`, the prediction the device's live rule bounds; rate 0
         holds it); identity for a row without such a point."""
-        out = np.tile(IDENTITY, (len(slots), 1))
-        k = self.locate(slots, t_us)
-        have = k >= 0
-        s, j = slots[have], k[have]
-        if len(s):
-            dt = (t_us[have] - self.t[s, j]) / 1e6
-            out[have] = quat.predict(self.q[s, j].astype(np.float64), self.w[s, j].astype(np.float64), dt)
-        return out
+        return self._c.reconstruct(slots, t_us, fuse.PREDICTED)
 
-    def live(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-        """(Q, 4) float64 live view of row ``slots[i]`` at ``t_us[i]``: SLERP between points where
-        a point at or after the time is known (exact), else :meth:`predicted` from the newest point."""
-        n = self.n[slots]
-        last = self.t[slots, np.maximum(n - 1, 0)]
-        inside = (n > 0) & (t_us <= last)
-        out = self.predicted(slots, t_us)
-        if inside.any():
-            out[inside] = self.interpolate(slots[inside], t_us[inside])
-        return out
+    def errors(self, slots: np.ndarray, t_us: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Angles (Q,) degrees between ``truth`` (Q, 4) and :meth:`interpolate`, and between it and
+        :meth:`predicted`, of row ``slots[i]`` at ``t_us[i]``."""
+        return self._c.errors(slots, t_us, truth)
 
-    def held(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-        """(Q, 4) float64: the newest point strictly before each time (first point if none)."""
-        k = np.maximum(self.locate(slots, t_us - 1), 0)
-        out = self.q[slots, k].astype(np.float64)
-        out[self.n[slots] == 0] = IDENTITY
-        return out
+    def reconstruct(self, slots: np.ndarray, t_us: np.ndarray, live: np.ndarray) -> np.ndarray:
+        """(Q, 4) float64 orientation of row ``slots[i]`` at ``t_us[i]`` in a frame: exact
+        (:meth:`interpolate`) where ``live[i]`` is False or a point at or after the time is known,
+        else the live view: the newest point extrapolated with its rate (:meth:`predicted`)."""
+        return self._c.reconstruct(slots, t_us, np.where(live, fuse.LIVE, fuse.EXACT))
 
     def prune(self, keep_from: np.ndarray, min_drop: int = 16) -> None:
         """Forget points before ``keep_from[slot]`` (keeping one before it) where that frees at least
@@ -190,111 +213,65 @@ class PointStore:
         k = self.locate(np.arange(self.size), keep_from[: self.size])
         for slot in np.flatnonzero(k >= min_drop):
             self.shift(int(slot), int(k[slot]))
+        fullest = int(self.n[:self.size].max(initial=0))
+        if self.width > MIN_WIDTH and 4 * fullest <= self.width:  # the rows need much less room again
+            self._resize(len(self.n), max(MIN_WIDTH, 2 * fullest))
 
 
 class TruthQueue:
-    """Truth-tap samples of every device waiting for the device's watermark to pass them.
-
-    Each entry carries the slot's generation: a restarted stream bumps it, and entries of the
-    old stream are dropped instead of being compared with the new one.
-    """
+    """Truth-tap samples of every device waiting for the device's watermark to pass them, in
+    arrival order. A device's new stream drops the samples of its old one (:meth:`drop`): they
+    are never compared with the new one."""
 
     def __init__(self, limit: int = 2_000_000):
         self.limit = limit
         self.slot = np.zeros(0, np.int64)
-        self.gen = np.zeros(0, np.int64)
         self.t = np.zeros(0, np.int64)
         self.q = np.zeros((0, 4), np.float32)
-        self._incoming: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        self._incoming: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (slot, t_us, q) per sample
 
     def __len__(self) -> int:
-        return len(self.t) + sum(len(b[2]) for b in self._incoming)
+        return len(self.t) + sum(len(b[1]) for b in self._incoming)
 
-    def put(self, slot: int, gen: int, t_us: np.ndarray, q: np.ndarray) -> None:
-        self._incoming.append((slot, gen, t_us, q))
+    def put(self, slots: np.ndarray | int, t_us: np.ndarray, q: np.ndarray) -> None:
+        """Samples at device times ``t_us`` (k,) us, orientations ``q`` (k, 4), of devices ``slots``
+        (k,) (or one for all)."""
+        self._incoming.append((np.broadcast_to(np.asarray(slots, np.int64), t_us.shape), t_us, q))
 
-    def take_ready(self, watermark: np.ndarray, generation: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Remove and return (slot, t_us, q float64) of every sample at or before its slot's
-        watermark; drops samples of replaced streams. Also returns (slots, count) overflowed."""
+    def drop(self, slot: int) -> None:
+        """Forget the samples of ``slot`` (its device began a new stream)."""
+        self._merge()
+        keep = self.slot != slot
+        self.slot, self.t, self.q = self.slot[keep], self.t[keep], self.q[keep]
+
+    def _merge(self) -> None:
         if self._incoming:
-            self.slot = np.concatenate([self.slot] + [np.full(len(b[2]), b[0]) for b in self._incoming])
-            self.gen = np.concatenate([self.gen] + [np.full(len(b[2]), b[1]) for b in self._incoming])
-            self.t = np.concatenate([self.t] + [b[2] for b in self._incoming])
-            self.q = np.concatenate([self.q] + [b[3] for b in self._incoming])
+            self.slot = np.concatenate([self.slot, *(b[0] for b in self._incoming)])
+            self.t = np.concatenate([self.t, *(b[1] for b in self._incoming)])
+            self.q = np.concatenate([self.q, *(b[2] for b in self._incoming)])
             self._incoming = []
-        current = self.gen == generation[self.slot]
-        ready = current & (self.t <= watermark[self.slot])
-        out = self.slot[ready], self.t[ready], self.q[ready].astype(np.float64)
-        keep = current & ~ready
+
+    def take_ready(self, watermark: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Remove and return (slot, t_us, q float32) of every sample at or before its slot's
+        ``watermark``, and the slots of the samples dropped because more than ``limit`` wait
+        (the oldest first, one entry per sample)."""
+        self._merge()
+        ready = self.t <= watermark[self.slot]
+        out = self.slot[ready], self.t[ready], self.q[ready]
+        keep = ~ready
         overflow = np.zeros(0, np.int64)
-        if keep.sum() > self.limit:  # oldest entries first in each arrival order
+        if len(self.t) - len(out[1]) > self.limit:  # oldest entries first in each arrival order
             idx = np.flatnonzero(keep)
             overflow = self.slot[idx[: len(idx) - self.limit]]
             keep[idx[: len(idx) - self.limit]] = False
-        self.slot, self.gen, self.t, self.q = self.slot[keep], self.gen[keep], self.t[keep], self.q[keep]
+        if len(out[1]) or len(overflow):
+            self.slot, self.t, self.q = self.slot[keep], self.t[keep], self.q[keep]
         return (*out, overflow)
 
     def oldest(self, slots: int) -> np.ndarray:
         """(slots,) time of each slot's oldest waiting sample (int64 max if none)."""
+        self._merge()
         out = np.full(slots, np.iinfo(np.int64).max)
         if len(self.t):
             np.minimum.at(out, self.slot, self.t)
-        for slot, _, t, _ in self._incoming:
-            out[slot] = min(out[slot], int(t[0]))
         return out
-
-
-class ErrorRings:
-    """Per-slot ring windows of angular errors in degrees, and totals since the stream began.
-    A row holds ``min(count, window)`` values (the first ones until it wraps); rows that never
-    held a value stay untouched zero pages (no memory resident for a window nobody fills)."""
-
-    def __init__(self, window: int, slots: int = 64):
-        self.window = window
-        self.values = np.zeros((slots, window), np.float32)
-        self.count = np.zeros(slots, np.int64)
-        self.total = np.zeros(slots, np.float64)
-
-    def ensure(self, slots: int) -> None:
-        if slots > len(self.count):
-            grow = max(slots - len(self.count), len(self.count))
-            values = np.zeros((len(self.count) + grow, self.window), np.float32)
-            used = np.flatnonzero(self.count > 0)
-            values[used] = self.values[used]
-            self.values = values
-            self.count = np.concatenate([self.count, np.zeros(grow, np.int64)])
-            self.total = np.concatenate([self.total, np.zeros(grow)])
-
-    def reset(self, slot: int) -> None:
-        self.count[slot] = 0
-        self.total[slot] = 0.0
-
-    def add(self, slots: np.ndarray, errors: np.ndarray) -> None:
-        """Append errors (E,) of rows slots (E,), in order within each row."""
-        if len(slots) == 0:
-            return
-        order = np.argsort(slots, kind="stable")
-        slots, errors = slots[order], errors[order]
-        starts = np.flatnonzero(np.r_[True, slots[1:] != slots[:-1]])
-        rank = np.arange(len(slots)) - np.repeat(starts, np.diff(np.r_[starts, len(slots)]))
-        self.values[slots, (self.count[slots] + rank) % self.window] = errors
-        np.add.at(self.count, slots, 1)
-        np.add.at(self.total, slots, errors)
-
-    def summary(self, slots: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:
-        """(mean, max, *quantiles) over each row's window, each (slots,), NaN for empty rows; a
-        quantile ``p`` (0..1) is the lower order statistic. One sort of the rows that hold values
-        gives all of them; empty rows (truth tap or live frames off) cost nothing."""
-        n = np.minimum(self.count[slots], self.window)
-        out = np.full((2 + len(quantiles), len(slots)), np.nan)
-        rows = np.flatnonzero(n > 0)
-        if len(rows):
-            k, r = n[rows], np.arange(len(rows))
-            v = self.values[slots[rows]]
-            v[np.arange(self.window) >= k[:, None]] = np.nan  # unused: sorts last
-            v.sort(axis=1)
-            out[0, rows] = np.nansum(v, axis=1) / k
-            out[1, rows] = v[r, k - 1]
-            for i, p in enumerate(quantiles):
-                out[2 + i, rows] = v[r, np.floor(p * (k - 1)).astype(np.int64)]
-        return tuple(out)

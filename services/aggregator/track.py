@@ -8,9 +8,13 @@ from __future__ import annotations
 
 import collections
 import math
+import operator
 from collections.abc import Callable
 
+import numpy as np
+
 from limbstream import wire
+from limbstream.services.aggregator.devices import COLUMNS, HISTORY, NO_TIME, DeviceTable
 
 HISTORY_WAIT_S = 5.0
 """How long after a stream's first point its earlier points (history of a device the
@@ -31,19 +35,52 @@ float64, exact below 2**53. Others are dropped as ``time_range`` (a point near t
 once overflowed the frame grid and stopped the aggregator; tests/test_fuzz.py)."""
 
 
+_tunables = operator.attrgetter(*wire.TUNABLES)  # a config's settings, in wire.TUNABLES order
+
+
+class _Column:
+    """A :class:`DeviceTrack` attribute kept in the track's row of its DeviceTable (column
+    ``name``), so that a tick can read and write all devices' at once; with ``none``, the
+    column's empty value reads as None."""
+
+    def __init__(self, name: str, none: bool = False):
+        self.name, self.none, self.empty = name, none, COLUMNS[name][1]
+
+    def __get__(self, track: DeviceTrack, owner=None):
+        value = getattr(track.table, self.name)[track.slot].item()
+        return None if self.none and value == self.empty else value
+
+    def __set__(self, track: DeviceTrack, value) -> None:
+        getattr(track.table, self.name)[track.slot] = self.empty if value is None else value
+
+
 class DeviceTrack:
-    """One device as seen by the aggregator.
+    """One device as seen by the aggregator. Its stream state lives in its row (``slot``) of the
+    fusion's :class:`~.devices.DeviceTable` (the attributes below marked so); the rest here.
 
     Parameters
     ----------
     subject, segment : the device's key chunks.
     slot : its row in the aggregator's columnar stores.
+    table : the columns of every device (its row exists).
     """
 
-    def __init__(self, subject: str, segment: str, slot: int):
-        self.subject, self.segment, self.slot = subject, segment, slot
+    online = _Column("online")                  # its liveliness token is present
+    stream = _Column("stream", none=True)       # current stream id
+    next_seq = _Column("next_seq", none=True)   # sequence number of the stream's next point
+    first_seq = _Column("first_seq", none=True)  # sequence number of the first point received
+    last_t_us = _Column("last_t", none=True)    # newest point's device time
+    last_index = _Column("last_index")
+    final = _Column("final")
+    points = _Column("points")
+    last_raw_t_us = _Column("last_raw_t", none=True)  # newest truth-tap sample time (later ones need later points)
+    last_raw_index = _Column("last_raw_index")
+    latest_t_us = _Column("latest_t", none=True)  # newest device time seen (point or raw)
+    latest_arrival = _Column("latest_arrival")    # arrival clock when it came, s (NaN: none)
+
+    def __init__(self, subject: str, segment: str, slot: int, table: DeviceTable):
+        self.subject, self.segment, self.slot, self.table = subject, segment, slot, table
         self.id = wire.device_id(subject, segment)
-        self.online = False
         self.config: wire.DeviceConfig | None = None  # as the device last reported it
         self.clock: wire.ClockStatus | None = None    # its clock sync, as it last reported it
         self.link: wire.LinkStatus | None = None      # a bridged device's link, as its gateway last reported it
@@ -51,28 +88,31 @@ class DeviceTrack:
         self.restarts = 0
         self.generation = 0
         self._retired: collections.deque = collections.deque(maxlen=16)
-        self.stream: int | None = None
         self.held_raw: collections.deque = collections.deque()  # truth batches of a stream to come
         self.reset_stream()
 
+    @property
+    def history(self) -> str:
+        """The history query of a late-joined stream: none, asked, done."""
+        return HISTORY[self.table.history[self.slot]]
+
+    @history.setter
+    def history(self, value: str) -> None:
+        self.table.history[self.slot] = HISTORY.index(value)
+
     def reset_stream(self) -> None:
         """Forget the stream's counters (the caller resets the stores' rows)."""
-        self.next_seq: int | None = None
-        self.first_seq: int | None = None    # sequence number of the first point received
+        self.next_seq = self.first_seq = self.last_t_us = self.last_raw_t_us = self.latest_t_us = None
         self.first_arrival = 0.0
         self.first_t_us: int | None = None
         self.early: set[int] = set()          # points older than the first one, taken in later
-        self.history = "none"                 # the history query of a late-joined stream: none, asked, done
+        self.history = "none"
         self.points = 0
-        self.last_t_us: int | None = None   # newest point's device time
-        self.last_index = -1
-        self.last_raw_index = -1
-        self.last_raw_t_us: int | None = None  # newest truth-tap sample time (later ones need later points)
+        self.last_index = self.last_raw_index = -1
         self.final = False
         self.gaps = 0
         self.gap_spans: collections.deque = collections.deque(maxlen=64)  # (t0, t1) us
-        self.arrivals: collections.deque = collections.deque()            # (arrival s, bytes)
-        self.latest_t_us: int | None = None  # newest device time seen (point or raw)
+        self.table.arrivals.reset(self.slot)
         self.latest_arrival = math.nan
 
     def check_stream(self, stream: int) -> str:
@@ -90,48 +130,49 @@ class DeviceTrack:
         self.reset_stream()
         return "new"
 
-    def accept_point(self, p: wire.SegmentPoint, nbytes: int, now: float,
+    def accept_point(self, seq: int, index: int, t_us: int, flags: int, nbytes: int, now: float,
                      stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
-        """Sequence and time checks of a point of the current stream. Returns "append" (newest
-        point), "insert" (an earlier point of the stream's start arriving late, e.g. history),
-        "final" (the newest point repeated with FINAL: the stream ends, no new point), or None
-        when it is dropped (counted by reason). ``stored(t_us)``: a point with that
-        time is already kept."""
-        if not 0 <= p.t_us < MAX_T_US:
+        """Sequence and time checks of a point of the current stream (sequence number ``seq``,
+        sample ``index``, device time ``t_us`` us, ``flags``, ``nbytes`` on the wire, arrived at
+        ``now``). Returns "append" (newest point), "insert" (an earlier point of the stream's
+        start arriving late, e.g. history), "final" (the newest point repeated with FINAL: the
+        stream ends, no new point), or None when it is dropped (counted by reason).
+        ``stored(t_us)``: a point with that time is already kept."""
+        if not 0 <= t_us < MAX_T_US:
             self.dropped["time_range"] += 1
             return None
-        if self.next_seq is not None and p.seq < self.next_seq:
-            if (p.seq < self.first_seq and p.seq not in self.early and p.t_us < self.first_t_us
-                    and not self.settled(now) and not stored(p.t_us)):
-                self.early.add(p.seq)
-                self._count(p, nbytes, now)
+        if self.next_seq is not None and seq < self.next_seq:
+            if (seq < self.first_seq and seq not in self.early and t_us < self.first_t_us
+                    and not self.settled(now) and not stored(t_us)):
+                self.early.add(seq)
+                self._count(t_us, nbytes, now)
                 return "insert"
             self.dropped["duplicate"] += 1
             return None
-        if (p.flags & wire.FLAG_FINAL and p.seq == self.next_seq and p.t_us == self.last_t_us
-                and p.index == self.last_index):  # the newest point repeated as the stream's end marker
-            self.next_seq, self.final = p.seq + 1, True
-            self._count(p, nbytes, now)
+        if (flags & wire.FLAG_FINAL and seq == self.next_seq and t_us == self.last_t_us
+                and index == self.last_index):  # the newest point repeated as the stream's end marker
+            self.next_seq, self.final = seq + 1, True
+            self._count(t_us, nbytes, now)
             self.points -= 1
             return "final"
-        if self.last_t_us is not None and (p.t_us <= self.last_t_us or p.index <= self.last_index):
+        if self.last_t_us is not None and (t_us <= self.last_t_us or index <= self.last_index):
             self.dropped["time_backwards"] += 1
             return None
         if self.next_seq is None:
-            self.first_seq, self.first_arrival, self.first_t_us = p.seq, now, p.t_us
-        elif p.seq > self.next_seq:
-            self.gaps += p.seq - self.next_seq
-            self.gap_spans.append((self.last_t_us, p.t_us))
-        self.next_seq = p.seq + 1
-        self.last_t_us, self.last_index = p.t_us, p.index
-        self.final = bool(p.flags & wire.FLAG_FINAL)
-        self._count(p, nbytes, now)
+            self.first_seq, self.first_arrival, self.first_t_us = seq, now, t_us
+        elif seq > self.next_seq:
+            self.gaps += seq - self.next_seq
+            self.gap_spans.append((self.last_t_us, t_us))
+        self.next_seq = seq + 1
+        self.last_t_us, self.last_index = t_us, index
+        self.final = bool(flags & wire.FLAG_FINAL)
+        self._count(t_us, nbytes, now)
         return "append"
 
-    def _count(self, p: wire.SegmentPoint, nbytes: int, now: float) -> None:
+    def _count(self, t_us: int, nbytes: int, now: float) -> None:
         self.points += 1
-        self.arrivals.append((now, nbytes))
-        self.see(p.t_us, now)
+        self.table.arrivals.add_one(self.slot, now, nbytes)
+        self.see(t_us, now)
 
     def settled(self, now: float) -> bool:
         """True once the stream's start is complete (from sequence number 0), its history query
@@ -152,25 +193,31 @@ class DeviceTrack:
         """The history query of the current stream has completed: the stream is settled."""
         self.history = "done"
 
-    def accept_raw(self, batch: wire.RawBatch, now: float) -> bool | None:
-        """True if the batch is taken, None if it is held until its stream's first point
-        arrives (:meth:`take_held_raw`), False if it is dropped (counted)."""
-        if batch.stream != self.stream:
-            if batch.stream in self._retired:
+    def accept_raw(self, stream: int, first_index: int, count: int, t_first: int, t_last: int, now: float) -> bool | None:
+        """A truth batch of ``stream`` (``count`` samples from sample ``first_index``, device times
+        ``t_first`` .. ``t_last`` us) arrived at ``now``: True if it is taken, None if it is to be
+        held until its stream's first point arrives (:meth:`hold_raw`), False if it is dropped
+        (counted)."""
+        if stream != self.stream:
+            if stream in self._retired:
                 self.dropped["raw_other_stream"] += 1
                 return False
-            if len(self.held_raw) == HELD_RAW:
-                self.held_raw.popleft()
-                self.dropped["raw_other_stream"] += 1
-            self.held_raw.append(batch)
             return None
-        if not 0 <= int(batch.t_us[0]) <= int(batch.t_us[-1]) < MAX_T_US:  # (wrapped int64 fails too)
+        if not 0 <= t_first <= t_last < MAX_T_US:  # (wrapped int64 fails too)
             self.dropped["raw_time_range"] += 1
             return False
-        self.last_raw_index = max(self.last_raw_index, batch.first_index + len(batch.t_us) - 1)
-        self.last_raw_t_us = max(self.last_raw_t_us or 0, int(batch.t_us[-1]))
-        self.see(int(batch.t_us[-1]), now)
+        self.last_raw_index = max(self.last_raw_index, first_index + count - 1)
+        self.last_raw_t_us = max(self.last_raw_t_us or 0, t_last)
+        self.see(t_last, now)
         return True
+
+    def hold_raw(self, batch: wire.RawBatch) -> None:
+        """Keep a truth batch of a stream whose first point has not arrived (HELD_RAW at most: then
+        the oldest is dropped, counted)."""
+        if len(self.held_raw) == HELD_RAW:
+            self.held_raw.popleft()
+            self.dropped["raw_other_stream"] += 1
+        self.held_raw.append(batch)
 
     def take_held_raw(self) -> list[wire.RawBatch]:
         """The held truth batches of the current stream (to take in now); others are dropped."""
@@ -184,40 +231,44 @@ class DeviceTrack:
         if self.latest_t_us is None or t_us >= self.latest_t_us:
             self.latest_t_us, self.latest_arrival = t_us, now
 
-    def in_gap(self, t_us) -> list[bool]:
-        """Per time: inside a span whose points were lost."""
-        return [any(t0 < t < t1 for t0, t1 in self.gap_spans) for t in t_us]
+    def in_gap(self, t_us: np.ndarray) -> np.ndarray:
+        """(F,) bool: each time (F,) us inside a span whose points were lost."""
+        spans = np.array(self.gap_spans, np.int64).reshape(-1, 2)
+        inside: np.ndarray = ((t_us[:, None] > spans[:, 0]) & (t_us[:, None] < spans[:, 1])).any(axis=1)
+        return inside
 
-    def stats(self, now: float, errors: tuple[float, float, float, float, float, int],
-              live_view: dict | None = None) -> dict:
-        """The device entry of a stats message (the device fields of limbstream.wire.fields).
+    def stats(self) -> tuple[tuple, tuple]:
+        """The fields of its stats entry (limbstream.wire.fields) that its row in the table does not
+        hold: the values of :data:`NUMBERS` and of :data:`TEXTS`, in their order (None: null)."""
+        config, clock, link = self.config, self.clock, self.link
+        numbers = (self.gaps, sum(self.dropped.values()),
+                   *((None,) * len(wire.TUNABLES) if config is None else _tunables(config)), self.restarts,
+                   *((None, None, None) if clock is None else (clock.clock_offset_ms, clock.sync_rtt_ms, clock.synced)),
+                   *((None,) * 4 if link is None else (link.battery_pct, link.signal_dbm, link.link_loss, link.link_pps)))
+        texts = (self.id, self.segment, self.subject, dict(self.dropped), None if clock is None else dict(clock.sync_bad),
+                 None if link is None else link.tracker)
+        return numbers, texts
 
-        ``errors``: (aad, p99, max, live mean, aad since the stream began, samples compared);
-        ``live_view``: the live-view figures (live_p50_deg ... live_latency_p99_ms).
-        """
-        while self.arrivals and self.arrivals[0][0] < now - RATE_WINDOW_S:
-            self.arrivals.popleft()
-        span = RATE_WINDOW_S
-        if self.arrivals and self.points == len(self.arrivals):  # stream younger than the window
-            span = max(now - self.arrivals[0][0], 1.0)
-        samples = max(self.last_index, self.last_raw_index) + 1
-        aad, p99, mx, live, aad_all, compared = errors
-        lag = math.nan
-        if self.latest_t_us is not None and self.last_t_us is not None:
-            device_now = self.latest_t_us + (now - self.latest_arrival) * 1e6
-            lag = 0.0 if self.final else max(0.0, (device_now - self.last_t_us) / 1e6)
-        return {
-            "device": self.id, "segment": self.segment, "subject": self.subject, "online": self.online,
-            "samples": samples, "points": self.points,
-            "icr": self.points / samples if samples > 0 else math.nan,
-            "msgs_per_s": len(self.arrivals) / span,
-            "bytes_per_s": sum(b for _, b in self.arrivals) / span,
-            "aad_deg": aad, "p99_deg": p99, "max_deg": mx, "live_err_deg": live,
-            "aad_all_deg": aad_all, "error_samples": compared, **(live_view or {}),
-            "watermark_lag_s": lag, "gaps": self.gaps, "dropped": sum(self.dropped.values()),
-            "dropped_by_reason": dict(self.dropped),
-            **{name: getattr(self.config, name, None) for name in wire.TUNABLES},
-            "stream": self.stream, "restarts": self.restarts, "final": self.final,
-            **(self.clock.as_dict() if self.clock is not None else {}),
-            **(self.link.as_dict() if self.link is not None else {}),
-        }
+
+NUMBERS: tuple[str, ...] = ("gaps", "dropped", *wire.TUNABLES, "restarts", "clock_offset_ms", "sync_rtt_ms", "synced",
+                            "battery_pct", "signal_dbm", "link_loss", "link_pps")
+"""The number fields of a device's stats entry that its track gives (:meth:`DeviceTrack.stats`)."""
+TEXTS: tuple[str, ...] = ("device", "segment", "subject", "dropped_by_reason", "sync_bad", "tracker")
+"""The other fields of a device's stats entry that its track gives."""
+
+
+def stream_figures(table: DeviceTable, slots: np.ndarray, now: float) -> dict[str, np.ndarray]:
+    """The stats fields of devices ``slots`` (k,) that their rows of ``table`` give, at arrival
+    clock ``now`` (s), by name, each (k,) (NaN: null): liveliness, samples, points, ICR, data
+    rates over RATE_WINDOW_S, watermark lag, stream, end."""
+    points, nbytes, oldest = table.arrivals.window(slots, now - RATE_WINDOW_S)
+    span = np.where((points > 0) & (table.points[slots] == points), np.maximum(now - oldest, 1.0), RATE_WINDOW_S)
+    samples = np.maximum(table.last_index[slots], table.last_raw_index[slots]) + 1
+    latest, last = table.latest_t[slots], table.last_t[slots]
+    device_now = latest + (now - table.latest_arrival[slots]) * 1e6
+    lag = np.where(table.final[slots], 0.0, np.maximum(0.0, (device_now - last) / 1e6))
+    return {"online": table.online[slots], "samples": samples, "points": table.points[slots],
+            "icr": np.where(samples > 0, table.points[slots] / np.maximum(samples, 1), np.nan),
+            "msgs_per_s": points / span, "bytes_per_s": nbytes / span,
+            "watermark_lag_s": np.where((latest != NO_TIME) & (last != NO_TIME), lag, np.nan),
+            "stream": np.where(table.stream[slots] >= 0, table.stream[slots], np.nan), "final": table.final[slots]}

@@ -15,7 +15,9 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 import limbstream
+from limbstream import zconfig
 
+from .deps import KnownQueryDep
 from .metrics import build_registry
 from .routes import devices, gateways, live, ops, subjects
 from .settings import DashboardSettings
@@ -43,11 +45,20 @@ async def lifespan(app: FastAPI):
     lock = threading.Lock()
 
     def connect() -> None:
+        waiting = threading.Timer(zconfig.CONNECT_TIMEOUT_S, lambda: print(
+            f"dashboard: no Zenoh router answered at {settings.router} within {zconfig.CONNECT_TIMEOUT_S:g} s; still "
+            "waiting (/health answers 503 until then; set the endpoint with --connect or LIMBSTREAM_ROUTER)",
+            flush=True))
+        waiting.daemon = True
+        if app.state.session is None:
+            waiting.start()
         try:
             bridge = open_bridge(inbox, settings.zenoh_settings(), app.state.session)
         except zenoh.ZError as exc:
             print(f"dashboard: cannot open the Zenoh session: {exc}", flush=True)
             return
+        finally:
+            waiting.cancel()
         with lock:
             if closing.is_set():
                 bridge.close()
@@ -91,7 +102,7 @@ def create_app(settings: DashboardSettings | None = None, session: zenoh.Session
         return JSONResponse({"detail": detail}, status_code=422)
 
     for module in (ops, devices, subjects, gateways, live):
-        app.include_router(module.router)
+        app.include_router(module.router, dependencies=[KnownQueryDep])
     index = settings.static_dir / "index.html"
 
     @app.get("/", include_in_schema=False)

@@ -5,6 +5,7 @@ import secrets
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Path
+from fastapi.exceptions import RequestValidationError, WebSocketRequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.requests import HTTPConnection
 
@@ -46,3 +47,28 @@ async def _require_token(settings: SettingsDep,
 
 
 TokenDep = Depends(_require_token)
+
+
+def _declared_query(dependant) -> set[str]:
+    """The query parameters a route (or dependency) declares, with those of its dependencies."""
+    names = {f.alias for f in dependant.query_params}
+    for sub in dependant.dependencies:
+        names |= _declared_query(sub)
+    return names
+
+
+async def _only_declared_query(conn: HTTPConnection) -> None:
+    """Refuse (422; a WebSocket: close code 1008) a query parameter the route does not declare,
+    naming it and the ones it takes: a misspelt filter never answers as if it were not given."""
+    dependant = getattr(conn.scope.get("route"), "dependant", None)
+    declared = _declared_query(dependant) if dependant is not None else set()
+    unknown = sorted(set(conn.query_params) - declared)
+    if unknown:
+        takes = f"it takes {', '.join(sorted(declared))}" if declared else "it takes none"
+        errors = [{"type": "extra_forbidden", "loc": ("query", name), "msg": f"unknown query parameter ({takes})"}
+                  for name in unknown]
+        raise (WebSocketRequestValidationError if conn.scope["type"] == "websocket" else RequestValidationError)(errors)
+
+
+KnownQueryDep = Depends(_only_declared_query)
+"""On every API router: only the query parameters a route declares."""

@@ -63,6 +63,13 @@ Subject = _from_fields(
     "Subject", "One subject: its devices and latest pose, plus the subject fields of the stats contract "
     "(limbstream.wire.fields; null until the aggregator reports).", wire.SUBJECT_FIELDS, __base__=_SubjectSummary)
 
+SubjectDetail = create_model(
+    "SubjectDetail", __base__=Subject, __doc__="One subject, as in the list, with its devices.",
+    device_list=(list[DeviceStats], Field(description="the subject's devices, by id (as GET /api/devices)")),
+    missing_segments=(list[str], Field(description="the body's segments the subject has no device for "
+                                                   "(their orientations follow their parent's)")),
+)
+
 
 class Pose(BaseModel):
     """A pose frame (:meth:`limbstream.wire.PoseFrame.to_json`) plus ``rx``, the time the
@@ -168,6 +175,7 @@ class CalibrateResult(BaseModel):
     subject: str
     pose: str
     devices: dict[str, dict]
+    absent: list[str] = Field(description="the body's segments without a streaming device (not calibrated)")
 
 
 class GatewaySensor(BaseModel):

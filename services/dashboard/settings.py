@@ -6,7 +6,6 @@ the control endpoints (403 with a message naming ``LIMBSTREAM_API_TOKEN``).
 """
 from __future__ import annotations
 
-import argparse
 import secrets
 import importlib.resources
 from pathlib import Path
@@ -92,7 +91,10 @@ class DashboardSettings(BaseSettings):
         return self, False
 
     def zenoh_settings(self) -> zconfig.ZenohSettings:
-        """The Zenoh session settings (parsed by :func:`limbstream.zconfig.from_args`)."""
-        args = argparse.Namespace(mode=self.zenoh_mode, connect=self.router, listen="",
-                                  zenoh_config=self.zenoh_config)
-        return zconfig.from_args(args)
+        """The Zenoh session settings: a client waits for its router however long it takes
+        (``/health`` answers 503 meanwhile). SystemExit naming a bad ``zenoh_config`` file."""
+        try:
+            extra = zconfig.read_extra(self.zenoh_config) if self.zenoh_config else {}
+        except ValueError as exc:
+            raise SystemExit(f"--zenoh-config {exc}") from None
+        return zconfig.ZenohSettings(mode=self.zenoh_mode, connect=zconfig.split_list(self.router), extra=extra)

@@ -41,9 +41,11 @@ class Views:
                     online=bool(stats.get("online")) if not stale else alive)
         return view
 
-    def device_views(self) -> list[dict]:
+    def device_views(self, subject: str | None = None) -> list[dict]:
+        """Every device's view, by id; ``subject``: only that subject's."""
         now = time.time()
-        return [self.device_view(did, now) for did in sorted(self.devices)]
+        return [self.device_view(did, now) for did, e in sorted(self.devices.items())
+                if subject is None or e.subject == subject]
 
     def history(self, did: str, seconds: float) -> dict | None:
         """Column form ``{"t": [...], <field>: [...]}`` of the last ``seconds`` of a device."""
@@ -59,28 +61,37 @@ class Views:
             columns[name] = [r[i] for r in rows]
         return columns
 
+    def subject_names(self) -> list[str]:
+        """Every subject with a device or a pose frame, sorted."""
+        return sorted({e.subject for e in self.devices.values()} | set(self.poses))
+
     def subject_views(self) -> list[dict]:
+        return [self.subject_view(name) for name in self.subject_names()]
+
+    def subject_view(self, name: str, with_devices: bool = False) -> dict:
+        """The REST form of one subject; ``with_devices``: also each device's view
+        (``device_list``) and the body's segments it has no device for (``missing_segments``)."""
         now = time.time()
-        names = sorted({e.subject for e in self.devices.values()} | set(self.poses))
-        out = []
-        for name in names:
-            views = [self.device_view(did, now) for did, e in sorted(self.devices.items()) if e.subject == name]
-            pose = self.latest_pose(name)
-            out.append({
-                "subject": name,
-                "devices": len(views),
-                "online": sum(1 for v in views if v["online"]),
-                "msgs_per_s": round(sum(v["msgs_per_s"] or 0.0 for v in views), 3),
-                "bytes_per_s": round(sum(v["bytes_per_s"] or 0.0 for v in views), 3),
-                "stats_age_s": round(now - self.stats_times[name], 3) if name in self.stats_times else None,
-                "pose": None if pose is None else {
-                    "seq": pose.frame.seq, "t": pose.frame.t_us / 1e6,
-                    "kind": "live" if pose.frame.kind == wire.KIND_LIVE else "exact",
-                    "age_s": round(now - pose.rx, 3)},
-                **self.exact_latency_view(name),
-                **self.subject_stats.get(name, {}),
-            })
-        return out
+        views = self.device_views(name)
+        pose = self.latest_pose(name)
+        view = {
+            "subject": name,
+            "devices": len(views),
+            "online": sum(1 for v in views if v["online"]),
+            "msgs_per_s": round(sum(v["msgs_per_s"] or 0.0 for v in views), 3),
+            "bytes_per_s": round(sum(v["bytes_per_s"] or 0.0 for v in views), 3),
+            "stats_age_s": round(now - self.stats_times[name], 3) if name in self.stats_times else None,
+            "pose": None if pose is None else {
+                "seq": pose.frame.seq, "t": pose.frame.t_us / 1e6,
+                "kind": "live" if pose.frame.kind == wire.KIND_LIVE else "exact",
+                "age_s": round(now - pose.rx, 3)},
+            **self.exact_latency_view(name),
+            **self.subject_stats.get(name, {}),
+        }
+        if with_devices:
+            have = {v["segment"] for v in views}
+            view |= {"device_list": views, "missing_segments": [s for s in wire.SEGMENTS if s not in have]}
+        return view
 
     def exact_latency_view(self, subject: str) -> dict:
         """``exact_latency_p50_ms``, ``exact_latency_p99_ms``: frame time -> received here, over

@@ -2,9 +2,10 @@
 CSV (one row per frame), npz (``limbstream.sources.load`` reads it back), and OpenSim's joint-angle
 motion file (``.mot``) and OpenSense's orientation file (``.sto``) (:mod:`.opensim`).
 
-A recording of real sensors (``Motion.sensor_up``: IMU files) starts standing still: its sensors
-are calibrated from the first second (the rest pose) and the subject's facing is found from the
-knees' and elbows' motion (:mod:`limbstream.joints.functional`) before anything is exported.
+A recording of real sensors (IMU files) comes rest-calibrated from its loader when it starts
+standing still (``Motion.orientations`` ``rest``: each sensor calibrated from its first still
+second); the subject's facing, which a rest pose cannot tell, is found here from the knees' and
+elbows' motion (:mod:`limbstream.joints.functional`) before anything is exported.
 
 Sources: the exact pose frames of a subject in a recording (:mod:`.recording`), or any motion
 file ``limbstream.sources.load`` reads (resampled to 50 Hz where it is not). Layouts, units and
@@ -18,13 +19,14 @@ offsets in metres (Y up, X to the subject's left), every joint's rotation channe
 from __future__ import annotations
 
 import csv
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from limbstream import joints, quat, wire
-from limbstream.calibration import CalibrationError
+from limbstream.calibration import START_STILL_S
 from limbstream.skeleton import Skeleton
 from limbstream.sources import Motion, MotionFileError, load
 from limbstream.sources.bvh import resample
@@ -199,18 +201,18 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
 
 def _segments_of(motion: Motion) -> tuple[str, bool, tuple[str, ...], np.ndarray]:
     """(basis, anatomical, segment names, (m, S, 4) orientations) of a motion: its own segments,
-    or for real sensors, the sensors calibrated from the first second (rest pose) and the facing
-    from the hinges (:mod:`limbstream.joints.functional`); what was left undone is said."""
-    if motion.sensor_up is None:
+    or for real sensors rest-calibrated by the loader, the facing found from the hinges
+    (:mod:`limbstream.joints.functional`) and undone; what was left undone is said."""
+    if motion.orientations == "segments":
         return "the source's own segment orientations", True, motion.segments, motion.q
-    try:
-        rest, present = joints.rest_calibrated(motion.q, motion.segments, motion.fs, motion.sensor_up)
-    except CalibrationError as exc:
-        return f"the sensors' raw orientations: no rest calibration ({exc})", False, motion.segments, motion.q
+    if motion.orientations == "sensors":
+        return ("the sensors' raw orientations: no rest calibration (the recording does not start standing still)",
+                False, motion.segments, motion.q)
+    rest, present = joints.in_layout(motion)
     stats = joints.HingeStats.empty()
     stats.add(rest, present)
     facing = stats.facing()
-    where = "rest pose from the first 1 s standing still"
+    where = f"rest pose from the first {START_STILL_S:g} s standing still"
     if not facing.found:
         return f"{where}; {facing.describe()}", False, wire.SEGMENTS, rest
     return f"{where}, functional {facing.describe()}", True, wire.SEGMENTS, joints.face(rest, facing.heading)
@@ -223,13 +225,18 @@ _SEGMENT_PARENT = {"hip": None, "neck": "hip", "l_thigh": "hip", "r_thigh": "hip
 """Each segment's parent in the body, parents first."""
 
 
-def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None) -> Take:
-    """A recording (``.mcap``) or a motion file, as a :class:`Take`; ExportError naming the problem."""
+def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None,
+              names: Mapping[str, str] | None = None) -> Take:
+    """A recording (``.mcap``) or a motion file (``names``: its sensors' segments,
+    :mod:`limbstream.sources.names`), as a :class:`Take`; ExportError naming the problem."""
     path = Path(path)
     try:
         if path.suffix.lower() == ".mcap":
+            if names is not None:
+                raise ExportError(f"{path}: --names maps the sensors of IMU recordings; a recording's devices "
+                                  "are named by segment already")
             return from_recording(Recording(path), subject, rest_pose)
-        return from_motion(load(path), subject, path, rest_pose)
+        return from_motion(load(path, names), subject, path, rest_pose)
     except (RecordingError, MotionFileError) as exc:
         raise ExportError(str(exc)) from None
 

@@ -48,7 +48,7 @@ _PAYLOADS = {
     "seg": "segment point, 36 bytes (docs/protocol.md: Segment point)",
     "raw": "truth-tap batch (docs/protocol.md: Truth tap)",
     "pose": "pose frame, 356 bytes, exact or live (docs/protocol.md: Pose frame)",
-    "stats": "stats JSON of one subject (docs/protocol.md: Stats)",
+    "stats": "stats message of one subject, compact or JSON form (docs/protocol.md: Stats)",
     "config": "device status JSON, a config query's reply (docs/protocol.md: Device config)",
 }
 SCHEMAS: dict[str, tuple[str, bytes]] = {

@@ -25,9 +25,10 @@ def _known(live, subject: str, segment: str) -> str:
 
 
 @router.get("", response_model=list[DeviceStats])
-async def list_devices(live: LiveDep) -> list[dict]:
-    """Every device seen (stats or liveliness), sorted by id."""
-    return live.device_views()
+async def list_devices(live: LiveDep, subject: Annotated[str | None, Query(
+        pattern=wire.CHUNK_PATTERN, max_length=128, description="only this subject's devices")] = None) -> list[dict]:
+    """Every device seen (stats or liveliness), sorted by id; ``subject``: only that subject's."""
+    return live.device_views(subject)
 
 
 @router.get("/{subject}/{segment}", response_model=DeviceStats, responses=NOT_FOUND)

@@ -9,7 +9,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from limbstream import wire
 
 from ..deps import LiveDep, SubjectPath, TokenDep
-from ..models import CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject
+from ..models import CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject, SubjectDetail
 from ..zenoh_io import ConfigError, query_calibrate
 
 router = APIRouter(prefix="/api", tags=["subjects"])
@@ -19,6 +19,15 @@ router = APIRouter(prefix="/api", tags=["subjects"])
 async def list_subjects(live: LiveDep) -> list[dict]:
     """Every subject with device counts, total data rate and its latest frame's age."""
     return live.subject_views()
+
+
+@router.get("/subjects/{subject}", response_model=SubjectDetail, responses={404: {"description": "unknown subject"}})
+async def get_subject(subject: SubjectPath, live: LiveDep) -> dict:
+    """One subject as in the list, with each of its devices and the body's segments it has no
+    device for."""
+    if subject not in live.subject_names():
+        raise HTTPException(404, f"unknown subject {subject!r}")
+    return live.subject_view(subject, with_devices=True)
 
 
 @router.get("/subjects/{subject}/pose", response_model=Pose,
@@ -45,8 +54,9 @@ async def skeleton() -> dict:
                         502: {"description": "the aggregator failed"},
                         503: {"description": "not connected to Zenoh yet"}, 504: {"description": "no aggregator answered"}})
 async def calibrate(subject: SubjectPath, body: CalibrateRequest, request: Request, live: LiveDep) -> dict:
-    """Calibrate every device of a subject from the pose it holds for the next second (hold it
-    still). All devices or none; the previous calibrations stay when refused."""
+    """Calibrate every streaming device of a subject from the pose it holds for the next second
+    (hold it still). All of them or none; the previous calibrations stay when refused. A partial
+    body calibrates the devices it has (``absent``: the segments it lacks)."""
     if subject not in {e.subject for e in live.devices.values()}:
         raise HTTPException(404, f"unknown subject {subject!r}")
     bridge = request.app.state.bridge
@@ -59,4 +69,4 @@ async def calibrate(subject: SubjectPath, body: CalibrateRequest, request: Reque
         raise HTTPException(exc.status, exc.message) from None
     if not answer.ok:
         raise HTTPException(409, answer.reason)
-    return {"subject": subject, "pose": body.pose, "devices": answer.devices}
+    return {"subject": subject, "pose": body.pose, "devices": answer.devices, "absent": answer.absent}

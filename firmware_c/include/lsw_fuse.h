@@ -1,0 +1,82 @@
+/*
+ * lsw_fuse.h - the aggregator's reconstruction of its devices' streams from their segment
+ * points, many queries in one call (services/aggregator/store.py, PointStore), and the joint
+ * positions of many bodies (limbstream/skeleton.py). Host library only.
+ *
+ * Row r of a point store holds n[r] points in time order: times t[r][k] (int64 us), orientations
+ * q[r][k] (float32 w, x, y, z, any nonzero norm) and body rates w[r][k] (float32 rad/s, 0: held),
+ * in arrays of cap points per row. Every result is computed in double as limbstream.quat.slerp,
+ * .predict and .angle_deg compute it, step for step (tests/test_kernel_fuse.py checks them
+ * against each other).
+ */
+#ifndef LSW_FUSE_H
+#define LSW_FUSE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** What a query asks of a row at its time. */
+typedef enum {
+    LSW_FUSE_EXACT = 0,     /**< SLERP between the points around the time, held before the first and after the
+                                 last point; identity for an empty row */
+    LSW_FUSE_LIVE = 1,      /**< EXACT where a point at or after the time is known, else the newest point
+                                 extrapolated with its rate (a live frame's segment) */
+    LSW_FUSE_PREDICTED = 2, /**< the newest point at or before the time extrapolated with its rate (what a
+                                 receiver knowing only those points shows then); identity if there is none */
+} LswFuseMode;
+
+/** The rows of a point store (see the top of this file). */
+typedef struct {
+    const int64_t *t; /**< rows x cap times, us */
+    const float *q;   /**< rows x cap x 4 orientations */
+    const float *w;   /**< rows x cap x 3 body rates, rad/s */
+    const int64_t *n; /**< rows: points held */
+    int64_t cap;      /**< points per row at most */
+} LswFuseRows;
+
+/**
+ * out[i] (4 doubles, unit norm): row slots[i] at time t_us[i] (us) as mode[i] (LswFuseMode) asks.
+ */
+void lsw_fuse_reconstruct(const LswFuseRows *rows, size_t count, const int64_t *slots, const int64_t *t_us,
+                          const uint8_t *mode, double *out);
+
+/**
+ * Angular error (degrees, 2 acos |<a, b>| of the normalised pair) of the EXACT and of the
+ * PREDICTED reconstruction of row slots[i] at t_us[i] against truth[i] (4 floats), into
+ * exact_deg[i] and predicted_deg[i].
+ */
+void lsw_fuse_errors(const LswFuseRows *rows, size_t count, const int64_t *slots, const int64_t *t_us,
+                     const float *truth, double *exact_deg, double *predicted_deg);
+
+/**
+ * Append count values to ring windows of window values per row, in order: value i goes to row
+ * rows[i] at ring[rows[i]][seen[rows[i]] % window] (as float), then seen[rows[i]] += 1 and
+ * total[rows[i]] += value (in double, in the order given). services/aggregator/rings.py.
+ */
+void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t window, size_t count,
+                          const int64_t *rows, const double *values);
+
+#define LSW_FUSE_MAX_JOINTS 64u /**< joints of a body at most (lsw_fuse_chain) */
+
+/**
+ * Forward kinematics of count bodies: out[i] (joints x 3 floats) the joint positions of body i,
+ * whose segment orientations are q[i] (segments x 4 doubles, unit norm). Bone b places joint
+ * joint[b] at its parent joint parent[b] (-1: the origin) plus bone vector vec[b] (3 doubles;
+ * alt_vec[b] where alt[i] is 1) turned by segment segment[b]'s orientation
+ * (limbstream.quat.rotate); bones come parents first, and joints no bone places stay at the
+ * origin. Sums in double, stored as float (limbstream.skeleton.Skeleton.positions), or as double
+ * into out64 when it is not NULL (then out is not written).
+ */
+void lsw_fuse_chain(size_t count, const double *q, uint32_t segments, const uint8_t *alt, uint32_t bones,
+                    const int32_t *segment, const int32_t *joint, const int32_t *parent, const double *vec,
+                    const double *alt_vec, uint32_t joints, float *out, double *out64);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

@@ -1,0 +1,212 @@
+/*
+ * lsw_fuse.c - reconstruction of segment point rows, many queries per call (see lsw_fuse.h).
+ * Host library only.
+ */
+#include "lsw_fuse.h"
+#include "lsw_quat.h"
+
+#include <math.h>
+
+
+/** Index of the last point of row r at or before time x (-1: none): a binary search. */
+static int64_t locate(const LswFuseRows *rows, int64_t r, int64_t x)
+{
+    const int64_t *t = rows->t + r * rows->cap;
+    int64_t lo = 0, hi = rows->n[r];
+    while (lo < hi) {
+        const int64_t mid = lo + (hi - lo) / 2;
+        if (t[mid] <= x) {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo - 1;
+}
+
+/** Point k of row r as doubles, normalised (q / |q|, limbstream.quat.normalize). */
+static void unit_point(const LswFuseRows *rows, int64_t r, int64_t k, double *y)
+{
+    const float *q = rows->q + (r * rows->cap + k) * 4;
+    const double a = q[0], b = q[1], c = q[2], d = q[3];
+    const double norm = sqrt(a * a + b * b + c * c + d * d);
+    y[0] = a / norm;
+    y[1] = b / norm;
+    y[2] = c / norm;
+    y[3] = d / norm;
+}
+
+/** The SLERP reconstruction of non-empty row r at time x, k the point at or before x (-1: none). */
+static void exact(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, double *y)
+{
+    const int64_t n = rows->n[r];
+    const int64_t *t = rows->t + r * rows->cap;
+    const int64_t last = n >= 2 ? n - 2 : 0;
+    int64_t k1;
+    double q0[4], q1[4], span, u;
+    k = k < 0 ? 0 : (k > last ? last : k);
+    k1 = k + 1 < n - 1 ? k + 1 : n - 1;
+    span = (double)(t[k1] - t[k]);
+    u = (double)(x - t[k]) / (span > 0.0 ? span : 1.0);
+    u = u < 0.0 ? 0.0 : (u > 1.0 ? 1.0 : u);
+    unit_point(rows, r, k, q0);
+    unit_point(rows, r, k1, q1);
+    lsw_quat_slerp(q0, q1, u, y);
+}
+
+/** Point k of row r extrapolated to time x with its body rate: limbstream.quat.predict
+ * (normalize(q + dt q (0, omega) / 2) with q normalised). */
+static void predict(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, double *y)
+{
+    const float *w = rows->w + (r * rows->cap + k) * 3;
+    const double dt = (double)(x - rows->t[r * rows->cap + k]) / 1e6;
+    const double bx = w[0], by = w[1], bz = w[2];
+    double q[4], qdot[4];
+    int i;
+    unit_point(rows, r, k, q);
+    qdot[0] = 0.5 * (q[0] * 0.0 - q[1] * bx - q[2] * by - q[3] * bz);
+    qdot[1] = 0.5 * (q[0] * bx + q[1] * 0.0 + q[2] * bz - q[3] * by);
+    qdot[2] = 0.5 * (q[0] * by - q[1] * bz + q[2] * 0.0 + q[3] * bx);
+    qdot[3] = 0.5 * (q[0] * bz + q[1] * by - q[2] * bx + q[3] * 0.0);
+    for (i = 0; i < 4; i++) {
+        y[i] = q[i] + dt * qdot[i];
+    }
+    lsw_quat_normalize(y);
+}
+
+/** y = identity. */
+static void identity(double *y)
+{
+    y[0] = 1.0;
+    y[1] = y[2] = y[3] = 0.0;
+}
+
+/** Row r at time x as mode asks (LswFuseMode); k: the point at or before x (locate), or -2 if not
+ * searched yet. */
+static void query(const LswFuseRows *rows, int64_t r, int64_t x, int mode, int64_t k, double *y)
+{
+    const int64_t n = rows->n[r];
+    if (n == 0) {
+        identity(y);
+        return;
+    }
+    if (mode == LSW_FUSE_LIVE && x > rows->t[r * rows->cap + n - 1]) {
+        predict(rows, r, x, n - 1, y);
+        return;
+    }
+    if (k == -2) {
+        k = locate(rows, r, x);
+    }
+    if (mode == LSW_FUSE_PREDICTED) {
+        if (k < 0) {
+            identity(y);
+        } else {
+            predict(rows, r, x, k, y);
+        }
+        return;
+    }
+    exact(rows, r, x, k, y);
+}
+
+/** 2 acos |<a, b>| / (|a| |b|) in degrees: limbstream.quat.angle_deg. */
+static double angle_deg(const double *a, const double *b)
+{
+    const double na = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2] + a[3] * a[3]);
+    const double nb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2] + b[3] * b[3]);
+    double dot = fabs(a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]);
+    dot /= na * nb;
+    dot = dot < 0.0 ? 0.0 : (dot > 1.0 ? 1.0 : dot);
+    return 2.0 * acos(dot) * (180.0 / 3.14159265358979323846);
+}
+
+void lsw_fuse_reconstruct(const LswFuseRows *rows, size_t count, const int64_t *slots, const int64_t *t_us,
+                          const uint8_t *mode, double *out)
+{
+    size_t i;
+    for (i = 0; i < count; i++) {
+        query(rows, slots[i], t_us[i], mode[i], -2, out + 4 * i);
+    }
+}
+
+void lsw_fuse_errors(const LswFuseRows *rows, size_t count, const int64_t *slots, const int64_t *t_us,
+                     const float *truth, double *exact_deg, double *predicted_deg)
+{
+    size_t i;
+    for (i = 0; i < count; i++) {
+        const float *s = truth + 4 * i;
+        const double b[4] = {s[0], s[1], s[2], s[3]};
+        const int64_t k = rows->n[slots[i]] > 0 ? locate(rows, slots[i], t_us[i]) : -1;
+        double y[4];
+        query(rows, slots[i], t_us[i], LSW_FUSE_EXACT, k, y);
+        exact_deg[i] = angle_deg(y, b);
+        query(rows, slots[i], t_us[i], LSW_FUSE_PREDICTED, k, y);
+        predicted_deg[i] = angle_deg(y, b);
+    }
+}
+
+/** v turned by unit quaternion q: v + w t + u x t with t = 2 u x v (limbstream.quat.rotate). */
+static void rotate(const double *q, const double *v, double *y)
+{
+    const double *u = q + 1;
+    double t[3], c[3];
+    t[0] = 2.0 * (u[1] * v[2] - u[2] * v[1]);
+    t[1] = 2.0 * (u[2] * v[0] - u[0] * v[2]);
+    t[2] = 2.0 * (u[0] * v[1] - u[1] * v[0]);
+    c[0] = u[1] * t[2] - u[2] * t[1];
+    c[1] = u[2] * t[0] - u[0] * t[2];
+    c[2] = u[0] * t[1] - u[1] * t[0];
+    y[0] = v[0] + q[0] * t[0] + c[0];
+    y[1] = v[1] + q[0] * t[1] + c[1];
+    y[2] = v[2] + q[0] * t[2] + c[2];
+}
+
+void lsw_fuse_chain(size_t count, const double *q, uint32_t segments, const uint8_t *alt, uint32_t bones,
+                    const int32_t *segment, const int32_t *joint, const int32_t *parent, const double *vec,
+                    const double *alt_vec, uint32_t joints, float *out, double *out64)
+{
+    double at[LSW_FUSE_MAX_JOINTS][3];
+    size_t i;
+    uint32_t b, j;
+    if (joints > LSW_FUSE_MAX_JOINTS) {
+        return;
+    }
+    for (i = 0; i < count; i++) {
+        const double *body = q + i * segments * 4;
+        const double *v = alt[i] ? alt_vec : vec;
+        for (j = 0; j < joints; j++) {
+            at[j][0] = at[j][1] = at[j][2] = 0.0;
+        }
+        for (b = 0; b < bones; b++) {
+            double turned[3];
+            rotate(body + 4 * segment[b], v + 3 * b, turned);
+            for (j = 0; j < 3; j++) {
+                at[joint[b]][j] = parent[b] < 0 ? turned[j] : at[parent[b]][j] + turned[j];
+            }
+        }
+        for (j = 0; j < joints; j++) {
+            if (out64 != NULL) {
+                double *y = out64 + (i * joints + j) * 3;
+                y[0] = at[j][0];
+                y[1] = at[j][1];
+                y[2] = at[j][2];
+            } else {
+                float *y = out + (i * joints + j) * 3;
+                y[0] = (float)at[j][0];
+                y[1] = (float)at[j][1];
+                y[2] = (float)at[j][2];
+            }
+        }
+    }
+}
+
+void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t window, size_t count,
+                          const int64_t *rows, const double *values)
+{
+    size_t i;
+    for (i = 0; i < count; i++) {
+        const int64_t r = rows[i];
+        ring[r * window + seen[r] % window] = (float)values[i];
+        seen[r] += 1;
+        total[r] += values[i];
+    }
+}

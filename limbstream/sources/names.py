@@ -1,0 +1,113 @@
+"""Which body segment each sensor of an IMU recording measures.
+
+x-IMU3 files carry the segment in their names (``Left_Upper.csv``, :data:`XIO_PREFIXES`); Xsens
+MTw exports are named by the sensor's serial number only, so their segments come from a mapping:
+a named one (:data:`NAMED`), a file, or a list, as ``--names`` takes it (:func:`parse`):
+
+- ``opensense``: a mapping of :data:`NAMED`;
+- ``SENSOR=SEGMENT,SENSOR=SEGMENT,...``: a list;
+- a file holding such entries, separated by commas or new lines (``#`` starts a comment).
+
+``SENSOR`` is a file's name without its extension; a name that ends in ``_SENSOR`` matches too
+(Xsens' ``MT_012005D6_009-001_00B4227C``). With a mapping, the sensors it does not name are
+left out; without one, a file is named by :data:`XIO_PREFIXES` or keeps its own name.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from limbstream.wire.body import SEGMENTS
+
+EXTRA_SEGMENTS: tuple[str, ...] = ("l_foot", "r_foot")
+"""Segments some recordings measure that the 10-IMU body does not draw (their devices run, and
+count in the statistics, but no pose-frame orientation is theirs)."""
+
+XIO_PREFIXES: dict[str, str] = {
+    "left_upper": "l_thigh",
+    "right_upper": "r_thigh",
+    "left_lower": "l_shank",
+    "right_lower": "r_shank",
+    "left_foot": "l_foot",
+    "right_foot": "r_foot",
+    "pelvis": "hip",
+}
+"""File-name prefix (case-insensitive) -> segment of the x-IMU3 lower-body recording."""
+
+NAMED: dict[str, dict[str, str]] = {
+    # OpenSim's OpenSense example (its example and test code: 00B42268 back, 00B42279 pelvis,
+    # 00B4227D/C right tibia/femur, 00B421ED/EE left tibia/femur, 00B421EF/E6 right/left foot)
+    "opensense": {"00B42279": "hip", "00B4227C": "r_thigh", "00B4227D": "r_shank", "00B421EE": "l_thigh",
+                  "00B421ED": "l_shank", "00B421EF": "r_foot", "00B421E6": "l_foot"},
+}
+"""Named mappings (sensor -> segment) of recordings whose files carry no segment names."""
+
+FLAG = "--names NAME|FILE|SENSOR=SEGMENT,..."
+"""How a user gives a mapping (in error messages)."""
+
+
+def _entries(text: str, where: str) -> dict[str, str]:
+    mapping: dict[str, str] = {}
+    lines = (line.split("#", 1)[0] for line in text.splitlines())
+    for entry in (e.strip() for line in lines for e in line.split(",")):
+        if not entry:
+            continue
+        sensor, sep, segment = (part.strip() for part in entry.partition("="))
+        if not sep or not sensor or not segment:
+            raise ValueError(f"{where}: {entry!r} is not SENSOR=SEGMENT")
+        if segment not in SEGMENTS + EXTRA_SEGMENTS:
+            raise ValueError(f"{where}: {segment!r} is not a segment (one of {', '.join(SEGMENTS + EXTRA_SEGMENTS)})")
+        if sensor in mapping:
+            raise ValueError(f"{where}: sensor {sensor!r} is mapped twice")
+        mapping[sensor] = segment
+    if not mapping:
+        raise ValueError(f"{where}: no SENSOR=SEGMENT entry")
+    return mapping
+
+
+def parse(text: str) -> dict[str, str]:
+    """The mapping ``text`` gives (a name of :data:`NAMED`, a list, or a file, see the module);
+    ValueError naming the problem."""
+    text = text.strip()
+    if "=" in text:
+        return _entries(text, "--names")
+    if text in NAMED:
+        return dict(NAMED[text])
+    path = Path(text)
+    if not path.is_file():
+        raise ValueError(f"--names {text!r} is neither a named mapping ({', '.join(NAMED)}), a file, "
+                         "nor a SENSOR=SEGMENT list")
+    try:
+        return _entries(path.read_text(), str(path))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"--names {path}: cannot read ({exc})") from None
+
+
+def _matches(sensor: str, stem: str) -> bool:
+    sensor, stem = sensor.lower(), stem.lower()
+    return stem == sensor or stem.endswith("_" + sensor)
+
+
+def default_name(stem: str) -> str:
+    """A file's segment without a mapping: by :data:`XIO_PREFIXES`, else the stem itself."""
+    low = stem.lower()
+    return next((segment for prefix, segment in XIO_PREFIXES.items() if low.startswith(prefix)), stem)
+
+
+def name_sensors(stems: Sequence[str], names: Mapping[str, str] | None) -> list[str | None]:
+    """Each sensor's segment (``stems``: the files' names without extension): from ``names`` if
+    given (None where it names none), else :func:`default_name`."""
+    if names is None:
+        return [default_name(stem) for stem in stems]
+    return [next((seg for sensor, seg in names.items() if _matches(sensor, stem)), None) for stem in stems]
+
+
+def check_body(where: str, segments: Sequence[str], sensors: Sequence[str] | None = None) -> None:
+    """ValueError unless some of ``segments`` is one of the body's (:data:`SEGMENTS`,
+    :data:`EXTRA_SEGMENTS`); the sentence names the sensors found (``sensors``, default
+    ``segments``) and how to map them."""
+    if any(s in SEGMENTS + EXTRA_SEGMENTS for s in segments):
+        return
+    found = ", ".join(sensors if sensors is not None else segments) or "none"
+    raise ValueError(f"{where}: no sensor maps to a body segment (sensors found: {found}); map them with "
+                     f"{FLAG} (named: {', '.join(NAMED)}; segments: {', '.join(SEGMENTS)})")

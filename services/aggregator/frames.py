@@ -1,0 +1,218 @@
+"""Full-body frames of every subject of a tick, built in one pass (DESIGN section 4).
+
+Exact frames lie on a fixed grid (multiples of the output period in device time) and are
+emitted once every active device of the subject has a segment point at or after the frame
+time (the watermark), so the SLERP reconstruction in them is final. A device that is offline
+or has ended its stream does not hold the watermark back; its segment is held at its last
+point and the frame is flagged MISSING. Live frames: at each subject's device time "now" (the
+newest device time seen, advanced by the arrival clock since it arrived), every segment exact
+(SLERP) where a point at or after that time is known, else its newest point extrapolated with
+the point's body rate (``quat.predict``: the prediction the device's live rule keeps within
+``live_bound_deg``; a point without a rate is held).
+
+A tick plans the exact frames that became final and the live frames due (who, when, which
+device at which time, flags), reconstructs every segment of all of them in one
+:meth:`PointStore.reconstruct` call and their joints in one forward-kinematics call: a
+:class:`FrameBatch`. Work on whole frames of all subjects at once (joint angles from the live
+frames, say) takes the batch before it is encoded (:data:`FrameStage`).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from limbstream import wire
+from limbstream.skeleton import Skeleton
+from limbstream.wire import SEGMENTS
+from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
+from limbstream.services.aggregator.store import PointStore
+from limbstream.services.aggregator.track import DeviceTrack
+
+MAX_FRAMES_PER_CALL = 500
+"""Most exact frames one subject gets per call (catch-up proceeds over several ticks)."""
+FIRST_FRAME_WAIT_S = 1.0
+"""How long a subject's first exact frame waits, at most, for all of its devices to settle
+(DeviceTrack.settled) after it could first start, seconds; then it starts from the settled
+ones (a device whose stream keeps restarting must not hold the others back)."""
+OVERDUE_GRACE_S = 0.25
+"""A live frame extrapolates an active device's newest point for at most its max segment length
+(``max_len`` samples at the frame rate: by then the device has sent its next point) plus this
+much for transport; a device silent for longer is overdue: held at its newest point, frame
+flagged MISSING."""
+
+
+@dataclass(frozen=True)
+class DeviceView:
+    """What frames and truth evaluation need of every device at a tick: (slots,) newest usable
+    point time (NO_TIME: no points yet, or earlier points of its stream may still arrive), (slots,)
+    newest point time, (subjects,) watermark (us; NO_TIME if no data) and (subjects, 10) bool stale
+    segments (no device, offline, ended, or not settled: held and flagged)."""
+
+    usable_t: np.ndarray
+    last_t: np.ndarray
+    watermark: np.ndarray
+    stale: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameBatch:
+    """The frames of one tick: exact frames (per subject oldest first) and live frames, with the
+    subject index of each (``exact_owner`` (E,), ``live_owner`` (L,)); their orientations are
+    float64 until encoded."""
+
+    exact_owner: np.ndarray
+    exact: wire.PoseFrames
+    live_owner: np.ndarray
+    live: wire.PoseFrames
+
+
+FrameStage = Callable[[FrameBatch], Iterable[tuple[str, str, bytes]]]
+"""Work on a tick's frames, all subjects at once, before they are encoded (the aggregator's
+``frame_stages``): returns messages to publish as (key, its ``zconfig.QOS`` kind, payload)."""
+
+
+class FrameBuilder:
+    """Per subject: the next exact frame (grid index, -1 before the first), the sequence numbers
+    of both kinds, the rest-pose flag, and the frames made and skipped.
+
+    Parameters
+    ----------
+    period_us : exact frame period, us.
+    skeleton : forward-kinematics model for the joint positions.
+    max_backlog : frames further behind than this are skipped (counted) instead of built.
+    """
+
+    def __init__(self, period_us: float, skeleton: Skeleton, max_backlog: int):
+        self.period_us, self.skeleton, self.max_backlog = period_us, skeleton, max_backlog
+        self.next_frame = np.zeros(0, np.int64)
+        self.exact_seq = np.zeros(0, np.int64)
+        self.live_seq = np.zeros(0, np.int64)
+        self.rest_flag = np.zeros(0, np.uint8)
+        self.made = np.zeros(0, np.int64)     # exact frames per subject
+        self.skipped = np.zeros(0, np.int64)  # frame times skipped per subject
+
+    def add_subject(self, rest_flag: int) -> None:
+        for name, value in (("next_frame", -1), ("exact_seq", 0), ("live_seq", 0), ("made", 0), ("skipped", 0)):
+            setattr(self, name, np.append(getattr(self, name), value))
+        self.rest_flag = np.append(self.rest_flag, np.uint8(rest_flag))
+
+    def start(self, subjects: list, view: DeviceView, table: DeviceTable, store: PointStore, clock: float) -> None:
+        """Fix the first frame of the subjects that can start: where every device they have is
+        covered, once every one of them settled (its start in, or its history query answered: a
+        device whose history is still on its way would otherwise start the frames at its live
+        points), at the latest FIRST_FRAME_WAIT_S after it could first start."""
+        for i in np.flatnonzero((self.next_frame < 0) & (view.watermark != NO_TIME)):
+            sub = subjects[i]
+            if sub.waiting_since is None:
+                sub.waiting_since = clock
+            tracks = list(sub.tracks.values())
+            if all(table.settled[t.slot] for t in tracks) or clock - sub.waiting_since >= FIRST_FRAME_WAIT_S:
+                ready = [t for t in tracks if table.settled[t.slot]] or tracks
+                first = max(store.first_t(t.slot) or 0 for t in ready)
+                self.next_frame[i] = math.ceil(first / self.period_us)
+
+    def plan_exact(self, watermark: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The exact frames final below each subject's ``watermark`` (subjects,) and not built yet:
+        (subject index, time us, seq), each (E,), per subject oldest first; counted as made."""
+        last_k = np.where(watermark != NO_TIME, np.floor(watermark / self.period_us), -1).astype(np.int64)
+        count = np.where(self.next_frame >= 0, last_k - self.next_frame + 1, 0)
+        behind = count > self.max_backlog
+        if behind.any():  # far behind (e.g. a long outage): jump ahead, count what is skipped
+            self.skipped[behind] += count[behind] - self.max_backlog
+            self.next_frame[behind] = last_k[behind] - self.max_backlog + 1
+            count[behind] = self.max_backlog
+        count = np.clip(count, 0, MAX_FRAMES_PER_CALL)
+        total = int(count.sum())
+        if total == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+        owner = np.repeat(np.arange(len(count)), count)
+        k = self.next_frame[owner] + np.arange(total) - np.repeat(np.cumsum(count) - count, count)
+        t_us = np.round(k * self.period_us).astype(np.int64)
+        seq = self.exact_seq[owner] + (k - self.next_frame[owner])
+        self.next_frame += count
+        self.exact_seq += count
+        self.made += count
+        return owner, t_us, seq
+
+    def exact_flags(self, owner: np.ndarray, t_us: np.ndarray, view: DeviceView, table: DeviceTable,
+                    store: PointStore, gappy: set[DeviceTrack]) -> np.ndarray:
+        """(E,) flags of exact frames (subject ``owner``, time ``t_us``): MISSING where a segment
+        has no device, is held beyond a stale device's last point or lies before its first point;
+        GAP inside a span whose points were lost (``gappy``: the devices with such spans; one whose
+        spans all end before its subject's frames is taken out: no frame to come is in them); the
+        subject's rest pose."""
+        slots = table.seg_slots[owner]                       # (E, 10)
+        valid = slots >= 0
+        rows = np.maximum(slots, 0)
+        beyond = valid & (view.last_t[rows] < t_us[:, None])
+        before = valid & (store.n[rows] > 0) & (store.t[rows, 0] > t_us[:, None])
+        missing = ((view.stale[owner] & beyond) | before).any(axis=1) | (~valid).any(axis=1)
+        gap = np.zeros(len(owner), bool)
+        tracks = list(gappy)
+        subject = table.owner[np.array([t.slot for t in tracks], np.int64)]
+        start, end = np.searchsorted(owner, subject), np.searchsorted(owner, subject, side="right")
+        for track, a, b in zip(tracks, start.tolist(), end.tolist()):  # a subject's frames: one run of ``owner``
+            if a == b:
+                continue
+            if track.gap_spans[-1][1] <= t_us[a]:  # spans end in time order
+                gappy.discard(track)
+            else:
+                gap[a:b] |= track.in_gap(t_us[a:b])
+        return np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | self.rest_flag[owner]
+
+    def plan_live(self, view: DeviceView, table: DeviceTable, store: PointStore,
+                  now: float | None) -> tuple[np.ndarray, ...]:
+        """The live frames due: one per subject with data at its device time "now": the newest
+        device time of its devices, each advanced by the arrival clock ``now`` (s) since it
+        arrived. Returns (subject index (L,), time (L,) us, seq (L,), flags (L,), segment slots
+        (L, 10), each segment's query time (L, 10) us, devices with points (L, 10) bool). A
+        segment is held at its newest point (frame MISSING) where its device is offline or
+        ended, or silent for longer than its horizon (OVERDUE_GRACE_S)."""
+        slots = table.seg_slots
+        valid = slots >= 0
+        rows = np.maximum(slots, 0)
+        has_points = valid & (store.n[rows] > 0)
+        ahead = 0.0 if now is None else np.maximum(np.nan_to_num(now - table.latest_arrival[rows]), 0.0)
+        device_now = np.where(has_points, table.latest_t[rows] + np.round(ahead * 1e6).astype(np.int64), NO_TIME)
+        latest = device_now.max(axis=1, initial=NO_TIME)
+        index = np.flatnonzero(latest != NO_TIME)
+        t_us, slots, valid, has_points, rows = latest[index], slots[index], valid[index], has_points[index], rows[index]
+        at = np.broadcast_to(t_us[:, None], slots.shape).copy()
+        last_t = view.last_t[rows]
+        since = np.where(has_points, at - np.maximum(last_t, 0), 0)
+        overdue = valid & (since > table.horizon_us[rows])  # silent too long: no guess
+        held = valid & (~table.active[rows] | overdue)       # offline, ended or overdue: held
+        at[held] = np.minimum(at[held], last_t[held])
+        missing = (~valid | ~table.online[rows] | overdue).any(axis=1)
+        seq = self.live_seq[index].copy()
+        self.live_seq[index] += 1
+        flags = np.where(missing, wire.FRAME_MISSING, 0) | self.rest_flag[index]
+        return index, t_us, seq, flags, slots, at, has_points
+
+    def build(self, store: PointStore, table: DeviceTable, exact: tuple[np.ndarray, ...],
+              live: tuple[np.ndarray, ...] | None) -> FrameBatch:
+        """Orientations and joints of the planned frames, one reconstruction and one forward
+        kinematics for all. ``exact``: (subject, time, seq, flags) of :meth:`plan_exact` and
+        :meth:`exact_flags`; ``live``: :meth:`plan_live`, or None for no live frames."""
+        e_owner, e_t, e_seq, e_flags = exact
+        shape = (len(e_t), len(SEGMENTS))
+        slots, times, live_view = [table.seg_slots[e_owner]], [np.broadcast_to(e_t[:, None], shape)], [np.zeros(shape, bool)]
+        l_owner = np.zeros(0, np.int64)
+        if live is not None:
+            l_owner, l_t, l_seq, l_flags, l_slots, l_at, _ = live
+            slots.append(l_slots)
+            times.append(l_at)
+            live_view.append(np.ones(l_slots.shape, bool))
+        all_slots = np.concatenate(slots)
+        valid = all_slots >= 0
+        q = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (*all_slots.shape, 1))
+        q[valid] = store.reconstruct(all_slots[valid], np.concatenate(times)[valid], np.concatenate(live_view)[valid])
+        joints = self.skeleton.positions(q, self.rest_flag[np.concatenate([e_owner, l_owner])] != 0)
+        n = len(e_t)
+        exact_frames = wire.PoseFrames(e_seq, e_t, wire.KIND_EXACT, e_flags, q[:n], joints[:n])
+        live_frames = (wire.PoseFrames.empty(wire.KIND_LIVE) if live is None else
+                       wire.PoseFrames(l_seq, l_t, wire.KIND_LIVE, l_flags, q[n:], joints[n:]))
+        return FrameBatch(e_owner, exact_frames, l_owner, live_frames)
