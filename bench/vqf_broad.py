@@ -5,7 +5,7 @@
 
 BROAD's error: the angle of estimate * truth^-1 (earth frame), RMS over the movement phases where
 the markers were seen. Prints one row per trial, the largest difference, and the host cost of
-:func:`limbstream.kernel.fuse` and of :class:`limbstream.kernel.ImuBank` per raw sample.
+:func:`limbstream.kernel.fusion.fuse` and of :class:`limbstream.kernel.ImuBank` per raw sample.
 """
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from limbstream import wire
-from limbstream.kernel import fuse
+from limbstream.kernel import reconstruct
 from limbstream.wire import JOINTS, SEGMENTS
 
 _S = {name: i for i, name in enumerate(SEGMENTS)}
@@ -62,7 +62,7 @@ class Skeleton:
                   dtype: type = np.float32) -> np.ndarray:
         """Joint positions, pelvis at the origin: each joint its parent's position plus its bone
         turned by its segment's orientation (``limbstream.quat.rotate``; the bones in C:
-        ``limbstream.kernel.fuse.Chain``).
+        ``limbstream.kernel.reconstruct.Chain``).
 
         Parameters
         ----------
@@ -80,7 +80,7 @@ class Skeleton:
         return self._chain.positions(q, tpose, dtype)
 
     @cached_property
-    def _chain(self) -> fuse.Chain:
+    def _chain(self) -> reconstruct.Chain:
         """The bones in the order their joints are placed: the segment that turns each, its joint
         and parent joint (the pelvis: the origin), its vector in its segment's frame at rest, m,
         standing and with the arms out (T-pose)."""
@@ -95,7 +95,7 @@ class Skeleton:
                      (f"{side}_shoulder", "neck_base", "hip", [lateral * self.shoulder_width / 2, -0.05, 0.0], None),
                      (f"{side}_elbow", f"{side}_shoulder", f"{side}_upperarm", down * self.upperarm, out * self.upperarm),
                      (f"{side}_wrist", f"{side}_elbow", f"{side}_lowerarm", down * self.lowerarm, out * self.lowerarm)]
-        return fuse.Chain([_S[seg] for _, _, seg, _, _ in rows], [_J[joint] for joint, *_ in rows],
+        return reconstruct.Chain([_S[seg] for _, _, seg, _, _ in rows], [_J[joint] for joint, *_ in rows],
                           [-1 if up is None else _J[up] for _, up, *_ in rows], np.array([r[3] for r in rows]),
                           np.array([r[3] if r[4] is None else r[4] for r in rows]), len(JOINTS))
 

@@ -202,7 +202,7 @@ def test_a_partial_body_calibrates_the_devices_it_has_and_names_the_segments_it_
     assert answer.ok and sorted(answer.devices) == sorted(f"s01/{s}" for s in legs), answer
     assert answer.absent == ["l_lowerarm", "r_lowerarm", "l_upperarm", "r_upperarm", "neck"], answer
     assert wire.decode_calibrate_answer(wire.encode_calibrate_answer(answer)) == answer
-    corrected = agg.fusion.calibrations[agg.track("s01", "hip").slot].apply(still[:1])
+    corrected = agg.fusion.calibrating.calibrations[agg.track("s01", "hip").slot].apply(still[:1])
     assert quat.angle_deg(corrected, [[1.0, 0.0, 0.0, 0.0]])[0] < 0.01
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from limbstream.kernel import fuse
+from limbstream.kernel import reconstruct
 
 
 class ErrorRings:
@@ -38,7 +38,7 @@ class ErrorRings:
 
     def add(self, rows: np.ndarray, values: np.ndarray) -> None:
         """Append values (E,) of rows (E,), in order within each row (in C: one pass)."""
-        fuse.ring_append(self.values, self.count, self.total, rows, values)
+        reconstruct.ring_append(self.values, self.count, self.total, rows, values)
 
     def summary(self, rows: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:
         """(mean, max, *quantiles) over each row's window, each (rows,), NaN for empty rows; a

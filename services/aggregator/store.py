@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from limbstream.kernel import fuse
+from limbstream.kernel import reconstruct
 
 
 
@@ -34,7 +34,7 @@ class PointStore:
         self.w = np.zeros((slots, self.width, 3), np.float32)
         self.n = np.zeros(slots, np.int64)
         self.size = 0
-        self._c = fuse.PointRows(self.t, self.q, self.w, self.n)  # the C library's view of the rows
+        self._c = reconstruct.PointRows(self.t, self.q, self.w, self.n)  # the C library's view of the rows
 
     def add_slot(self) -> int:
         """A new empty row; returns its slot."""
@@ -56,7 +56,7 @@ class PointStore:
             setattr(self, name, new)
         self.n = np.concatenate([self.n, np.zeros(slots - len(self.n), np.int64)])
         self.width = width
-        self._c = fuse.PointRows(self.t, self.q, self.w, self.n)
+        self._c = reconstruct.PointRows(self.t, self.q, self.w, self.n)
 
     def _room(self, points: int) -> None:
         """Widen the rows to hold ``points`` (at most ``cap``)."""
@@ -187,14 +187,14 @@ class PointStore:
     def interpolate(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """(Q, 4) float64 SLERP reconstruction of row ``slots[i]`` at ``t_us[i]``; held before the
         first and after the last point; identity for an empty row."""
-        return self._c.reconstruct(slots, t_us, fuse.EXACT)
+        return self._c.reconstruct(slots, t_us, reconstruct.EXACT)
 
     def predicted(self, slots: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """(Q, 4) float64: what a receiver knowing only the points of row ``slots[i]`` at or before
         ``t_us[i]`` shows then: the newest of them extrapolated with its rate
         (:func:`limbstream.quat.predict`, the prediction the device's live rule bounds; rate 0
         holds it); identity for a row without such a point."""
-        return self._c.reconstruct(slots, t_us, fuse.PREDICTED)
+        return self._c.reconstruct(slots, t_us, reconstruct.PREDICTED)
 
     def errors(self, slots: np.ndarray, t_us: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Angles (Q,) degrees between ``truth`` (Q, 4) and :meth:`interpolate`, and between it and
@@ -205,7 +205,7 @@ class PointStore:
         """(Q, 4) float64 orientation of row ``slots[i]`` at ``t_us[i]`` in a frame: exact
         (:meth:`interpolate`) where ``live[i]`` is False or a point at or after the time is known,
         else the live view: the newest point extrapolated with its rate (:meth:`predicted`)."""
-        return self._c.reconstruct(slots, t_us, np.where(live, fuse.LIVE, fuse.EXACT))
+        return self._c.reconstruct(slots, t_us, np.where(live, reconstruct.LIVE, reconstruct.EXACT))
 
     def prune(self, keep_from: np.ndarray, min_drop: int = 16) -> None:
         """Forget points before ``keep_from[slot]`` (keeping one before it) where that frees at least

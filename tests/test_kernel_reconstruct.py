@@ -8,7 +8,7 @@ from reference_aggregator.skeleton import Skeleton as NumpySkeleton
 from reference_aggregator.store import PointStore as NumpyStore
 
 from limbstream import quat
-from limbstream.kernel import fuse
+from limbstream.kernel import reconstruct
 from limbstream.services.aggregator.store import PointStore
 from limbstream.skeleton import Skeleton
 
@@ -98,7 +98,7 @@ def test_forward_kinematics_in_c_is_numpys_bit_for_bit():
         c, ref = Skeleton(**body), NumpySkeleton(**body)
         for args in ((q, tpose), (q,), (q[0],), (q, True), (q.reshape(4, 50, 10, 4), tpose.reshape(4, 50))):
             assert np.array_equal(c.positions(*args), ref.positions(*args))
-    assert fuse.MAX_JOINTS >= len(Skeleton().positions(q[0]))
+    assert reconstruct.MAX_JOINTS >= len(Skeleton().positions(q[0]))
 
 
 def test_error_windows_filled_in_c_are_numpys():
