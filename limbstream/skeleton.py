@@ -98,3 +98,17 @@ class Skeleton:
         return reconstruct.Chain([_S[seg] for _, _, seg, _, _ in rows], [_J[joint] for joint, *_ in rows],
                           [-1 if up is None else _J[up] for _, up, *_ in rows], np.array([r[3] for r in rows]),
                           np.array([r[3] if r[4] is None else r[4] for r in rows]), len(JOINTS))
+
+
+def bone_axis(segment: str, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:
+    """(3,) the unit direction of ``segment``'s bone in its own frame, from its proximal joint
+    on (as :meth:`Skeleton.positions` draws it): down (-Y) for legs and, standing, arms; along
+    +-X for the arms of the T-pose; up (+Y) for the hip (the spine) and the neck."""
+    wire.check_rest_pose(rest_pose)
+    if segment not in SEGMENTS:
+        raise ValueError(f"unknown segment {segment!r}")
+    if segment in ("hip", "neck"):
+        return np.array([0.0, 1.0, 0.0])
+    if segment.endswith("arm") and rest_pose == "tpose":
+        return np.array([1.0 if segment.startswith("l_") else -1.0, 0.0, 0.0])
+    return np.array([0.0, -1.0, 0.0])

@@ -1,0 +1,376 @@
+"""Heading correction: per subject, each segment's heading offset, held by the body's joints.
+
+Input per tick: every device's calibrated orientation (its heading still drifting), as arrays
+(subjects, segments, 4), with which devices are present. Output: per device a turn about the
+vertical ``c`` (rad) to apply before fusion, like a calibration: ``yaw(c) * q``
+(:meth:`HeadingCorrection.apply`). Only relative headings are observable, joint by joint
+(:mod:`.filter`); each subject's corrections are built down its tree of joints and then shifted
+so that they average 0 over its present devices (the body faces the mean of its sensors'
+headings: which way it faces is not observable).
+
+Ticks are gathered in blocks of ``Settings.update_s``; each full block is measured at once
+(vectorised over its ticks, subjects and joints) and moves every filter one step. Between steps a
+correction follows its learnt rate. :meth:`HeadingCorrection.batch` runs the same blocks over a
+recording, so the offline form gives what the live one gives.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from limbstream import quat
+from limbstream.calibration import axis_angle, yaw
+from limbstream.heading import hinge, rom
+from limbstream.heading.filter import ABSOLUTE, GATE as filter_gate, MEAN_REFERENCED, JointFilters, wrap
+from limbstream.heading.joints import Layout, kind, relative, twist, vertical_in
+from limbstream.heading.still import Stillness, leaning_alike
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The estimator's tunables (angles in degrees, rates in deg/s, times in s).
+
+    - ``update_s``: a filter step per this much of ticks.
+    - Filters (:mod:`.filter`): the start's standard deviations of a joint's offset
+      (``delta0_deg``: the calibration's), rate (``rate0_dps`` for ball joints,
+      ``hinge_rate0_dps`` for hinges) and a hinge's bias (``hinge_mean0_deg``; a ball joint's
+      mean twist: ``twist_deg``); their random walks per sqrt(s) (``delta_walk``, ``rate_walk``
+      in deg/s, ``mean_walk``).
+    - Hinges (:mod:`.hinge`): the spread of a knee's and an elbow's turns about the bone and
+      across it (``knee_spread_deg``, ``elbow_spread_deg``), the time over which the hinge measure's
+      errors are alike (``hinge_corr_s``), the axis learner's memory and trust thresholds
+      (``axis_*``).
+    - Ball joints: per kind, the prior of the mean twist and the twist's spread about it
+      (``twist_deg``: (kind, mean sd, spread)), the time over which it stays alike
+      (``twist_corr_s``), the gate in standard deviations beyond which a twist is left out
+      (``twist_gate``); the range of motion's (:mod:`.rom`) measure, memory and share out of range
+      that asks for a turn (``rom_*``).
+    - Stillness (:mod:`.still`): below ``still_dps`` for ``still_s``; the relaxed pose measured at
+      ``relaxed_sd_deg`` per second held, up to ``relaxed_pose_deg`` per still spell, within
+      ``relaxed_lean_deg`` of the rest pose's lean and ``relaxed_gate_deg`` of the expected twist.
+    - ``confidence_deg``: the offset's standard deviation at which a device's confidence is 1/2.
+    """
+
+    update_s: float = 0.2
+    delta0_deg: float = 1.0
+    rate0_dps: float = 0.05
+    hinge_rate0_dps: float = 0.1
+    hinge_mean0_deg: float = 3.0
+    delta_walk: float = 0.02
+    rate_walk: float = 5e-3
+    mean_walk: float = 0.05
+    knee_spread_deg: tuple[float, float] = (10.0, 3.0)
+    elbow_spread_deg: tuple[float, float] = (30.0, 5.0)
+    hinge_corr_s: float = 1.0
+    axis_memory_s: float = 120.0
+    axis_min_amount: float = 3.0
+    axis_min_share: float = 0.8
+    twist_deg: tuple[tuple[str, float, float], ...] = (("hip", 10.0, 10.0), ("shoulder", 30.0, 30.0),
+                                                       ("neck", 10.0, 15.0))
+    twist_corr_s: float = 1.0
+    twist_gate: float = 4.0
+    rom_sd_deg: float = 3.0
+    rom_memory_s: float = 10.0
+    rom_min_share: float = 0.2
+    still_dps: float = 2.0
+    still_s: float = 1.0
+    relaxed_sd_deg: float = 1.0
+    relaxed_pose_deg: float = 2.0
+    relaxed_lean_deg: float = 5.0
+    relaxed_gate_deg: float = 25.0
+    confidence_deg: float = 5.0
+
+    def __post_init__(self):
+        for name in ("update_s", "delta0_deg", "rate0_dps", "hinge_rate0_dps", "hinge_mean0_deg", "hinge_corr_s",
+                     "axis_memory_s", "twist_corr_s", "twist_gate", "rom_sd_deg", "rom_memory_s", "still_s",
+                     "relaxed_sd_deg", "relaxed_pose_deg", "confidence_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"Settings.{name} must be > 0, got {getattr(self, name)}")
+
+
+class HeadingCorrection:
+    """The heading correction of ``subjects`` subjects wearing the segments of ``layout``.
+
+    Parameters
+    ----------
+    layout : the segments (and so the joints) every subject may have.
+    subjects : how many subjects (rows of the arrays).
+    fs : the tick rate, Hz.
+    settings : the tunables.
+    """
+
+    def __init__(self, layout: Layout, subjects: int = 1, fs: float = 50.0, settings: Settings = Settings()):
+        self.layout, self.fs, self.settings = layout, fs, settings
+        self.block = max(1, round(settings.update_s * fs))
+        n_joints = len(layout.joints)
+        rad = np.radians
+        twists = {name: (mean, spread) for name, mean, spread in settings.twist_deg}
+        kinds = [kind(name) for name in layout.joints]
+        sd0 = np.array([[settings.delta0_deg, settings.hinge_rate0_dps, settings.hinge_mean0_deg] if hinged else
+                        [settings.delta0_deg, settings.rate0_dps, twists[name][0]]
+                        for name, hinged in zip(kinds, layout.hinge)]).reshape(-1, 3)
+        self.filters = JointFilters((subjects, n_joints), rad(sd0),
+                                    rad([settings.delta_walk, settings.rate_walk, settings.mean_walk]))
+        self.hinges = np.flatnonzero(layout.hinge)
+        self.balls = np.flatnonzero(~layout.hinge)
+        self.axes = hinge.HingeAxes((subjects, len(self.hinges)), settings.axis_memory_s,
+                                    settings.axis_min_amount, settings.axis_min_share)
+        bones = layout.bone_axes()
+        self.bones = bones[self.hinges]
+        self.spread = rad(np.array([settings.knee_spread_deg if "knee" in layout.joints[j] else settings.elbow_spread_deg
+                                    for j in self.hinges]).reshape(-1, 2)) ** 2
+        self.twist_var = rad(np.array([twists[kinds[j]][1] for j in self.balls])) ** 2
+        self.box = rom.limits([layout.joints[j] for j in self.balls])
+        before, after = layout.to_standing()
+        self.to_standing = before[self.balls], after[self.balls]
+        self.ranges = rom.RangeCounts((subjects, len(self.balls)), settings.rom_memory_s, settings.rom_min_share)
+        self.still = Stillness((subjects, len(layout.segments)), settings.still_dps)
+        self.last: np.ndarray | None = None
+        self.had = np.zeros((subjects, len(layout.segments)), bool)
+        self.locked = np.zeros((subjects, n_joints), bool)
+        self.lock_ref = np.zeros((subjects, n_joints))
+        self.lock_p = np.zeros((subjects, n_joints, 3, 3))
+        self.was_still = np.zeros((subjects, n_joints), bool)
+        self.relaxed_left = np.zeros((subjects, n_joints))
+        self.order = sorted(range(n_joints), key=lambda j: self._depth(layout.segments[layout.child[j]]))
+        self._pending: list[tuple[np.ndarray, np.ndarray]] = []
+        self.dropped = 0
+        """Orientations given as present that were not finite unit quaternions (taken as absent)."""
+
+    def _depth(self, segment: str) -> int:
+        """How many joints lie between ``segment`` and the root of its tree."""
+        index = {self.layout.segments[c]: j for j, c in enumerate(self.layout.child)}
+        return 0 if segment not in index else 1 + self._depth(self.layout.segments[self.layout.parent[index[segment]]])
+
+    # -- per tick -------------------------------------------------------------------------------
+
+    def update(self, q: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
+        """Take one tick: ``q`` (subjects, segments, 4) calibrated orientations, ``present``
+        (subjects, segments) bool (default all). Returns (subjects, segments) the corrections
+        (rad) to apply to this tick's ``q``."""
+        q = np.asarray(q, np.float64)
+        shape = self.had.shape
+        if q.shape != shape + (4,):
+            raise ValueError(f"q must have shape {shape + (4,)} (subjects, segments, 4), got {q.shape}")
+        present = np.ones(shape, bool) if present is None else np.asarray(present, bool)
+        if present.shape != shape:
+            raise ValueError(f"present must have shape {shape}, got {present.shape}")
+        unit = np.all(np.isfinite(q), axis=-1) & (np.abs(np.sum(q * q, axis=-1) - 1.0) < 1e-2)
+        self.dropped += int(np.sum(present & ~unit))
+        present = present & unit
+        q = np.where(present[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
+        self._pending.append((q, present))
+        out = self.corrections(len(self._pending), present)
+        if len(self._pending) == self.block:
+            qs, ps = zip(*self._pending)
+            self._pending = []
+            self.process(np.stack(qs), np.stack(ps))
+        return out
+
+    def restart(self, subject: int, segment: int) -> None:
+        """Device ``segment`` of ``subject`` restarted (its heading is anywhere now): its joints
+        are learnt afresh, their corrections start from none."""
+        mask = np.zeros(self.locked.shape, bool)
+        mask[subject] = (self.layout.parent == segment) | (self.layout.child == segment)
+        self.filters.forget(mask)
+        self.locked &= ~mask
+        self.was_still &= ~mask
+        seg = np.zeros(self.still.still_s.shape, bool)
+        seg[subject, segment] = True
+        self.still.forget(seg)
+
+    @staticmethod
+    def apply(q: np.ndarray, corrections: np.ndarray) -> np.ndarray:
+        """(..., 4) orientations ``q`` turned about the vertical by ``corrections`` (...) rad."""
+        return quat.multiply(yaw(corrections), q)
+
+    # -- per block ------------------------------------------------------------------------------
+
+    def process(self, q: np.ndarray, present: np.ndarray) -> None:
+        """Measure one block of ticks, ``q`` (T, subjects, segments, 4) and ``present`` (T,
+        subjects, segments), and move every filter one step."""
+        lay, dt = self.layout, 1.0 / self.fs
+        x = self.filters.x
+        r = relative(q, lay)  # (T, B, J, 4)
+        b = _Block(r=r, g_parent=vertical_in(q[..., lay.parent, :]), g_child=vertical_in(q[..., lay.child, :]),
+                   joined=present[..., lay.parent] & present[..., lay.child],
+                   applied=x[..., 0] + x[..., 1] * (np.arange(1, len(q) + 1)[:, None, None] * dt),
+                   absolute=(np.zeros(r.shape[:-1], complex), np.zeros(r.shape[:-1])),
+                   referenced=(np.zeros(r.shape[:-1], complex), np.zeros(r.shape[:-1])))
+        b.turn = twist(r, b.g_parent)
+        rates, steady = self._rates(q, present)
+        self._hinges(b)
+        self._twists(b)
+        self._range(b)
+        self._stillness(b, np.linalg.norm(rates, axis=-1), steady)
+        free = ~self.locked
+        self.filters.predict(len(q) * dt)
+        self.filters.update(ABSOLUTE, np.angle(b.absolute[0].sum(axis=0)), b.absolute[1].sum(axis=0) * free)
+        self.filters.update(MEAN_REFERENCED, np.angle(b.referenced[0].sum(axis=0)), b.referenced[1].sum(axis=0) * free)
+        self.filters.hold(self.locked, self.lock_ref - b.turn[-1], self.lock_p)
+        h = self.hinges
+        held = axis_angle(b.g_parent[..., h, :], b.applied[..., h])
+        self.axes.add(quat.multiply(held, r[..., h, :]), b.g_parent[..., h, :], b.joined[..., h], dt)
+
+    def _hinges(self, b: _Block) -> None:
+        """The hinge measure of every hinge (:mod:`.hinge`), where its axis is known."""
+        h, dt = self.hinges, 1.0 / self.fs
+        y, info = hinge.measure(b.r[..., h, :], b.g_parent[..., h, :], self.axes.axis, self.bones, self.spread)
+        info *= dt / self.settings.hinge_corr_s * self.axes.ready * b.joined[..., h]
+        _add(b.referenced, (Ellipsis, h), y, info)
+
+    def _twists(self, b: _Block) -> None:
+        """The twist every ball joint shows about the vertical, against its mean; samples further
+        from what the filter expects than ``Settings.twist_gate`` of their spread (a joint held
+        far out, at its limit) are left out."""
+        j, dt, x = self.balls, 1.0 / self.fs, self.filters.x
+        expected = x[..., j, 0] - x[..., j, 2]
+        p = self.filters.p[..., j, :, :]
+        spread = self.twist_var + p[..., 0, 0] + p[..., 2, 2] - 2 * p[..., 0, 2]
+        measured = -b.turn[..., j]
+        near = np.abs(wrap(measured - expected)) < self.settings.twist_gate * np.sqrt(spread)
+        _add(b.referenced, (Ellipsis, j), measured,
+             near * b.joined[..., j] * dt / (self.twist_var * self.settings.twist_corr_s))
+
+    def _range(self, b: _Block) -> None:
+        """Each ball joint's range of motion (:mod:`.rom`), counted at the block's last tick."""
+        j = self.balls
+        g = b.g_parent[-1][..., j, :]
+        now = b.applied[-1][..., j]
+        corrected = quat.multiply(axis_angle(g, now), b.r[-1][..., j, :])
+        before, after = self.to_standing
+        out = rom.out_of_range(quat.multiply(quat.multiply(before, corrected), after), quat.rotate(before, g), self.box)
+        self.ranges.add(out, b.joined[-1][..., j], len(b.r) / self.fs)
+        turn, asked = self.ranges.asked()
+        information = asked * b.joined[-1][..., j] / np.radians(self.settings.rom_sd_deg) ** 2
+        _add((b.absolute[0][-1], b.absolute[1][-1]), (Ellipsis, j), now + turn, information)
+
+    def _rates(self, q: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T, B, S, 3) each segment's angular rate in its own frame, rad/s, from one tick to the
+        next (the first from the last tick of the block before), and (T, B, S) where it is
+        valid (present at both ticks)."""
+        steps = np.concatenate([q[:1] if self.last is None else self.last[None], q])
+        valid = present & np.concatenate([self.had[None], present[:-1]])
+        self.last, self.had = q[-1].copy(), present[-1].copy()
+        d = quat.multiply(quat.conjugate(steps[:-1]), steps[1:])
+        return 2.0 * self.fs * d[..., 1:] * np.where(d[..., :1] < 0, -1.0, 1.0), valid
+
+    def _stillness(self, b: _Block, speed: np.ndarray, steady: np.ndarray) -> None:
+        """Fold in the still joints and the relaxed pose (:mod:`.still`) of one block."""
+        s, lay, dt = self.settings, self.layout, 1.0 / self.fs
+        self.still.add(speed, steady, dt)
+        still = self.still.still_s >= s.still_s  # (B, S)
+        seen = steady.any(axis=0)
+        whole = np.all(still | ~seen, axis=-1) & np.any(seen, axis=-1)  # (B,)
+        joint_still = still[..., lay.parent] & still[..., lay.child] & b.joined.all(axis=0)
+        gate = np.maximum(np.radians(s.relaxed_gate_deg), filter_gate * self.filters.delta_sd())
+        near = np.all(np.abs(wrap(-b.turn - b.applied)) < gate, axis=0)
+        alike = np.all(leaning_alike(b.g_parent, b.g_child, s.relaxed_lean_deg), axis=0)
+        episode = joint_still & ~self.was_still  # a still spell begins: the relaxed pose counts once in it
+        self.relaxed_left = np.where(episode, 1.0 / np.radians(s.relaxed_pose_deg) ** 2, self.relaxed_left)
+        self.was_still = joint_still
+        relaxed = whole[:, None] & joint_still & near & alike & (self.relaxed_left > 0)
+        spent = np.where(relaxed, np.minimum(self.relaxed_left, len(b.r) * dt / np.radians(s.relaxed_sd_deg) ** 2), 0.0)
+        self.relaxed_left = self.relaxed_left - spent
+        locking = joint_still & ~relaxed
+        onset = locking & ~self.locked
+        self.lock_ref = np.where(onset, b.turn[0] + b.applied[0], self.lock_ref)
+        self.lock_p = np.where(onset[..., None, None], self.filters.p, self.lock_p)
+        self.locked = locking
+        _add(b.absolute, (Ellipsis,), -b.turn, np.broadcast_to(spent / len(b.r), b.turn.shape))
+
+    # -- state ----------------------------------------------------------------------------------
+
+    def joint_offsets(self, ahead: int = 0) -> np.ndarray:
+        """(subjects, joints) each joint's correction ``ahead`` ticks after the last step, rad."""
+        x = self.filters.x
+        return x[..., 0] + x[..., 1] * (ahead / self.fs)
+
+    def corrections(self, ahead: int = 0, present: np.ndarray | None = None) -> np.ndarray:
+        """(subjects, segments) the corrections ``ahead`` ticks after the last step, rad, of the
+        segments ``present`` (subjects, segments) (default: those of the last tick)."""
+        return self._down_the_tree(self.joint_offsets(ahead), self.had if present is None else present)
+
+    def _down_the_tree(self, joint_values: np.ndarray, present: np.ndarray) -> np.ndarray:
+        """(..., subjects, segments) per-segment values of per-joint differences ``joint_values``
+        (..., subjects, joints): each child's is its parent's plus its joint's where both are
+        ``present`` (subjects, segments); then each group of segments so joined is shifted to
+        average 0 (absent segments get 0)."""
+        lay = self.layout
+        n = len(lay.segments)
+        shape = joint_values.shape[:-1] + (n,)
+        present = np.broadcast_to(present, shape)
+        out = np.zeros(shape)
+        root = np.broadcast_to(np.arange(n), shape).copy()
+        for j in self.order:
+            p, c = lay.parent[j], lay.child[j]
+            linked = present[..., p] & present[..., c]
+            out[..., c] = np.where(linked, out[..., p] + joint_values[..., j], 0.0)
+            root[..., c] = np.where(linked, root[..., p], c)
+        member = (root[..., :, None] == np.arange(n)) & present[..., :, None]  # (..., segment, group)
+        mean = np.einsum("...s,...sg->...g", out, member) / np.maximum(member.sum(axis=-2), 1)
+        return np.where(present, out - np.take_along_axis(mean, root, axis=-1), 0.0)
+
+    def status(self) -> dict[str, np.ndarray]:
+        """Per device (subjects, segments): ``offset_deg`` the correction applied now, ``rate_dpm``
+        its rate (deg/min) and ``confidence`` (0..1: 1 when its joint's heading is known to
+        within ``Settings.confidence_deg``, 1/2 at that, towards 0 as it is lost)."""
+        lay = self.layout
+        conf_joint = 1.0 / (1.0 + (self.filters.delta_sd() / np.radians(self.settings.confidence_deg)) ** 2)
+        conf = np.zeros(conf_joint.shape[:-1] + (len(lay.segments),))
+        weight = np.zeros_like(conf)
+        for j in range(len(lay.joints)):  # a device: its joint to its parent; a root: its joints' mean
+            conf[..., lay.child[j]] = conf_joint[..., j]
+            weight[..., lay.child[j]] = np.inf
+        for j in range(len(lay.joints)):
+            root = ~np.isinf(weight[..., lay.parent[j]])
+            conf[..., lay.parent[j]] += np.where(root, conf_joint[..., j], 0.0)
+            weight[..., lay.parent[j]] += np.where(root, 1.0, 0.0)
+        conf = np.where(np.isinf(weight), conf, conf / np.maximum(weight, 1.0))
+        return {"offset_deg": np.degrees(self.corrections(len(self._pending))),
+                "rate_dpm": 60.0 * np.degrees(self._down_the_tree(self.filters.x[..., 1], self.had)),
+                "confidence": conf}
+
+    # -- offline --------------------------------------------------------------------------------
+
+    @classmethod
+    def batch(cls, q: np.ndarray, layout: Layout, fs: float = 50.0, settings: Settings = Settings()) -> np.ndarray:
+        """(m, S, 4) a recording's calibrated orientations ``q`` (m, S, 4) at ``fs`` Hz,
+        corrected as the live estimator would have, tick by tick."""
+        q = np.asarray(q, np.float64)
+        est = cls(layout, 1, fs, settings)
+        out = np.empty_like(q)
+        present = np.ones((est.block, 1, q.shape[1]), bool)
+        for k in range(0, len(q), est.block):
+            block = q[k:k + est.block, None]
+            ahead = np.arange(1, len(block) + 1)[:, None, None]
+            c = est._down_the_tree(est.filters.x[..., 0] + est.filters.x[..., 1] * (ahead / fs), present[0])
+            out[k:k + len(block)] = cls.apply(block[:, 0], c[:, 0])
+            if len(block) == est.block:
+                est.process(block, present)
+        return out
+
+
+@dataclass
+class _Block:
+    """One block's arrays, (T, B, J, ...): relative orientations ``r``, the vertical in the
+    parents' and children's frames, where both segments are ``joined``, the corrections
+    ``applied`` at each tick, the twist ``turn`` about the vertical, and the two accumulators
+    (weighted unit vectors, weights) of absolute and mean-referenced measurements."""
+
+    r: np.ndarray
+    g_parent: np.ndarray
+    g_child: np.ndarray
+    joined: np.ndarray
+    applied: np.ndarray
+    absolute: tuple[np.ndarray, np.ndarray]
+    referenced: tuple[np.ndarray, np.ndarray]
+    turn: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def _add(acc: tuple[np.ndarray, np.ndarray], where, measured: np.ndarray, information: np.ndarray) -> None:
+    """Add measurements (angles, rad) with their information to a circular accumulator
+    ``acc`` (weighted unit vectors, weights), at index ``where``."""
+    acc[0][where] += information * np.exp(1j * measured)
+    acc[1][where] += information
