@@ -28,20 +28,16 @@ import argparse
 import sys
 import time
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from limbstream import calibration, imu, kernel, quat  # noqa: E402
-from limbstream.evaluation.fusion import reference_vqf  # noqa: E402
-from limbstream.heading import HeadingCorrection, Settings  # noqa: E402
-from limbstream.heading.joints import Layout, joint_errors_deg  # noqa: E402
-from limbstream.heading.simulate import DriftModel  # noqa: E402
-from limbstream.sources import Motion, load  # noqa: E402
-from limbstream.sources.loop import looped  # noqa: E402
+from limbstream import calibration, imu, kernel, quat
+from limbstream.evaluation.fusion import reference_vqf
+from limbstream.heading import HeadingCorrection, Settings
+from limbstream.heading.joints import Layout, joint_errors_deg
+from limbstream.heading.simulate import DriftModel
+from limbstream.sources import Motion, load
+from limbstream.sources.loop import looped
 
 FS = 50.0
 RAW_HZ = 200.0
@@ -137,8 +133,8 @@ class Chain:
         rec = imu.record(motion, devices)
         step = round(RAW_HZ / FS)
         fused = reference_vqf(rec.gyr, rec.acc, RAW_HZ, start_heading=imu.earth_heading(devices.heading))
-        world = quat.multiply(quat.conjugate(imu.Z_UP), fused[::step])[:len(t)]
-        truth = quat.multiply(quat.multiply(quat.conjugate(imu.Z_UP), rec.truth[::step]),
+        world = quat.multiply(quat.Z_UP_TO_Y_UP, fused[::step])[:len(t)]
+        truth = quat.multiply(quat.multiply(quat.Z_UP_TO_Y_UP, rec.truth[::step]),
                               quat.conjugate(devices.mounting))[:len(t)]
         return world, quat.continuous(truth)
 

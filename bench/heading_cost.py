@@ -8,19 +8,14 @@ ten devices each, fed tick by tick as the aggregator would, and the share of one
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from limbstream.heading import HeadingCorrection  # noqa: E402
-from limbstream.heading.joints import Layout  # noqa: E402
-from limbstream.sources.generator import generate  # noqa: E402
-from limbstream.wire import SEGMENTS  # noqa: E402
+from limbstream.heading import HeadingCorrection
+from limbstream.heading.joints import Layout
+from limbstream.sources.generator import generate
+from limbstream.wire import SEGMENTS
 
 FS = 50.0
 
