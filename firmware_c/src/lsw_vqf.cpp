@@ -57,6 +57,22 @@ void lsw_vqf_reset(LswVqf *v)
     filter(v)->resetState();
 }
 
+void lsw_vqf_set_rest_thresholds(LswVqf *v, float gyr_dps, float acc)
+{
+    filter(v)->setRestDetectionThresholds(gyr_dps, acc);
+}
+
+void lsw_vqf_set_heading(LswVqf *v, float heading_rad)
+{
+    VQFState state = filter(v)->getState();
+    const float half = 0.5f * heading_rad;
+    state.gyrQuat[0] = std::cos(half);
+    state.gyrQuat[1] = 0.0f;
+    state.gyrQuat[2] = 0.0f;
+    state.gyrQuat[3] = std::sin(half);
+    filter(v)->setState(state);
+}
+
 void lsw_vqf_gyr(LswVqf *v, const float gyr[3])
 {
     filter(v)->updateGyr(gyr);

@@ -30,10 +30,17 @@ RAW_DTYPE = np.dtype({"names": ["t", "gyr", "acc", "mag"],
 """numpy layout of :class:`RawSample` (LswRawSample, lsw_imu.h): tick, gyr rad/s, acc m/s^2, mag uT."""
 
 _DEFAULTS = ImuSettings.in_dll(_lib, "lsw_imu_default_settings")
+REST_TH_GYR_DPS: float = round(float(_DEFAULTS.rest_th_gyr), 6)
+"""The device's VQF rest threshold on the angular rate, deg/s (a body tracker's; lsw_imu.h)."""
+REST_TH_ACC: float = round(float(_DEFAULTS.rest_th_acc), 6)
+"""The device's VQF rest threshold on the specific force, m/s^2 (VQF's own)."""
+VQF_REST_TH_GYR_DPS = 2.0
+"""VQF's own default rest threshold on the angular rate, deg/s (``VQFParams.restThGyr``)."""
 
 
 def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False, max_gap_s: float | None = None,
-                 acc_limit: float | None = None) -> ImuSettings:
+                 acc_limit: float | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS,
+                 rest_th_acc: float = REST_TH_ACC, heading_rad: float = 0.0) -> ImuSettings:
     """Validated pipeline settings (LswImuSettings).
 
     Parameters
@@ -43,15 +50,24 @@ def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, ni
     nine_d : fuse the magnetometer (9D) instead of 6D.
     max_gap_s : a time step longer than this resets the filter (default 0.1 s).
     acc_limit : an accelerometer component at or beyond this (m/s^2) is saturated (default 156).
+    rest_th_gyr_dps, rest_th_acc : VQF's rest detection thresholds, deg/s and m/s^2 (> 0; the
+        device's defaults :data:`REST_TH_GYR_DPS`, :data:`REST_TH_ACC`).
+    heading_rad : the filter's start heading about the earth's vertical, rad (|h| <= 2 pi).
     """
     rate_hz, device_rate_hz = float(rate_hz), float(device_rate_hz)
     if not np.isfinite(rate_hz) or rate_hz <= 0:
         raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
     if not np.isfinite(device_rate_hz) or not 0 < device_rate_hz <= rate_hz:
         raise ValueError(f"device_rate_hz must be in (0, rate_hz={rate_hz}], got {device_rate_hz}")
+    for name, value in (("rest_th_gyr_dps", rest_th_gyr_dps), ("rest_th_acc", rest_th_acc)):
+        if not (np.isfinite(value) and 0 < value <= 1000):
+            raise ValueError(f"{name} must be in (0, 1000], got {value}")
+    if not (np.isfinite(heading_rad) and abs(heading_rad) <= 2 * np.pi):
+        raise ValueError(f"heading_rad must be within +-2 pi, got {heading_rad}")
     gap = _DEFAULTS.max_gap if max_gap_s is None else int(round(float(max_gap_s) * TICK_HZ))
     return ImuSettings(1.0 / rate_hz, int(round(TICK_HZ / device_rate_hz)), gap,
-                       _DEFAULTS.acc_limit if acc_limit is None else float(acc_limit), int(bool(nine_d)))
+                       _DEFAULTS.acc_limit if acc_limit is None else float(acc_limit), int(bool(nine_d)),
+                       float(rest_th_gyr_dps), float(rest_th_acc), float(heading_rad))
 
 
 def raw_samples(ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None) -> np.ndarray:
@@ -71,7 +87,8 @@ def raw_samples(ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.nda
 
 
 def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_hz: float = 200.0,
-         t: np.ndarray | None = None) -> np.ndarray:
+         t: np.ndarray | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS, rest_th_acc: float = REST_TH_ACC,
+         heading_rad: float = 0.0) -> np.ndarray:
     """The device's orientation after each raw sample (VQF in the kernel library, exactly as a
     device computes it, bad samples handled as there).
 
@@ -82,6 +99,7 @@ def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_h
     mag : (n, 3) magnetic field (uT), or None: 9D with it, else 6D.
     rate_hz : the sensor's sample rate, Hz (VQF's time step is 1 / rate_hz).
     t : (n,) sample times, s (default: uniform at rate_hz); used for the bad-time checks.
+    rest_th_gyr_dps, rest_th_acc, heading_rad : as :func:`imu_settings`.
 
     Returns
     -------
@@ -93,7 +111,7 @@ def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_h
     ticks = np.round((times - (times[0] if n else 0.0)) * TICK_HZ).astype(np.int64) & 0xFFFFFFFF
     raw = raw_samples(ticks, gyr, acc, mag)
     state = ctypes.create_string_buffer(IMU_STATE_SIZE)
-    settings = imu_settings(rate_hz, rate_hz, nine_d=mag is not None)
+    settings = imu_settings(rate_hz, rate_hz, mag is not None, None, None, rest_th_gyr_dps, rest_th_acc, heading_rad)
     _lib.lsw_imu_init(state, ctypes.byref(settings))
     q = np.zeros((n, 4), np.float32)
     _lib.lsw_imu_fuse_batch(state, raw.ctypes.data, n, q.ctypes.data)
@@ -112,18 +130,26 @@ class ImuBank:
     Parameters
     ----------
     count : int, number of devices.
-    rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit : as :func:`imu_settings`, shared.
+    rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit, rest_th_gyr_dps, rest_th_acc : as
+        :func:`imu_settings`, shared.
     threshold, max_len, live_bound_deg, ring : as :class:`SegmenterBank`.
+    headings : (count,) each device's filter start heading, rad (default 0).
+
+    Devices send their orientations in limbstream's world (Y up: VQF's earth frame turned by
+    :data:`limbstream.quat.Z_UP_TO_Y_UP`, in C).
     """
 
     def __init__(self, count: int, rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False,
                  threshold=wire.THRESHOLD.default, max_len=wire.MAX_LEN.default,
                  live_bound_deg=wire.LIVE_BOUND_DEG.default, ring: int = 0, max_gap_s: float | None = None,
-                 acc_limit: float | None = None):
+                 acc_limit: float | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS,
+                 rest_th_acc: float = REST_TH_ACC, headings: np.ndarray | None = None):
         self.count = count
         self.segments = SegmenterBank(count, threshold, max_len, 4, live_bound_deg, ring)
         self.nine_d = bool(nine_d)
-        self.imu_settings = imu_settings(rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit)
+        self.imu_settings = imu_settings(rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit, rest_th_gyr_dps,
+                                         rest_th_acc)
+        self.headings = np.zeros(count) if headings is None else np.asarray(headings, np.float64).reshape(count)
         self._imus = ctypes.create_string_buffer(IMU_STATE_SIZE * max(count, 1))
         for k in range(count):
             self.reset_imu(k)
@@ -135,9 +161,16 @@ class ImuBank:
         return "9D" if self.nine_d else "6D"
 
     def reset_imu(self, k: int) -> None:
-        """Device k's filter from scratch (identity, zero bias, counters zero); its fastSW stream
-        is ``segments.reset``'s."""
-        _lib.lsw_imu_init(ctypes.addressof(self._imus) + k * IMU_STATE_SIZE, ctypes.byref(self.imu_settings))
+        """Device k's filter from scratch (its start heading, zero bias, counters zero); its fastSW
+        stream is ``segments.reset``'s."""
+        _lib.lsw_imu_init(ctypes.addressof(self._imus) + k * IMU_STATE_SIZE, ctypes.byref(self.device_settings(k)))
+
+    def device_settings(self, k: int) -> ImuSettings:
+        """Device k's pipeline settings: the bank's, with its own start heading (what a firmware
+        device is given in its FUSION message)."""
+        own = ImuSettings.from_buffer_copy(self.imu_settings)
+        own.heading_rad = float(self.headings[k])
+        return own
 
     def _raw(self, ticks, gyr, acc, mag) -> tuple[np.ndarray, int]:
         if mag is None and self.nine_d:
