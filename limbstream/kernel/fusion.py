@@ -210,16 +210,19 @@ class ImuBank:
         return self.segments.advance_wire(lambda states, *out: _lib.lsw_imu_bank_update(
             self._imus, states, n, raw.ctypes.data, self._t_us.ctypes.data, *out), n)
 
-    def imu_status(self) -> dict[str, np.ndarray]:
-        """Every device's fusion report: ``bias`` (count, 3) rad/s, ``rest`` (count,) bool,
-        ``outputs`` (count,) device-rate samples made, and one (count,) count per :data:`FAULTS`."""
-        count = self.count
+    def imu_status(self, first: int = 0, count: int | None = None) -> dict[str, np.ndarray]:
+        """The fusion report of devices ``first .. first + count - 1`` (default: every device):
+        ``bias`` (count, 3) rad/s, ``rest`` (count,) bool, ``outputs`` (count,) device-rate samples
+        made, and one (count,) count per :data:`FAULTS`."""
+        count = self.count - first if count is None else count
+        if not (0 <= first and count >= 0 and first + count <= self.count):
+            raise ValueError(f"devices {first}..{first + count - 1} of {self.count}")
         bias = np.zeros((count, 3), np.float32)
         rest = np.zeros(count, np.uint8)
         faults = np.zeros((count, len(FAULTS)), np.uint32)
         outputs = np.zeros(count, np.uint32)
-        _lib.lsw_imu_bank_status(self._imus, count, bias.ctypes.data, rest.ctypes.data, faults.ctypes.data,
-                                 outputs.ctypes.data)
+        _lib.lsw_imu_bank_status(ctypes.addressof(self._imus) + first * IMU_STATE_SIZE, count, bias.ctypes.data,
+                                 rest.ctypes.data, faults.ctypes.data, outputs.ctypes.data)
         report = {"bias": bias.astype(np.float64), "rest": rest.astype(bool), "outputs": outputs}
         report.update({name: faults[:, i] for i, name in enumerate(FAULTS)})
         return report
