@@ -135,6 +135,7 @@ def test_pipeline_equals_fusion_then_fastsw():
             points.append((int(index[0]), y[0].copy(), bank.segments.points_omega()[0]))
     q = y_up(fusion.fuse(g, a, rate_hz=d["rate"], t=ticks / 1e6).astype(np.float32))
     rows = np.asarray(outputs)
+    assert np.array_equal(rows, fusion.device_instants(ticks / 1e6, wire.DEVICE_RATE_HZ)), "device_instants is C's rule"
     ref = kernel.segment(ticks[rows] / 1e6, q[rows], 9e-4, 25, live_bound_deg=5.0)
     got_index = [p[0] for p in points]
     assert got_index == list(ref.index[:len(got_index)]), "points at other device samples than fastSW's"
@@ -144,9 +145,7 @@ def test_pipeline_equals_fusion_then_fastsw():
 
 def y_up(q: np.ndarray) -> np.ndarray:
     """(n, 4) float32 Z-up orientations turned into limbstream's Y-up world as lsw_imu_y_up does."""
-    c = np.float32(np.sqrt(0.5))
-    w, x, y, z = q.T
-    turned = np.stack([c * (w + x), c * (x - w), c * (y + z), c * (z - y)], axis=1)
+    turned = fusion.y_up(q)
     assert np.allclose(turned, quat.multiply(quat.Z_UP_TO_Y_UP, q), atol=1e-6)
     return turned
 

@@ -70,6 +70,48 @@ def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, ni
                        float(rest_th_gyr_dps), float(rest_th_acc), float(heading_rad))
 
 
+def y_up(q: np.ndarray) -> np.ndarray:
+    """(n, 4) float32 orientations in VQF's earth frame (z up) turned into limbstream's world (y up),
+    as a device does before fastSW (lsw_imu_y_up, in the same float32 steps: bit for bit).
+    The same turn as ``quat.multiply(quat.Z_UP_TO_Y_UP, q)``."""
+    q = np.asarray(q, np.float32)
+    c = np.float32(np.sqrt(0.5))
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([c * (w + x), c * (x - w), c * (y + z), c * (z - y)], axis=-1)
+
+
+def device_instants(t: np.ndarray, device_rate_hz: float = wire.DEVICE_RATE_HZ,
+                    max_gap_s: float | None = None) -> np.ndarray:
+    """The raw samples a device takes as its samples (lsw_imu.c's rule): the first, then the first
+    at or after each instant every 1 / device_rate_hz from it (a sample more than a period late
+    restarts the instants at itself; a step beyond ``max_gap_s``, default 0.1 s, starts anew).
+
+    Parameters
+    ----------
+    t : (n,) raw sample times, s, increasing (taken to microsecond ticks as :func:`fuse` does).
+
+    Returns
+    -------
+    (k,) int64 indices into ``t``.
+    """
+    t = np.asarray(t, np.float64)
+    ticks = np.round((t - (t[0] if len(t) else 0.0)) * TICK_HZ).astype(np.int64)
+    period = int(round(TICK_HZ / float(device_rate_hz)))
+    gap = _DEFAULTS.max_gap if max_gap_s is None else int(round(float(max_gap_s) * TICK_HZ))
+    out, next_instant, last = [], None, None
+    for i, tick in enumerate(ticks.tolist()):
+        if next_instant is None or tick - last > gap:
+            out.append(i)
+            next_instant = tick + period
+        elif tick >= next_instant:
+            out.append(i)
+            next_instant += period
+            if tick >= next_instant:
+                next_instant = tick + period
+        last = tick
+    return np.asarray(out, np.int64)
+
+
 def raw_samples(ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None) -> np.ndarray:
     """(n,) :data:`RAW_DTYPE` from ticks (n,) uint32 (us), gyr and acc (n, 3) and optional mag (n, 3);
     ValueError naming the argument whose shape is wrong."""
