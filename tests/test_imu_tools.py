@@ -2,11 +2,16 @@
 recording) and ``limbstream eval`` on raw recordings and with ``--imu raw``."""
 from __future__ import annotations
 
+import json
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.io
 
 from limbstream import cli, quat
+from limbstream.evaluation.fusion import fusion_error
 from limbstream.kernel import fusion
 from limbstream.sources.raw import load_raw
 from support import require_data
@@ -52,3 +57,58 @@ def test_fuse_names_a_missing_channel(tmp_path, capsys, drop, words):
     scipy.io.savemat(path, data)
     assert cli.main(["fuse", str(path), "-o", str(tmp_path / "out.npz")]) == 2
     assert words in capsys.readouterr().err
+
+
+def eval_rows(capsys, *argv) -> dict:
+    """``limbstream eval ARGV --thresholds 9e-4 --live-bound 5`` (make run's settings): its one
+    row, read back from --json."""
+    out = Path(tempfile.mkdtemp()) / "rows.json"
+    assert cli.main(["eval", *map(str, argv), "--thresholds", "9e-4", "--live-bound", "5", "--json", str(out)]) == 0
+    capsys.readouterr()
+    [row] = json.loads(out.read_text())
+    return row
+
+
+def test_eval_on_a_broad_trial_reports_fusion_and_chain_error(capsys):
+    """9D: the fusion error is BROAD's total RMSE of the device's own samples (its filter at its
+    instants); the chain (points SLERPed) adds at most 0.5 deg at make run's settings; 6D reports
+    inclination and heading drift."""
+    path = require_data(BROAD_TRIAL)
+    rec = load_raw(path)
+    row = eval_rows(capsys, path, "--mag")
+    q = fusion.fuse(rec.gyr[:, 0], rec.acc[:, 0], rec.mag[:, 0], rate_hz=rec.fs, t=rec.t)
+    idx = fusion.device_instants(rec.t)
+    want = fusion_error(q[idx], rec.truth[idx, 0], rec.t[idx], rec.movement[idx])
+    assert row["fusion_total"] == pytest.approx(want.total_deg, abs=2e-3)  # (the samples sent are float32)
+    assert row["fusion_incl"] == pytest.approx(want.inclination_deg, abs=2e-3)
+    assert row["fusion_total"] < row["chain_total"] <= row["fusion_total"] + 0.5, row
+    assert 0.05 < row["icr"] < 0.5 and row["live_max"] <= 5.0 + 1e-3 and row["fusion_drift"] is None, row
+    six = eval_rows(capsys, path)
+    assert six["fusion_incl"] == pytest.approx(row["fusion_incl"], abs=0.05)  # 9D's is 6D's turned about z
+    assert six["fusion_drift"] is not None and six["fusion_incl"] < six["chain_incl"] < six["fusion_incl"] + 1.0, six
+
+
+def test_eval_on_the_qmt_recording_has_no_reference(capsys):
+    """No reference orientation: compression figures only, and a note that says so."""
+    path = require_data(QMT)
+    out = Path(tempfile.mkdtemp()) / "rows.json"
+    assert cli.main(["eval", str(path), "--thresholds", "9e-4", "--live-bound", "5", "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "no reference orientation: no fusion or chain error" in err, err
+    [row] = json.loads(out.read_text())
+    assert 0 < row["icr"] < 0.5 and row["aad"] < 2.0
+    assert all(row[k] is None for k in row if k.startswith(("fusion_", "chain_"))), row
+    assert cli.main(["eval", str(path), "--loop-minutes", "1"]) == 2
+    assert "--loop-minutes loops motion clips, not raw recordings" in capsys.readouterr().err
+
+
+def test_eval_with_emulated_raw_sensors_calibrates_and_loops(cmu_npz, capsys):
+    """``--imu raw``: sensors strapped at up to 90 deg with headings anywhere, fused on the
+    devices, calibrated from the script: the body error is about the ideal fusion's; the fusion
+    columns split it into inclination and heading. ``--loop-minutes`` plays the clip longer."""
+    row = eval_rows(capsys, cmu_npz, "--imu", "raw", "--mounting-deg", "90", "--heading-deg", "180",
+                    "--calibration", "rest,mounting")
+    assert row["body_aad"] < 2.0 and row["fusion_incl"] < 2.0 and abs(row["fusion_drift"]) < 1.0, row
+    assert row["chain_total"] <= row["fusion_total"] + 0.5, row
+    looped = eval_rows(capsys, cmu_npz, "--imu", "raw", "--loop-minutes", "1.5")
+    assert looped["body_aad"] < 2.0, looped
