@@ -277,7 +277,7 @@ class Emulator:
         call each, stamped on the common time base; a device whose time base steps starts a new
         stream (its fastSW afresh, its filter going on)."""
         assert self.raw is not None
-        gyr, acc = self.raw.read(k, m)
+        gyr, acc = self.raw.read(k, np.arange(m))
         per = self.raw.per
         raw_us = self.period_us / per
         row = k % self._ring

@@ -20,7 +20,7 @@ def test_raw_sensors_read_per_tick_what_a_whole_recording_reads():
     source = GeneratorSource(seed=4, fs=50.0)
     feeds = [RawFeed(source, 200.0, 50.0)]
     sensors = RawSensors(feeds, imu.model("icm42688p"), 200.0, SensorModel(90.0, 180.0, seed=3), stream=1)
-    ticks = [sensors.read(k, 10) for k in range(30)]
+    ticks = [sensors.read(k, np.arange(10)) for k in range(30)]
     gyr = np.concatenate([g for g, _ in ticks])
     acc = np.concatenate([a for _, a in ticks])
     same = imu.ImuDevices(10, imu.model("icm42688p"), 200.0, SensorModel(90.0, 180.0, seed=3), stream=1)
@@ -29,6 +29,8 @@ def test_raw_sensors_read_per_tick_what_a_whole_recording_reads():
     g, a = same.read(np.tile(np.arange(10), 120), k, ideal.gyr.reshape(-1, 3), ideal.acc.reshape(-1, 3))
     assert np.array_equal(gyr.reshape(-1, 3), g) and np.array_equal(acc.reshape(-1, 3), a)
     assert np.array_equal(feeds[0].sample(7), ideal.q[28].astype(np.float32))  # the truth at instant 7
+    one_g, one_a = sensors.read(12, np.array([6]))  # one device alone (a firmware device's feed)
+    assert np.array_equal(one_g[:, 0], ticks[12][0][:, 6]) and np.array_equal(one_a[:, 0], ticks[12][1][:, 6])
 
 
 @pytest.mark.parametrize("argv, words", [

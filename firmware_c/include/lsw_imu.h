@@ -65,7 +65,8 @@ typedef struct {
     uint32_t nine_d;      /**< 1: 9D (magnetometer heading correction), 0: 6D */
     float rest_th_gyr;    /**< VQF's rest threshold on the angular rate, deg/s (VQF's default: 2) */
     float rest_th_acc;    /**< VQF's rest threshold on the specific force, m/s^2 (VQF's default: 0.5) */
-    float heading_rad;    /**< the filter's start heading about the earth's vertical, rad (and after a reset) */
+    float heading[2];     /**< the filter's start heading about the earth's vertical (and after a reset):
+                               cos and sin of half its angle, (1, 0) for none */
 } LswImuSettings;
 
 /**

@@ -48,10 +48,12 @@ void lsw_vqf_reset(LswVqf *v);
 void lsw_vqf_set_rest_thresholds(LswVqf *v, float gyr_dps, float acc);
 
 /**
- * Turn the filter's earth frame by heading_rad about its vertical (z): VQF's gyroscope
- * quaternion set to that turn. Call before the first sample (a device's start heading).
+ * Turn the filter's earth frame about its vertical (z): VQF's gyroscope quaternion set to
+ * (heading[0], 0, 0, heading[1]), a unit turn (cos h/2, sin h/2) computed by the caller (no
+ * trigonometry here: the host and the firmware then start from the same bits). Call before the
+ * first sample (a device's start heading).
  */
-void lsw_vqf_set_heading(LswVqf *v, float heading_rad);
+void lsw_vqf_set_heading(LswVqf *v, const float heading[2]);
 
 /** One gyroscope sample, rad/s, sensor frame: strapdown integration, gyro rest detection. */
 void lsw_vqf_gyr(LswVqf *v, const float gyr[3]);

@@ -11,7 +11,7 @@ const LswImuSettings lsw_imu_default_settings = {
     0u,      /* 6D */
     0.5f,    /* rest_th_gyr: deg/s, a body tracker's (VQF's default 2) */
     0.5f,    /* rest_th_acc: m/s^2, VQF's default */
-    0.0f,    /* heading_rad */
+    {1.0f, 0.0f}, /* heading: none */
 };
 
 /** The filter from scratch with the settings' rest thresholds and start heading. */
@@ -23,8 +23,8 @@ static void start_filter(LswImu *imu, int reset)
         lsw_vqf_init(&imu->vqf, imu->settings.raw_period_s);
         lsw_vqf_set_rest_thresholds(&imu->vqf, imu->settings.rest_th_gyr, imu->settings.rest_th_acc);
     }
-    if (imu->settings.heading_rad != 0.0f) {
-        lsw_vqf_set_heading(&imu->vqf, imu->settings.heading_rad);
+    if (imu->settings.heading[1] != 0.0f) {
+        lsw_vqf_set_heading(&imu->vqf, imu->settings.heading);
     }
 }
 

@@ -62,14 +62,13 @@ void lsw_vqf_set_rest_thresholds(LswVqf *v, float gyr_dps, float acc)
     filter(v)->setRestDetectionThresholds(gyr_dps, acc);
 }
 
-void lsw_vqf_set_heading(LswVqf *v, float heading_rad)
+void lsw_vqf_set_heading(LswVqf *v, const float heading[2])
 {
     VQFState state = filter(v)->getState();
-    const float half = 0.5f * heading_rad;
-    state.gyrQuat[0] = std::cos(half);
+    state.gyrQuat[0] = heading[0];
     state.gyrQuat[1] = 0.0f;
     state.gyrQuat[2] = 0.0f;
-    state.gyrQuat[3] = std::sin(half);
+    state.gyrQuat[3] = heading[1];
     filter(v)->setState(state);
 }
 

@@ -221,17 +221,23 @@ def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
 def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettings,
                  stop: threading.Event | None) -> int:
     """``--firmware``: the devices' firmware under QEMU (limbstream.services.gateway.firmware_devices).
-    Each device takes its feed's own samples: modelled clocks and sensor errors are refused."""
+    Each device takes its feed's own samples (with ``--imu raw`` its sensor's readings, the
+    emulator's): modelled clocks and the orientation sensor model are refused."""
+    from limbstream.device.readings import RawSensors
     from limbstream.services.gateway import firmware, firmware_devices
-    if settings.clock.modelled or settings.sensors.on:
+    if settings.clock.modelled or (settings.sensors.on and settings.imu is None):
         raise SystemExit("limbstream emulate: error: --firmware feeds every device its motion's own samples: "
                          "device clock models (--clock-offset-ms, --clock-drift-ppm, --clock-jitter-us) and "
-                         "sensor errors are not available with it")
+                         "modelled sensor errors are not available with it (raw sensors are: --imu raw)")
     try:
         elf = args.firmware_elf or firmware.build()
     except (RuntimeError, OSError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if not elf.exists():
         raise SystemExit(f"limbstream emulate: error: no firmware at {elf}")
+    raw = None
+    if settings.imu is not None:  # the sensors as the host emulator draws them (its slot order: longest feeds first)
+        ordered = sorted(feeds.values(), key=lambda f: -(f.length or float("inf")))
+        raw = RawSensors(ordered, settings.imu, settings.imu_rate_hz, settings.sensors, settings.clock_id)
     return firmware_devices.run(feeds, settings.host, settings.speed, flags.session_settings(args, PROG), elf,
-                               args.duration, stop)
+                                args.duration, stop, raw, settings.imu_rate_hz)

@@ -95,24 +95,25 @@ class RawSensors:
         self._column = np.concatenate([np.arange(len(f.segments)) for f in feeds]).astype(np.int64)
         self.devices = imu.ImuDevices(len(self._feed), model, rate_hz, sensors, stream)
 
-    def read(self, k: int, m: int) -> tuple[np.ndarray, np.ndarray]:
-        """What the first m devices read over device sample k's raw samples.
+    def read(self, k: int, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What devices ``slots`` (j,) read over device sample k's raw samples.
 
         Returns
         -------
-        gyr, acc : (per, m, 3) float64 rad/s and m/s^2, in each sensor's frame (a feed that
-            ended gives NaN rows: those devices take no sample).
+        gyr, acc : (per, j, 3) float64 rad/s and m/s^2, in each sensor's frame (a feed that ended
+            gives NaN rows: those devices take no sample).
         """
-        per = self.per
-        ideal_g = np.full((per, m, 3), np.nan)
-        ideal_a = np.full((per, m, 3), np.nan)
-        for i in np.unique(self._feed[:m]):
-            slots = np.flatnonzero(self._feed[:m] == i)
+        slots = np.asarray(slots, np.int64)
+        per, j = self.per, len(slots)
+        ideal_g = np.full((per, j, 3), np.nan)
+        ideal_a = np.full((per, j, 3), np.nan)
+        feed_of = self._feed[slots]
+        for i in np.unique(feed_of):
+            mine = np.flatnonzero(feed_of == i)
             r = self.feeds[i].tick(k)
             n = len(r.t)
-            ideal_g[:n, slots] = r.gyr[:, self._column[slots]]
-            ideal_a[:n, slots] = r.acc[:, self._column[slots]]
-        j = k * per + np.arange(per)
-        g, a = self.devices.read(np.tile(np.arange(m), per), np.repeat(j, m), ideal_g.reshape(-1, 3),
-                                 ideal_a.reshape(-1, 3))
-        return g.reshape(per, m, 3), a.reshape(per, m, 3)
+            ideal_g[:n, mine] = r.gyr[:, self._column[slots[mine]]]
+            ideal_a[:n, mine] = r.acc[:, self._column[slots[mine]]]
+        raw = k * per + np.arange(per)
+        g, a = self.devices.read(np.tile(slots, per), np.repeat(raw, j), ideal_g.reshape(-1, 3), ideal_a.reshape(-1, 3))
+        return g.reshape(per, j, 3), a.reshape(per, j, 3)

@@ -67,7 +67,13 @@ def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, ni
     gap = _DEFAULTS.max_gap if max_gap_s is None else int(round(float(max_gap_s) * TICK_HZ))
     return ImuSettings(1.0 / rate_hz, int(round(TICK_HZ / device_rate_hz)), gap,
                        _DEFAULTS.acc_limit if acc_limit is None else float(acc_limit), int(bool(nine_d)),
-                       float(rest_th_gyr_dps), float(rest_th_acc), float(heading_rad))
+                       float(rest_th_gyr_dps), float(rest_th_acc), heading_turn(heading_rad))
+
+
+def heading_turn(heading_rad: float):
+    """The start heading as LswImuSettings carries it: (cos, sin) of half the angle, computed
+    here in double (the device does no trigonometry for it)."""
+    return (ctypes.c_float * 2)(np.cos(0.5 * heading_rad), np.sin(0.5 * heading_rad))
 
 
 def y_up(q: np.ndarray) -> np.ndarray:
@@ -211,7 +217,7 @@ class ImuBank:
         """Device k's pipeline settings: the bank's, with its own start heading (what a firmware
         device is given in its FUSION message)."""
         own = ImuSettings.from_buffer_copy(self.imu_settings)
-        own.heading_rad = float(self.headings[k])
+        own.heading = heading_turn(float(self.headings[k]))
         return own
 
     def _raw(self, ticks, gyr, acc, mag) -> tuple[np.ndarray, int]:
