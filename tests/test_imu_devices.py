@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import zenoh
 
 from limbstream import imu, wire
 from limbstream.calibration import SensorModel
@@ -78,3 +79,49 @@ def test_raw_sensor_devices_calibrate_and_track_the_body_live(stack):  # noqa: F
     for d in watch.devices.values():
         assert d["fusion"] == "6D" and 0 <= d["gyro_bias_dps"] < 5 and d["at_rest"] in (True, False), d
         assert d["raw_faults"]["invalid"] == 0 and d["raw_faults"]["gap"] == 0, d
+
+
+def test_bad_raw_samples_are_counted_per_device_and_no_nan_reaches_a_point():
+    """The device bank's raw stage, on a real Zenoh session: NaN and Inf samples, a saturated
+    accelerometer, a stuck gyro, a time step back and one that jumps 1 s are counted per device in
+    its status (C's counts), and every point published is a finite unit quaternion."""
+    from limbstream import zconfig
+    from limbstream.device.bank import DeviceBank, RawStage
+    from limbstream.device.host import DeviceHost, HostSettings
+
+    session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
+    host = DeviceHost(session, HostSettings(truth=False, config=wire.DeviceConfig(**wire.LIVE_MODE)),
+                      lambda d, c: None, lambda d: bank.status(d, None))
+    for segment in ("hip", "l_thigh"):
+        host.add("s01", segment)
+    points = session.declare_subscriber(wire.device_selector("seg"), zenoh.handlers.FifoChannel(100_000))
+    host.declare()
+    bank = DeviceBank(host, 2, 8, RawStage(200.0, np.array([0.5, -2.0])))
+    for d in host.devices:
+        bank.start_stream(d, 0)
+    rng = np.random.default_rng(5)
+    n = 1200
+    t = np.arange(n) * 5000
+    t[700:] += 1_000_000  # a 1 s jump: the filter starts again
+    gyr = rng.normal(0, 1.0, (n, 2, 3))
+    acc = np.tile([0.0, 0.0, 9.81], (n, 2, 1)) + rng.normal(0, 0.3, (n, 2, 3))
+    bad = {"invalid": [100, 101, 102], "saturated": [200, 201], "gyr_stuck": [300, 301, 302, 303], "time_back": [400]}
+    gyr[100, 1, 0], acc[101, 1, 2], gyr[102, 1, 1] = np.nan, np.inf, -np.inf
+    acc[200, 1, 0], acc[201, 1] = 400.0, 0.0
+    gyr[300:304, 1] = 0.0
+    ticks = np.stack([t, t], axis=1)
+    ticks[400, 1] = ticks[399, 1]  # the same time again
+    for i in range(n):
+        bank.update_raw(ticks[i].astype(np.uint32), ticks[i] + 1_700_000_000_000_000, gyr[i], acc[i])
+    status = [wire.decode_status(wire.encode_status(bank.status(d, None))) for d in host.devices]
+    got = []
+    while (sample := points.try_recv()) is not None:
+        got.append(wire.decode_point(sample.payload.to_bytes()))
+    host.close()
+    session.close()
+    assert status[0].fusion.raw_faults == {"invalid": 0, "time_back": 0, "gap": 1, "saturated": 0, "gyr_stuck": 0}
+    want = {kind: len(rows) for kind, rows in bad.items()} | {"gap": 1}
+    assert status[1].fusion.raw_faults == want, status[1].fusion
+    assert status[1].fusion.fusion == "6D" and np.all(np.isfinite(status[1].fusion.gyro_bias_dps))
+    assert len(got) > 50 and all(np.isfinite(p.q).all() and abs(np.linalg.norm(p.q) - 1) < 1e-5 for p in got)
+    assert {p.stream for p in got} == {int(s) for s in bank.kernel.stream[:2]}
