@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         arrays[key] = q[:, s]
     if len(rec.sensors) == 1:
         arrays["quat"] = q[:, 0]
-    np.savez(args.output, **arrays)
+    np.savez(args.output, **arrays)  # type: ignore[arg-type]  # (numpy's stub: savez(file, *args, allow_pickle, **kwds))
     print(f"{args.path}: {len(rec.sensors)} sensor{'s' if len(rec.sensors) != 1 else ''} x {len(rec.t):,} samples "
           f"at {rec.fs:.1f} Hz, {'9D' if args.mag else '6D'}, rest threshold {args.rest_th_gyr:g} deg/s -> "
           f"{args.output} ({', '.join(arrays)})", file=sys.stderr)

@@ -62,6 +62,7 @@ def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, mo
     for index, motion in enumerate(motions):
         devices = imu.ImuDevices(len(motion.segments), model, rate_hz, sensors, stream=index)
         rec = imu.record(motion, devices)
+        assert rec.truth is not None and rec.movement is not None  # (an emulated recording has both)
         script_s = script_samples(motion.fs) / motion.fs
         pose = calibration.mounting_pose(motion.segments)
         back = quat.conjugate(devices.mounting)
@@ -70,7 +71,6 @@ def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, mo
             idx, samples = device_stream(rec.t, q)
             t = rec.t[idx]
             segment_truth = quat.multiply(quat.multiply(quat.Z_UP_TO_Y_UP, rec.truth[idx, s]), back[s])
-            assert rec.movement is not None
             out.append(Stream(t, samples, f"{motion.name}/{segment}", truth=segment_truth,
                               rest=_window(t, 0.0, calibration.REST_S),
                               mounting=_window(t, calibration.REST_S + calibration.MOVE_S,
