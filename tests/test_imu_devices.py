@@ -12,7 +12,7 @@ from limbstream.cli import emulate
 from limbstream.device.readings import RawFeed, RawSensors, raw_per_sample
 from limbstream.sources.generator import GeneratorSource
 from support.stack import StatsWatch, stack, wait_until  # noqa: F401 - the fixture
-from test_calibration import frames_compared
+from test_calibration import all_calibrated, frames_compared
 
 
 def test_raw_sensors_read_per_tick_what_a_whole_recording_reads():
@@ -64,10 +64,7 @@ def test_raw_sensor_devices_calibrate_and_track_the_body_live(stack):  # noqa: F
     stack.aggregator("--calibrate-on-start")
     watch = StatsWatch(stack.endpoint)
     try:
-        def calibrated():
-            devices = watch.poll()
-            return len(devices) == 10 and all(d["calibrated"] for d in devices.values())
-        wait_until(calibrated, 60, "all 10 raw-sensor devices calibrated", interval=0.2, on_fail=stack.logs)
+        all_calibrated(watch, stack.logs, "all 10 raw-sensor devices calibrated")
         subject = frames_compared(watch, 300, stack.logs)
         wait_until(lambda: all(d["fusion"] is not None for d in watch.poll().values()), 15, "fusion in the stats")
         status = watch.device_status("s01/l_thigh")
