@@ -162,13 +162,18 @@ function renderTable() {
     const cal = d.calibrated
       ? ` <span class="cal ok" title="calibrated ${fmt(d.calibration_age_s, 0)} s ago, heading drift ${fmt(d.heading_drift_dps, 3)} deg/s compensated">cal</span>`
       : (d.calibration_refused ? ` <span class="cal bad" title="${esc(d.calibration_refused)}">uncal</span>` : "");
+    // raw sensors: the device's fusion filter, its gyro bias estimate, rest and bad raw samples
+    const bad = Object.entries(d.raw_faults || {}).filter(([, n]) => n).map(([k, n]) => `${k} ${n}`).join(", ");
+    const fusion = d.fusion
+      ? ` <span class="fusion" data-fusion="${esc(d.fusion)}" title="VQF ${esc(d.fusion)} on the device: gyro bias ${fmt(d.gyro_bias_dps, 3)} deg/s${d.at_rest ? ", at rest" : ""}${bad ? `; bad raw samples: ${esc(bad)}` : ""}">${esc(d.fusion)} ${fmt(d.gyro_bias_dps, 2)}°/s</span>`
+      : "";
     const width = Math.round(36 * (d.msgs_per_s || 0) / maxRate);
     const sel = d.device === state.selected ? " selected" : "";
     rows.push(
       `<tr class="device${sel}" data-device="${esc(d.device)}" data-online="${d.online}" data-calibrated="${!!d.calibrated}" ` +
       `data-rate="${d.msgs_per_s ?? ""}" data-icr="${d.icr ?? ""}">` +
       `<td>${esc(d.segment)}</td>` +
-      `<td><span class="dot ${dot}"></span>${stateText}${cal}</td>` +
+      `<td><span class="dot ${dot}"></span>${stateText}${cal}${fusion}</td>` +
       `<td class="num"><span class="bar" style="width:${width}px"></span>${fmt(d.msgs_per_s, 1)}</td>` +
       `<td class="num">${fmtBig(d.bytes_per_s)}</td>` +
       `<td class="num">${fmt(d.icr, 3)}</td>` +

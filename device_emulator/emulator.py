@@ -15,6 +15,12 @@ the sample's true instant (SLERP between the feed's samples). A device whose fee
 after it. The truth tap carries raw sample batches with each sample's reference time. A device
 whose time base steps (its first sync after starting unsynced, or a resync after its holdover
 that moved more than 128 ms) starts a new stream.
+
+With raw sensors (``EmulatorSettings.imu``), each subject's feed is a
+:class:`~limbstream.device.readings.RawFeed` and each tick brings every device the raw samples
+its sensor reads over one device period (:class:`~limbstream.device.readings.RawSensors`), fused
+by the bank's raw stage; the truth tap carries the segments' true orientations at the devices'
+instants. Device clocks are then the feed's own (no offset, drift or jitter models).
 """
 from __future__ import annotations
 
@@ -28,10 +34,12 @@ import zenoh
 
 from limbstream import quat, wire
 from limbstream.calibration import SensorModel
-from limbstream.device.bank import DeviceBank
+from limbstream.device.bank import DeviceBank, RawStage
 from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device.host import Device, DeviceHost, HostSettings
+from limbstream.device.readings import RawSensors
 from limbstream.device.sync import SyncClient
+from limbstream.imu import ImuModel
 from limbstream.pacing import LoopStats, PacedLoop
 
 log = logging.getLogger("limbstream.emulator")
@@ -54,7 +62,11 @@ class EmulatorSettings:
     clock_id : distinguishes this process's clock draws from other processes' (first subject).
     sensors : the sensors' errors (mounting, heading, drift; limbstream.calibration): on, each
         device compresses what its sensor reports while its truth tap carries the segment's true
-        orientation.
+        orientation. With ``imu``: each sensor's mounting and its filter's start heading.
+    imu : the part of raw sensors (feeds are RawFeeds, ``imu_rate_hz``): each device fuses raw
+        samples (:class:`~limbstream.device.bank.RawStage`); None: devices are handed their
+        sensors' orientations.
+    imu_rate_hz : the raw sensors' rate, Hz.
     """
 
     host: HostSettings = HostSettings()
@@ -63,6 +75,8 @@ class EmulatorSettings:
     sensors: SensorModel = field(default_factory=SensorModel)
     anchor_us: float | None = None
     clock_id: int = 0
+    imu: ImuModel | None = None
+    imu_rate_hz: float = 200.0
 
 
 class Emulator:
@@ -92,7 +106,15 @@ class Emulator:
         self.devices: list[Device] = self.host.devices
         n = len(self.devices)
         ring = max(hs.raw_batch, RING_MIN)
-        self.bank = DeviceBank(self.host, n, ring)
+        self.raw: RawSensors | None = None
+        if settings.imu is not None:
+            if settings.clock.modelled:
+                raise ValueError("raw sensors sample on the feed's own clock: device clock models (--clock-offset-ms, "
+                                 "--clock-drift-ppm, --clock-jitter-us) are not available with them")
+            self.raw = RawSensors(self._by_length, settings.imu, settings.imu_rate_hz, settings.sensors,
+                                  settings.clock_id)
+        self.bank = DeviceBank(self.host, n, ring, None if self.raw is None else
+                               RawStage(settings.imu_rate_hz, self.raw.devices.heading))
         for d in self.devices:
             self.bank.start_stream(d, 0)
         self.n = self.bank.n  # samples each device has taken
@@ -112,10 +134,13 @@ class Emulator:
         ends = np.array([(d.source.length - 1) if d.source.length else -1 for d in self.devices], np.float64)
         last = np.floor(((ends * self.period_us) * (1.0 + self.clocks.drift) - self.clocks.phase_us) / self.period_us)
         self.n_last = np.where(ends >= 0, last, np.inf)
-        self.sensors = settings.sensors.draw(n, stream=settings.clock_id) if settings.sensors.on else None
+        on = settings.sensors.on and self.raw is None
+        self.sensors = settings.sensors.draw(n, stream=settings.clock_id) if on else None
         self._ring = ring
         self._ring_n = self.bank.kernel.sample                # sample number taken at each tick (-1: none)
         self._ring_t = self.bank.kernel.t_us                  # its stamp (common time base), us
+        if self.raw is not None:  # the kernel's rows are its fastSW calls': the tap's by tick
+            self._ring_n, self._ring_t = np.full((ring, n), -1, np.int64), np.zeros((ring, n), np.int64)
         self._ring_ref = np.zeros((ring, n), np.int64)        # its reference (true) time, us
         self._ring_q = np.zeros((ring, n, 4), np.float32)     # its value
         self.start_us = 0
@@ -224,25 +249,63 @@ class Emulator:
         the streams whose last sample this was; new streams where a time base stepped; config."""
         m = self._streaming()
         taken, n, q = self._take(k, m)
-        local = self.clocks.sample_local(n, taken) + self.clocks.jitter(len(taken))
-        stamps = np.round(self.sync.stamp(taken, local) if self.sync is not None else local).astype(np.int64)
         row = k % self._ring
         self._ring_ref[row, taken] = np.round(self.clocks.sample_time(n, taken)).astype(np.int64)
         self._ring_q[row, taken] = q
-        if self.sync is not None and self.sync.steps:
-            for slot in taken[self.sync.stepped[taken]]:
-                self._new_stream(self.devices[slot], k)
-        y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept
-        y[taken] = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.host.fs, q)
-        ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
-                 & 0xFFFFFFFF).astype(np.uint32)
-        self.bank.update(ticks, y, taken, stamps)
+        if self.raw is not None:
+            self._step_raw(k, m, taken)
+        else:
+            local = self.clocks.sample_local(n, taken) + self.clocks.jitter(len(taken))
+            stamps = np.round(self.sync.stamp(taken, local) if self.sync is not None else local).astype(np.int64)
+            if self.sync is not None and self.sync.steps:
+                for slot in taken[self.sync.stepped[taken]]:
+                    self._new_stream(self.devices[slot], k)
+            y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept
+            y[taken] = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.host.fs, q)
+            ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
+                     & 0xFFFFFFFF).astype(np.uint32)
+            self.bank.update(ticks, y, taken, stamps)
         self.ticks = k + 1
         if self.settings.host.truth:
             self._tap(k, m)
         for slot in taken[self.n[taken] > self.n_last[taken]]:
             self._end(self.devices[slot], k)
         self.host.answer_queries()
+
+    def _step_raw(self, k: int, m: int, taken: np.ndarray) -> None:
+        """Tick k of raw sensors: the first m devices' raw samples of device sample k, one bank
+        call each, stamped on the common time base; a device whose time base steps starts a new
+        stream (its fastSW afresh, its filter going on)."""
+        assert self.raw is not None
+        gyr, acc = self.raw.read(k, np.arange(m))
+        per = self.raw.per
+        raw_us = self.period_us / per
+        row = k % self._ring
+        self._ring_n[row, :m] = -1
+        b = self.bank
+        for i in range(per):
+            on_clock = self.clocks.phase_us[:m] + (k * per + i) * raw_us
+            stamps = self.clocks.grid_local[:m] + on_clock
+            if self.sync is not None:
+                stamps[taken] = self.sync.stamp(taken, stamps[taken])
+                if i == 0 and self.sync.steps:
+                    for slot in taken[self.sync.stepped[taken]]:
+                        self._restart_raw(self.devices[slot], k)
+            stamps = np.round(stamps).astype(np.int64)
+            ticks = (np.round(on_clock).astype(np.int64) & 0xFFFFFFFF).astype(np.uint32)
+            took = np.flatnonzero(b.update_raw(ticks, stamps, gyr[i], acc[i]))
+            self._ring_n[row, took] = b.kernel.base[took] + b.calls[took] - 1
+            self._ring_t[row, took] = stamps[took]
+
+    def _restart_raw(self, d: Device, k: int) -> None:
+        """Device d (raw sensors) starts a new stream at tick k: its stream so far ended (FINAL),
+        a fresh fastSW from this tick's sample."""
+        if self.settings.host.truth:
+            self._flush_tap(d, k - 1)
+        self.bank.end_stream(d)
+        self.bank.start_stream(d, reset=True)
+        self.raw_next[d.slot] = k
+        log.info("%s: time base stepped, new stream %d", d.id, self.bank.kernel.stream[d.slot])
 
     def _new_stream(self, d: Device, k: int) -> None:
         """Device d's time base stepped at tick k: end its stream at its previous sample (FINAL

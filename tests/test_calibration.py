@@ -206,6 +206,14 @@ def test_a_partial_body_calibrates_the_devices_it_has_and_names_the_segments_it_
     assert quat.angle_deg(corrected, [[1.0, 0.0, 0.0, 0.0]])[0] < 0.01
 
 
+def all_calibrated(watch: StatsWatch, on_fail, what: str = "all 10 devices calibrated") -> None:
+    """Wait until the stats say s01's 10 devices are calibrated."""
+    def calibrated():
+        devices = watch.poll()
+        return len(devices) == 10 and all(d["calibrated"] for d in devices.values())
+    wait_until(calibrated, 60, what, interval=0.2, on_fail=on_fail)
+
+
 def frames_compared(watch: StatsWatch, n: int, on_fail) -> dict:
     """s01's stats once at least ``n`` of its exact frames were compared with the truth."""
     def compared():
@@ -226,11 +234,7 @@ def test_up_with_real_sensors_calibrates_every_device_and_the_body_error_stays_s
     stack.aggregator("--calibrate-on-start")
     watch = StatsWatch(stack.endpoint)
     try:
-        def calibrated():
-            devices = watch.poll()
-            return len(devices) == 10 and all(d["calibrated"] for d in devices.values())
-        wait_until(calibrated, 60, "all 10 devices calibrated", interval=0.2, on_fail=stack.logs)
-
+        all_calibrated(watch, stack.logs)
         subject = frames_compared(watch, 500, stack.logs)
     finally:
         watch.close()

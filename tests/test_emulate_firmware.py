@@ -15,7 +15,7 @@ import pytest
 import zenoh
 import zenoh.ext as zext
 
-from limbstream import wire, zconfig
+from limbstream import quat, wire, zconfig
 from support.firmware import require_tools
 from support.stack import wait_until
 
@@ -94,6 +94,41 @@ def test_firmware_devices_send_the_host_devices_points(stack, elf, short_clip):
     counts = [len(p) for p in host.values()]
     assert all(10 < n < 369 / 2 for n in counts), counts  # live mode compresses; every device has points
     assert all(p[2] is not None for points in host.values() for p in points), "live mode: every point has its rate"
+
+
+def test_firmware_devices_fuse_raw_samples_as_the_host_devices_do(stack, elf, short_clip):
+    """``--imu raw``: a real part strapped at up to 90 deg, headings anywhere: each firmware device
+    is sent its FUSION settings (its start heading) and its sensor's RAW samples, runs VQF and
+    fastSW on the M4, and sends the host devices' points bit for bit (libm aside: a difference
+    names where the first point differs and the largest orientation difference)."""
+    raw = ["--imu", "raw", "--imu-model", "icm42688p", "--mounting-deg", "90", "--heading-deg", "180"]
+    stack.router()
+    host = run_once(stack, short_clip, *raw)
+    fw = run_once(stack, short_clip, *raw, "--firmware", "--firmware-elf", str(elf))
+    assert sorted(host) == sorted(fw) and len(host) == 10
+    report = {device: compare_points(host[device], fw[device]) for device in sorted(host)}
+    print("\n".join(f"{device}: {text}" for device, (_, text) in report.items()))
+    assert all(ok for ok, _ in report.values()), report
+    counts = [len(p) for p in host.values()]
+    assert all(10 < n < 700 for n in counts), counts
+
+
+def compare_points(host: list[tuple], fw: list[tuple]) -> tuple[bool, str]:
+    """Whether a firmware device's points are the host device's, and what differs: bit for bit,
+    or (libm: newlib's float sin, cos, acos on the M4 against glibc's) where the first point
+    differs and the largest orientation difference between points of the same sample, which must
+    stay under 0.01 deg with at least 90 % of the sample indices in common."""
+    first = next((i for i, (a, b) in enumerate(zip(fw, host)) if a != b), None)
+    if first is None and len(fw) == len(host):
+        return True, f"{len(host)} points, bit for bit"
+    mine, theirs = {p[0]: p[1] for p in fw}, {p[0]: p[1] for p in host}
+    common = sorted(set(mine) & set(theirs))
+    gap = max((float(quat.angle_deg(np.array(mine[i], np.float64), np.array(theirs[i], np.float64))) for i in common),
+              default=float("inf"))
+    shared = len(common) / max(len(mine), len(theirs))
+    text = (f"first point that differs: {first} of {len(host)} (firmware: {len(fw)} points); largest orientation "
+            f"difference {gap:.3g} deg; {100 * shared:.0f} % of the sample indices in common")
+    return gap < 0.01 and shared >= 0.9, text
 
 
 def qemu_children(pid: int) -> list[int]:

@@ -32,13 +32,36 @@ def total_rmse_deg(est: np.ndarray, truth: np.ndarray, movement: np.ndarray) -> 
 
 @pytest.mark.parametrize("name", [p.name for p in BROAD] or ["01_undisturbed_slow_rotation_A.mat"])
 def test_broad_9d_equals_online_vqf(name):
+    """The device's fusion (its filter settings: rest threshold 0.5 deg/s) against online VQF with
+    the same settings, and against VQF's defaults: 9D total RMSE within 0.05 deg of both."""
     d = load_broad(require_data(f"broad/{name}"))
     ours = fusion.fuse(d["imu_gyr"], d["imu_acc"], d["imu_mag"], rate_hz=d["rate"])
-    online = vqf.VQF(1.0 / d["rate"]).updateBatch(d["imu_gyr"], d["imu_acc"], d["imu_mag"])["quat9D"]
     e_ours = total_rmse_deg(ours, d["opt_quat"], d["movement"])
-    e_online = total_rmse_deg(online, d["opt_quat"], d["movement"])
-    assert abs(e_ours - e_online) <= 0.05, f"{name}: 9D total RMSE {e_ours:.4f} deg, online VQF {e_online:.4f} deg"
+    for params in ({"restThGyr": fusion.REST_TH_GYR_DPS, "restThAcc": fusion.REST_TH_ACC}, {}):
+        online = vqf.VQF(1.0 / d["rate"], **params).updateBatch(d["imu_gyr"], d["imu_acc"], d["imu_mag"])["quat9D"]
+        e_online = total_rmse_deg(online, d["opt_quat"], d["movement"])
+        assert abs(e_ours - e_online) <= 0.05, f"{name}: 9D total RMSE {e_ours:.4f} deg, online VQF {params} {e_online:.4f}"
     assert np.isfinite(ours).all() and np.allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-5)
+
+
+def test_filter_settings_and_start_heading_are_vqfs():
+    """The rest threshold and start heading reach VQF as its own parameter and state would: the
+    kernel's 6D orientation follows online VQF given restThGyr and its gyroscope quaternion."""
+    d = load_broad(require_data("broad/04_undisturbed_slow_rotation_with_breaks_A.mat"))
+    n = 20000
+    g, a = d["imu_gyr"][:n], d["imu_acc"][:n]
+    for th, heading in ((0.5, 2.5), (2.0, -1.0)):
+        ours = fusion.fuse(g, a, rate_hz=d["rate"], rest_th_gyr_dps=th, heading_rad=heading)
+        f = vqf.VQF(1.0 / d["rate"], restThGyr=th)
+        state = f.state
+        state["gyrQuat"] = np.array([np.cos(heading / 2), 0.0, 0.0, np.sin(heading / 2)])
+        f.state = state
+        out = f.updateBatch(np.ascontiguousarray(g), np.ascontiguousarray(a))
+        gap = quat.angle_deg(ours, out["quat6D"])
+        assert gap.max() < 0.2, f"restThGyr {th}, heading {heading}: {gap.max():.3f} deg off online VQF"
+        assert abs(np.degrees(2 * np.arctan2(ours[0, 3], ours[0, 0])) - np.degrees(heading)) < 2.0
+    with pytest.raises(ValueError, match="rest_th_gyr_dps"):
+        fusion.imu_settings(200.0, rest_th_gyr_dps=0.0)
 
 
 def test_6d_follows_online_vqf():
@@ -97,7 +120,7 @@ def test_device_instants():
 
 def test_pipeline_equals_fusion_then_fastsw():
     """The bank's points are fastSW's (live rule) on the orientations :func:`fuse` gives at the
-    device's samples, bit for bit: one code path."""
+    device's samples turned Y up (as float32 arithmetic does it), bit for bit: one code path."""
     d = load_broad(require_data("broad/21_undisturbed_fast_combined.mat"))
     n = 6000
     g, a = d["imu_gyr"][:n], d["imu_acc"][:n]
@@ -110,13 +133,21 @@ def test_pipeline_equals_fusion_then_fastsw():
             outputs.append(i)
         if status[0] == kernel.POINT:
             points.append((int(index[0]), y[0].copy(), bank.segments.points_omega()[0]))
-    q = fusion.fuse(g, a, rate_hz=d["rate"], t=ticks / 1e6).astype(np.float32)
+    q = y_up(fusion.fuse(g, a, rate_hz=d["rate"], t=ticks / 1e6).astype(np.float32))
     rows = np.asarray(outputs)
+    assert np.array_equal(rows, fusion.device_instants(ticks / 1e6, wire.DEVICE_RATE_HZ)), "device_instants is C's rule"
     ref = kernel.segment(ticks[rows] / 1e6, q[rows], 9e-4, 25, live_bound_deg=5.0)
     got_index = [p[0] for p in points]
     assert got_index == list(ref.index[:len(got_index)]), "points at other device samples than fastSW's"
     assert np.array_equal(np.array([p[1] for p in points]), ref.q[:len(points)])
     assert np.allclose(np.array([p[2] for p in points]), ref.omega[:len(points)], rtol=1e-5, atol=1e-6)
+
+
+def y_up(q: np.ndarray) -> np.ndarray:
+    """(n, 4) float32 Z-up orientations turned into limbstream's Y-up world as lsw_imu_y_up does."""
+    turned = fusion.y_up(q)
+    assert np.allclose(turned, quat.multiply(quat.Z_UP_TO_Y_UP, q), atol=1e-6)
+    return turned
 
 
 def test_bank_wire_messages():

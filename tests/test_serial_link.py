@@ -143,20 +143,22 @@ def test_the_gateway_side_counts_bad_frames_and_goes_on():
 
 
 def test_raw_and_fusion_messages():
-    """RAW and FUSION as a device reads them (54- and 25-byte frames, the fields in order); a
+    """RAW and FUSION as a device reads them (54- and 41-byte frames, the fields in order); a
     FUSION_STATUS body decoded; FUSION's refusal worded for the fusion, not a tunable."""
     reader = link.FrameReader(link.HOST_BODIES)
     raw = link.encode_raw(7, 1_790_000_000_000_123, [0.1, -0.2, 0.3], [0.0, 0.5, 9.8])
-    settings = kernel.fusion.imu_settings(285.7, nine_d=True)
+    settings = kernel.fusion.imu_settings(285.7, nine_d=True, heading_rad=-1.5)
     fusion = link.encode_fusion(3, settings.raw_period_s, settings.out_period, settings.max_gap, settings.acc_limit,
-                                True)
-    assert (len(raw), len(fusion)) == (54, 25)
+                                True, settings.rest_th_gyr, settings.rest_th_acc, tuple(settings.heading))
+    assert (len(raw), len(fusion)) == (54, 41)
     (kind, body), (kind2, body2) = reader.feed(raw + fusion)
     assert kind == link.RAW and np.array_equal(np.frombuffer(body[12:], "<f4"),
                                                np.float32([0.1, -0.2, 0.3, 0.0, 0.5, 9.8, 0, 0, 0]))
     assert int.from_bytes(body[:4], "little") == 7 and int.from_bytes(body[4:12], "little") == 1_790_000_000_000_123
     assert kind2 == link.FUSION and np.frombuffer(body2[2:6], "<f4")[0] == np.float32(1 / 285.7)
-    assert int.from_bytes(body2[6:10], "little") == 20_000 and body2[-1] == 1  # the device period, us
+    assert int.from_bytes(body2[6:10], "little") == 20_000 and body2[18] == 1  # the device period, us; 9D
+    assert np.array_equal(np.frombuffer(body2[19:], "<f4"),
+                          np.float32([0.5, 0.5, np.cos(-0.75), np.sin(-0.75)]))  # rest thresholds, heading
     status = link.decode_device(link.FUSION_STATUS, bytes([5, 0, 9, 1]) + np.float32([1e-3, 0, -2e-3]).tobytes()
                                 + np.uint32([100, 25, 1, 2, 0, 3, 4]).tobytes())
     assert (status.request, status.mode, status.rest, status.raw, status.samples) == (5, "9D", True, 100, 25)

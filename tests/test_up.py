@@ -148,6 +148,18 @@ def test_up_runs_live_mode_unless_told_otherwise():
     assert (off.live_bound_deg, off.threshold) == (0.0, 0.01)
 
 
+def test_up_passes_raw_sensors_on_and_calibrates_them():
+    """``up --imu raw``: the emulators get the raw sensors' flags, the aggregator calibrates."""
+    from limbstream.cli import up as up_cli
+    parser = argparse.ArgumentParser()
+    up_cli.add_arguments(parser)
+    parts = dict(up_cli.plan(parser.parse_args(["--no-sync", "--imu", "raw", "--imu-model", "icm42688p",
+                                                "--mounting-deg", "90", "--heading-deg", "180"])))
+    emulate = " ".join(parts["emulator"])
+    assert "--imu raw --imu-model icm42688p --imu-rate 200" in emulate and "--mounting-deg 90" in emulate, emulate
+    assert "--calibrate-on-start" in parts["aggregator"]
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--source", "{tmp}/missing.npz"], "{tmp}/missing.npz: no such file or folder"),
     (["--speed", "0"], "--speed must be > 0, got 0"),
@@ -157,6 +169,8 @@ def test_up_runs_live_mode_unless_told_otherwise():
     (["--clock-drift-ppm", "5000"], "--clock-drift-ppm must be in 0..1000, got 5000.0"),
     (["--source", "{xsens}"], "no sensor maps to a body segment (sensors found: 00B421E6,"),
     (["--names", "opensense"], "--names maps the sensors of an IMU recording; the generator has none"),
+    (["--imu", "raw", "--yaw-drift-dps", "0.1"], "--yaw-drift-dps is the modelled sensors' drift formula"),
+    (["--imu", "raw", "--clock-drift-ppm", "50"], "--imu raw samples on the feed's own clock"),
 ])
 def test_up_checks_its_flags_and_source_before_starting_anything(argv, message, tmp_path, xsens_dir, capsys):
     """A bad flag or source is one error line naming it alone, exit 2, before any part starts."""

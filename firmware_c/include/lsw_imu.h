@@ -26,6 +26,10 @@
  * |                                              |   GYR_STUCK)                               |
  *
  * So only finite samples reach VQF, and no NaN reaches fastSW or a point.
+ *
+ * Frames: lsw_imu_fuse gives VQF's orientation (the sensor frame in VQF's earth frame, z up);
+ * lsw_imu_bank_update, a device, sends it in limbstream's world (y up: turned by -90 degrees about
+ * x, LSW_IMU_Y_UP), the frame every device's segment points are in (docs/protocol.md).
  */
 #ifndef LSW_IMU_H
 #define LSW_IMU_H
@@ -59,9 +63,17 @@ typedef struct {
     uint32_t max_gap;     /**< a time step longer than this (ticks) resets the filter */
     float acc_limit;      /**< an acc component at or beyond this, m/s^2, is saturated */
     uint32_t nine_d;      /**< 1: 9D (magnetometer heading correction), 0: 6D */
+    float rest_th_gyr;    /**< VQF's rest threshold on the angular rate, deg/s (VQF's default: 2) */
+    float rest_th_acc;    /**< VQF's rest threshold on the specific force, m/s^2 (VQF's default: 0.5) */
+    float heading[2];     /**< the filter's start heading about the earth's vertical (and after a reset):
+                               cos and sin of half its angle, (1, 0) for none */
 } LswImuSettings;
 
-/** 200 Hz raw, 50 Hz out (us ticks), max_gap 0.1 s, acc_limit 156 m/s^2 (a +-16 g part), 6D. */
+/**
+ * 200 Hz raw, 50 Hz out (us ticks), max_gap 0.1 s, acc_limit 156 m/s^2 (a +-16 g part), 6D; rest
+ * thresholds 0.5 deg/s and 0.5 m/s^2 (a body tracker's: VQF's 2 deg/s takes quiet standing sway
+ * for rest and learns the sway as gyro bias; docs/kernel.md, "Filter settings"), heading 0.
+ */
 extern const LswImuSettings lsw_imu_default_settings;
 
 /** Bad raw samples, by kind (LswImu.faults). */
@@ -109,9 +121,14 @@ void lsw_imu_bias(const LswImu *imu, float bias[3]);
 /** 1 while the filter detects rest, else 0. */
 int lsw_imu_rest(const LswImu *imu);
 
+/** q (w x y z) in VQF's earth frame (z up) turned into limbstream's world (y up), in place:
+ * -90 degrees about x on the left (limbstream.quat.Z_UP_TO_Y_UP). */
+void lsw_imu_y_up(float q[4]);
+
 /**
  * Many devices, one raw sample each (raw[k], its stamp t_us[k] in us since the epoch): each is
- * fused (lsw_imu_fuse); a device's sample for an instant goes to its fastSW state (states[k]),
+ * fused (lsw_imu_fuse); a device's sample for an instant, turned y up (lsw_imu_y_up), goes to its
+ * fastSW state (states[k]),
  * and status[k] is FASTSW_NONE / POINT / REJECTED as fastsw_update's, else LSW_IMU_NO_OUTPUT or
  * LSW_IMU_SKIPPED. points[k] and rates[k*4..] as fastsw_update_many's. With wire (may be NULL),
  * the device-rate sample's number (imus[k].outputs - 1 + wire->base[k]) and stamp go into

@@ -40,6 +40,21 @@ void lsw_vqf_init(LswVqf *v, float period_s);
 /** Back to the state after lsw_vqf_init (identity orientation, zero bias), parameters kept. */
 void lsw_vqf_reset(LswVqf *v);
 
+/**
+ * VQF's rest detection thresholds (VQFParams.restThGyr, deg/s, and restThAcc, m/s^2; VQF's
+ * defaults 2 and 0.5): rest is detected where the low-passed readings stay within them of their
+ * mean for restMinT (1.5 s).
+ */
+void lsw_vqf_set_rest_thresholds(LswVqf *v, float gyr_dps, float acc);
+
+/**
+ * Turn the filter's earth frame about its vertical (z): VQF's gyroscope quaternion set to
+ * (heading[0], 0, 0, heading[1]), a unit turn (cos h/2, sin h/2) computed by the caller (no
+ * trigonometry here: the host and the firmware then start from the same bits). Call before the
+ * first sample (a device's start heading).
+ */
+void lsw_vqf_set_heading(LswVqf *v, const float heading[2]);
+
 /** One gyroscope sample, rad/s, sensor frame: strapdown integration, gyro rest detection. */
 void lsw_vqf_gyr(LswVqf *v, const float gyr[3]);
 

@@ -9,7 +9,7 @@
 
 #define SAMPLE_BODY 28u
 #define RAW_BODY 48u
-#define FUSION_BODY 19u
+#define FUSION_BODY 35u
 #define CONFIG_BODY 26u
 #define START_BODY 4u
 #define REQUEST_BODY 2u
@@ -191,8 +191,16 @@ static void on_fusion(Device *d, uint16_t request, const uint8_t *body)
     s.max_gap = lsw_get_u32(body + 8);
     s.acc_limit = lsw_get_f32(body + 12);
     s.nine_d = body[16];
+    s.rest_th_gyr = lsw_get_f32(body + 17);
+    s.rest_th_acc = lsw_get_f32(body + 21);
+    s.heading[0] = lsw_get_f32(body + 25);
+    s.heading[1] = lsw_get_f32(body + 29);
     if (!(s.raw_period_s > 0.0f && s.raw_period_s <= 1.0f) || s.out_period == 0u || s.max_gap == 0u ||
-        !(s.acc_limit > 0.0f && s.acc_limit <= LSW_IMU_RANGE) || s.nine_d > 1u) {
+        !(s.acc_limit > 0.0f && s.acc_limit <= LSW_IMU_RANGE) || s.nine_d > 1u ||
+        !(s.rest_th_gyr > 0.0f && s.rest_th_gyr <= 1000.0f) || !(s.rest_th_acc > 0.0f && s.rest_th_acc <= 1000.0f) ||
+        !(s.heading[0] >= -1.0f && s.heading[0] <= 1.0f && s.heading[1] >= -1.0f && s.heading[1] <= 1.0f) ||
+        !(s.heading[0] * s.heading[0] + s.heading[1] * s.heading[1] > 0.99f &&
+          s.heading[0] * s.heading[0] + s.heading[1] * s.heading[1] < 1.01f)) {
         d->refused++;
         send_ack(d, request, LSW_MSG_FUSION, ACK_REFUSED, NO_TUNABLE, 0.0);
         return;

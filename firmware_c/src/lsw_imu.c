@@ -9,13 +9,30 @@ const LswImuSettings lsw_imu_default_settings = {
     100000u, /* max_gap: 0.1 s in us */
     156.0f,  /* acc_limit: just under 16 g */
     0u,      /* 6D */
+    0.5f,    /* rest_th_gyr: deg/s, a body tracker's (VQF's default 2) */
+    0.5f,    /* rest_th_acc: m/s^2, VQF's default */
+    {1.0f, 0.0f}, /* heading: none */
 };
+
+/** The filter from scratch with the settings' rest thresholds and start heading. */
+static void start_filter(LswImu *imu, int reset)
+{
+    if (reset) {
+        lsw_vqf_reset(&imu->vqf);
+    } else {
+        lsw_vqf_init(&imu->vqf, imu->settings.raw_period_s);
+        lsw_vqf_set_rest_thresholds(&imu->vqf, imu->settings.rest_th_gyr, imu->settings.rest_th_acc);
+    }
+    if (imu->settings.heading[1] != 0.0f) {
+        lsw_vqf_set_heading(&imu->vqf, imu->settings.heading);
+    }
+}
 
 void lsw_imu_init(LswImu *imu, const LswImuSettings *settings)
 {
     uint32_t k;
     imu->settings = *settings;
-    lsw_vqf_init(&imu->vqf, settings->raw_period_s);
+    start_filter(imu, 0);
     imu->started = 0u;
     imu->last_t = 0u;
     imu->next_instant = 0u;
@@ -65,7 +82,7 @@ static int take_time(LswImu *imu, uint32_t t)
     }
     if (step > imu->settings.max_gap) {
         imu->faults[LSW_IMU_GAP]++;
-        lsw_vqf_reset(&imu->vqf);
+        start_filter(imu, 1);
         imu->started = 0u;
     }
     return 1;
@@ -138,6 +155,16 @@ int lsw_imu_rest(const LswImu *imu)
     return lsw_vqf_rest(&imu->vqf);
 }
 
+void lsw_imu_y_up(float q[4])
+{
+    const float c = 0.70710677f; /* sqrt(1/2) as a float */
+    const float w = q[0], x = q[1], y = q[2], z = q[3];
+    q[0] = c * (w + x);
+    q[1] = c * (x - w);
+    q[2] = c * (y + z);
+    q[3] = c * (z - y);
+}
+
 size_t lsw_imu_bank_update(LswImu *imus, FastswState *states, size_t count, const LswRawSample *raw,
                            const int64_t *t_us, uint8_t *status, FastswPoint *points, float *rates,
                            const LswBankWire *wire, uint8_t *out, uint32_t *slots, uint32_t *ends)
@@ -154,6 +181,7 @@ size_t lsw_imu_bank_update(LswImu *imus, FastswState *states, size_t count, cons
                 wire->sample[row] = wire->base[k] + (int64_t)call;
                 wire->t_us[row] = t_us[k];
             }
+            lsw_imu_y_up(q);
             fused = (uint32_t)fastsw_update(&states[k], tick, q, &points[k]);
             if (fused == (uint32_t)FASTSW_POINT) {
                 fastsw_point_rate(&states[k], rates + 4u * k);

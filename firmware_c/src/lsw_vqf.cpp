@@ -57,6 +57,21 @@ void lsw_vqf_reset(LswVqf *v)
     filter(v)->resetState();
 }
 
+void lsw_vqf_set_rest_thresholds(LswVqf *v, float gyr_dps, float acc)
+{
+    filter(v)->setRestDetectionThresholds(gyr_dps, acc);
+}
+
+void lsw_vqf_set_heading(LswVqf *v, const float heading[2])
+{
+    VQFState state = filter(v)->getState();
+    state.gyrQuat[0] = heading[0];
+    state.gyrQuat[1] = 0.0f;
+    state.gyrQuat[2] = 0.0f;
+    state.gyrQuat[3] = heading[1];
+    filter(v)->setState(state);
+}
+
 void lsw_vqf_gyr(LswVqf *v, const float gyr[3])
 {
     filter(v)->updateGyr(gyr);

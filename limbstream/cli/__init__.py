@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("limbstream.cli.calibrate", "calibrate a subject's devices from the pose it holds"),
     "watch": ("limbstream.cli.watch", "print a live text view of a subject's pose stream"),
     "eval": ("limbstream.cli.evaluate", "evaluate segmentation algorithms on motion files"),
+    "fuse": ("limbstream.cli.fuse", "the device's orientation per sample for every sensor of a raw recording"),
     "record": ("limbstream.cli.record", "record what crosses the router to an MCAP file"),
     "replay": ("limbstream.cli.replay", "publish a recording's devices again (segment points, truth)"),
     "export": ("limbstream.cli.export", "export a recording or motion file to BVH, CSV or npz"),

@@ -15,8 +15,10 @@ from limbstream.device.clocks import ClockSettings
 from limbstream.device.host import HostSettings
 from limbstream.device_emulator.emulator import EmulatorSettings
 from limbstream.device.feeds import GeneratorFeed, LoopFeed
+from limbstream.device.readings import RawFeed
 from limbstream.device_emulator.main import subject_names
 from limbstream.sources import MotionFileError, load
+from limbstream.sources.generator import GeneratorSource
 
 PROG = "limbstream emulate"
 
@@ -24,8 +26,11 @@ PROG = "limbstream emulate"
 def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
     """{subject: feed} from --source: the generator (seed = subject number) or a motion file, whose
     clips the subjects share in turn (:func:`clip_of`); ``scripted``: each begins with the
-    calibration script (limbstream.calibration)."""
+    calibration script (limbstream.calibration). With ``--imu raw``: raw sensor feeds (each with
+    the script, every subject from its clip's start)."""
     names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
+    if args.imu == "raw":
+        return raw_feeds(args, names)
     feeds: dict[str, GeneratorFeed | LoopFeed]
     if args.source == "generator":
         feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
@@ -40,6 +45,16 @@ def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
         return feeds
     return {name: calibration.ScriptedFeed(f, args.rate, None if f.length is not None or not hasattr(f, "q")
                                            else len(f.q)) for name, f in feeds.items()}
+
+
+def raw_feeds(args: argparse.Namespace, names: list[str]) -> dict[str, RawFeed]:
+    """{subject: RawFeed} of ``--imu raw`` (see :func:`build_feeds`)."""
+    if args.source == "generator":
+        return {name: RawFeed(GeneratorSource(seed=args.seed + args.first_subject + i, fs=args.rate), args.imu_rate,
+                              args.rate) for i, name in enumerate(names)}
+    motions = load(args.source, args.names)
+    return {name: RawFeed(motions[clip_of(args.first_subject + i, len(motions), True)[0]], args.imu_rate, args.rate,
+                          once=args.once) for i, name in enumerate(names)}
 
 
 START_STEP = (5 ** 0.5 - 1) / 2
@@ -184,9 +199,12 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         feeds = build_feeds(args, scripted=sensors.on)
     except (MotionFileError, ValueError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
-    if args.firmware:
-        return run_firmware(args, feeds, settings_of(args, sensors), stop)
     settings = settings_of(args, sensors)
+    if args.firmware:
+        return run_firmware(args, feeds, settings, stop)
+    if settings.imu is not None and settings.clock.modelled:
+        raise SystemExit("limbstream emulate: error: --imu raw samples on the feed's own clock: device clock models "
+                         "(--clock-offset-ms, --clock-drift-ppm, --clock-jitter-us) are not available with it")
     return emulator.run(feeds, settings, flags.session_settings(args, PROG), args.duration, args.verbose, stop)
 
 
@@ -196,23 +214,30 @@ def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
                                          raw_batch=args.raw_batch, cache=args.cache),
                             speed=args.speed, clock=clock_settings(args),
                             anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
-                            clock_id=args.first_subject, sensors=sensors)
+                            clock_id=args.first_subject, sensors=sensors, imu=flags.imu_model(args),
+                            imu_rate_hz=args.imu_rate)
 
 
 def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettings,
                  stop: threading.Event | None) -> int:
     """``--firmware``: the devices' firmware under QEMU (limbstream.services.gateway.firmware_devices).
-    Each device takes its feed's own samples: modelled clocks and sensor errors are refused."""
+    Each device takes its feed's own samples (with ``--imu raw`` its sensor's readings, the
+    emulator's): modelled clocks and the orientation sensor model are refused."""
+    from limbstream.device.readings import RawSensors
     from limbstream.services.gateway import firmware, firmware_devices
-    if settings.clock.modelled or settings.sensors.on:
+    if settings.clock.modelled or (settings.sensors.on and settings.imu is None):
         raise SystemExit("limbstream emulate: error: --firmware feeds every device its motion's own samples: "
                          "device clock models (--clock-offset-ms, --clock-drift-ppm, --clock-jitter-us) and "
-                         "sensor errors are not available with it")
+                         "modelled sensor errors are not available with it (raw sensors are: --imu raw)")
     try:
         elf = args.firmware_elf or firmware.build()
     except (RuntimeError, OSError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if not elf.exists():
         raise SystemExit(f"limbstream emulate: error: no firmware at {elf}")
+    raw = None
+    if settings.imu is not None:  # the sensors as the host emulator draws them (its slot order: longest feeds first)
+        ordered = sorted(feeds.values(), key=lambda f: -(f.length or float("inf")))
+        raw = RawSensors(ordered, settings.imu, settings.imu_rate_hz, settings.sensors, settings.clock_id)
     return firmware_devices.run(feeds, settings.host, settings.speed, flags.session_settings(args, PROG), elf,
-                               args.duration, stop)
+                                args.duration, stop, raw, settings.imu_rate_hz)

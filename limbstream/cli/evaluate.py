@@ -15,12 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import calibration, kernel
+from limbstream.wire import DEVICE_RATE_HZ as DEVICE_RATE
 from limbstream.calibration import CalibrationError
 from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
                                    format_joint_errors, format_table, frontier, streams_of, write_json)
 from limbstream.evaluation.table import Progress
+from limbstream.kernel import fusion
 from limbstream.sources import Motion, MotionFileError, load
+from limbstream.sources.raw import RawRecording, load_raw
 
 
 def plot(
@@ -145,7 +148,9 @@ def _positive_int(text: str) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``limbstream eval``; every list flag takes ``A,B,C``."""
     parser.add_argument("paths", nargs="+", metavar="PATH",
-                        help="motion files (.npz, .bvh, x-IMU3 .csv, Xsens .txt) or folders of them")
+                        help="motion files (.npz, .bvh, x-IMU3 .csv, Xsens .txt), raw sensor recordings (BROAD "
+                             "trials, qmt-style full-body .mat files: fused as the device fuses them) or folders of "
+                             "them")
     parser.add_argument("--algorithms", type=flags.comma_list(_algorithm), default=None, metavar="NAME[,NAME...]",
                         help=f"algorithms to compare (default: {','.join(ALGORITHMS)}; fastsw with --live-bound)")
     parser.add_argument("--live-bound", type=flags.comma_list(_live_bound), default=None, metavar="DEG[,DEG...]",
@@ -167,6 +172,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --thresholds TH[,TH...]: each row's joint angle errors (mean, p99, bias per "
                              "angle) against the true angles, a second table (docs/evaluation.md, 'Joint angles'); "
                              "motion files only (a recording of real sensors has no true angles)")
+    parser.add_argument("--mag", action="store_true",
+                        help="raw recordings: fuse their magnetometer too (9D; default 6D, the heading aligned once "
+                             "at the start)")
+    parser.add_argument("--loop-minutes", type=float, default=None, metavar="M",
+                        help="motion files: play each clip looped for M minutes of motion, its seams joined smoothly "
+                             "(with a sensor model the calibration script plays once, at the start)")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here")
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG")
 
@@ -192,12 +203,62 @@ def _check(args: argparse.Namespace, algorithms: list[str], bounds: list[float])
         return "--joint-angles scores explicit rows: give them with --thresholds TH[,TH...]"
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         return f"--plot {args.plot}: must end in .png"
+    if args.loop_minutes is not None and not 0 < args.loop_minutes <= 600:
+        return f"--loop-minutes must be in (0, 600], got {args.loop_minutes:g}"
     return None
+
+
+def _raw_paths(path: str) -> list[Path] | None:
+    """The raw recordings ``path`` names (a .mat file, or a folder holding .mat files and no
+    motion files), None for motion files."""
+    p = Path(path)
+    if p.is_file():
+        return [p] if p.suffix.lower() == ".mat" else None
+    if p.is_dir():
+        files = sorted(f for f in p.iterdir() if f.is_file() and not f.name.startswith("."))
+        mats = [f for f in files if f.suffix.lower() == ".mat"]
+        return mats if mats and len(mats) == len([f for f in files if f.suffix.lower() != ".license"]) else None
+    return None
+
+
+def _inputs(args: argparse.Namespace) -> tuple[list[Motion], list[RawRecording]]:
+    """The motion files and raw recordings of the paths (MotionFileError, OSError)."""
+    motions: list[Motion] = []
+    recordings: list[RawRecording] = []
+    for path in args.paths:
+        raw = _raw_paths(path)
+        if raw is not None:
+            recordings.extend(load_raw(p) for p in raw)
+        else:
+            motions.extend(load(path, args.names))
+    return motions, recordings
+
+
+def _streams(args: argparse.Namespace, sensors: calibration.SensorModel, motions: list[Motion],
+             recordings: list[RawRecording]) -> list:
+    """Every stream to evaluate (ValueError naming a flag that does not apply)."""
+    from limbstream.evaluation import raw_streams
+
+    if args.loop_minutes is not None:
+        if recordings:
+            raise ValueError("--loop-minutes loops motion clips, not raw recordings "
+                             f"({', '.join(r.name for r in recordings)})")
+        motions = raw_streams.looped(motions, args.loop_minutes)
+    model = flags.imu_model(args)
+    streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate) if model is not None
+               else streams_of(motions, sensors))
+    for rec in recordings:
+        streams += raw_streams.recording_streams(rec, args.mag)
+    return streams
 
 
 def _notes(args: argparse.Namespace, sensors: calibration.SensorModel, motions: list[Motion], n_samples: int) -> None:
     """What a sensor model adds, or a --calibration with nothing to act on."""
-    if sensors.on:
+    if args.imu == "raw":
+        _note(f"raw sensors: every motion begins with the calibration script (rest {calibration.REST_S:g} s, mounting "
+              f"{calibration.MOUNTING_S:g} s); each device compresses its filter's orientation at its instants "
+              f"({DEVICE_RATE:g} Hz): {n_samples:,} samples, the script's included")
+    elif sensors.on:
         plain = sum(len(m.t) * len(m.segments) for m in motions)
         _note(f"the sensor model begins every motion with the calibration script (rest {calibration.REST_S:g} s, "
               f"mounting {calibration.MOUNTING_S:g} s, with the moves between): {n_samples:,} samples instead of "
@@ -207,6 +268,19 @@ def _notes(args: argparse.Namespace, sensors: calibration.SensorModel, motions: 
               "(--mounting-deg, --heading-deg, --yaw-drift-dps): the body column stays empty")
 
 
+def _raw_notes(args: argparse.Namespace, recordings: list[RawRecording]) -> None:
+    """What the rows of raw recordings hold."""
+    if not recordings:
+        return
+    mode = "9D" if args.mag else "6D"
+    _note(f"raw recordings are fused as the device fuses them (VQF {mode}, rest threshold {fusion.REST_TH_GYR_DPS:g} "
+          f"deg/s) and compressed at the device's instants ({DEVICE_RATE:g} Hz); ICR and AAD count those samples")
+    blind = [r.name for r in recordings if r.truth is None]
+    if blind:
+        _note(f"{', '.join(blind)}: no reference orientation: no fusion or chain error for its streams (ICR and AAD "
+              "only)")
+
+
 def run(args: argparse.Namespace) -> int:
     """``limbstream eval``: print the table and its legend, optionally write JSON rows and the plot."""
     algorithms = (list(dict.fromkeys(args.algorithms)) if args.algorithms is not None
@@ -214,14 +288,12 @@ def run(args: argparse.Namespace) -> int:
     bounds = list(dict.fromkeys(args.live_bound)) if args.live_bound is not None else [0.0]
     if (problem := _check(args, algorithms, bounds)) is not None:
         return _fail(problem)
-    motions: list[Motion] = []
-    for path in args.paths:
-        try:
-            motions.extend(load(path, args.names))
-        except MotionFileError as exc:
-            return _fail(str(exc))
-        except OSError as exc:
-            return _fail(f"{path}: {exc}")
+    try:
+        motions, recordings = _inputs(args)
+    except MotionFileError as exc:
+        return _fail(str(exc))
+    except OSError as exc:
+        return _fail(f"{exc}")
     if args.joint_angles and (real := [m.name for m in motions if m.orientations != "segments"]):
         return _fail(f"--joint-angles: {', '.join(real)}: a recording of real sensors has no true joint angles "
                      "(its orientations are not the segments' own); score motion files (.npz, .bvh)")
@@ -230,12 +302,16 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         return _fail(str(exc))
     poses = CALIBRATIONS[-1] if args.calibration is None else args.calibration
-    streams = streams_of(motions, sensors)
+    try:
+        streams = _streams(args, sensors, motions, recordings)
+    except ValueError as exc:
+        return _fail(str(exc))
     if not streams:
         return _fail(f"no motion streams in {' '.join(map(str, args.paths))}")
     thresholds = THRESHOLDS if args.thresholds is None else np.asarray(args.thresholds, np.float64)
     n_samples = sum(len(s.t) for s in streams)
     _notes(args, sensors, motions, n_samples)
+    _raw_notes(args, recordings)
 
     progress = Progress("limbstream eval: rows", lambda text: print(text, end="", file=sys.stderr, flush=True),
                         sys.stderr.isatty())
@@ -248,21 +324,29 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     elapsed = time.perf_counter() - start
-    _report(args, motions, streams, n_samples, algorithms, bounds, thresholds, sensors, poses, rows, elapsed)
+    _report(args, motions, len(recordings), streams, n_samples, algorithms, bounds, thresholds, sensors, poses, rows,
+            elapsed)
     return 0
 
 
-def _report(args: argparse.Namespace, motions: list[Motion], streams: list, n_samples: int, algorithms: list[str],
+def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, streams: list, n_samples: int,
+            algorithms: list[str],
             bounds: list[float], thresholds: np.ndarray, sensors: calibration.SensorModel, poses: tuple[str, ...],
             rows: list[dict], elapsed: float) -> None:
     """The run's line, the table with its legend, the files written."""
     def count(n: int, what: str) -> str:
         return f"{n:,} {what}{'' if n == 1 else 's'}"
-    print(f"{count(len(motions), 'motion')}, {count(len(streams), 'stream')}, {count(n_samples, 'sample')}; "
+    raw = f"{count(recordings, 'raw recording')}, " if recordings else ""
+    print(f"{count(len(motions), 'motion')}, {raw}{count(len(streams), 'stream')}, {count(n_samples, 'sample')}; "
           f"{count(len(algorithms), 'algorithm')} x {count(len(bounds), 'live bound')} x "
           f"{count(len(thresholds), 'threshold')}, max_len {args.max_len}, predictor {args.predictor}; "
           f"ran {elapsed:.1f} s")
-    if sensors.on:
+    if args.imu == "raw":
+        print(f"raw sensors: {args.imu_model} at {args.imu_rate:g} Hz, fused on each device (VQF 6D, rest threshold "
+              f"{fusion.REST_TH_GYR_DPS:g} deg/s); mounting <= {sensors.mounting_deg:g} deg, filter heading "
+              f"+-{sensors.heading_deg:g} deg, seed {sensors.seed}; calibration {','.join(poses) or 'none'}"
+              + (f"; each clip looped for {args.loop_minutes:g} min" if args.loop_minutes else ""))
+    elif sensors.on:
         print(f"sensors: mounting <= {sensors.mounting_deg:g} deg, heading +-{sensors.heading_deg:g} deg, yaw drift "
               f"+-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}; calibration {','.join(poses) or 'none'}")
     explicit = args.thresholds is not None

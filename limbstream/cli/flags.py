@@ -70,18 +70,51 @@ def add_sensor_model(parser: argparse.ArgumentParser) -> None:
                        ("--yaw-drift-dps", "... and that heading drifts at a uniform +-MAX deg/s")):
         group.add_argument(flag, type=float, default=0.0, metavar="MAX", help=text)
     group.add_argument("--sensor-seed", type=int, default=0, help="seed of the sensor draws (default 0)")
+    group.add_argument("--imu", choices=IMU_KINDS, default="orientation",
+                       help="what a device is given: its sensor's orientation (default), or raw gyroscope and "
+                            "accelerometer samples it fuses with VQF before fastSW (docs/evaluation.md, 'Raw sensors')")
+    group.add_argument("--imu-model", default="ideal", metavar="PART",
+                       help="with --imu raw: the sensor part whose errors the readings carry (ideal, icm42688p; "
+                            "default ideal)")
+    group.add_argument("--imu-rate", type=float, default=200.0, metavar="HZ",
+                       help=f"with --imu raw: the sensors' rate, a whole multiple of the device rate "
+                            f"{wire.DEVICE_RATE_HZ:g} Hz (default 200)")
+
+
+IMU_KINDS: tuple[str, ...] = ("orientation", "raw")
+"""What ``--imu`` hands a device: its sensor's orientation, or raw samples to fuse."""
 
 
 def sensor_model(args: argparse.Namespace) -> SensorModel:
-    """The SensorModel of the flags (ValueError naming a bad one)."""
+    """The SensorModel of the flags (ValueError naming a bad one, or a flag raw sensors do not take)."""
     from limbstream.calibration import SensorModel
-    return SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
+    model = SensorModel(args.mounting_deg, args.heading_deg, args.yaw_drift_dps, args.sensor_seed)
+    if getattr(args, "imu", "orientation") == "raw":
+        from limbstream import imu
+        from limbstream.device.readings import raw_per_sample
+        if model.yaw_drift_dps > 0:
+            raise ValueError("--yaw-drift-dps is the modelled sensors' drift formula; raw sensors drift with their "
+                             "gyroscope offset (--imu-model)")
+        imu.model(args.imu_model)
+        raw_per_sample(args.imu_rate, wire.DEVICE_RATE_HZ)
+    return model
 
 
-def sensor_model_argv(model: SensorModel) -> list[str]:
-    """The flags that give ``model`` (for a child process)."""
-    return ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
+def imu_model(args: argparse.Namespace):
+    """The part of ``--imu raw`` (:class:`limbstream.imu.ImuModel`), None for ``--imu orientation``."""
+    if getattr(args, "imu", "orientation") != "raw":
+        return None
+    from limbstream import imu
+    return imu.model(args.imu_model)
+
+
+def sensor_model_argv(model: SensorModel, args: argparse.Namespace | None = None) -> list[str]:
+    """The flags that give ``model`` and, from ``args``, the raw sensors (for a child process)."""
+    argv = ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
             "--yaw-drift-dps", f"{model.yaw_drift_dps:g}", "--sensor-seed", str(model.seed)]
+    if args is not None and args.imu == "raw":
+        argv += ["--imu", "raw", "--imu-model", args.imu_model, "--imu-rate", f"{args.imu_rate:g}"]
+    return argv
 
 
 # ----------------------------------------------------------------------------- zenoh

@@ -86,6 +86,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     start order."""
     connect = ["--connect", args.router, "--connect-timeout", "0"]  # parts wait for a restarted router
     sensors = flags.sensor_model(args)
+    raw = args.imu == "raw"  # a raw sensor's filter starts at its own heading: calibrated as a modelled one
     parts = []
     # a scaled time base (--speed) is shared by the time service and the devices: one anchor
     anchor = [] if args.speed == 1 else ["--time-anchor", f"{time.time():.3f}"]
@@ -104,8 +105,8 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
             argv.append("--no-truth")
         if args.firmware:
             argv.append("--firmware")
-        if sensors.on:
-            argv += flags.sensor_model_argv(sensors)
+        if sensors.on or raw:
+            argv += flags.sensor_model_argv(sensors, args)
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
     if args.slimevr is not None:
         argv = ["gateway", "slimevr", "--udp", args.slimevr, "--subject", args.slimevr_subject,
@@ -114,8 +115,8 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         if args.status_file is not None:  # run-time assignments kept beside the status file, as calibrations
             argv += ["--assignments-file", str(Path(args.status_file).with_name("slimevr-assignments.json"))]
         parts.append(("slimevr", argv + connect))
-    calibrations = ["--calibrate-on-start"] if sensors.on else []
-    if sensors.on and args.status_file is not None:  # kept beside the status file: they outlive a restart
+    calibrations = ["--calibrate-on-start"] if sensors.on or raw else []
+    if calibrations and args.status_file is not None:  # kept beside the status file: they outlive a restart
         calibrations += ["--calibration-file", str(Path(args.status_file).with_name("calibrations.json"))]
     parts.append(("aggregator", ["aggregate", *calibrations] + connect))
     return parts
@@ -201,8 +202,11 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     if args.slimevr is not None:
         parse_address(args.slimevr)
         wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
-    flags.sensor_model(args)  # a bad sensor bound
+    flags.sensor_model(args)  # a bad sensor bound, or one raw sensors do not take
     check_clock(args)
+    if args.imu == "raw" and (args.clock_offset_ms or args.clock_drift_ppm or args.clock_jitter_us):
+        raise ValueError("--imu raw samples on the feed's own clock: device clock models (--clock-offset-ms, "
+                         "--clock-drift-ppm, --clock-jitter-us) are not available with it")
     if args.source == "generator":
         if args.names is not None:
             raise ValueError("--names maps the sensors of an IMU recording; the generator has none")

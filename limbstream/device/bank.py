@@ -2,6 +2,11 @@
 for every device in one :class:`limbstream.kernel.SegmenterBank` call per tick, their segment
 points encoded by the kernel in the same call and published as they are.
 
+Devices fed raw IMU samples (:class:`RawStage`) run the raw-sample stage in front of fastSW:
+raw samples -> VQF -> the device's instants -> fastSW with the live rule, encoded in C
+(:class:`limbstream.kernel.fusion.ImuBank`, one call per raw sample of every device; the
+firmware runs the same code), and report their filter in their status.
+
 The bank keeps, per device, the sample numbers and stamps of its last ``ring`` kernel calls (a
 point refers to one of them), its samples taken, and the wire fields of its stream (id, next
 sequence number, base: ``kernel.stream[slot]`` ...). A stream ends with a FINAL point
@@ -11,12 +16,30 @@ point, the newest point repeated with FINAL.
 from __future__ import annotations
 
 import random
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from limbstream import kernel, wire
 from limbstream.device.host import Device, DeviceHost
+from limbstream.kernel import fusion
+
+
+@dataclass(frozen=True)
+class RawStage:
+    """The raw-sample stage of a bank's devices (:class:`limbstream.kernel.fusion.ImuBank`).
+
+    Attributes
+    ----------
+    rate_hz : the sensors' sample rate, Hz (the device rate stays the host's).
+    headings : (size,) each device's filter start heading, rad (None: 0).
+    rest_th_gyr_dps, rest_th_acc : VQF's rest thresholds (the device's defaults).
+    """
+
+    rate_hz: float
+    headings: np.ndarray | None = None
+    rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS
+    rest_th_acc: float = fusion.REST_TH_ACC
 
 
 class DeviceBank:
@@ -24,16 +47,25 @@ class DeviceBank:
 
     Parameters
     ----------
-    host : their device host (its settings give the initial config).
+    host : their device host (its settings give the initial config and the device rate).
     size : devices the bank can hold.
     ring : kernel calls remembered per device (at least the calls back to a device's newest
         point and the sample before it).
+    raw : the devices are fed raw IMU samples (:meth:`update_raw`), None: orientations
+        (:meth:`update`).
     """
 
-    def __init__(self, host: DeviceHost, size: int, ring: int):
+    def __init__(self, host: DeviceHost, size: int, ring: int, raw: RawStage | None = None):
         c = host.settings.config
         self.host, self.ring = host, ring
-        self.kernel = kernel.SegmenterBank(size, c.threshold, c.max_len, live_bound_deg=c.live_bound_deg, ring=ring)
+        self.imus: fusion.ImuBank | None = None
+        if raw is None:
+            self.kernel = kernel.SegmenterBank(size, c.threshold, c.max_len, live_bound_deg=c.live_bound_deg, ring=ring)
+        else:
+            self.imus = fusion.ImuBank(size, raw.rate_hz, host.settings.fs, False, c.threshold, c.max_len,
+                                       c.live_bound_deg, ring, rest_th_gyr_dps=raw.rest_th_gyr_dps,
+                                       rest_th_acc=raw.rest_th_acc, headings=raw.headings)
+            self.kernel = self.imus.segments
         self.n = np.zeros(size, np.int64)      # samples each device has taken
         self.calls = np.zeros(size, np.int64)  # kernel calls of each device since its reset (the kernel's index)
         self._lockstep = True                  # no device was reset: every device called so far has had as many calls
@@ -63,8 +95,34 @@ class DeviceBank:
             sample[rows[taken], taken] = self.n[taken]
             t_us[rows[taken], taken] = stamps
         self.n[taken] += 1
-        slots, payload, ends = self.kernel.update_wire(ticks, y)
+        self._publish(*self.kernel.update_wire(ticks, y))
         self.calls[:m] += 1
+
+    def update_raw(self, ticks: np.ndarray, t_us: np.ndarray, gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
+        """One raw sample of each of the first m devices (m = len(ticks)) through the raw-sample
+        stage; the segment points published.
+
+        Parameters
+        ----------
+        ticks : (m,) uint32 each sample's time on the device's own clock, us mod 2**32.
+        t_us : (m,) int64 its stamp on the common time base, us.
+        gyr, acc : (m, 3) rad/s and m/s^2, sensor frame.
+
+        Returns
+        -------
+        (m,) bool: the devices whose sample was their sample for a device instant (a fastSW call).
+        """
+        if self.imus is None:
+            raise ValueError("update_raw needs a bank made with a raw stage")
+        self._publish(*self.imus.update_raw_wire(ticks, t_us, gyr, acc))
+        took = self.kernel.status < fusion.NO_OUTPUT
+        m = len(took)
+        self.n[:m] += took
+        self.calls[:m] += took
+        self._lockstep = False
+        return took
+
+    def _publish(self, slots: np.ndarray, payload: bytes, ends: np.ndarray) -> None:
         devices, start = self.host.devices, 0
         for slot, end in zip(slots.tolist(), ends.tolist()):
             self.host.publish(devices[slot], payload[start:end])
@@ -75,7 +133,7 @@ class DeviceBank:
         sample ``base`` (default: its next); ``reset``: the kernel starts afresh too (its next
         sample is a first point)."""
         k = d.slot
-        if reset:
+        if reset:  # (a raw stage's filter goes on: the sensor did not stop)
             self.kernel.reset(k)
             self.calls[k] = 0
             self._lockstep = False
@@ -115,7 +173,17 @@ class DeviceBank:
 
     def status(self, d: Device, clock: wire.ClockStatus | None, rest_pose: str = wire.DEFAULT_REST_POSE,
                link: wire.LinkStatus | None = None) -> wire.DeviceStatus:
-        """Device d's own view: its config and the counters of its current stream, its clock and link."""
+        """Device d's own view: its config and the counters of its current stream, its clock and
+        link, and its fusion filter where it has a raw stage."""
         b = self.kernel
         return wire.DeviceStatus(d.id, d.config, int(b.stream[d.slot]), int(self.n[d.slot] - b.base[d.slot]),
-                                 d.points, clock, rest_pose, link)
+                                 d.points, clock, rest_pose, link, self.fusion_status(d.slot))
+
+    def fusion_status(self, slot: int) -> wire.FusionStatus | None:
+        """The filter of the device in ``slot`` (None without a raw stage)."""
+        if self.imus is None:
+            return None
+        report = self.imus.imu_status(slot, 1)
+        bias = np.degrees(report["bias"][0])
+        return wire.FusionStatus(self.imus.mode, (float(bias[0]), float(bias[1]), float(bias[2])),
+                                 bool(report["rest"][0]), {name: int(report[name][0]) for name in fusion.FAULTS})

@@ -153,3 +153,53 @@ def reference_vqf(gyr: np.ndarray, acc: np.ndarray, rate: float, mag: np.ndarray
         columns = [np.ascontiguousarray(x[:, s], np.float64) for x in (gyr, acc) + (() if mag is None else (mag,))]
         out[:, s] = f.updateBatch(*columns)["quat9D" if mag is not None else "quat6D"]
     return out
+
+
+@dataclass(frozen=True)
+class EarthTruth:
+    """The reference a device's stream is scored against with BROAD's metric (a raw sensor's
+    stream: :class:`limbstream.evaluation.sweep.Stream`'s ``earth``).
+
+    Attributes
+    ----------
+    truth : (m, 4) the sensor's true orientation in the filter's earth frame (Z up) at each of
+        the stream's samples; NaN rows where unseen.
+    movement : (m,) bool, the samples scored.
+    align_heading : 6D: the heading is aligned once at the start and its drift reported.
+    """
+
+    truth: np.ndarray
+    movement: np.ndarray
+    align_heading: bool
+
+
+FIGURES: tuple[str, ...] = ("total", "heading", "incl", "drift")
+"""The figures of :func:`pooled_error`, in order (the eval row keys ``fusion_*`` and ``chain_*``)."""
+
+
+def pooled_error(parts: list[tuple[np.ndarray, np.ndarray, EarthTruth]]) -> dict[str, float]:
+    """BROAD's figures of several streams at once: ``total``, ``heading``, ``incl`` the RMS over
+    every scored sample of all of them (deg), ``drift`` the median of the streams' heading drifts
+    (deg/min; NaN unless aligned).
+
+    Parameters
+    ----------
+    parts : per stream (estimate (m, 4) in the earth frame, Z up; t (m,) s; its EarthTruth).
+    """
+    squares = np.zeros(3)
+    count = 0
+    drifts = []
+    for estimate, t, ref in parts:
+        try:
+            e = fusion_error(estimate, ref.truth, t, ref.movement, ref.align_heading)
+        except ValueError:  # nothing of this stream to score
+            continue
+        squares += e.samples * np.array([e.total_deg, e.heading_deg, e.inclination_deg]) ** 2
+        count += e.samples
+        drifts.append(e.heading_drift_dpm)
+    if not count:
+        return dict.fromkeys(FIGURES, float("nan"))
+    total, heading, incl = np.sqrt(squares / count)
+    finite = [d for d in drifts if np.isfinite(d)]
+    return {"total": float(total), "heading": float(heading), "incl": float(incl),
+            "drift": float(np.median(finite)) if finite else float("nan")}

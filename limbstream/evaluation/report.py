@@ -31,7 +31,19 @@ EVAL_COLUMNS: tuple[Column, ...] = (
     Column("live_p99", "live p99", "deg", "99th percentile of the live error"),
     Column("live_max", "live max", "deg", "largest live error"),
     Column("body_aad", "body", "deg", "mean error of the calibrated reconstruction against the true segments; with "
-           "a sensor model (--mounting-deg, --heading-deg, --yaw-drift-dps)"),
+           "a sensor model (--mounting-deg, --heading-deg, --yaw-drift-dps) or raw sensors (--imu raw)"),
+    Column("fusion_total", "fus tot", "deg", "fusion error of raw sensors with a reference (BROAD's truth, emulated "
+           "sensors' own): RMS angle of the devices' samples (their filter's orientation, before calibration) "
+           "against it in the earth frame, over the movement phases", ".2f"),
+    Column("fusion_heading", "fus head", "deg", "its part about the vertical (6D: heading aligned once at the start)",
+           ".2f"),
+    Column("fusion_incl", "fus incl", "deg", "its inclination part", ".2f"),
+    Column("fusion_drift", "fus drift", "deg/min", "6D: drift of that heading error (median over the streams)", "+.2f"),
+    Column("chain_total", "chain tot", "deg", "chain error: the same of the reconstruction (segment points SLERPed)",
+           ".2f"),
+    Column("chain_heading", "chain head", "deg", "its part about the vertical", ".2f"),
+    Column("chain_incl", "chain incl", "deg", "its inclination part", ".2f"),
+    Column("chain_drift", "chain drift", "deg/min", "6D: its heading drift", "+.2f"),
 )
 """The columns of every ``limbstream eval`` table, in order (a new measure: one more here)."""
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
 from limbstream.sources import Motion
+from limbstream.evaluation.fusion import FIGURES, EarthTruth, pooled_error
 from limbstream.evaluation.live_model import accepted, segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
@@ -47,6 +48,7 @@ KEYS: tuple[str, ...] = (
     "live_p99",
     "live_max",
     "body_aad",
+    *(f"{stage}_{figure}" for stage in ("fusion", "chain") for figure in FIGURES),
 )
 """Fields of one result row, in output order."""
 
@@ -71,6 +73,8 @@ class Stream:
         slices; ``pose`` (4,): the segment in the mounting pose) and whose motion starts at
         sample ``motion_from``.
     rest_pose : what identity means for the motion's orientations (joint angles).
+    earth : a raw sensor's stream (``q``: its device's orientation at the device's samples, Y
+        up): the reference of its fusion and chain errors (BROAD's metric), None for others.
     """
 
     t: np.ndarray
@@ -82,6 +86,7 @@ class Stream:
     pose: np.ndarray | None = None
     motion_from: int = 0
     rest_pose: str = wire.DEFAULT_REST_POSE
+    earth: EarthTruth | None = None
 
 
 def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None) -> list[Stream]:
@@ -149,6 +154,18 @@ class _Pool:
         self.accepted = np.zeros(self.n_samples, bool)  # what a kernel accepts (time increasing too)
         for j, s in enumerate(streams):
             self.accepted[self.start[j] + accepted(s.t, np.asarray(s.q, np.float64))] = True
+        self.fusion = self.earth_errors(self.q)  # the devices' own samples against the truth
+
+    def earth_errors(self, q: np.ndarray) -> dict[str, float]:
+        """BROAD's figures (:func:`pooled_error`) of pooled orientations ``q`` (n, 4), Y up (the
+        samples or a reconstruction), over the streams with an ``earth`` reference."""
+        parts = [(quat.multiply(_EARTH, q[self.start[j]:self.start[j + 1]]), s.t, s.earth)
+                 for j, s in enumerate(self.streams) if s.earth is not None]
+        return pooled_error(parts) if parts else dict.fromkeys(FIGURES, math.nan)
+
+
+_EARTH = quat.conjugate(quat.Z_UP_TO_Y_UP)
+"""Turns limbstream's world (Y up) back into a filter's earth frame (Z up)."""
 
 
 def _stats(dev: np.ndarray) -> tuple[float, float, float, float]:
@@ -254,8 +271,9 @@ def evaluate_threshold(
     icr = pts.n / pool.n_samples if pool.n_samples else math.nan
     row = {"algorithm": algorithm, "threshold": float(threshold), "live_bound_deg": float(live_bound_deg),
            "predictor": predictor if live else None, "icr": icr}
+    fusion = {f"fusion_{k}": v for k, v in pool.fusion.items()}
     if not pts.key:
-        return row | dict.fromkeys(MEASURES, math.nan)
+        return row | dict.fromkeys(MEASURES, math.nan) | fusion
     errors = (_live_errors(pool, np.concatenate(pts.live_pos), np.concatenate(pts.live_q), np.concatenate(pts.live_t),
                            np.concatenate(pts.live_omega), np.concatenate(pts.live_owner))
               if live and pts.live_pos else np.zeros(0))
@@ -271,11 +289,12 @@ def evaluate_threshold(
     pdev = np.concatenate(pts.dev)
     point_aad, point_max = _mean_max(pdev[np.isfinite(pdev)])
     live_aad, live_max = _mean_max(errors)
+    chain = {f"chain_{k}": v for k, v in pool.earth_errors(rec).items()}
     return row | {
         "aad": aad, "std": std, "p99": p99, "max": mx, "point_aad": point_aad, "point_max": point_max,
         "live_aad": live_aad, "live_p99": float(np.percentile(errors, 99)) if errors.size else math.nan,
         "live_max": live_max, "body_aad": float(body.mean()) if body.size else math.nan,
-    }
+    } | fusion | chain
 
 
 def _calibrated(pool: _Pool, rec: np.ndarray,

@@ -192,10 +192,12 @@ class RawSample(ctypes.Structure):
 
 class ImuSettings(ctypes.Structure):
     """LswImuSettings (lsw_imu.h): sensor period (s), device period, largest time step (ticks),
-    accelerometer saturation (m/s^2), 9D."""
+    accelerometer saturation (m/s^2), 9D, VQF's rest thresholds (deg/s, m/s^2), start heading (cos, sin
+    of half its angle)."""
 
     _fields_ = [("raw_period_s", ctypes.c_float), ("out_period", ctypes.c_uint32), ("max_gap", ctypes.c_uint32),
-                ("acc_limit", ctypes.c_float), ("nine_d", ctypes.c_uint32)]
+                ("acc_limit", ctypes.c_float), ("nine_d", ctypes.c_uint32), ("rest_th_gyr", ctypes.c_float),
+                ("rest_th_acc", ctypes.c_float), ("heading", ctypes.c_float * 2)]
 
 
 class FuseRows(ctypes.Structure):

@@ -30,10 +30,17 @@ RAW_DTYPE = np.dtype({"names": ["t", "gyr", "acc", "mag"],
 """numpy layout of :class:`RawSample` (LswRawSample, lsw_imu.h): tick, gyr rad/s, acc m/s^2, mag uT."""
 
 _DEFAULTS = ImuSettings.in_dll(_lib, "lsw_imu_default_settings")
+REST_TH_GYR_DPS: float = round(float(_DEFAULTS.rest_th_gyr), 6)
+"""The device's VQF rest threshold on the angular rate, deg/s (a body tracker's; lsw_imu.h)."""
+REST_TH_ACC: float = round(float(_DEFAULTS.rest_th_acc), 6)
+"""The device's VQF rest threshold on the specific force, m/s^2 (VQF's own)."""
+VQF_REST_TH_GYR_DPS = 2.0
+"""VQF's own default rest threshold on the angular rate, deg/s (``VQFParams.restThGyr``)."""
 
 
 def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False, max_gap_s: float | None = None,
-                 acc_limit: float | None = None) -> ImuSettings:
+                 acc_limit: float | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS,
+                 rest_th_acc: float = REST_TH_ACC, heading_rad: float = 0.0) -> ImuSettings:
     """Validated pipeline settings (LswImuSettings).
 
     Parameters
@@ -43,15 +50,72 @@ def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, ni
     nine_d : fuse the magnetometer (9D) instead of 6D.
     max_gap_s : a time step longer than this resets the filter (default 0.1 s).
     acc_limit : an accelerometer component at or beyond this (m/s^2) is saturated (default 156).
+    rest_th_gyr_dps, rest_th_acc : VQF's rest detection thresholds, deg/s and m/s^2 (> 0; the
+        device's defaults :data:`REST_TH_GYR_DPS`, :data:`REST_TH_ACC`).
+    heading_rad : the filter's start heading about the earth's vertical, rad (|h| <= 2 pi).
     """
     rate_hz, device_rate_hz = float(rate_hz), float(device_rate_hz)
     if not np.isfinite(rate_hz) or rate_hz <= 0:
         raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
     if not np.isfinite(device_rate_hz) or not 0 < device_rate_hz <= rate_hz:
         raise ValueError(f"device_rate_hz must be in (0, rate_hz={rate_hz}], got {device_rate_hz}")
+    for name, value in (("rest_th_gyr_dps", rest_th_gyr_dps), ("rest_th_acc", rest_th_acc)):
+        if not (np.isfinite(value) and 0 < value <= 1000):
+            raise ValueError(f"{name} must be in (0, 1000], got {value}")
+    if not (np.isfinite(heading_rad) and abs(heading_rad) <= 2 * np.pi):
+        raise ValueError(f"heading_rad must be within +-2 pi, got {heading_rad}")
     gap = _DEFAULTS.max_gap if max_gap_s is None else int(round(float(max_gap_s) * TICK_HZ))
     return ImuSettings(1.0 / rate_hz, int(round(TICK_HZ / device_rate_hz)), gap,
-                       _DEFAULTS.acc_limit if acc_limit is None else float(acc_limit), int(bool(nine_d)))
+                       _DEFAULTS.acc_limit if acc_limit is None else float(acc_limit), int(bool(nine_d)),
+                       float(rest_th_gyr_dps), float(rest_th_acc), heading_turn(heading_rad))
+
+
+def heading_turn(heading_rad: float):
+    """The start heading as LswImuSettings carries it: (cos, sin) of half the angle, computed
+    here in double (the device does no trigonometry for it)."""
+    return (ctypes.c_float * 2)(np.cos(0.5 * heading_rad), np.sin(0.5 * heading_rad))
+
+
+def y_up(q: np.ndarray) -> np.ndarray:
+    """(n, 4) float32 orientations in VQF's earth frame (z up) turned into limbstream's world (y up),
+    as a device does before fastSW (lsw_imu_y_up, in the same float32 steps: bit for bit).
+    The same turn as ``quat.multiply(quat.Z_UP_TO_Y_UP, q)``."""
+    q = np.asarray(q, np.float32)
+    c = np.float32(np.sqrt(0.5))
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([c * (w + x), c * (x - w), c * (y + z), c * (z - y)], axis=-1)
+
+
+def device_instants(t: np.ndarray, device_rate_hz: float = wire.DEVICE_RATE_HZ,
+                    max_gap_s: float | None = None) -> np.ndarray:
+    """The raw samples a device takes as its samples (lsw_imu.c's rule): the first, then the first
+    at or after each instant every 1 / device_rate_hz from it (a sample more than a period late
+    restarts the instants at itself; a step beyond ``max_gap_s``, default 0.1 s, starts anew).
+
+    Parameters
+    ----------
+    t : (n,) raw sample times, s, increasing (taken to microsecond ticks as :func:`fuse` does).
+
+    Returns
+    -------
+    (k,) int64 indices into ``t``.
+    """
+    t = np.asarray(t, np.float64)
+    ticks = np.round((t - (t[0] if len(t) else 0.0)) * TICK_HZ).astype(np.int64)
+    period = int(round(TICK_HZ / float(device_rate_hz)))
+    gap = _DEFAULTS.max_gap if max_gap_s is None else int(round(float(max_gap_s) * TICK_HZ))
+    out, next_instant, last = [], None, None
+    for i, tick in enumerate(ticks.tolist()):
+        if next_instant is None or tick - last > gap:
+            out.append(i)
+            next_instant = tick + period
+        elif tick >= next_instant:
+            out.append(i)
+            next_instant += period
+            if tick >= next_instant:
+                next_instant = tick + period
+        last = tick
+    return np.asarray(out, np.int64)
 
 
 def raw_samples(ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None) -> np.ndarray:
@@ -71,7 +135,8 @@ def raw_samples(ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.nda
 
 
 def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_hz: float = 200.0,
-         t: np.ndarray | None = None) -> np.ndarray:
+         t: np.ndarray | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS, rest_th_acc: float = REST_TH_ACC,
+         heading_rad: float = 0.0) -> np.ndarray:
     """The device's orientation after each raw sample (VQF in the kernel library, exactly as a
     device computes it, bad samples handled as there).
 
@@ -82,6 +147,7 @@ def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_h
     mag : (n, 3) magnetic field (uT), or None: 9D with it, else 6D.
     rate_hz : the sensor's sample rate, Hz (VQF's time step is 1 / rate_hz).
     t : (n,) sample times, s (default: uniform at rate_hz); used for the bad-time checks.
+    rest_th_gyr_dps, rest_th_acc, heading_rad : as :func:`imu_settings`.
 
     Returns
     -------
@@ -93,7 +159,7 @@ def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_h
     ticks = np.round((times - (times[0] if n else 0.0)) * TICK_HZ).astype(np.int64) & 0xFFFFFFFF
     raw = raw_samples(ticks, gyr, acc, mag)
     state = ctypes.create_string_buffer(IMU_STATE_SIZE)
-    settings = imu_settings(rate_hz, rate_hz, nine_d=mag is not None)
+    settings = imu_settings(rate_hz, rate_hz, mag is not None, None, None, rest_th_gyr_dps, rest_th_acc, heading_rad)
     _lib.lsw_imu_init(state, ctypes.byref(settings))
     q = np.zeros((n, 4), np.float32)
     _lib.lsw_imu_fuse_batch(state, raw.ctypes.data, n, q.ctypes.data)
@@ -112,18 +178,26 @@ class ImuBank:
     Parameters
     ----------
     count : int, number of devices.
-    rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit : as :func:`imu_settings`, shared.
+    rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit, rest_th_gyr_dps, rest_th_acc : as
+        :func:`imu_settings`, shared.
     threshold, max_len, live_bound_deg, ring : as :class:`SegmenterBank`.
+    headings : (count,) each device's filter start heading, rad (default 0).
+
+    Devices send their orientations in limbstream's world (Y up: VQF's earth frame turned by
+    :data:`limbstream.quat.Z_UP_TO_Y_UP`, in C).
     """
 
     def __init__(self, count: int, rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False,
                  threshold=wire.THRESHOLD.default, max_len=wire.MAX_LEN.default,
                  live_bound_deg=wire.LIVE_BOUND_DEG.default, ring: int = 0, max_gap_s: float | None = None,
-                 acc_limit: float | None = None):
+                 acc_limit: float | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS,
+                 rest_th_acc: float = REST_TH_ACC, headings: np.ndarray | None = None):
         self.count = count
         self.segments = SegmenterBank(count, threshold, max_len, 4, live_bound_deg, ring)
         self.nine_d = bool(nine_d)
-        self.imu_settings = imu_settings(rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit)
+        self.imu_settings = imu_settings(rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit, rest_th_gyr_dps,
+                                         rest_th_acc)
+        self.headings = np.zeros(count) if headings is None else np.asarray(headings, np.float64).reshape(count)
         self._imus = ctypes.create_string_buffer(IMU_STATE_SIZE * max(count, 1))
         for k in range(count):
             self.reset_imu(k)
@@ -135,9 +209,16 @@ class ImuBank:
         return "9D" if self.nine_d else "6D"
 
     def reset_imu(self, k: int) -> None:
-        """Device k's filter from scratch (identity, zero bias, counters zero); its fastSW stream
-        is ``segments.reset``'s."""
-        _lib.lsw_imu_init(ctypes.addressof(self._imus) + k * IMU_STATE_SIZE, ctypes.byref(self.imu_settings))
+        """Device k's filter from scratch (its start heading, zero bias, counters zero); its fastSW
+        stream is ``segments.reset``'s."""
+        _lib.lsw_imu_init(ctypes.addressof(self._imus) + k * IMU_STATE_SIZE, ctypes.byref(self.device_settings(k)))
+
+    def device_settings(self, k: int) -> ImuSettings:
+        """Device k's pipeline settings: the bank's, with its own start heading (what a firmware
+        device is given in its FUSION message)."""
+        own = ImuSettings.from_buffer_copy(self.imu_settings)
+        own.heading = heading_turn(float(self.headings[k]))
+        return own
 
     def _raw(self, ticks, gyr, acc, mag) -> tuple[np.ndarray, int]:
         if mag is None and self.nine_d:
@@ -177,16 +258,19 @@ class ImuBank:
         return self.segments.advance_wire(lambda states, *out: _lib.lsw_imu_bank_update(
             self._imus, states, n, raw.ctypes.data, self._t_us.ctypes.data, *out), n)
 
-    def imu_status(self) -> dict[str, np.ndarray]:
-        """Every device's fusion report: ``bias`` (count, 3) rad/s, ``rest`` (count,) bool,
-        ``outputs`` (count,) device-rate samples made, and one (count,) count per :data:`FAULTS`."""
-        count = self.count
+    def imu_status(self, first: int = 0, count: int | None = None) -> dict[str, np.ndarray]:
+        """The fusion report of devices ``first .. first + count - 1`` (default: every device):
+        ``bias`` (count, 3) rad/s, ``rest`` (count,) bool, ``outputs`` (count,) device-rate samples
+        made, and one (count,) count per :data:`FAULTS`."""
+        count = self.count - first if count is None else count
+        if not (0 <= first and count >= 0 and first + count <= self.count):
+            raise ValueError(f"devices {first}..{first + count - 1} of {self.count}")
         bias = np.zeros((count, 3), np.float32)
         rest = np.zeros(count, np.uint8)
         faults = np.zeros((count, len(FAULTS)), np.uint32)
         outputs = np.zeros(count, np.uint32)
-        _lib.lsw_imu_bank_status(self._imus, count, bias.ctypes.data, rest.ctypes.data, faults.ctypes.data,
-                                 outputs.ctypes.data)
+        _lib.lsw_imu_bank_status(ctypes.addressof(self._imus) + first * IMU_STATE_SIZE, count, bias.ctypes.data,
+                                 rest.ctypes.data, faults.ctypes.data, outputs.ctypes.data)
         report = {"bias": bias.astype(np.float64), "rest": rest.astype(bool), "outputs": outputs}
         report.update({name: faults[:, i] for i, name in enumerate(FAULTS)})
         return report

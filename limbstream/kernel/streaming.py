@@ -194,6 +194,12 @@ class SegmenterBank:
         end = int(self._ends[k - 1]) if k else 0
         return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()
 
+    @property
+    def status(self) -> np.ndarray:
+        """(n,) uint8 the status of each stream advanced by the last update (a view, valid until
+        the next call)."""
+        return self._status[: self._n]
+
     def live(self, k: int) -> bool:
         """Whether stream k runs the live rule (its points then carry a rate: version 2)."""
         return bool(self._live[k])

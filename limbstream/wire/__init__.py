@@ -23,7 +23,7 @@ from .calibrate import (CALIBRATION_ANSWER_TIMEOUT_S, CALIBRATION_HOLD_S, CALIBR
                         decode_calibrate_request, encode_calibrate_answer, encode_calibrate_request)
 from .body import BONES, DEFAULT_REST_POSE, JOINTS, REST_POSES, SEGMENTS, check_rest_pose
 from .config import (DEVICE_RATE_HZ, LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
-                     DeviceStatus, LinkStatus, Tunable, decode_config, decode_status,
+                     DeviceStatus, FusionStatus, FUSION_MODES, LinkStatus, Tunable, decode_config, decode_status,
                      encode_config, encode_status)
 from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,

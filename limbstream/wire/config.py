@@ -151,6 +151,8 @@ class DeviceStatus:
     clock : its clock synchronisation (:class:`ClockStatus`), None if it does not report one.
     rest_pose : what identity orientations of its data mean (wire.REST_POSES).
     link : the link of a device bridged in by a gateway (:class:`LinkStatus`), None for others.
+    fusion : the fusion filter of a device that fuses raw IMU samples (:class:`FusionStatus`),
+        None for others.
     """
 
     device: str
@@ -161,12 +163,43 @@ class DeviceStatus:
     clock: ClockStatus | None = None
     rest_pose: str = DEFAULT_REST_POSE
     link: LinkStatus | None = None
+    fusion: FusionStatus | None = None
 
     def as_dict(self) -> dict:
         clock = {} if self.clock is None else self.clock.as_dict()
         link = {} if self.link is None else self.link.as_dict()
+        fusion = {} if self.fusion is None else self.fusion.as_dict()
         return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
-                "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose, **link}
+                "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose, **link,
+                **fusion}
+
+
+FUSION_MODES: tuple[str, ...] = ("6D", "9D")
+"""A device's fusion: 6D (gyroscope and accelerometer) or 9D (and magnetometer)."""
+
+
+@dataclass(frozen=True)
+class FusionStatus:
+    """The fusion filter of a device fed raw IMU samples (part of its status; optional: a status
+    without ``fusion`` has none). docs/kernel.md, "Raw samples: VQF on the device".
+
+    Attributes
+    ----------
+    fusion : ``"6D"`` or ``"9D"`` (:data:`FUSION_MODES`).
+    gyro_bias_dps : (3,) the filter's current gyroscope bias estimate, deg/s, sensor frame.
+    at_rest : the filter detects rest.
+    raw_faults : bad raw samples counted since the filter started, by kind (invalid, time_back,
+        gap, saturated, gyr_stuck).
+    """
+
+    fusion: str
+    gyro_bias_dps: tuple[float, float, float]
+    at_rest: bool
+    raw_faults: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"fusion": self.fusion, "gyro_bias_dps": list(self.gyro_bias_dps), "at_rest": self.at_rest,
+                "raw_faults": dict(self.raw_faults)}
 
 
 @dataclass(frozen=True)
@@ -250,6 +283,23 @@ def _link(data: dict) -> LinkStatus | None:
     return LinkStatus(data["tracker"], *values)
 
 
+def _fusion(data: dict) -> FusionStatus | None:
+    """The FusionStatus fields of a status reply (None if it has none); TypeError if one is bad."""
+    if "fusion" not in data:
+        return None
+    mode, bias, rest, faults = (data.get(k) for k in ("fusion", "gyro_bias_dps", "at_rest", "raw_faults"))
+    if mode not in FUSION_MODES or not isinstance(rest, bool):
+        raise TypeError(f"fusion must be one of {FUSION_MODES} and at_rest a boolean, got {mode!r}, {rest!r}")
+    if not (isinstance(bias, list) and len(bias) == 3 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in bias)):
+        raise TypeError(f"gyro_bias_dps must be 3 finite numbers, got {bias!r}")
+    faults = {} if faults is None else faults
+    if not isinstance(faults, dict) or not all(
+            isinstance(k, str) and isinstance(n, int) and not isinstance(n, bool) for k, n in faults.items()):
+        raise TypeError("raw_faults must be an object of counts")
+    return FusionStatus(mode, (float(bias[0]), float(bias[1]), float(bias[2])), rest, faults)
+
+
 def decode_status(payload: bytes) -> DeviceStatus:
     """A config reply -> DeviceStatus; WireError('status') if it is not one."""
     try:
@@ -261,6 +311,7 @@ def decode_status(payload: bytes) -> DeviceStatus:
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (stream, samples, points)):
             raise TypeError(f"stream, samples and points must be integers, got {[stream, samples, points]}")
         return DeviceStatus(str(data["device"]), config, stream, samples, points, clock=_clock(data),
-                            rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)), link=_link(data))
+                            rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)), link=_link(data),
+                            fusion=_fusion(data))
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

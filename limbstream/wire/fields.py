@@ -127,6 +127,13 @@ FIELDS: tuple[StatsField, ...] = (
             metric="limbstream_device_link_loss_ratio"),
     _device("link_pps", float, "packets per second the gateway receives from the bridged device", "1/s",
             metric="limbstream_device_link_packets_per_second"),
+    _device("fusion", str, "the fusion filter of a device fed raw IMU samples: 6D or 9D (its status; null: the "
+            "device is handed orientations)"),
+    _device("gyro_bias_dps", float, "size of that filter's gyroscope bias estimate (its status, asked every 5 s)",
+            "deg/s", chart=True, metric="limbstream_device_gyro_bias_degrees_per_second"),
+    _device("at_rest", bool, "that filter detects rest (its status, asked every 5 s)", metric="limbstream_device_at_rest"),
+    _device("raw_faults", dict, "bad raw samples the device counted, by kind (invalid, time_back, gap, saturated, "
+            "gyr_stuck; docs/kernel.md)"),
     # ---- per subject
     StatsField("frames", int, "subject", "exact frames published"),
     StatsField("skipped_frames", int, "subject", "frame times skipped (no data could make them)"),

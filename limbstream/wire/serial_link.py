@@ -48,7 +48,7 @@ or a body of the wrong length for its type; checksum; another link version; unkn
 
 _SAMPLE = struct.Struct("<Iq4f")
 _RAW = struct.Struct("<Iq9f")
-_FUSION = struct.Struct("<HfIIfB")
+_FUSION = struct.Struct("<HfIIfB4f")
 _FUSION_STATUS = struct.Struct(f"<HBB3fII{len(FUSION_FAULTS)}I")
 _CONFIG = struct.Struct("<H3d")
 _START = struct.Struct("<HH")
@@ -174,12 +174,15 @@ def encode_raw(tick: int, t_us: int, gyr, acc, mag=None) -> bytes:
 
 
 def encode_fusion(request: int, raw_period_s: float, out_period_us: int, max_gap_us: int, acc_limit: float,
-                  nine_d: bool) -> bytes:
+                  nine_d: bool, rest_th_gyr_dps: float, rest_th_acc: float, heading: tuple[float, float]) -> bytes:
     """A FUSION frame: the raw-sample pipeline's settings (LswImuSettings, lsw_imu.h, as
     :func:`limbstream.kernel.fusion.imu_settings` computes them): sensor period (s, float32), device
-    period (us), largest time step (us), accelerometer saturation (m/s^2, float32), 9D. The device
-    takes them as they are (so it computes what the host does) and starts a fresh filter."""
-    return frame(FUSION, _FUSION.pack(request, raw_period_s, out_period_us, max_gap_us, acc_limit, int(bool(nine_d))))
+    period (us), largest time step (us), accelerometer saturation (m/s^2, float32), 9D, VQF's rest
+    thresholds (deg/s, m/s^2) and the filter's start heading (cos and sin of half its angle),
+    float32. The device takes them
+    as they are (so it computes what the host does) and starts a fresh filter."""
+    return frame(FUSION, _FUSION.pack(request, raw_period_s, out_period_us, max_gap_us, acc_limit, int(bool(nine_d)),
+                                      rest_th_gyr_dps, rest_th_acc, *heading))
 
 
 def encode_config(request: int, config: DeviceConfig) -> bytes:

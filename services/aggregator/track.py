@@ -84,6 +84,7 @@ class DeviceTrack:
         self.config: wire.DeviceConfig | None = None  # as the device last reported it
         self.clock: wire.ClockStatus | None = None    # its clock sync, as it last reported it
         self.link: wire.LinkStatus | None = None      # a bridged device's link, as its gateway last reported it
+        self.fusion: wire.FusionStatus | None = None  # a raw-sample device's filter, as it last reported it
         self.dropped: collections.Counter = collections.Counter()
         self.restarts = 0
         self.generation = 0
@@ -240,20 +241,23 @@ class DeviceTrack:
     def stats(self) -> tuple[tuple, tuple]:
         """The fields of its stats entry (limbstream.wire.fields) that its row in the table does not
         hold: the values of :data:`NUMBERS` and of :data:`TEXTS`, in their order (None: null)."""
-        config, clock, link = self.config, self.clock, self.link
+        config, clock, link, fusion = self.config, self.clock, self.link, self.fusion
         numbers = (self.gaps, sum(self.dropped.values()),
                    *((None,) * len(wire.TUNABLES) if config is None else _tunables(config)), self.restarts,
                    *((None, None, None) if clock is None else (clock.clock_offset_ms, clock.sync_rtt_ms, clock.synced)),
-                   *((None,) * 4 if link is None else (link.battery_pct, link.signal_dbm, link.link_loss, link.link_pps)))
+                   *((None,) * 4 if link is None else (link.battery_pct, link.signal_dbm, link.link_loss, link.link_pps)),
+                   *((None, None) if fusion is None else (float(np.linalg.norm(fusion.gyro_bias_dps)), fusion.at_rest)))
         texts = (self.id, self.segment, self.subject, dict(self.dropped), None if clock is None else dict(clock.sync_bad),
-                 None if link is None else link.tracker)
+                 None if link is None else link.tracker, None if fusion is None else fusion.fusion,
+                 None if fusion is None else dict(fusion.raw_faults))
         return numbers, texts
 
 
 NUMBERS: tuple[str, ...] = ("gaps", "dropped", *wire.TUNABLES, "restarts", "clock_offset_ms", "sync_rtt_ms", "synced",
-                            "battery_pct", "signal_dbm", "link_loss", "link_pps")
+                            "battery_pct", "signal_dbm", "link_loss", "link_pps", "gyro_bias_dps", "at_rest")
 """The number fields of a device's stats entry that its track gives (:meth:`DeviceTrack.stats`)."""
-TEXTS: tuple[str, ...] = ("device", "segment", "subject", "dropped_by_reason", "sync_bad", "tracker")
+TEXTS: tuple[str, ...] = ("device", "segment", "subject", "dropped_by_reason", "sync_bad", "tracker", "fusion",
+                          "raw_faults")
 """The other fields of a device's stats entry that its track gives."""
 
 

@@ -16,6 +16,8 @@ from pathlib import Path
 
 from limbstream import zconfig
 from limbstream.device.host import HostSettings
+from limbstream.device.readings import RawSensors
+from limbstream.kernel import fusion
 from limbstream.services.gateway import firmware, serial_gateway
 from limbstream.services.gateway.serial_port import SerialLink
 
@@ -50,10 +52,32 @@ class FirmwareConnector:
             self.device = None
 
 
+def feedings(feeds: dict, raw: RawSensors | None = None, rate_hz: float = 200.0, fs: float = 50.0
+             ) -> list[tuple[str, str, serial_gateway.Feeding]]:
+    """(subject, segment, feeding) of every device of ``feeds`` ({subject: feed}); with raw
+    sensors (``raw``: made over the feeds in the emulator's slot order, longest first) each is
+    fed its own sensor's readings and its filter's settings."""
+    first: dict[int, int] = {}  # id of a feed -> its first slot among raw's sensors
+    for f in raw.feeds if raw is not None else ():
+        first[id(f)] = sum(len(g.segments) for g in raw.feeds[:len(first)])
+    out = []
+    for subject, feed in feeds.items():
+        for column, segment in enumerate(feed.segments):
+            if raw is None:
+                out.append((subject, segment, serial_gateway.Feeding(feed, column)))
+                continue
+            slot = first[id(feed)] + column
+            settings = fusion.imu_settings(rate_hz, fs, heading_rad=float(raw.devices.heading[slot]))
+            out.append((subject, segment, serial_gateway.Feeding(feed, column, raw, slot, settings)))
+    return out
+
+
 def run(feeds: dict, settings: HostSettings, speed: float, zenoh: zconfig.ZenohSettings, elf: Path,
-        duration: float | None = None, stop: threading.Event | None = None) -> int:
+        duration: float | None = None, stop: threading.Event | None = None, raw: RawSensors | None = None,
+        raw_rate_hz: float = 200.0) -> int:
     """Run one firmware device per segment of each feed ({subject: feed}) at ``speed`` until
-    ``stop``, a signal or ``duration`` s of device time (a finite feed: its end, then idle); exit code."""
+    ``stop``, a signal or ``duration`` s of device time (a finite feed: its end, then idle); with
+    ``raw``, devices fed raw samples at ``raw_rate_hz``; exit code."""
     stop, session = zconfig.part_session(zenoh, stop)
     if session is None:
         return 0
@@ -63,12 +87,11 @@ def run(feeds: dict, settings: HostSettings, speed: float, zenoh: zconfig.ZenohS
         host = serial_gateway.serial_host(session, settings)
         host.declare()
         try:
-            for subject, feed in feeds.items():
-                for column, segment in enumerate(feed.segments):
-                    connector = FirmwareConnector(elf)
-                    connectors.append(connector)
-                    gateways.append(serial_gateway.SerialGateway(host, connector, subject, segment,
-                                                                 serial_gateway.Feeding(feed, column), feed.rest_pose))
+            for subject, segment, feeding in feedings(feeds, raw, raw_rate_hz, settings.fs):
+                connector = FirmwareConnector(elf)
+                connectors.append(connector)
+                gateways.append(serial_gateway.SerialGateway(host, connector, subject, segment, feeding,
+                                                             feeds[subject].rest_pose))
             for connector in connectors:
                 connector.launch()
             online = sum(g.open() for g in gateways)

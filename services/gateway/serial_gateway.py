@@ -27,6 +27,7 @@ import zenoh
 
 from limbstream import wire
 from limbstream.device.host import Device, DeviceHost, HostSettings, Refused
+from limbstream.device.readings import RawSensors
 from limbstream.pacing import PacedLoop
 from limbstream.services.gateway.serial_port import LinkClosed, SerialLink
 from limbstream.wire import serial_link as link
@@ -42,12 +43,21 @@ class Feeding:
 
     Attributes
     ----------
-    feed : a motion feed (limbstream.device.feeds): ``sample(k) -> (S, 4)``, ``length``.
+    feed : a motion feed (limbstream.device.feeds): ``sample(k) -> (S, 4)``, ``length``; with
+        ``raw``, a :class:`~limbstream.device.readings.RawFeed` (``sample``: the truth).
     column : the device's segment in the feed's samples.
+    raw : raw sensors: the device is sent what its sensor reads (RAW frames, ``raw.per`` per
+        device sample) after its pipeline's settings (FUSION, ``fusion``); None: orientations.
+    slot : the device's sensor among ``raw``'s.
+    fusion : its pipeline's settings (:func:`limbstream.kernel.fusion.imu_settings`, its own
+        start heading).
     """
 
     feed: object
     column: int
+    raw: RawSensors | None = None
+    slot: int = 0
+    fusion: object = None
 
 
 @dataclass
@@ -119,6 +129,8 @@ class SerialGateway:
             ack = port.configure(self.device.config)
             if not ack.ok:
                 raise LinkClosed(f"device refused its config: {ack.error}")
+            if self.feeding is not None and self.feeding.raw is not None and not port.fusion(self.feeding.fusion).ok:
+                raise LinkClosed("device refused its fusion settings")
             stream = random.getrandbits(16)
             if not port.start(stream).ok:
                 raise LinkClosed("device refused to start a stream")
@@ -164,9 +176,11 @@ class SerialGateway:
             self.end()
             return
         q = f.feed.sample(k)[f.column]
-        tick = int(round(self.sample * self.period_us))  # as an emulated device's clock
         try:
-            self.link.sample(tick, t_us, q)
+            if f.raw is not None:
+                self._feed_raw(f.raw, k, f.slot, t_us)
+            else:  # its tick: as an emulated device's clock
+                self.link.sample(int(round(self.sample * self.period_us)), t_us, q)
         except LinkClosed:
             return  # pump() sees the link closed
         self.sample += 1
@@ -175,6 +189,16 @@ class SerialGateway:
             self._tap.append((t_us, q))
             if len(self._tap) >= self.host.settings.raw_batch:
                 self.flush_tap()
+
+    def _feed_raw(self, raw: RawSensors, k: int, slot: int, t_us: int) -> None:
+        """Send the device the raw samples its sensor reads over its device sample k, stamped
+        from ``t_us`` on, ticked on its clock as an emulated device's."""
+        assert self.link is not None
+        gyr, acc = raw.read(k, np.array([slot]))
+        step = self.period_us / raw.per
+        for i in range(raw.per):
+            j = self.sample * raw.per + i
+            self.link.raw(int(round(j * step)), int(round(t_us + i * step)), gyr[i, 0], acc[i, 0])
 
     def flush_tap(self) -> None:
         """Publish the fed samples not yet on the truth tap."""
@@ -241,10 +265,19 @@ class SerialGateway:
             if self.link is None:
                 raise LinkClosed("device offline")
             status = self.link.status()
+            fusion = self._fusion_status()
         except (LinkClosed, TimeoutError) as exc:
             raise Refused(str(exc)) from None
         return wire.DeviceStatus(self.id, self.device.config, status.stream, status.samples, status.points, None,
-                                 self.rest_pose)
+                                 self.rest_pose, fusion=fusion)
+
+    def _fusion_status(self) -> wire.FusionStatus | None:
+        """The filter of a device fed raw samples, as it reports it (FUSION_STATUS)."""
+        if self.feeding is None or self.feeding.raw is None or self.link is None:
+            return None
+        f = self.link.fusion_status()
+        bias = np.degrees(f.bias)
+        return wire.FusionStatus(f.mode, (float(bias[0]), float(bias[1]), float(bias[2])), f.rest, dict(f.faults))
 
     def summary(self) -> str:
         c = self.counters

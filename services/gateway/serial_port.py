@@ -205,7 +205,8 @@ class SerialLink:
         """Set the device's raw-sample fusion (an ``ImuSettings`` of
         :func:`limbstream.kernel.fusion.imu_settings`); a fresh filter."""
         return self._ask(lambda r: link.encode_fusion(r, settings.raw_period_s, settings.out_period, settings.max_gap,
-                                                      settings.acc_limit, bool(settings.nine_d)))
+                                                      settings.acc_limit, bool(settings.nine_d), settings.rest_th_gyr,
+                                                      settings.rest_th_acc, tuple(settings.heading)))
 
     def fusion_status(self) -> link.FusionStatus:
         return self._ask(lambda r: link.encode_request(link.FUSION_REQ, r))
