@@ -101,10 +101,15 @@ _JOINT_OF = np.array([j for j, _, _ in _AT])
 """(A,) the joint of each angle."""
 _COMPONENT = np.array([i for _, i, _ in _AT])
 """(A,) which Z-X-Y angle (0, 1, 2) each angle is."""
-_SIGN = np.array([s for _, _, s in _AT])
+_TAKE = 3 * _JOINT_OF + _COMPONENT
+"""(A,) each angle's place in a (J, 3) array of the joints' Z-X-Y angles, flattened."""
+_DEG = np.degrees(np.array([s for _, _, s in _AT]))
+"""(A,) radians to degrees, times each angle's sign."""
+_ENDS = np.concatenate([_PARENT, _CHILD])
+_SIDE_ANGLE = _COMPONENT != 1
+"""(A,) the first or third angle of its joint (those gimbal lock makes ill-conditioned)."""
 _STANDING_FROM_TPOSE = quat.conjugate(rest_offsets("standing"))
-_OPENSIM_SIGNS = np.array([1.0, 1.0, 1.0, -1.0])
-"""A rotation's (w, z, y, -x) is the same rotation in OpenSim's axes (:data:`TO_OPENSIM`)."""
+_LOCK_SIN = math.sin(math.radians(GIMBAL_DEG))
 
 
 def anatomical(q: np.ndarray, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:
@@ -135,7 +140,8 @@ def standing(q: np.ndarray, rest_pose: str) -> np.ndarray:
 
 
 def euler_zxy(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Intrinsic Z-X-Y angles of rotations ``q`` (..., 4) (``R = Rz(a) Rx(b) Ry(c)``).
+    """Intrinsic Z-X-Y angles of rotations ``q`` (..., 4) (``R = Rz(a) Rx(b) Ry(c)``; any
+    nonzero norm).
 
     Returns
     -------
@@ -143,15 +149,26 @@ def euler_zxy(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c is 0 and a carries the sum.
     near_lock : (...) bool, within :data:`GIMBAL_DEG` of the lock.
     """
-    w, x, y, z = np.moveaxis(np.asarray(q, np.float64), -1, 0)
-    r01, r11 = 2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z)
-    r20, r22 = 2.0 * (x * z - w * y), 1.0 - 2.0 * (x * x + y * y)
-    r21 = 2.0 * (y * z + w * x)
-    cos_b = np.hypot(r01, r11)
-    locked = cos_b < 1e-9
-    a = np.where(locked, np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z)), np.arctan2(-r01, r11))
-    c = np.where(locked, 0.0, np.arctan2(-r20, r22))
-    return np.stack([a, np.arctan2(r21, cos_b), c], axis=-1), cos_b < math.sin(math.radians(GIMBAL_DEG))
+    a, b, c, near_lock = _euler_zxy(*np.moveaxis(np.asarray(q, np.float64), -1, 0))
+    return np.stack([a, b, c], axis=-1), near_lock
+
+
+def _euler_zxy(w: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`euler_zxy` of the quaternion components ``w, x, y, z`` (each (...)): a, b, c (...)
+    radians and near_lock (...) bool. The rotation matrix's entries are taken times the squared
+    norm n, which leaves every ratio, and so every angle, as it is."""
+    n = w * w + x * x + y * y + z * z
+    xx, yy, zz = x * x, y * y, z * z
+    r01, r11 = 2.0 * (x * y - w * z), n - 2.0 * (xx + zz)
+    r20, r22 = 2.0 * (x * z - w * y), n - 2.0 * (xx + yy)
+    cos_b = np.sqrt(r01 * r01 + r11 * r11)
+    a = np.arctan2(-r01, r11)
+    c = np.arctan2(-r20, r22)
+    locked = cos_b < 1e-9 * n
+    if locked.any():
+        a = np.where(locked, np.arctan2(2.0 * (x * y + w * z), n - 2.0 * (yy + zz)), a)
+        c = np.where(locked, 0.0, c)
+    return a, np.arctan2(2.0 * (y * z + w * x), cos_b), c, cos_b < _LOCK_SIN * n
 
 
 def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: str = wire.DEFAULT_REST_POSE,
@@ -174,16 +191,29 @@ def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: st
     flags : (..., A) uint8, :data:`MISSING` | :data:`GIMBAL` | :data:`UNCALIBRATED` bits.
     """
     q = np.asarray(q, np.float64)
-    finite = np.isfinite(q).all(axis=-1) & (np.abs(q).sum(axis=-1) > 0)
-    have = finite if present is None else finite & np.asarray(present, bool)
-    q = standing(np.where(have[..., None], q, np.array([1.0, 0.0, 0.0, 0.0])), rest_pose)
-    relative = quat.multiply(quat.conjugate(q[..., _PARENT, :]), q[..., _CHILD, :])  # (..., J, 4)
-    relative = relative[..., [0, 3, 2, 1]] * _OPENSIM_SIGNS  # in OpenSim's axes (conjugated by TO_OPENSIM)
-    relative /= np.linalg.norm(relative, axis=-1, keepdims=True)
-    euler, near_lock = euler_zxy(relative)
-    angles = np.degrees(euler[..., _JOINT_OF, _COMPONENT]) * _SIGN
-    flags = np.where(near_lock[..., _JOINT_OF] & (_COMPONENT != 1), GIMBAL, 0).astype(np.uint8)
-    missing = ~(have[..., _PARENT] & have[..., _CHILD])[..., _JOINT_OF]
-    flags |= np.where(missing, MISSING, 0).astype(np.uint8)
-    flags |= np.where(~np.asarray(calibrated, bool), UNCALIBRATED, 0).astype(np.uint8)[..., None]
-    return np.where(flags & (MISSING | UNCALIBRATED), np.nan, angles), flags
+    if wire.check_rest_pose(rest_pose) == "tpose":
+        q = quat.multiply(q, _STANDING_FROM_TPOSE)
+    j = len(JOINT_TABLE)
+    ends = np.take(q, _ENDS, axis=-2).reshape(*q.shape[:-2], 2, j, 4)  # the joints' parents, then children
+    w, x, y, z = np.ascontiguousarray(np.moveaxis(ends, (-1, -3), (0, 1)))  # each (2, ..., J): fast to work on
+    norm2 = w * w + x * x + y * y + z * z
+    have = np.isfinite(norm2) & (norm2 > 0)
+    if not have.all():  # no data: identity, so that nothing non-finite enters the sums
+        w, x, y, z = np.where(have, w, 1.0), np.where(have, x, 0.0), np.where(have, y, 0.0), np.where(have, z, 0.0)
+    both = have[0] & have[1]  # (..., J)
+    if present is not None:
+        present = np.asarray(present, bool)
+        both &= np.take(present, _PARENT, axis=-1) & np.take(present, _CHILD, axis=-1)
+    (pw, cw), (px, cx), (py, cy), (pz, cz) = w, x, y, z
+    # conj(parent) * child, in OpenSim's axes: (w, x, y, z) -> (w, z, y, -x) (conjugated by TO_OPENSIM)
+    a, b, c, near_lock = _euler_zxy(pw * cw + px * cx + py * cy + pz * cz,
+                                    pw * cz - pz * cw - px * cy + py * cx,
+                                    pw * cy - py * cw + px * cz - pz * cx,
+                                    px * cw - pw * cx + py * cz - pz * cy)
+    angles = np.take(np.stack([a, b, c], axis=-1).reshape(*a.shape[:-1], 3 * j), _TAKE, axis=-1) * _DEG
+    missing = ~np.take(both, _JOINT_OF, axis=-1)
+    uncalibrated = ~np.asarray(calibrated, bool)[..., None]
+    flags = ((np.take(near_lock, _JOINT_OF, axis=-1) & _SIDE_ANGLE) * np.uint8(GIMBAL) | missing * np.uint8(MISSING)
+             | uncalibrated * np.uint8(UNCALIBRATED)).astype(np.uint8)
+    angles[missing | uncalibrated] = np.nan
+    return angles, flags
