@@ -114,8 +114,9 @@ class DeviceBank:
         d.config = config
 
     def status(self, d: Device, clock: wire.ClockStatus | None, rest_pose: str = wire.DEFAULT_REST_POSE,
-               link: wire.LinkStatus | None = None) -> wire.DeviceStatus:
-        """Device d's own view: its config and the counters of its current stream, its clock and link."""
+               link: wire.LinkStatus | None = None, orientations: str | None = None) -> wire.DeviceStatus:
+        """Device d's own view: its config and the counters of its current stream, its clock and
+        link, what its orientations are (wire.ORIENTATIONS)."""
         b = self.kernel
         return wire.DeviceStatus(d.id, d.config, int(b.stream[d.slot]), int(self.n[d.slot] - b.base[d.slot]),
-                                 d.points, clock, rest_pose, link)
+                                 d.points, clock, rest_pose, link, orientations)

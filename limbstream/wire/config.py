@@ -18,7 +18,7 @@ import math
 import numbers
 from dataclasses import asdict, dataclass, field, fields, replace
 
-from .body import DEFAULT_REST_POSE, check_rest_pose
+from .body import DEFAULT_REST_POSE, ORIENTATIONS, check_rest_pose
 from .errors import WireError
 
 DEVICE_RATE_HZ = 50.0
@@ -151,6 +151,8 @@ class DeviceStatus:
     clock : its clock synchronisation (:class:`ClockStatus`), None if it does not report one.
     rest_pose : what identity orientations of its data mean (wire.REST_POSES).
     link : the link of a device bridged in by a gateway (:class:`LinkStatus`), None for others.
+    orientations : what its orientations are (wire.ORIENTATIONS: its segment's own, rest-calibrated
+        or its sensor's reading); None: it does not say (a reader takes them as a sensor's).
     """
 
     device: str
@@ -161,12 +163,14 @@ class DeviceStatus:
     clock: ClockStatus | None = None
     rest_pose: str = DEFAULT_REST_POSE
     link: LinkStatus | None = None
+    orientations: str | None = None
 
     def as_dict(self) -> dict:
         clock = {} if self.clock is None else self.clock.as_dict()
         link = {} if self.link is None else self.link.as_dict()
+        said = {} if self.orientations is None else {"orientations": self.orientations}
         return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
-                "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose, **link}
+                "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose, **link, **said}
 
 
 @dataclass(frozen=True)
@@ -260,7 +264,11 @@ def decode_status(payload: bytes) -> DeviceStatus:
         stream, samples, points = (data[k] for k in ("stream", "samples", "points"))
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (stream, samples, points)):
             raise TypeError(f"stream, samples and points must be integers, got {[stream, samples, points]}")
+        orientations = data.get("orientations")
+        if orientations is not None and orientations not in ORIENTATIONS:
+            raise ValueError(f"orientations must be one of {', '.join(ORIENTATIONS)}, got {orientations!r}")
         return DeviceStatus(str(data["device"]), config, stream, samples, points, clock=_clock(data),
-                            rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)), link=_link(data))
+                            rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)), link=_link(data),
+                            orientations=orientations)
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

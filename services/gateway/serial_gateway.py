@@ -42,7 +42,7 @@ class Feeding:
 
     Attributes
     ----------
-    feed : a motion feed (limbstream.device.feeds): ``sample(k) -> (S, 4)``, ``length``.
+    feed : a motion feed (limbstream.device.feeds): ``sample(k) -> (S, 4)``, ``length``, ``orientations``.
     column : the device's segment in the feed's samples.
     """
 
@@ -243,8 +243,9 @@ class SerialGateway:
             status = self.link.status()
         except (LinkClosed, TimeoutError) as exc:
             raise Refused(str(exc)) from None
+        fed = "sensors" if self.feeding is None else self.feeding.feed.orientations  # wire.ORIENTATIONS
         return wire.DeviceStatus(self.id, self.device.config, status.stream, status.samples, status.points, None,
-                                 self.rest_pose)
+                                 self.rest_pose, orientations=fed)
 
     def summary(self) -> str:
         c = self.counters
