@@ -135,3 +135,4 @@ class Intake:
             self.fusion.set_rest_pose(track.subject, status.rest_pose)
             track.clock = status.clock
             track.link = status.link
+            track.orientations = status.orientations
