@@ -84,7 +84,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--joints", action="store_true",
                         help="also show the subject's joint angles (OpenSim's names, degrees) of the frames of that kind")
     parser.add_argument("--refresh", type=float, default=5.0, help="screen updates per second (default 5)")
-    parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
+    parser.add_argument("--count", type=int, default=0,
+                        help="exit after this many frames (with --joints: and a joint-angle message; 0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
                         help="exit with status 1 if the router does not answer or no frame arrives for this many "
                              f"seconds (0: wait for frames forever, for the router {zconfig.CONNECT_TIMEOUT_S:g} s)")
@@ -154,6 +155,6 @@ def run(args: argparse.Namespace) -> int:
             if args.joints:
                 text += "\n" + render_angles(newest.angles)
             print(("\x1b[H\x1b[2J" if tty else "") + text, flush=True)
-            if args.count and newest.count >= args.count:
+            if args.count and newest.count >= args.count and (newest.angles is not None or not args.joints):
                 return 0
             time.sleep(max(0.0, 1.0 / args.refresh - (time.monotonic() - now)))
