@@ -214,24 +214,28 @@ def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list
     return events, m
 
 
-def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: float = 50.0) -> None:
+def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: float = 50.0,
+                          joint_angles: bool = True) -> None:
     """The aggregator's own work without Zenoh: replayed messages taken in tick by tick as a drain
-    takes them, frames built and encoded (live frames at ``live_rate`` Hz, a divisor of 50), stats
-    of every subject once a second, spread over the ticks as the loop does; CPU per second of
-    stream = load at real time."""
+    takes them, frames built and encoded (live frames at ``live_rate`` Hz, a divisor of 50), their
+    joint angles (``joint_angles``; the devices say they send their segments' own orientations, as
+    the generator's do), stats of every subject once a second, spread over the ticks as the loop
+    does; CPU per second of stream = load at real time."""
     every = max(1, round(50.0 / live_rate))
+    angles = "joint angles of the live frames" if joint_angles else "no joint angles"
     print(f"\n### Aggregator core, replayed messages ({seconds:g} s of stream, 50 Hz, truth tap on, "
-          f"live frames at {50.0 / every:g} Hz, frames and stats encoded, not sent)\n")
+          f"live frames at {50.0 / every:g} Hz, {angles}; frames, angles and stats encoded, not sent)\n")
     print("| subjects | devices | points/s | truth samples/s | frames/s | CPU per second of stream | "
           "subjects at 100 % of one core |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for subjects in subject_counts:
         events, m = replay_events(subjects, seconds)
-        agg = Aggregator(None, AggregatorSettings(live_rate=50.0 / every))
+        agg = Aggregator(None, AggregatorSettings(live_rate=50.0 / every, joint_angles=joint_angles))
         agg._publish = agg._publish_stats = lambda subject, payload: None
         for name in (f"s{s + 1:03d}" for s in range(subjects)):
             for seg in SEGMENTS:
                 agg.fusion.set_online(agg.track(name, seg), True)
+                agg.track(name, seg).orientations = "segments"  # as the generator's devices say in their status
         i = n_points = 0
         cpu0 = cpu_now()
         for k in range(m):
@@ -332,6 +336,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--live-bound-deg", default="0", help="emulator rows: live bounds of the devices (0: rule off)")
     parser.add_argument("--live-rate", type=float, default=50.0,
                         help="core rows, and aggregator rows with --record: live frame rate, Hz (50, 25, 10, ...)")
+    parser.add_argument("--no-joint-angles", dest="joint_angles", action="store_false",
+                        help="core rows: the aggregator without its joint-angle stage (to compare)")
     parser.add_argument("--record", action="store_true",
                         help="aggregator rows: a `limbstream record` process subscribes to everything")
     args = parser.parse_args(argv)
@@ -342,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
         bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds, args.record,
                          args.live_rate if args.record else 0.0)
     if args.what in ("core", "all"):
-        bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds, args.live_rate)
+        bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds, args.live_rate, args.joint_angles)
     if args.what in ("latency", "all"):
         for max_len in (25, 1000):
             bench_latency(args.seconds, 2, max_len)

@@ -162,9 +162,11 @@ class Emulator:
         self.host.close()
 
     def _status(self, d: Device) -> wire.DeviceStatus:
-        """The device's own view: config, counters of its current stream, clock sync."""
+        """The device's own view: config, counters of its current stream, clock sync, and what its
+        orientations are: its sensor's reading under a sensor model, else its feed's."""
         clock = self.sync.status(d.slot) if self.sync is not None else wire.ClockStatus()
-        return self.bank.status(d, clock, d.source.rest_pose)
+        orientations = "sensors" if self.sensors is not None else d.source.orientations
+        return self.bank.status(d, clock, d.source.rest_pose, orientations=orientations)
 
     def _configure(self, d: Device, config: wire.DeviceConfig) -> None:
         self.bank.configure(d, config)

@@ -64,6 +64,9 @@ QOS: dict[str, Qos] = {
     wire.pose_stream(wire.KIND_LIVE): Qos(_DROP, zenoh.Priority.INTERACTIVE_HIGH),
     # once a second per subject; the dashboard's history and recordings keep them
     wire.STATS: Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+    # joint angles of the live frames: superseded like them, and never ahead of them (a queue of their own,
+    # below the live frames', above the bulk)
+    wire.ANGLES: Qos(_DROP, zenoh.Priority.INTERACTIVE_LOW),
 }
 """Publisher options per message kind (docs/protocol.md, "Congestion control and priority")."""
 

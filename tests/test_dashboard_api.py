@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from support.stack import wait_until
-from support.dashboard import AUTH, TOKEN, Device, device_stats, make_client, pose_frame, publish_until
+from support.dashboard import AUTH, TOKEN, Device, device_stats, joint_angles, make_client, pose_frame, publish_until
 from starlette.websockets import WebSocketDisconnect
 
 from limbstream import wire
@@ -179,6 +179,41 @@ def test_latest_pose_and_kinds(client, pub):
     assert client.get("/api/subjects/poseC/pose?kind=sideways").status_code == 422
     skeleton = client.get("/api/skeleton").json()
     assert skeleton["joints"] == list(wire.JOINTS) and len(skeleton["bones"]) == len(wire.BONES)
+
+
+def test_joint_angles_latest_history_and_their_calibration(client, pub):
+    """GET /api/subjects/{s}/joints: the newest message and the last seconds of the angles asked
+    for, column-wise (null where an angle has no number); a subject without angles is told why;
+    bad queries are refused (422), bad payloads counted."""
+    live = lambda seq: wire.encode_angles(joint_angles(seq, knee=float(seq)))  # noqa: E731
+    publish_until(client, lambda: pub.put(wire.angles_key("angF"), live(0)),
+                  lambda: client.get("/api/subjects/angF/joints").status_code == 200, "angF joint angles")
+    for seq in range(100, 120):
+        pub.put(wire.angles_key("angF"), live(seq))
+    pub.put(wire.angles_key("angF"), wire.encode_angles(joint_angles(7, wire.KIND_EXACT)))
+    wait_until(lambda: client.get("/api/subjects/angF/joints").json()["latest"]["seq"] == 119, 10, "the burst")
+    got = client.get("/api/subjects/angF/joints").json()
+    assert got["kind"] == "live" and got["names"] == list(wire.JOINT_ANGLES)
+    assert got["angles"]["knee_angle_r"][-20:] == list(range(100, 120)) and got["seq"][-20:] == list(range(100, 120))
+    assert set(got["angles"]["elbow_flex_l"]) == {None} and len(got["t"]) == len(got["seq"])
+    latest = got["latest"]
+    assert (latest["calibration"], latest["valid"], latest["why"]) == ("segments", True, None)
+    assert latest["flags"] == {"elbow_flex_l": ["missing"]} and latest["angles"]["elbow_flex_l"] is None
+    some = client.get("/api/subjects/angF/joints", params=[("angle", "knee_angle_l"), ("angle", "hip_flexion_r"),
+                                                            ("seconds", "0.5")]).json()
+    assert some["names"] == ["hip_flexion_r", "knee_angle_l"] and set(some["angles"]) == set(some["names"])
+    assert client.get("/api/subjects/angF/joints", params={"kind": "exact"}).json()["latest"]["seq"] == 7
+    for bad in ({"angle": "knee"}, {"seconds": 0}, {"seconds": 1e6}, {"kind": "sideways"}, {"joint": "knee_angle_r"}):
+        assert client.get("/api/subjects/angF/joints", params=bad).status_code == 422, bad
+    assert client.get("/api/subjects/nobodyF/joints").status_code == 404
+    publish_until(client, lambda: pub.put(wire.angles_key("angG"), wire.encode_angles(joint_angles(1, basis="unknown"))),
+                  lambda: client.get("/api/subjects/angG/joints").status_code == 200, "angG joint angles")
+    told = client.get("/api/subjects/angG/joints").json()["latest"]
+    assert not told["valid"] and told["why"] == wire.ANGLE_BASES[wire.BASIS["unknown"]].meaning
+    assert set(told["angles"].values()) == {None} and all("uncalibrated" in f for f in told["flags"].values())
+    assert len(told["flags"]) == len(wire.JOINT_ANGLES)
+    publish_until(client, lambda: pub.put(wire.angles_key("angF"), b"\x01" * 115),
+                  lambda: 'reason="angles_version"' in client.get("/metrics").text, "a bad message counted")
 
 
 def test_bad_payloads_are_counted_not_fatal(client, pub):

@@ -3,6 +3,7 @@ dashboard as subprocesses. Writes tests/artifacts/dashboard.png and trackers.png
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -288,3 +289,60 @@ def test_trackers_panel_assigns_a_sensor(stack):  # noqa: F811
         a.close()
         b.close()
     assert not errors, errors
+
+
+JOINT_PLOT = """([subject, valid, series, points]) => {
+  const fig = document.querySelector(`.joint-plot[data-subject="${subject}"]`);
+  return !!fig && fig.dataset.valid === valid && (series === null || fig.dataset.series === series)
+    && Number(fig.dataset.points) >= points;
+}"""
+
+PLOT_INK = """(subject) => {
+  const c = document.querySelector(`.joint-plot[data-subject="${subject}"] canvas`);
+  const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+  let lit = 0;
+  for (let i = 3; i < px.length; i += 4) if (px[i] > 0) lit++;
+  return lit;
+}"""
+
+
+def test_page_plots_each_subjects_joint_angles(stack):  # noqa: F811
+    """Two subjects: s01's devices send their segments' own orientations, and the page plots its
+    knees and hips over the last seconds; s02's sensors are strapped on and not calibrated, and its
+    plot says why instead of numbers. Choosing another angle adds its series, and is remembered."""
+    chromium = require_chromium()
+    stack.router()
+    stack.emulator(1)
+    stack.start("emulate-s02", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--first-subject", "2",
+                "--mounting-deg", "90", "--heading-deg", "180")
+    stack.aggregator()
+    url = stack.dashboard()
+    wait_until(lambda: all(http_json(f"{url}/api/subjects/{s}/joints")[0] == 200 for s in ("s01", "s02")), 60,
+               "both subjects' joint angles", interval=0.2, on_fail=stack.logs)
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    errors = []
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1440, "height": 1000})
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(url + "/")
+            page.wait_for_function(JOINT_PLOT, arg=["s01", "true", "4", 100], timeout=30_000)
+            picked = page.eval_on_selector_all("#joints-pick input:checked", "xs => xs.map(x => x.value)")
+            assert picked == ["hip_flexion_r", "knee_angle_r", "hip_flexion_l", "knee_angle_l"], picked
+            assert page.evaluate(PLOT_INK, "s01") > 3000  # the curves are drawn
+            caption = page.text_content('.joint-plot[data-subject="s01"] .why')
+            assert "calibration segments" in caption and re.search(r"knee_angle_r -?\d+\.\d°", caption), caption
+            page.wait_for_function(JOINT_PLOT, arg=["s02", "false", None, 1], timeout=30_000)
+            assert page.get_attribute('.joint-plot[data-subject="s02"]', "data-calibration") == "uncalibrated"
+            assert "not calibrated" in page.text_content('.joint-plot[data-subject="s02"] .why')
+            page.check("#joints-pick input[value=elbow_flex_r]")
+            page.wait_for_function(JOINT_PLOT, arg=["s01", "true", "5", 100], timeout=10_000)
+            page.locator("#joints").screenshot(path=str(ARTIFACTS / "joints.png"))
+            page.reload()
+            page.wait_for_function(JOINT_PLOT, arg=["s01", "true", "5", 100], timeout=30_000)
+            assert page.is_checked("#joints-pick input[value=elbow_flex_r]")
+        finally:
+            browser.close()
+    assert not errors, errors
+    assert (ARTIFACTS / "joints.png").stat().st_size > 10_000

@@ -11,7 +11,7 @@ import uvicorn
 from hypothesis import HealthCheck, settings
 from support.profiles import scaled
 from support.stack import free_port, http_json, wait_until
-from support.dashboard import Device, device_stats, pose_frame
+from support.dashboard import Device, device_stats, joint_angles, pose_frame
 
 from limbstream import wire, zconfig
 from limbstream.device.clocks import ClockSettings
@@ -26,7 +26,7 @@ TOKEN = "fuzz-token"
 
 @pytest.fixture(scope="module")
 def served():
-    """A router, a publisher with one answering device, one subject's frames and its calibrate
+    """A router, a publisher with one answering device, one subject's frames, joint angles and its calibrate
     queryable (as the contract describes the aggregator's: this one refuses, the subject is not
     complete), a SlimeVR gateway named ``slimevr`` (no tracker: it lists no sensor and refuses
     every assignment), and the dashboard served by uvicorn on a free port (in a thread)."""
@@ -54,8 +54,10 @@ def served():
         def feed():
             pub.put(wire.stats_key("s01"), wire.encode_stats("s01", time.time(), [device_stats("s01", "hip")]))
             pub.put(wire.pose_key("s01"), wire.encode_pose(pose_frame(1)))
-            return http_json(url + "/api/subjects/s01/pose")[0] == 200 and http_json(url + "/api/devices/s01/hip")[0] == 200
-        wait_until(feed, 20, "s01 stats and pose")
+            pub.put(wire.angles_key("s01"), wire.encode_angles(joint_angles(1)))
+            return all(http_json(url + path)[0] == 200 for path in ("/api/subjects/s01/pose", "/api/devices/s01/hip",
+                                                                    "/api/subjects/s01/joints"))
+        wait_until(feed, 20, "s01 stats, pose and joint angles")
         wait_until(lambda: http_json(url + "/api/gateways")[1] == [{"gateway": "slimevr", "subject": "s01", "sensors": [],
                                                                   "segments": list(wire.SEGMENTS)}],
                    20, "the gateway listed")

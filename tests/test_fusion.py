@@ -285,15 +285,8 @@ def test_a_frame_stage_takes_each_ticks_frames_of_every_subject_before_they_are_
         batches.append(batch)
         return [(wire.subject_key(SUBJECTS[i], "stats"), "stats", bytes([i])) for i in batch.live_owner.tolist()]
 
-    class Publisher:
-        def __init__(self, key, kind):
-            self.key, self.kind = key, kind
-
-        def put(self, payload):
-            published.append((self.key, self.kind, payload))
-
-    agg.frame_stages.append(stage)
-    agg._publisher = Publisher
+    agg.frame_stages = [stage]
+    agg._put = lambda key, kind, payload: published.append((key, kind, payload))
     for subject in SUBJECTS:
         for segment in SEGMENTS:
             send(agg, segment, range(6), now=0.0, subject=subject)

@@ -25,7 +25,7 @@ from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSett
 from support.profiles import scaled
 
 SEED = 20240607
-BULK = {"point": 45_000, "raw": 15_000, "pose": 15_000, "key": 20_000, "aggregator_input": 8_000}
+BULK = {"point": 45_000, "raw": 15_000, "pose": 15_000, "angles": 10_000, "key": 20_000, "aggregator_input": 8_000}
 """Seeded bulk cases of each test under the thorough profile (messages or keys decoded)."""
 EXAMPLES = 100
 """Hypothesis examples of each property test under the thorough profile."""
@@ -138,6 +138,47 @@ def test_pose_frame_decoder_bulk():
             assert result in {"size", "version"}
         reasons[result if isinstance(result, str) else "ok"] += 1
     assert sum(reasons.values()) == scaled(BULK["pose"]) and {"size", "version", "ok"} <= set(reasons), reasons
+
+
+def valid_angles(rng: np.random.Generator, n: int) -> list[bytes]:
+    """Joint-angle messages as an aggregator makes them: each basis, some angles missing or near lock."""
+    a = len(wire.JOINT_ANGLES)
+    basis = rng.integers(0, len(wire.ANGLE_BASES), n)
+    valid = np.array([wire.ANGLE_BASES[b].valid for b in basis])
+    flags = np.where(rng.random((n, a)) < 0.1, wire.ANGLE_MISSING, 0) | np.where(rng.random((n, a)) < 0.1,
+                                                                                  wire.ANGLE_GIMBAL, 0)
+    flags |= np.where(valid, 0, wire.ANGLE_UNCALIBRATED)[:, None]
+    angles = np.where(flags & (wire.ANGLE_MISSING | wire.ANGLE_UNCALIBRATED), np.nan, rng.uniform(-180, 180, (n, a)))
+    facing = np.where(basis == wire.BASIS["functional"], rng.uniform(-180, 180, n), np.nan)
+    return wire.AngleFrames(rng.integers(0, 1 << 32, n), rng.integers(0, 1 << 62, n), rng.integers(0, 2, n), basis,
+                            facing, angles, flags.astype(np.uint8)).encode()
+
+
+def test_joint_angle_decoder_bulk():
+    """Good messages come back as sent; mutated ones and random bytes are refused with a reason,
+    or decode to angles that keep the contract: a number exactly where the flags allow one, none
+    at all where the basis gives no anatomical frames."""
+    rng = np.random.default_rng(SEED + 5)
+    n = scaled(BULK["angles"])
+    good = valid_angles(rng, n // 5)
+    frames, refused = wire.decode_angles_many(good)
+    assert not any(refused) and frames.encode() == good
+    reasons: collections.Counter = collections.Counter()
+    payloads = [mutate(rng, good[k % len(good)]) if k % 4 else rng.bytes(int(rng.integers(0, 160)))
+                for k in range(n - len(good))]
+    batch, batch_reasons = wire.decode_angles_many(payloads)
+    for payload, why in zip(payloads, batch_reasons):
+        result = decodes_or_wire_error(wire.decode_angles, payload)
+        assert (result if isinstance(result, str) else "") == why  # one at a time as in a batch
+        if isinstance(result, str):
+            assert result in {"size", "version", "value"}, result
+        else:
+            number = (result.flags & (wire.ANGLE_MISSING | wire.ANGLE_UNCALIBRATED)) == 0
+            assert np.isfinite(result.angles[number]).all() and np.isnan(result.angles[~number]).all()
+            assert number.any() <= result.calibration.valid and result.kind in (0, 1)
+        reasons[result if isinstance(result, str) else "ok"] += 1
+    assert len(batch) == reasons["ok"] and sum(reasons.values()) + len(good) == n
+    assert {"size", "version", "value", "ok"} <= set(reasons), reasons
 
 
 def test_keys_bulk():

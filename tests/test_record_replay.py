@@ -136,6 +136,8 @@ def test_record_then_replay_rebuilds_the_same_frames(stack, watch, cmu_npz, tmp_
     assert counts[TOPICS["seg"]] == points, counts
     assert counts[TOPICS["raw"]] >= 10 * CLIP_SAMPLES // 25 and counts[TOPICS["pose"]] > 0, counts
     assert counts[TOPICS["config"]] >= 10 and counts[skeleton_topic("s01")] > 0, counts
+    angles = [wire.decode_angles(e.payload) for e in Recording(live).entries(["angles"])]  # the live frames' joint angles
+    assert len(angles) == counts[TOPICS["angles"]] > 0 and angles[-1].calibration.name == "segments", counts
     assert {s.name for s in summary.schemas.values()} >= {"limbstream.seg", "foxglove.SceneUpdate"}
     seg_of = {(e.key, e.payload) for e in Recording(live).entries(["seg", "raw"])}
     assert seg_of == {(e.key, e.payload) for e in Recording(late).entries(["seg", "raw"])}

@@ -365,3 +365,82 @@ def test_gateway_key_is_verbatim_and_its_codec_round_trips():
     for bad in (b"{}", b'{"gateway": "g", "subject": "s", "sensors": [{"tracker": 1}]}', b"nope"):
         with pytest.raises(wire.WireError):
             wire.decode_sensors(bad)
+
+
+def angle_frames(n: int, basis: str = "segments") -> wire.AngleFrames:
+    rng = np.random.default_rng(3)
+    a = len(wire.JOINT_ANGLES)
+    flags = np.zeros((n, a), np.uint8)
+    flags[:, 1] = wire.ANGLE_MISSING
+    flags[:, 5] = wire.ANGLE_GIMBAL
+    valid = wire.ANGLE_BASES[wire.BASIS[basis]].valid
+    flags |= np.uint8(0 if valid else wire.ANGLE_UNCALIBRATED)
+    angles = np.where(flags & (wire.ANGLE_MISSING | wire.ANGLE_UNCALIBRATED), np.nan, rng.uniform(-90, 90, (n, a)))
+    return wire.AngleFrames(rng.integers(0, 2**32, n), rng.integers(0, 2**53, n), np.full(n, wire.KIND_LIVE),
+                            np.full(n, wire.BASIS[basis]), np.full(n, 12.5 if basis == "functional" else np.nan),
+                            angles, flags)
+
+
+def test_joint_angles_encode_as_the_documented_layout_and_come_back():
+    """Header <BBBBIqf (version, kind, basis, n_angles, seq, t_us, facing_deg), then the angles
+    (float32, JOINT_ANGLES order) and a flag byte each; decoded one by one or together, the same."""
+    frames = angle_frames(5, "functional")
+    payloads = frames.encode()
+    header = struct.Struct("<BBBBIqf")
+    for i, payload in enumerate(payloads):
+        expected = (header.pack(wire.ANGLES_VERSION, wire.KIND_LIVE, wire.BASIS["functional"], len(wire.JOINT_ANGLES),
+                                int(frames.seq[i]), int(frames.t_us[i]), 12.5)
+                    + frames.angles[i].astype("<f4").tobytes() + frames.flags[i].tobytes())
+        assert payload == expected == wire.encode_angles(frames[i]) and len(payload) == wire.ANGLES_SIZE == 115
+        back = wire.decode_angles(payload)
+        assert (back.seq, back.t_us, back.kind, back.facing_deg) == (frames.seq[i], frames.t_us[i], 1, 12.5)
+        assert np.array_equal(back.flags, frames.flags[i])
+        assert np.allclose(back.angles, frames.angles[i], equal_nan=True, atol=1e-4)
+    together, refused = wire.decode_angles_many(payloads)
+    assert refused == [""] * 5 and together.encode() == payloads
+    js = wire.decode_angles(payloads[0]).to_json("s01")
+    assert (js["calibration"], js["valid"], js["why"], js["facing_deg"], js["kind"]) == ("functional", True, None, 12.5,
+                                                                                           "live")
+    assert list(js["angles"]) == list(wire.JOINT_ANGLES) and js["angles"][wire.JOINT_ANGLES[1]] is None
+    assert js["flags"] == {wire.JOINT_ANGLES[1]: ["missing"], wire.JOINT_ANGLES[5]: ["gimbal"]}
+    js = wire.decode_angles(angle_frames(1, "uncalibrated").encode()[0]).to_json("s01")
+    assert not js["valid"] and "calibrat" in js["why"] and set(js["angles"].values()) == {None}
+    assert wire.angles_key("s01") == "limbstream/s01/angles" == wire.subject_key("s01", wire.ANGLES)
+    assert wire.parse_subject_key(wire.angles_key("s01")) == ("s01", "angles")
+
+
+def test_bad_joint_angle_messages_are_refused_with_a_reason():
+    good = bytearray(angle_frames(1).encode()[0])
+    uncal = bytearray(angle_frames(1, "no_facing").encode()[0])
+    at = {name: wire.ANGLES_DTYPE.fields[name][1] for name in wire.ANGLES_DTYPE.names}
+
+    def changed(base: bytearray, offset: int, data: bytes) -> bytes:
+        b = bytearray(base)
+        b[offset:offset + len(data)] = data
+        return bytes(b)
+    flag0, angle0 = at["flags"], at["angles"]
+    cases = [(bytes(good[:-1]), "size"), (bytes(good) + b"\0", "size"), (changed(good, 0, b"\2"), "version"),
+             (changed(good, at["n_angles"], b"\x14"), "version"), (changed(good, at["kind"], b"\2"), "value"),
+             (changed(good, at["basis"], bytes([len(wire.ANGLE_BASES)])), "value"),
+             (changed(good, flag0, b"\x08"), "value"),                                   # an unknown flag bit
+             (changed(good, angle0, struct.pack("<f", math.nan)), "value"),              # a valid angle without a number
+             (changed(good, angle0 + 4, struct.pack("<f", 3.0)), "value"),               # a MISSING angle with one
+             (changed(good, flag0, bytes([wire.ANGLE_UNCALIBRATED])), "value"),          # UNCALIBRATED on a valid basis
+             (changed(uncal, flag0, b"\0"), "value"),                                    # ... not on an invalid one
+             (changed(good, at["facing_deg"], struct.pack("<f", math.inf)), "value")]
+    for payload, reason in cases:
+        with pytest.raises(wire.WireError) as err:
+            wire.decode_angles(payload)
+        assert err.value.reason == reason, (payload, reason)
+    _, reasons = wire.decode_angles_many([p for p, _ in cases] + [bytes(good)])
+    assert reasons == [r for _, r in cases] + [""]
+
+
+def test_a_device_status_says_what_its_orientations_are():
+    status = wire.DeviceStatus("s01/hip", wire.DeviceConfig(), 3, 10, 2, orientations="rest")
+    assert wire.decode_status(wire.encode_status(status)).orientations == "rest"
+    silent = wire.decode_status(wire.encode_status(wire.DeviceStatus("s01/hip", wire.DeviceConfig(), 3, 10, 2)))
+    assert silent.orientations is None and "orientations" not in silent.as_dict()
+    data = status.as_dict() | {"orientations": "quaternions"}
+    with pytest.raises(wire.WireError, match="orientations must be one of segments, rest, sensors"):
+        wire.decode_status(json.dumps(data).encode())

@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration-file", default="", metavar="PATH",
                         help="keep the devices' calibrations in this JSON file, so that a restarted aggregator "
                              "has them (default: not kept)")
+    parser.add_argument("--no-joint-angles", dest="joint_angles", action="store_false",
+                        help="do not publish the subjects' joint angles (limbstream/<subject>/angles; "
+                             "docs/protocol.md, 'Joint angles')")
     parser.add_argument("-v", "--verbose", action="store_true")
     flags.add_zenoh(parser)
 
@@ -58,7 +61,7 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
     return AggregatorSettings(subjects=patterns or ("*",), rate=args.rate, live_rate=args.live_rate,
                               tick_s=args.tick, history=args.history, error_window_s=args.error_window,
                               frame_batch_s=args.frame_batch, calibrate_on_start=args.calibrate_on_start,
-                              calibration_file=args.calibration_file,
+                              calibration_file=args.calibration_file, joint_angles=args.joint_angles,
                               skeleton=skeleton)
 
 

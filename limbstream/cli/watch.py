@@ -5,7 +5,9 @@ default: the aggregator's frames at the devices' "now"), exact frames (``--kind 
 behind by up to the max segment length) or ``--kind auto`` (live while they come, else exact: the
 pose stream API's rule); the header line names the kind of the frame shown. A frame flagged
 MISSING says which segments have no data and why (no device, or its device offline), from the
-subject's stats."""
+subject's stats. With ``--joints`` the subject's joint angles of the same kind follow
+(docs/protocol.md, "Joint angles"): a value per angle, ``-`` for one without (its segment missing),
+``~`` after one near gimbal lock, or the reason there are none (the subject not calibrated)."""
 from __future__ import annotations
 
 import argparse
@@ -57,13 +59,33 @@ def render(subject: str, frame: wire.PoseFrame, rate_hz: float, devices: dict[st
     return "\n".join(lines)
 
 
+def render_angles(angles: wire.JointAngles | None) -> str:
+    """The joint angles of a joint-angle message, four to a line, with the calibration they rest on
+    (None: none came yet)."""
+    if angles is None:
+        return "  joint angles: none received yet (an aggregator with --no-joint-angles publishes none)"
+    basis = angles.calibration
+    if not basis.valid:
+        return f"  joint angles: none, calibration {basis.name}: {basis.meaning}"
+    facing = f", facing {angles.facing_deg:.1f}°" if math.isfinite(angles.facing_deg) else ""
+    cells = []
+    for name, value, bits in zip(wire.JOINT_ANGLES, angles.angles.tolist(), angles.flags.tolist()):
+        text = "      -" if not math.isfinite(value) else f"{value:6.1f}°"
+        cells.append(f"{name:>16s} {text}{'~' if bits & wire.ANGLE_GIMBAL else ' '}")
+    lines = [f"  joint angles (deg; calibration {basis.name}{facing}; - no data, ~ near gimbal lock):"]
+    return "\n".join(lines + ["  " + " ".join(cells[i:i + 4]) for i in range(0, len(cells), 4)])
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", help="subject key chunk, e.g. s01")
     parser.add_argument("--kind", choices=tuple(KINDS), default="live",
                         help="which frames to show: live (default; at the devices' now), exact (final, "
                              "behind by up to the max segment length) or auto (live while they come, else exact)")
+    parser.add_argument("--joints", action="store_true",
+                        help="also show the subject's joint angles (OpenSim's names, degrees) of the frames of that kind")
     parser.add_argument("--refresh", type=float, default=5.0, help="screen updates per second (default 5)")
-    parser.add_argument("--count", type=int, default=0, help="exit after this many frames (0: run until Ctrl-C)")
+    parser.add_argument("--count", type=int, default=0,
+                        help="exit after this many frames (with --joints: and a joint-angle message; 0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
                         help="exit with status 1 if the router does not answer or no frame arrives for this many "
                              f"seconds (0: wait for frames forever, for the router {zconfig.CONNECT_TIMEOUT_S:g} s)")
@@ -78,14 +100,20 @@ class _Newest:
         self.wanted = wanted
         self.count = 0
         self.devices: dict[str, bool] | None = None
+        self.angles: wire.JointAngles | None = None  # the newest joint angles of the kind shown
         self.last_live = -math.inf  # monotonic time of the newest live frame (auto)
 
     def take(self, items: list) -> wire.PoseFrame | None:
-        """The newest frame to show among ``items`` (None: none), the stats noted."""
+        """The newest frame to show among ``items`` (None: none), the stats and angles noted."""
         frame = None
         for item in items:
             if item.kind == wire.STATS:
                 self.devices = {d["segment"]: bool(d["online"]) for d in item.value["devices"]}
+                continue
+            if item.kind == wire.ANGLES:
+                wanted = self.wanted if self.wanted is not None else wire.auto_kind(time.monotonic() - self.last_live)
+                if item.value.kind == wanted:
+                    self.angles = item.value
                 continue
             if item.value.kind == wire.KIND_LIVE:
                 self.last_live = time.monotonic()
@@ -108,7 +136,8 @@ def run(args: argparse.Namespace) -> int:
     tty = sys.stdout.isatty()
     last_count, last_time, last_seen = 0, time.monotonic(), time.monotonic()
     settings = flags.session_settings(args, "limbstream watch", args.timeout or zconfig.CONNECT_TIMEOUT_S)
-    with Subscription(settings, args.subject, (wire.POSE, wire.STATS)) as sub:
+    kinds = (wire.POSE, wire.STATS) + ((wire.ANGLES,) if args.joints else ())
+    with Subscription(settings, args.subject, kinds) as sub:
         while True:
             first = sub.get(timeout=1.0 / args.refresh)
             frame = newest.take(([first] if first is not None else []) + sub.drain())  # keep the newest
@@ -122,7 +151,10 @@ def run(args: argparse.Namespace) -> int:
             last_seen = now
             rate = (newest.count - last_count) / max(now - last_time, 1e-6)
             last_count, last_time = newest.count, now
-            print(("\x1b[H\x1b[2J" if tty else "") + render(args.subject, frame, rate, newest.devices), flush=True)
-            if args.count and newest.count >= args.count:
+            text = render(args.subject, frame, rate, newest.devices)
+            if args.joints:
+                text += "\n" + render_angles(newest.angles)
+            print(("\x1b[H\x1b[2J" if tty else "") + text, flush=True)
+            if args.count and newest.count >= args.count and (newest.angles is not None or not args.joints):
                 return 0
             time.sleep(max(0.0, 1.0 / args.refresh - (time.monotonic() - now)))

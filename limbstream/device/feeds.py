@@ -47,6 +47,7 @@ class LoopFeed:
         self.q = np.roll(self.motion.q.astype(np.float32), -int(start * len(self.motion.q)), axis=0)
         self.segments = self.motion.segments
         self.rest_pose = self.motion.rest_pose
+        self.orientations = self.motion.orientations  # wire.ORIENTATIONS
         self.length = len(self.q) if once else None
 
     def sample(self, k: int) -> np.ndarray:
@@ -65,6 +66,7 @@ class GeneratorFeed:
 
     CHUNK_S = 10.0
     rest_pose = "standing"
+    orientations = "segments"  # wire.ORIENTATIONS: the generated segments' own
 
     def __init__(self, seed: int, fs: float, noise_deg: float = 0.0):
         self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg)

@@ -46,6 +46,8 @@ class RawFeed:
     once : play a recording once (``length`` device samples) instead of looping it.
     """
 
+    orientations = "sensors"  # wire.ORIENTATIONS: a device fuses its sensor's readings
+
     def __init__(self, source: Motion | GeneratorSource, rate_hz: float, fs: float, once: bool = False):
         self.per = raw_per_sample(rate_hz, fs)
         self.readings_feed = imu.ReadingFeed(source, rate_hz, once=once)

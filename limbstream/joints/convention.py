@@ -47,15 +47,15 @@ Flags per angle: :data:`MISSING` (a segment of the joint has no data: angle NaN)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from limbstream import quat, wire
 from limbstream.skeleton import rest_offsets
+from limbstream.wire import JOINT_TABLE, Joint  # noqa: F401  (re-exported: the joints, the contract's table)
 
-MISSING, GIMBAL, UNCALIBRATED = 1, 2, 4
-"""Flag bits of one angle (0: a valid angle)."""
+MISSING, GIMBAL, UNCALIBRATED = wire.ANGLE_MISSING, wire.ANGLE_GIMBAL, wire.ANGLE_UNCALIBRATED
+"""Flag bits of one angle (0: a valid angle; the contract's, ``limbstream.wire.angles``)."""
 
 GIMBAL_DEG = 10.0
 """The first and third angles of a joint are flagged GIMBAL within this many degrees of lock."""
@@ -63,33 +63,7 @@ GIMBAL_DEG = 10.0
 TO_OPENSIM = np.array([math.sqrt(0.5), 0.0, math.sqrt(0.5), 0.0])
 """limbstream's axes to OpenSim's, a turn of 90 degrees about Y: (x, y, z) -> (z, y, -x)."""
 
-
-@dataclass(frozen=True)
-class Joint:
-    """One joint: the segments it joins and the names and signs of its three Z-X-Y angles
-    (None: not reported, e.g. a hinge's ad/abduction)."""
-
-    name: str
-    parent: str
-    child: str
-    angles: tuple[str | None, str | None, str | None]
-    signs: tuple[float, float, float] = (1.0, 1.0, 1.0)
-
-
-JOINT_TABLE: tuple[Joint, ...] = (
-    Joint("hip_r", "hip", "r_thigh", ("hip_flexion_r", "hip_adduction_r", "hip_rotation_r")),
-    Joint("knee_r", "r_thigh", "r_shank", ("knee_angle_r", None, None), (-1.0, 1.0, 1.0)),
-    Joint("hip_l", "hip", "l_thigh", ("hip_flexion_l", "hip_adduction_l", "hip_rotation_l"), (1.0, -1.0, -1.0)),
-    Joint("knee_l", "l_thigh", "l_shank", ("knee_angle_l", None, None), (-1.0, 1.0, 1.0)),
-    Joint("shoulder_r", "hip", "r_upperarm", ("arm_flex_r", "arm_add_r", "arm_rot_r")),
-    Joint("elbow_r", "r_upperarm", "r_lowerarm", ("elbow_flex_r", None, None)),
-    Joint("shoulder_l", "hip", "l_upperarm", ("arm_flex_l", "arm_add_l", "arm_rot_l"), (1.0, -1.0, -1.0)),
-    Joint("elbow_l", "l_upperarm", "l_lowerarm", ("elbow_flex_l", None, None)),
-    Joint("neck", "hip", "neck", ("neck_extension", "neck_bending", "neck_rotation")),
-)
-"""The joints of the 10-segment body, in the order of their angles in :data:`ANGLES`."""
-
-ANGLES: tuple[str, ...] = tuple(a for j in JOINT_TABLE for a in j.angles if a is not None)
+ANGLES: tuple[str, ...] = wire.JOINT_ANGLES
 """The joint angles, in this order in every angle vector (degrees)."""
 
 _SEG = {name: i for i, name in enumerate(wire.SEGMENTS)}
@@ -101,10 +75,15 @@ _JOINT_OF = np.array([j for j, _, _ in _AT])
 """(A,) the joint of each angle."""
 _COMPONENT = np.array([i for _, i, _ in _AT])
 """(A,) which Z-X-Y angle (0, 1, 2) each angle is."""
-_SIGN = np.array([s for _, _, s in _AT])
+_TAKE = 3 * _JOINT_OF + _COMPONENT
+"""(A,) each angle's place in a (J, 3) array of the joints' Z-X-Y angles, flattened."""
+_DEG = np.degrees(np.array([s for _, _, s in _AT]))
+"""(A,) radians to degrees, times each angle's sign."""
+_ENDS = np.concatenate([_PARENT, _CHILD])
+_SIDE_ANGLE = _COMPONENT != 1
+"""(A,) the first or third angle of its joint (those gimbal lock makes ill-conditioned)."""
 _STANDING_FROM_TPOSE = quat.conjugate(rest_offsets("standing"))
-_OPENSIM_SIGNS = np.array([1.0, 1.0, 1.0, -1.0])
-"""A rotation's (w, z, y, -x) is the same rotation in OpenSim's axes (:data:`TO_OPENSIM`)."""
+_LOCK_SIN = math.sin(math.radians(GIMBAL_DEG))
 
 
 def anatomical(q: np.ndarray, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:
@@ -135,7 +114,8 @@ def standing(q: np.ndarray, rest_pose: str) -> np.ndarray:
 
 
 def euler_zxy(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Intrinsic Z-X-Y angles of rotations ``q`` (..., 4) (``R = Rz(a) Rx(b) Ry(c)``).
+    """Intrinsic Z-X-Y angles of rotations ``q`` (..., 4) (``R = Rz(a) Rx(b) Ry(c)``; any
+    nonzero norm).
 
     Returns
     -------
@@ -143,15 +123,26 @@ def euler_zxy(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c is 0 and a carries the sum.
     near_lock : (...) bool, within :data:`GIMBAL_DEG` of the lock.
     """
-    w, x, y, z = np.moveaxis(np.asarray(q, np.float64), -1, 0)
-    r01, r11 = 2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z)
-    r20, r22 = 2.0 * (x * z - w * y), 1.0 - 2.0 * (x * x + y * y)
-    r21 = 2.0 * (y * z + w * x)
-    cos_b = np.hypot(r01, r11)
-    locked = cos_b < 1e-9
-    a = np.where(locked, np.arctan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z)), np.arctan2(-r01, r11))
-    c = np.where(locked, 0.0, np.arctan2(-r20, r22))
-    return np.stack([a, np.arctan2(r21, cos_b), c], axis=-1), cos_b < math.sin(math.radians(GIMBAL_DEG))
+    a, b, c, near_lock, _ = _euler_zxy(*np.moveaxis(np.asarray(q, np.float64), -1, 0))
+    return np.stack([a, b, c], axis=-1), near_lock
+
+
+def _euler_zxy(w: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`euler_zxy` of the quaternion components ``w, x, y, z`` (each (...)): a, b, c (...)
+    radians, near_lock (...) bool and the squared norm n (...). The rotation matrix's entries are
+    taken times n, which leaves every ratio, and so every angle, as it is."""
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    n = ww + xx + yy + zz
+    r01, r11 = 2.0 * (x * y - w * z), ww - xx + yy - zz
+    r20, r22 = 2.0 * (x * z - w * y), ww - xx - yy + zz
+    cos_b = np.sqrt(r01 * r01 + r11 * r11)
+    a = np.arctan2(-r01, r11)
+    c = np.arctan2(-r20, r22)
+    locked = cos_b < 1e-9 * n
+    if locked.any():
+        a = np.where(locked, np.arctan2(2.0 * (x * y + w * z), ww + xx - yy - zz), a)
+        c = np.where(locked, 0.0, c)
+    return a, np.arctan2(2.0 * (y * z + w * x), cos_b), c, cos_b < _LOCK_SIN * n, n
 
 
 def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: str = wire.DEFAULT_REST_POSE,
@@ -161,7 +152,9 @@ def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: st
     Parameters
     ----------
     q : (..., 10, 4) segment orientations, :data:`wire.SEGMENTS` order (anatomical once
-        calibrated: identity in the rest pose, the rest pose's forward resolved).
+        calibrated: identity in the rest pose, the rest pose's forward resolved); float32 is
+        worked in float32 (a pose frame's precision: about 1e-5 degrees away from lock), any
+        other type in float64.
     present : (10,) or (..., 10) bool, the segments that have data (None: every finite one).
     rest_pose : what identity means for ``q``.
     calibrated : bool or (...) bool per leading index (e.g. per subject): False gives no angles
@@ -173,17 +166,30 @@ def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: st
         UNCALIBRATED.
     flags : (..., A) uint8, :data:`MISSING` | :data:`GIMBAL` | :data:`UNCALIBRATED` bits.
     """
-    q = np.asarray(q, np.float64)
-    finite = np.isfinite(q).all(axis=-1) & (np.abs(q).sum(axis=-1) > 0)
-    have = finite if present is None else finite & np.asarray(present, bool)
-    q = standing(np.where(have[..., None], q, np.array([1.0, 0.0, 0.0, 0.0])), rest_pose)
-    relative = quat.multiply(quat.conjugate(q[..., _PARENT, :]), q[..., _CHILD, :])  # (..., J, 4)
-    relative = relative[..., [0, 3, 2, 1]] * _OPENSIM_SIGNS  # in OpenSim's axes (conjugated by TO_OPENSIM)
-    relative /= np.linalg.norm(relative, axis=-1, keepdims=True)
-    euler, near_lock = euler_zxy(relative)
-    angles = np.degrees(euler[..., _JOINT_OF, _COMPONENT]) * _SIGN
-    flags = np.where(near_lock[..., _JOINT_OF] & (_COMPONENT != 1), GIMBAL, 0).astype(np.uint8)
-    missing = ~(have[..., _PARENT] & have[..., _CHILD])[..., _JOINT_OF]
-    flags |= np.where(missing, MISSING, 0).astype(np.uint8)
-    flags |= np.where(~np.asarray(calibrated, bool), UNCALIBRATED, 0).astype(np.uint8)[..., None]
-    return np.where(flags & (MISSING | UNCALIBRATED), np.nan, angles), flags
+    q = np.asarray(q)
+    q = q if q.dtype == np.float32 else q.astype(np.float64)
+    if wire.check_rest_pose(rest_pose) == "tpose":
+        q = quat.multiply(q, _STANDING_FROM_TPOSE).astype(q.dtype)
+    j = len(JOINT_TABLE)
+    ends = np.take(q, _ENDS, axis=-2).reshape(*q.shape[:-2], 2, j, 4)  # the joints' parents, then children
+    (pw, cw), (px, cx), (py, cy), (pz, cz) = np.ascontiguousarray(np.moveaxis(ends, (-1, -3), (0, 1)))  # fast to work on
+    with np.errstate(invalid="ignore", over="ignore"):  # a segment without data: its joints are flagged below
+        # conj(parent) * child, in OpenSim's axes: (w, x, y, z) -> (w, z, y, -x) (conjugated by TO_OPENSIM)
+        a, b, c, near_lock, norm2 = _euler_zxy(pw * cw + px * cx + py * cy + pz * cz,
+                                               pw * cz - pz * cw - px * cy + py * cx,
+                                               pw * cy - py * cw + px * cz - pz * cx,
+                                               px * cw - pw * cx + py * cz - pz * cy)
+    joint_missing = ~(np.isfinite(norm2) & (norm2 > 0))  # (..., J): a segment non-finite or zero
+    if present is not None:
+        present = np.asarray(present, bool)
+        joint_missing |= ~(np.take(present, _PARENT, axis=-1) & np.take(present, _CHILD, axis=-1))
+    angles = np.take(np.stack([a, b, c], axis=-1).reshape(*a.shape[:-1], 3 * j), _TAKE, axis=-1) * _DEG
+    flags = (np.take(near_lock, _JOINT_OF, axis=-1) & _SIDE_ANGLE).astype(np.uint8) * np.uint8(GIMBAL)
+    no_number = np.take(joint_missing, _JOINT_OF, axis=-1)
+    flags |= no_number.astype(np.uint8) * np.uint8(MISSING)
+    uncalibrated = ~np.asarray(calibrated, bool)
+    if uncalibrated.any():
+        flags |= np.where(uncalibrated[..., None], np.uint8(UNCALIBRATED), np.uint8(0))
+        no_number = no_number | uncalibrated[..., None]
+    angles[no_number] = np.nan
+    return angles, flags

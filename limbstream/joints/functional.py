@@ -134,8 +134,9 @@ class HingeStats:
         self.total += v.sum(axis=-3)
         self.scatter += np.einsum("...mhi,...mhj->...hij", v, v)
 
-    def facing(self) -> Facing:
-        """The facing the sums tell so far."""
+    def facing(self, min_frames: int = 1) -> Facing:
+        """The facing the sums tell so far; a hinge counts only once it has ``min_frames`` frames
+        (live: a few frames of a bent knee are not yet a hinge's motion)."""
         n = np.maximum(self.n, 1.0)[..., None]
         values, vectors = np.linalg.eigh(self.scatter)  # ascending
         axis = vectors[..., :, 2]  # (*B, H, 3) principal direction
@@ -145,7 +146,7 @@ class HingeStats:
         fraction = values[..., 2] / np.maximum(values.sum(axis=-1), 1e-300)
         tilt = np.degrees(np.arcsin(np.clip(np.abs(axis[..., 1]), 0.0, 1.0)))
         heading = np.arctan2(-axis[..., 2], axis[..., 0])
-        counted = ((self.n > 0) & (np.degrees(rms) >= MIN_RMS_DEG) & (fraction >= MIN_HINGE)
+        counted = ((self.n >= max(min_frames, 1)) & (np.degrees(rms) >= MIN_RMS_DEG) & (fraction >= MIN_HINGE)
                    & (tilt <= MAX_TILT_DEG) & (np.abs(along) >= ONE_SIDED * rms))
         weight = np.where(counted, values[..., 2], 0.0)
         sin, cos = (weight * np.sin(heading)).sum(axis=-1), (weight * np.cos(heading)).sum(axis=-1)

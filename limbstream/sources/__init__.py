@@ -36,18 +36,10 @@ def is_number(text: str) -> bool:
     return True
 
 
-ORIENTATIONS: tuple[str, ...] = ("segments", "rest", "sensors")
-"""What a :class:`Motion`'s orientations are (``Motion.orientations``):
-
-- ``segments``: the segments' own orientations in the skeleton's world (Y up): BVH clips, npz
-  files, the generator; joint angles can be taken from them as they are.
-- ``rest``: real sensors, each calibrated from the still rest pose its recording starts with
-  (:func:`limbstream.calibration.calibrate_start`) in a world turned Y up: the segments up to
-  the subject's facing, the one turn about the vertical a rest pose cannot tell (found from the
-  hinges' motion, :mod:`limbstream.joints.functional`, before joint angles).
-- ``sensors``: real sensors' orientations, not calibrated (a recording that does not start
-  still): nothing about the body can be taken from them.
-"""
+ORIENTATIONS = wire.ORIENTATIONS
+"""What a :class:`Motion`'s orientations are (``Motion.orientations``): the contract's
+:data:`limbstream.wire.ORIENTATIONS` (the segments' own, rest-calibrated real sensors, or
+uncalibrated sensors), which devices also say of their streams."""
 
 
 @dataclass(frozen=True)

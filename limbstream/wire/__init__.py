@@ -8,6 +8,7 @@ module          what it holds
 :mod:`.point`   segment point codec (device -> aggregator)
 :mod:`.raw`     truth-tap batch codec
 :mod:`.pose`    pose frame codec (aggregator -> clients)
+:mod:`.angles`  joint-angle codec (aggregator -> clients)
 :mod:`.fields`  the stats field table; :mod:`.stats` its codec (compact, JSON)
 :mod:`.config`  device tunables (defaults, bounds), config and status messages
 :mod:`.time`    time exchange codec (device <-> time service)
@@ -21,7 +22,11 @@ package, not the modules: ``from limbstream import wire; wire.seg_key(...)``.
 """
 from .calibrate import (CALIBRATION_ANSWER_TIMEOUT_S, CALIBRATION_HOLD_S, CALIBRATION_POSES, CalibrateAnswer, decode_calibrate_answer,
                         decode_calibrate_request, encode_calibrate_answer, encode_calibrate_request)
-from .body import BONES, DEFAULT_REST_POSE, JOINTS, REST_POSES, SEGMENTS, check_rest_pose
+from .angles import (ANGLE_BASES, ANGLE_FLAGS, ANGLE_GIMBAL, ANGLE_MISSING, ANGLE_UNCALIBRATED, ANGLES_DTYPE, ANGLES_SIZE,
+                     ANGLES_VERSION, BASIS, AngleBasis, AngleFrames, JointAngles, decode_angles, decode_angles_many,
+                     encode_angles)
+from .body import (BONES, DEFAULT_REST_POSE, JOINT_ANGLES, JOINT_TABLE, JOINTS, ORIENTATIONS, REST_POSES, SEGMENTS, Joint,
+                   check_rest_pose)
 from .config import (DEVICE_RATE_HZ, LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
                      DeviceStatus, FusionStatus, FUSION_MODES, LinkStatus, Tunable, decode_config, decode_status,
                      encode_config, encode_status)
@@ -29,7 +34,7 @@ from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
 from .gateway import Assignment, decode_assignment, decode_sensors, encode_assignment, encode_sensors
-from .keys import (ALIVE, CALIBRATE, CONFIG, POSE, RAW, SEG, STATS, CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
+from .keys import (ALIVE, ANGLES, CALIBRATE, CONFIG, POSE, RAW, SEG, STATS, CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, angles_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
                    device_selector, gateway_key, gateway_selector, history_selector, parse_device_key, parse_gateway_key, parse_subject_key, pose_key, raw_key, seg_key,
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, PointColumns,

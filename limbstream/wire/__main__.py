@@ -1,9 +1,9 @@
-"""``python -m limbstream.wire``: the stats field, compact stats column and device tunable
-tables of docs/protocol.md, printed as Markdown from the contract (tests/test_wire.py checks the docs hold
-exactly these)."""
+"""``python -m limbstream.wire``: the stats field, compact stats column, device tunable and
+joint-angle tables of docs/protocol.md, printed as Markdown from the contract (tests/test_wire.py
+checks the docs hold exactly these)."""
 from __future__ import annotations
 
-from . import FIELDS, STATS_NUMBERS, STATS_TEXTS, TUNABLES
+from . import ANGLE_BASES, FIELDS, JOINT_TABLE, STATS_NUMBERS, STATS_TEXTS, TUNABLES
 
 
 def fields_table(scope: str) -> str:
@@ -37,10 +37,30 @@ def tunables_table() -> str:
     return "\n".join(rows)
 
 
+def angles_table() -> str:
+    """Markdown table of the joint angles of a joint-angle message, in order: their joint and the
+    axis of its Z-X-Y split each turns about, with its sign (OpenSim's axes)."""
+    rows = ["| index | angle | joint | parent -> child | about |", "|---:|---|---|---|---|"]
+    named = [(joint, axis, sign, angle) for joint in JOINT_TABLE
+             for axis, sign, angle in zip("ZXY", joint.signs, joint.angles) if angle is not None]
+    rows += [f"| {k} | `{angle}` | `{joint.name}` | {joint.parent} -> {joint.child} | {'+' if sign > 0 else '-'}{axis} |"
+             for k, (joint, axis, sign, angle) in enumerate(named)]
+    return "\n".join(rows)
+
+
+def bases_table() -> str:
+    """Markdown table of the calibrations a joint-angle message's angles can rest on."""
+    rows = ["| code | calibration | angles | meaning |", "|---:|---|---|---|"]
+    rows += [f"| {code} | `{b.name}` | {'yes' if b.valid else 'none (UNCALIBRATED)'} | {b.meaning} |"
+             for code, b in enumerate(ANGLE_BASES)]
+    return "\n".join(rows)
+
+
 def tables() -> dict[str, str]:
     """Every generated table, by the heading it stands under in docs/protocol.md."""
     return {"Per device": fields_table("device"), "Per subject": fields_table("subject"),
-            "Per aggregator": fields_table("aggregator"), "Compact form": compact_table(), "Tunables": tunables_table()}
+            "Per aggregator": fields_table("aggregator"), "Compact form": compact_table(), "Tunables": tunables_table(),
+            "Joint angles": angles_table(), "Calibration of the angles": bases_table()}
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
 """The body layout every message shares: the 10 measured segments, the joints of a pose
-frame and the bones a client draws between them."""
+frame and the bones a client draws between them, the joint angles of a joint-angle message, and
+what a device's orientations are."""
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 SEGMENTS: tuple[str, ...] = (
     "l_shank", "r_shank", "l_thigh", "r_thigh", "l_lowerarm",
@@ -38,3 +41,49 @@ def check_rest_pose(name: str) -> str:
     if name not in REST_POSES:
         raise ValueError(f"rest pose must be one of {', '.join(REST_POSES)}, got {name!r}")
     return name
+
+
+ORIENTATIONS: tuple[str, ...] = ("segments", "rest", "sensors")
+"""What a stream of orientations is (a motion's, ``sources.Motion.orientations``; a device's, its
+status):
+
+- ``segments``: the segments' own orientations in the skeleton's world (Y up): BVH clips, npz
+  files, the generator, devices emulated without a sensor model; joint angles can be taken from
+  them as they are.
+- ``rest``: real sensors, each calibrated from the still rest pose its recording starts with in a
+  world turned Y up: the segments up to the subject's facing, the one turn about the vertical a
+  rest pose cannot tell (found from the hinges' motion, :mod:`limbstream.joints.functional`).
+- ``sensors``: sensors' own readings, not calibrated (a sensor model, a real tracker, a recording
+  that does not start still): nothing about the body can be taken from them before a calibration.
+"""
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One joint: the segments it joins and the names and signs of its three Z-X-Y angles
+    (None: not reported, e.g. a hinge's ad/abduction); the convention is
+    :mod:`limbstream.joints.convention`'s."""
+
+    name: str
+    parent: str
+    child: str
+    angles: tuple[str | None, str | None, str | None]
+    signs: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+
+JOINT_TABLE: tuple[Joint, ...] = (
+    Joint("hip_r", "hip", "r_thigh", ("hip_flexion_r", "hip_adduction_r", "hip_rotation_r")),
+    Joint("knee_r", "r_thigh", "r_shank", ("knee_angle_r", None, None), (-1.0, 1.0, 1.0)),
+    Joint("hip_l", "hip", "l_thigh", ("hip_flexion_l", "hip_adduction_l", "hip_rotation_l"), (1.0, -1.0, -1.0)),
+    Joint("knee_l", "l_thigh", "l_shank", ("knee_angle_l", None, None), (-1.0, 1.0, 1.0)),
+    Joint("shoulder_r", "hip", "r_upperarm", ("arm_flex_r", "arm_add_r", "arm_rot_r")),
+    Joint("elbow_r", "r_upperarm", "r_lowerarm", ("elbow_flex_r", None, None)),
+    Joint("shoulder_l", "hip", "l_upperarm", ("arm_flex_l", "arm_add_l", "arm_rot_l"), (1.0, -1.0, -1.0)),
+    Joint("elbow_l", "l_upperarm", "l_lowerarm", ("elbow_flex_l", None, None)),
+    Joint("neck", "hip", "neck", ("neck_extension", "neck_bending", "neck_rotation")),
+)
+"""The joints of the 10-segment body, in the order of their angles in :data:`JOINT_ANGLES`."""
+
+JOINT_ANGLES: tuple[str, ...] = tuple(a for j in JOINT_TABLE for a in j.angles if a is not None)
+"""The joint angles (OpenSim's Rajagopal model's names), in this order in every angle vector:
+joint-angle messages, ``limbstream.joints.ANGLES``, ``.mot`` files (degrees)."""

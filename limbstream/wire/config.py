@@ -18,7 +18,7 @@ import math
 import numbers
 from dataclasses import asdict, dataclass, field, fields, replace
 
-from .body import DEFAULT_REST_POSE, check_rest_pose
+from .body import DEFAULT_REST_POSE, ORIENTATIONS, check_rest_pose
 from .errors import WireError
 
 DEVICE_RATE_HZ = 50.0
@@ -153,6 +153,8 @@ class DeviceStatus:
     link : the link of a device bridged in by a gateway (:class:`LinkStatus`), None for others.
     fusion : the fusion filter of a device that fuses raw IMU samples (:class:`FusionStatus`),
         None for others.
+    orientations : what its orientations are (wire.ORIENTATIONS: its segment's own, rest-calibrated
+        or its sensor's reading); None: it does not say (a reader takes them as a sensor's).
     """
 
     device: str
@@ -164,14 +166,16 @@ class DeviceStatus:
     rest_pose: str = DEFAULT_REST_POSE
     link: LinkStatus | None = None
     fusion: FusionStatus | None = None
+    orientations: str | None = None
 
     def as_dict(self) -> dict:
         clock = {} if self.clock is None else self.clock.as_dict()
         link = {} if self.link is None else self.link.as_dict()
         fusion = {} if self.fusion is None else self.fusion.as_dict()
+        said = {} if self.orientations is None else {"orientations": self.orientations}
         return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
                 "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose, **link,
-                **fusion}
+                **fusion, **said}
 
 
 FUSION_MODES: tuple[str, ...] = ("6D", "9D")
@@ -310,8 +314,11 @@ def decode_status(payload: bytes) -> DeviceStatus:
         stream, samples, points = (data[k] for k in ("stream", "samples", "points"))
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (stream, samples, points)):
             raise TypeError(f"stream, samples and points must be integers, got {[stream, samples, points]}")
+        orientations = data.get("orientations")
+        if orientations is not None and orientations not in ORIENTATIONS:
+            raise ValueError(f"orientations must be one of {', '.join(ORIENTATIONS)}, got {orientations!r}")
         return DeviceStatus(str(data["device"]), config, stream, samples, points, clock=_clock(data),
                             rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)), link=_link(data),
-                            fusion=_fusion(data))
+                            fusion=_fusion(data), orientations=orientations)
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

@@ -9,6 +9,7 @@ key                                                     payload                 
 ``limbstream/<subject>/<segment>/config``               queryable: config/status   device
 ``limbstream/<subject>/pose``                           pose frame                 aggregator
 ``limbstream/<subject>/stats``                          stats (JSON on query)      aggregator
+``limbstream/<subject>/angles``                         joint angles               aggregator
 ``limbstream/<subject>/calibrate``                      queryable: calibration     aggregator
 ``limbstream/@time``                                    queryable: time exchange   time service
 ``limbstream/@gateway/<gateway>``                       queryable: sensors/assign  gateway
@@ -30,11 +31,11 @@ from .errors import WireError
 PREFIX = "limbstream"
 SEG, RAW, ALIVE, CONFIG = "seg", "raw", "alive", "config"
 """The message kinds of a device: the last chunk of its keys."""
-POSE, STATS, CALIBRATE = "pose", "stats", "calibrate"
+POSE, STATS, CALIBRATE, ANGLES = "pose", "stats", "calibrate", "angles"
 """The message kinds of a subject: the last chunk of its keys."""
 DEVICE_KINDS: tuple[str, ...] = (SEG, RAW, ALIVE, CONFIG)
 """Last chunk of a device key."""
-SUBJECT_KINDS: tuple[str, ...] = (POSE, STATS, CALIBRATE)
+SUBJECT_KINDS: tuple[str, ...] = (POSE, STATS, CALIBRATE, ANGLES)
 """Last chunk of a subject key."""
 TIME_CHUNK = "@time"
 """Second chunk of the time service's key (a verbatim chunk: wildcards never match it)."""
@@ -110,6 +111,11 @@ def stats_key(subject: str) -> str:
     return subject_key(subject, STATS)
 
 
+def angles_key(subject: str) -> str:
+    """``limbstream/<subject>/angles``: the subject's joint angles (:mod:`limbstream.wire.angles`)."""
+    return subject_key(subject, ANGLES)
+
+
 def calibrate_key(subject: str) -> str:
     """``limbstream/<subject>/calibrate``: the queryable of the aggregator serving the subject."""
     return subject_key(subject, CALIBRATE)
@@ -168,7 +174,7 @@ def device_selector(kind: str, subjects: str = "*") -> str:
 
 
 def subject_selector(kind: str, subjects: str = "*") -> str:
-    """Every ``kind`` key (``pose`` / ``stats``) of the subjects matched by ``subjects``."""
+    """Every ``kind`` key (``pose``, ``stats``, ...) of the subjects matched by ``subjects``."""
     if kind not in SUBJECT_KINDS:
         raise ValueError(f"subject key kind must be one of {SUBJECT_KINDS}, got {kind!r}")
     return f"{PREFIX}/{subject_pattern(subjects)}/{kind}"

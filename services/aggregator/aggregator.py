@@ -23,6 +23,7 @@ import zenoh.ext as zext
 from limbstream import heap, wire, zconfig
 from limbstream.pacing import LoopStats, PacedLoop
 from limbstream.skeleton import Skeleton
+from limbstream.services.aggregator.angles import JointStage
 from limbstream.services.aggregator.devices import NO_TIME
 from limbstream.services.aggregator.frames import FrameBatch, FrameStage
 from limbstream.services.aggregator.fusion import Fusion, Subject
@@ -70,6 +71,8 @@ class AggregatorSettings:
     calibration_file : where calibrations are kept, so that they outlive this process ("": not kept).
     frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
         covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
+    joint_angles : publish every subject's joint angles, one message per live frame (per exact
+        frame with ``live_rate`` 0): services/aggregator/angles.py.
     """
 
     subjects: tuple[str, ...] = ("*",)
@@ -86,6 +89,7 @@ class AggregatorSettings:
     skeleton: Skeleton = Skeleton()
     calibrate_on_start: bool = False
     calibration_file: str = ""
+    joint_angles: bool = True
 
 
 @dataclass
@@ -131,6 +135,8 @@ class Aggregator:
         self.intake = Intake(self.fusion, self.loop, settings.max_devices, self._ask_status, self.history)
         self.bad_keys = self.intake.bad_keys
         self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
+        if settings.joint_angles:
+            self.frame_stages.append(JointStage(self.fusion, live=settings.live_rate > 0))
         self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
         self._stats_qs: list = []
@@ -328,6 +334,12 @@ class Aggregator:
             pub = self._pose_pubs[subject, kind] = self._publisher(wire.pose_key(subject), kind)
         pub.put(payload)
 
+    def _put(self, key: str, kind: str, payload: bytes) -> None:
+        """A frame stage's message (no session: an aggregator fed by hand, whose caller takes
+        what it wants by replacing this)."""
+        if self.session is not None:
+            self._publisher(key, kind).put(payload)
+
     def _publish_stats(self, subject: str, payload: bytes) -> None:
         self._publisher(wire.stats_key(subject), "stats").put(payload)
 
@@ -355,7 +367,7 @@ class Aggregator:
         """A tick's frames, per subject exact ones first, and what the frame stages make of them."""
         for stage in self.frame_stages:
             for key, kind, payload in stage(batch):
-                self._publisher(key, kind).put(payload)
+                self._put(key, kind, payload)
         names = list(self.subjects)
         for frames, owner in ((batch.exact, batch.exact_owner), (batch.live, batch.live_owner)):
             for i, payload in zip(owner.tolist(), frames.encode()):

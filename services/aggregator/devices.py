@@ -32,6 +32,7 @@ COLUMNS: dict[str, tuple[type, object]] = {
     "latest_arrival": (np.float64, np.nan),  # arrival clock when latest_t arrived, s
     "horizon_us": (np.int64, 0),        # longest extrapolation of the newest point in a live frame
     "settled": (bool, True),            # DeviceTrack.settled, as last refreshed
+    "orientations": (np.int8, -1),      # what its status says its orientations are (wire.ORIENTATIONS; -1: not said)
 }
 """Every per-slot column: its type and the value of a fresh row (and of "none")."""
 
@@ -139,6 +140,7 @@ class DeviceTable:
     latest_arrival: np.ndarray
     horizon_us: np.ndarray
     settled: np.ndarray
+    orientations: np.ndarray
 
     def __init__(self) -> None:
         self.seg_slots = np.full((0, len(SEGMENTS)), -1, np.int64)

@@ -60,13 +60,16 @@ class DeviceView:
 @dataclass(frozen=True)
 class FrameBatch:
     """The frames of one tick: exact frames (per subject oldest first) and live frames, with the
-    subject index of each (``exact_owner`` (E,), ``live_owner`` (L,)); their orientations are
-    float64 until encoded."""
+    subject index of each (``exact_owner`` (E,), ``live_owner`` (L,)) and the segments each lacks
+    (``exact_missing`` (E, 10), ``live_missing`` (L, 10) bool: no device, no data at the frame's
+    time, or held: what sets a frame's MISSING flag); their orientations are float64 until encoded."""
 
     exact_owner: np.ndarray
     exact: wire.PoseFrames
     live_owner: np.ndarray
     live: wire.PoseFrames
+    exact_missing: np.ndarray
+    live_missing: np.ndarray
 
 
 FrameStage = Callable[[FrameBatch], Iterable[tuple[str, str, bytes]]]
@@ -138,9 +141,10 @@ class FrameBuilder:
         return owner, t_us, seq
 
     def exact_flags(self, owner: np.ndarray, t_us: np.ndarray, view: DeviceView, table: DeviceTable,
-                    store: PointStore, gappy: set[DeviceTrack]) -> np.ndarray:
-        """(E,) flags of exact frames (subject ``owner``, time ``t_us``): MISSING where a segment
-        has no device, is held beyond a stale device's last point or lies before its first point;
+                    store: PointStore, gappy: set[DeviceTrack]) -> tuple[np.ndarray, np.ndarray]:
+        """(E,) flags of exact frames (subject ``owner``, time ``t_us``) and (E, 10) the segments
+        they lack: MISSING where a segment has no device, is held beyond a stale device's last
+        point or lies before its first point;
         GAP inside a span whose points were lost (``gappy``: the devices with such spans; one whose
         spans all end before its subject's frames is taken out: no frame to come is in them); the
         subject's rest pose."""
@@ -149,7 +153,8 @@ class FrameBuilder:
         rows = np.maximum(slots, 0)
         beyond = valid & (view.last_t[rows] < t_us[:, None])
         before = valid & (store.n[rows] > 0) & (store.t[rows, 0] > t_us[:, None])
-        missing = ((view.stale[owner] & beyond) | before).any(axis=1) | (~valid).any(axis=1)
+        lacking = (view.stale[owner] & beyond) | before | ~valid
+        missing = lacking.any(axis=1)
         gap = np.zeros(len(owner), bool)
         tracks = list(gappy)
         subject = table.owner[np.array([t.slot for t in tracks], np.int64)]
@@ -161,16 +166,16 @@ class FrameBuilder:
                 gappy.discard(track)
             else:
                 gap[a:b] |= track.in_gap(t_us[a:b])
-        return np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | self.rest_flag[owner]
+        return np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | self.rest_flag[owner], lacking
 
     def plan_live(self, view: DeviceView, table: DeviceTable, store: PointStore,
                   now: float | None) -> tuple[np.ndarray, ...]:
         """The live frames due: one per subject with data at its device time "now": the newest
         device time of its devices, each advanced by the arrival clock ``now`` (s) since it
         arrived. Returns (subject index (L,), time (L,) us, seq (L,), flags (L,), segment slots
-        (L, 10), each segment's query time (L, 10) us, devices with points (L, 10) bool). A
-        segment is held at its newest point (frame MISSING) where its device is offline or
-        ended, or silent for longer than its horizon (OVERDUE_GRACE_S)."""
+        (L, 10), each segment's query time (L, 10) us, devices with points (L, 10) bool, segments
+        lacking (L, 10) bool). A segment is held at its newest point (frame MISSING) where its
+        device is offline or ended, or silent for longer than its horizon (OVERDUE_GRACE_S)."""
         slots = table.seg_slots
         valid = slots >= 0
         rows = np.maximum(slots, 0)
@@ -186,23 +191,24 @@ class FrameBuilder:
         overdue = valid & (since > table.horizon_us[rows])  # silent too long: no guess
         held = valid & (~table.active[rows] | overdue)       # offline, ended or overdue: held
         at[held] = np.minimum(at[held], last_t[held])
-        missing = (~valid | ~table.online[rows] | overdue).any(axis=1)
+        lacking = ~valid | ~table.online[rows] | overdue
         seq = self.live_seq[index].copy()
         self.live_seq[index] += 1
-        flags = np.where(missing, wire.FRAME_MISSING, 0) | self.rest_flag[index]
-        return index, t_us, seq, flags, slots, at, has_points
+        flags = np.where(lacking.any(axis=1), wire.FRAME_MISSING, 0) | self.rest_flag[index]
+        return index, t_us, seq, flags, slots, at, has_points, lacking | ~has_points
 
     def build(self, store: PointStore, table: DeviceTable, exact: tuple[np.ndarray, ...],
               live: tuple[np.ndarray, ...] | None) -> FrameBatch:
         """Orientations and joints of the planned frames, one reconstruction and one forward
-        kinematics for all. ``exact``: (subject, time, seq, flags) of :meth:`plan_exact` and
-        :meth:`exact_flags`; ``live``: :meth:`plan_live`, or None for no live frames."""
-        e_owner, e_t, e_seq, e_flags = exact
+        kinematics for all. ``exact``: (subject, time, seq, flags, segments lacking) of
+        :meth:`plan_exact` and :meth:`exact_flags`; ``live``: :meth:`plan_live`, or None for no
+        live frames."""
+        e_owner, e_t, e_seq, e_flags, e_missing = exact
         shape = (len(e_t), len(SEGMENTS))
         slots, times, live_view = [table.seg_slots[e_owner]], [np.broadcast_to(e_t[:, None], shape)], [np.zeros(shape, bool)]
-        l_owner = np.zeros(0, np.int64)
+        l_owner, l_missing = np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS)), bool)
         if live is not None:
-            l_owner, l_t, l_seq, l_flags, l_slots, l_at, _ = live
+            l_owner, l_t, l_seq, l_flags, l_slots, l_at, _, l_missing = live
             slots.append(l_slots)
             times.append(l_at)
             live_view.append(np.ones(l_slots.shape, bool))
@@ -215,4 +221,4 @@ class FrameBuilder:
         exact_frames = wire.PoseFrames(e_seq, e_t, wire.KIND_EXACT, e_flags, q[:n], joints[:n])
         live_frames = (wire.PoseFrames.empty(wire.KIND_LIVE) if live is None else
                        wire.PoseFrames(l_seq, l_t, wire.KIND_LIVE, l_flags, q[n:], joints[n:]))
-        return FrameBatch(e_owner, exact_frames, l_owner, live_frames)
+        return FrameBatch(e_owner, exact_frames, l_owner, live_frames, e_missing, l_missing)

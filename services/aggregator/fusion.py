@@ -355,13 +355,13 @@ class Fusion:
         subjects = list(self.subjects.values())
         self.frames.start(subjects, view, self.table, self.store, self.clock)
         owner, t_us, seq = self.frames.plan_exact(view.watermark)
-        flags = self.frames.exact_flags(owner, t_us, view, self.table, self.store, self._gappy)
+        flags, lacking = self.frames.exact_flags(owner, t_us, view, self.table, self.store, self._gappy)
         planned = self.frames.plan_live(view, self.table, self.store, self.clock if now is None else now) if live else None
-        batch = self.frames.build(self.store, self.table, (owner, t_us, seq, flags), planned)
+        batch = self.frames.build(self.store, self.table, (owner, t_us, seq, flags, lacking), planned)
         self.scoring.score_later(owner, t_us, batch.exact.q, self.table.seg_slots[owner])
         self.scoring.evaluate_frames(self.table.seg_slots)
         if planned is not None and wall is not None:
-            index, l_t, _, _, l_slots, _, has_points = planned
+            index, l_t, _, _, l_slots, _, has_points, _ = planned
             f, s = np.nonzero(has_points)
             self.scoring.add_latency(index, (wall * 1e6 - l_t) / 1e3, l_slots[f, s], index[f])
         return batch

@@ -136,3 +136,4 @@ class Intake:
             track.clock = status.clock
             track.link = status.link
             track.fusion = status.fusion
+            track.orientations = status.orientations

@@ -54,6 +54,21 @@ class _Column:
         getattr(track.table, self.name)[track.slot] = self.empty if value is None else value
 
 
+class _Named(_Column):
+    """A column holding the index of a name of ``names`` (its empty value reads as None)."""
+
+    def __init__(self, name: str, names: tuple[str, ...]):
+        super().__init__(name, none=True)
+        self.names = names
+
+    def __get__(self, track: DeviceTrack, owner=None):
+        code = super().__get__(track, owner)
+        return None if code is None else self.names[code]
+
+    def __set__(self, track: DeviceTrack, value) -> None:
+        super().__set__(track, None if value is None else self.names.index(value))
+
+
 class DeviceTrack:
     """One device as seen by the aggregator. Its stream state lives in its row (``slot``) of the
     fusion's :class:`~.devices.DeviceTable` (the attributes below marked so); the rest here.
@@ -77,6 +92,7 @@ class DeviceTrack:
     last_raw_index = _Column("last_raw_index")
     latest_t_us = _Column("latest_t", none=True)  # newest device time seen (point or raw)
     latest_arrival = _Column("latest_arrival")    # arrival clock when it came, s (NaN: none)
+    orientations = _Named("orientations", wire.ORIENTATIONS)  # what its status says its orientations are
 
     def __init__(self, subject: str, segment: str, slot: int, table: DeviceTable):
         self.subject, self.segment, self.slot, self.table = subject, segment, slot, table

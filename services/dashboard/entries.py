@@ -14,6 +14,8 @@ HISTORY_FIELDS = wire.HISTORY_FIELDS
 KINDS = wire.FRAME_KINDS
 LATENCY_FRAMES = 500
 """Exact frames per subject the exact-frame latency is taken over (10 s at 50 Hz)."""
+ANGLES_HISTORY_S = 20.0
+"""Seconds of joint angles kept per subject and kind (received time): the REST history, the page's plots."""
 
 
 @dataclass

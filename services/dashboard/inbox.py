@@ -1,7 +1,8 @@
 """The hand-off from Zenoh threads to the dashboard's event loop.
 
 Zenoh callbacks run on Zenoh threads. They only put the raw payload into an :class:`Inbox`
-(bounded deques; when the loop falls behind, the oldest pose frames are skipped and counted)
+(bounded deques; when the loop falls behind, the oldest pose frames and joint angles are skipped
+and counted)
 and, at most once until it runs, schedule the drain (:meth:`~.state.LiveState.drain`) on the
 event loop with ``loop.call_soon_threadsafe``. Decoding and everything after it happen on the
 loop.
@@ -32,6 +33,7 @@ class Inbox:
         self.stats: deque[tuple[float, str, bytes]] = deque()
         self.alive: deque[tuple[str, bool]] = deque()
         self.poses: deque[tuple[float, str, bytes]] = deque()
+        self.angles: deque[tuple[float, str, bytes]] = deque()
         self.max_pending = max_pending
         self.dropped = Counter()
 
@@ -59,6 +61,14 @@ class Inbox:
             self.poses.append((time.time(), key, payload))
             self._schedule()
 
+    def put_angles(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            if len(self.angles) >= self.max_pending:
+                self.angles.popleft()  # the loop is behind: skip the oldest
+                self.dropped["angles"] += 1
+            self.angles.append((time.time(), key, payload))
+            self._schedule()
+
     def put_alive(self, key: str, present: bool) -> None:
         with self._lock:
             if len(self.alive) >= self.max_pending:
@@ -73,5 +83,6 @@ class Inbox:
             stats, self.stats = self.stats, deque()
             alive, self.alive = self.alive, deque()
             poses, self.poses = self.poses, deque()
+            angles, self.angles = self.angles, deque()
             self._scheduled = False
-        return stats, alive, poses
+        return stats, alive, poses, angles

@@ -8,6 +8,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model
 from limbstream import wire
 
 PoseKind = Literal["auto", "live", "exact"]
+AngleName = Literal[wire.JOINT_ANGLES]  # type: ignore[valid-type]
 
 
 def _described(f: wire.StatsField):
@@ -84,6 +85,38 @@ class Pose(BaseModel):
     segments: dict[str, list[float]]
     joints: dict[str, list[float]]
     rx: float
+
+
+class JointAngles(BaseModel):
+    """One joint-angle message (:meth:`limbstream.wire.JointAngles.to_json`) plus ``rx``, the time
+    the service received it (s, epoch)."""
+
+    subject: str
+    seq: int = Field(description="the pose frame's sequence number (per subject and kind)")
+    t: float = Field(description="the pose frame's time, s since the epoch (device time)")
+    kind: Literal["live", "exact"]
+    calibration: Literal[tuple(b.name for b in wire.ANGLE_BASES)] = Field(  # type: ignore[valid-type]
+        description="the calibration the angles rest on (docs/protocol.md, 'Joint angles')")
+    valid: bool = Field(description="whether that calibration gives anatomical angles")
+    why: str | None = Field(description="why there are no angles (null: there are)")
+    facing_deg: float | None = Field(description="the subject's facing the knees and elbows told (functional), deg")
+    angles: dict[str, float | None] = Field(description="degrees by angle name; null: none (see flags)")
+    flags: dict[str, list[Literal[tuple(wire.ANGLE_FLAGS)]]] = Field(  # type: ignore[valid-type]
+        description="the flags of each flagged angle: missing (a segment has no data), gimbal (near gimbal lock), "
+                    "uncalibrated")
+    rx: float
+
+
+class SubjectJoints(BaseModel):
+    """A subject's newest joint angles and the last seconds of them, column-wise."""
+
+    subject: str
+    kind: Literal["live", "exact"] = Field(description="the pose frames they come from")
+    names: list[str] = Field(description="the angles of ``angles``, in the contract's order")
+    latest: JointAngles
+    t: list[float] = Field(description="each message's frame time, s since the epoch (device time)")
+    seq: list[int]
+    angles: dict[str, list[float | None]] = Field(description="each angle's values, deg (null: none)")
 
 
 class Skeleton(BaseModel):

@@ -14,7 +14,7 @@ from collections import Counter, deque
 
 from limbstream import wire
 
-from .entries import (AGGREGATOR_FIGURES, HISTORY_FIELDS, KINDS, LATENCY_FRAMES, MAX_AGGREGATORS,
+from .entries import (AGGREGATOR_FIGURES, ANGLES_HISTORY_S, HISTORY_FIELDS, KINDS, LATENCY_FRAMES, MAX_AGGREGATORS,
                       MAX_BAD_KEY_REASONS, AggregatorEntry, DeviceEntry, PoseEntry)
 from .fanout import FanOut
 from .inbox import Inbox
@@ -25,8 +25,8 @@ def _clean(value):
 
 
 class LiveState:
-    """Latest stats per device, bounded history per device, latest pose per subject, and the
-    clients its pose frames fan out to.
+    """Latest stats per device, bounded history per device, latest pose and the last
+    ANGLES_HISTORY_S of joint angles per subject, and the clients its pose frames fan out to.
 
     Parameters
     ----------
@@ -43,6 +43,7 @@ class LiveState:
         self.devices: dict[str, DeviceEntry] = {}
         self.alive: set[str] = set()
         self.poses: dict[str, dict[int, PoseEntry]] = {}
+        self.angles: dict[str, dict[int, deque[tuple[float, wire.JointAngles]]]] = {}  # (rx, angles) by kind
         self.stats_times: dict[str, float] = {}
         self.subject_stats: dict[str, dict] = {}  # the subject fields of each subject's latest stats
         self.exact_latency: dict[str, deque[float]] = {}  # ms, frame time -> received, last exact frames
@@ -50,7 +51,7 @@ class LiveState:
         self.fanout = FanOut(ws_queue)
         self.received = Counter()
         self.errors = Counter()
-        self.missed = Counter()  # messages lost on the way, by stream: stats, pose_exact, pose_live
+        self.missed = Counter()  # messages lost on the way, by stream: stats, pose_exact, pose_live, angles_*
         self._next_seq: dict[tuple[str, str], int] = {}
         self.inbox: Inbox | None = None
 
@@ -65,13 +66,15 @@ class LiveState:
         """Apply everything the inbox holds (runs on the event loop)."""
         if self.inbox is None:
             return
-        stats, alive, poses = self.inbox.take()
+        stats, alive, poses, angles = self.inbox.take()
         for key, present in alive:
             self.apply_alive(key, present)
         for rx, _key, payload in stats:
             self.apply_stats(payload, rx)
         for rx, key, payload in poses:
             self.apply_pose(key, payload, rx)
+        if angles:
+            self.apply_angles(angles)
 
     def apply_alive(self, key: str, present: bool) -> None:
         try:
@@ -164,6 +167,45 @@ class LiveState:
             lat.append(1e3 * rx - frame.t_us / 1e3)
         if self.fanout.watched(subject):
             self.fanout.publish(subject, entry, self.auto_kind(subject))
+
+    def apply_angles(self, items) -> None:
+        """A drain's joint-angle messages ((rx, key, payload) each), decoded together (the batch
+        decoder: one NumPy pass, whatever their number); each subject's kept for ANGLES_HISTORY_S."""
+        self.received["angles"] += len(items)
+        subjects, kept = [], []
+        for rx, key, payload in items:
+            try:
+                subjects.append(wire.parse_subject_key(key)[0])
+                kept.append((rx, payload))
+            except wire.WireError:
+                self.errors["angles_key"] += 1
+        frames, reasons = wire.decode_angles_many([payload for _, payload in kept])
+        row = 0
+        for subject, (rx, _), reason in zip(subjects, kept, reasons):
+            if reason:
+                self.errors[f"angles_{reason}"] += 1
+                continue
+            angles, row = frames[row], row + 1
+            kinds = self.angles.get(subject)
+            if kinds is None:
+                if len(self.angles) >= self.max_subjects:
+                    self.errors["too_many_subjects"] += 1
+                    continue
+                kinds = self.angles[subject] = {}
+            self._count_missed(subject, f"{wire.ANGLES}_{wire.kind_name(angles.kind)}", angles.seq)
+            kept_rows = kinds.setdefault(angles.kind, deque())
+            kept_rows.append((rx, angles))
+            while kept_rows[0][0] < rx - ANGLES_HISTORY_S:
+                kept_rows.popleft()
+
+    def angles_kind(self, subject: str) -> int | None:
+        """The kind of joint angles ``kind=auto`` gives: the pose frames' rule (live while they come
+        within wire.AUTO_LIVE_WINDOW_S, else exact), of the kinds there are (None: none)."""
+        kinds = self.angles.get(subject, {})
+        live, exact = kinds.get(wire.KIND_LIVE), kinds.get(wire.KIND_EXACT)
+        if live and (not exact or wire.auto_kind(time.time() - live[-1][0]) == wire.KIND_LIVE):
+            return wire.KIND_LIVE
+        return wire.KIND_EXACT if exact else None
 
     def auto_kind(self, subject: str) -> int:
         """The kind ``kind=auto`` shows now: the contract's one rule (``wire.auto_kind``)."""

@@ -1,7 +1,11 @@
-"""The REST forms of the dashboard's live state: devices, their history, subjects, aggregators."""
+"""The REST forms of the dashboard's live state: devices, their history, subjects, their joint
+angles, aggregators."""
 from __future__ import annotations
 
+import math
 import time
+
+import numpy as np
 
 from limbstream import wire
 
@@ -43,6 +47,25 @@ class Views:
         now = time.time()
         return [self.device_view(did, now) for did, e in sorted(self.live.devices.items())
                 if subject is None or e.subject == subject]
+
+    def joint_angles(self, subject: str, seconds: float, kind: str = "auto",
+                     names: list[str] | None = None) -> dict | None:
+        """The subject's newest joint angles of ``kind`` (``auto``: :meth:`LiveState.angles_kind`)
+        and the column form of the last ``seconds`` of them, ``names`` only (None: all); None if
+        there are none."""
+        code = self.live.angles_kind(subject) if kind == "auto" else wire.FRAME_KINDS[kind]
+        rows = self.live.angles.get(subject, {}).get(code) if code is not None else None
+        if not rows:
+            return None
+        rx, newest = rows[-1]
+        kept = [a for r, a in rows if r >= rx - seconds]
+        names = list(wire.JOINT_ANGLES) if names is None else [n for n in wire.JOINT_ANGLES if n in names]
+        columns = np.array([a.angles for a in kept], np.float64)[:, [wire.JOINT_ANGLES.index(n) for n in names]]
+        values = np.round(columns, 3).T.tolist()
+        return {"subject": subject, "kind": wire.kind_name(code), "names": names,
+                "latest": newest.to_json(subject) | {"rx": round(rx, 4)},
+                "t": [a.t_us / 1e6 for a in kept], "seq": [a.seq for a in kept],
+                "angles": {n: [None if math.isnan(v) else v for v in column] for n, column in zip(names, values)}}
 
     def history(self, did: str, seconds: float) -> dict | None:
         """Column form ``{"t": [...], <field>: [...]}`` of the last ``seconds`` of a device."""

@@ -19,6 +19,7 @@ log = logging.getLogger("limbstream.dashboard")
 
 STATS_SELECTOR = wire.subject_selector(wire.STATS)
 POSE_SELECTOR = wire.subject_selector(wire.POSE)
+ANGLES_SELECTOR = wire.subject_selector(wire.ANGLES)
 ALIVE_SELECTOR = wire.device_selector(wire.ALIVE)
 
 
@@ -53,7 +54,7 @@ class Bridge:
 
 def open_bridge(inbox: Inbox, settings: zconfig.ZenohSettings | None = None,
                 session: zenoh.Session | None = None) -> Bridge:
-    """Subscribe to every subject's stats and pose streams and to device liveliness.
+    """Subscribe to every subject's stats, pose and joint-angle streams and to device liveliness.
 
     Parameters
     ----------
@@ -71,12 +72,16 @@ def open_bridge(inbox: Inbox, settings: zconfig.ZenohSettings | None = None,
     def on_pose(sample: zenoh.Sample) -> None:
         inbox.put_pose(str(sample.key_expr), sample.payload.to_bytes())
 
+    def on_angles(sample: zenoh.Sample) -> None:
+        inbox.put_angles(str(sample.key_expr), sample.payload.to_bytes())
+
     def on_alive(sample: zenoh.Sample) -> None:
         inbox.put_alive(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
 
     subs = [
         session.declare_subscriber(STATS_SELECTOR, on_stats),
         session.declare_subscriber(POSE_SELECTOR, on_pose),
+        session.declare_subscriber(ANGLES_SELECTOR, on_angles),
         session.liveliness().declare_subscriber(ALIVE_SELECTOR, on_alive, history=True),
     ]
     return Bridge(session, owns, subs)

@@ -43,8 +43,9 @@ class Feeding:
 
     Attributes
     ----------
-    feed : a motion feed (limbstream.device.feeds): ``sample(k) -> (S, 4)``, ``length``; with
-        ``raw``, a :class:`~limbstream.device.readings.RawFeed` (``sample``: the truth).
+    feed : a motion feed (limbstream.device.feeds): ``sample(k) -> (S, 4)``, ``length``,
+        ``orientations``; with ``raw``, a :class:`~limbstream.device.readings.RawFeed` (``sample``:
+        the truth).
     column : the device's segment in the feed's samples.
     raw : raw sensors: the device is sent what its sensor reads (RAW frames, ``raw.per`` per
         device sample) after its pipeline's settings (FUSION, ``fusion``); None: orientations.
@@ -268,8 +269,9 @@ class SerialGateway:
             fusion = self._fusion_status()
         except (LinkClosed, TimeoutError) as exc:
             raise Refused(str(exc)) from None
+        fed = "sensors" if self.feeding is None else self.feeding.feed.orientations  # wire.ORIENTATIONS
         return wire.DeviceStatus(self.id, self.device.config, status.stream, status.samples, status.points, None,
-                                 self.rest_pose, fusion=fusion)
+                                 self.rest_pose, fusion=fusion, orientations=fed)
 
     def _fusion_status(self) -> wire.FusionStatus | None:
         """The filter of a device fed raw samples, as it reports it (FUSION_STATUS)."""

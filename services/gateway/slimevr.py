@@ -241,7 +241,7 @@ class SlimeVRGateway:
             loss = t.loss()
             link = wire.LinkStatus(d.source.name, t.battery_pct, t.signal_dbm,
                                    None if loss is None else round(loss, 6), round(t.pps(time.monotonic()), 3))
-        return self.bank.status(d, clock, link=link)
+        return self.bank.status(d, clock, link=link, orientations="sensors")
 
     def _configure(self, d: Device[Sensor], config: wire.DeviceConfig) -> None:
         self.bank.configure(d, config)

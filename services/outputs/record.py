@@ -3,11 +3,11 @@
 
 Segment points and truth batches come through the outputs' subscription (advanced subscribers
 with history: a recorder started after the devices still gets what their caches hold); pose
-frames and stats too; device config statuses are asked for every ``config_poll_s`` seconds and
-written when a device's settings or stream change. History can repeat a point already received
-live: repeats are not written (``duplicates``). The recorder also counts what it can tell is
-missing from sequence numbers (``missing``): segment points per device stream, pose frames per
-subject and kind, stats per subject.
+frames, joint angles and stats too; device config statuses are asked for every ``config_poll_s``
+seconds and written when a device's settings or stream change. History can repeat a point already
+received live: repeats are not written (``duplicates``). The recorder also counts what it can tell
+is missing from sequence numbers (``missing``): segment points per device stream, pose frames and
+joint angles per subject and kind, stats per subject.
 """
 from __future__ import annotations
 
@@ -85,11 +85,11 @@ class Recorder:
                  history: int = 512, config_poll_s: float = 5.0):
         self.session, self.writer, self.subjects = session, writer, subjects
         self.config_poll_s = config_poll_s
-        kinds = (wire.SEG, wire.RAW, wire.POSE, wire.STATS) if truth else (wire.SEG, wire.POSE, wire.STATS)
+        kinds = (wire.SEG, wire.POSE, wire.ANGLES, wire.STATS) + ((wire.RAW,) if truth else ())
         self.subscription = Subscription(session, subjects, kinds, capacity=1 << 18, history=history)
         self.stats = RecorderStats()
         self._points: dict[tuple[str, int], SeqTracker] = {}
-        self._seqs: dict[tuple[str, int], SeqTracker] = {}  # pose (key, kind) and stats (key, -1)
+        self._seqs: dict[tuple[str, int], SeqTracker] = {}  # pose and angles (key, kind), stats (key, -1)
         self._configs: dict[str, tuple] = {}  # config key -> (config, stream) last written
         self._replies: list = []
         self._next_poll = time.monotonic() + 1.0
@@ -128,6 +128,8 @@ class Recorder:
                 self.writer.add_skeleton(item.subject, value, item.received_ns)
         elif kind == "stats":
             self._count_seq((item.key, -1), value.get("seq"))
+        elif kind == "angles":
+            self._count_seq((item.key, value.kind), value.seq)
         self.writer.add(kind, item.key, item.payload, item.received_ns)
         self.stats.messages[kind] += 1
 
@@ -177,12 +179,12 @@ class Recorder:
         return sum(self.stats.messages.values())
 
     def missing(self) -> dict[str, int]:
-        """What sequence numbers say is missing: segment points, pose frames, stats."""
-        return {
-            "seg": sum(t.missing for t in self._points.values()),
-            "pose": sum(t.missing for (_, k), t in self._seqs.items() if k >= 0),
-            "stats": sum(t.missing for (_, k), t in self._seqs.items() if k < 0),
-        }
+        """What sequence numbers say is missing: segment points, pose frames, joint angles, stats."""
+        subject_kinds: collections.Counter = collections.Counter()
+        for (key, _), tracker in self._seqs.items():
+            subject_kinds[key.rsplit("/", 1)[-1]] += tracker.missing  # the key's kind: pose, angles, stats
+        return {"seg": sum(t.missing for t in self._points.values()),
+                **{kind: subject_kinds[kind] for kind in (wire.POSE, wire.ANGLES, wire.STATS)}}
 
     def progress(self) -> str:
         """One line: duration, messages, MB, rate."""

@@ -28,7 +28,7 @@ from mcap.stream_reader import StreamReader
 
 from limbstream import wire
 
-KINDS: tuple[str, ...] = (wire.SEG, wire.RAW, wire.POSE, wire.STATS, wire.CONFIG)
+KINDS: tuple[str, ...] = (wire.SEG, wire.RAW, wire.POSE, wire.STATS, wire.CONFIG, wire.ANGLES)
 """Key kinds a recording holds, one channel each."""
 TOPICS: dict[str, str] = {kind: f"/limbstream/{kind}" for kind in KINDS}
 """MCAP topic of each kind."""
@@ -52,6 +52,7 @@ _PAYLOADS = {
     "pose": "pose frame, 356 bytes, exact or live (docs/protocol.md: Pose frame)",
     "stats": "stats message of one subject, compact or JSON form (docs/protocol.md: Stats)",
     "config": "device status JSON, a config query's reply (docs/protocol.md: Device config)",
+    "angles": "joint angles of a pose frame, 115 bytes (docs/protocol.md: Joint angles)",
 }
 SCHEMAS: dict[str, tuple[str, bytes]] = {
     kind: (f"limbstream.{kind}",

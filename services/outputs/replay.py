@@ -9,10 +9,11 @@ recorded (the aggregator decodes and checks them like any device's).
 With ``loop``, every later pass is a new stream of each device (stream id + pass) with its times
 shifted past the previous pass (:data:`PASS_GAP_NS` after it).
 
-Pose frames, stats and config statuses of the recording are not published: the aggregator
-makes its own. A config query is answered with the device's status (``wire.DeviceStatus``):
+Pose frames, joint angles, stats and config statuses of the recording are not published: the
+aggregator makes its own. A config query is answered with the device's status (``wire.DeviceStatus``):
 its settings as the recording last gave them up to the replayed moment (its recorded config
-status, else the tunables of its stats row), its stream, samples and points as replayed. A
+status, else the tunables of its stats row; its rest pose and what its orientations are, from
+that status), its stream, samples and points as replayed. A
 query that changes settings gets an error reply (:data:`FIXED`): the points were made with the
 recorded settings.
 """
@@ -69,6 +70,8 @@ class ReplayedDevice:
 
     config: wire.DeviceConfig | None = None  # None: the recording has not given its settings (yet)
     clock: wire.ClockStatus | None = None
+    rest_pose: str = wire.DEFAULT_REST_POSE
+    orientations: str | None = None  # what the recorded device said its orientations are (wire.ORIENTATIONS)
     from_status: bool = False  # config taken from a recorded status (stats rows then no longer count)
     stream: int = 0
     samples: int = 0
@@ -149,6 +152,7 @@ class Replayer:
                 if did is not None:
                     state = self._state[did]
                     state.config, state.clock, state.from_status = status.config, status.clock, True
+                    state.rest_pose, state.orientations = status.rest_pose, status.orientations
                 return
             for row in wire.decode_stats(entry.payload)["devices"]:
                 did = self._renamed(row.get("device", ""))
@@ -178,7 +182,8 @@ class Replayer:
         state = self._state[d.id]
         if state.config is None:
             raise Refused(f"replayed device {d.id}: the recording holds no settings of it (yet)")
-        return wire.DeviceStatus(d.id, state.config, state.stream, state.samples, state.points, state.clock)
+        return wire.DeviceStatus(d.id, state.config, state.stream, state.samples, state.points, state.clock,
+                                 state.rest_pose, orientations=state.orientations)
 
     def answer_queries(self) -> None:
         """Answer the config queries that arrived (status, or :data:`FIXED` for a change)."""

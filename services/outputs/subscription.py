@@ -1,5 +1,5 @@
-"""The one subscription path of every live output: decoded pose frames, stats, segment points
-and truth batches of the subjects matching a pattern, from bounded hand-off channels.
+"""The one subscription path of every live output: decoded pose frames, joint angles, stats,
+segment points and truth batches of the subjects matching a pattern, from bounded hand-off channels.
 
 Zenoh delivers into bounded FIFO channels (Zenoh's own: its threads never wait for Python, so a
 busy consumer never stalls the transport; a full channel holds Zenoh back instead of losing
@@ -30,11 +30,12 @@ import zenoh.ext as zext
 
 from limbstream import wire, zconfig
 
-KINDS: tuple[str, ...] = (wire.POSE, wire.STATS, wire.SEG, wire.RAW)
-"""What a subscription can carry: subject kinds (pose, stats) and device kinds (seg, raw)."""
+KINDS: tuple[str, ...] = (wire.POSE, wire.STATS, wire.ANGLES, wire.SEG, wire.RAW)
+"""What a subscription can carry: subject kinds (pose, stats, angles) and device kinds (seg, raw)."""
 
 _DECODERS: dict[str, Callable[[bytes], object]] = {
-    wire.POSE: wire.decode_pose, wire.STATS: wire.decode_stats, wire.SEG: wire.decode_point, wire.RAW: wire.decode_raw,
+    wire.POSE: wire.decode_pose, wire.STATS: wire.decode_stats, wire.ANGLES: wire.decode_angles,
+    wire.SEG: wire.decode_point, wire.RAW: wire.decode_raw,
 }
 
 
@@ -53,10 +54,11 @@ class Item(NamedTuple):
 
     Attributes
     ----------
-    kind : "pose" | "stats" | "seg" | "raw"
+    kind : "pose" | "stats" | "angles" | "seg" | "raw"
     subject : the subject key chunk.
-    segment : the segment of a device kind, None for pose and stats.
-    value : :class:`wire.PoseFrame` | stats dict | :class:`wire.SegmentPoint` | :class:`wire.RawBatch`.
+    segment : the segment of a device kind, None for the subject kinds.
+    value : :class:`wire.PoseFrame` | stats dict | :class:`wire.JointAngles` | :class:`wire.SegmentPoint` |
+        :class:`wire.RawBatch`.
     key : the key expression it came on.
     payload : the wire bytes as received.
     received_ns : when the consumer took it out of the channel, ns since the Unix epoch (this

@@ -4,6 +4,7 @@ aggregator sends them, a device's config queryable."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -92,3 +93,18 @@ class Device:
                 query.reply_err(json.dumps({"error": str(exc)}))
                 return
         query.reply(query.key_expr, wire.encode_status(wire.DeviceStatus("x/hip", self.config, 7, 10, 1)))
+
+
+def joint_angles(seq: int, kind: int = wire.KIND_LIVE, basis: str = "segments", knee: float = 10.0) -> wire.JointAngles:
+    """A joint-angle message as the aggregator makes it: ``knee_angle_r`` = ``knee``, the left
+    elbow missing, or no numbers at all where ``basis`` gives none."""
+    a = len(wire.JOINT_ANGLES)
+    angles = np.linspace(-30.0, 60.0, a)
+    flags = np.zeros(a, np.uint8)
+    angles[wire.JOINT_ANGLES.index("knee_angle_r")] = knee
+    flags[wire.JOINT_ANGLES.index("elbow_flex_l")] = wire.ANGLE_MISSING
+    if not wire.ANGLE_BASES[wire.BASIS[basis]].valid:
+        flags |= wire.ANGLE_UNCALIBRATED
+    angles[(flags & (wire.ANGLE_MISSING | wire.ANGLE_UNCALIBRATED)) != 0] = np.nan
+    return wire.JointAngles(seq, 1_700_000_000_000_000 + seq * 20_000, kind, wire.BASIS[basis], math.nan,
+                            angles.astype(np.float32), flags)

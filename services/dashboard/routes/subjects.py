@@ -1,4 +1,4 @@
-"""``/api/subjects``: subjects, their latest pose frame and the skeleton to draw."""
+"""``/api/subjects``: subjects, their latest pose frame and joint angles, and the skeleton to draw."""
 from __future__ import annotations
 
 import asyncio
@@ -9,7 +9,9 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from limbstream import wire
 
 from ..deps import LiveDep, SubjectPath, TokenDep, ViewsDep
-from ..models import CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject, SubjectDetail
+from ..entries import ANGLES_HISTORY_S
+from ..models import (AngleName, CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject, SubjectDetail,
+                      SubjectJoints)
 from ..zenoh_io import ConfigError, query_calibrate
 
 router = APIRouter(prefix="/api", tags=["subjects"])
@@ -39,6 +41,23 @@ async def latest_pose(subject: SubjectPath, live: LiveDep,
     if entry is None:
         raise HTTPException(404, f"no {'' if kind == 'auto' else kind + ' '}pose frame of subject {subject!r} yet")
     return entry.as_dict(subject)
+
+
+@router.get("/subjects/{subject}/joints", response_model=SubjectJoints,
+            responses={404: {"description": "no joint angles of this subject (of that kind) yet"}})
+async def joint_angles(subject: SubjectPath, views: ViewsDep,
+                       seconds: Annotated[float, Query(gt=0, le=ANGLES_HISTORY_S,
+                                                       description="history window, s")] = 10.0,
+                       kind: Annotated[PoseKind, Query(description="the pose frames they come from; auto: live while "
+                                                                   "they come, else exact")] = "auto",
+                       angle: Annotated[list[AngleName] | None, Query(
+                           description="the angles of the history (repeat it; default: all)")] = None) -> dict:
+    """The subject's newest joint angles (OpenSim's names, degrees; each flagged angle's flags; the
+    calibration they rest on, and why there are none if so) and the last ``seconds`` of them."""
+    joints = views.joint_angles(subject, seconds, kind, angle)
+    if joints is None:
+        raise HTTPException(404, f"no {'' if kind == 'auto' else kind + ' '}joint angles of subject {subject!r} yet")
+    return joints
 
 
 @router.get("/skeleton", response_model=Skeleton)
