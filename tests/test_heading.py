@@ -174,8 +174,39 @@ def test_online_ticks_give_what_the_batch_gives_and_subjects_stay_apart():
     est = HeadingCorrection(LAYOUT, 2, FS)
     applied = HeadingCorrection.apply(q, online(est, q))
     for b in range(2):
-        alone = HeadingCorrection.batch(q[:, b], LAYOUT, FS)
+        alone = HeadingCorrection.batch(q[:, b], LAYOUT, FS, row=b)
         assert quat.angle_deg(applied[:, b], alone).max() < 1e-6
+
+
+def test_subjects_step_on_different_ticks_and_may_come_apart():
+    """The subjects' steps are spread over the ticks of a block; a subject whose ticks come on
+    their own, in bursts, at other times than the others' (the aggregator's subjects), and a
+    subject added later get what one fed in step with the others gets."""
+    truth = generate(6.0, FS, seed=7).q
+    q = np.stack([drifting(truth, 0.1 * (b + 1), b) for b in range(12)], axis=1)
+    est = HeadingCorrection(LAYOUT, 12, FS)
+    stepping = []
+    for k in range(len(q)):
+        before = est.pending.copy()
+        est.update(q[k])
+        stepping.append(int(np.sum(est.pending < before + 1)))
+    assert max(stepping) <= -(-12 // est.block) and sum(stepping) >= 12 * (len(q) // est.block), stepping
+    apart = HeadingCorrection(LAYOUT, 2, FS)
+    rows = apart.add_subjects(10)
+    assert rows.tolist() == list(range(2, 12))
+    burst = np.random.default_rng(0).integers(0, 4, len(q))  # ticks of subject 5 held back, then taken at once
+    waiting: list[int] = []
+    out = np.empty(q.shape[:-1])
+    for k in range(len(q)):
+        others = np.array([b for b in range(12) if b != 5])
+        out[k, others] = apart.take(others[::-1], q[k, others[::-1]])[::-1]
+        waiting.append(k)
+        if burst[k] == 0 or k == len(q) - 1:
+            for j in waiting:
+                out[j, 5] = apart.take(np.array([5]), q[j, 5:6])[0]
+            waiting = []
+    alone = online(HeadingCorrection(LAYOUT, 12, FS), q)
+    assert np.abs(out - alone).max() < 1e-9
 
 
 SESSION_S = 150.0

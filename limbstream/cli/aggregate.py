@@ -38,6 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration-file", default="", metavar="PATH",
                         help="keep the devices' calibrations in this JSON file, so that a restarted aggregator "
                              "has them (default: not kept)")
+    flags.add_heading_correction(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
     flags.add_zenoh(parser)
 
@@ -59,7 +60,7 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
                               tick_s=args.tick, history=args.history, error_window_s=args.error_window,
                               frame_batch_s=args.frame_batch, calibrate_on_start=args.calibrate_on_start,
                               calibration_file=args.calibration_file,
-                              skeleton=skeleton)
+                              heading_correction=args.heading_correction == "joints", skeleton=skeleton)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
