@@ -97,8 +97,9 @@ def session(heading: bool):
 
 @pytest.fixture(scope="module")
 def runs():
-    """The session without and with heading correction (``off``, ``joints``); what the estimator took in the ``joints`` one (its ``take`` spied
-    on): ``seen``, (q (R, 10, 4), present (R, 10)) per call."""
+    """The session without and with heading correction (``off``, ``joints``); what the estimator
+    took in the ``joints`` one (its ``take`` spied on): ``seen``, (q (R, 10, 4), present (R, 10))
+    per call."""
     seen: list[tuple[np.ndarray, np.ndarray]] = []
     real = HeadingCorrection.take
 
@@ -150,8 +151,8 @@ def test_the_estimator_learns_from_the_calibrated_frames_exactly(runs):
     after SLERP taken off again), where the device is corrected and present."""
     _, off_frames, _, _ = runs["off"]
     ticks, off = frames_of(off_frames)
-    q = np.array([s[0][0] for s in runs["seen"]])
-    present = np.array([s[1][0] for s in runs["seen"]])
+    q = np.concatenate([s[0] for s in runs["seen"]])  # (one subject: its frames in order)
+    present = np.concatenate([s[1] for s in runs["seen"]])
     assert len(q) == runs["joints"][0].fusion.heading.taken[0]
     mine = off[len(off) - len(q):]  # the frames since calibration
     before = ticks[len(off) - len(q):] < (RESTART_S - 1) * FS

@@ -194,19 +194,20 @@ def test_subjects_step_on_different_ticks_and_may_come_apart():
     apart = HeadingCorrection(LAYOUT, 2, FS)
     rows = apart.add_subjects(10)
     assert rows.tolist() == list(range(2, 12))
-    burst = np.random.default_rng(0).integers(0, 4, len(q))  # ticks of subject 5 held back, then taken at once
+    burst = np.random.default_rng(0).integers(0, 4, len(q))  # subject 5's ticks held back, then taken at once
     waiting: list[int] = []
-    out = np.empty(q.shape[:-1])
+    others = np.array([b for b in range(12) if b != 5])
     for k in range(len(q)):
-        others = np.array([b for b in range(12) if b != 5])
-        out[k, others] = apart.take(others[::-1], q[k, others[::-1]])[::-1]
         waiting.append(k)
-        if burst[k] == 0 or k == len(q) - 1:
-            for j in waiting:
-                out[j, 5] = apart.take(np.array([5]), q[j, 5:6])[0]
+        if burst[k] == 0 or k == len(q) - 1:  # with the others' tick: subject 5 several times in one call
+            apart.take(np.concatenate([others[::-1], np.full(len(waiting), 5)]),
+                       np.concatenate([q[k, others[::-1]], q[waiting, 5]]))
             waiting = []
-    alone = online(HeadingCorrection(LAYOUT, 12, FS), q)
-    assert np.abs(out - alone).max() < 1e-9
+        else:
+            apart.take(others[::-1], q[k, others[::-1]])
+    for name in ("offset_deg", "rate_dpm", "confidence"):
+        assert np.abs(apart.status()[name] - est.status()[name]).max() < 1e-9, name
+    assert np.abs(apart.filters.x - est.filters.x).max() < 1e-12 and np.array_equal(apart.pending, est.pending)
 
 
 SESSION_S = 150.0

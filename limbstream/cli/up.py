@@ -67,6 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the devices run their firmware under QEMU (emulate --firmware: one process per device)")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     flags.add_sensor_model(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
+    flags.add_heading_correction(parser)  # the aggregator's, for the calibrated devices
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
                         help="also start the SlimeVR gateway: trackers send to this UDP port (their default: 6969); "
@@ -117,7 +118,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     calibrations = ["--calibrate-on-start"] if sensors.on else []
     if sensors.on and args.status_file is not None:  # kept beside the status file: they outlive a restart
         calibrations += ["--calibration-file", str(Path(args.status_file).with_name("calibrations.json"))]
-    parts.append(("aggregator", ["aggregate", *calibrations] + connect))
+    parts.append(("aggregator", ["aggregate", *calibrations, "--heading-correction", args.heading_correction] + connect))
     return parts
 
 

@@ -184,15 +184,37 @@ class HeadingCorrection:
         """Take one tick of every subject: ``q`` (subjects, segments, 4) calibrated orientations,
         ``present`` (subjects, segments) bool (default all). Returns (subjects, segments) the
         corrections (rad) to apply to this tick's ``q``."""
-        return self.take(np.arange(self.subjects), q, present)
+        rows = np.arange(self.subjects)
+        present = self._checked(rows, np.asarray(q, np.float64), present)[1]
+        out = self._down_the_tree(self.joint_offsets(self.pending + 1), present)
+        self.take(rows, q, present)
+        return out
 
-    def take(self, rows: np.ndarray, q: np.ndarray, present: np.ndarray | None = None) -> np.ndarray:
-        """Take one tick of the subjects ``rows`` (R,) (each at most once): ``q`` (R, segments, 4)
-        calibrated orientations, ``present`` (R, segments) bool (default all). The subjects
-        whose block is then full move their filters one step. Returns (R, segments) the
-        corrections (rad) to apply to this tick's ``q``."""
+    def take(self, rows: np.ndarray, q: np.ndarray, present: np.ndarray | None = None) -> None:
+        """Take ticks of subjects ``rows`` (R,) (a subject's in time order; it may come several
+        times): ``q`` (R, segments, 4) calibrated orientations, ``present`` (R, segments) bool
+        (default all). Then every subject with a full block moves its filters one step (all of
+        them in one go, and again while some have another block full)."""
         rows = np.asarray(rows, np.int64)
-        q = np.asarray(q, np.float64)
+        q, present = self._checked(rows, np.asarray(q, np.float64), present)
+        q = np.where(present[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
+        order = np.argsort(rows, kind="stable")
+        first = np.searchsorted(rows[order], rows[order])
+        rank = np.empty(len(rows), np.int64)
+        rank[order] = np.arange(len(rows)) - first  # each tick's place among its subject's in this call
+        at = self.pending[rows] + rank
+        if len(at) and at.max() >= len(self._ticks):
+            self._widen(int(at.max()) + 1)
+        self._ticks[at, rows], self._ticks_present[at, rows] = q, present
+        np.add.at(self.pending, rows, 1)
+        while (full := np.flatnonzero(self.pending >= self.due)).size:
+            for length in np.unique(self.due[full]).tolist():  # (first, short blocks: apart)
+                self._step(full[self.due[full] == length], length)
+
+    def _checked(self, rows: np.ndarray, q: np.ndarray, present: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``q`` and ``present`` (default all) of ticks of ``rows``, their shapes checked
+        (ValueError); orientations that are not finite unit quaternions counted and taken as
+        absent."""
         shape = (len(rows), self.had.shape[1])
         if q.shape != shape + (4,):
             raise ValueError(f"q must have shape {shape + (4,)} (subjects, segments, 4), got {q.shape}")
@@ -201,21 +223,22 @@ class HeadingCorrection:
             raise ValueError(f"present must have shape {shape}, got {present.shape}")
         unit = np.all(np.isfinite(q), axis=-1) & (np.abs(np.sum(q * q, axis=-1) - 1.0) < 1e-2)
         self.dropped += int(np.sum(present & ~unit))
-        present = present & unit
-        q = np.where(present[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
-        at = self.pending[rows]
-        self._ticks[at, rows], self._ticks_present[at, rows] = q, present
-        self.pending[rows] = at + 1
-        out = self._down_the_tree(self.joint_offsets(at + 1, rows), present)
-        full = rows[self.pending[rows] >= self.due[rows]]
-        for length in np.unique(self.pending[full]).tolist():  # (a first, short block: apart)
-            self._step(full[self.pending[full] == length], length)
-        return out
+        return q, present & unit
+
+    def _widen(self, ticks: int) -> None:
+        """Room for ``ticks`` ticks per subject between steps."""
+        extra = ticks - len(self._ticks)
+        self._ticks = np.concatenate([self._ticks, np.zeros((extra,) + self._ticks.shape[1:])])
+        self._ticks_present = np.concatenate([self._ticks_present, np.zeros((extra,) + self._ticks_present.shape[1:], bool)])
 
     def _step(self, rows: np.ndarray, length: int) -> None:
-        """Move the filters of subjects ``rows`` one step with their ``length`` ticks taken."""
+        """Move the filters of subjects ``rows`` one step with their first ``length`` ticks."""
         q, present = self._ticks[:length, rows], self._ticks_present[:length, rows]
-        self.pending[rows], self.due[rows] = 0, self.block
+        left = self.pending[rows] - length
+        if left.any():  # ticks beyond the block: to the front
+            self._ticks[:, rows] = np.roll(self._ticks[:, rows], -length, axis=0)
+            self._ticks_present[:, rows] = np.roll(self._ticks_present[:, rows], -length, axis=0)
+        self.pending[rows], self.due[rows] = left, self.block
         if len(rows) == self.subjects and np.array_equal(rows, np.arange(self.subjects)):
             self.process(q, present)
             return

@@ -98,8 +98,8 @@ class HeadingStage:
         (E,), time ``t_us`` (E,) us, orientations ``q`` (E, 10, 4)), with ``seg_slots``
         (subjects, 10) each segment's device slot, ``stale`` (subjects, 10) its device held,
         ``rest_flag`` (subjects,) each subject's rest pose flag: their corrected devices' calibrated
-        orientations go to the estimators, a tick per frame; the lines of the subjects that
-        stepped are renewed."""
+        orientations go to the estimators, a tick per frame, and the lines of these subjects'
+        devices are renewed."""
         slots = seg_slots[owner]
         present = (slots >= 0) & self.on[np.maximum(slots, 0)] & ~stale[owner]
         keep = present.any(axis=1)
@@ -108,13 +108,10 @@ class HeadingStage:
         owner, t_us, q, slots, present = owner[keep], t_us[keep], q[keep], slots[keep], present[keep]
         times = np.broadcast_to(t_us[:, None], slots.shape)
         calibrated = quat.multiply(yaw(-self.turns(np.maximum(slots, 0), times) * present), q)
-        rank = np.arange(len(owner)) - np.searchsorted(owner, owner)  # each frame's place in its subject's run
-        for r in range(int(rank.max()) + 1):
-            now = np.flatnonzero(rank == r)
-            for est, frames, rows in self._by_estimator(owner[now], rest_flag):
-                at = now[frames]
-                est.take(rows, calibrated[at], present[at])
-                self._renew(est, rows, slots[at], t_us[at])
+        for est, frames, rows in self._by_estimator(owner, rest_flag):
+            est.take(rows, calibrated[frames], present[frames])
+            newest = np.r_[owner[frames][1:] != owner[frames][:-1], True]  # each subject's newest frame
+            self._renew(est, rows[newest], slots[frames[newest]], t_us[frames[newest]])
         np.add.at(self.taken, owner, 1)
 
     def _by_estimator(self, subjects: np.ndarray, rest_flag: np.ndarray):
@@ -124,7 +121,8 @@ class HeadingStage:
         poses = np.where(rest_flag[subjects] != 0, "tpose", "standing")
         for pose in np.unique(poses).tolist():
             mine = np.flatnonzero(poses == pose)
-            rows = np.array([self._row(int(s), pose) for s in subjects[mine]], np.int64)
+            each, index = np.unique(subjects[mine], return_inverse=True)
+            rows = np.array([self._row(s, pose) for s in each.tolist()], np.int64)[index]
             yield self.estimators[pose], mine, rows
 
     def _row(self, subject: int, pose: str) -> int:
