@@ -436,22 +436,26 @@ class HeadingCorrection:
 
     @classmethod
     def batch(cls, q: np.ndarray, layout: Layout, fs: float = 50.0, settings: Settings = Settings(),
-              row: int = 0) -> np.ndarray:
+              row: int = 0, present: np.ndarray | None = None) -> np.ndarray:
         """(m, S, 4) a recording's calibrated orientations ``q`` (m, S, 4) at ``fs`` Hz,
         corrected as the live estimator would have, tick by tick, in subject row ``row`` (its
-        first block staggered as that row's)."""
+        first block staggered as that row's); ``present`` (m, S) bool: where the devices are
+        (default: where ``q`` is a finite unit quaternion; the others are left as they are)."""
         q = np.asarray(q, np.float64)
         est = cls(layout, 1, fs, settings)
-        out = np.empty_like(q)
-        present = np.ones((est.block, 1, q.shape[1]), bool)
+        unit = np.all(np.isfinite(q), axis=-1) & (np.abs(np.sum(q * q, axis=-1) - 1.0) < 1e-2)
+        present = unit if present is None else np.asarray(present, bool) & unit
+        ticks = np.where(present[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
+        out = q.copy()
         first = est.block - row % est.block
         for k in (0, *range(first, len(q), est.block)):
-            block = q[k:(first if k == 0 else k + est.block), None]
+            block, here = ticks[k:(first if k == 0 else k + est.block), None], present[k:(first if k == 0 else k + est.block), None]
             ahead = np.arange(1, len(block) + 1)[:, None, None]
-            c = est._down_the_tree(est.filters.x[..., 0] + est.filters.x[..., 1] * (ahead / fs), present[0])
-            out[k:k + len(block)] = cls.apply(block[:, 0], c[:, 0])
+            c = est._down_the_tree(est.filters.x[..., 0] + est.filters.x[..., 1] * (ahead / fs), here)
+            mine = here[:, 0]
+            out[k:k + len(block)][mine] = cls.apply(block[:, 0][mine], c[:, 0][mine])
             if len(block) == (first if k == 0 else est.block):
-                est.process(block, present[:len(block)])
+                est.process(block, here)
         return out
 
 
