@@ -68,8 +68,7 @@ class AggregatorSettings:
     calibrate_on_start : calibrate each new stream from its calibration script
         (services/aggregator/calibrating.py; devices with a sensor model).
     calibration_file : where calibrations are kept, so that they outlive this process ("": not kept).
-    heading_correction : each calibrated device whose heading drifts (no magnetometer) has its
-        heading held by the subject's joints (services/aggregator/heading.py).
+    heading_correction : hold each calibrated 6D device's heading by the joints (:mod:`.heading`).
     frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
         covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
     """
