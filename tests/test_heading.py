@@ -210,6 +210,24 @@ def test_subjects_step_on_different_ticks_and_may_come_apart():
     assert np.abs(apart.filters.x - est.filters.x).max() < 1e-12 and np.array_equal(apart.pending, est.pending)
 
 
+def test_a_subject_joins_after_a_burst():
+    """A burst of one subject's ticks widens the room kept per subject between steps; a subject
+    added after that gets the same room and is corrected as one that was there from the start."""
+    truth = generate(4.0, FS, seed=3).q
+    q = np.stack([drifting(truth, 0.1, 0), drifting(truth, 0.2, 1)], axis=1)
+    late = HeadingCorrection(LAYOUT, 1, FS)
+    late.take(np.zeros(3 * late.block, np.int64), q[:3 * late.block, 0])  # 3 blocks at once
+    assert late.add_subjects(1).tolist() == [1]
+    both = HeadingCorrection(LAYOUT, 2, FS)
+    both.take(np.zeros(3 * both.block, np.int64), q[:3 * both.block, 0])
+    for k in range(3 * late.block, len(q)):
+        late.take(np.array([0, 1]), q[k])
+        both.take(np.array([0, 1]), q[k])
+    assert late.pending.tolist() == both.pending.tolist()
+    assert np.abs(late.filters.x - both.filters.x).max() < 1e-12
+    assert np.abs(late.status()["offset_deg"] - both.status()["offset_deg"]).max() < 1e-9
+
+
 SESSION_S = 150.0
 RESTART_S, HOLD_S = 60.0, (45.0, 135.0)
 

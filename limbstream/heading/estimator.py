@@ -167,8 +167,10 @@ class HeadingCorrection:
         rows = np.arange(self.subjects, self.subjects + n)
         for (owner, name, axis), (new, _, _) in zip(self._state(), fresh._state()):
             setattr(owner, name, np.concatenate([getattr(owner, name), getattr(new, name)], axis=axis))
-        self._ticks = np.concatenate([self._ticks, fresh._ticks], axis=1)
-        self._ticks_present = np.concatenate([self._ticks_present, fresh._ticks_present], axis=1)
+        room = len(self._ticks)  # widened by a burst, perhaps: the new rows get as much
+        self._ticks = np.concatenate([self._ticks, np.zeros((room, n) + self._ticks.shape[2:])], axis=1)
+        self._ticks_present = np.concatenate([self._ticks_present, np.zeros((room, n) + self._ticks_present.shape[2:],
+                                                                            bool)], axis=1)
         self.pending = np.concatenate([self.pending, fresh.pending])
         self.due = np.concatenate([self.due, self.block - rows % self.block])
         return rows
