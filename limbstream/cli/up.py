@@ -24,6 +24,7 @@ import importlib.util
 import json
 import os
 import secrets
+import shutil
 import signal
 import sys
 import tempfile
@@ -290,10 +291,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # stopping: not interrupted again
         launcher.stop()
-        if temp is not None:
-            for f in (status_file, status_file.with_name(status_file.name + ".tmp")):
-                f.unlink(missing_ok=True)
-            temp.rmdir()
+        if temp is not None:  # the status file and what the parts kept beside it (calibrations)
+            shutil.rmtree(temp, ignore_errors=True)
         elif status_file.exists():
             write_status(status_file, "stopped", supervisor)
         print("limbstream up: stopped", flush=True)
