@@ -48,23 +48,27 @@ def truth(q: np.ndarray, first: int, stream_id: int) -> list[tuple[int, bytes]]:
     return out
 
 
-def session(heading: bool):
+def session(heading: bool, segments: tuple[str, ...] = SEGMENTS, seconds: float = SECONDS,
+            restart: float | None = RESTART_S):
     """One subject, its sensors strapped at up to 90 deg with headings anywhere and drifting
-    (up to DRIFT_DPS), the calibration script first; its right shank restarts at RESTART_S with a
-    new stream that begins with the script again (its heading elsewhere), with heading correction
-    ``heading`` or none. Returns the aggregator, its exact frames as (t_us, q (10, 4)), the
-    subject's stats each second, and the truth (m, 10, 4) by tick."""
-    motion = generate(SECONDS, FS, seed=21)
+    (up to DRIFT_DPS), the calibration script first; its right shank restarts at ``restart`` s
+    (None: never) with a new stream that begins with the script again (its heading elsewhere),
+    with heading correction ``heading`` or none; only ``segments`` have a device. Returns the
+    aggregator, its exact frames as (t_us, q (10, 4)), the subject's stats each second, and the
+    truth (m, 10, 4) by tick."""
+    motion = generate(seconds, FS, seed=21)
     q, _, _ = calibration.with_script(motion.q, FS)
     m = len(q)
     sensors = calibration.SensorModel(90, 180, DRIFT_DPS, seed=5).draw(len(SEGMENTS))
     t = np.arange(m) / FS
-    k = round(RESTART_S * FS)
+    k = round((restart or seconds) * FS)
     events: dict[int, list[tuple[str, str, bytes]]] = {}
     for j, seg in enumerate(SEGMENTS):
+        if seg not in segments:
+            continue
         reading = sensors.report(j, t, q[:, j])
         parts = [(0, reading, q[:, j], 1)]
-        if seg == RESTARTED:  # the restart: the script again, a new filter heading
+        if seg == RESTARTED and restart is not None:  # the restart: the script again, a new filter heading
             again, _, _ = calibration.with_script(motion.q[k:, None, j], FS, (seg,))
             later = calibration.SensorModel(90, 180, DRIFT_DPS, seed=9).draw(len(SEGMENTS))
             parts = [(0, reading[:k], q[:k, j], 1),
@@ -78,7 +82,7 @@ def session(heading: bool):
     exact: list[tuple[int, np.ndarray]] = []
     agg._publish = lambda subject, payload: exact.extend(
         [(f.t_us, f.q)] if (f := wire.decode_pose(payload)).kind == wire.KIND_EXACT else [])
-    for seg in SEGMENTS:
+    for seg in segments:
         agg.on_alive(wire.alive_key("s01", seg), True)
     stats = []
     for tick in range(m + 30):
@@ -185,3 +189,28 @@ def test_a_restarted_device_rejoins_with_its_correction_learnt_afresh(runs):
     thigh = next(d for d in stats[back]["devices"] if d["segment"] == "r_thigh")
     assert abs(shank[back]["heading_offset_deg"] - thigh["heading_offset_deg"]) < 1.0  # from none, not the old one
     assert shank[-1]["heading_confidence"] > 0.0
+
+
+LOWER_BODY = ("l_shank", "r_shank", "l_thigh", "r_thigh", "hip")
+
+
+def test_a_lower_body_alone_is_corrected():
+    """Pelvis, thighs and shanks only (no arms, no neck): their devices are corrected (the turns
+    averaging 0 over the five) and their knees' and hips' error against the truth is lower for it."""
+    figures = {}
+    for heading in (False, True):
+        _, exact, stats, q = session(heading, LOWER_BODY, restart=None)
+        ticks, frames = frames_of(exact)
+        late = (ticks > (SECONDS - 10) * FS) & (ticks < len(q))
+        layout = Layout.of(LOWER_BODY)
+        have = [SEGMENTS.index(s) for s in LOWER_BODY]
+        figures[heading] = joint_errors_deg(frames[late][:, have], q[ticks[late]][:, have], layout).mean()
+        devices = stats[-1]["devices"]
+        assert sorted(d["segment"] for d in devices) == sorted(LOWER_BODY)
+        offsets = [d["heading_offset_deg"] for d in devices]
+        if heading:
+            assert all(o is not None for o in offsets) and abs(np.mean(offsets)) < 1e-3, offsets
+            assert stats[-1]["joint_aad_deg"] is not None
+        else:
+            assert all(o is None for o in offsets)
+    assert figures[True] < 0.85 * figures[False], figures
