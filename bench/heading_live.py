@@ -4,7 +4,8 @@ at the end of every minute (docs/evaluation.md, "Heading without resets"). Targe
 minute's at most the first minute's + 1 deg.
 
     python bench/heading_live.py [--minutes 10] [--heading-correction joints|off]
-                                 [-- UP FLAGS (default: --imu raw --mounting-deg 90 --heading-deg 180)]
+                                 [-- UP FLAGS (default: --imu raw --imu-model icm42688p
+                                              --mounting-deg 90 --heading-deg 180)]
 
 The system runs on this machine (a router, the clock, the emulator, the aggregator; no dashboard)
 on a free port; the emulated subject starts with the calibration script (the aggregator
@@ -29,8 +30,9 @@ import zenoh
 from limbstream import wire, zconfig
 from limbstream.launch import Child, ChildExited, Launcher, free_port, port_open, split_endpoint, wait_until
 
-UP_FLAGS = ("--imu", "raw", "--mounting-deg", "90", "--heading-deg", "180")
-"""The sensors of the live target (the named part's raw readings, strapped anyhow)."""
+UP_FLAGS = ("--imu", "raw", "--imu-model", "icm42688p", "--mounting-deg", "90", "--heading-deg", "180")
+"""The sensors of the live target: a named part's raw readings fused by VQF 6D on each device (its
+heading drifts with the gyroscope offset), strapped at up to 90 deg, headings anywhere."""
 CALIBRATED_S = 180.0
 """How long the devices may take to start and be calibrated."""
 
