@@ -215,16 +215,18 @@ def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list
 
 
 def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: float = 50.0,
-                          joint_angles: bool = True) -> None:
+                          joint_angles: bool = True, heading: bool = False) -> None:
     """The aggregator's own work without Zenoh: replayed messages taken in tick by tick as a drain
     takes them, frames built and encoded (live frames at ``live_rate`` Hz, a divisor of 50), their
     joint angles (``joint_angles``; the devices say they send their segments' own orientations, as
     the generator's do), stats of every subject once a second, spread over the ticks as the loop
-    does; CPU per second of stream = load at real time."""
+    does; CPU per second of stream = load at real time. With ``heading``, every device is corrected
+    by the joints from the start, as a calibrated 6D sensor is (services/aggregator/heading.py)."""
     every = max(1, round(50.0 / live_rate))
     angles = "joint angles of the live frames" if joint_angles else "no joint angles"
     print(f"\n### Aggregator core, replayed messages ({seconds:g} s of stream, 50 Hz, truth tap on, "
-          f"live frames at {50.0 / every:g} Hz, {angles}; frames, angles and stats encoded, not sent)\n")
+          f"live frames at {50.0 / every:g} Hz, {angles}, heading correction {'on' if heading else 'off'}; "
+          "frames, angles and stats encoded, not sent)\n")
     print("| subjects | devices | points/s | truth samples/s | frames/s | CPU per second of stream | "
           "subjects at 100 % of one core |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
@@ -248,6 +250,9 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
             agg.take_points([key for key, _ in points], [payload for _, payload in points], now)
             agg.take_raw([key for key, _ in raw], [payload for _, payload in raw], now)
             n_points += len(points)
+            if heading and k == 1:  # the streams began: every device as if calibrated now
+                for track in agg.fusion.tracks:
+                    agg.fusion.heading.reset(agg.subjects[track.subject].index, track.segment, track.slot, True, True)
             agg.advance(k % every == 0, prune=k % 25 == 0, now=now)  # live frames every ``every`` ticks
             if k % (50 // STATS_BATCHES) == 0:  # one round a second, in batches as the loop sends it
                 agg.publish_stats(now, k // (50 // STATS_BATCHES) % STATS_BATCHES, STATS_BATCHES)
@@ -338,6 +343,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="core rows, and aggregator rows with --record: live frame rate, Hz (50, 25, 10, ...)")
     parser.add_argument("--no-joint-angles", dest="joint_angles", action="store_false",
                         help="core rows: the aggregator without its joint-angle stage (to compare)")
+    parser.add_argument("--heading-correction", choices=("off", "joints"), default="off",
+                        help="core rows: every device's heading corrected by the joints (default off)")
     parser.add_argument("--record", action="store_true",
                         help="aggregator rows: a `limbstream record` process subscribes to everything")
     args = parser.parse_args(argv)
@@ -348,7 +355,8 @@ def main(argv: list[str] | None = None) -> int:
         bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds, args.record,
                          args.live_rate if args.record else 0.0)
     if args.what in ("core", "all"):
-        bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds, args.live_rate, args.joint_angles)
+        bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds, args.live_rate,
+                              args.joint_angles, args.heading_correction == "joints")
     if args.what in ("latency", "all"):
         for max_len in (25, 1000):
             bench_latency(args.seconds, 2, max_len)

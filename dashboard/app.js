@@ -141,7 +141,7 @@ function liveCell(d) {  // live p99 / the device's live-rule bound
 function renderTable() {
   const body = $("devices-body");
   if (!state.devices.length) {
-    body.innerHTML = '<tr class="empty-row"><td colspan="13">Waiting for device statistics…</td></tr>';
+    body.innerHTML = '<tr class="empty-row"><td colspan="14">Waiting for device statistics…</td></tr>';
     return;
   }
   const maxRate = Math.max(1, ...state.devices.map((d) => d.msgs_per_s || 0));
@@ -152,9 +152,8 @@ function renderTable() {
       subject = d.subject;
       const n = state.devices.filter((x) => x.subject === subject);
       const s = state.subjects.get(subject);
-      const frameErr = s && s.frame_aad_deg !== null && s.frame_aad_deg !== undefined
-        ? ` · <span class="frame-err" title="mean angle between exact frames and the truth at each frame's reference instant (60 s)">frame error ${fmt(s.frame_aad_deg)}°</span>` : "";
-      rows.push(`<tr class="subject-row" data-subject="${esc(subject)}"><td colspan="13">${esc(subject)} · ${n.filter((x) => x.online).length}/${n.length} online${frameErr}</td></tr>`);
+      rows.push(`<tr class="subject-row" data-subject="${esc(subject)}"><td colspan="14">${esc(subject)} · ` +
+        `${n.filter((x) => x.online).length}/${n.length} online${subjectErrors(s)}</td></tr>`);
     }
     const dot = d.stale ? (d.alive ? "on" : "stale") : (d.online ? "on" : "off");
     const stateText = d.online ? "online" : (d.stale && !d.alive ? "no data" : "offline");
@@ -183,11 +182,31 @@ function renderTable() {
       `<td class="num">${fmt(d.watermark_lag_s)}</td>` +
       `<td class="num${d.gaps ? " warn" : ""}">${d.gaps ?? "–"}</td>` +
       `<td class="num${d.dropped ? " bad" : ""}">${d.dropped ?? "–"}</td>` +
+      headingCell(d) +
       clockCell(d) +
       `<td class="num">${d.threshold === null || d.threshold === undefined ? "–" : Number(d.threshold).toPrecision(3)}</td>` +
       `</tr>`);
   }
   body.innerHTML = rows.join("");
+}
+
+function subjectErrors(s) {  // the subject's frame error and joint error against the truth (60 s)
+  const known = (v) => v !== null && v !== undefined;
+  const frame = s && known(s.frame_aad_deg)
+    ? ` · <span class="frame-err" title="frame error: mean angle between each segment of the exact frames and the truth at the frame's reference instant, after one turn about the vertical fitted at calibration: it also shows the whole body's heading drifting (60 s)">frame error ${fmt(s.frame_aad_deg)}°</span>` : "";
+  const joint = s && known(s.joint_aad_deg)
+    ? ` · <span class="joint-err" data-value="${s.joint_aad_deg}" title="joint error: mean angle between the estimated and the true relative orientation of each pair of adjacent segments (knees, elbows, hips, shoulders, neck): posture, whichever way the subject faces (60 s)">joint error ${fmt(s.joint_aad_deg)}°</span>` : "";
+  return frame + joint;
+}
+
+function headingCell(d) {  // heading correction: offset applied now · confidence; rate in the tip
+  if (d.heading_offset_deg === null || d.heading_offset_deg === undefined) return '<td class="num heading">–</td>';
+  const sign = d.heading_offset_deg > 0 ? "+" : "";
+  const tip = `heading correction ${fmt(d.heading_offset_deg, 2)}° applied now, changing ${fmt(d.heading_rate_dpm, 2)}°/min; ` +
+    `confidence ${fmt(d.heading_confidence, 2)} (1: known within a degree or two, 1/2: within 5°)`;
+  const low = d.heading_confidence < 0.5 ? " warn" : "";
+  return `<td class="num heading${low}" data-offset="${d.heading_offset_deg}" data-confidence="${d.heading_confidence}" ` +
+    `title="${esc(tip)}">${sign}${fmt(d.heading_offset_deg, 1)}° · ${fmt(d.heading_confidence, 2)}</td>`;
 }
 
 function clockCell(d) {  // the device's own clock offset estimate and whether it is synced
@@ -281,6 +300,8 @@ function initCharts() {
     err: makeChart($("chart-err"), [["AAD", COLORS.accent], ["p99", COLORS.warn, [4, 3]], ["live", COLORS.right],
                                     ["live p99", COLORS.right, [4, 3]]],
       (u, min, max) => [0, Math.max(1, (max || 0) * 1.1)]),
+    heading: makeChart($("chart-heading"), [["offset", COLORS.left]],
+      (u, min, max) => [Math.min(-1, (min || 0) * 1.1), Math.max(1, (max || 0) * 1.1)]),
   };
   new ResizeObserver(() => {
     for (const [name, chart] of Object.entries(state.charts)) {
@@ -301,6 +322,7 @@ async function refreshHistory() {
   state.charts.rate.setData([h.t, h.msgs_per_s]);
   state.charts.icr.setData([h.t, h.icr]);
   state.charts.err.setData([h.t, h.aad_deg, h.p99_deg, h.live_err_deg, h.live_p99_deg]);
+  state.charts.heading.setData([h.t, h.heading_offset_deg]);
 }
 
 // ------------------------------------------------------------------ skeletons

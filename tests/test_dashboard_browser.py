@@ -189,14 +189,24 @@ def test_page_shows_live_devices_skeletons_and_control(stack):  # noqa: F811
     assert (ARTIFACTS / "dashboard.png").stat().st_size > 20_000
 
 
-def test_page_shows_each_devices_calibration(stack):  # noqa: F811
-    """Sensors strapped at up to 90 deg: the aggregator calibrates every device from its stream's
-    calibration script and the page marks each row calibrated; its Calibrate button counts down
-    and asks for a calibration, which a moving subject gets refused, with the reason shown."""
+HEADING_CELLS = """() => {
+  const cells = [...document.querySelectorAll('#devices-body tr.device td.heading')];
+  return cells.length === 10 && cells.every(c => c.dataset.offset !== undefined && Number.isFinite(Number(c.dataset.offset))
+    && Number(c.dataset.confidence) >= 0 && Number(c.dataset.confidence) <= 1 && /°/.test(c.textContent))
+    && Number.isFinite(Number(document.querySelector('#devices-body .subject-row .joint-err')?.dataset.value));
+}"""
+
+
+def test_page_shows_each_devices_calibration_and_heading_correction(stack):  # noqa: F811
+    """Sensors strapped at up to 90 deg, their headings drifting: the aggregator calibrates every
+    device from its stream's calibration script and the page marks each row calibrated, shows
+    each device's heading correction and confidence and the subject's joint error; the Calibrate
+    button counts down and asks for a calibration, which a moving subject gets refused, with the
+    reason shown."""
     chromium = require_chromium()
     stack.router()
-    stack.emulator(1, 1.0, "--mounting-deg", "90", "--heading-deg", "180")
-    stack.aggregator("--calibrate-on-start")
+    stack.emulator(1, 1.0, "--mounting-deg", "90", "--heading-deg", "180", "--yaw-drift-dps", "0.1")
+    stack.aggregator("--calibrate-on-start", "--heading-correction", "joints")
     url = stack.dashboard(env={"LIMBSTREAM_API_TOKEN": TOKEN})
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
@@ -207,6 +217,9 @@ def test_page_shows_each_devices_calibration(stack):  # noqa: F811
                 .filter(r => r.dataset.calibrated === 'true' && r.querySelector('.cal.ok')).length === 10""",
                                    timeout=60_000)
             assert "calibrated" in page.get_attribute("#devices-body tr.device .cal.ok", "title")
+            page.wait_for_function(HEADING_CELLS, timeout=30_000)
+            assert "changing" in page.get_attribute("#devices-body tr.device td.heading", "title")
+            assert "whichever way" in page.get_attribute("#devices-body .joint-err", "title")
             page.fill("#ctl-token", TOKEN)
             page.select_option("#ctl-target", "subject:s01")
             page.select_option("#cal-pose", "rest")

@@ -174,8 +174,58 @@ def test_online_ticks_give_what_the_batch_gives_and_subjects_stay_apart():
     est = HeadingCorrection(LAYOUT, 2, FS)
     applied = HeadingCorrection.apply(q, online(est, q))
     for b in range(2):
-        alone = HeadingCorrection.batch(q[:, b], LAYOUT, FS)
+        alone = HeadingCorrection.batch(q[:, b], LAYOUT, FS, row=b)
         assert quat.angle_deg(applied[:, b], alone).max() < 1e-6
+
+
+def test_subjects_step_on_different_ticks_and_may_come_apart():
+    """The subjects' steps are spread over the ticks of a block; a subject whose ticks come on
+    their own, in bursts, at other times than the others' (the aggregator's subjects), and a
+    subject added later get what one fed in step with the others gets."""
+    truth = generate(6.0, FS, seed=7).q
+    q = np.stack([drifting(truth, 0.1 * (b + 1), b) for b in range(12)], axis=1)
+    est = HeadingCorrection(LAYOUT, 12, FS)
+    stepping = []
+    for k in range(len(q)):
+        before = est.pending.copy()
+        est.update(q[k])
+        stepping.append(int(np.sum(est.pending < before + 1)))
+    assert max(stepping) <= -(-12 // est.block) and sum(stepping) >= 12 * (len(q) // est.block), stepping
+    apart = HeadingCorrection(LAYOUT, 2, FS)
+    rows = apart.add_subjects(10)
+    assert rows.tolist() == list(range(2, 12))
+    burst = np.random.default_rng(0).integers(0, 4, len(q))  # subject 5's ticks held back, then taken at once
+    waiting: list[int] = []
+    others = np.array([b for b in range(12) if b != 5])
+    for k in range(len(q)):
+        waiting.append(k)
+        if burst[k] == 0 or k == len(q) - 1:  # with the others' tick: subject 5 several times in one call
+            apart.take(np.concatenate([others[::-1], np.full(len(waiting), 5)]),
+                       np.concatenate([q[k, others[::-1]], q[waiting, 5]]))
+            waiting = []
+        else:
+            apart.take(others[::-1], q[k, others[::-1]])
+    for name in ("offset_deg", "rate_dpm", "confidence"):
+        assert np.abs(apart.status()[name] - est.status()[name]).max() < 1e-9, name
+    assert np.abs(apart.filters.x - est.filters.x).max() < 1e-12 and np.array_equal(apart.pending, est.pending)
+
+
+def test_a_subject_joins_after_a_burst():
+    """A burst of one subject's ticks widens the room kept per subject between steps; a subject
+    added after that gets the same room and is corrected as one that was there from the start."""
+    truth = generate(4.0, FS, seed=3).q
+    q = np.stack([drifting(truth, 0.1, 0), drifting(truth, 0.2, 1)], axis=1)
+    late = HeadingCorrection(LAYOUT, 1, FS)
+    late.take(np.zeros(3 * late.block, np.int64), q[:3 * late.block, 0])  # 3 blocks at once
+    assert late.add_subjects(1).tolist() == [1]
+    both = HeadingCorrection(LAYOUT, 2, FS)
+    both.take(np.zeros(3 * both.block, np.int64), q[:3 * both.block, 0])
+    for k in range(3 * late.block, len(q)):
+        late.take(np.array([0, 1]), q[k])
+        both.take(np.array([0, 1]), q[k])
+    assert late.pending.tolist() == both.pending.tolist()
+    assert np.abs(late.filters.x - both.filters.x).max() < 1e-12
+    assert np.abs(late.status()["offset_deg"] - both.status()["offset_deg"]).max() < 1e-9
 
 
 SESSION_S = 150.0

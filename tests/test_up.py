@@ -440,3 +440,18 @@ def test_up_draws_the_lower_body_recording_as_a_person(stack, tmp_path, xio_dir)
           f"knees in {100 * upright.mean():.1f} % |")
     assert len(first) > 1000 and upright.mean() >= 0.9, (len(first), upright.mean())
     assert all(f.flags & wire.FRAME_MISSING for f in first), "no arms, no neck: flagged MISSING"
+
+
+def test_up_removes_its_temporary_folder_with_what_the_parts_kept_there(stack, tmp_path):  # noqa: F811
+    """Without --status-file, ``up`` keeps its status in a temporary folder, and with modelled
+    sensors the aggregator keeps its calibrations beside it: on Ctrl-C the folder goes, whole."""
+    child = stack.start("up", "up", "--router", stack.endpoint, "--subjects", "1", "--no-dashboard",
+                        "--mounting-deg", "90", "--heading-deg", "180", env={"TMPDIR": str(tmp_path)})
+    wait_until(lambda: list(tmp_path.glob("limbstream-up-*/calibrations.json")), 90,
+               "the aggregator to keep its calibrations in up's folder", on_fail=stack.logs)
+    child.signal(signal.SIGINT)
+    wait_until(lambda: not child.alive(), 60, "limbstream up to stop", on_fail=stack.logs)
+    out = "\n".join(child.tail(200))
+    assert child.returncode == 0 and "Traceback" not in out, out
+    assert out.splitlines()[-1] == "limbstream up: stopped", out
+    assert not list(tmp_path.glob("limbstream-up-*")), list(tmp_path.iterdir())

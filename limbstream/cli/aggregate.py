@@ -41,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-joint-angles", dest="joint_angles", action="store_false",
                         help="do not publish the subjects' joint angles (limbstream/<subject>/angles; "
                              "docs/protocol.md, 'Joint angles')")
+    flags.add_heading_correction(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
     flags.add_zenoh(parser)
 
@@ -62,7 +63,7 @@ def settings_from_args(args: argparse.Namespace) -> AggregatorSettings:
                               tick_s=args.tick, history=args.history, error_window_s=args.error_window,
                               frame_batch_s=args.frame_batch, calibrate_on_start=args.calibrate_on_start,
                               calibration_file=args.calibration_file, joint_angles=args.joint_angles,
-                              skeleton=skeleton)
+                              heading_correction=args.heading_correction == "joints", skeleton=skeleton)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:

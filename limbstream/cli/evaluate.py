@@ -19,7 +19,8 @@ from limbstream.wire import DEVICE_RATE_HZ as DEVICE_RATE
 from limbstream.calibration import CalibrationError
 from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
-                                   format_joint_errors, format_table, frontier, streams_of, write_json)
+                                   format_joint_errors, format_joint_kinds, format_table, frontier, streams_of,
+                                   write_json)
 from limbstream.evaluation.table import Progress
 from limbstream.kernel import fusion
 from limbstream.sources import Motion, MotionFileError, load
@@ -178,6 +179,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop-minutes", type=float, default=None, metavar="M",
                         help="motion files: play each clip looped for M minutes of motion, its seams joined smoothly "
                              "(with a sensor model the calibration script plays once, at the start)")
+    flags.add_heading_correction(parser, default="off")
+    parser.add_argument("--dump", type=Path, metavar="DIR",
+                        help="write each motion's compared orientations into DIR/<motion>.npz: t, estimated and "
+                             "truth (frames, 10, 4), segment_names (docs/evaluation.md, 'Dumps'); one row")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here")
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG")
 
@@ -201,6 +206,15 @@ def _check(args: argparse.Namespace, algorithms: list[str], bounds: list[float])
             return f"{what} {out}: folder {out.parent} does not exist"
     if args.joint_angles and args.thresholds is None:
         return "--joint-angles scores explicit rows: give them with --thresholds TH[,TH...]"
+    if args.heading_correction != "off" and args.thresholds is None:
+        return "--heading-correction corrects explicit rows: give them with --thresholds TH[,TH...]"
+    if args.dump is not None:
+        rows = len(algorithms) * len(bounds) * len(args.thresholds or THRESHOLDS)
+        if rows != 1:
+            return (f"--dump writes one row's orientations: give one algorithm, live bound and threshold "
+                    f"(--algorithms fastsw --thresholds TH), not {rows} rows")
+        if not args.dump.is_dir():
+            return f"--dump {args.dump}: not a folder"
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         return f"--plot {args.plot}: must end in .png"
     if args.loop_minutes is not None and not 0 < args.loop_minutes <= 600:
@@ -263,6 +277,9 @@ def _notes(args: argparse.Namespace, sensors: calibration.SensorModel, motions: 
         _note(f"the sensor model begins every motion with the calibration script (rest {calibration.REST_S:g} s, "
               f"mounting {calibration.MOUNTING_S:g} s, with the moves between): {n_samples:,} samples instead of "
               f"{plain:,}; ICR and AAD count the script's samples too")
+    elif args.heading_correction != "off":
+        _note(f"--heading-correction {args.heading_correction} has nothing to act on without a sensor model "
+              "(--mounting-deg, --heading-deg, --yaw-drift-dps): the reconstruction is not calibrated")
     elif args.calibration is not None:
         _note(f"--calibration {','.join(args.calibration) or 'none'} has nothing to act on without a sensor model "
               "(--mounting-deg, --heading-deg, --yaw-drift-dps): the body column stays empty")
@@ -318,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         rows = evaluate(streams, algorithms, thresholds, args.max_len, args.live_bound and bounds, args.predictor,
-                        poses, progress, args.joint_angles)
+                        poses, progress, args.joint_angles, args.heading_correction == "joints", args.dump)
     except CalibrationError as exc:
         return _fail(f"calibration refused: {exc}")
     finally:
@@ -348,15 +365,24 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
               + (f"; each clip looped for {args.loop_minutes:g} min" if args.loop_minutes else ""))
     elif sensors.on:
         print(f"sensors: mounting <= {sensors.mounting_deg:g} deg, heading +-{sensors.heading_deg:g} deg, yaw drift "
-              f"+-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}; calibration {','.join(poses) or 'none'}")
+              f"+-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}; calibration {','.join(poses) or 'none'}; "
+              f"heading correction {args.heading_correction}")
     explicit = args.thresholds is not None
     print("rows: each threshold given" if explicit else
           f"rows: the measures at ICR {', '.join(f'{c:.2f}' for c in ICR_TARGETS)}, interpolated over the paper's "
           "threshold sweep")
     print(format_table(rows, algorithms, None if explicit else ICR_TARGETS, live_bound_deg=bounds))
+    if explicit:
+        what = "calibrated reconstruction" if sensors.on else "reconstruction"
+        held = ", its headings held by the joints" if sensors.on and args.heading_correction == "joints" else ""
+        print(f"\njoint error per joint, of the {what}{held}, against the truth")
+        print(format_joint_kinds(rows))
     if args.joint_angles:
         print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")
         print(format_joint_errors(rows))
+    if args.dump is not None:
+        print(f"wrote {len(motions)} motion{'s' if len(motions) != 1 else ''}' orientations to {args.dump}/ "
+              "(<motion>.npz)")
     if args.json is not None:
         write_json(rows, args.json)
         print(f"wrote {len(rows)} rows to {args.json}")

@@ -117,6 +117,20 @@ def sensor_model_argv(model: SensorModel, args: argparse.Namespace | None = None
     return argv
 
 
+# ----------------------------------------------------------------------------- heading correction
+
+HEADING_CORRECTIONS = ("off", "joints")
+"""``--heading-correction``: none, or each calibrated device whose heading drifts held by the
+subject's joints (docs/evaluation.md, "Heading without resets")."""
+
+
+def add_heading_correction(parser: argparse.ArgumentParser, default: str = "joints") -> None:
+    """``--heading-correction off|joints`` (``aggregate``, ``up``, ``eval``)."""
+    parser.add_argument("--heading-correction", choices=HEADING_CORRECTIONS, default=default,
+                        help="joints: the heading of each calibrated device without a magnetometer (6D) is held by "
+                             "the subject's joints, no yaw reset needed; off: none (default %(default)s)")
+
+
 # ----------------------------------------------------------------------------- zenoh
 
 CONNECT_HINT = (f"set the router's endpoint with --connect or {zconfig.ROUTER_ENV}; `limbstream up` or "

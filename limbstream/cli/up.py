@@ -24,6 +24,7 @@ import importlib.util
 import json
 import os
 import secrets
+import shutil
 import signal
 import sys
 import tempfile
@@ -67,6 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the devices run their firmware under QEMU (emulate --firmware: one process per device)")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     flags.add_sensor_model(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
+    flags.add_heading_correction(parser)  # the aggregator's, for the calibrated devices
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
                         help="also start the SlimeVR gateway: trackers send to this UDP port (their default: 6969); "
@@ -118,7 +120,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     calibrations = ["--calibrate-on-start"] if sensors.on or raw else []
     if calibrations and args.status_file is not None:  # kept beside the status file: they outlive a restart
         calibrations += ["--calibration-file", str(Path(args.status_file).with_name("calibrations.json"))]
-    parts.append(("aggregator", ["aggregate", *calibrations] + connect))
+    parts.append(("aggregator", ["aggregate", *calibrations, "--heading-correction", args.heading_correction] + connect))
     return parts
 
 
@@ -293,10 +295,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # stopping: not interrupted again
         launcher.stop()
-        if temp is not None:
-            for f in (status_file, status_file.with_name(status_file.name + ".tmp")):
-                f.unlink(missing_ok=True)
-            temp.rmdir()
+        if temp is not None:  # the status file and what the parts kept beside it (calibrations)
+            shutil.rmtree(temp, ignore_errors=True)
         elif status_file.exists():
             write_status(status_file, "stopped", supervisor)
         print("limbstream up: stopped", flush=True)

@@ -44,6 +44,10 @@ EVAL_COLUMNS: tuple[Column, ...] = (
     Column("chain_heading", "chain head", "deg", "its part about the vertical", ".2f"),
     Column("chain_incl", "chain incl", "deg", "its inclination part", ".2f"),
     Column("chain_drift", "chain drift", "deg/min", "6D: its heading drift", "+.2f"),
+    Column("joint_aad", "joint", "deg", "mean joint error: the angle between the estimated and the true relative "
+           "orientation of each pair of adjacent segments (knees, elbows, hips, shoulders, neck), whichever way the "
+           "body faces; with a sensor model the calibrated reconstruction's (heading-corrected with "
+           "--heading-correction joints)"),
 )
 """The columns of every ``limbstream eval`` table, in order (a new measure: one more here)."""
 
@@ -61,6 +65,20 @@ JOINT_COLUMNS: tuple[Column, ...] = (
            "flag GIMBAL)", "d"),
 )
 """The columns of ``limbstream eval --joint-angles``: one line per (row, joint angle)."""
+
+
+JOINT_KIND_COLUMNS: tuple[Column, ...] = (
+    _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
+    Column("joint", "joint", "", "the joints of one kind, left and right together (the neck: hip to neck)", ""),
+    Column("mean", "mean", "deg", "mean joint error: the angle between the estimated and the true relative "
+           "orientation of the joint's two segments", ".2f"),
+    Column("p99", "p99", "deg", "its 99th percentile", ".2f"),
+    Column("first", "minute 1", "deg", "its mean over each motion's first minute", ".2f"),
+    Column("last", "last minute", "deg", "its mean over each motion's last minute (with --loop-minutes, how far a "
+           "drifting heading took it)", ".2f"),
+    Column("n", "samples", "", "joint samples scored (both segments present in the estimate and the truth)", "d"),
+)
+"""The columns of the per-joint table of ``limbstream eval``: one line per (row, joint kind)."""
 
 
 def format_table(
@@ -83,6 +101,14 @@ def format_joint_errors(rows: Sequence[dict]) -> str:
     no frame scored shows :data:`~limbstream.evaluation.table.DASH`."""
     lines = [r | {"angle": angle} | figures for r in rows for angle, figures in r.get("joints", {}).items()]
     return render(JOINT_COLUMNS, lines)
+
+
+def format_joint_kinds(rows: Sequence[dict]) -> str:
+    """The joint error of the rows that have it per joint kind (``joint_kinds``:
+    :func:`limbstream.evaluation.body.joint_figures`), one line per (row, kind), with the legend."""
+    lines = [r | {"joint": f"{name}s" if name != "neck" else name} | figures
+             for r in rows for name, figures in r.get("joint_kinds", {}).items()]
+    return render(JOINT_KIND_COLUMNS, lines)
 
 
 def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
@@ -114,7 +140,7 @@ def _finite(value):
 
 
 def write_json(rows: Sequence[dict], path: str | Path) -> None:
-    """All rows as a JSON list of objects with the :data:`KEYS` (and ``joints`` where scored);
-    NaN becomes null."""
-    clean = [_finite({k: r[k] for k in KEYS} | ({"joints": r["joints"]} if "joints" in r else {})) for r in rows]
+    """All rows as a JSON list of objects with the :data:`KEYS` (and ``joint_kinds``, ``joints``
+    where scored); NaN becomes null."""
+    clean = [_finite({k: r[k] for k in KEYS} | {k: r[k] for k in ("joint_kinds", "joints") if k in r}) for r in rows]
     Path(path).write_text(json.dumps(clean, indent=1) + "\n")

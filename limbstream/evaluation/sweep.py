@@ -5,12 +5,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
 from limbstream.sources import Motion
 from limbstream.evaluation.fusion import FIGURES, EarthTruth, pooled_error
+from limbstream.evaluation import body as bodies_of
 from limbstream.evaluation.live_model import accepted, segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
@@ -49,6 +51,7 @@ KEYS: tuple[str, ...] = (
     "live_max",
     "body_aad",
     *(f"{stage}_{figure}" for stage in ("fusion", "chain") for figure in FIGURES),
+    "joint_aad",
 )
 """Fields of one result row, in output order."""
 
@@ -253,17 +256,22 @@ def _mean_max(values: np.ndarray) -> tuple[float, float]:
 def evaluate_threshold(
     pool: _Pool, algorithm: str, threshold: float, max_len: int = MAX_LEN, live_bound_deg: float = 0.0,
     predictor: str = "rate", live: bool = False, poses: Sequence[str] = CALIBRATIONS[-1], angles: bool = False,
+    heading: bool = False, dump_to: Path | None = None,
 ) -> dict:
     """Segment every stream of ``pool`` at one threshold (and live bound) and measure the result
     (the live error only if ``live``: it costs about as much as the reconstruction; else the
     ``live_*`` fields are NaN). Streams with a truth (a sensor model) are calibrated from their
-    reconstruction with ``poses`` (one of :data:`CALIBRATIONS`) for ``body_aad``. With ``angles``
-    the row also holds ``joints``: per joint angle the error figures of the (calibrated)
-    reconstruction's angles against the truth's (:func:`limbstream.joints.pooled_errors`).
+    reconstruction with ``poses`` (one of :data:`CALIBRATIONS`) for ``body_aad``, and with
+    ``heading`` their bodies' headings are then held by the joints (:mod:`.body`). The row's
+    ``joint_aad`` and ``joint_kinds`` are the joint error (:func:`.body.joint_figures`). With
+    ``angles`` the row also holds ``joints``: per joint angle the error figures of the
+    (calibrated) reconstruction's angles against the truth's (:func:`limbstream.joints.pooled_errors`).
+    With ``dump_to`` (a folder) each body is written there (:func:`.body.dump`).
 
     Returns
     -------
-    dict with the fields of :data:`KEYS` (degrees for the angular measures), and ``joints``.
+    dict with the fields of :data:`KEYS` (degrees for the angular measures), ``joint_kinds`` and
+    ``joints``.
     """
     if live_bound_deg > 0 and algorithm != "fastsw":
         raise ValueError(f"the live rule is fastSW's, not {algorithm!r}'s")
@@ -282,19 +290,30 @@ def evaluate_threshold(
     rec = np.full((pool.n_samples, 4), np.nan)
     rec[mask] = recon
     calibrated = _calibrated(pool, rec, poses)
+    bodies = bodies_of.bodies(pool, rec, calibrated)
+    for b in bodies if heading else ():
+        bodies_of.correct_heading(b)
+        for k, j in b.streams.items():
+            if j in calibrated:
+                calibrated[j] = (b.estimated[:, k], *calibrated[j][1:])
     body = (np.concatenate([quat.angle_deg(c[ok], t[ok]) for c, t, ok in calibrated.values()])
             if calibrated else np.zeros(0))
+    row["joint_aad"], row["joint_kinds"] = bodies_of.joint_figures(bodies)
     if angles:
-        row["joints"] = joints.pooled_errors(_bodies(pool, rec, calibrated))
+        row["joints"] = joints.pooled_errors([(b.estimated, b.truth, b.rest_pose) for b in bodies])
+    if dump_to is not None:
+        for b in bodies:
+            bodies_of.dump(b, dump_to, "joints" if heading else "off")
     pdev = np.concatenate(pts.dev)
     point_aad, point_max = _mean_max(pdev[np.isfinite(pdev)])
     live_aad, live_max = _mean_max(errors)
     chain = {f"chain_{k}": v for k, v in pool.earth_errors(rec).items()}
-    return row | {
+    row |= {
         "aad": aad, "std": std, "p99": p99, "max": mx, "point_aad": point_aad, "point_max": point_max,
         "live_aad": live_aad, "live_p99": float(np.percentile(errors, 99)) if errors.size else math.nan,
         "live_max": live_max, "body_aad": float(body.mean()) if body.size else math.nan,
     } | fusion | chain
+    return {k: row[k] for k in KEYS} | {k: row[k] for k in ("joint_kinds", "joints") if k in row}
 
 
 def _calibrated(pool: _Pool, rec: np.ndarray,
@@ -317,24 +336,6 @@ def _calibrated(pool: _Pool, rec: np.ndarray,
         calibrated[ok] = cal.apply(motion[ok])
         out[j] = (calibrated, truth, ok)
     return out
-
-
-def _bodies(pool: _Pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]):
-    """(estimate, truth, rest_pose) per motion, each (m, 10, 4) in SEGMENTS order: the streams of
-    one motion (``<motion>/<segment>``) put together; without a truth (no sensor model) the
-    reconstruction is the estimate and the samples the truth."""
-    motions: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
-    for j, s in enumerate(pool.streams):
-        motion, _, segment = s.name.rpartition("/")
-        if segment not in wire.SEGMENTS:
-            continue
-        estimate, truth, _ = calibrated[j] if j in calibrated else (rec[pool.start[j]:pool.start[j + 1]], s.q, None)
-        if motion not in motions:
-            empty = np.full((len(truth), len(wire.SEGMENTS), 4), np.nan)
-            motions[motion] = (empty, empty.copy(), s.rest_pose)
-        motions[motion][0][:, wire.SEGMENTS.index(segment)] = estimate
-        motions[motion][1][:, wire.SEGMENTS.index(segment)] = truth
-    return motions.values()
 
 
 def _live_errors(pool: _Pool, known: np.ndarray, q_points: np.ndarray, t_points: np.ndarray,
@@ -364,6 +365,8 @@ def evaluate(
     poses: Sequence[str] = CALIBRATIONS[-1],
     progress: Callable[[int, int], None] | None = None,
     angles: bool = False,
+    heading: bool = False,
+    dump_to: Path | None = None,
 ) -> list[dict]:
     """Run the protocol: one row per (algorithm, live bound, threshold), in that order.
 
@@ -380,6 +383,9 @@ def evaluate(
     poses : the calibration before ``body_aad`` (streams with a truth), one of :data:`CALIBRATIONS`.
     progress : called with (rows done, rows in all) after each row.
     angles : also score the joint angles (each row's ``joints``, :func:`evaluate_threshold`).
+    heading : hold the calibrated bodies' headings by their joints (:func:`evaluate_threshold`).
+    dump_to : a folder to write each body into (one row only: its files would be overwritten by
+        the next row's).
 
     Returns
     -------
@@ -403,9 +409,12 @@ def evaluate(
     if tuple(poses) not in CALIBRATIONS:
         raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {tuple(poses)}")
     runs = [(a, bound, th) for a in algorithms for bound in (live_bound_deg or (0.0,)) for th in thresholds]
+    if dump_to is not None and len(runs) != 1:
+        raise ValueError(f"a dump holds one row's orientations, not {len(runs)} rows' (one algorithm, live bound "
+                         "and threshold)")
     rows = []
     for a, bound, th in runs:
-        rows.append(evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses, angles))
+        rows.append(evaluate_threshold(pool, a, th, max_len, bound, predictor, live, poses, angles, heading, dump_to))
         if progress is not None:
             progress(len(rows), len(runs))
     return rows

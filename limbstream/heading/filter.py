@@ -83,13 +83,14 @@ class JointFilters:
         self.x[..., 0] = np.where(mask, delta, self.x[..., 0])
         self.p = np.where(mask[..., None, None], p, self.p)
 
-    def forget(self, mask: np.ndarray, keep_mean: bool = True) -> None:
-        """Start the joints of ``mask`` (...) afresh: ``delta`` unknown (half a turn either way),
-        ``rate`` 0 at its initial uncertainty; the mean twist is kept unless ``keep_mean`` is
-        False."""
+    def forget(self, mask: np.ndarray, keep_mean: bool = True, delta_sd: float = np.pi) -> None:
+        """Start the joints of ``mask`` (...) afresh: ``delta`` 0 with standard deviation
+        ``delta_sd`` (rad; by default unknown, half a turn either way), ``rate`` 0 at its initial
+        uncertainty; the mean twist is kept unless ``keep_mean`` is False."""
         fresh = np.zeros(self.p.shape)
         diagonal = np.arange(3)
-        fresh[..., diagonal, diagonal] = np.stack(np.broadcast_arrays(np.pi, self.sd0[..., 1], self.sd0[..., 2]), -1) ** 2
+        fresh[..., diagonal, diagonal] = np.stack(np.broadcast_arrays(delta_sd, self.sd0[..., 1], self.sd0[..., 2]),
+                                                  -1) ** 2
         p = np.where(mask[..., None, None], fresh, self.p)
         x = np.where(mask[..., None], 0.0, self.x)
         if keep_mean:

@@ -108,6 +108,14 @@ FIELDS: tuple[StatsField, ...] = (
     _device("calibration_refused", str, "why the stream's calibration was refused (null: it was not)"),
     _device("heading_drift_dps", float, "the sensor heading's drift learned from the last two heading measurements "
             "(rest or yaw reset, then a yaw reset) and compensated (null: not calibrated)", "deg/s"),
+    _device("heading_offset_deg", float, "the turn about the vertical applied to the device's calibrated "
+            "orientation now, learnt from the subject's joints (aggregate --heading-correction; null: none, the "
+            "device is not corrected)", "deg", chart=True, metric="limbstream_device_heading_offset_degrees"),
+    _device("heading_rate_dpm", float, "the rate at which that correction changes (the heading drift it follows "
+            "relative to the other devices)", "deg/min", metric="limbstream_device_heading_rate_degrees_per_minute"),
+    _device("heading_confidence", float, "how well the correction is known (0..1: 1 within a degree or two, 1/2 at "
+            "5 deg, towards 0 as it is lost, e.g. a joint that never moves)",
+            metric="limbstream_device_heading_confidence"),
     _device("stream", int, "the device's current stream id (a new one after a restart)"),
     _device("restarts", int, "new streams seen after the first", metric="limbstream_device_restarts", counter=True),
     _device("final", bool, "the stream ended (its last point carried FINAL)"),
@@ -141,6 +149,9 @@ FIELDS: tuple[StatsField, ...] = (
     StatsField("frame_aad_deg", float, "subject", "mean angle between each exact frame's segments and the truth at "
                "the frame's reference instant (alignment-aware error; truth tap with reference times; the aggregator's error window, --error-window)",
                "deg"),
+    StatsField("joint_aad_deg", float, "subject", "mean angle between the estimated and the true relative orientation "
+               "of each pair of adjacent segments (the joints) in the exact frames compared for frame_aad_deg; which "
+               "way the subject faces does not change it (the aggregator's error window, --error-window)", "deg"),
     StatsField("frame_error_frames", int, "subject", "exact frames compared with the truth so far"),
     StatsField("facing_deg", float, "subject", "the turn about the vertical from the calibrated frames to the truth's "
                "world, fitted from the first frames compared after the subject's calibration (0: none fitted)", "deg"),

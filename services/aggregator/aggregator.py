@@ -69,6 +69,7 @@ class AggregatorSettings:
     calibrate_on_start : calibrate each new stream from its calibration script
         (services/aggregator/calibrating.py; devices with a sensor model).
     calibration_file : where calibrations are kept, so that they outlive this process ("": not kept).
+    heading_correction : hold each calibrated 6D device's heading by the joints (:mod:`.heading`).
     frame_batch_s : build exact frames at most this often, seconds (0 = every tick). Every build
         covers all subjects in a few vectorised calls, so batching only trades latency for CPU.
     joint_angles : publish every subject's joint angles, one message per live frame (per exact
@@ -90,6 +91,7 @@ class AggregatorSettings:
     calibrate_on_start: bool = False
     calibration_file: str = ""
     joint_angles: bool = True
+    heading_correction: bool = True
 
 
 @dataclass
@@ -122,7 +124,8 @@ class Aggregator:
         self.fusion = Fusion(settings.rate, settings.skeleton, capacity=max(1024, 2 * settings.history),
                              error_window=int(settings.error_window_s * settings.rate),
                              calibrate_on_start=settings.calibrate_on_start,
-                             calibration_file=settings.calibration_file)
+                             calibration_file=settings.calibration_file,
+                             heading_correction=settings.heading_correction)
         self.subjects: dict[str, Subject] = self.fusion.subjects
         self.stats_seq: collections.Counter = collections.Counter()  # stats messages sent, per subject
         self.loop = AggregatorCounters()
@@ -416,8 +419,8 @@ class Aggregator:
         scores = self.fusion.scoring.subject_figures([sub.index for sub in subjects])
         return [{"frames": int(self.fusion.frames.made[sub.index]), "skipped_frames": int(self.fusion.frames.skipped[sub.index]),
                  "watermark_us": None if view.watermark[sub.index] == NO_TIME else int(view.watermark[sub.index]),
-                 "frame_aad_deg": aad, "frame_error_frames": compared, "facing_deg": facing}
-                for sub, (aad, compared, facing) in zip(subjects, scores)]
+                 "frame_aad_deg": aad, "joint_aad_deg": joints, "frame_error_frames": compared, "facing_deg": facing}
+                for sub, (aad, compared, facing, joints) in zip(subjects, scores)]
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop

@@ -72,6 +72,10 @@ class FrameBatch:
     live_missing: np.ndarray
 
 
+Correction = Callable[[np.ndarray, np.ndarray, np.ndarray], None]
+"""A per-device correction of reconstructed segments: (device slots (Q,), device times (Q,) us,
+orientations (Q, 4) float64 to correct in place)."""
+
 FrameStage = Callable[[FrameBatch], Iterable[tuple[str, str, bytes]]]
 """Work on a tick's frames, all subjects at once, before they are encoded (the aggregator's
 ``frame_stages``): returns messages to publish as (key, its ``zconfig.QOS`` kind, payload)."""
@@ -198,11 +202,12 @@ class FrameBuilder:
         return index, t_us, seq, flags, slots, at, has_points, lacking | ~has_points
 
     def build(self, store: PointStore, table: DeviceTable, exact: tuple[np.ndarray, ...],
-              live: tuple[np.ndarray, ...] | None) -> FrameBatch:
+              live: tuple[np.ndarray, ...] | None, correct: Correction | None = None) -> FrameBatch:
         """Orientations and joints of the planned frames, one reconstruction and one forward
         kinematics for all. ``exact``: (subject, time, seq, flags, segments lacking) of
         :meth:`plan_exact` and :meth:`exact_flags`; ``live``: :meth:`plan_live`, or None for no
-        live frames."""
+        live frames; ``correct``: a correction of the reconstructed segments before the forward
+        kinematics."""
         e_owner, e_t, e_seq, e_flags, e_missing = exact
         shape = (len(e_t), len(SEGMENTS))
         slots, times, live_view = [table.seg_slots[e_owner]], [np.broadcast_to(e_t[:, None], shape)], [np.zeros(shape, bool)]
@@ -215,7 +220,12 @@ class FrameBuilder:
         all_slots = np.concatenate(slots)
         valid = all_slots >= 0
         q = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (*all_slots.shape, 1))
-        q[valid] = store.reconstruct(all_slots[valid], np.concatenate(times)[valid], np.concatenate(live_view)[valid])
+        at = np.concatenate(times)[valid]
+        q[valid] = store.reconstruct(all_slots[valid], at, np.concatenate(live_view)[valid])
+        if correct is not None:
+            turned = q[valid]
+            correct(all_slots[valid], at, turned)
+            q[valid] = turned
         joints = self.skeleton.positions(q, self.rest_flag[np.concatenate([e_owner, l_owner])] != 0)
         n = len(e_t)
         exact_frames = wire.PoseFrames(e_seq, e_t, wire.KIND_EXACT, e_flags, q[:n], joints[:n])

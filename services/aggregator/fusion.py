@@ -2,13 +2,15 @@
 computed for all subjects at once.
 
 :class:`Fusion` keeps every device's track (:mod:`.track`), its points (:mod:`.store`) and
-columns (:mod:`.devices`), and holds three parts with their own state: the frame builder
-(:mod:`.frames`), the scoring against the truth tap (:mod:`.scoring`) and the calibrations
-(:mod:`.calibrating`). Points and truth batches come a drain's worth at a time: those that
-simply follow their device's stream are taken in for all devices at once, the others checked one
-by one in arrival order; then they are corrected (calibration) and stored in one go. A point's
-correction before fusion (a calibration today; any other per device would join it) is
-:meth:`_corrected`.
+columns (:mod:`.devices`), and holds four parts with their own state: the frame builder
+(:mod:`.frames`), the scoring against the truth tap (:mod:`.scoring`), the calibrations
+(:mod:`.calibrating`) and the heading corrections (:mod:`.heading`). Points and truth batches
+come a drain's worth at a time: those that simply follow their device's stream are taken in for
+all devices at once, the others checked one by one in arrival order; then they are corrected
+(calibration) and stored in one go. A point's correction before it is stored (its calibration)
+is :meth:`_corrected`; a correction that keeps changing as it is learnt (the heading held by the
+joints) is applied where the points are read for frames and truth errors instead, so that what
+is stored stays what it learns from (:mod:`.heading`).
 """
 from __future__ import annotations
 
@@ -19,8 +21,9 @@ import numpy as np
 from limbstream import wire
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.calibrating import CalibrationRequest, Calibrating
-from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
+from limbstream.services.aggregator.devices import NO_TIME, SEGMENT_INDEX, DeviceTable
 from limbstream.services.aggregator.frames import OVERDUE_GRACE_S, DeviceView, FrameBatch, FrameBuilder
+from limbstream.services.aggregator.heading import HeadingStage
 from limbstream.services.aggregator.scoring import Scoring
 from limbstream.services.aggregator.store import PointStore
 from limbstream.services.aggregator.track import NUMBERS as TRACK_NUMBERS
@@ -49,10 +52,12 @@ class Fusion:
     error_window : values in each device's error and latency windows.
     max_backlog_s : frames further behind than this are skipped (counted) instead of built.
     calibrate_on_start, calibration_file : :class:`~.calibrating.Calibrating`'s.
+    heading_correction : correct the heading of each calibrated device by the joints (:mod:`.heading`).
     """
 
     def __init__(self, rate: float, skeleton: Skeleton, capacity: int = 1024, error_window: int = 3000,
-                 max_backlog_s: float = 60.0, calibrate_on_start: bool = False, calibration_file: str = ""):
+                 max_backlog_s: float = 60.0, calibrate_on_start: bool = False, calibration_file: str = "",
+                 heading_correction: bool = True):
         self.period_us = 1e6 / rate
         self.skeleton = skeleton
         self.store = PointStore(capacity)
@@ -60,6 +65,8 @@ class Fusion:
         self.frames = FrameBuilder(self.period_us, skeleton, int(max_backlog_s * rate))
         self.scoring = Scoring(self.store, error_window)
         self.calibrating = Calibrating(self.store, calibrate_on_start, calibration_file)
+        self.heading = HeadingStage(heading_correction, rate)
+        self.scoring.turns = self.heading.turns
         self.subjects: dict[str, Subject] = {}
         self.tracks: list[DeviceTrack] = []  # by slot
         self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period
@@ -76,12 +83,14 @@ class Fusion:
             sub = self.subjects[subject] = Subject(subject, self.table.add_subject())
             self.frames.add_subject(wire.rest_pose_flag(self.skeleton.rest_pose))
             self.scoring.add_subject(len(self.subjects))
+            self.heading.add_subject()
         track = sub.tracks.get(segment)
         if track is None:
             slot = self.store.add_slot()
             if self.table.add_device(sub.index, segment, self._horizon_us(int(wire.MAX_LEN.default))) != slot:
                 raise RuntimeError("device table and point store out of step")
             self.scoring.add_device(slot)
+            self.heading.add_device()
             track = sub.tracks[segment] = DeviceTrack(subject, segment, slot, self.table)
             self.tracks.append(track)
             self._view = None
@@ -118,8 +127,9 @@ class Fusion:
         slot = track.slot
         self.store.reset(slot)
         self.scoring.reset(slot)
-        if self.calibrating.new_stream(track):
-            self._calibrations_changed([track])
+        self.heading.reset(self.subjects[track.subject].index, track.segment, slot, False, False)
+        if self.calibrating.new_stream(track):  # a calibration of this very stream, kept from before
+            self._calibrations_changed([track], made_now=False)
         self._unsettled.add(track)
         self._gappy.discard(track)
         for batch in track.take_held_raw():  # truth that came before the stream's first point
@@ -357,7 +367,11 @@ class Fusion:
         owner, t_us, seq = self.frames.plan_exact(view.watermark)
         flags, lacking = self.frames.exact_flags(owner, t_us, view, self.table, self.store, self._gappy)
         planned = self.frames.plan_live(view, self.table, self.store, self.clock if now is None else now) if live else None
-        batch = self.frames.build(self.store, self.table, (owner, t_us, seq, flags, lacking), planned)
+        heading = self.heading if self.heading.active else None
+        batch = self.frames.build(self.store, self.table, (owner, t_us, seq, flags, lacking), planned,
+                                  None if heading is None else heading.correct)
+        if heading is not None:
+            heading.take_frames(owner, t_us, batch.exact.q, self.table.seg_slots, view.stale, self.frames.rest_flag)
         self.scoring.score_later(owner, t_us, batch.exact.q, self.table.seg_slots[owner])
         self.scoring.evaluate_frames(self.table.seg_slots)
         if planned is not None and wall is not None:
@@ -388,11 +402,15 @@ class Fusion:
 
     # ------------------------------------------------------------------ calibration
 
-    def _calibrations_changed(self, tracks: list[DeviceTrack]) -> None:
-        """Devices' calibrations changed: a subject whose devices are all calibrated has its
-        facing fitted again (:mod:`.scoring`); the view changes with the stored points."""
+    def _calibrations_changed(self, tracks: list[DeviceTrack], made_now: bool = True) -> None:
+        """Devices' calibrations changed (``made_now``: just made, not kept from before): their
+        heading corrections start again (:mod:`.heading`); a subject whose devices are all
+        calibrated has its facing fitted again (:mod:`.scoring`); the view changes with the
+        stored points."""
         for track in tracks:
             sub = self.subjects[track.subject]
+            self.heading.reset(sub.index, track.segment, track.slot, track.slot in self.calibrating.calibrations,
+                               made_now)
             if all(t.slot in self.calibrating.calibrations for t in sub.tracks.values()):
                 self.scoring.refit_facing(sub.index)
         self._view = None
@@ -426,6 +444,8 @@ class Fusion:
         texts = {name: [t[j] for _, t in own] for j, name in enumerate(TRACK_TEXTS)}
         for name, values in self.calibrating.figures(slots.tolist()).items():
             (texts if name in wire.STATS_TEXTS else columns)[name] = values
+        seg_index = np.array([SEGMENT_INDEX.get(t.segment, -1) for t in flat], np.int64)
+        columns |= self.heading.figures(slots, self.table.owner[slots], seg_index)
         numbers = np.column_stack([np.asarray(columns[name], np.float64) for name in wire.STATS_NUMBERS])
         return [len(mine) for mine in tracks], numbers.reshape(len(flat), len(wire.STATS_NUMBERS)), texts
 

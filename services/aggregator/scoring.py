@@ -9,6 +9,10 @@ kept apart from frame building (:mod:`.frames`), which never reads the truth.
   with the truth at reference instant ``t`` (SLERP between the truth samples around it) once
   the truth of every device has passed ``t``: the subject's ``frame_aad_deg``. Device clocks
   that disagree show up here and nowhere else.
+- Joints: the same frames, joint by joint: the angle between the estimated and the true relative
+  orientation of each pair of adjacent segments compared (:mod:`limbstream.heading.joints`), the
+  subject's ``joint_aad_deg``. It does not depend on which way the subject faces (nor on a
+  drift that all its sensors share), which ``frame_aad_deg`` does.
 - Facing: calibrated sensors know the body but not which way it faces in the truth's world
   (without a magnetometer, nothing can). When a subject's devices are all calibrated (again),
   one rotation about the vertical per subject is fitted from the first FACING_FIT_FRAMES frames
@@ -23,7 +27,10 @@ import math
 
 import numpy as np
 
+from collections.abc import Callable
+
 from limbstream import calibration, quat, wire
+from limbstream.heading.joints import Layout, joint_errors_deg
 from limbstream.wire import SEGMENTS
 from limbstream.services.aggregator.rings import ErrorRings, SubjectRings
 from limbstream.services.aggregator.store import PointStore, TruthQueue
@@ -34,6 +41,9 @@ truth of its devices to pass it; then it is compared with the truth there is."""
 
 FACING_FIT_FRAMES = 50
 """Frames (a second at 50 Hz) a subject's facing is fitted from after its calibration."""
+
+JOINTS = Layout.of(SEGMENTS)
+"""The joints among the body's segments (their relative orientations: the rest pose does not matter)."""
 
 
 class Scoring:
@@ -58,6 +68,8 @@ class Scoring:
         self.latency = SubjectRings(error_window)
         self.reference = PointStore(2048)          # truth samples by reference time, per device slot
         self.frame_errors = ErrorRings(error_window)
+        self.joint_errors = ErrorRings(error_window)
+        self.turns: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
         self.facing = np.zeros((0, 4))
         self._facing_fit: dict[int, list[float]] = {}  # subject index -> [sum sin, sum cos, frames]
         # exact frames waiting for the truth: (subject index,), (time us,), (frame, 10, 4) float32
@@ -66,6 +78,7 @@ class Scoring:
     def add_subject(self, subjects: int) -> None:
         """Room for ``subjects`` subjects."""
         self.frame_errors.ensure(subjects)
+        self.joint_errors.ensure(subjects)
         self.latency.add_subject(subjects)
         grown = np.zeros((subjects, 4))
         grown[:, 0] = 1.0
@@ -139,6 +152,8 @@ class Scoring:
         before = t_us < self.store.t[slots, 0]
         slots, t_us, truth, early = slots[~before], t_us[~before], truth[~before], slots[before]
         if len(slots):
+            if self.turns is not None:  # the reconstruction turned by c is compared: truth turned by -c
+                truth = quat.multiply(calibration.yaw(-self.turns(slots, t_us)), truth.astype(np.float64))
             exact, predicted = self.store.errors(slots, t_us, truth)
             self.exact.add(slots, exact)
             self.live.add(slots, predicted)
@@ -177,9 +192,26 @@ class Scoring:
         err = quat.angle_deg(quat.multiply(self.facing[owner[f]], frames), truth)
         per_frame = np.bincount(f, err, minlength=len(owner))
         self.frame_errors.add(owner[done], per_frame[done] / count[done])
+        self._score_joints(owner, done, f, s, frames, truth)
         keep = ~ready
         self._pending = (owner[keep], t_us[keep], q[keep])
         return int(done.sum())
+
+    def _score_joints(self, owner: np.ndarray, done: np.ndarray, f: np.ndarray, s: np.ndarray, frames: np.ndarray,
+                      truth: np.ndarray) -> None:
+        """Add the mean joint error of each frame ``done`` (P,) that has a joint with both segments
+        compared (frame ``f`` (k,), segment ``s`` (k,): ``frames``, ``truth`` (k, 4)) to its
+        subject's window."""
+        estimated = np.zeros((len(owner), len(SEGMENTS), 4))
+        estimated[..., 0] = 1.0
+        true = estimated.copy()
+        used = np.zeros((len(owner), len(SEGMENTS)), bool)
+        estimated[f, s], true[f, s], used[f, s] = frames, truth, True
+        both = used[:, JOINTS.parent] & used[:, JOINTS.child] & done[:, None]
+        scored = both.any(axis=1)
+        if scored.any():
+            err = np.where(both[scored], joint_errors_deg(estimated[scored], true[scored], JOINTS), 0.0)
+            self.joint_errors.add(owner[scored], err.sum(axis=1) / both[scored].sum(axis=1))
 
     def _fitting(self, owner: np.ndarray, f: np.ndarray, frames: np.ndarray, truth: np.ndarray,
                  done: np.ndarray) -> np.ndarray:
@@ -202,13 +234,14 @@ class Scoring:
                 del self._facing_fit[int(sub)]
         return fitting
 
-    def subject_figures(self, subjects: list[int]) -> list[tuple[float, int, float]]:
+    def subject_figures(self, subjects: list[int]) -> list[tuple[float, int, float, float]]:
         """Per subject: (mean alignment-aware frame error over the window, deg; frames compared so
-        far; fitted facing, deg)."""
+        far; fitted facing, deg; mean joint error over the window, deg)."""
         index = np.array(subjects, np.int64)
         mean, _ = self.frame_errors.summary(index)
+        joints, _ = self.joint_errors.summary(index)
         facing = np.degrees(calibration.yaw_of(self.facing[index]))
-        return list(zip(mean.tolist(), self.frame_errors.count[index].tolist(), facing.tolist()))
+        return list(zip(mean.tolist(), self.frame_errors.count[index].tolist(), facing.tolist(), joints.tolist()))
 
     def device_figures(self, slots: np.ndarray, owner: np.ndarray) -> dict[str, np.ndarray]:
         """The error and latency figures of devices ``slots`` (k,) of subjects ``owner`` (k,),

@@ -1,0 +1,137 @@
+"""Whole bodies of an evaluation: a motion's segment streams put back together, frame by frame,
+for what only a body has: heading correction by its joints, the joint error, and the dump that
+lets anyone recompute every figure.
+
+- :func:`bodies`: per motion, the estimated orientations (the calibrated reconstruction with a
+  sensor model, else the reconstruction) and the true ones (the segments' with a sensor model,
+  else the samples), (frames, 10, 4) in SEGMENTS order, NaN where a segment has no data.
+- :func:`correct_heading`: a calibrated body's headings held by its joints, as the aggregator
+  holds them (:class:`limbstream.heading.HeadingCorrection`, run over the motion from the
+  calibration on).
+- :func:`joint_figures`: the joint error (the angle between the estimated and the true relative
+  orientation of each pair of adjacent segments, :func:`limbstream.heading.joints.joint_errors_deg`)
+  pooled over bodies, overall and per joint kind, with its first and last minute.
+- :func:`dump`: one body as an npz file (docs/evaluation.md, "Dumps").
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from limbstream import wire
+from limbstream.heading import HeadingCorrection
+from limbstream.heading.joints import Layout, joint_errors_deg, kind
+
+KINDS: tuple[str, ...] = ("knee", "elbow", "hip", "shoulder", "neck")
+"""The joint kinds of the per-joint table, in its order (each pools its left and right)."""
+
+LAYOUT = Layout.of(wire.SEGMENTS)
+"""The joints among the body's segments (relative orientations: the rest pose does not matter)."""
+
+
+@dataclass
+class Body:
+    """One motion's bodies, frame by frame.
+
+    Attributes
+    ----------
+    name : the motion's name.
+    t : (m,) s, the frames' times (the motion after the calibration script with a sensor model).
+    estimated, truth : (m, 10, 4) SEGMENTS order, NaN rows where a segment has no data.
+    rest_pose : what identity means for the motion's orientations.
+    streams : {segment index: the pool's stream index} of the body's segments.
+    calibrated : whether ``estimated`` is a calibrated reconstruction (a sensor model).
+    """
+
+    name: str
+    t: np.ndarray
+    estimated: np.ndarray
+    truth: np.ndarray
+    rest_pose: str
+    streams: dict[int, int]
+    calibrated: bool
+
+
+def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[Body]:
+    """The bodies of a pool of streams (``limbstream.evaluation.sweep``'s): ``rec`` (n, 4) the
+    pooled reconstruction; ``calibrated``: per stream with a truth, (calibrated motion, truth,
+    where both are finite), each over the motion after the calibration script. Streams named
+    ``<motion>/<segment>`` of a body segment are put together by motion."""
+    out: dict[str, Body] = {}
+    for j, s in enumerate(pool.streams):
+        motion, _, segment = s.name.rpartition("/")
+        if segment not in wire.SEGMENTS:
+            continue
+        if j in calibrated:
+            estimate, truth, _ = calibrated[j]
+            t = s.t[s.motion_from:]
+        else:
+            estimate, truth, t = rec[pool.start[j]:pool.start[j + 1]], s.q, s.t
+        if motion not in out:
+            empty = np.full((len(truth), len(wire.SEGMENTS), 4), np.nan)
+            out[motion] = Body(motion, np.asarray(t, np.float64), empty, empty.copy(), s.rest_pose, {}, j in calibrated)
+        body = out[motion]
+        k = wire.SEGMENTS.index(segment)
+        body.estimated[:, k], body.truth[:, k] = estimate, truth
+        body.streams[k] = j
+    return list(out.values())
+
+
+def correct_heading(body: Body) -> None:
+    """Hold a calibrated body's headings by its joints, in place (its estimated orientations
+    turned about the vertical, each segment by its own correction, from the first frame on)."""
+    if not body.calibrated or len(body.t) < 2:
+        return
+    have = sorted(body.streams)
+    layout = Layout.of([wire.SEGMENTS[k] for k in have], body.rest_pose)
+    fs = 1.0 / float(np.median(np.diff(body.t)))
+    body.estimated[:, have] = HeadingCorrection.batch(body.estimated[:, have], layout, fs)
+
+
+def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, dict[str, dict]]:
+    """The joint error pooled over ``bodies_``: its mean over every joint and frame (deg; NaN if
+    none), and per joint kind (:data:`KINDS`, those with frames) ``mean``, ``p99``, ``first``
+    (the mean over each body's first minute), ``last`` (over its last minute: the frames within
+    ``minute_s`` s of its end), ``n`` (joint samples scored). A joint counts where both its
+    segments are finite in the estimate and the truth."""
+    errors: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
+    first: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
+    last: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
+    for body in bodies_:
+        err = joint_errors_deg(np.nan_to_num(body.estimated), np.nan_to_num(body.truth), LAYOUT)  # (m, J)
+        ok = (np.isfinite(body.estimated).all(axis=-1) & np.isfinite(body.truth).all(axis=-1))
+        both = ok[:, LAYOUT.parent] & ok[:, LAYOUT.child]
+        since = body.t - body.t[0]
+        for j, name in enumerate(LAYOUT.joints):
+            mine = both[:, j]
+            errors[kind(name)].append(err[mine, j])
+            first[kind(name)].append(err[mine & (since < minute_s), j])
+            last[kind(name)].append(err[mine & (since >= since[-1] - minute_s), j])
+    pooled = {k: np.concatenate(v) if v else np.zeros(0) for k, v in errors.items()}
+    everything = np.concatenate(list(pooled.values()))
+    figures = {}
+    for k, e in pooled.items():
+        if e.size:
+            f, la = np.concatenate(first[k]), np.concatenate(last[k])
+            figures[k] = {"mean": float(e.mean()), "p99": float(np.percentile(e, 99)),
+                          "first": float(f.mean()) if f.size else math.nan,
+                          "last": float(la.mean()) if la.size else math.nan, "n": int(e.size)}
+    return (float(everything.mean()) if everything.size else math.nan), figures
+
+
+def dump(body: Body, folder: Path, heading: str) -> Path:
+    """Write ``body`` to ``folder/<motion>.npz`` (the name's characters other than letters,
+    digits, ``._-`` as ``_``): ``t`` (m,) s, ``estimated`` and ``truth`` (m, 10, 4) float64
+    scalar-first (NaN: no data), ``segment_names`` (10,), ``rest_pose``, ``heading_correction``
+    (``off`` or ``joints``), ``joints`` (J,) the joints' names and ``joint_parent``,
+    ``joint_child`` (J,) their segments' indices. Returns the path."""
+    path = Path(folder) / (re.sub(r"[^A-Za-z0-9._-]", "_", body.name) + ".npz")
+    np.savez(path, t=body.t, estimated=body.estimated, truth=body.truth, segment_names=np.array(wire.SEGMENTS),
+             rest_pose=np.array(body.rest_pose), heading_correction=np.array(heading),
+             joints=np.array(LAYOUT.joints), joint_parent=LAYOUT.parent, joint_child=LAYOUT.child)
+    return path
+

@@ -1,0 +1,216 @@
+"""Heading correction in the aggregator (services/aggregator/heading.py), fed by hand tick by
+tick as a drain feeds it: calibrated devices whose headings drift get their heading held by the
+joints before fusion; the subject's joint error (``joint_aad_deg``) shows it, the devices' stats
+show each correction, its rate and confidence; a device that restarts rejoins with its correction
+learnt afresh, never the stale one; ``off`` leaves the frames as calibrated."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from limbstream import calibration, kernel, quat, wire
+from limbstream.heading import HeadingCorrection
+from limbstream.heading.joints import Layout, joint_errors_deg
+from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+from limbstream.sources.generator import generate
+from limbstream.wire import SEGMENTS
+
+FS = 50.0
+T0 = 1_790_000_000_000_000
+STEP_US = 20_000
+SECONDS = 60.0
+RESTART_S = 45.0
+RESTARTED = "r_shank"
+DRIFT_DPS = 0.1
+
+
+def stream(reading: np.ndarray, first: int, stream_id: int) -> list[tuple[int, bytes]]:
+    """(arrival tick, payload) of the live-mode segment points of one device's readings (m, 4),
+    whose samples start at tick ``first``."""
+    t = np.arange(len(reading)) / FS
+    seg = kernel.segment(t, reading, 9e-4, 25, live_bound_deg=5.0)
+    out = []
+    for n, k in enumerate(seg.index.tolist()):
+        omega = tuple(float(v) for v in quat.through_rate(reading[k - 1], reading[k], -1 / FS)) if k else None
+        point = wire.SegmentPoint(stream_id, n, k, T0 + (first + k) * STEP_US, tuple(map(float, reading[k])), 0, omega)
+        out.append((first + k + 1, wire.encode_point(point)))
+    return out
+
+
+def truth(q: np.ndarray, first: int, stream_id: int) -> list[tuple[int, bytes]]:
+    """(arrival tick, payload) of truth batches of 25 samples of ``q`` (m, 4) from tick ``first``,
+    with reference times."""
+    out = []
+    for b in range(0, len(q) - 24, 25):
+        t_us = T0 + (first + np.arange(b, b + 25, dtype=np.int64)) * STEP_US
+        out.append((first + b + 26, wire.encode_raw(wire.RawBatch(stream_id, b, t_us, q[b:b + 25].astype(np.float32),
+                                                                   t_us))))
+    return out
+
+
+def session(heading: bool, segments: tuple[str, ...] = SEGMENTS, seconds: float = SECONDS,
+            restart: float | None = RESTART_S):
+    """One subject, its sensors strapped at up to 90 deg with headings anywhere and drifting
+    (up to DRIFT_DPS), the calibration script first; its right shank restarts at ``restart`` s
+    (None: never) with a new stream that begins with the script again (its heading elsewhere),
+    with heading correction ``heading`` or none; only ``segments`` have a device. Returns the
+    aggregator, its exact frames as (t_us, q (10, 4)), the subject's stats each second, and the
+    truth (m, 10, 4) by tick."""
+    motion = generate(seconds, FS, seed=21)
+    q, _, _ = calibration.with_script(motion.q, FS)
+    m = len(q)
+    sensors = calibration.SensorModel(90, 180, DRIFT_DPS, seed=5).draw(len(SEGMENTS))
+    t = np.arange(m) / FS
+    k = round((restart or seconds) * FS)
+    events: dict[int, list[tuple[str, str, bytes]]] = {}
+    for j, seg in enumerate(SEGMENTS):
+        if seg not in segments:
+            continue
+        reading = sensors.report(j, t, q[:, j])
+        parts = [(0, reading, q[:, j], 1)]
+        if seg == RESTARTED and restart is not None:  # the restart: the script again, a new filter heading
+            again, _, _ = calibration.with_script(motion.q[k:, None, j], FS, (seg,))
+            later = calibration.SensorModel(90, 180, DRIFT_DPS, seed=9).draw(len(SEGMENTS))
+            parts = [(0, reading[:k], q[:k, j], 1),
+                     (k, later.report(j, np.arange(len(again)) / FS, again[:, 0])[:m - k], again[:m - k, 0], 2)]
+        for first, r, true, sid in parts:
+            for tick, payload in stream(r, first, sid):
+                events.setdefault(tick, []).append(("seg", wire.seg_key("s01", seg), payload))
+            for tick, payload in truth(true, first, sid):
+                events.setdefault(tick, []).append(("raw", wire.raw_key("s01", seg), payload))
+    agg = Aggregator(None, AggregatorSettings(calibrate_on_start=True, heading_correction=heading))
+    exact: list[tuple[int, np.ndarray]] = []
+    agg._publish = lambda subject, payload: exact.extend(
+        [(f.t_us, f.q)] if (f := wire.decode_pose(payload)).kind == wire.KIND_EXACT else [])
+    for seg in segments:
+        agg.on_alive(wire.alive_key("s01", seg), True)
+    stats = []
+    for tick in range(m + 30):
+        now = tick / FS
+        mine = events.get(tick, [])
+        for kind in ("seg", "raw"):
+            keys = [key for what, key, _ in mine if what == kind]
+            if keys:
+                (agg.take_points if kind == "seg" else agg.take_raw)(
+                    keys, [p for what, _, p in mine if what == kind], now)
+        agg.advance(True, tick % 25 == 0, now)
+        if tick % 50 == 49:
+            stats.append(agg.subject_stats("s01", now))
+    return agg, exact, stats, q
+
+
+@pytest.fixture(scope="module")
+def runs():
+    """The session without and with heading correction (``off``, ``joints``); what the estimator
+    took in the ``joints`` one (its ``take`` spied on): ``seen``, (q (R, 10, 4), present (R, 10))
+    per call."""
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    real = HeadingCorrection.take
+
+    def take(self, rows, q, present=None):
+        seen.append((q.copy(), present.copy()))
+        return real(self, rows, q, present)
+
+    out = {"off": session(False)}
+    HeadingCorrection.take = take  # type: ignore[method-assign]
+    try:
+        out["joints"] = session(True)
+    finally:
+        HeadingCorrection.take = real  # type: ignore[method-assign]
+    return out | {"seen": seen}
+
+
+def frames_of(exact: list[tuple[int, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """(ticks (F,), orientations (F, 10, 4) float64) of exact frames."""
+    return np.array([(t - T0) // STEP_US for t, _ in exact]), np.array([f for _, f in exact], np.float64)
+
+
+def test_the_frames_are_the_calibrated_ones_turned_by_what_the_joints_hold(runs):
+    """Each exact frame's segment is its calibrated reconstruction turned about the vertical; the
+    turns of a frame average 0 over its corrected devices; the estimator learnt from every frame
+    since the devices were calibrated; the joints are nearer the truth for it."""
+    _, off_frames, off_stats, q = runs["off"]
+    agg, on_frames, on_stats, _ = runs["joints"]
+    ticks, off = frames_of(off_frames)
+    ticks_on, on = frames_of(on_frames)
+    assert np.array_equal(ticks, ticks_on)
+    turn = quat.multiply(on, quat.conjugate(off))  # world-frame turn of each segment
+    assert np.abs(turn[..., [1, 3]]).max() < 1e-5  # about the vertical only
+    angle = 2 * np.degrees(np.arctan2(turn[..., 2], turn[..., 0]))
+    taken = int(agg.fusion.heading.taken[0])
+    learnt = slice(len(ticks) - taken, round((RESTART_S - 1) * FS))  # every frame since calibration, all devices
+    assert taken > 0.8 * len(ticks) and np.abs(angle[:learnt.start]).max() < 1e-3
+    assert np.abs(angle[learnt].mean(axis=1)).max() < 1e-3 and np.abs(angle[learnt]).max() > 1.0
+    layout = Layout.of(SEGMENTS)
+    late = (ticks > (SECONDS - 10) * FS) & (ticks < len(q))
+    no_knee = [j for j, name in enumerate(layout.joints) if name != "knee_r"]  # (the restarted shank's)
+    before = joint_errors_deg(off[late], q[ticks[late]], layout)[:, no_knee].mean()
+    after = joint_errors_deg(on[late], q[ticks[late]], layout)[:, no_knee].mean()
+    assert after < 0.85 * before, (before, after)
+    assert on_stats[-1]["joint_aad_deg"] < off_stats[-1]["joint_aad_deg"], (on_stats[-1], off_stats[-1])
+
+
+def test_the_estimator_learns_from_the_calibrated_frames_exactly(runs):
+    """What the estimator takes is each exact frame's calibrated reconstruction (the turn put on
+    after SLERP taken off again), where the device is corrected and present."""
+    _, off_frames, _, _ = runs["off"]
+    ticks, off = frames_of(off_frames)
+    q = np.concatenate([s[0] for s in runs["seen"]])  # (one subject: its frames in order)
+    present = np.concatenate([s[1] for s in runs["seen"]])
+    assert len(q) == runs["joints"][0].fusion.heading.taken[0]
+    mine = off[len(off) - len(q):]  # the frames since calibration
+    before = ticks[len(off) - len(q):] < (RESTART_S - 1) * FS
+    assert before.sum() > 1000 and present[before].all()
+    assert quat.angle_deg(q[present], mine[present]).max() < 1e-4
+    shank = SEGMENTS.index(RESTARTED)  # absent from its restart until calibrated again
+    assert not present[~before][100:200, shank].any() and present[-1].all()
+
+
+def test_the_devices_stats_say_each_correction(runs):
+    _, _, off_stats, _ = runs["off"]
+    _, _, stats, _ = runs["joints"]
+    devices = {d["segment"]: d for d in stats[round(RESTART_S) - 2]["devices"]}
+    assert all(d["calibrated"] for d in devices.values())
+    offsets = np.array([d["heading_offset_deg"] for d in devices.values()])
+    assert np.isfinite(offsets).all() and abs(offsets.mean()) < 1e-3 and np.abs(offsets).max() > 1.0, offsets
+    assert all(0.0 < d["heading_confidence"] <= 1.0 and d["heading_rate_dpm"] is not None for d in devices.values())
+    assert all(d["heading_offset_deg"] is None for d in off_stats[-1]["devices"])
+    assert off_stats[-1]["joint_aad_deg"] is not None
+
+
+def test_a_restarted_device_rejoins_with_its_correction_learnt_afresh(runs):
+    _, _, stats, _ = runs["joints"]
+    shank = [next(d for d in s["devices"] if d["segment"] == RESTARTED) for s in stats]
+    at = round(RESTART_S) - 1
+    assert shank[at - 1]["stream"] == 1 and shank[at + 1]["stream"] == 2
+    assert abs(shank[at - 1]["heading_offset_deg"]) > 0.5  # a correction learnt before the restart
+    assert shank[at + 1]["heading_offset_deg"] is None  # not corrected until calibrated again (script: 5.5 s)
+    back = next(i for i in range(at + 1, len(shank)) if shank[i]["calibrated"])
+    thigh = next(d for d in stats[back]["devices"] if d["segment"] == "r_thigh")
+    assert abs(shank[back]["heading_offset_deg"] - thigh["heading_offset_deg"]) < 1.0  # from none, not the old one
+    assert shank[-1]["heading_confidence"] > 0.0
+
+
+LOWER_BODY = ("l_shank", "r_shank", "l_thigh", "r_thigh", "hip")
+
+
+def test_a_lower_body_alone_is_corrected():
+    """Pelvis, thighs and shanks only (no arms, no neck): their devices are corrected (the turns
+    averaging 0 over the five) and their knees' and hips' error against the truth is lower for it."""
+    figures = {}
+    for heading in (False, True):
+        _, exact, stats, q = session(heading, LOWER_BODY, restart=None)
+        ticks, frames = frames_of(exact)
+        late = (ticks > (SECONDS - 10) * FS) & (ticks < len(q))
+        layout = Layout.of(LOWER_BODY)
+        have = [SEGMENTS.index(s) for s in LOWER_BODY]
+        figures[heading] = joint_errors_deg(frames[late][:, have], q[ticks[late]][:, have], layout).mean()
+        devices = stats[-1]["devices"]
+        assert sorted(d["segment"] for d in devices) == sorted(LOWER_BODY)
+        offsets = [d["heading_offset_deg"] for d in devices]
+        if heading:
+            assert all(o is not None for o in offsets) and abs(np.mean(offsets)) < 1e-3, offsets
+            assert stats[-1]["joint_aad_deg"] is not None
+        else:
+            assert all(o is None for o in offsets)
+    assert figures[True] < 0.85 * figures[False], figures
