@@ -71,27 +71,54 @@ def plot(t: np.ndarray, angles: np.ndarray, path: Path, title: str) -> None:
 
 def speed(subjects: int = 200, rate_hz: float = wire.DEVICE_RATE_HZ, repeats: int = 300) -> str:
     """The cost of :func:`limbstream.joints.joint_angles` for ``subjects`` subjects at once (one
-    frame each, as an aggregator's frame tick) and of the functional calibration's running sums
-    (one second of frames per call), as a table."""
+    frame each, as an aggregator's frame tick; float64, and float32 as the aggregator calls it), of
+    the aggregator's whole joint stage on such a tick (angles, flags, encoding, the messages), and
+    of the functional calibration's running sums (one second of frames per call), as a table. CPU
+    time of this process (less sensitive to other work on the machine than wall time)."""
     from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(0)
     q = Rotation.random(subjects * 10, random_state=rng).as_quat()[:, [3, 0, 1, 2]].reshape(subjects, 10, 4)
-    joints.joint_angles(q)
-    start = time.perf_counter()
-    for _ in range(repeats):
-        joints.joint_angles(q)
-    tick = (time.perf_counter() - start) / repeats
+
+    def cost(work, n: int = repeats) -> float:
+        work()
+        start = time.process_time()
+        for _ in range(n):
+            work()
+        return (time.process_time() - start) / n
+
+    stage, batch = _joint_stage(q)
     stats = joints.HingeStats.empty((subjects,))
     second = np.broadcast_to(q[:, None], (subjects, round(rate_hz), 10, 4))
-    start = time.perf_counter()
-    for _ in range(10):
-        stats.add(second)
-        stats.facing()
-    learn = (time.perf_counter() - start) / 10
-    return "\n".join([f"| work ({subjects} subjects, {rate_hz:g} Hz) | per call | share of one core |", "|---|---:|---:|",
-                      f"| joint angles, one frame tick | {tick * 1e6:.0f} us | {100 * tick * rate_hz:.2f} % |",
-                      f"| functional sums + facing, one second of frames | {learn * 1e3:.1f} ms | {100 * learn:.2f} % |"])
+    rows = [("joint angles, one frame tick (float64)", cost(lambda: joints.joint_angles(q)), rate_hz),
+            ("joint angles, one frame tick (float32, the aggregator's)",
+             cost(lambda: joints.joint_angles(q.astype(np.float32))), rate_hz),
+            (f"the aggregator's joint stage, one frame tick (angles, flags, {subjects} messages encoded)",
+             cost(lambda: list(stage(batch))), rate_hz),
+            ("functional sums + facing, one second of frames", cost(lambda: (stats.add(second), stats.facing()), 10),
+             1.0)]
+    lines = [f"| work ({subjects} subjects, {rate_hz:g} Hz) | per call (CPU) | share of one core |", "|---|---:|---:|"]
+    return "\n".join(lines + [f"| {what} | {t * 1e6:,.0f} us | {100 * t * per_s:.2f} % |" for what, t, per_s in rows])
+
+
+def _joint_stage(q: np.ndarray):
+    """An aggregator's joint stage whose subjects' devices send their segments' own orientations,
+    and a tick's live frames of ``q`` (S, 10, 4)."""
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+    from limbstream.services.aggregator.frames import FrameBatch
+
+    agg = Aggregator(None, AggregatorSettings())
+    for s in range(len(q)):
+        for segment in wire.SEGMENTS:
+            track = agg.track(f"s{s + 1:03d}", segment)
+            agg.fusion.set_online(track, True)
+            track.orientations = "segments"
+    n = len(q)
+    live = wire.PoseFrames(np.arange(n), np.full(n, 1_800_000_000_000_000), wire.KIND_LIVE, np.zeros(n, np.int64), q,
+                           np.zeros((n, len(wire.JOINTS), 3)))
+    none = np.zeros((0, len(wire.SEGMENTS)), bool)
+    return agg.frame_stages[0], FrameBatch(np.zeros(0, np.int64), wire.PoseFrames.empty(wire.KIND_EXACT), np.arange(n),
+                                           live, none, np.zeros((n, len(wire.SEGMENTS)), bool))
 
 
 def main(argv: list[str] | None = None) -> int:

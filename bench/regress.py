@@ -4,7 +4,8 @@ this machine, and the ratios HEAD / baseline.
 Each revision is checked out in a temporary worktree and installed (its C kernel built) into a
 virtual environment of its own that borrows this environment's dependencies; then, per
 revision, in turn: the soak (``bench/soak.py``, shortened), the aggregator core bench
-(``bench/pipeline.py core``) and the emulator bench (``bench/pipeline.py emulator``). Run it
+(``bench/pipeline.py core``; again with ``--no-joint-angles`` where the revision has joint angles,
+and what the angles add to its CPU) and the emulator bench (``bench/pipeline.py emulator``). Run it
 before resolving any change that touches the device, router or aggregator path
 (docs/benchmarks.md, "Regression check").
 
@@ -93,7 +94,14 @@ def numbers(python: Path, cwd: Path, args) -> dict[str, float]:
     rate = live if "--live-rate" in (cwd / "bench/pipeline.py").read_text() else ()
     core = table_row(run(python, cwd, "bench/pipeline.py", "core", "--subjects", "200", "--seconds",
                          f"{args.seconds:g}", *rate), "subjects", "200")
-    fig[f"core bench, 200 subjects, live frames at {args.live_rate:g} Hz: CPU per second of stream"] = core.get("CPU per second of stream", float("nan"))
+    with_angles = core.get("CPU per second of stream", float("nan"))
+    fig[f"core bench, 200 subjects, live frames at {args.live_rate:g} Hz: CPU per second of stream"] = with_angles
+    if "--no-joint-angles" in (cwd / "bench/pipeline.py").read_text():  # revisions with joint angles
+        bare = table_row(run(python, cwd, "bench/pipeline.py", "core", "--subjects", "200", "--seconds",
+                             f"{args.seconds:g}", *rate, "--no-joint-angles"), "subjects", "200")
+        without = bare.get("CPU per second of stream", float("nan"))
+        fig["core bench, 200 subjects: CPU per second of stream without joint angles"] = without
+        fig["core bench, 200 subjects: CPU joint angles add, % of that"] = 100 * (with_angles / without - 1)
     emu = table_row(run(python, cwd, "bench/pipeline.py", "emulator", "--devices", "2000", "--seconds",
                         f"{args.seconds:g}"), "devices", "2000")
     for name in ("late ticks", "emulator CPU", "router CPU"):

@@ -127,6 +127,8 @@ def arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--truth", action="store_true", help="also stream the truth tap (raw samples)")
     parser.add_argument("--live-rate", type=float, default=0.0,
                         help="the aggregator's live frames per second and subject (default 0: off; make run: 50)")
+    parser.add_argument("--no-joint-angles", dest="joint_angles", action="store_false",
+                        help="the aggregator without its joint-angle stage (to compare)")
     parser.add_argument("--warmup", type=float, default=None,
                         help="warm-up, s, before the RSS baseline (default: 30 %% of the run, at most "
                              "180 s: the recovery caches fill first)")
@@ -167,7 +169,7 @@ def start(args: argparse.Namespace, endpoint: str) -> Run:
     launcher = Launcher(workdir)
     launcher.router(endpoint)
     launcher.start("aggregator", "aggregate", "--connect", endpoint, "--live-rate", f"{args.live_rate:g}",
-                   "--frame-batch", str(args.frame_batch))
+                   "--frame-batch", str(args.frame_batch), *([] if args.joint_angles else ["--no-joint-angles"]))
     run = Run(launcher, workdir, [subjects // args.procs + (i < subjects % args.procs) for i in range(args.procs)])
     first = 1
     for i, n in enumerate(run.share):

@@ -310,13 +310,17 @@ JOINT_PLOT = """([subject, valid, series, points]) => {
     && Number(fig.dataset.points) >= points;
 }"""
 
-PLOT_INK = """(subject) => {
+PLOT_INK = """([subject, color]) => {
   const c = document.querySelector(`.joint-plot[data-subject="${subject}"] canvas`);
   const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+  const want = [1, 3, 5].map((k) => parseInt(color.slice(k, k + 2), 16));
   let lit = 0;
-  for (let i = 3; i < px.length; i += 4) if (px[i] > 0) lit++;
+  for (let i = 0; i < px.length; i += 4) {
+    if (px[i + 3] > 128 && want.every((v, k) => Math.abs(px[i + k] - v) < 40)) lit++;
+  }
   return lit;
 }"""
+"""Pixels of a subject's plot drawn in a colour (#rrggbb): its curves' ink (axes and grid have others)."""
 
 
 def test_page_plots_each_subjects_joint_angles(stack):  # noqa: F811
@@ -343,12 +347,15 @@ def test_page_plots_each_subjects_joint_angles(stack):  # noqa: F811
             page.wait_for_function(JOINT_PLOT, arg=["s01", "true", "4", 100], timeout=30_000)
             picked = page.eval_on_selector_all("#joints-pick input:checked", "xs => xs.map(x => x.value)")
             assert picked == ["hip_flexion_r", "knee_angle_r", "hip_flexion_l", "knee_angle_l"], picked
-            assert page.evaluate(PLOT_INK, "s01") > 3000  # the curves are drawn
+            colors = page.evaluate("[COLORS.right, COLORS.left]")
+            for color in colors:  # both sides' curves are drawn
+                assert page.evaluate(PLOT_INK, ["s01", color]) > 300, color
             caption = page.text_content('.joint-plot[data-subject="s01"] .why')
             assert "calibration segments" in caption and re.search(r"knee_angle_r -?\d+\.\d°", caption), caption
             page.wait_for_function(JOINT_PLOT, arg=["s02", "false", None, 1], timeout=30_000)
             assert page.get_attribute('.joint-plot[data-subject="s02"]', "data-calibration") == "uncalibrated"
             assert "not calibrated" in page.text_content('.joint-plot[data-subject="s02"] .why')
+            assert [page.evaluate(PLOT_INK, ["s02", color]) for color in colors] == [0, 0]  # no curves
             page.check("#joints-pick input[value=elbow_flex_r]")
             page.wait_for_function(JOINT_PLOT, arg=["s01", "true", "5", 100], timeout=10_000)
             page.locator("#joints").screenshot(path=str(ARTIFACTS / "joints.png"))
