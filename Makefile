@@ -25,11 +25,12 @@ $(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*
 
 install: $(STAMP)
 
-# make run's sensors are realistic ones: strapped on at up to 90 deg, headings anywhere, each drifting
-# by up to 3 deg/min (a 6D filter's drift: docs/evaluation.md, 'Heading without resets'); up
-# calibrates every device from the script its stream starts with and holds the headings by the
-# joints. `make run RUN_FLAGS=` runs perfect sensors; other up flags go there too.
-RUN_FLAGS ?= --mounting-deg 90 --heading-deg 180 --yaw-drift-dps 0.05
+# make run's sensors are realistic ones: each device reads a modelled ICM-42688-P (angular rate and
+# specific force, with its noise and offsets) strapped on at up to 90 deg, and fuses it on the device
+# (VQF 6D, no magnetometer: its heading drifts; docs/evaluation.md, 'Raw sensors'); up calibrates
+# every device from the script its stream starts with and holds the headings by the joints.
+# `make run RUN_FLAGS=` runs perfect sensors; other up flags go there too.
+RUN_FLAGS ?= --imu raw --imu-model icm42688p --mounting-deg 90 --heading-deg 180
 
 run: $(STAMP)
 	$(PYTHON) -m limbstream.cli up $(RUN_FLAGS)
