@@ -122,8 +122,9 @@ def main() -> int:
 
         def cell(v, fmt=".2f"):
             return "–" if v is None else format(v, fmt)
+        kinds = ", ".join(f"{kind} {n}" for kind, n in sorted(faults.items()) if n)
         print(f"| {r['model']} | {cell(f['calibrated_s'], '.1f')} | {cell(f['first'])} | {cell(f['last'])} | "
-              f"{bias:.3f} | {sum(faults.values())} |")
+              f"{bias:.3f} | {sum(faults.values())}{f' ({kinds})' if kinds else ''} |")
     print(f"\n(device time, --speed {args.speed:g}; frame_aad_deg: the aggregator's 60 s window of exact frames "
           "against the truth, ending 1 and N minutes after the first frame compared)")
     return 0
