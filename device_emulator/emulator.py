@@ -200,24 +200,27 @@ class Emulator:
         """Truth tap: each streaming device publishes its samples of the last raw_batch ticks,
         staggered over devices so each tick sends a few."""
         batch = self.settings.host.raw_batch
-        for slot in range(-(k % batch) % batch, m, batch):  # (k + slot) % batch == 0
-            if not self.ended[slot]:
-                self._flush_tap(self.devices[slot], k)
+        slots = np.arange(-(k % batch) % batch, m, batch)  # (k + slot) % batch == 0
+        self._flush_tap(slots[~self.ended[slots]], k)
 
-    def _flush_tap(self, d: Device, k: int) -> None:
-        """Publish device d's samples of ticks raw_next .. k (all still in the ring)."""
-        first = int(self.raw_next[d.slot])
-        if k < first:
+    def _flush_tap(self, slots: np.ndarray, k: int) -> None:
+        """Publish the samples of ticks raw_next .. k of the devices ``slots`` (all still in the
+        ring), a batch each (none where a device took no sample), encoded together."""
+        first = self.raw_next[slots]
+        self.raw_next[slots] = np.maximum(first, k + 1)
+        ticks = first[:, None] + np.arange(self._ring)  # (j, ring): the ring's ticks from each one's first
+        rows, cols = ticks % self._ring, np.broadcast_to(slots[:, None], ticks.shape)
+        n = self._ring_n[rows, cols]
+        taken = (ticks <= k) & (n >= 0)
+        count = taken.sum(axis=1)
+        has = count > 0
+        if not has.any():
             return
-        rows = np.arange(first, k + 1) % self._ring
-        rows = rows[self._ring_n[rows, d.slot] >= 0]
-        self.raw_next[d.slot] = k + 1
-        if len(rows) == 0:
-            return
+        rows, cols, n, count, slots = rows[taken], cols[taken], n[taken], count[has], slots[has]
         b = self.bank.kernel
-        self.host.publish_raw(d, wire.RawBatch(
-            int(b.stream[d.slot]), int(self._ring_n[rows[0], d.slot] - b.base[d.slot]), self._ring_t[rows, d.slot],
-            self._ring_q[rows, d.slot], self._ring_ref[rows, d.slot]))
+        payload, ends = wire.encode_raws(b.stream[slots], n[np.cumsum(count) - count] - b.base[slots], count,
+                                         self._ring_t[rows, cols], self._ring_q[rows, cols], self._ring_ref[rows, cols])
+        self.host.publish_raws(slots, payload, ends)
 
     def step(self, k: int) -> None:
         """Tick k: the samples due, their stamps, kernel, segment points, truth tap; the end of
@@ -253,7 +256,7 @@ class Emulator:
         if self._ring_n[prev, d.slot] < 0:
             return
         if self.settings.host.truth:
-            self._flush_tap(d, k - 1)
+            self._flush_tap(np.array([d.slot]), k - 1)
         self.bank.end_stream(d)
         n_prev = self._ring_n[prev, d.slot]
         local = self.clocks.sample_local(np.array([n_prev]), np.array([d.slot]))[0]
@@ -273,7 +276,7 @@ class Emulator:
         and its truth tap."""
         self.bank.end_stream(d)
         if self.settings.host.truth:
-            self._flush_tap(d, k)
+            self._flush_tap(np.array([d.slot]), k)
         self.ended[d.slot] = True
         self._m = None
 

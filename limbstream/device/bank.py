@@ -65,10 +65,7 @@ class DeviceBank:
         self.n[taken] += 1
         slots, payload, ends = self.kernel.update_wire(ticks, y)
         self.calls[:m] += 1
-        devices, start = self.host.devices, 0
-        for slot, end in zip(slots.tolist(), ends.tolist()):
-            self.host.publish(devices[slot], payload[start:end])
-            start = end
+        self.host.publish_points(slots, payload, ends)
 
     def start_stream(self, d: Device, base: int | None = None, reset: bool = False) -> None:
         """A new stream of device d: a new id, numbering from 0, its sample 0 is the device's
