@@ -101,7 +101,8 @@ def start_sink(router: Router) -> Child:
     return sink
 
 
-def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[float] = (0.0,)) -> None:
+def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[float] = (0.0,),
+                   threshold: float = wire.THRESHOLD.default) -> None:
     """One row per device count and live bound (``live_bound_deg`` of every device, 0: rule off)."""
     print(f"\n### Devices per emulator process ({seconds:g} s at 50 Hz each, truth tap {'on' if truth else 'off'},"
           " router and a subscriber taking everything in their own processes)\n")
@@ -112,7 +113,7 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
             sink = start_sink(router)
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
-            config = wire.DeviceConfig(live_bound_deg=bound).validate()
+            config = wire.DeviceConfig(threshold=threshold, live_bound_deg=bound).validate()
             emulator = Emulator(session, feeds, EmulatorSettings(HostSettings(truth=truth, config=config)))
             emulator.declare()
             stop = threading.Event()
@@ -330,6 +331,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--subjects", default="20,100,200", help="aggregator rows (subject counts)")
     parser.add_argument("--no-truth", action="store_true", help="emulator rows without the truth tap")
     parser.add_argument("--live-bound-deg", default="0", help="emulator rows: live bounds of the devices (0: rule off)")
+    parser.add_argument("--threshold", type=float, default=wire.THRESHOLD.default,
+                        help="emulator rows: the devices' fastSW threshold (make run's live mode: 9e-4)")
     parser.add_argument("--live-rate", type=float, default=50.0,
                         help="core rows, and aggregator rows with --record: live frame rate, Hz (50, 25, 10, ...)")
     parser.add_argument("--record", action="store_true",
@@ -337,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.what in ("emulator", "all"):
         bench_emulator([int(n) for n in args.devices.split(",")], args.seconds, not args.no_truth,
-                       [float(b) for b in args.live_bound_deg.split(",")])
+                       [float(b) for b in args.live_bound_deg.split(",")], args.threshold)
     if args.what in ("aggregator", "all"):
         bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds, args.record,
                          args.live_rate if args.record else 0.0)
