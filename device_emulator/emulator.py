@@ -18,6 +18,7 @@ that moved more than 128 ms) starts a new stream.
 """
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import threading
@@ -30,6 +31,7 @@ from limbstream import quat, wire
 from limbstream.calibration import SensorModel
 from limbstream.device.bank import DeviceBank
 from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
+from limbstream.device.feeds import FeedRows
 from limbstream.device.host import Device, DeviceHost, HostSettings
 from limbstream.device.sync import SyncClient
 from limbstream.pacing import LoopStats, PacedLoop
@@ -83,12 +85,14 @@ class Emulator:
         # longer feeds take the lower slots: the devices still streaming at any tick are a prefix of the bank
         by_length = sorted(feeds, key=lambda subject: -(feeds[subject].length or math.inf))
         self._by_length = [feeds[subject] for subject in by_length]
+        self._feed_rows = FeedRows(self._by_length)
         self._feed_slots: list[tuple[int, int]] = []  # (first slot, last slot + 1) of each feed, in slot order
         for subject in by_length:
             first = len(self.host.devices)
             for segment in feeds[subject].segments:
                 self.host.add(subject, segment, feeds[subject])
             self._feed_slots.append((first, len(self.host.devices)))
+        self._feed_first = [first for first, _ in self._feed_slots]
         self.devices: list[Device] = self.host.devices
         n = len(self.devices)
         ring = max(hs.raw_batch, RING_MIN)
@@ -155,7 +159,7 @@ class Emulator:
         live = ~self.ended[:m]
         if not self.modelled:  # every device samples at every tick, on the feed's own grid
             taken = slots[live]
-            return taken, n[live], np.concatenate([f.sample(k) for f in self._live_feeds(m)])[live]
+            return taken, n[live], self._feed_rows.rows(k, self._feeds_in(m))[live]
         tau = self.clocks.sample_time(n, slots)
         due = live & (tau <= t_k + 0.5)
         taken = slots[due]
@@ -175,14 +179,14 @@ class Emulator:
         cached: consecutive ticks ask for overlapping rows."""
         row = self._rows.get((j, m))
         if row is None:
-            row = self._rows[j, m] = np.concatenate([
-                f.sample(j if f.length is None else min(j, f.length - 1)) for f in self._live_feeds(m)])
+            row = self._rows[j, m] = self._feed_rows.rows(j, self._feeds_in(m))
             for key in [key for key in self._rows if key[0] < j - 2]:
                 del self._rows[key]
         return row
 
-    def _live_feeds(self, m: int) -> list:
-        return self._by_length[:sum(1 for first, _ in self._feed_slots if first < m)]
+    def _feeds_in(self, m: int) -> int:
+        """How many feeds (of ``_by_length``) the first m slots hold."""
+        return bisect.bisect_left(self._feed_first, m)
 
     def _streaming(self) -> int:
         """Slots of the bank still in use: those up to the last feed with a device not ended

@@ -43,11 +43,12 @@ class Recorder:
 
 
 def feeds() -> dict:
-    """Generator subjects and a clip played once (its devices end mid-run)."""
+    """Generator subjects, a clip looped and a clip played once (its devices end mid-run)."""
     rng = np.random.default_rng(5)
     q = quat.normalize(np.cumsum(rng.normal(0, 0.05, (173, 10, 4)), axis=0) + [1, 0, 0, 0])
     clip = Motion(np.arange(173) / 50.0, q, GeneratorSource.segments, "clip")
-    return {"s01": GeneratorFeed(1, 50.0), "s02": LoopFeed(clip, 50.0, once=True), "s03": GeneratorFeed(3, 50.0)}
+    return {"s00": LoopFeed(clip, 50.0, start=0.5), "s01": GeneratorFeed(1, 50.0), "s02": LoopFeed(clip, 50.0, once=True),
+            "s03": GeneratorFeed(3, 50.0)}
 
 
 def published(kind: type, session, clock: ClockSettings, ticks: int) -> list[tuple[str, bytes]]:

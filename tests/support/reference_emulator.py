@@ -4,8 +4,8 @@ same input; never imported by the package.
 
 - :func:`orientations`: the built-in generator's segment orientations, one elementary rotation and
   one chain of products at a time (``GeneratorSource.orientations``).
-- :class:`ReferenceEmulator`: the emulator with its truth tap taken from the ring and encoded
-  device by device.
+- :class:`ReferenceEmulator`: the emulator with its feeds sampled one by one each tick
+  (``Feed.sample``) and its truth tap taken from the ring and encoded device by device.
 """
 from __future__ import annotations
 
@@ -61,7 +61,16 @@ def orientations(source: GeneratorSource, t: np.ndarray) -> np.ndarray:
 
 class ReferenceEmulator(Emulator):
     """The emulator whose truth tap takes each due device's samples from the ring and encodes them
-    (``wire.encode_raw``) one device at a time."""
+    (``wire.encode_raw``) one device at a time, and whose feeds are sampled one by one."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._feed_rows = self
+
+    def rows(self, k: int, count: int) -> np.ndarray:
+        """Sample k of the first ``count`` feeds (finite feeds hold their last one), stacked."""
+        return np.concatenate([f.sample(k if f.length is None else min(k, f.length - 1))
+                               for f in self._by_length[:count]])
 
     def _flush_tap(self, slots: np.ndarray, k: int) -> None:
         for slot in slots.tolist():
