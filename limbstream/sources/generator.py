@@ -302,15 +302,19 @@ _TREE_AXES: list[tuple[str, float, np.ndarray]] = [
 ]
 
 
+_TREE_JOINTS = [joint for joint, _, _ in _TREE_AXES]
+_TREE_SIGNS = np.array([sign for _, sign, _ in _TREE_AXES])[:, None]
+_TREE_AXIS = np.stack([axis for _, _, axis in _TREE_AXES])[:, None, :]
+
+
 def _elementary_all(a: dict[str, np.ndarray], heading: float) -> dict[str, np.ndarray]:
     """{joint: (n, 4)} the rotations of :data:`_TREE_AXES` by the angles ``a`` (degrees, |angle|
     < 180; the pelvis yaw plus the heading), continuous in the angle; one scipy call for all."""
-    rotvec = np.empty((len(_TREE_AXES), len(a["knee_flex_l"]), 3))
-    for i, (joint, sign, axis) in enumerate(_TREE_AXES):
-        angle = heading + a[joint] if joint == "pelvis_yaw" else sign * a[joint]
-        rotvec[i] = np.radians(angle)[:, None] * axis
+    angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
+    angle[0] = heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
+    rotvec = np.radians(angle)[:, :, None] * _TREE_AXIS
     q = quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(len(_TREE_AXES), -1, 4)
-    return {joint: q[i] for i, (joint, _, _) in enumerate(_TREE_AXES)}
+    return dict(zip(_TREE_JOINTS, q))
 
 
 def _chains(parent: np.ndarray, e: dict[str, np.ndarray], *steps: list[str]) -> np.ndarray:
