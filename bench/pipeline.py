@@ -106,8 +106,9 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
     """One row per device count and live bound (``live_bound_deg`` of every device, 0: rule off)."""
     print(f"\n### Devices per emulator process ({seconds:g} s at 50 Hz each, truth tap {'on' if truth else 'off'},"
           " router and a subscriber taking everything in their own processes)\n")
-    print("| devices | live bound | ticks | late ticks | busy (of 1 core) | emulator CPU | CPU per tick | router CPU | points/s |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| devices | live bound | ticks | late ticks | busy (of 1 core) | emulator CPU | its tick loop's thread | "
+          "CPU per tick | router CPU | points/s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, bound in ((n, b) for n in counts for b in bounds):
         with Router() as router:
             sink = start_sink(router)
@@ -118,16 +119,17 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
             emulator.declare()
             stop = threading.Event()
             timer = threading.Timer(seconds, stop.set)
-            cpu0, rcpu0 = cpu_now(), router.cpu_s()
+            cpu0, rcpu0, own0 = cpu_now(), router.cpu_s(), time.thread_time()
             timer.start()
             ticks = emulator.run(stop)
-            cpu, rcpu = cpu_now() - cpu0, router.cpu_s() - rcpu0
+            cpu, rcpu, own = cpu_now() - cpu0, router.cpu_s() - rcpu0, time.thread_time() - own0
             points = sum(d.points for d in emulator.devices)
             emulator.undeclare()
             session.close()
             stop_all([sink])
         print(f"| {n} | {bound:g} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
-              f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {1e3 * cpu / max(ticks.ticks, 1):.2f} ms | "
+              f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {100 * own / seconds:.1f} % | "
+              f"{1e3 * cpu / max(ticks.ticks, 1):.2f} ms | "
               f"{100 * rcpu / seconds:.0f} % | "
               f"{points / seconds:.0f} |")
 
