@@ -300,8 +300,6 @@ _TREE_AXES: list[tuple[str, float, np.ndarray]] = [
         ("shoulder_abd", lat, _Z), ("shoulder_flex", -1.0, _X), ("shoulder_rot", -lat, _Y), ("elbow_flex", -1.0, _X),
     )
 ]
-
-
 _TREE_JOINTS = [joint for joint, _, _ in _TREE_AXES]
 _TREE_SIGNS = np.array([sign for _, sign, _ in _TREE_AXES])[:, None]
 _TREE_AXIS = np.stack([axis for _, _, axis in _TREE_AXES])[:, None, :]
@@ -318,8 +316,7 @@ def _elementary_all(a: dict[str, np.ndarray], heading: float) -> dict[str, np.nd
 
 
 def _chains(parent: np.ndarray, e: dict[str, np.ndarray], *steps: list[str]) -> np.ndarray:
-    """(c, n, 4) ``parent`` (n, 4) times each of c chains of factors at once: ``steps[s][i]`` is
-    chain i's s-th factor (names of ``e``)."""
+    """(c, n, 4) ``parent`` (n, 4) times c chains of factors at once (chain i's s-th: ``e[steps[s][i]]``)."""
     out = parent[None]
     for names in steps:
         out = quat.multiply(out, np.stack([e[name] for name in names]))
@@ -429,9 +426,8 @@ class GeneratorSource:
                                          ["neck_lat", "shoulder_rot_l", "shoulder_rot_r"])
         shank_l, shank_r, lower_l, lower_r = quat.multiply(np.stack([thigh_l, thigh_r, upper_l, upper_r]), np.stack(
             [e["knee_flex_l"], e["knee_flex_r"], e["elbow_flex_l"], e["elbow_flex_r"]]))
-        seg = {"hip": pelvis, "neck": neck, "l_thigh": thigh_l, "r_thigh": thigh_r, "l_shank": shank_l,
-               "r_shank": shank_r, "l_upperarm": upper_l, "r_upperarm": upper_r, "l_lowerarm": lower_l,
-               "r_lowerarm": lower_r}
+        seg = dict(hip=pelvis, neck=neck, l_thigh=thigh_l, r_thigh=thigh_r, l_shank=shank_l, r_shank=shank_r,
+                   l_upperarm=upper_l, r_upperarm=upper_r, l_lowerarm=lower_l, r_lowerarm=lower_r)
         q = np.stack([seg[s] for s in SEGMENTS], axis=1)
         if self.mounting_offsets:
             q = quat.multiply(q, self._mount[None, :, :])
