@@ -101,32 +101,35 @@ def start_sink(router: Router) -> Child:
     return sink
 
 
-def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[float] = (0.0,)) -> None:
+def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[float] = (0.0,),
+                   threshold: float = wire.THRESHOLD.default) -> None:
     """One row per device count and live bound (``live_bound_deg`` of every device, 0: rule off)."""
     print(f"\n### Devices per emulator process ({seconds:g} s at 50 Hz each, truth tap {'on' if truth else 'off'},"
           " router and a subscriber taking everything in their own processes)\n")
-    print("| devices | live bound | ticks | late ticks | busy (of 1 core) | emulator CPU | CPU per tick | router CPU | points/s |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| devices | live bound | ticks | late ticks | busy (of 1 core) | emulator CPU | its tick loop's thread | "
+          "CPU per tick | router CPU | points/s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, bound in ((n, b) for n in counts for b in bounds):
         with Router() as router:
             sink = start_sink(router)
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
-            config = wire.DeviceConfig(live_bound_deg=bound).validate()
+            config = wire.DeviceConfig(threshold=threshold, live_bound_deg=bound).validate()
             emulator = Emulator(session, feeds, EmulatorSettings(HostSettings(truth=truth, config=config)))
             emulator.declare()
             stop = threading.Event()
             timer = threading.Timer(seconds, stop.set)
-            cpu0, rcpu0 = cpu_now(), router.cpu_s()
+            cpu0, rcpu0, own0 = cpu_now(), router.cpu_s(), time.thread_time()
             timer.start()
             ticks = emulator.run(stop)
-            cpu, rcpu = cpu_now() - cpu0, router.cpu_s() - rcpu0
+            cpu, rcpu, own = cpu_now() - cpu0, router.cpu_s() - rcpu0, time.thread_time() - own0
             points = sum(d.points for d in emulator.devices)
             emulator.undeclare()
             session.close()
             stop_all([sink])
         print(f"| {n} | {bound:g} | {ticks.ticks} | {100 * ticks.late / max(ticks.ticks, 1):.2f} % | "
-              f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {1e3 * cpu / max(ticks.ticks, 1):.2f} ms | "
+              f"{100 * ticks.busy_s / seconds:.0f} % | {100 * cpu / seconds:.0f} % | {100 * own / seconds:.1f} % | "
+              f"{1e3 * cpu / max(ticks.ticks, 1):.2f} ms | "
               f"{100 * rcpu / seconds:.0f} % | "
               f"{points / seconds:.0f} |")
 
@@ -339,6 +342,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--subjects", default="20,100,200", help="aggregator rows (subject counts)")
     parser.add_argument("--no-truth", action="store_true", help="emulator rows without the truth tap")
     parser.add_argument("--live-bound-deg", default="0", help="emulator rows: live bounds of the devices (0: rule off)")
+    parser.add_argument("--threshold", type=float, default=wire.THRESHOLD.default,
+                        help="emulator rows: the devices' fastSW threshold (make run's live mode: 9e-4)")
     parser.add_argument("--live-rate", type=float, default=50.0,
                         help="core rows, and aggregator rows with --record: live frame rate, Hz (50, 25, 10, ...)")
     parser.add_argument("--no-joint-angles", dest="joint_angles", action="store_false",
@@ -350,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.what in ("emulator", "all"):
         bench_emulator([int(n) for n in args.devices.split(",")], args.seconds, not args.no_truth,
-                       [float(b) for b in args.live_bound_deg.split(",")])
+                       [float(b) for b in args.live_bound_deg.split(",")], args.threshold)
     if args.what in ("aggregator", "all"):
         bench_aggregator([int(n) for n in args.subjects.split(",")], args.seconds, args.record,
                          args.live_rate if args.record else 0.0)

@@ -24,6 +24,7 @@ instants. Device clocks are then the feed's own (no offset, drift or jitter mode
 """
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import threading
@@ -36,6 +37,7 @@ from limbstream import quat, wire
 from limbstream.calibration import SensorModel
 from limbstream.device.bank import DeviceBank, RawStage
 from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
+from limbstream.device.feeds import FeedRows
 from limbstream.device.host import Device, DeviceHost, HostSettings
 from limbstream.device.readings import RawSensors
 from limbstream.device.sync import SyncClient
@@ -97,12 +99,14 @@ class Emulator:
         # longer feeds take the lower slots: the devices still streaming at any tick are a prefix of the bank
         by_length = sorted(feeds, key=lambda subject: -(feeds[subject].length or math.inf))
         self._by_length = [feeds[subject] for subject in by_length]
+        self._feed_rows = FeedRows(self._by_length)
         self._feed_slots: list[tuple[int, int]] = []  # (first slot, last slot + 1) of each feed, in slot order
         for subject in by_length:
             first = len(self.host.devices)
             for segment in feeds[subject].segments:
                 self.host.add(subject, segment, feeds[subject])
             self._feed_slots.append((first, len(self.host.devices)))
+        self._feed_first = [first for first, _ in self._feed_slots]
         self.devices: list[Device] = self.host.devices
         n = len(self.devices)
         ring = max(hs.raw_batch, RING_MIN)
@@ -182,7 +186,7 @@ class Emulator:
         live = ~self.ended[:m]
         if not self.modelled:  # every device samples at every tick, on the feed's own grid
             taken = slots[live]
-            return taken, n[live], np.concatenate([f.sample(k) for f in self._live_feeds(m)])[live]
+            return taken, n[live], self._feed_rows.rows(k, self._feeds_in(m))[live]
         tau = self.clocks.sample_time(n, slots)
         due = live & (tau <= t_k + 0.5)
         taken = slots[due]
@@ -202,14 +206,14 @@ class Emulator:
         cached: consecutive ticks ask for overlapping rows."""
         row = self._rows.get((j, m))
         if row is None:
-            row = self._rows[j, m] = np.concatenate([
-                f.sample(j if f.length is None else min(j, f.length - 1)) for f in self._live_feeds(m)])
+            row = self._rows[j, m] = self._feed_rows.rows(j, self._feeds_in(m))
             for key in [key for key in self._rows if key[0] < j - 2]:
                 del self._rows[key]
         return row
 
-    def _live_feeds(self, m: int) -> list:
-        return self._by_length[:sum(1 for first, _ in self._feed_slots if first < m)]
+    def _feeds_in(self, m: int) -> int:
+        """How many feeds (of ``_by_length``) the first m slots hold."""
+        return bisect.bisect_left(self._feed_first, m)
 
     def _streaming(self) -> int:
         """Slots of the bank still in use: those up to the last feed with a device not ended
@@ -227,24 +231,27 @@ class Emulator:
         """Truth tap: each streaming device publishes its samples of the last raw_batch ticks,
         staggered over devices so each tick sends a few."""
         batch = self.settings.host.raw_batch
-        for slot in range(-(k % batch) % batch, m, batch):  # (k + slot) % batch == 0
-            if not self.ended[slot]:
-                self._flush_tap(self.devices[slot], k)
+        slots = np.arange(-(k % batch) % batch, m, batch)  # (k + slot) % batch == 0
+        self._flush_tap(slots[~self.ended[slots]], k)
 
-    def _flush_tap(self, d: Device, k: int) -> None:
-        """Publish device d's samples of ticks raw_next .. k (all still in the ring)."""
-        first = int(self.raw_next[d.slot])
-        if k < first:
+    def _flush_tap(self, slots: np.ndarray, k: int) -> None:
+        """Publish the samples of ticks raw_next .. k of the devices ``slots`` (all still in the
+        ring), a batch each (none where a device took no sample), encoded together."""
+        first = self.raw_next[slots]
+        self.raw_next[slots] = np.maximum(first, k + 1)
+        ticks = first[:, None] + np.arange(self._ring)  # (j, ring): the ring's ticks from each one's first
+        rows, cols = ticks % self._ring, np.broadcast_to(slots[:, None], ticks.shape)
+        n = self._ring_n[rows, cols]
+        taken = (ticks <= k) & (n >= 0)
+        count = taken.sum(axis=1)
+        has = count > 0
+        if not has.any():
             return
-        rows = np.arange(first, k + 1) % self._ring
-        rows = rows[self._ring_n[rows, d.slot] >= 0]
-        self.raw_next[d.slot] = k + 1
-        if len(rows) == 0:
-            return
+        rows, cols, n, count, slots = rows[taken], cols[taken], n[taken], count[has], slots[has]
         b = self.bank.kernel
-        self.host.publish_raw(d, wire.RawBatch(
-            int(b.stream[d.slot]), int(self._ring_n[rows[0], d.slot] - b.base[d.slot]), self._ring_t[rows, d.slot],
-            self._ring_q[rows, d.slot], self._ring_ref[rows, d.slot]))
+        payload, ends = wire.encode_raws(b.stream[slots], n[np.cumsum(count) - count] - b.base[slots], count,
+                                         self._ring_t[rows, cols], self._ring_q[rows, cols], self._ring_ref[rows, cols])
+        self.host.publish_raws(slots, payload, ends)
 
     def step(self, k: int) -> None:
         """Tick k: the samples due, their stamps, kernel, segment points, truth tap; the end of
@@ -318,7 +325,7 @@ class Emulator:
         if self._ring_n[prev, d.slot] < 0:
             return
         if self.settings.host.truth:
-            self._flush_tap(d, k - 1)
+            self._flush_tap(np.array([d.slot]), k - 1)
         self.bank.end_stream(d)
         n_prev = self._ring_n[prev, d.slot]
         local = self.clocks.sample_local(np.array([n_prev]), np.array([d.slot]))[0]
@@ -338,7 +345,7 @@ class Emulator:
         and its truth tap."""
         self.bank.end_stream(d)
         if self.settings.host.truth:
-            self._flush_tap(d, k)
+            self._flush_tap(np.array([d.slot]), k)
         self.ended[d.slot] = True
         self._m = None
 

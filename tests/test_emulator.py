@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from limbstream.cli import emulate
-from limbstream.device.feeds import GeneratorFeed, LoopFeed, resample
+from limbstream.device.feeds import FeedRows, GeneratorFeed, LoopFeed, resample
 from limbstream import kernel, quat
 from limbstream.sources import Motion
 from limbstream.sources.generator import GeneratorSource
@@ -19,6 +19,20 @@ def test_generator_feed_is_continuous_across_staggered_chunks(seed):
     got = np.stack([feed.sample(k) for k in range(1600)])
     want = GeneratorSource(seed, 50.0).chunk(0, 1600)[1].astype(np.float32)
     assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("rates", [(50.0, 50.0), (50.0, 100.0)], ids=["one gather", "chunks of two lengths"])
+def test_feed_rows_are_each_feeds_sample_stacked(rates):
+    rng = np.random.default_rng(4)
+    q = quat.normalize(np.cumsum(rng.normal(0, 0.02, (90, 2, 4)), axis=0) + [1, 0, 0, 0])
+    clip = Motion(np.arange(90) / 50.0, q, ("hip", "neck"), "short")
+    feeds = [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0]), GeneratorFeed(5, rates[1]), LoopFeed(clip, 50.0, once=True)]
+    plain = [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0]), GeneratorFeed(5, rates[1]), LoopFeed(clip, 50.0, once=True)]
+    rows = FeedRows(feeds)
+    for k in [*range(0, 1300, 7), 3, 2000]:  # chunk after chunk, back to the first one, a jump ahead
+        for count in (4, 3, 2):
+            want = np.concatenate([f.sample(min(k, f.length - 1) if f.length else k) for f in plain[:count]])
+            assert np.array_equal(rows.rows(k, count), want), (k, count)
 
 
 def test_loop_feed_resamples_jittered_time_and_loops():

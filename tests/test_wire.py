@@ -134,6 +134,27 @@ def test_raw_batch_round_trip_and_errors():
         assert err.value.reason == reason
 
 
+def test_truth_batches_encoded_together_are_the_batches_encoded_one_by_one():
+    rng = np.random.default_rng(3)
+    for with_ref, equal in ((True, False), (False, False), (True, True), (False, True)):
+        count = np.full(300, 25) if equal else rng.integers(1, 40, 300)
+        t = 1_800_000_000_000_000 + np.cumsum(rng.integers(0, 30_000, count.sum()))
+        q = rng.normal(size=(count.sum(), 4)).astype(np.float32)
+        ref = t - rng.integers(0, 5_000, count.sum()) if with_ref else None
+        stream, first_index = rng.integers(0, 1 << 16, 300), rng.integers(0, 1 << 32, 300)
+        payload, ends = wire.encode_raws(stream, first_index, count, t, q, ref)
+        starts, first = np.concatenate([[0], ends[:-1]]), np.cumsum(count) - count
+        for i in range(300):
+            rows = slice(first[i], first[i] + count[i])
+            one = wire.encode_raw(wire.RawBatch(int(stream[i]), int(first_index[i]), t[rows], q[rows],
+                                                None if ref is None else ref[rows]))
+            assert payload[starts[i]:ends[i]] == one, (with_ref, equal, i)
+    payload, ends = wire.encode_raws(np.zeros(0), np.zeros(0), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 4)))
+    assert payload == b"" and len(ends) == 0
+    with pytest.raises(ValueError, match="1..4096"):
+        wire.encode_raws([1], [0], [0], np.zeros(0), np.zeros((0, 4)))
+
+
 def payloads_of_points(count: int, seed: int) -> list[bytes]:
     """Valid v1 and v2 points and every kind of bad one, mixed."""
     rng = np.random.default_rng(seed)

@@ -95,7 +95,7 @@ class DeviceBank:
             sample[rows[taken], taken] = self.n[taken]
             t_us[rows[taken], taken] = stamps
         self.n[taken] += 1
-        self._publish(*self.kernel.update_wire(ticks, y))
+        self.host.publish_points(*self.kernel.update_wire(ticks, y))
         self.calls[:m] += 1
 
     def update_raw(self, ticks: np.ndarray, t_us: np.ndarray, gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
@@ -114,19 +114,13 @@ class DeviceBank:
         """
         if self.imus is None:
             raise ValueError("update_raw needs a bank made with a raw stage")
-        self._publish(*self.imus.update_raw_wire(ticks, t_us, gyr, acc))
+        self.host.publish_points(*self.imus.update_raw_wire(ticks, t_us, gyr, acc))
         took = self.kernel.status < fusion.NO_OUTPUT
         m = len(took)
         self.n[:m] += took
         self.calls[:m] += took
         self._lockstep = False
         return took
-
-    def _publish(self, slots: np.ndarray, payload: bytes, ends: np.ndarray) -> None:
-        devices, start = self.host.devices, 0
-        for slot, end in zip(slots.tolist(), ends.tolist()):
-            self.host.publish(devices[slot], payload[start:end])
-            start = end
 
     def start_stream(self, d: Device, base: int | None = None, reset: bool = False) -> None:
         """A new stream of device d: a new id, numbering from 0, its sample 0 is the device's

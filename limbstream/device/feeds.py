@@ -77,13 +77,63 @@ class GeneratorFeed:
         self._start = 0
         self._chunk = np.zeros((0, len(self.segments), 4), np.float32)
 
-    def sample(self, k: int) -> np.ndarray:
-        """(S, 4) float32 orientations at sample k."""
-        i = k - self._start
-        if not 0 <= i < len(self._chunk):
+    def chunk_at(self, k: int) -> tuple[int, np.ndarray]:
+        """(its first sample, (n, S, 4) float32) the chunk that holds sample k (generated when k
+        is not in the current one)."""
+        if not 0 <= k - self._start < len(self._chunk):
             c = (k + self.offset) // self.chunk_len
             self._start = max(0, c * self.chunk_len - self.offset)
             end = (c + 1) * self.chunk_len - self.offset
             self._chunk = self.source.chunk(self._start, end - self._start)[1].astype(np.float32)
-            i = k - self._start
-        return self._chunk[i]
+        return self._start, self._chunk
+
+    def sample(self, k: int) -> np.ndarray:
+        """(S, 4) float32 orientations at sample k."""
+        start, chunk = self.chunk_at(k)
+        return chunk[k - start]
+
+
+class FeedRows:
+    """Sample k of each of several feeds, stacked: one tick's values of all their devices.
+
+    The built-in generator's feeds (their chunks all of one length) are read from one array of
+    their current chunks, one gather for all of them; other feeds one by one. A finite feed holds
+    its last sample past its end.
+
+    Parameters
+    ----------
+    feeds : list of feeds, in the order of their rows.
+    """
+
+    def __init__(self, feeds: list):
+        self.feeds = feeds
+        self._first = np.cumsum([0] + [len(f.segments) for f in feeds])  # feed i's rows: first[i] .. first[i + 1]
+        gen = [i for i, f in enumerate(feeds) if isinstance(f, GeneratorFeed)]
+        shapes = {(feeds[i].chunk_len, len(feeds[i].segments)) for i in gen}
+        if len(shapes) != 1:  # none, or chunks of different shapes: every feed one by one
+            gen, shapes = [], {(0, 0)}
+        chunk_len, segments = shapes.pop()
+        self._gen = np.array(gen, np.int64)
+        self._chunks = np.zeros((len(gen), chunk_len, segments, 4), np.float32)  # their current chunks
+        self._start = np.zeros(len(gen), np.int64)  # the first sample of each
+        self._len = np.zeros(len(gen), np.int64)    # its samples (0: none yet)
+        self._gen_rows = (self._first[self._gen][:, None] + np.arange(segments)).ravel()
+        self._others = [i for i in range(len(feeds)) if i not in set(gen)]
+
+    def rows(self, k: int, count: int) -> np.ndarray:
+        """(rows of the first ``count`` feeds, 4) float32: each one's sample k."""
+        out = np.empty((self._first[count], 4), np.float32)
+        gen = np.searchsorted(self._gen, count)  # generator feeds among the first count
+        if gen:
+            i = k - self._start[:gen]
+            for g in np.flatnonzero((i < 0) | (i >= self._len[:gen])).tolist():
+                start, chunk = self.feeds[self._gen[g]].chunk_at(k)
+                self._chunks[g, :len(chunk)] = chunk
+                self._start[g], self._len[g] = start, len(chunk)
+            i = k - self._start[:gen]
+            out[self._gen_rows[:gen * self._chunks.shape[2]]] = self._chunks[np.arange(gen), i].reshape(-1, 4)
+        for f in self._others:
+            if f < count:
+                feed = self.feeds[f]
+                out[self._first[f]:self._first[f + 1]] = feed.sample(k if feed.length is None else min(k, feed.length - 1))
+        return out

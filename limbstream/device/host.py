@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
+import numpy as np
 import zenoh
 
 from limbstream import wire
@@ -83,6 +84,15 @@ class Device(Generic[S]):
     def online(self) -> bool:
         """Its liveliness token is declared."""
         return self.token is not None
+
+
+def _messages(slots: np.ndarray, payload: bytes, ends: np.ndarray) -> Iterator[tuple[int, bytes]]:
+    """(slot, message) of messages laid end to end (message i, device ``slots[i]``'s, is
+    ``payload[ends[i - 1]:ends[i]]``, from 0 for i = 0)."""
+    start = 0
+    for slot, end in zip(slots.tolist(), ends.tolist()):
+        yield slot, payload[start:end]
+        start = end
 
 
 class DeviceHost(Generic[S]):
@@ -166,10 +176,36 @@ class DeviceHost(Generic[S]):
         d.publisher.put(payload)
         d.points += 1
 
+    def publish_points(self, slots: np.ndarray, payload: bytes, ends: np.ndarray) -> None:
+        """Segment point messages of several devices, laid end to end: :meth:`publish` of each.
+
+        Parameters
+        ----------
+        slots : (K,) the devices' slots, message by message.
+        payload : bytes, the K messages back to back.
+        ends : (K,) offset in payload just after each message (message i is
+            ``payload[ends[i - 1]:ends[i]]``, from 0 for i = 0).
+        """
+        devices = self.devices
+        for slot, message in _messages(slots, payload, ends):
+            d = devices[slot]
+            d.last = message
+            d.publisher.put(message)
+            d.points += 1
+
     def publish_raw(self, d: Device[S], batch: wire.RawBatch | bytes) -> None:
         """One truth-tap batch, or its payload as encoded (nothing without ``truth``)."""
         if d.raw_pub is not None:
             d.raw_pub.put(batch if isinstance(batch, bytes) else wire.encode_raw(batch))
+
+    def publish_raws(self, slots: np.ndarray, payload: bytes, ends: np.ndarray) -> None:
+        """Truth-tap batches of several devices, laid end to end (as :meth:`publish_points`;
+        ``wire.encode_raws`` writes them so): :meth:`publish_raw` of each."""
+        devices = self.devices
+        for slot, message in _messages(slots, payload, ends):
+            pub = devices[slot].raw_pub
+            if pub is not None:
+                pub.put(message)
 
     def answer_queries(self, budget: int = QUERIES_PER_TICK) -> None:
         """Apply and answer the config queries that arrived since the last call, at most ``budget``."""

@@ -283,15 +283,43 @@ def _schedule(
     return out
 
 
-def _elementary(angle_deg: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """(n, 4) rotations by (n,) angles (|angle| < 180) about one axis; continuous in the angle."""
-    return quat.from_rotation(Rotation.from_rotvec(np.radians(angle_deg)[:, None] * axis))
+# The elementary rotations of the kinematic tree: (joint, sign, axis), the rotation by sign * the
+# joint's angle about the axis. Each segment's orientation is its parent's times its own factors,
+# left to right (orientations()).
+_TREE_AXES: list[tuple[str, float, np.ndarray]] = [
+    ("pelvis_yaw", 1.0, _Y), ("pelvis_tilt", 1.0, _X), ("pelvis_obliquity", 1.0, _Z),
+    ("trunk_rot", 1.0, _Y), ("trunk_flex", 1.0, _X), ("trunk_lat", 1.0, _Z),
+    ("neck_rot", 1.0, _Y), ("neck_flex", 1.0, _X), ("neck_lat", 1.0, _Z),
+] + [
+    (f"{joint}_{side}", sign, axis)
+    for side, lat in (("l", 1.0), ("r", -1.0))
+    # abduction moves a hanging limb away from the midline (+X is the subject's left): the
+    # abductions and rotations take the side's sign (lat)
+    for joint, sign, axis in (
+        ("hip_abd", lat, _Z), ("hip_flex", -1.0, _X), ("hip_rot", -lat, _Y), ("knee_flex", 1.0, _X),
+        ("shoulder_abd", lat, _Z), ("shoulder_flex", -1.0, _X), ("shoulder_rot", -lat, _Y), ("elbow_flex", -1.0, _X),
+    )
+]
+_TREE_JOINTS = [joint for joint, _, _ in _TREE_AXES]
+_TREE_SIGNS = np.array([sign for _, sign, _ in _TREE_AXES])[:, None]
+_TREE_AXIS = np.stack([axis for _, _, axis in _TREE_AXES])[:, None, :]
 
 
-def _chain(*factors: np.ndarray) -> np.ndarray:
-    out = factors[0]
-    for f in factors[1:]:
-        out = quat.multiply(out, f)
+def _elementary_all(a: dict[str, np.ndarray], heading: float) -> dict[str, np.ndarray]:
+    """{joint: (n, 4)} the rotations of :data:`_TREE_AXES` by the angles ``a`` (degrees, |angle|
+    < 180; the pelvis yaw plus the heading), continuous in the angle; one scipy call for all."""
+    angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
+    angle[0] = heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
+    rotvec = np.radians(angle)[:, :, None] * _TREE_AXIS
+    q = quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(len(_TREE_AXES), -1, 4)
+    return dict(zip(_TREE_JOINTS, q))
+
+
+def _chains(parent: np.ndarray, e: dict[str, np.ndarray], *steps: list[str]) -> np.ndarray:
+    """(c, n, 4) ``parent`` (n, 4) times c chains of factors at once (chain i's s-th: ``e[steps[s][i]]``)."""
+    out = parent[None]
+    for names in steps:
+        out = quat.multiply(out, np.stack([e[name] for name in names]))
     return out
 
 
@@ -387,45 +415,19 @@ class GeneratorSource:
 
         Mounting offsets apply if enabled; noise does not (it belongs to sample indices).
         """
-        a = self.joint_angles(t)
-        n = len(a["knee_flex_l"])
-        heading = np.full(n, self._subject.heading)
-        pelvis = _chain(
-            _elementary(heading + a["pelvis_yaw"], _Y),
-            _elementary(a["pelvis_tilt"], _X),
-            _elementary(a["pelvis_obliquity"], _Z),
-        )
-        trunk = _chain(
-            pelvis,
-            _elementary(a["trunk_rot"], _Y),
-            _elementary(a["trunk_flex"], _X),
-            _elementary(a["trunk_lat"], _Z),
-        )
-        neck = _chain(
-            trunk,
-            _elementary(a["neck_rot"], _Y),
-            _elementary(a["neck_flex"], _X),
-            _elementary(a["neck_lat"], _Z),
-        )
-        seg = {"hip": pelvis, "neck": neck}
-        for side, lat in (("l", 1.0), ("r", -1.0)):
-            # abduction moves a hanging limb away from the midline (+X is the subject's left)
-            thigh = _chain(
-                pelvis,
-                _elementary(lat * a[f"hip_abd_{side}"], _Z),
-                _elementary(-a[f"hip_flex_{side}"], _X),
-                _elementary(-lat * a[f"hip_rot_{side}"], _Y),
-            )
-            seg[f"{side}_thigh"] = thigh
-            seg[f"{side}_shank"] = _chain(thigh, _elementary(a[f"knee_flex_{side}"], _X))
-            upper = _chain(
-                trunk,
-                _elementary(lat * a[f"shoulder_abd_{side}"], _Z),
-                _elementary(-a[f"shoulder_flex_{side}"], _X),
-                _elementary(-lat * a[f"shoulder_rot_{side}"], _Y),
-            )
-            seg[f"{side}_upperarm"] = upper
-            seg[f"{side}_lowerarm"] = _chain(upper, _elementary(-a[f"elbow_flex_{side}"], _X))
+        e = _elementary_all(self.joint_angles(t), self._subject.heading)
+        # each level of the tree in one product per factor: all chains of a level advance together
+        pelvis = quat.multiply(quat.multiply(e["pelvis_yaw"], e["pelvis_tilt"]), e["pelvis_obliquity"])
+        trunk, thigh_l, thigh_r = _chains(pelvis, e, ["trunk_rot", "hip_abd_l", "hip_abd_r"],
+                                          ["trunk_flex", "hip_flex_l", "hip_flex_r"],
+                                          ["trunk_lat", "hip_rot_l", "hip_rot_r"])
+        neck, upper_l, upper_r = _chains(trunk, e, ["neck_rot", "shoulder_abd_l", "shoulder_abd_r"],
+                                         ["neck_flex", "shoulder_flex_l", "shoulder_flex_r"],
+                                         ["neck_lat", "shoulder_rot_l", "shoulder_rot_r"])
+        shank_l, shank_r, lower_l, lower_r = quat.multiply(np.stack([thigh_l, thigh_r, upper_l, upper_r]), np.stack(
+            [e["knee_flex_l"], e["knee_flex_r"], e["elbow_flex_l"], e["elbow_flex_r"]]))
+        seg = dict(hip=pelvis, neck=neck, l_thigh=thigh_l, r_thigh=thigh_r, l_shank=shank_l, r_shank=shank_r,
+                   l_upperarm=upper_l, r_upperarm=upper_r, l_lowerarm=lower_l, r_lowerarm=lower_r)
         q = np.stack([seg[s] for s in SEGMENTS], axis=1)
         if self.mounting_offsets:
             q = quat.multiply(q, self._mount[None, :, :])

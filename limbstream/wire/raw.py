@@ -73,6 +73,54 @@ def encode_raw(batch: RawBatch) -> bytes:
     return header + body.tobytes()
 
 
+def encode_raws(stream: np.ndarray, first_index: np.ndarray, count: np.ndarray, t_us: np.ndarray, q: np.ndarray,
+                ref_us: np.ndarray | None = None) -> tuple[bytes, np.ndarray]:
+    """Many truth-tap batches at once, laid end to end: the bytes of :func:`encode_raw` of each.
+
+    Parameters
+    ----------
+    stream, first_index, count : (B,) per batch, as in :class:`RawBatch` (count >= 1).
+    t_us : (S,) int64 device times of all samples, batch after batch (S = count.sum()).
+    q : (S, 4) float32 their orientations.
+    ref_us : (S,) int64 their reference times (version 2), or None (version 1).
+
+    Returns
+    -------
+    payload : bytes, the B messages back to back.
+    ends : (B,) int64 offset in payload just after each message.
+    """
+    count = np.asarray(count, np.int64)
+    if len(count) and not (count.min() > 0 and count.max() <= MAX_RAW_BATCH):
+        raise ValueError(f"raw batches must hold 1..{MAX_RAW_BATCH} samples, got {count.min()}..{count.max()}")
+    version = 1 if ref_us is None else 2
+    header, dtype = _LAYOUT[version]
+    first = np.cumsum(count) - count
+    heads = np.zeros(len(count), _HEADS[version])
+    heads["version"], heads["stream"], heads["count"], heads["first_index"] = version, stream, count, first_index
+    t_us = np.asarray(t_us, np.int64)
+    heads["t0"] = t_us[first]
+    body = np.empty(len(t_us), dtype)
+    body["dt_us"] = t_us - np.repeat(heads["t0"], count)
+    body["q"] = q
+    if ref_us is not None:
+        ref_us = np.asarray(ref_us, np.int64)
+        heads["ref0"] = ref_us[first]
+        body["ref_dt_us"] = ref_us - np.repeat(heads["ref0"], count)
+    ends = np.cumsum(header.size + count * dtype.itemsize)
+    out = np.empty(int(ends[-1]) if len(ends) else 0, np.uint8)
+    if len(count) and count.min() == count.max():  # batches of one size: a (B, message) table
+        table = out.reshape(len(count), -1)
+        table[:, :header.size] = heads.view(np.uint8).reshape(len(count), -1)
+        table[:, header.size:] = body.view(np.uint8).reshape(len(count), -1)
+        return out.tobytes(), ends
+    at_header = ((ends - count * dtype.itemsize - header.size)[:, None] + np.arange(header.size)).ravel()
+    out[at_header] = heads.view(np.uint8)
+    body_bytes = np.ones(len(out), bool)
+    body_bytes[at_header] = False
+    out[body_bytes] = body.view(np.uint8)  # each batch's samples follow its header, in order
+    return out.tobytes(), ends
+
+
 def decode_raw(payload: bytes) -> RawBatch:
     """Bytes (version 1 or 2) -> RawBatch; WireError with reason size / version / non_finite /
     time_backwards (device or reference times)."""
