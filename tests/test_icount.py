@@ -28,7 +28,7 @@ the point's encoding with its float64 body rate, framing)."""
 VQF_MAX_INSTRUCTIONS = 19154
 """Reached maximum of VQF 6D per raw sample (updateGyr + updateAcc, VQF's own double-precision
 filter states in libgcc's soft-float; LSW_VQF_FLOAT off)."""
-IMU_MAX_INSTRUCTIONS = 77513
+IMU_MAX_INSTRUCTIONS = 77557
 """Reached maximum of the raw-sample pipeline per device sample (200 Hz raw, 50 Hz device: the four
 VQF updates since the last device sample, the checks, fastSW live)."""
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",
