@@ -133,8 +133,8 @@ def main(argv: list[str] | None = None) -> int:
                                capture_output=True)
     base, head = results[args.base], results[args.head]
     print(f"\n| measure | {args.base} | {args.head} | ratio |\n|---|---|---|---|")
-    for key in base:
-        b, h = base[key], head.get(key, float("nan"))
+    for key in base | head:  # (a figure only one revision has shows with nan for the other)
+        b, h = base.get(key, float("nan")), head.get(key, float("nan"))
         ratio = h / b if b else float("nan")
         print(f"| {key} | {b:.3g} | {h:.3g} | {ratio:.2f} |")
     return 0
