@@ -85,6 +85,9 @@ def test_compose_file_resolves_with_every_rule_of_the_deployment():
     command = services["emulator"]["command"]
     given = {f: float(command[command.index(f) + 1]) for f in ("--live-bound-deg", "--threshold")}
     assert given == {"--live-bound-deg": live.live_bound_deg, "--threshold": live.threshold}, command
+    run_flags = re.search(r"^RUN_FLAGS \?= (.*)$", (ROOT / "Makefile").read_text(), re.M)
+    assert run_flags and f" {run_flags[1]} " in f" {' '.join(command)} ", ("make run's sensors", command)
+    assert "--calibrate-on-start" in services["aggregator"]["command"], "make run's devices are calibrated"
 
     emulator = services["emulator"]["environment"]
     assert {"LIMBSTREAM_SUBJECTS", "LIMBSTREAM_SOURCE", "LIMBSTREAM_SUBJECT_PREFIX"} <= set(emulator), emulator
@@ -107,7 +110,7 @@ def test_environment_reaches_the_services():
     services = model["services"]
     assert services["emulator"]["environment"]["LIMBSTREAM_SUBJECTS"] == "7"
     assert services["emulator"]["environment"]["LIMBSTREAM_SOURCE"] == "/data/clips.npz"
-    assert services["aggregator"]["command"] == ["aggregate", "--subjects", "s0*"]
+    assert services["aggregator"]["command"] == ["aggregate", "--subjects", "s0*", "--calibrate-on-start"]
     port = services["dashboard"]["ports"][0]
     assert (port["host_ip"], port["published"], port["target"]) == ("0.0.0.0", "9000", 8000), port
 
