@@ -348,8 +348,9 @@ def test_page_plots_each_subjects_joint_angles(stack):  # noqa: F811
             picked = page.eval_on_selector_all("#joints-pick input:checked", "xs => xs.map(x => x.value)")
             assert picked == ["hip_flexion_r", "knee_angle_r", "hip_flexion_l", "knee_angle_l"], picked
             colors = page.evaluate("[COLORS.right, COLORS.left]")
-            for color in colors:  # both sides' curves are drawn
-                assert page.evaluate(PLOT_INK, ["s01", color]) > 300, color
+            for color in colors:  # both sides' curves are drawn (they lengthen as the seconds come)
+                wait_until(lambda c=color: page.evaluate(PLOT_INK, ["s01", c]) > 300, 30, f"s01's {color} curves drawn",
+                           interval=0.2)
             caption = page.text_content('.joint-plot[data-subject="s01"] .why')
             assert "calibration segments" in caption and re.search(r"knee_angle_r -?\d+\.\d°", caption), caption
             page.wait_for_function(JOINT_PLOT, arg=["s02", "false", None, 1], timeout=30_000)
