@@ -191,9 +191,10 @@ class SerialLink:
         """Begin a new stream with this id."""
         return self._ask(lambda r: link.encode_start(r, stream))
 
-    def end(self) -> link.Ack:
-        """End the stream: its last point (FINAL) comes before the ack."""
-        return self._ask(lambda r: link.encode_request(link.END, r))
+    def end(self, timeout_s: float = ANSWER_TIMEOUT_S) -> link.Ack:
+        """End the stream: its last point (FINAL) comes before the ack. The device answers once it
+        has taken every frame sent before (``timeout_s``: how long that may take)."""
+        return self._ask(lambda r: link.encode_request(link.END, r), timeout_s)
 
     def status(self) -> link.LinkStatus:
         return self._ask(lambda r: link.encode_request(link.STATUS_REQ, r))
