@@ -11,6 +11,7 @@ parent, named by the joint it places. See docs/body.md.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +31,8 @@ def unit(value: Any, what: str) -> Vec:
     n = math.sqrt(x * x + y * y + z * z)
     if not math.isfinite(n) or n == 0.0:
         raise ValueError(f"{what}: direction must be finite and non-zero, got {[x, y, z]}")
+    if abs(n - 1.0) <= 4 * sys.float_info.epsilon:  # unit already: kept as written (a layout's file round trips)
+        return (x, y, z)
     return (x / n, y / n, z / n)
 
 
