@@ -239,6 +239,8 @@ def test_bvh_style_vectors_keep_their_own_rest_pose_and_take_the_layouts_in_the_
     body = Body.from_vectors(PAPER10, vectors, rest_pose="tpose")
     i = PAPER10.bone_names.index("l_upperarm")
     assert body.vectors["tpose"][i].tolist() == [0.3, 0.0, -0.04]
+    with pytest.raises(ValueError, match="read-only"):
+        body.vectors["tpose"][i] = 0.0
     assert body.vectors["standing"][i] == pytest.approx([0.0, -math.hypot(0.3, 0.04), 0.0])
     t = at(body, identity(PAPER10), tpose=True)
     assert t["l_elbow"] - t["l_shoulder"] == pytest.approx([0.3, 0.0, -0.04])
@@ -345,6 +347,8 @@ BAD_LAYOUTS = [
     ('name = "small"', 'name = "small"\njoints = ["pelvis", "pelvis", "neck_base", "l_hip", "l_knee", "l_ankle"]',
      r"layout small: joint 'pelvis' twice in its joints order"),
     ('name = "l_shank"', 'name = "l_hip"', r"bone name 'l_hip' used twice \(an offset is named by its joint\)"),
+    ('name = "hip"\njoint = "pelvis"', 'name = "hip"\njoint = "pelvis"\noffset = { from = "pelvis", direction = [1, 0, 0] }',
+     r"the root segment 'hip' takes no offset \(its joint is the origin\)"),
 ]
 
 

@@ -82,6 +82,8 @@ class Body:
             for pose in wire.REST_POSES:
                 same = bone.directions[pose] == bone.directions[rest_pose]
                 vectors[pose][i] = vec if pose == rest_pose or same else np.array(bone.directions[pose]) * length
+        for array in vectors.values():
+            array.flags.writeable = False  # the chain is built from them once
         self.vectors = vectors
         """Rest pose -> (B, 3) bone vectors, m, in their segments' frames at rest."""
 

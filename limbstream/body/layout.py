@@ -208,6 +208,8 @@ def _bones(name: str, segments: Sequence[Segment]) -> tuple[Bone, ...]:
     for s in segments:
         children.setdefault(s.parent, []).append(s)
     root = children[None][0]
+    if root.offset is not None:
+        raise ValueError(f"layout {name}: the root segment {root.name!r} takes no offset (its joint is the origin)")
     bones: list[Bone] = []
     placer: dict[str, str] = {root.joint: "the origin"}  # joint -> what places it
     queue = [root]
