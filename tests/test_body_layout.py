@@ -280,6 +280,7 @@ def test_a_built_in_written_to_a_file_loads_back_equal(tmp_path, lay):
     path.write_text(json.dumps(lay.to_dict()))
     back = load_layout(path)
     assert back == lay and back.bones == lay.bones
+    assert hash(back) == hash(lay) and len({back, lay, FULL, PAPER10}) == 2  # a layout can key a cache
     assert Body.from_height(back, 1.7).vectors["tpose"].tobytes() == Body.from_height(lay, 1.7).vectors["tpose"].tobytes()
 
 

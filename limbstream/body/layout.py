@@ -123,6 +123,9 @@ class Layout:
         if len(self.joints) > MAX_JOINTS:
             raise ValueError(f"layout {self.name}: {len(self.joints)} joints, at most {MAX_JOINTS}")
 
+    def __hash__(self) -> int:  # equal layouts share these (their segments hold dicts)
+        return hash((self.name, self.segment_names, self.joints))
+
     @property
     def root(self) -> Segment:
         """The segment without a parent (its proximal joint is the origin)."""
