@@ -40,7 +40,7 @@ CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
 
 PARTS: dict[str, str] = {
     "upleg": "thigh", "upperleg": "thigh", "thigh": "thigh", "femur": "thigh",
-    "leg": "shank", "lowerleg": "shank", "shin": "shank", "calf": "shank", "knee": "shank", "tibia": "shank",
+    "leg": "shank", "lowerleg": "shank", "shank": "shank", "shin": "shank", "calf": "shank", "knee": "shank", "tibia": "shank",
     "arm": "upperarm", "upperarm": "upperarm", "humerus": "upperarm",
     "forearm": "lowerarm", "lowerarm": "lowerarm", "elbow": "lowerarm", "ulna": "lowerarm",
 }
