@@ -45,6 +45,6 @@ def run(args: argparse.Namespace) -> int:
     for note in take.notes + [f"calibration: {take.basis}"]:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     seconds = len(take) * take.period_us / 1e6
-    print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:g} Hz ({seconds:.1f} s, "
+    print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:.4g} Hz ({seconds:.1f} s, "
           f"{take.skeleton.rest_pose} rest pose) to {args.output} ({fmt})", flush=True)
     return 0

@@ -115,7 +115,7 @@ def segment_map(path: Path, joints: Sequence[str], names: Mapping[str, str] | No
         if chosen:
             return chosen
         chosen = by_parts(joints)
-        if not chosen:
+        if len(chosen) < len(SEGMENTS) // 2:
             raise MotionFileError.at(path, None, f"joint names match no naming scheme (CMU, Mixamo, sided "
                                                  f"Left/L/Right/R names); joints: {_listing(joints)}; map them "
                                                  f"with {FLAG}, segments: {', '.join(SEGMENTS)}")
