@@ -159,3 +159,21 @@ def test_an_xsens_recording_exports_once_its_sensors_are_mapped(tmp_path, xsens_
     q50 = np.load(tmp_path / "walk50.npz")["clip_xsens_opensense"]
     assert fs == 100.0 and len(q50) == (len(q) + 1) // 2
     assert quat.angle_deg(q50.astype(np.float64), q[::2]).max() < 1e-3  # every other frame of the 100 Hz one
+
+
+def test_a_raw_recording_exports_fused_as_devices_fuse_it(tmp_path):
+    """The qmt full-body .mat (angular rate and specific force) is fused as ``fuse``, ``eval`` and
+    ``up --imu raw`` devices fuse it, calibrated from its still start and exported at its 100 Hz:
+    the subject stands still for its first seconds, then moves its knees."""
+    from support import require_data
+
+    from limbstream import joints
+    path = require_data("qmt_full_body/full_body_example_data.mat")
+    result = cli(str(path), "-o", str(tmp_path / "qmt.npz"))
+    assert result.returncode == 0, result.stderr
+    assert "10000 frames at 100 Hz" in result.stdout and "standing rest pose" in result.stdout, result.stdout
+    assert "calibration: rest pose from the first 1 s standing still" in result.stderr, result.stderr
+    (motion,) = load(tmp_path / "qmt.npz")
+    angles, _ = joints.joint_angles(motion.q, None, "standing")
+    knee = angles[:, [joints.ANGLES.index("knee_angle_l"), joints.ANGLES.index("knee_angle_r")]]
+    assert np.abs(knee[: 300]).max() < 5.0 and np.ptp(knee[400:], axis=0).min() > 45.0, np.ptp(knee, axis=0)
