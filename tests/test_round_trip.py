@@ -123,3 +123,16 @@ def test_a_recording_exported_as_bvh_gives_the_recordings_joint_angles(tmp_path)
     worst = {c: float(np.max(np.abs(direct[c] - through_bvh[c]))) for c in direct}
     print(f"recording -> bvh -> mot vs recording -> mot: {max(worst.values()):.2e} deg")
     assert max(worst.values()) <= ANGLE_TOL_DEG, worst
+
+
+def test_rate_resamples_a_recording(tmp_path):
+    """``--rate``: every other frame at half the rate; SLERP halfway between frames at twice it."""
+    rec = tmp_path / "session.mcap"
+    write_recording(rec)
+    ref = read_take(rec, None)
+    half, double = read_take(rec, None, rate=25.0), read_take(rec, None, rate=100.0)
+    assert (len(ref), len(half), len(double)) == (200, 100, 399)
+    assert half.period_us == 40_000 and quat.angle_deg(half.q, ref.q[::2]).max() < 1e-4
+    assert quat.angle_deg(double.q[::2], ref.q).max() < 1e-4
+    assert quat.angle_deg(double.q[1], quat.slerp(ref.q[0], ref.q[1], 0.5)).max() < 1e-4
+    assert np.allclose(double.joints, double.skeleton.positions(double.q), atol=1e-6)

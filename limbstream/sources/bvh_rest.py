@@ -73,9 +73,11 @@ def rest_pose(clip: BvhClip, segment_map: Mapping[str, str]) -> tuple[str, dict[
     it, the (4,) rotation ``c`` to apply on the right of its orientations (see the module)."""
     at = zero_pose_positions(clip)
     index = {name: j for j, name in enumerate(clip.joints)}
-    bones = {seg: bone_vector(clip, index[joint], at) for seg, joint in segment_map.items()
-             if seg in _ARMS and joint in index}
-    bones = {seg: b for seg, b in bones.items() if b is not None}
+    bones: dict[str, np.ndarray] = {}
+    for seg, joint in segment_map.items():
+        bone = bone_vector(clip, index[joint], at) if seg in _ARMS and joint in index else None
+        if bone is not None:
+            bones[seg] = bone
     votes = []
     for seg in ("l_upperarm", "r_upperarm"):
         if seg in bones:

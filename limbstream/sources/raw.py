@@ -172,7 +172,8 @@ def to_motion(rec: RawRecording, names: Mapping[str, str] | None = None) -> Moti
     (:func:`.imu_files.to_body`); MotionFileError if no sensor is on the body."""
     from limbstream.sources import imu_files, names as sensor_names
 
-    segments = list(rec.segments) if names is None else sensor_names.name_sensors(rec.sensors, names)
+    named = list(rec.segments) if names is None else sensor_names.name_sensors(rec.sensors, names)
+    segments = [seg or "" for seg in named]
     keep = [k for k, seg in enumerate(segments) if seg in SEGMENTS + sensor_names.EXTRA_SEGMENTS]
     if not keep:
         raise MotionFileError(f"{rec.name}: no sensor maps to a body segment (sensors found: "
