@@ -96,10 +96,11 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     anchor = [] if args.speed == 1 else ["--time-anchor", f"{time.time():.3f}"]
     if args.sync:
         parts.append(("clock", ["clock", "--speed", str(args.speed), *anchor] + connect))
-    per = -(-args.subjects // args.emulators)
+    subjects = default_subjects(args.source) if args.subjects is None else args.subjects
+    per = -(-subjects // args.emulators)
     for e in range(args.emulators):
         first = 1 + e * per
-        count = min(per, args.subjects - e * per)
+        count = min(per, subjects - e * per)
         if count <= 0:
             break
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,

@@ -346,6 +346,8 @@ def load_bvh(
         (joint -> segment, as ``--names`` gives it) or the naming schemes (:mod:`.bvh_names`),
         the 10 segments in :data:`SEGMENTS` order.
     drop_first : drop frame 0; None (default) drops it when :func:`is_synthetic_tpose` says so.
+    names : joint -> segment (``--names``, :func:`limbstream.sources.names.parse`) for a file
+        whose joint names no scheme fits; ignored with ``segment_map``.
 
     Returns
     -------
