@@ -7,10 +7,10 @@ standing still (``Motion.orientations`` ``rest``: each sensor calibrated from it
 second); the subject's facing, which a rest pose cannot tell, is found here from the knees' and
 elbows' motion (:mod:`limbstream.joints.functional`) before anything is exported.
 
-Sources: the exact pose frames of a subject in a recording (:mod:`.recording`), or any motion
-file ``limbstream.sources.load`` reads (resampled to 50 Hz where it is not). Layouts, units and
-the handling of gaps: docs/outputs.md.
-BVH: :mod:`.bvh_writer`.
+Sources: the exact pose frames of a subject in a recording (:mod:`.recording`), a raw sensor
+recording fused as devices fuse it (:func:`limbstream.sources.raw.to_motion`), or any motion file
+``limbstream.sources.load`` reads, each at its own frame rate unless ``--rate`` asks for another.
+Layouts, units and the handling of gaps: docs/outputs.md. BVH: :mod:`.bvh_writer`.
 """
 from __future__ import annotations
 
