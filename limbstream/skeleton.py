@@ -3,7 +3,7 @@
 Each segment's bone points along a fixed direction of its own frame; with every segment
 orientation at identity the body stands in its rest pose (Y up, X to the subject's left).
 Two rest poses cover the sources (``wire.REST_POSES``): ``"standing"`` (arms hanging: the
-built-in generator and IMU recordings) and ``"tpose"`` (arms out along +-X: BVH clips). The rest
+built-in generator and IMU recordings) and ``"tpose"`` (arms out along +-X: most BVH files). The rest
 pose is a property of the data: motion sources know theirs, devices announce it, pose frames
 carry it. No sensor on the trunk, so the spine follows the hip (pelvis) segment.
 """

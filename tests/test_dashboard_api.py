@@ -2,6 +2,7 @@
 on loopback), with the app's lifespan on."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -162,6 +163,7 @@ def test_history_is_bounded_and_windowed(router, pub):
 
 def test_latest_pose_and_kinds(client, pub):
     exact, live = pose_frame(7), pose_frame(8, wire.KIND_LIVE)
+    exact = dataclasses.replace(exact, flags=wire.FRAME_TPOSE)  # a T-pose subject's frame
 
     def publish():
         pub.put(wire.pose_key("poseC"), wire.encode_pose(exact))
@@ -172,10 +174,12 @@ def test_latest_pose_and_kinds(client, pub):
     got = client.get("/api/subjects/poseC/pose", params={"kind": "exact"}).json()
     expected = exact.to_json("poseC")
     assert got["seq"] == 7 and got["kind"] == "exact" and got["t"] == expected["t"], got
+    assert got["rest_pose"] == expected["rest_pose"] == "tpose"  # the rest pose travels with the frame
     for joint, xyz in expected["joints"].items():
         assert np.allclose(got["joints"][joint], xyz, atol=1e-4), (joint, got["joints"][joint], xyz)
     assert client.get("/api/subjects/poseC/pose?kind=auto").json()["kind"] == "live"  # wire.auto_kind: live came
     assert client.get("/api/subjects/poseC/pose?kind=live").json()["seq"] == 8
+    assert client.get("/api/subjects/poseC/pose?kind=live").json()["rest_pose"] == "standing"
     assert client.get("/api/subjects/poseC/pose?kind=sideways").status_code == 422
     skeleton = client.get("/api/skeleton").json()
     assert skeleton["joints"] == list(wire.JOINTS) and len(skeleton["bones"]) == len(wire.BONES)

@@ -30,7 +30,7 @@ def test_websocket_streams_frames_in_order(client, pub):
                   lambda: client.get("/api/subjects/wsK/pose").status_code == 200, "wsK first frame")
     with client.websocket_connect("/ws/pose/wsK") as ws:
         first = json.loads(ws.receive_text())  # the latest frame, sent on connect
-        assert first["subject"] == "wsK" and first["seq"] == 0, first
+        assert first["subject"] == "wsK" and first["seq"] == 0 and first["rest_pose"] == "standing", first
         stop = threading.Event()
 
         def publish():

@@ -96,9 +96,9 @@ def test_motion_files_export_to_bvh_and_back(tmp_path, clip, cmu_npz, cmu_bvh_di
     assert err.max() < 0.01, err.max()
 
     source = sorted(cmu_bvh_dir.glob("*.bvh"))[0]
-    (original,) = load(source)
+    original = load_bvh(source, fs=None)  # its own 120 Hz, which the export keeps
     result = cli(str(source), "-o", str(out))
-    assert result.returncode == 0 and "tpose rest pose" in result.stdout, result
+    assert result.returncode == 0 and "at 120 Hz" in result.stdout and "tpose rest pose" in result.stdout, result
     err = quat.angle_deg(load_bvh(out, fs=None, drop_first=False).q, original.q)
     print(f"\n{source.name}: {len(original.t)} frames, max {err.max():.2e} deg")
     assert err.max() < 0.01
@@ -144,6 +144,7 @@ def test_an_xsens_recording_exports_once_its_sensors_are_mapped(tmp_path, xsens_
     assert "no sensor maps to a body segment (sensors found: 00B421E6, 00B421ED" in err and "--names" in err, err
     done = cli(str(xsens_dir), "--names", "opensense", "-o", str(out))
     assert done.returncode == 0, done.stderr
+    assert "at 100 Hz" in done.stdout, done.stdout  # the sensors' own rate
     assert "calibration: rest pose from the first 1 s standing still, functional facing" in done.stderr, done.stderr
     data = np.load(out)
     q = data["clip_xsens_opensense"].astype(np.float64)
@@ -153,3 +154,26 @@ def test_an_xsens_recording_exports_once_its_sensors_are_mapped(tmp_path, xsens_
         peaks, _ = find_peaks(knee, height=30.0, distance=round(0.8 * fs))  # one swing per stride
         assert len(peaks) >= 8 and knee[: round(fs)].max() < 10.0, (side, knee[peaks])  # it starts standing
         assert 55.0 <= np.median(knee[peaks]) <= 75.0 and knee.max() <= 75.0, (side, knee[peaks].round(1))
+    at50 = cli(str(xsens_dir), "--names", "opensense", "--rate", "50", "-o", str(tmp_path / "walk50.npz"))
+    assert at50.returncode == 0 and "at 50 Hz" in at50.stdout, at50
+    q50 = np.load(tmp_path / "walk50.npz")["clip_xsens_opensense"]
+    assert fs == 100.0 and len(q50) == (len(q) + 1) // 2
+    assert quat.angle_deg(q50.astype(np.float64), q[::2]).max() < 1e-3  # every other frame of the 100 Hz one
+
+
+def test_a_raw_recording_exports_fused_as_devices_fuse_it(tmp_path):
+    """The qmt full-body .mat (angular rate and specific force) is fused as ``fuse``, ``eval`` and
+    ``up --imu raw`` devices fuse it, calibrated from its still start and exported at its 100 Hz:
+    the subject stands still for its first seconds, then moves its knees."""
+    from support import require_data
+
+    from limbstream import joints
+    path = require_data("qmt_full_body/full_body_example_data.mat")
+    result = cli(str(path), "-o", str(tmp_path / "qmt.npz"))
+    assert result.returncode == 0, result.stderr
+    assert "10000 frames at 100 Hz" in result.stdout and "standing rest pose" in result.stdout, result.stdout
+    assert "calibration: rest pose from the first 1 s standing still" in result.stderr, result.stderr
+    (motion,) = load(tmp_path / "qmt.npz")
+    angles, _ = joints.joint_angles(motion.q, None, "standing")
+    knee = angles[:, [joints.ANGLES.index("knee_angle_l"), joints.ANGLES.index("knee_angle_r")]]
+    assert np.abs(knee[: 300]).max() < 5.0 and np.ptp(knee[400:], axis=0).min() > 45.0, np.ptp(knee, axis=0)

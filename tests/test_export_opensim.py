@@ -4,10 +4,9 @@ table OpenSense's IMU inverse kinematics reads for .sto)."""
 from __future__ import annotations
 
 import numpy as np
-import opensim
 import pytest
 from support import require_data
-from support.export import T0_US, cli
+from support.export import T0_US, cli, quaternion_table, storage_columns
 
 from limbstream import joints, quat, wire
 from limbstream.services.outputs.export import export, from_motion, read_take
@@ -15,29 +14,6 @@ from limbstream.services.outputs.opensim import IMU_NAMES
 from limbstream.services.outputs.recording import RecordingWriter
 from limbstream.skeleton import Skeleton
 from limbstream.sources import load, load_npz, names
-
-
-def storage_columns(path) -> tuple[opensim.Storage, dict[str, np.ndarray]]:
-    """OpenSim's Storage of a motion file and its columns by label (time included)."""
-    storage = opensim.Storage(str(path))
-    labels = storage.getColumnLabels()
-    columns = {}
-    for i in range(labels.getSize()):
-        values = opensim.ArrayDouble()
-        if labels.get(i) == "time":
-            storage.getTimeColumn(values)
-        else:
-            storage.getDataColumn(labels.get(i), values)
-        columns[labels.get(i)] = np.array([values.get(k) for k in range(values.getSize())])
-    return storage, columns
-
-
-def quaternion_table(path) -> tuple[opensim.TimeSeriesTableQuaternion, np.ndarray]:
-    """OpenSense's orientation table of a file and its (F, C, 4) quaternions."""
-    table = opensim.TimeSeriesTableQuaternion(str(path))
-    q = np.array([[[float(v) for v in str(table.getRowAtIndex(k).getElt(0, j)).strip("~[]").split(",")]
-                   for j in range(table.getNumColumns())] for k in range(table.getNumRows())])
-    return table, q
 
 
 def test_a_motion_file_exports_joint_angles_and_orientations_opensim_reads(tmp_path, cmu_npz):

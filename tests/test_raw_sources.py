@@ -68,7 +68,7 @@ def test_missing_and_malformed_channels_are_named(tmp_path):
     junk.write_bytes(b"not a mat file at all")
     with pytest.raises(MotionFileError, match="not a readable MATLAB file"):
         load_raw(junk)
-    with pytest.raises(MotionFileError, match="load_raw"):  # orientation loaders point to the raw one
+    with pytest.raises(MotionFileError, match="limbstream fuse, eval and export fuse it"):  # the commands that take it
         load(path)
 
 

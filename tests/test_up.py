@@ -204,6 +204,38 @@ def test_up_banner_counts_the_devices_that_run_and_prints_client_commands(xio_di
     assert up_cli.running(up_cli.check(default), default) == "2 subjects x 10 devices, source generator"
 
 
+def test_a_recording_is_one_subject_unless_more_are_asked_for(xsens_dir, monkeypatch):
+    """``up``/``emulate --source`` a recording: its one person (the generator: 2 subjects);
+    ``--subjects N`` asks for copies; the banner counts what runs."""
+    from limbstream.cli import emulate as emulate_cli
+    from limbstream.cli import up as up_cli
+    monkeypatch.delenv("LIMBSTREAM_SUBJECTS", raising=False)
+
+    def up_args(*argv: str) -> argparse.Namespace:
+        parser = argparse.ArgumentParser()
+        up_cli.add_arguments(parser)
+        return parser.parse_args(list(argv))
+
+    args = up_args("--source", str(xsens_dir), "--names", "opensense")
+    assert up_cli.running(up_cli.check(args), args).startswith("1 subject x 7 devices (")
+    assert [argv[argv.index("--subjects") + 1] for _, argv in up_cli.plan(args) if argv[0] == "emulate"] == ["1"]
+    args = up_args("--source", str(xsens_dir), "--names", "opensense", "--subjects", "3")
+    assert up_cli.running(up_cli.check(args), args).startswith("3 subjects x 7 devices (")
+    args = up_args()
+    assert up_cli.running(up_cli.check(args), args) == "2 subjects x 10 devices, source generator"
+
+    def feeds(*argv: str) -> list[str]:
+        parser = argparse.ArgumentParser()
+        emulate_cli.add_arguments(parser)
+        args = parser.parse_args(list(argv))
+        emulate_cli.validate(args)
+        return sorted(emulate_cli.build_feeds(args))
+    assert feeds("--source", str(xsens_dir), "--names", "opensense") == ["s01"]
+    assert feeds() == ["s01", "s02"]
+    monkeypatch.setenv("LIMBSTREAM_SUBJECTS", "3")
+    assert feeds("--source", str(xsens_dir), "--names", "opensense") == ["s01", "s02", "s03"]
+
+
 def test_subjects_sharing_a_clip_start_apart_unless_told_otherwise():
     """Two subjects on one clip: the second starts 61.8 % into it; --same-start: in step. With two
     clips, the subjects take them in turn, each at its start."""

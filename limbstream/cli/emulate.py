@@ -70,10 +70,22 @@ def clip_of(number: int, clips: int, same_start: bool = False) -> tuple[int, flo
     return clip, 0.0 if same_start else (k * START_STEP) % 1.0
 
 
+GENERATOR_SUBJECTS = 2
+"""Subjects on the built-in generator when ``--subjects`` is not given (a motion file or recording
+gives one: its own person; more are copies of it)."""
+
+
+def default_subjects(source: str) -> int:
+    """How many subjects ``--source`` gives when ``--subjects`` does not say (see :data:`GENERATOR_SUBJECTS`)."""
+    return GENERATOR_SUBJECTS if source == "generator" else 1
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     env = os.environ.get
-    parser.add_argument("--subjects", type=int, default=env("LIMBSTREAM_SUBJECTS", "2"),
-                        help="number of subjects (10 IMUs each; env LIMBSTREAM_SUBJECTS, default 2)")
+    parser.add_argument("--subjects", type=int, default=env("LIMBSTREAM_SUBJECTS"),
+                        help="number of subjects, each with a device per segment of the source (env "
+                             "LIMBSTREAM_SUBJECTS; default: 2 on the generator, 1 on a motion file or recording, "
+                             "whose person it is; more are copies)")
     parser.add_argument("--first-subject", type=int, default=1, help="number of the first subject (s01 = 1)")
     parser.add_argument("--subject-prefix", default=env("LIMBSTREAM_SUBJECT_PREFIX", "s"),
                         help="subject name prefix (env LIMBSTREAM_SUBJECT_PREFIX; default s: s01, s02, ...); "
@@ -177,7 +189,10 @@ def clock_settings(args: argparse.Namespace) -> ClockSettings:
 
 
 def validate(args: argparse.Namespace) -> None:
-    """Clear errors for bad flag values (SystemExit with a message)."""
+    """Clear errors for bad flag values (SystemExit with a message); ``--subjects`` not given: the
+    source's default (:func:`default_subjects`)."""
+    if args.subjects is None:
+        args.subjects = default_subjects(args.source)
     checks = [
         (args.subjects >= 1, f"--subjects must be >= 1, got {args.subjects}"),
         (args.rate > 0, f"--rate must be > 0, got {args.rate}"),

@@ -24,7 +24,7 @@ from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LE
 from limbstream.evaluation.table import Progress
 from limbstream.kernel import fusion
 from limbstream.sources import Motion, MotionFileError, load
-from limbstream.sources.raw import RawRecording, load_raw
+from limbstream.sources.raw import RawRecording, load_raw, raw_files
 
 
 def plot(
@@ -222,26 +222,13 @@ def _check(args: argparse.Namespace, algorithms: list[str], bounds: list[float])
     return None
 
 
-def _raw_paths(path: str) -> list[Path] | None:
-    """The raw recordings ``path`` names (a .mat file, or a folder holding .mat files and no
-    motion files), None for motion files."""
-    p = Path(path)
-    if p.is_file():
-        return [p] if p.suffix.lower() == ".mat" else None
-    if p.is_dir():
-        files = sorted(f for f in p.iterdir() if f.is_file() and not f.name.startswith("."))
-        mats = [f for f in files if f.suffix.lower() == ".mat"]
-        return mats if mats and len(mats) == len([f for f in files if f.suffix.lower() != ".license"]) else None
-    return None
-
-
 def _inputs(args: argparse.Namespace) -> tuple[list[Motion], list[RawRecording]]:
     """The motion files and raw recordings of the paths (MotionFileError, OSError)."""
     motions: list[Motion] = []
     recordings: list[RawRecording] = []
     for path in args.paths:
-        raw = _raw_paths(path)
-        if raw is not None:
+        raw = raw_files(path)
+        if raw:
             recordings.extend(load_raw(p) for p in raw)
         else:
             motions.extend(load(path, args.names))

@@ -15,7 +15,8 @@ PROG = "limbstream export"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("source", metavar="IN", help="a recording (.mcap) or a motion file/folder limbstream reads "
+    parser.add_argument("source", metavar="IN", help="a recording (.mcap), a raw sensor recording (.mat: fused as "
+                                                     "devices fuse it) or a motion file/folder limbstream reads "
                                                      "(.npz, .bvh, x-IMU3 .csv, Xsens .txt)")
     parser.add_argument("--subject", default=None,
                         help="subject of a recording, or clip name (or s01, s02, ... in file order) of a motion "
@@ -24,8 +25,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output format (default: from OUT's extension)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT", help="file to write (replaced if it exists)")
     parser.add_argument("--rest-pose", choices=wire.REST_POSES, default=None,
-                        help="override the input's rest pose (default: the data's own: tpose for BVH and npz "
-                             "without a rest_pose entry, standing for IMU files; recordings: their frames' flags)")
+                        help="override the input's rest pose (default: the data's own: a BVH's from its OFFSETs, "
+                             "an npz's entry (tpose without one), standing for IMU files; recordings: their frames' "
+                             "flags)")
+    parser.add_argument("--rate", type=float, default=None, metavar="HZ",
+                        help="frame rate of the export, Hz (SLERP-resampled; default: the source's own)")
     flags.add_names(parser)
 
 
@@ -34,13 +38,13 @@ def run(args: argparse.Namespace) -> int:
     if fmt not in FORMATS:
         return flags.fail(PROG, f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
     try:
-        take = read_take(args.source, args.subject, args.rest_pose, args.names)
+        take = read_take(args.source, args.subject, args.rest_pose, args.names, args.rate)
         export(take, fmt, args.output)
     except ExportError as exc:
         return flags.fail(PROG, str(exc))
     for note in take.notes + [f"calibration: {take.basis}"]:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     seconds = len(take) * take.period_us / 1e6
-    print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:g} Hz ({seconds:.1f} s, "
+    print(f"exported {take.name}: {len(take)} frames at {1e6 / take.period_us:.4g} Hz ({seconds:.1f} s, "
           f"{take.skeleton.rest_pose} rest pose) to {args.output} ({fmt})", flush=True)
     return 0

@@ -225,10 +225,11 @@ def add_names(parser: argparse.ArgumentParser) -> None:
     """``--names NAME|FILE|SENSOR=SEGMENT,...``: which segment each sensor of an IMU recording
     measures (the mapping itself: :mod:`limbstream.sources.names`)."""
     parser.add_argument("--names", type=sensor_names, default=None, metavar="NAME|FILE|SENSOR=SEGMENT,...",
-                        help="which segment each sensor of an IMU recording measures: a named mapping "
-                             f"({', '.join(names.NAMED)}), a file of SENSOR=SEGMENT lines, or a list "
-                             "(SENSOR: a file name without extension, e.g. an Xsens serial number; default: "
-                             "x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh)")
+                        help="which segment each sensor of an IMU recording (or joint of a BVH file) measures: "
+                             f"a named mapping ({', '.join(names.NAMED)}), a file of SENSOR=SEGMENT lines, or a "
+                             "list (SENSOR: a file name without extension, e.g. an Xsens serial number, or a BVH "
+                             "joint; default: x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh; BVH: the CMU, "
+                             "Mixamo and Left/L/Right/R joint names)")
 
 
 def names_argv(mapping: dict[str, str] | None) -> list[str]:

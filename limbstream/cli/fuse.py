@@ -19,6 +19,7 @@ import numpy as np
 from limbstream.cli import flags
 from limbstream.kernel import fusion
 from limbstream.sources import MotionFileError
+from limbstream.sources import raw
 from limbstream.sources.raw import RawRecording, load_raw
 
 PROG = "limbstream fuse"
@@ -37,15 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def fuse_recording(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS
                    ) -> np.ndarray:
-    """(n, S, 4) every sensor's device orientation (Z-up earth frame, w x y z) after each sample;
-    ValueError when ``mag`` is asked of a recording without a magnetometer."""
-    if mag and rec.mag is None:
-        raise ValueError(f"{rec.name}: no magnetometer channel (imu_mag): fuse it without --mag (6D)")
-    out = np.empty(rec.gyr.shape[:2] + (4,))
-    for s in range(len(rec.sensors)):
-        out[:, s] = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rec.mag[:, s] if mag and rec.mag is not None else None,
-                                rate_hz=rec.fs, t=rec.t, rest_th_gyr_dps=rest_th_gyr_dps)
-    return out
+    """(n, S, 4) every sensor's device orientation (:func:`limbstream.sources.raw.fuse`)."""
+    return raw.fuse(rec, mag, rest_th_gyr_dps)
 
 
 def run(args: argparse.Namespace) -> int:

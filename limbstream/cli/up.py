@@ -32,7 +32,8 @@ import threading
 import time
 from pathlib import Path
 
-from limbstream.cli.emulate import add_clock_arguments, add_source_arguments, check_clock, clip_of, clock_flags
+from limbstream.cli.emulate import (add_clock_arguments, add_source_arguments, check_clock, clip_of, clock_flags,
+                                    default_subjects)
 from limbstream.cli.gateway_slimevr import parse_address
 from limbstream import sources, wire, zconfig
 from limbstream.cli import flags
@@ -48,8 +49,9 @@ POLL_S = 0.1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--subjects", type=int, default=2,
-                        help="subjects to emulate (default 2), each with a device per segment of the source")
+    parser.add_argument("--subjects", type=int, default=None,
+                        help="subjects to emulate, each with a device per segment of the source (default: 2 on the "
+                             "generator, 1 on a motion file or recording, whose person it is; more are copies)")
     parser.add_argument("--source", default="generator",
                         help="'generator' (default: 10 segments) or a motion file/folder (.npz, .bvh, x-IMU3 .csv, "
                              "Xsens .txt); its clips go to the subjects in turn")
@@ -94,10 +96,11 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     anchor = [] if args.speed == 1 else ["--time-anchor", f"{time.time():.3f}"]
     if args.sync:
         parts.append(("clock", ["clock", "--speed", str(args.speed), *anchor] + connect))
-    per = -(-args.subjects // args.emulators)
+    subjects = default_subjects(args.source) if args.subjects is None else args.subjects
+    per = -(-subjects // args.emulators)
     for e in range(args.emulators):
         first = 1 + e * per
-        count = min(per, args.subjects - e * per)
+        count = min(per, subjects - e * per)
         if count <= 0:
             break
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
@@ -193,6 +196,8 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     emulated subject's devices."""
     split_endpoint(args.router)
     split_endpoint(args.http)
+    if args.subjects is None:
+        args.subjects = default_subjects(args.source)
     least = 0 if args.slimevr is not None else 1
     for flag, value, low in (("--subjects", args.subjects, least), ("--emulators", args.emulators, 1),
                              ("--max-exits", args.max_exits, 1)):
@@ -220,7 +225,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
 def client_commands(args: argparse.Namespace) -> list[str]:
     """Ready-to-paste commands of clients of this system (with ``--connect`` unless they would
     find its router by default)."""
-    subject = "s01" if args.subjects else args.slimevr_subject
+    subject = "s01" if args.subjects != 0 else args.slimevr_subject  # None: the source's default, >= 1
     default = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER)
     connect = "" if args.router == default else f" --connect {args.router}"
     return [f"limbstream watch {subject}{connect}", f"limbstream record session.mcap --duration 60{connect}",

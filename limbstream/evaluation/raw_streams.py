@@ -23,6 +23,7 @@ from limbstream.evaluation.sweep import Stream
 from limbstream.imu.feed import script_samples
 from limbstream.kernel import fusion
 from limbstream.sources import Motion
+from limbstream.sources import raw
 from limbstream.sources.raw import RawRecording
 
 
@@ -38,13 +39,10 @@ def recording_streams(rec: RawRecording, mag: bool = False,
                       rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS) -> list[Stream]:
     """One stream per sensor of a raw recording, fused 6D (9D with ``mag``; ValueError without a
     magnetometer); with a reference, scored over its movement phases (all samples if unmarked)."""
-    if mag and rec.mag is None:
-        raise ValueError(f"{rec.name}: no magnetometer channel (imu_mag): evaluate it without --mag (6D)")
+    fused = raw.fuse(rec, mag, rest_th_gyr_dps)
     out = []
     for s, sensor in enumerate(rec.sensors):
-        q = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rec.mag[:, s] if mag and rec.mag is not None else None,
-                        rate_hz=rec.fs, t=rec.t, rest_th_gyr_dps=rest_th_gyr_dps)
-        idx, samples = device_stream(rec.t, q)
+        idx, samples = device_stream(rec.t, fused[:, s])
         earth = None
         if rec.truth is not None:
             movement = np.ones(len(idx), bool) if rec.movement is None else rec.movement[idx]

@@ -57,8 +57,9 @@ class Motion:
     name : str
         Where it came from (file stem, clip or generator name).
     rest_pose : str
-        What identity orientations mean (``wire.REST_POSES``): ``tpose`` for BVH clips and the
-        files converted from them, ``standing`` for the generator and IMU recordings.
+        What identity orientations mean (``wire.REST_POSES``): a BVH clip's from its OFFSETs
+        (``tpose`` for most CMU clips, :mod:`.bvh_rest`), an npz file's entry (``tpose`` if absent),
+        ``standing`` for the generator and IMU recordings.
     root : (m, 3) float64 or None
         The body's root (pelvis) position in the same world frame, metres at the scale of the
         default :class:`limbstream.skeleton.Skeleton`, where the source has one (BVH clips);
@@ -127,10 +128,13 @@ def load_npz(path: str | Path) -> list[Motion]:
     return motions
 
 
-def load(path: str | Path, names: Mapping[str, str] | None = None) -> list[Motion]:
+def load(path: str | Path, names: Mapping[str, str] | None = None,
+         fs: float | None = wire.DEVICE_RATE_HZ) -> list[Motion]:
     """Load every motion in a file or folder.
 
-    - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at 50 Hz (:mod:`.bvh`).
+    - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at ``fs`` Hz (None: the file's
+      own frames; :mod:`.bvh`; ``names``
+      maps its joints to segments, JOINT -> SEGMENT, where no naming scheme fits them).
     - An x-IMU3 ``.csv`` or Xsens ``.txt`` file (one segment, its own samples), or a folder of
       either (one segment per sensor, aligned on a common time base): one Motion of segment
       orientations (see :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`).
@@ -149,22 +153,22 @@ def load(path: str | Path, names: Mapping[str, str] | None = None) -> list[Motio
     suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()} if path.is_dir() else {path.suffix.lower()}
     if suffixes & {".csv", ".txt"}:
         return [imu_files.load_imu(path, names)]
-    if names is not None:
-        raise MotionFileError(f"{path}: --names maps the sensors of IMU recordings (x-IMU3 .csv, Xsens .txt); "
-                              "this source names its segments itself")
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".npz", ".bvh"))
         if not files:
             raise MotionFileError(f"{path}: folder holds no .npz, .bvh, .csv or .txt motion files")
-        return [m for f in files for m in load(f)]
+        return [m for f in files for m in load(f, names if f.suffix.lower() == ".bvh" else None, fs)]
     suffix = path.suffix.lower()
+    if suffix == ".bvh":
+        return [bvh.load_bvh(path, fs, names=names)]
+    if names is not None:
+        raise MotionFileError(f"{path}: --names maps the sensors of IMU recordings (x-IMU3 .csv, Xsens .txt) "
+                              "and the joints of BVH files; this source names its segments itself")
     if suffix == ".npz":
         return load_npz(path)
-    if suffix == ".bvh":
-        return [bvh.load_bvh(path)]
     if suffix == ".mat":
         raise MotionFileError(f"{path}: a raw sensor recording (angular rate, specific force), not orientations: "
-                              "read it with limbstream.sources.load_raw")
+                              "limbstream fuse, eval and export fuse it as devices do")
     raise MotionFileError(f"{path}: unknown motion file type (expected .npz, .bvh, .csv, .txt or a folder)")
 
 

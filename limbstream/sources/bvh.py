@@ -5,7 +5,9 @@ rotations (``R = R_first R_second R_third``, the BVH convention); the global ori
 joint is its parent's global orientation times its local one (forward kinematics, rotations
 only: offsets and positions do not change orientations). The global frame is the BVH world
 frame (Y up for the CMU clips). A joint -> segment map picks the joints that carry the
-10 IMUs; defaults cover the two CMU naming schemes (see :data:`CMU_SEGMENT_MAPS`).
+10 IMUs (:mod:`.bvh_names`: the CMU, Mixamo and sided naming schemes, or ``--names``); the
+file's rest pose comes from its OFFSETs (:mod:`.bvh_rest`). Position channels may sit on any
+joint (some exporters write six on every one); only the pelvis's path is read from them.
 """
 
 from __future__ import annotations
@@ -18,37 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat, wire
-from limbstream.sources import SEGMENTS, Motion, MotionFileError, is_number
-
-CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
-    # CMU BVH export of the ASF skeleton ("LeftShoulder" is the collar bone here).
-    "cmu": {
-        "l_shank": "LeftLeg",
-        "r_shank": "RightLeg",
-        "l_thigh": "LeftUpLeg",
-        "r_thigh": "RightUpLeg",
-        "l_lowerarm": "LeftForeArm",
-        "r_lowerarm": "RightForeArm",
-        "l_upperarm": "LeftArm",
-        "r_upperarm": "RightArm",
-        "neck": "Neck",
-        "hip": "Hips",
-    },
-    # Anatomical naming (e.g. subject 131): "LeftShoulder" is the upper arm, "Neck" the upper neck.
-    "cmu_asf": {
-        "l_shank": "LeftKnee",
-        "r_shank": "RightKnee",
-        "l_thigh": "LeftHip",
-        "r_thigh": "RightHip",
-        "l_lowerarm": "LeftElbow",
-        "r_lowerarm": "RightElbow",
-        "l_upperarm": "LeftShoulder",
-        "r_upperarm": "RightShoulder",
-        "neck": "lowerneck",
-        "hip": "Hips",
-    },
-}
-"""Segment -> joint maps for the CMU naming schemes, in the order they are tried."""
+from limbstream.sources import Motion, MotionFileError, bvh_names, bvh_rest, is_number
+from limbstream.sources.bvh_names import CMU_SEGMENT_MAPS, pick_segment_map  # noqa: F401  (re-exported)
 
 _AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 _POSITIONS = {"Xposition", "Yposition", "Zposition"}
@@ -68,6 +41,8 @@ class BvhClip:
         Joint offsets from the parent, file units.
     channels : tuple of J tuples of str
         Channel names of every joint, in file order.
+    end_offsets : (J, 3) float64
+        The OFFSET of each joint's End Site, file units; NaN where it has none.
     frame_time : float
         Seconds between frames.
     motion : (F, C) float64
@@ -83,6 +58,7 @@ class BvhClip:
     frame_time: float
     motion: np.ndarray
     path: Path
+    end_offsets: np.ndarray
 
     @property
     def n_frames(self) -> int:
@@ -140,6 +116,7 @@ def parse_bvh(path: str | Path) -> BvhClip:
         frame_time=frame_time,
         motion=motion.reshape(frames, n_channels),
         path=path,
+        end_offsets=np.array(h.ends, dtype=np.float64).reshape(-1, 3),
     )
 
 
@@ -153,6 +130,7 @@ class _Hierarchy:
         self.parents: list[int] = []
         self.offsets: list[list[float]] = []
         self.channels: list[tuple[str, ...]] = []
+        self.ends: list[list[float]] = []  # per joint, its End Site's OFFSET (NaN: none)
         self.stack: list[int] = []  # joint index per open brace; -2 for an end site
         self.pos = 1
 
@@ -191,6 +169,8 @@ class _Hierarchy:
                     raise self.error(line, "OFFSET outside a joint")
                 if self.stack[-1] >= 0:
                     self.offsets[self.stack[-1]] = values
+                elif len(self.stack) > 1 and self.stack[-2] >= 0:
+                    self.ends[self.stack[-2]] = values
             elif tok == "CHANNELS":
                 self.channel_list(line)
             elif tok == "}":
@@ -212,6 +192,7 @@ class _Hierarchy:
         self.parents.append(self.stack[-1] if self.stack else -1)
         self.joints.append(name)
         self.offsets.append([0.0, 0.0, 0.0])
+        self.ends.append([np.nan] * 3)
         self.channels.append(())
         if self.take()[0] != "{":
             raise self.error(line, f"expected '{{' after {tok} {name}")
@@ -305,15 +286,6 @@ def global_rotations(clip: BvhClip, joints: list[str]) -> dict[str, Rotation]:
     return {name: of(index[name]) for name in joints}
 
 
-def pick_segment_map(joints: tuple[str, ...] | list[str]) -> dict[str, str]:
-    """The first of :data:`CMU_SEGMENT_MAPS` whose joints all exist; ``{}`` if none fits."""
-    have = set(joints)
-    for mapping in CMU_SEGMENT_MAPS.values():
-        if set(mapping.values()) <= have:
-            return dict(mapping)
-    return {}
-
-
 def is_synthetic_tpose(clip: BvhClip) -> bool:
     """Whether frame 0 is a synthetic rest pose that precedes the capture (as in CMU 01_01).
 
@@ -361,23 +333,28 @@ def load_bvh(
     fs: float | None = wire.DEVICE_RATE_HZ,
     segment_map: Mapping[str, str] | None = None,
     drop_first: bool | None = None,
+    names: Mapping[str, str] | None = None,
 ) -> Motion:
-    """Global segment orientations of a BVH clip, optionally resampled.
+    """Global segment orientations of a BVH clip, from its rest pose, optionally resampled.
 
     Parameters
     ----------
     path : BVH file.
     fs : target rate in Hz (SLERP at ``k / fs`` s from the first kept frame); None keeps the
         file's frames and rate.
-    segment_map : segment name -> joint name; default: the first fitting
-        :data:`CMU_SEGMENT_MAPS` entry, in :data:`SEGMENTS` order.
+    segment_map : segment name -> joint name, any segment names; default: from ``names``
+        (joint -> segment, as ``--names`` gives it) or the naming schemes (:mod:`.bvh_names`),
+        the 10 segments in :data:`SEGMENTS` order.
     drop_first : drop frame 0; None (default) drops it when :func:`is_synthetic_tpose` says so.
+    names : joint -> segment (``--names``, :func:`limbstream.sources.names.parse`) for a file
+        whose joint names no scheme fits; ignored with ``segment_map``.
 
     Returns
     -------
     Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame
-    and, where the root joint has position channels and the map names both legs' thigh and
-    shank, the root's path (:func:`root_path`, linearly resampled with the orientations).
+    from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`) and, where the hip
+    joint has a path (position channels on it or above it) and the map names the left thigh
+    and shank, the pelvis's path (:func:`root_path`, linearly resampled with the orientations).
 
     Raises
     ------
@@ -385,13 +362,14 @@ def load_bvh(
     """
     clip = parse_bvh(path)
     if segment_map is None:
-        segment_map = pick_segment_map(clip.joints)
-        if not segment_map:
-            raise MotionFileError.at(clip.path, None, "joint names match no CMU naming scheme; pass segment_map")
-        segment_map = {s: segment_map[s] for s in SEGMENTS}
+        segment_map = bvh_names.segment_map(clip.path, clip.joints, names)
     segments = tuple(segment_map)
     rotations = global_rotations(clip, [segment_map[s] for s in segments])
     q = np.stack([quat.from_rotation(rotations[segment_map[s]]) for s in segments], axis=1)
+    rest_pose, corrections = bvh_rest.rest_pose(clip, segment_map)
+    for seg, c in corrections.items():
+        k = segments.index(seg)
+        q[:, k] = quat.multiply(q[:, k], c)
     if drop_first is None:
         drop_first = is_synthetic_tpose(clip)
     first = 1 if drop_first and clip.n_frames > 1 else 0
@@ -400,32 +378,55 @@ def load_bvh(
     root = None if root is None else root[first:]
     t = np.arange(len(q)) * clip.frame_time
     if fs is None:
-        return Motion(t, quat.continuous(q), segments, clip.path.stem, "tpose", root)
+        return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root)
     t_out, q = resample(t, q, fs)
     if root is not None:
         root = np.stack([np.interp(t_out, t, axis) for axis in root.T], axis=1)
-    return Motion(t_out, q, segments, clip.path.stem, "tpose", root)
+    return Motion(t_out, q, segments, clip.path.stem, rest_pose, root)
+
+
+def _positions(clip: BvhClip, joint: int) -> np.ndarray | None:
+    """(F, 3) the joint's position in the world (file units): its parents' positions and
+    rotations applied to its OFFSET, or to its position channels where it has all three (they
+    stand for the OFFSET). None if no joint from the root down to it has position channels."""
+    chain = [joint]
+    while clip.parents[chain[-1]] >= 0:
+        chain.append(int(clip.parents[chain[-1]]))
+    chain.reverse()
+    moving = False
+    place = np.zeros((clip.n_frames, 3))
+    turn = Rotation.identity(clip.n_frames)
+    for j in chain:
+        names = clip.channels[j]
+        cols = [clip.channel_start(j) + names.index(a) for a in ("Xposition", "Yposition", "Zposition") if a in names]
+        local = clip.motion[:, cols] if len(cols) == 3 else np.broadcast_to(clip.offsets[j], (clip.n_frames, 3))
+        moving = moving or len(cols) == 3
+        place = place + turn.apply(local)
+        turn = turn * local_rotations(clip, j)
+    return place if moving else None
 
 
 def root_path(clip: BvhClip, segment_map: Mapping[str, str]) -> np.ndarray | None:
-    """(F, 3) float64 the root joint's position channels in metres of the default skeleton.
+    """(F, 3) float64 the pelvis's (the ``hip`` segment's joint's) path in metres of the default
+    skeleton.
 
     BVH files do not say their unit (CMU's are 1/0.45 inch), so the path is scaled by the
     default :class:`~limbstream.skeleton.Skeleton`'s leg (thigh + shank) over the clip's own
     (the offsets of the ``l_shank`` joint and of its child): the skeleton that emulated sensors
-    ride then travels as far as the clip's legs carried it. None if the root has no position
-    channels or the map has no ``l_thigh`` -> ``l_shank`` chain with a child below it.
+    ride then travels as far as the clip's legs carried it. None if nothing above the pelvis has
+    position channels or the map has no ``l_thigh`` -> ``l_shank`` chain with a child below it.
     """
     from limbstream.skeleton import Skeleton
 
-    names = clip.channels[0]
-    cols = [names.index(axis) for axis in ("Xposition", "Yposition", "Zposition") if axis in names]
-    shank = clip.joints.index(segment_map["l_shank"]) if segment_map.get("l_shank") in clip.joints else -1
+    index = {name: j for j, name in enumerate(clip.joints)}
+    hip = index.get(segment_map.get("hip", ""), 0)
+    shank = index.get(segment_map.get("l_shank", ""), -1)
     below = [j for j in range(len(clip.joints)) if clip.parents[j] == shank] if shank >= 0 else []
-    if len(cols) != 3 or shank < 0 or not below or clip.joints[clip.parents[shank]] != segment_map.get("l_thigh"):
+    if shank < 0 or not below or clip.joints[clip.parents[shank]] != segment_map.get("l_thigh"):
         return None
+    path = _positions(clip, hip)
     leg = np.linalg.norm(clip.offsets[shank]) + np.linalg.norm(clip.offsets[below[0]])
-    if not leg > 0:
+    if path is None or not leg > 0:
         return None
     default = Skeleton()
-    return clip.motion[:, cols] * ((default.thigh + default.shank) / leg)
+    return path * ((default.thigh + default.shank) / leg)

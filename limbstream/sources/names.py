@@ -8,6 +8,9 @@ a named one (:data:`NAMED`), a file, or a list, as ``--names`` takes it (:func:`
 - ``SENSOR=SEGMENT,SENSOR=SEGMENT,...``: a list;
 - a file holding such entries, separated by commas or new lines (``#`` starts a comment).
 
+The same flag maps a BVH file's joints (``JOINT=SEGMENT``, :mod:`.bvh_names`) where no naming
+scheme fits them.
+
 ``SENSOR`` is a file's name without its extension; a name that ends in ``_SENSOR`` matches too
 (Xsens' ``MT_012005D6_009-001_00B4227C``). With a mapping, the sensors it does not name are
 left out; without one, a file is named by :data:`XIO_PREFIXES` or keeps its own name.

@@ -10,12 +10,13 @@ estimate is compared in (:mod:`limbstream.evaluation.fusion`).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from limbstream.sources import MotionFileError
+from limbstream.sources import Motion, MotionFileError
 from limbstream.wire import SEGMENTS
 
 CHANNELS: dict[str, str] = {
@@ -133,6 +134,53 @@ def load_raw(path: str | Path) -> RawRecording:
     if any(key.startswith("imu_") or key == "opt_quat" for key in data):
         return broad.from_mat(path, data)
     return qmt.from_mat(path, data)
+
+
+def raw_files(path: str | Path) -> list[Path]:
+    """The raw recordings ``path`` names: a ``.mat`` file, or the ``.mat`` files of a folder that
+    holds no other data (licence files aside); ``[]`` for anything else (motion files)."""
+    p = Path(path)
+    if p.is_file():
+        return [p] if p.suffix.lower() == ".mat" else []
+    if not p.is_dir():
+        return []
+    files = sorted(f for f in p.iterdir() if f.is_file() and not f.name.startswith("."))
+    mats = [f for f in files if f.suffix.lower() == ".mat"]
+    return mats if mats and len(mats) == len([f for f in files if f.suffix.lower() != ".license"]) else []
+
+
+def fuse(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float | None = None) -> np.ndarray:
+    """(n, S, 4) every sensor's orientation after each sample as a device fuses it (the kernel's
+    VQF, :func:`limbstream.kernel.fusion.fuse`; 9D with ``mag``), in the filter's Z-up earth frame,
+    scalar-first; ValueError when ``mag`` is asked of a recording without a magnetometer."""
+    from limbstream.kernel import fusion
+
+    if mag and rec.mag is None:
+        raise ValueError(f"{rec.name}: no magnetometer channel (imu_mag): fuse it without --mag (6D)")
+    threshold = fusion.REST_TH_GYR_DPS if rest_th_gyr_dps is None else rest_th_gyr_dps
+    out = np.empty(rec.gyr.shape[:2] + (4,))
+    for s in range(len(rec.sensors)):
+        out[:, s] = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rec.mag[:, s] if mag and rec.mag is not None else None,
+                                rate_hz=rec.fs, t=rec.t, rest_th_gyr_dps=threshold)
+    return out
+
+
+def to_motion(rec: RawRecording, names: Mapping[str, str] | None = None) -> Motion:
+    """The body's segment orientations of a raw recording: its sensors on body segments (``names``:
+    sensor -> segment, :mod:`.names`, overrides the file's own), fused as devices fuse them
+    (:func:`fuse`, 6D), then turned Y up and calibrated from the still start as IMU recordings are
+    (:func:`.imu_files.to_body`); MotionFileError if no sensor is on the body."""
+    from limbstream.sources import imu_files, names as sensor_names
+
+    named = list(rec.segments) if names is None else sensor_names.name_sensors(rec.sensors, names)
+    segments = [seg or "" for seg in named]
+    keep = [k for k, seg in enumerate(segments) if seg in SEGMENTS + sensor_names.EXTRA_SEGMENTS]
+    if not keep:
+        raise MotionFileError(f"{rec.name}: no sensor maps to a body segment (sensors found: "
+                              f"{', '.join(rec.sensors)}); map them with {sensor_names.FLAG}")
+    body = rec.select(keep)
+    motion = Motion(body.t, fuse(body), tuple(segments[k] for k in keep), rec.name, orientations="sensors")
+    return imu_files.to_body(motion)
 
 
 def read_mat(path: Path) -> dict:

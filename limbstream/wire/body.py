@@ -29,8 +29,8 @@ BONES: tuple[tuple[str, str], ...] = (
 
 REST_POSES: tuple[str, ...] = ("standing", "tpose")
 """What identity segment orientations mean, the body's **rest pose**: ``standing`` (arms hanging
-along -Y: the built-in generator and IMU recordings) or ``tpose`` (arms out along +-X: BVH clips
-and files converted from them). Every motion source knows its own; devices announce it in their
+along -Y: the built-in generator, IMU recordings, BVH files whose zero pose hangs the arms) or
+``tpose`` (arms out along +-X: most BVH files, and files converted from them). Every motion source knows its own; devices announce it in their
 status, pose frames in their flags (docs/protocol.md, "Rest pose")."""
 DEFAULT_REST_POSE = "standing"
 """The rest pose of data that does not say (a device status without the field)."""

@@ -100,6 +100,7 @@ class PoseFrame:
             "kind": kind_name(self.kind),
             "gap": bool(self.flags & FRAME_GAP),
             "missing": bool(self.flags & FRAME_MISSING),
+            "rest_pose": frame_rest_pose(self.flags),
             "segments": {s: [round(float(v), 6) for v in self.q[i]] for i, s in enumerate(SEGMENTS)},
             "joints": {j: [round(float(v), 4) for v in self.joints[i]] for i, j in enumerate(JOINTS)},
         }

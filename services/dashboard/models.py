@@ -82,6 +82,8 @@ class Pose(BaseModel):
     kind: Literal["live", "exact"]
     gap: bool
     missing: bool
+    rest_pose: Literal[tuple(wire.REST_POSES)] = Field(  # type: ignore[valid-type]
+        description="what identity segment orientations mean (the frame's TPOSE flag; docs/protocol.md 'Rest pose')")
     segments: dict[str, list[float]]
     joints: dict[str, list[float]]
     rx: float

@@ -7,14 +7,10 @@ standing still (``Motion.orientations`` ``rest``: each sensor calibrated from it
 second); the subject's facing, which a rest pose cannot tell, is found here from the knees' and
 elbows' motion (:mod:`limbstream.joints.functional`) before anything is exported.
 
-Sources: the exact pose frames of a subject in a recording (:mod:`.recording`), or any motion
-file ``limbstream.sources.load`` reads (resampled to 50 Hz where it is not). Layouts, units and
-the handling of gaps: docs/outputs.md.
-
-BVH: the body of :class:`limbstream.skeleton.Skeleton` — joints named as in the CMU clips so
-BVH tools and limbstream's own loader (``limbstream.sources.bvh``) map them to segments — with
-offsets in metres (Y up, X to the subject's left), every joint's rotation channels in the order
-``Zrotation Xrotation Yrotation`` (intrinsic, degrees) and the root's position channels first.
+Sources: the exact pose frames of a subject in a recording (:mod:`.recording`), a raw sensor
+recording fused as devices fuse it (:func:`limbstream.sources.raw.to_motion`), or any motion file
+``limbstream.sources.load`` reads, each at its own frame rate unless ``--rate`` asks for another.
+Layouts, units and the handling of gaps: docs/outputs.md. BVH: :mod:`.bvh_writer`.
 """
 from __future__ import annotations
 
@@ -28,15 +24,17 @@ import numpy as np
 from limbstream import joints, quat, wire
 from limbstream.calibration import START_STILL_S
 from limbstream.skeleton import Skeleton
-from limbstream.sources import Motion, MotionFileError, load
+from limbstream.sources import Motion, MotionFileError, load, load_raw, raw
 from limbstream.sources.bvh import resample
 
+from .bvh_writer import BVH_JOINTS, ROTATION_CHANNELS, BvhJoint, bvh_text  # noqa: F401  (re-exported)
 from .opensim import mot_text, segments_with_data, sto_text
 from .recording import Recording, RecordingError
 
 FORMATS = ("bvh", "csv", "npz", "mot", "sto")
 FS = wire.DEVICE_RATE_HZ
-"""Frame rate of exports from motion files, Hz (recordings keep their aggregator's rate)."""
+"""Frame rate of a motion without one (a single frame), Hz; every other source keeps its own rate
+unless ``--rate`` asks for another."""
 
 
 class ExportError(ValueError):
@@ -151,10 +149,11 @@ def from_recording(recording: Recording, subject: str | None, rest_pose: str | N
     return take
 
 
-def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pose: str | None) -> Take:
-    """One clip of a motion file at :data:`FS` Hz. ``subject``: its name, or ``s01``, ``s02``, ...
-    as ``limbstream emulate`` numbers them; None: the only clip. Segments the clip lacks follow
-    their parent (hip: identity)."""
+def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pose: str | None,
+                rate: float | None = None) -> Take:
+    """One clip of a motion file at its own rate, or SLERP-resampled to ``rate`` Hz. ``subject``: its
+    name, or ``s01``, ``s02``, ... as ``limbstream emulate`` numbers them; None: the only clip.
+    Segments the clip lacks follow their parent (hip: identity)."""
     names = [m.name for m in motions]
     if subject is None:
         if len(motions) != 1:
@@ -170,8 +169,9 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
     basis, anatomical, segments, q_in = _segments_of(motion)
     t = motion.t
     have = [k for k in range(len(segments)) if np.isfinite(q_in[:, k]).all()]
-    if len(t) > 1 and abs(motion.fs - FS) > 1e-6:
-        t, q_have = resample(t, q_in[:, have], FS)
+    fs = rate or (motion.fs if len(t) > 1 else FS)
+    if len(t) > 1 and (rate is not None or np.ptp(np.diff(t)) > 1e-6 / fs):
+        t, q_have = resample(t, q_in[:, have], fs)
         q_in = np.full((len(t), len(segments), 4), np.nan)
         q_in[:, have] = q_have
     q = np.zeros((len(t), len(wire.SEGMENTS), 4))
@@ -190,7 +190,7 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
                 q[:, i] = q[:, wire.SEGMENTS.index(parent)]
     skeleton = Skeleton(rest_pose=rest_pose or motion.rest_pose)
     n = len(t)
-    take = Take(motion.name or path.stem, int(round(1e6 / FS)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
+    take = Take(motion.name or path.stem, int(round(1e6 / fs)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
                 skeleton.positions(q), np.arange(n), np.full(n, wire.FRAME_MISSING if lacking else 0),
                 np.zeros(n, bool), skeleton, present=np.broadcast_to(present, (n, len(present))).copy(), basis=basis,
                 anatomical=anatomical)
@@ -225,105 +225,45 @@ _SEGMENT_PARENT = {"hip": None, "neck": "hip", "l_thigh": "hip", "r_thigh": "hip
 """Each segment's parent in the body, parents first."""
 
 
+def at_rate(take: Take, rate: float) -> Take:
+    """``take`` on a grid of ``rate`` Hz from its first frame: orientations SLERP-interpolated, joint
+    positions drawn from them, frame counters, flags, ``filled`` and ``present`` those of the frame
+    at or before each new one."""
+    period = int(round(1e6 / rate))
+    if period == take.period_us or len(take) < 2:
+        return take
+    t_us = take.t_us[0] + np.arange((take.t_us[-1] - take.t_us[0]) // period + 1) * period
+    t_in, t_out = (take.t_us - take.t_us[0]) / 1e6, (t_us - take.t_us[0]) / 1e6
+    q = np.stack([quat.interpolate(t_in, quat.continuous(take.q[:, s]), t_out) for s in range(take.q.shape[1])], axis=1)
+    before = np.clip(np.searchsorted(take.t_us, t_us, side="right") - 1, 0, len(take) - 1)
+    return Take(take.name, period, t_us, q, take.skeleton.positions(q), take.seq[before], take.flags[before],
+                take.filled[before], take.skeleton, list(take.notes),
+                None if take.present is None else take.present[before], take.basis, take.anatomical)
+
+
 def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None,
-              names: Mapping[str, str] | None = None) -> Take:
-    """A recording (``.mcap``) or a motion file (``names``: its sensors' segments,
-    :mod:`limbstream.sources.names`), as a :class:`Take`; ExportError naming the problem."""
+              names: Mapping[str, str] | None = None, rate: float | None = None) -> Take:
+    """A recording (``.mcap``), a raw sensor recording (``.mat``: fused as devices fuse it,
+    :func:`limbstream.sources.raw.to_motion`) or a motion file (``names``: its sensors' or joints'
+    segments, :mod:`limbstream.sources.names`), as a :class:`Take` at its own rate or ``rate`` Hz;
+    ExportError naming the problem."""
     path = Path(path)
+    if rate is not None and not 0 < rate <= 10_000:
+        raise ExportError(f"--rate must be in (0, 10000] Hz, got {rate:g}")
     try:
         if path.suffix.lower() == ".mcap":
             if names is not None:
                 raise ExportError(f"{path}: --names maps the sensors of IMU recordings; a recording's devices "
                                   "are named by segment already")
-            return from_recording(Recording(path), subject, rest_pose)
-        return from_motion(load(path, names), subject, path, rest_pose)
+            take = from_recording(Recording(path), subject, rest_pose)
+            return take if rate is None else at_rate(take, rate)
+        if path.suffix.lower() == ".mat" or raw.raw_files(path):
+            motions = [raw.to_motion(load_raw(p), names) for p in ([path] if path.is_file() else raw.raw_files(path))]
+        else:
+            motions = load(path, names, fs=None)
+        return from_motion(motions, subject, path, rest_pose, rate)
     except (RecordingError, MotionFileError) as exc:
         raise ExportError(str(exc)) from None
-
-
-# ----------------------------------------------------------------------------- BVH
-
-
-@dataclass(frozen=True)
-class BvhJoint:
-    """A BVH joint: its name, parent, the segment whose orientation it carries (None: it follows
-    its parent), the pose-frame joint it sits at, and the joint its End Site marks (if any)."""
-
-    name: str
-    parent: str | None
-    segment: str | None
-    at: str
-    end: str | None = None
-
-
-BVH_JOINTS: tuple[BvhJoint, ...] = (
-    BvhJoint("Hips", None, "hip", "pelvis"),
-    BvhJoint("LeftUpLeg", "Hips", "l_thigh", "l_hip"),
-    BvhJoint("LeftLeg", "LeftUpLeg", "l_shank", "l_knee", end="l_ankle"),
-    BvhJoint("RightUpLeg", "Hips", "r_thigh", "r_hip"),
-    BvhJoint("RightLeg", "RightUpLeg", "r_shank", "r_knee", end="r_ankle"),
-    BvhJoint("Spine", "Hips", None, "neck_base"),
-    BvhJoint("Neck", "Spine", "neck", "neck_base", end="head"),
-    BvhJoint("LeftArm", "Spine", "l_upperarm", "l_shoulder"),
-    BvhJoint("LeftForeArm", "LeftArm", "l_lowerarm", "l_elbow", end="l_wrist"),
-    BvhJoint("RightArm", "Spine", "r_upperarm", "r_shoulder"),
-    BvhJoint("RightForeArm", "RightArm", "r_lowerarm", "r_elbow", end="r_wrist"),
-)
-"""The exported hierarchy, parents first (names of the CMU clips' joints: see
-``limbstream.sources.bvh.CMU_SEGMENT_MAPS['cmu']``). Spine carries no sensor: it turns with the hips."""
-ROTATION_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
-
-
-def _fmt(values) -> str:
-    """Numbers with 6 decimals (no "-0.000000")."""
-    return " ".join(f"{v:.6f}" for v in np.where(np.abs(values) < 5e-7, 0.0, values))
-
-
-def bvh_text(take: Take) -> str:
-    """The BVH file of ``take`` (see the module docstring)."""
-    rest = take.skeleton.positions(np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))).astype(np.float64)
-    at = {name: rest[i] for i, name in enumerate(wire.JOINTS)}
-    by_name = {j.name: j for j in BVH_JOINTS}
-    children: dict[str | None, list[BvhJoint]] = {}
-    for j in BVH_JOINTS:
-        children.setdefault(j.parent, []).append(j)
-    lines = ["HIERARCHY"]
-
-    def write(joint: BvhJoint, depth: int) -> None:
-        pad = "  " * depth
-        parent_at = at[by_name[joint.parent].at] if joint.parent else at[joint.at]
-        lines.append(f"{pad}{'ROOT' if joint.parent is None else 'JOINT'} {joint.name}")
-        lines.append(f"{pad}{{")
-        lines.append(f"{pad}  OFFSET {_fmt(at[joint.at] - parent_at)}")
-        position = "Xposition Yposition Zposition " if joint.parent is None else ""
-        count = 6 if joint.parent is None else 3
-        lines.append(f"{pad}  CHANNELS {count} {position}{' '.join(ROTATION_CHANNELS)}")
-        for child in children.get(joint.name, []):
-            write(child, depth + 1)
-        if joint.end is not None:
-            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {_fmt(at[joint.end] - at[joint.at])}",
-                          f"{pad}  }}"])
-        lines.append(f"{pad}}}")
-
-    write(children[None][0], 0)
-    columns = [np.tile([0.0, -float(at["l_ankle"][1]), 0.0], (len(take), 1))]  # root: feet on the floor at rest
-    seg = {name: i for i, name in enumerate(wire.SEGMENTS)}
-
-    def carried(joint: BvhJoint | None) -> np.ndarray:
-        """(F, 4) global orientation a joint carries (its segment's, or its parent's)."""
-        if joint is None:
-            return np.tile([1.0, 0.0, 0.0, 0.0], (len(take), 1))
-        if joint.segment is None:
-            return carried(by_name.get(joint.parent))
-        return take.q[:, seg[joint.segment]]
-
-    for joint in BVH_JOINTS:
-        local = quat.multiply(quat.conjugate(carried(by_name.get(joint.parent))), carried(joint))
-        columns.append(quat.to_rotation(quat.normalize(local)).as_euler("ZXY", degrees=True))
-    motion = np.concatenate(columns, axis=1)
-    lines += ["MOTION", f"Frames: {len(take)}", f"Frame Time: {take.period_us / 1e6:.6f}"]
-    lines += [_fmt(row) for row in motion]
-    return "\n".join(lines) + "\n"
 
 
 # ----------------------------------------------------------------------------- CSV and npz

@@ -1,0 +1,100 @@
+"""BVH export: the body of :class:`limbstream.skeleton.Skeleton` with joints named as in the CMU
+clips (so BVH tools and limbstream's own loader, ``limbstream.sources.bvh``, map them to segments),
+offsets in metres (Y up, X to the subject's left) drawing the take's rest pose (the arms hanging
+for ``standing``, out along +-X for ``tpose``: the hierarchy's zero pose *is* the rest pose, so a
+reader that takes its rest pose from the OFFSETs, as limbstream's does, reads the orientations
+back unchanged), every joint's rotation channels in the order ``Zrotation Xrotation Yrotation``
+(intrinsic, degrees) and the root's position channels first."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from limbstream import quat, wire
+
+if TYPE_CHECKING:
+    from .export import Take
+
+
+@dataclass(frozen=True)
+class BvhJoint:
+    """A BVH joint: its name, parent, the segment whose orientation it carries (None: it follows
+    its parent), the pose-frame joint it sits at, and the joint its End Site marks (if any)."""
+
+    name: str
+    parent: str | None
+    segment: str | None
+    at: str
+    end: str | None = None
+
+
+BVH_JOINTS: tuple[BvhJoint, ...] = (
+    BvhJoint("Hips", None, "hip", "pelvis"),
+    BvhJoint("LeftUpLeg", "Hips", "l_thigh", "l_hip"),
+    BvhJoint("LeftLeg", "LeftUpLeg", "l_shank", "l_knee", end="l_ankle"),
+    BvhJoint("RightUpLeg", "Hips", "r_thigh", "r_hip"),
+    BvhJoint("RightLeg", "RightUpLeg", "r_shank", "r_knee", end="r_ankle"),
+    BvhJoint("Spine", "Hips", None, "neck_base"),
+    BvhJoint("Neck", "Spine", "neck", "neck_base", end="head"),
+    BvhJoint("LeftArm", "Spine", "l_upperarm", "l_shoulder"),
+    BvhJoint("LeftForeArm", "LeftArm", "l_lowerarm", "l_elbow", end="l_wrist"),
+    BvhJoint("RightArm", "Spine", "r_upperarm", "r_shoulder"),
+    BvhJoint("RightForeArm", "RightArm", "r_lowerarm", "r_elbow", end="r_wrist"),
+)
+"""The exported hierarchy, parents first (names of the CMU clips' joints: see
+``limbstream.sources.bvh.CMU_SEGMENT_MAPS['cmu']``). Spine carries no sensor: it turns with the hips."""
+ROTATION_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
+
+
+def _fmt(values) -> str:
+    """Numbers with 6 decimals (no "-0.000000")."""
+    return " ".join(f"{v:.6f}" for v in np.where(np.abs(values) < 5e-7, 0.0, values))
+
+
+def bvh_text(take: Take) -> str:
+    """The BVH file of ``take`` (see the module docstring)."""
+    rest = take.skeleton.positions(np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))).astype(np.float64)
+    at = {name: rest[i] for i, name in enumerate(wire.JOINTS)}
+    by_name = {j.name: j for j in BVH_JOINTS}
+    children: dict[str | None, list[BvhJoint]] = {}
+    for j in BVH_JOINTS:
+        children.setdefault(j.parent, []).append(j)
+    lines = ["HIERARCHY"]
+
+    def write(joint: BvhJoint, depth: int) -> None:
+        pad = "  " * depth
+        parent_at = at[by_name[joint.parent].at] if joint.parent else at[joint.at]
+        lines.append(f"{pad}{'ROOT' if joint.parent is None else 'JOINT'} {joint.name}")
+        lines.append(f"{pad}{{")
+        lines.append(f"{pad}  OFFSET {_fmt(at[joint.at] - parent_at)}")
+        position = "Xposition Yposition Zposition " if joint.parent is None else ""
+        count = 6 if joint.parent is None else 3
+        lines.append(f"{pad}  CHANNELS {count} {position}{' '.join(ROTATION_CHANNELS)}")
+        for child in children.get(joint.name, []):
+            write(child, depth + 1)
+        if joint.end is not None:
+            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {_fmt(at[joint.end] - at[joint.at])}",
+                          f"{pad}  }}"])
+        lines.append(f"{pad}}}")
+
+    write(children[None][0], 0)
+    columns = [np.tile([0.0, -float(at["l_ankle"][1]), 0.0], (len(take), 1))]  # root: feet on the floor at rest
+    seg = {name: i for i, name in enumerate(wire.SEGMENTS)}
+
+    def carried(joint: BvhJoint | None) -> np.ndarray:
+        """(F, 4) global orientation a joint carries (its segment's, or its parent's)."""
+        if joint is None:
+            return np.tile([1.0, 0.0, 0.0, 0.0], (len(take), 1))
+        if joint.segment is None:
+            return carried(by_name.get(joint.parent))
+        return take.q[:, seg[joint.segment]]
+
+    for joint in BVH_JOINTS:
+        local = quat.multiply(quat.conjugate(carried(by_name.get(joint.parent))), carried(joint))
+        columns.append(quat.to_rotation(quat.normalize(local)).as_euler("ZXY", degrees=True))
+    motion = np.concatenate(columns, axis=1)
+    lines += ["MOTION", f"Frames: {len(take)}", f"Frame Time: {take.period_us / 1e6:.6f}"]
+    lines += [_fmt(row) for row in motion]
+    return "\n".join(lines) + "\n"
