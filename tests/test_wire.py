@@ -86,7 +86,7 @@ def test_points_with_and_without_a_rate():
     assert len(v2) == 48 and v2[:36] == bytes([2]) + v1[1:]
     assert wire.decode_point(v2).omega == (0.5, -1.0, 2.0)
     for bad, reason in ((v2[:36], "size"), (v1 + bytes(12), "size"), (bytes([3]) + v2[1:], "version"),
-                        (b"", "version"), (v2[:36] + struct.pack("<3f", 0.0, math.nan, 0.0), "non_finite"),
+                        (b"", "size"), (v2[:36] + struct.pack("<3f", 0.0, math.nan, 0.0), "non_finite"),
                         (v2[:36] + struct.pack("<3f", math.inf, 0.0, 0.0), "non_finite")):
         with pytest.raises(wire.WireError) as err:
             wire.decode_point(bad)
