@@ -1,7 +1,9 @@
 # limbstream: the two commands of the README are `make run` and `make test`.
-# Both first install the package (building the C kernels) when its sources changed. Outside a
-# virtual environment they make and use .venv: a stock Debian 12 / Ubuntu 24.04 python3 refuses
-# `pip install` into the system interpreter (PEP 668; the venv needs apt's python3-venv there).
+# Both first install the package (building the C kernels) when its sources changed: `make run`
+# what running needs (`pip install -e .`), `make test`, `make test-fast`, `make lint` and `make
+# install` that and the test extras (`.[test]`: pytest, Chromium's driver, OpenSim, mypy, ...).
+# Outside a virtual environment they make and use .venv: a stock Debian 12 / Ubuntu 24.04 python3
+# refuses `pip install` into the system interpreter (PEP 668; the venv needs apt's python3-venv there).
 SYSTEM_PYTHON ?= python3
 ifdef VIRTUAL_ENV
 PYTHON ?= python
@@ -11,19 +13,29 @@ PYTHON ?= .venv/bin/python
 VENV := .venv/bin/python
 endif
 PYTEST_ARGS ?=
+SOURCES := pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/include/*.h firmware_c/host/*)
+# Each stamp is newer than the sources once its install is done; the test install holds the run
+# install, so it renews both stamps (make run after make test installs nothing).
 STAMP := build/.installed
+TEST_STAMP := build/.installed-test
 
 .PHONY: install run test test-fast lint icount bench m4 clean
 
 .venv/bin/python:
 	$(SYSTEM_PYTHON) -m venv .venv
 
-$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/include/*.h firmware_c/host/*) | $(VENV)
+$(STAMP): $(SOURCES) | $(VENV)
 	$(PYTHON) -m pip install -q --upgrade pip
-	$(PYTHON) -m pip install -e '.[test]'
+	$(PYTHON) -m pip install -e .
 	@mkdir -p build && touch $@
 
-install: $(STAMP)
+$(TEST_STAMP): $(SOURCES) | $(VENV)
+	$(PYTHON) -m pip install -q --upgrade pip
+	$(PYTHON) -m pip install -e '.[test]'
+	@mkdir -p build && touch $(STAMP) $@
+
+# everything: running, the tests and the lint
+install: $(TEST_STAMP)
 
 # make run's sensors are realistic ones: each device reads a modelled ICM-42688-P (angular rate and
 # specific force, with its noise and offsets) strapped on at up to 90 deg, and fuses it on the device
@@ -38,19 +50,19 @@ run: $(STAMP)
 # every test: on three workers (the end-to-end tests mostly wait on real time: the whole suite keeps
 # about one core busy; a module stays on one worker), then the slow end-to-end tests alone (a soak
 # that counts late ticks must not share the cores with another test)
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(PYTHON) -m pytest -n 3 --dist loadfile -m "not (slow and e2e)" $(PYTEST_ARGS)
 	$(PYTHON) -m pytest -m "slow and e2e" $(PYTEST_ARGS)
 
 # the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root),
 # on 4 workers (they wait on sockets and subprocesses as much as they compute; a module stays on
 # one worker, in order), property tests on their quick profile (tests/support/profiles.py)
-test-fast: $(STAMP)
+test-fast: $(TEST_STAMP)
 	$(PYTHON) -m pytest -m "not (e2e or qemu or browser or root or slow)" -n 4 --dist loadfile \
 		--hypothesis-profile quick $(PYTEST_ARGS)
 
 # ruff as configured in pyproject.toml (with its complexity rule); mypy on the whole package
-lint: $(STAMP)
+lint: $(TEST_STAMP)
 	$(PYTHON) -m ruff check .
 	$(PYTHON) -m mypy limbstream
 

@@ -36,8 +36,11 @@ VQF_LIBRARY = ("lsw_vqf", {
 
 PARTS = ("services", "device_emulator", "dashboard")
 """Folders of the repository that install as subpackages of limbstream."""
+DATA_PACKAGES = ["limbstream.dashboard.vendor"]
+"""Folders of data only (no __init__.py), declared so that their files ship (pyproject.toml,
+package-data) and setuptools does not warn about a package it would have to guess."""
 PACKAGES = find_packages(include=["limbstream", "limbstream.*"]) + [
-    f"limbstream.{name}" for part in PARTS for name in find_packages(include=[part, f"{part}.*"])]
+    f"limbstream.{name}" for part in PARTS for name in find_packages(include=[part, f"{part}.*"])] + DATA_PACKAGES
 
 setup(
     packages=PACKAGES,

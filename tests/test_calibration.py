@@ -407,3 +407,48 @@ def test_calibration_on_request_from_rest_api_and_command(stack, tmp_path, drift
     finally:
         session.close()
     assert all(d["calibrated"] for d in devices.values()), devices
+
+
+def test_the_frame_error_scores_only_the_segments_a_frame_has():
+    """An aggregator that joins streams late: the history of nine devices is in at once, the
+    tenth's is still on its way (not settled) while its live points come. The subject's frames
+    start from the nine's history, the tenth segment held at its first live point and the frames
+    flagged MISSING until then. That hold is not the reconstruction's error: the frame error
+    compares only the segments each frame has, so it stays the reconstruction's (every 5th
+    sample, SLERP between), as with the tenth device's history in."""
+    from limbstream import wire
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+
+    def frame_error(late: int | None) -> dict:
+        agg = Aggregator(None, AggregatorSettings())
+        agg._publish = lambda subject, payload: None
+        t, q, *_ = scripted(12.0)
+        t0, step, joined = 1_700_000_000_000_000, 5, round(3.0 * FS)  # the aggregator starts 3 s into the streams
+        t_us = t0 + np.round(t * 1e6).astype(np.int64)
+        for segment in SEGMENTS:
+            agg.on_alive(wire.alive_key("s01", segment), True)
+        for j, k in enumerate(range(0, len(t), step)):
+            if k < joined:
+                continue
+            for s, segment in enumerate(SEGMENTS):
+                point = wire.encode_point(wire.SegmentPoint(1, j, k, int(t_us[k]), tuple(q[k, s])))
+                agg.on_point(wire.seg_key("s01", segment), point, k / FS)
+                truth = range(0, k + step, step) if k == joined else (k,)  # the truth tap's history comes at once
+                for b in truth:
+                    rows = slice(b, min(b + step, len(t)))
+                    batch = wire.RawBatch(1, b, t_us[rows], q[rows, s].astype(np.float32), t_us[rows])
+                    agg.on_raw(wire.raw_key("s01", segment), wire.encode_raw(batch), k / FS)
+                if k == joined and s != late:  # the device's cache answers the history query at once
+                    track = agg.track("s01", segment)
+                    for jj, kk in enumerate(range(0, joined, step)):
+                        agg.fusion.add_point(track, wire.SegmentPoint(1, jj, kk, int(t_us[kk]), tuple(q[kk, s])),
+                                             wire.POINT_SIZE, k / FS)
+                    agg.fusion.history_done(track)
+            agg.advance(live=False, now=k / FS)
+        return agg.subject_stats("s01", len(t) / FS)
+
+    complete = frame_error(late=None)
+    joined_late = frame_error(late=SEGMENTS.index("l_lowerarm"))
+    assert complete["frame_error_frames"] >= 400 and joined_late["frame_error_frames"] >= 400, (complete, joined_late)
+    assert joined_late["frame_aad_deg"] == pytest.approx(complete["frame_aad_deg"], abs=0.01), (
+        joined_late["frame_aad_deg"], complete["frame_aad_deg"])

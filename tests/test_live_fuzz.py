@@ -151,6 +151,7 @@ def test_random_bytes_and_json_on_every_key(stack):  # noqa: F811
         bad = watch.extra["aggregator"]["bad_keys"]
         print(f"aggregator bad_keys {bad}")
         assert sum(bad.values()) > 0, bad
+        assert bad.keys() <= wire.UNCHARGED.keys(), f"reasons missing from docs/protocol.md: {bad}"
         assert config_errors >= sent["config"] * 0.9, (config_errors, sent)
         assert aggregator.alive() and emulator.alive(), stack.logs()
         status, health = http_json(url + "/health")

@@ -86,7 +86,7 @@ def test_points_with_and_without_a_rate():
     assert len(v2) == 48 and v2[:36] == bytes([2]) + v1[1:]
     assert wire.decode_point(v2).omega == (0.5, -1.0, 2.0)
     for bad, reason in ((v2[:36], "size"), (v1 + bytes(12), "size"), (bytes([3]) + v2[1:], "version"),
-                        (b"", "version"), (v2[:36] + struct.pack("<3f", 0.0, math.nan, 0.0), "non_finite"),
+                        (b"", "size"), (v2[:36] + struct.pack("<3f", 0.0, math.nan, 0.0), "non_finite"),
                         (v2[:36] + struct.pack("<3f", math.inf, 0.0, 0.0), "non_finite")):
         with pytest.raises(wire.WireError) as err:
             wire.decode_point(bad)
@@ -364,6 +364,28 @@ def test_protocol_doc_holds_the_generated_tables():
     doc = (Path(__file__).resolve().parent.parent / "docs" / "protocol.md").read_text()
     for heading, table in tables().items():
         assert table in doc, f"docs/protocol.md: the '{heading}' table is out of date: run python -m limbstream.wire"
+
+
+def test_protocol_doc_quotes_the_stats_sizes_bench_stats_size_prints():
+    """The compact stats form's size against the JSON form's in docs/protocol.md is what
+    ``python bench/stats_size.py`` measures: the same ratio, the same bytes within 1 % (the
+    aggregator's loop figures in the message vary from run to run by a few digits)."""
+    import re
+    import sys
+    root = Path(__file__).resolve().parent.parent
+    sys.path.insert(0, str(root / "bench"))
+    try:
+        import stats_size
+    finally:
+        sys.path.remove(str(root / "bench"))
+    doc = (root / "docs" / "protocol.md").read_text()
+    assert stats_size.HEADER in doc, "docs/protocol.md: the stats size table is gone"
+    row = re.search(r"^\| 1 \| (\d+) \| ([\d,]+) \| ([\d,]+) \| ([\d.]+) \|$", doc, re.M)
+    assert row, "docs/protocol.md: no stats size row for 1 subject"
+    devices, compact, text = stats_size.stats_sizes(1)
+    assert int(row[1]) == devices and row[4] == f"{compact / text:.2f}", (row[0], devices, compact, text)
+    for quoted, measured in ((row[2], compact), (row[3], text)):
+        assert abs(int(quoted.replace(",", "")) - measured) <= 0.01 * measured, (row[0], compact, text)
 
 
 def test_gateway_key_is_verbatim_and_its_codec_round_trips():

@@ -1,9 +1,9 @@
-"""``python -m limbstream.wire``: the stats field, compact stats column, device tunable and
-joint-angle tables of docs/protocol.md, printed as Markdown from the contract (tests/test_wire.py
-checks the docs hold exactly these)."""
+"""``python -m limbstream.wire``: the stats field, compact stats column, device tunable,
+joint-angle and drop reason tables of docs/protocol.md, printed as Markdown from the contract
+(tests/test_wire.py checks the docs hold exactly these)."""
 from __future__ import annotations
 
-from . import ANGLE_BASES, FIELDS, JOINT_TABLE, STATS_NUMBERS, STATS_TEXTS, TUNABLES
+from . import ANGLE_BASES, FIELDS, JOINT_TABLE, POINT_DROPS, RAW_DROPS, STATS_NUMBERS, STATS_TEXTS, TUNABLES, UNCHARGED
 
 
 def fields_table(scope: str) -> str:
@@ -56,11 +56,18 @@ def bases_table() -> str:
     return "\n".join(rows)
 
 
+def reasons_table(reasons: dict[str, str], what: str = "check") -> str:
+    """Markdown table of drop reasons (reason -> what it stands for)."""
+    return "\n".join(["| reason | " + what + " |", "|---|---|"] + [f"| `{r}` | {text} |" for r, text in reasons.items()])
+
+
 def tables() -> dict[str, str]:
-    """Every generated table, by the heading it stands under in docs/protocol.md."""
+    """Every generated table, by what it lists (its section of docs/protocol.md)."""
     return {"Per device": fields_table("device"), "Per subject": fields_table("subject"),
             "Per aggregator": fields_table("aggregator"), "Compact form": compact_table(), "Tunables": tunables_table(),
-            "Joint angles": angles_table(), "Calibration of the angles": bases_table()}
+            "Joint angles": angles_table(), "Calibration of the angles": bases_table(),
+            "Segment points dropped": reasons_table(POINT_DROPS), "Truth-tap batches dropped": reasons_table(RAW_DROPS),
+            "Messages no device can be charged with": reasons_table(UNCHARGED, "message")}
 
 
 if __name__ == "__main__":

@@ -78,9 +78,11 @@ def encode_point(p: SegmentPoint) -> bytes:
 
 
 def decode_point(payload: bytes) -> SegmentPoint:
-    """36 (v1) or 48 (v2) bytes -> SegmentPoint; WireError with reason version (neither 1 nor 2),
-    size (not the size of its version), non_finite (quaternion or rate), non_unit."""
-    version = payload[0] if len(payload) else None
+    """36 (v1) or 48 (v2) bytes -> SegmentPoint; WireError with reason size (empty, or not the size
+    of its version), version (neither 1 nor 2), non_finite (quaternion or rate), non_unit."""
+    if not payload:
+        raise WireError("size", "segment point is empty")
+    version = payload[0]
     if version not in _SIZES:
         raise WireError("version", f"segment point version {version}, expected {VERSION} or {VERSION_RATE}")
     if len(payload) != _SIZES[version]:
@@ -180,7 +182,9 @@ def decode_points(payloads: list[bytes]) -> PointColumns:
     unit = np.abs(np.sqrt(w * w + x * x + y * y + z * z) - 1.0) <= UNIT_TOLERANCE
     reason: list[str | None] = [None] * n
     for i in np.flatnonzero(~(valid & finite & unit)):
-        if version[i] not in _SIZES:
+        if nbytes[i] == 0:
+            reason[i] = "size"
+        elif version[i] not in _SIZES:
             reason[i] = "version"
         elif not valid[i]:
             reason[i] = "size"

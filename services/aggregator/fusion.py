@@ -372,7 +372,7 @@ class Fusion:
                                   None if heading is None else heading.correct)
         if heading is not None:
             heading.take_frames(owner, t_us, batch.exact.q, self.table.seg_slots, view.stale, self.frames.rest_flag)
-        self.scoring.score_later(owner, t_us, batch.exact.q, self.table.seg_slots[owner])
+        self.scoring.score_later(owner, t_us, batch.exact.q, self.table.seg_slots[owner], lacking)
         self.scoring.evaluate_frames(self.table.seg_slots)
         if planned is not None and wall is not None:
             index, l_t, _, _, l_slots, _, has_points, _ = planned

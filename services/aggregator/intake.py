@@ -4,7 +4,7 @@ Every message's key names its device; a key never seen is checked (its grammar a
 device made, at most ``max_devices`` of them. Segment points and truth batches of a drain are
 decoded together (``wire.decode_points``, ``wire.decode_raws``) and taken in as one batch each;
 an undecodable message is counted against its device (or, for a device never seen, in
-``bad_keys``) and dropped.
+``bad_keys``) and dropped (the reasons: ``wire.POINT_DROPS``, ``wire.RAW_DROPS``, ``wire.UNCHARGED``).
 """
 from __future__ import annotations
 
@@ -65,7 +65,7 @@ class Intake:
         track = self.known(*ids)
         if track is None:
             if reason is not None:
-                self.bad_keys[f"{kind}_{reason}"] += 1
+                self.bad_keys[wire.undecodable(kind)] += 1
                 return None
             if len(self.fusion.tracks) >= self.max_devices:
                 self.bad_keys["too_many_devices"] += 1
@@ -73,7 +73,7 @@ class Intake:
             track = self.fusion.track(*ids)
             self.ask_status(*ids)  # its settings and rest pose, before the next poll
         if reason is not None:
-            track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
+            track.dropped[wire.device_reason(kind, reason)] += 1
         return track
 
     def take_points(self, keys: list[str], payloads: list[bytes], now: float,
@@ -109,7 +109,7 @@ class Intake:
                     continue
                 known[key] = track
             elif reason is not None:
-                track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
+                track.dropped[wire.device_reason(kind, reason)] += 1
                 continue
             items.append((track, i))
         return items

@@ -8,7 +8,9 @@ kept apart from frame building (:mod:`.frames`), which never reads the truth.
   sample was really taken), every exact frame at time ``t`` is compared, segment by segment,
   with the truth at reference instant ``t`` (SLERP between the truth samples around it) once
   the truth of every device has passed ``t``: the subject's ``frame_aad_deg``. Device clocks
-  that disagree show up here and nowhere else.
+  that disagree show up here and nowhere else. A segment the frame lacks (held at a point, or
+  before its device's first: flagged MISSING, e.g. a late-joined stream whose history is still
+  on its way) is not compared: its hold is not the reconstruction's error.
 - Joints: the same frames, joint by joint: the angle between the estimated and the true relative
   orientation of each pair of adjacent segments compared (:mod:`limbstream.heading.joints`), the
   subject's ``joint_aad_deg``. It does not depend on which way the subject faces (nor on a
@@ -72,8 +74,10 @@ class Scoring:
         self.turns: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
         self.facing = np.zeros((0, 4))
         self._facing_fit: dict[int, list[float]] = {}  # subject index -> [sum sin, sum cos, frames]
-        # exact frames waiting for the truth: (subject index,), (time us,), (frame, 10, 4) float32
-        self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32))
+        # exact frames waiting for the truth: (subject index,), (time us,), (frame, 10, 4) float32,
+        # (frame, 10) the segments it lacks (held or missing: not scored)
+        self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32),
+                         np.zeros((0, len(SEGMENTS)), bool))
 
     def add_subject(self, subjects: int) -> None:
         """Room for ``subjects`` subjects."""
@@ -126,15 +130,18 @@ class Scoring:
         if newer.any():
             self.reference.extend(slot, ref_us[newer], q[newer])
 
-    def score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, slots: np.ndarray) -> None:
+    def score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, slots: np.ndarray,
+                    lacking: np.ndarray) -> None:
         """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions, (F, 10)
-        device slots): those with a device that has reference times wait to be compared
+        device slots, (F, 10) the segments each lacks: held or missing, flagged MISSING, never
+        scored): those with a device that has reference times wait to be compared
         (:meth:`evaluate_frames`)."""
         with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
         if with_truth.any():
-            po, pt, pq = self._pending
+            po, pt, pq, pl = self._pending
             self._pending = (np.concatenate([po, owner[with_truth]]), np.concatenate([pt, t_us[with_truth]]),
-                             np.concatenate([pq, q[with_truth].astype(np.float32)]))
+                             np.concatenate([pq, q[with_truth].astype(np.float32)]),
+                             np.concatenate([pl, lacking[with_truth]]))
 
     def add_latency(self, subjects: np.ndarray, latency_ms: np.ndarray, slots: np.ndarray,
                     slot_subjects: np.ndarray) -> None:
@@ -164,15 +171,15 @@ class Scoring:
         ``t`` against its device's truth at reference time ``t``, once every device of the frame
         with reference times has truth past ``t`` (or the frame waited FRAME_ERROR_WAIT_S);
         ``seg_slots``: (subjects, 10) device slot of each segment.
-        Adds each frame's mean over its compared segments to its subject's window. Returns the
-        frames compared."""
-        owner, t_us, q = self._pending
+        Adds each frame's mean over its compared segments (those it has) to its subject's window.
+        Returns the frames compared."""
+        owner, t_us, q, lacking = self._pending
         if len(owner) == 0:
             return 0
         slots = seg_slots[owner]                                        # (P, 10)
         rows = np.maximum(slots, 0)
         n = self.reference.n[rows]
-        has = (slots >= 0) & (n > 0)
+        has = (slots >= 0) & (n > 0) & ~lacking
         last = self.reference.t[rows, np.maximum(n - 1, 0)]
         newest = np.full(len(seg_slots), np.iinfo(np.int64).min)
         np.maximum.at(newest, owner, t_us)
@@ -194,7 +201,7 @@ class Scoring:
         self.frame_errors.add(owner[done], per_frame[done] / count[done])
         self._score_joints(owner, done, f, s, frames, truth)
         keep = ~ready
-        self._pending = (owner[keep], t_us[keep], q[keep])
+        self._pending = (owner[keep], t_us[keep], q[keep], lacking[keep])
         return int(done.sum())
 
     def _score_joints(self, owner: np.ndarray, done: np.ndarray, f: np.ndarray, s: np.ndarray, frames: np.ndarray,
@@ -263,7 +270,7 @@ class Scoring:
         """Let every row of reference samples forget what no frame still to build or compare needs
         (``frame_keep``: (slots,) oldest frame time still to build, us; ``owner``: (slots,) subject
         index)."""
-        pending, t_us, _ = self._pending
+        pending, t_us, _, _ = self._pending
         oldest = np.full(subjects, np.iinfo(np.int64).max)
         if len(pending):
             np.minimum.at(oldest, pending, t_us)

@@ -45,14 +45,14 @@ class ReferenceAggregator:
         track = self._known(*ids)
         if track is None:
             if reason is not None:
-                self.bad_keys[f"{kind}_{reason}"] += 1
+                self.bad_keys[wire.undecodable(kind)] += 1
                 return None
             if len(self.fusion.tracks) >= self.max_devices:
                 self.bad_keys["too_many_devices"] += 1
                 return None
             track = self.fusion.track(*ids)
         if reason is not None:
-            track.dropped[reason if kind == "seg" else f"{kind}_{reason}"] += 1
+            track.dropped[wire.device_reason(kind, reason)] += 1
         return track
 
     def on_point(self, key: str, payload: bytes, now: float) -> None:

@@ -288,7 +288,8 @@ class Fusion(Scoring, Calibrating):
         rows = np.maximum(slots, 0)
         beyond = valid & (last[rows] < t_us[:, None])
         before = valid & (self.store.n[rows] > 0) & (self.store.t[rows, 0] > t_us[:, None])
-        missing = ((stale[owner] & beyond) | before).any(axis=1) | (~valid).any(axis=1)
+        lacking = (stale[owner] & beyond) | before | ~valid
+        missing = lacking.any(axis=1)
         gap = np.zeros(total, bool)
         for track in self._gappy:
             mine = owner == self.owner[track.slot]
@@ -299,7 +300,7 @@ class Fusion(Scoring, Calibrating):
         per_subject = np.bincount(owner, minlength=len(subjects))
         for i in np.flatnonzero(per_subject):
             subjects[i].frames += int(per_subject[i])
-        self._score_later(owner, t_us, q)
+        self._score_later(owner, t_us, q, lacking)
         return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
                                                              self.skeleton.positions(q, rest != 0))
 

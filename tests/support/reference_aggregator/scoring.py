@@ -56,7 +56,8 @@ class Scoring:
         self.facing = np.zeros((0, 4))                  # per subject: truth <- frames, a turn about the vertical
         self._facing_fit: dict[int, list[float]] = {}  # subject index -> [sum sin, sum cos, frames]
         # exact frames waiting for the truth: (subject index,), (time us,), (frame, 10, 4) float32
-        self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32))
+        self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32),
+                         np.zeros((0, len(SEGMENTS)), bool))  # and (frame, 10) the segments it lacks: not scored
 
     def _add_subject_scores(self, subjects: int) -> None:
         self.frame_errors.ensure(subjects)
@@ -94,15 +95,16 @@ class Scoring:
             if newer.any():
                 self.reference.extend(slot, batch.ref_us[newer], batch.q[newer])
 
-    def _score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray) -> None:
-        """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions): those
-        with a device that has reference times wait to be compared (:meth:`evaluate_frames`)."""
+    def _score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, lacking: np.ndarray) -> None:
+        """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions, (F, 10)
+        the segments each lacks): those with a device that has reference times wait to be compared
+        (:meth:`evaluate_frames`)."""
         slots = self.seg_slots[owner]
         with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
         if with_truth.any():
-            po, pt, pq = self._pending
+            po, pt, pq, pl = self._pending
             self._pending = (np.concatenate([po, owner[with_truth]]), np.concatenate([pt, t_us[with_truth]]),
-                             np.concatenate([pq, q[with_truth].astype(np.float32)]))
+                             np.concatenate([pq, q[with_truth].astype(np.float32)]), np.concatenate([pl, lacking[with_truth]]))
 
     def evaluate_truth(self) -> int:
         """Angular error of the exact reconstruction and of the live view (the newest point at or
@@ -126,13 +128,13 @@ class Scoring:
         with reference times has truth past ``t`` (or the frame waited FRAME_ERROR_WAIT_S).
         Adds each frame's mean over its compared segments to its subject's window. Returns the
         frames compared."""
-        owner, t_us, q = self._pending
+        owner, t_us, q, lacking = self._pending
         if len(owner) == 0:
             return 0
         slots = self.seg_slots[owner]                                   # (P, 10)
         rows = np.maximum(slots, 0)
         n = self.reference.n[rows]
-        has = (slots >= 0) & (n > 0)
+        has = (slots >= 0) & (n > 0) & ~lacking
         last = self.reference.t[rows, np.maximum(n - 1, 0)]
         newest = np.full(len(self.subjects), np.iinfo(np.int64).min)
         np.maximum.at(newest, owner, t_us)
@@ -153,7 +155,7 @@ class Scoring:
         per_frame = np.bincount(f, err, minlength=len(owner))
         self.frame_errors.add(owner[done], per_frame[done] / count[done])
         keep = ~ready
-        self._pending = (owner[keep], t_us[keep], q[keep])
+        self._pending = (owner[keep], t_us[keep], q[keep], lacking[keep])
         return int(done.sum())
 
     def _fitting(self, owner: np.ndarray, f: np.ndarray, frames: np.ndarray, truth: np.ndarray,
@@ -190,7 +192,7 @@ class Scoring:
     def _prune_reference(self, frame_keep: np.ndarray) -> None:
         """Let every row of reference samples forget what no frame still to build or compare needs
         (``frame_keep``: (slots,) oldest frame time still to build, us)."""
-        owner, t_us, _ = self._pending
+        owner, t_us, _, _ = self._pending
         oldest = np.full(len(self.subjects), np.iinfo(np.int64).max)
         if len(owner):
             np.minimum.at(oldest, owner, t_us)

@@ -1,0 +1,64 @@
+"""Why a receiver drops a device's message: every reason it counts, with the check it stands for.
+
+A device's drops are counted on it by reason (stats ``dropped_by_reason``): its segment points'
+(:data:`POINT_DROPS`) and its truth tap's (:data:`RAW_DROPS`). A message no device can be
+charged with is counted per aggregator (stats ``bad_keys``, :data:`UNCHARGED`). docs/protocol.md
+holds these tables as ``python -m limbstream.wire`` prints them.
+"""
+from __future__ import annotations
+
+from .point import UNIT_TOLERANCE
+
+POINT_DROPS: dict[str, str] = {
+    "size": "payload is empty, or not the size of its version (36 bytes for 1, 48 for 2)",
+    "version": "version byte is neither 1 nor 2",
+    "non_finite": "a quaternion or rate component is NaN or ±Inf",
+    "non_unit": f"quaternion norm outside 1 ± {UNIT_TOLERANCE:g}",
+    "time_range": "device time outside [0, 2⁵³) µs",
+    "duplicate": "sequence number below the next expected one (duplicate or late); exception: until a stream "
+                 "is settled, earlier points of its start (history of a device the aggregator joined late, which "
+                 "can arrive after live points) are inserted in time order. A stream is settled once its start is "
+                 "complete, once the aggregator's own query of the device's cache for it has ended (see \"Joining "
+                 "late\" above), or 5 s after its first point",
+    "time_backwards": "device time or sample index not after the previous point's (except the `FINAL` repeat of "
+                      "the newest point, next sequence number: it ends the stream)",
+    "stale_stream": "a stream id the device already replaced",
+    "buffer_full": "the device's row of points in the aggregator is full: its oldest point is forgotten",
+}
+"""Segment points dropped and counted on their device, by reason."""
+
+RAW_DROPS: dict[str, str] = {
+    "raw_size": "payload shorter than its header, with no samples, or not the size its count says",
+    "raw_version": "version byte is neither 1 nor 2",
+    "raw_non_finite": "a quaternion component is NaN or ±Inf",
+    "raw_time_backwards": "device or reference times going back within the batch",
+    "raw_time_range": "device times outside [0, 2⁵³) µs",
+    "raw_other_stream": "a batch of a stream that has ended (one of a stream whose first point has not arrived "
+                        "yet is held, up to 16 per device, until it does)",
+    "raw_before_first_point": "a sample older than the stream's first known segment point: nothing to compare it "
+                              "with (counted per sample)",
+    "raw_overflow": "more samples wait for their reconstruction than the aggregator keeps (counted per sample)",
+}
+"""Truth-tap batches (or their samples) dropped and counted on their device, by reason."""
+
+UNCHARGED: dict[str, str] = {
+    "key": "a key that is not a device key of the kind its subscription carries "
+           "(`limbstream/<subject>/<segment>/seg` for segment points)",
+    "seg_undecodable": "a segment point that does not decode (`size`, `version`, `non_finite`, `non_unit`), on the key of a device not seen "
+                       "before: no device is made for it",
+    "raw_undecodable": "a truth-tap batch that does not decode, on the key of a device not seen before",
+    "too_many_devices": "a message of a new device while the aggregator tracks its most devices (`max_devices`)",
+    "config_reply": "a device's config reply (its status) that does not decode",
+}
+"""Messages no device can be charged with, counted per aggregator (``bad_keys``), by reason."""
+
+
+def undecodable(kind: str) -> str:
+    """The :data:`UNCHARGED` reason of an undecodable message of ``kind`` (``seg``, ``raw``)."""
+    return f"{kind}_undecodable"
+
+
+def device_reason(kind: str, reason: str) -> str:
+    """The reason a device's message of ``kind`` (``seg``, ``raw``) that its decoder refused with
+    ``reason`` is counted under: :data:`POINT_DROPS` as is, :data:`RAW_DROPS` prefixed."""
+    return reason if kind == "seg" else f"{kind}_{reason}"
