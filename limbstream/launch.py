@@ -1,7 +1,7 @@
 """Child processes of limbstream: the one launcher of ``limbstream up``, the tests' stack
 (``tests/support/stack.py``) and the benchmarks (``bench/``).
 
-- :class:`Child`: one command (by default ``python -m limbstream.cli <command> ...``) in its own
+- :class:`Child`: one command (by default ``python -P -m limbstream.cli <command> ...``) in its own
   process group, with ``PYTHONUNBUFFERED=1``; its output is appended to a log file, or forwarded
   line by line to this process's stdout (the last lines kept for error messages). It gets
   SIGTERM when the *thread* that started it ends (``PR_SET_PDEATHSIG``): start children from
@@ -31,8 +31,10 @@ from typing import Any
 from dataclasses import dataclass, field
 from pathlib import Path
 
-LIMBSTREAM = (sys.executable, "-m", "limbstream.cli")
-"""The ``limbstream`` command of this interpreter."""
+LIMBSTREAM = (sys.executable, "-P", "-m", "limbstream.cli")
+"""The ``limbstream`` command of this interpreter. ``-P``: the working directory is not put on the
+module path, so a folder there named ``limbstream`` (e.g. a clone of the repository, seen from the
+folder that holds it) never hides the installed package."""
 STOP_GRACE_S = 5.0
 TAIL_LINES = 40
 _PR_SET_PDEATHSIG = 1

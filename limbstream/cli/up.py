@@ -24,6 +24,7 @@ import importlib.util
 import json
 import os
 import secrets
+import shlex
 import shutil
 import signal
 import sys
@@ -58,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--router", default=router, metavar="ENDPOINT",
                         help=f"where the router listens; every part connects there (env {zconfig.ROUTER_ENV}, which "
                              f"every command's --connect also defaults to; default {router})")
-    parser.add_argument("--http", default="127.0.0.1:8000", help="dashboard address (default 127.0.0.1:8000)")
+    parser.add_argument("--http", default="127.0.0.1:8000", action=flags.Given,
+                        help="dashboard address (default 127.0.0.1:8000)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
     # the device tunables, passed on to the emulators; live mode on by default (wire.LIVE_MODE)
@@ -73,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
                         help="also start the SlimeVR gateway: trackers send to this UDP port (their default: 6969); "
                              "with --subjects 0 only real trackers run")
-    parser.add_argument("--slimevr-subject", default="sv01",
+    parser.add_argument("--slimevr-subject", default="sv01", action=flags.Given,
                         help="subject of the SlimeVR trackers (default sv01)")
     parser.add_argument("--max-exits", type=int, default=RestartPolicy.max_exits,
                         help=f"stop everything when one part exits this many times within "
@@ -191,8 +193,18 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     """Every flag and the source, before any part starts: ValueError naming the first problem
     (a flag, or the source's file and what is wrong with it). Returns the segments of each
     emulated subject's devices."""
-    split_endpoint(args.router)
-    split_endpoint(args.http)
+    if "," not in args.router:
+        zconfig.check_endpoint(args.router, "--router", listen=True)
+    if args.router.split("/", 1)[0] not in zconfig.HOST_PORT_PROTOCOLS or "," in args.router:
+        raise ValueError(f"--router {args.router}: expected one endpoint PROTOCOL/HOST:PORT, e.g. "
+                         f"{zconfig.DEFAULT_ROUTER} (the router listens there, every part connects there)")
+    if split_endpoint(args.router)[1] == 0:
+        raise ValueError(f"--router {args.router}: the parts need the router's port: 0 picks none")
+    flags.parse_http(args.http, allow_zero=False)
+    for flag, dest, needs, present in (("--http", "http", "the dashboard (without --no-dashboard)", not args.no_dashboard),
+                                       ("--slimevr-subject", "slimevr_subject", "--slimevr", args.slimevr is not None)):
+        if flags.given(args, dest) and not present:
+            raise ValueError(f"{flag} applies only with {needs}")
     least = 0 if args.slimevr is not None else 1
     for flag, value, low in (("--subjects", args.subjects, least), ("--emulators", args.emulators, 1),
                              ("--max-exits", args.max_exits, 1)):
@@ -217,14 +229,30 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     return [motions[clip_of(k, len(motions))[0]].segments for k in range(1, args.subjects + 1)]
 
 
+def typed_command() -> str:
+    """How to type this interpreter's ``limbstream`` command in the shell ``up`` runs in, so that the
+    banner's commands work as printed: ``limbstream`` when PATH finds this very one (e.g. in an
+    activated virtual environment), else the path of its entry point, relative to the working
+    directory when below it (``.venv/bin/limbstream`` under ``make run``), else ``python -m``."""
+    script = Path(sys.executable).parent / "limbstream"
+    found = shutil.which("limbstream")
+    if found is not None and Path(found).resolve() == script.resolve():
+        return "limbstream"
+    if not script.is_file():
+        return f"{shlex.quote(sys.executable)} -P -m limbstream.cli"
+    relative = os.path.relpath(script)
+    return shlex.quote(relative if not relative.startswith("..") else str(script))
+
+
 def client_commands(args: argparse.Namespace) -> list[str]:
-    """Ready-to-paste commands of clients of this system (with ``--connect`` unless they would
-    find its router by default)."""
+    """Ready-to-paste commands of clients of this system (:func:`typed_command`; with ``--connect``
+    unless they would find its router by default)."""
     subject = "s01" if args.subjects else args.slimevr_subject
     default = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER)
     connect = "" if args.router == default else f" --connect {args.router}"
-    return [f"limbstream watch {subject}{connect}", f"limbstream record session.mcap --duration 60{connect}",
-            f"limbstream calibrate {subject} --pose rest{connect}"]
+    command = typed_command()
+    return [f"{command} watch {subject}{connect}", f"{command} record session.mcap --duration 60{connect}",
+            f"{command} calibrate {subject} --pose rest{connect}"]
 
 
 def running(devices: list[tuple[str, ...]], args: argparse.Namespace) -> str:
