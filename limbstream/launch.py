@@ -317,8 +317,8 @@ class Launcher:
         log = None if self.logdir is None else Path(self.logdir) / f"{name}-{len(self.children)}.log"
         argv = [*prefix, *(self.command if command is None else command), *args]
         child = Child(name, argv, {**base, **self.env, **(env or {})}, log, self.cwd)
-        self.children.append(child.start())
-        return child
+        self.children.append(child)  # before it starts: stopped with the others whenever an interrupt comes
+        return child.start()
 
     def wait_ready(self, child: Child, predicate: Callable[[], bool], what: str, timeout: float) -> None:
         """Poll ``predicate`` until true; ChildExited at once if ``child`` exits, or another child

@@ -148,13 +148,17 @@ def start(args: argparse.Namespace, launcher: Launcher, supervisor: Supervisor, 
           dashboard: bool) -> dict[str, str]:
     """Start the router, the parts and the dashboard, each once ready (ChildExited, PortTaken or
     TimeoutError if one cannot); the dashboard's extra variables."""
+    say(f"starting the router on {args.router}")
     launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
     write_status(status_file, "starting", supervisor)
-    for name, argv in plan(args):
+    parts = plan(args)
+    say(f"starting {', '.join(name for name, _ in parts)}")
+    for name, argv in parts:
         launcher.start(name, *argv)
     write_status(status_file, "starting", supervisor)
     dashboard_vars = dashboard_env(status_file)
     if dashboard:
+        say(f"starting the dashboard on http://{args.http}/")
         launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
     return dashboard_vars
 
@@ -205,6 +209,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
                                        ("--slimevr-subject", "slimevr_subject", "--slimevr", args.slimevr is not None)):
         if flags.given(args, dest) and not present:
             raise ValueError(f"{flag} applies only with {needs}")
+    flags.check_shared(args)  # (the sensors' flags; limbstream has checked them too)
     least = 0 if args.slimevr is not None else 1
     for flag, value, low in (("--subjects", args.subjects, least), ("--emulators", args.emulators, 1),
                              ("--max-exits", args.max_exits, 1)):
@@ -285,11 +290,19 @@ def supervise(supervisor: Supervisor, status_file: Path, stop: threading.Event) 
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+    """Check, start, supervise, stop. Ctrl-C (or SIGTERM once started) at any moment: the parts
+    started so far are stopped, ``limbstream up: stopped``; exit status 0 once everything ran,
+    130 when the start was cut short, 2 for a bad flag or source, 1 when a part cannot start."""
     try:
+        if args.source != "generator":
+            say(f"loading {args.source}")
         devices = check(args)
     except (ValueError, argparse.ArgumentTypeError) as exc:  # MotionFileError is a ValueError
         print(f"limbstream up: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("limbstream up: stopped", flush=True)
+        return 130
     temp = None
     if args.status_file is None:
         temp = Path(tempfile.mkdtemp(prefix="limbstream-up-"))
@@ -321,7 +334,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # stopping: not interrupted again
+        for sig in (signal.SIGINT, signal.SIGTERM):  # stopping: not interrupted again
+            signal.signal(sig, signal.SIG_IGN)
         launcher.stop()
         if temp is not None:  # the status file and what the parts kept beside it (calibrations)
             shutil.rmtree(temp, ignore_errors=True)
