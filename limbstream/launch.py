@@ -307,6 +307,8 @@ class Launcher:
         self.base_env = base_env
         self.env = dict(env or {})
         self.children: list[Child] = []
+        self.abort: threading.Event | None = None
+        """Set (e.g. by a signal handler): :meth:`wait_ready` raises KeyboardInterrupt at its next poll."""
 
     def start(self, name: str, *args: str, env: Mapping[str, str] | None = None, prefix: Sequence[str] = (),
               command: Sequence[str] | None = None) -> Child:
@@ -322,10 +324,13 @@ class Launcher:
 
     def wait_ready(self, child: Child, predicate: Callable[[], bool], what: str, timeout: float) -> None:
         """Poll ``predicate`` until true; ChildExited at once if ``child`` exits, or another child
-        that was running exits with an error (a start that cannot succeed)."""
+        that was running exits with an error (a start that cannot succeed); KeyboardInterrupt
+        once :attr:`abort` is set."""
         others = [c for c in self.children if c is not child and c.alive()]
 
         def ready() -> bool:
+            if self.abort is not None and self.abort.is_set():
+                raise KeyboardInterrupt
             _check([child])
             for other in others:
                 if other.returncode not in (None, 0):

@@ -5,7 +5,6 @@ does not answer, or data that does not come. Real processes; the endpoint is a p
 listens on, or a real router with nothing behind it."""
 from __future__ import annotations
 
-import time
 
 import pytest
 from support.command import Command

@@ -37,7 +37,7 @@ class Given(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None):
         setattr(namespace, self.dest, values)
         given = set(getattr(namespace, "given", None) or ())
-        setattr(namespace, "given", given | {self.dest})
+        namespace.given = given | {self.dest}
 
 
 def given(args: argparse.Namespace, dest: str) -> bool:

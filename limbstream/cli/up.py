@@ -147,18 +147,26 @@ def dashboard_env(status_file: Path) -> dict[str, str]:
 def start(args: argparse.Namespace, launcher: Launcher, supervisor: Supervisor, status_file: Path,
           dashboard: bool) -> dict[str, str]:
     """Start the router, the parts and the dashboard, each once ready (ChildExited, PortTaken or
-    TimeoutError if one cannot); the dashboard's extra variables."""
-    say(f"starting the router on {args.router}")
+    TimeoutError if one cannot; KeyboardInterrupt at the next step once ``launcher.abort`` is
+    set: a signal never lands inside a fork); the dashboard's extra variables."""
+
+    def step(message: str = "") -> None:
+        if launcher.abort is not None and launcher.abort.is_set():
+            raise KeyboardInterrupt
+        if message:
+            progress(message)
+    step(f"starting the router on {args.router}")
     launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
     write_status(status_file, "starting", supervisor)
     parts = plan(args)
-    say(f"starting {', '.join(name for name, _ in parts)}")
+    step(f"starting {', '.join(name for name, _ in parts)}")
     for name, argv in parts:
+        step()
         launcher.start(name, *argv)
     write_status(status_file, "starting", supervisor)
     dashboard_vars = dashboard_env(status_file)
     if dashboard:
-        say(f"starting the dashboard on http://{args.http}/")
+        step(f"starting the dashboard on http://{args.http}/")
         launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
     return dashboard_vars
 
@@ -185,12 +193,13 @@ def banner(args: argparse.Namespace, launcher: Launcher, devices: list[tuple[str
         print(f"              {command}")
 
 
-def _abort_start(*_) -> None:
-    raise KeyboardInterrupt
-
-
 def say(message: str) -> None:
     print(f"limbstream up: {message}", file=sys.stderr, flush=True)
+
+
+def progress(message: str) -> None:
+    """A step of the start, on stdout (``limbstream up: starting ...``): where a Ctrl-C came."""
+    print(f"limbstream up: {message}", flush=True)
 
 
 def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
@@ -295,7 +304,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     130 when the start was cut short, 2 for a bad flag or source, 1 when a part cannot start."""
     try:
         if args.source != "generator":
-            say(f"loading {args.source}")
+            progress(f"loading {args.source}")
         devices = check(args)
     except (ValueError, argparse.ArgumentTypeError) as exc:  # MotionFileError is a ValueError
         print(f"limbstream up: error: {exc}", file=sys.stderr)
@@ -303,6 +312,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     except KeyboardInterrupt:
         print("limbstream up: stopped", flush=True)
         return 130
+    # from here on Ctrl-C or SIGTERM set stop: the start ends at its next step, a running system at once
+    stop = stop_on_signals(stop)
     temp = None
     if args.status_file is None:
         temp = Path(tempfile.mkdtemp(prefix="limbstream-up-"))
@@ -311,7 +322,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     launcher = Launcher()
     supervisor = Supervisor(launcher.children, RestartPolicy(max_exits=args.max_exits), report=say)
     dashboard = not args.no_dashboard and importlib.util.find_spec("limbstream.services.dashboard.main") is not None
-    signal.signal(signal.SIGTERM, _abort_start)  # while starting, Ctrl-C or SIGTERM abort the start
+    launcher.abort = stop
     try:
         try:
             dashboard_vars = start(args, launcher, supervisor, status_file, dashboard)
@@ -326,7 +337,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             say(f"{late.name} did not come up within "
                 f"{ROUTER_TIMEOUT_S if late.name == 'router' else DASHBOARD_TIMEOUT_S:g} s: {late.last_line()}")
             return 1
-        stop = stop_on_signals(stop)
+        if stop.is_set():
+            raise KeyboardInterrupt
         write_status(status_file, "running", supervisor)
         banner(args, launcher, devices, dashboard_vars if dashboard else None, status_file)
         print("\nCtrl-C stops everything.\n", flush=True)
