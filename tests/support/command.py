@@ -17,14 +17,15 @@ from support import ROOT
 
 class Command:
     """``argv`` (a ``limbstream`` command's arguments, or with ``shell`` a line for ``sh -c``,
-    ``prefix`` before it, e.g. ``ip netns exec NS``) started in ``cwd`` in a process group of its own."""
+    ``prefix`` before it, e.g. ``ip netns exec NS``) started in ``cwd`` in a process group of its
+    own; ``env``: its whole environment (None: this process's)."""
 
     def __init__(self, argv: Sequence[str] | str, cwd: Path = ROOT, env: Mapping[str, str] | None = None,
                  shell: bool = False, prefix: Sequence[str] = ()):
         command = ["sh", "-c", f"exec {argv}"] if shell else [*LIMBSTREAM, *argv]
         self.proc = subprocess.Popen([*prefix, *command], cwd=cwd, stdin=subprocess.DEVNULL,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     env=None if env is None else {**os.environ, **env}, start_new_session=True)
+                                     env=None if env is None else dict(env), start_new_session=True)
         self.lines: queue.Queue[str] = queue.Queue()
         self.seen: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
@@ -47,9 +48,13 @@ class Command:
             if text in line:
                 return time.monotonic()
 
-    def interrupt(self) -> float:
-        """SIGINT to the command (as Ctrl-C in its terminal); the time it was sent."""
-        self.proc.send_signal(signal.SIGINT)
+    def interrupt(self, group: bool = False) -> float:
+        """SIGINT to the command, or with ``group`` to its process group (as Ctrl-C in a terminal
+        reaches ``make`` and the command it runs); the time it was sent."""
+        if group:
+            os.killpg(self.proc.pid, signal.SIGINT)
+        else:
+            self.proc.send_signal(signal.SIGINT)
         return time.monotonic()
 
     def exit_code(self, within: float) -> tuple[int, float]:
