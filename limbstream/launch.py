@@ -1,7 +1,7 @@
 """Child processes of limbstream: the one launcher of ``limbstream up``, the tests' stack
 (``tests/support/stack.py``) and the benchmarks (``bench/``).
 
-- :class:`Child`: one command (by default ``python -m limbstream.cli <command> ...``) in its own
+- :class:`Child`: one command (by default ``python -P -m limbstream.cli <command> ...``) in its own
   process group, with ``PYTHONUNBUFFERED=1``; its output is appended to a log file, or forwarded
   line by line to this process's stdout (the last lines kept for error messages). It gets
   SIGTERM when the *thread* that started it ends (``PR_SET_PDEATHSIG``): start children from
@@ -31,8 +31,10 @@ from typing import Any
 from dataclasses import dataclass, field
 from pathlib import Path
 
-LIMBSTREAM = (sys.executable, "-m", "limbstream.cli")
-"""The ``limbstream`` command of this interpreter."""
+LIMBSTREAM = (sys.executable, "-P", "-m", "limbstream.cli")
+"""The ``limbstream`` command of this interpreter. ``-P``: the working directory is not put on the
+module path, so a folder there named ``limbstream`` (e.g. a clone of the repository, seen from the
+folder that holds it) never hides the installed package."""
 STOP_GRACE_S = 5.0
 TAIL_LINES = 40
 _PR_SET_PDEATHSIG = 1
@@ -305,6 +307,8 @@ class Launcher:
         self.base_env = base_env
         self.env = dict(env or {})
         self.children: list[Child] = []
+        self.abort: threading.Event | None = None
+        """Set (e.g. by a signal handler): :meth:`wait_ready` raises KeyboardInterrupt at its next poll."""
 
     def start(self, name: str, *args: str, env: Mapping[str, str] | None = None, prefix: Sequence[str] = (),
               command: Sequence[str] | None = None) -> Child:
@@ -315,15 +319,18 @@ class Launcher:
         log = None if self.logdir is None else Path(self.logdir) / f"{name}-{len(self.children)}.log"
         argv = [*prefix, *(self.command if command is None else command), *args]
         child = Child(name, argv, {**base, **self.env, **(env or {})}, log, self.cwd)
-        self.children.append(child.start())
-        return child
+        self.children.append(child)  # before it starts: stopped with the others whenever an interrupt comes
+        return child.start()
 
     def wait_ready(self, child: Child, predicate: Callable[[], bool], what: str, timeout: float) -> None:
         """Poll ``predicate`` until true; ChildExited at once if ``child`` exits, or another child
-        that was running exits with an error (a start that cannot succeed)."""
+        that was running exits with an error (a start that cannot succeed); KeyboardInterrupt
+        once :attr:`abort` is set."""
         others = [c for c in self.children if c is not child and c.alive()]
 
         def ready() -> bool:
+            if self.abort is not None and self.abort.is_set():
+                raise KeyboardInterrupt
             _check([child])
             for other in others:
                 if other.returncode not in (None, 0):

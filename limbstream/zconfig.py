@@ -217,6 +217,46 @@ def open_session(settings: ZenohSettings, stop: threading.Event | None = None) -
     return opening.session
 
 
+HOST_PORT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
+"""Zenoh link protocols whose address is ``HOST:PORT``."""
+PATH_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
+"""Zenoh link protocols whose address is a path or device name."""
+
+
+def parse_port(text: str, what: str, allow_zero: bool = False) -> int:
+    """The port number of ``text`` (1..65535, or 0 with ``allow_zero``); ValueError naming ``what``."""
+    low = 0 if allow_zero else 1
+    if not text.isdigit() or not low <= int(text) <= 65535:
+        raise ValueError(f"{what}: the port must be a number in {low}..65535, got {text!r}")
+    return int(text)
+
+
+def split_host_port(text: str, what: str, allow_zero: bool = False) -> tuple[str, int]:
+    """``HOST:PORT`` or ``[IPv6]:PORT`` -> (host, port); ValueError naming ``what`` otherwise."""
+    host, colon, port = text.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not colon or not host or any(c in host for c in "/ []") or (":" in host and not text.startswith("[")):
+        raise ValueError(f"{what}: expected HOST:PORT, got {text!r}")
+    return host, parse_port(port, what, allow_zero)
+
+
+def check_endpoint(endpoint: str, flag: str = "--connect", listen: bool = False) -> str:
+    """``endpoint`` if it is a Zenoh endpoint ``PROTOCOL/ADDRESS`` (``tcp/HOST:PORT``, ``tls/...``,
+    ``unixsock-stream/PATH``; ``?metadata`` and ``#config`` after it pass through), else
+    ValueError in one sentence naming ``flag`` (a listening endpoint may take port 0)."""
+    protocol, slash, rest = endpoint.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    what = f"{flag} {endpoint}"
+    if not slash or protocol not in HOST_PORT_PROTOCOLS + PATH_PROTOCOLS:
+        raise ValueError(f"{what}: expected a Zenoh endpoint PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447 "
+                         f"(protocols: {', '.join(HOST_PORT_PROTOCOLS + PATH_PROTOCOLS)})")
+    if protocol in HOST_PORT_PROTOCOLS:
+        split_host_port(address, what, allow_zero=listen)
+    elif not address:
+        raise ValueError(f"{what}: expected {protocol}/PATH")
+    return endpoint
+
+
 def split_list(value: str) -> tuple[str, ...]:
     """``"a, b,,c"`` -> ``("a", "b", "c")``: endpoints as flags and variables give them."""
     return tuple(e.strip() for e in value.split(",") if e.strip())
@@ -247,7 +287,11 @@ def settings(mode: str = "client", connect: str = "", listen: str = "", config_f
              connect_timeout_s: float | None = None) -> ZenohSettings:
     """ZenohSettings of a mode, comma-separated endpoints, a JSON file of extra settings (key ->
     value; "": none) and the bound on the wait for a router (None or 0: however long it takes);
-    ValueError naming the file when it cannot be read or holds no JSON object."""
+    ValueError naming a bad endpoint (:func:`check_endpoint`), or the file when it cannot be read
+    or holds no JSON object."""
+    for flag, endpoints in (("--connect", connect), ("--listen", listen)):
+        for endpoint in split_list(endpoints):
+            check_endpoint(endpoint, flag, listen=flag == "--listen")
     try:
         extra = read_extra(config_file) if config_file else {}
     except ValueError as exc:

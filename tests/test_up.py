@@ -82,6 +82,11 @@ class Up:
     def output(self) -> list[str]:
         return self.child.tail(200)
 
+    def said(self) -> list[str]:
+        """What ``up`` itself said, less the steps of its start (``limbstream up: starting ...``)."""
+        return [line for line in self.output() if line.startswith("limbstream up:")
+                and not line.startswith(("limbstream up: starting ", "limbstream up: loading "))]
+
     def wait_exit(self, timeout: float) -> int:
         wait_until(lambda: not self.child.alive(), timeout, "limbstream up to stop", on_fail=self.logs)
         return self.child.returncode
@@ -171,6 +176,18 @@ def test_up_passes_raw_sensors_on_and_calibrates_them():
     (["--names", "opensense"], "--names maps the sensors of an IMU recording; the generator has none"),
     (["--imu", "raw", "--yaw-drift-dps", "0.1"], "--yaw-drift-dps is the modelled sensors' drift formula"),
     (["--imu", "raw", "--clock-drift-ppm", "50"], "--imu raw samples on the feed's own clock"),
+    (["--router", "127.0.0.1:7447"], "--router 127.0.0.1:7447: expected a Zenoh endpoint PROTOCOL/ADDRESS, e.g. "
+                                     "tcp/127.0.0.1:7447"),
+    (["--router", "tcp/127.0.0.1:74470"], "--router tcp/127.0.0.1:74470: the port must be a number in 0..65535"),
+    (["--router", "tcp/127.0.0.1:0"], "--router tcp/127.0.0.1:0: the parts need the router's port"),
+    (["--router", "tcp/127.0.0.1:7447,tcp/127.0.0.1:7448"], "expected one endpoint PROTOCOL/HOST:PORT"),
+    (["--http", "127.0.0.1:99999"], "--http 127.0.0.1:99999: the port must be a number in 1..65535, got '99999'"),
+    (["--http", "127.0.0.1"], "--http 127.0.0.1: expected HOST:PORT"),
+    (["--imu-model", "icm42688p"], "--imu-model applies to raw sensors only: add --imu raw"),
+    (["--imu-rate", "400"], "--imu-rate applies to raw sensors only: add --imu raw"),
+    (["--imu", "raw", "--imu-model", "bmi270"], "--imu-model must be one of ideal, icm42688p, got 'bmi270'"),
+    (["--slimevr-subject", "sv02"], "--slimevr-subject applies only with --slimevr"),
+    (["--no-dashboard", "--http", "127.0.0.1:8001"], "--http applies only with the dashboard"),
 ])
 def test_up_checks_its_flags_and_source_before_starting_anything(argv, message, tmp_path, xsens_dir, capsys):
     """A bad flag or source is one error line naming it alone, exit 2, before any part starts."""
@@ -195,12 +212,13 @@ def test_up_banner_counts_the_devices_that_run_and_prints_client_commands(xio_di
     devices = up_cli.check(args)
     assert up_cli.running(devices, args) == (f"2 subjects x 7 devices (l_foot, l_shank, l_thigh, r_foot, r_shank, "
                                              f"r_thigh, hip), source {xio_dir}")
-    assert up_cli.client_commands(args)[0] == "limbstream watch s01 --connect tcp/127.0.0.1:7448"
+    command = up_cli.typed_command()  # this interpreter's limbstream, as the shell finds it
+    assert up_cli.client_commands(args)[0] == f"{command} watch s01 --connect tcp/127.0.0.1:7448"
     monkeypatch.setenv(zconfig.ROUTER_ENV, "tcp/127.0.0.1:7448")  # up's --router and every --connect default to it
     parser = argparse.ArgumentParser()
     up_cli.add_arguments(parser)
     default = parser.parse_args([])
-    assert default.router == "tcp/127.0.0.1:7448" and up_cli.client_commands(default)[0] == "limbstream watch s01"
+    assert default.router == "tcp/127.0.0.1:7448" and up_cli.client_commands(default)[0] == f"{command} watch s01"
     assert up_cli.running(up_cli.check(default), default) == "2 subjects x 10 devices, source generator"
 
 
@@ -234,6 +252,20 @@ def test_a_recording_is_one_subject_unless_more_are_asked_for(xsens_dir, monkeyp
     assert feeds() == ["s01", "s02"]
     monkeypatch.setenv("LIMBSTREAM_SUBJECTS", "3")
     assert feeds("--source", str(xsens_dir), "--names", "opensense") == ["s01", "s02", "s03"]
+
+
+def test_up_prints_client_commands_that_the_shell_finds(monkeypatch, tmp_path):
+    """The banner's ``limbstream``: the bare name when PATH finds this interpreter's entry point,
+    else its path (relative to the working directory when below it), which runs as printed."""
+    from limbstream.cli import up as up_cli
+    script = Path(sys.executable).parent / "limbstream"
+    monkeypatch.setenv("PATH", f"{script.parent}{os.pathsep}/usr/bin:/bin")
+    assert up_cli.typed_command() == "limbstream"
+    monkeypatch.setenv("PATH", "/usr/bin:/bin")
+    monkeypatch.chdir(script.parent.parent.parent)  # (a venv's folder: .venv/bin/limbstream below it)
+    assert up_cli.typed_command() == os.path.join(script.parent.parent.name, "bin", "limbstream")
+    monkeypatch.chdir(tmp_path)
+    assert up_cli.typed_command() == str(script)
 
 
 def test_subjects_sharing_a_clip_start_apart_unless_told_otherwise():
@@ -410,7 +442,7 @@ def test_up_brings_back_each_killed_part(stack, tmp_path):  # noqa: F811
             assert up.wait_exit(60) == 1
     finally:
         watch.close()
-    lines = [line for line in up.output() if line.startswith("limbstream up:")]
+    lines = up.said()
     assert any(line.startswith("limbstream up: dashboard exited 3 times within 60 s (")
                and "address already in use" in line and line.endswith("; stopping") for line in lines), \
         "\n".join(up.output())
@@ -428,7 +460,7 @@ def test_up_stops_with_one_line_when_a_part_cannot_start(stack, tmp_path, part):
     with taken_port(port):
         up = Up(stack, tmp_path, "--subjects", "1", "--max-exits", "2", http=http)
         assert up.wait_exit(60) == 1
-    lines = [line for line in up.output() if line.startswith("limbstream up:")]
+    lines = up.said()
     assert lines[-1] == "limbstream up: stopped", lines
     assert len(lines) == 2, lines
     assert lines[0] == f"limbstream up: {part} cannot start: 127.0.0.1:{port} is already in use by another process"

@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
-
-from limbstream import zconfig
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("limbstream.cli.up", "run the whole live system on this machine"),
@@ -50,26 +49,54 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``limbstream`` script."""
+    """Entry point of the ``limbstream`` script. A bad flag: one line, exit status 2, before the
+    command starts anything. Ctrl-C at any moment: ``limbstream COMMAND: stopped``, exit status 130,
+    without a traceback (a command that handles it itself says so and exits its own way)."""
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     if not argv or argv[0] not in COMMANDS:
         parser.parse_args(argv)  # prints usage / error and exits
         return 2
     name = argv[0]
-    module = importlib.import_module(COMMANDS[name][0])
-    sub = argparse.ArgumentParser(prog=f"limbstream {name}", description=COMMANDS[name][1])
-    module.add_arguments(sub)
-    args = sub.parse_args(argv[1:])
     try:
-        return int(module.run(args) or 0)
-    except zconfig.ConnectError as exc:
-        from limbstream.cli.flags import CONNECT_HINT
-        print(f"limbstream {name}: error: {exc} ({CONNECT_HINT})", file=sys.stderr)
-        return 1
+        return _run(name, argv[1:])
     except KeyboardInterrupt:
+        print(f"limbstream {name}: stopped", file=sys.stderr, flush=True)
         return 130
 
 
+def console() -> None:
+    """The ``limbstream`` script and ``python -m limbstream.cli``: :func:`main`, then the process
+    exits at once. The command has closed its sessions, files and children by then; the
+    interpreter's teardown, skipped here, would spend 0.3-1 s collecting Zenoh's runtime and the
+    native objects, and a command must be gone within half a second of Ctrl-C."""
+    code = main()
+    if "logging" in sys.modules:
+        sys.modules["logging"].shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe (`limbstream ... | head`)
+            pass
+    os._exit(code)
+
+
+def _run(name: str, argv: list[str]) -> int:
+    from limbstream import zconfig
+    from limbstream.cli import flags
+    module = importlib.import_module(COMMANDS[name][0])
+    sub = argparse.ArgumentParser(prog=f"limbstream {name}", description=COMMANDS[name][1])
+    module.add_arguments(sub)
+    args = sub.parse_args(argv)
+    try:
+        flags.check_shared(args)
+        return int(module.run(args) or 0)
+    except flags.FlagError as exc:
+        return flags.fail(f"limbstream {name}", str(exc))
+    except zconfig.ConnectError as exc:
+        print(f"limbstream {name}: error: {exc} ({flags.CONNECT_HINT})", file=sys.stderr)
+        return 1
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console()

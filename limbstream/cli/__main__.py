@@ -1,6 +1,4 @@
 """``python -m limbstream.cli``: the ``limbstream`` command."""
-import sys
+from limbstream.cli import console
 
-from limbstream.cli import main
-
-sys.exit(main())
+console()

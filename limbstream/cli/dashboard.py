@@ -13,10 +13,10 @@ from limbstream.services.dashboard.settings import DashboardSettings
 
 def parse_http(value: str) -> tuple[str, int]:
     """``HOST:PORT`` (or ``:PORT``, ``[::1]:PORT``) -> (host, port); argparse error otherwise."""
-    host, sep, port = value.rpartition(":")
-    if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise argparse.ArgumentTypeError(f"--http expects HOST:PORT, got {value!r}")
-    return (host.strip("[]") or "127.0.0.1"), int(port)
+    try:
+        return flags.parse_http(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

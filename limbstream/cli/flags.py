@@ -25,6 +25,56 @@ def fail(prog: str, message: str) -> int:
     return 2
 
 
+class FlagError(ValueError):
+    """A flag's value, or a combination of flags, that the command cannot run with; the sentence
+    names the flag. ``limbstream`` prints it as ``limbstream COMMAND: error: ...``, exit status 2."""
+
+
+class Given(argparse.Action):
+    """``store``, also noting the flag in ``namespace.given`` (a set of dests): a flag that only
+    makes sense with another is refused when given without it (:func:`check_shared`)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        given = set(getattr(namespace, "given", None) or ())
+        namespace.given = given | {self.dest}
+
+
+def given(args: argparse.Namespace, dest: str) -> bool:
+    """True if the flag of ``dest`` (declared with ``action=Given``) was on the command line."""
+    return dest in (getattr(args, "given", None) or ())
+
+
+def check_shared(args: argparse.Namespace) -> None:
+    """The flags of this module that a command has, checked right after parsing, before it starts
+    anything: the Zenoh endpoints, ``--connect-timeout``, ``--zenoh-config`` and the raw sensors'
+    flags given without ``--imu raw``. FlagError naming the first problem."""
+    if hasattr(args, "connect"):
+        timeout = getattr(args, "connect_timeout", None)
+        if timeout is not None and not timeout >= 0:
+            raise FlagError(f"--connect-timeout must be >= 0, got {timeout:g}")
+        try:
+            zconfig.settings(getattr(args, "mode", "client"), args.connect, getattr(args, "listen", ""),
+                             args.zenoh_config)
+        except ValueError as exc:
+            raise FlagError(str(exc)) from None
+    if getattr(args, "imu", "raw") != "raw":
+        for dest, flag in (("imu_model", "--imu-model"), ("imu_rate", "--imu-rate")):
+            if given(args, dest):
+                raise FlagError(f"{flag} applies to raw sensors only: add --imu raw")
+
+
+def parse_http(value: str, allow_zero: bool = True) -> tuple[str, int]:
+    """``HOST:PORT`` (or ``:PORT``, ``[::1]:PORT``) -> (host, port), an empty host 127.0.0.1;
+    FlagError (an argparse error inside a parser) naming ``--http`` otherwise."""
+    try:
+        host, port = zconfig.split_host_port(value if not value.startswith(":") else "127.0.0.1" + value,
+                                             f"--http {value}", allow_zero)
+    except ValueError as exc:
+        raise FlagError(str(exc)) from None
+    return host, port
+
+
 # ----------------------------------------------------------------------------- device tunables
 
 def tunable(t: wire.Tunable):
@@ -73,10 +123,10 @@ def add_sensor_model(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--imu", choices=IMU_KINDS, default="orientation",
                        help="what a device is given: its sensor's orientation (default), or raw gyroscope and "
                             "accelerometer samples it fuses with VQF before fastSW (docs/evaluation.md, 'Raw sensors')")
-    group.add_argument("--imu-model", default="ideal", metavar="PART",
+    group.add_argument("--imu-model", default="ideal", metavar="PART", action=Given,
                        help="with --imu raw: the sensor part whose errors the readings carry (ideal, icm42688p; "
                             "default ideal)")
-    group.add_argument("--imu-rate", type=float, default=200.0, metavar="HZ",
+    group.add_argument("--imu-rate", type=float, default=200.0, metavar="HZ", action=Given,
                        help=f"with --imu raw: the sensors' rate, a whole multiple of the device rate "
                             f"{wire.DEVICE_RATE_HZ:g} Hz (default 200)")
 
@@ -158,15 +208,16 @@ def add_zenoh(parser: argparse.ArgumentParser, mode: str = "client", timeout: bo
 
 def zenoh_settings(args: argparse.Namespace, connect_timeout_s: float | None = None) -> zconfig.ZenohSettings:
     """ZenohSettings from the flags of :func:`add_zenoh`; ``connect_timeout_s`` stands in for
-    ``--connect-timeout`` where the command has no such flag (None or 0: wait). SystemExit naming
-    a bad ``--zenoh-config`` or ``--connect-timeout``."""
+    ``--connect-timeout`` where the command has no such flag (None or 0: wait). FlagError naming
+    a bad endpoint, ``--zenoh-config`` or ``--connect-timeout`` (:func:`check_shared` has checked
+    them when the command runs from ``limbstream``)."""
     timeout = getattr(args, "connect_timeout", connect_timeout_s)
     if timeout is not None and not timeout >= 0:
-        raise SystemExit(f"--connect-timeout must be >= 0, got {timeout:g}")
+        raise FlagError(f"--connect-timeout must be >= 0, got {timeout:g}")
     try:
         return zconfig.settings(args.mode, args.connect, args.listen, args.zenoh_config, timeout)
     except ValueError as exc:
-        raise SystemExit(str(exc)) from None
+        raise FlagError(str(exc)) from None
 
 
 def announce(prog: str, settings: zconfig.ZenohSettings) -> None:

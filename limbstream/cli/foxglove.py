@@ -44,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
         if session is None:
             return 130
         with session, Subscription(session, args.subjects, ("pose", "stats"), capacity=1 << 14) as sub:
+            print(f"limbstream foxglove: connected; waiting for the pose and stats of subjects {args.subjects}",
+                  file=sys.stderr, flush=True)
             while not stop.wait(0.01):
                 for item in sub.drain():
                     output.publish(item)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 
 from limbstream import wire, zconfig
 from limbstream.cli import flags
@@ -85,14 +86,18 @@ def run(args: argparse.Namespace) -> int:
         links: list[SerialLink] = []  # a longer wait for the first link, then the reconnects' short one
 
         def connect() -> SerialLink:
-            links.append(SerialLink(args.port, args.link_timeout if not links else 0.5))
+            links.append(SerialLink(args.port, args.link_timeout if not links else 0.5, stop))
             return links[-1]
 
         gateway = serial_gateway.SerialGateway(host, connect, args.subject, args.segment, feed, rest_pose=rest_pose,
                                                silence_s=args.silence_s)
+        print(f"limbstream gateway serial: connected; opening the link {args.port} (up to {args.link_timeout:g} s)",
+              file=sys.stderr, flush=True)
         if not gateway.open():
             gateway.close()
             host.close()
+            if stop.is_set():
+                return 0
             raise SystemExit(f"limbstream gateway serial: error: no device on {args.port}")
         print(f"gateway serial: {gateway.id} on {args.port}, stream {gateway.stream}"
               + ("" if feed is None else f", fed {args.source} at {args.rate:g} Hz x{args.speed:g}"), flush=True)

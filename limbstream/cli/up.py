@@ -24,6 +24,7 @@ import importlib.util
 import json
 import os
 import secrets
+import shlex
 import shutil
 import signal
 import sys
@@ -60,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--router", default=router, metavar="ENDPOINT",
                         help=f"where the router listens; every part connects there (env {zconfig.ROUTER_ENV}, which "
                              f"every command's --connect also defaults to; default {router})")
-    parser.add_argument("--http", default="127.0.0.1:8000", help="dashboard address (default 127.0.0.1:8000)")
+    parser.add_argument("--http", default="127.0.0.1:8000", action=flags.Given,
+                        help="dashboard address (default 127.0.0.1:8000)")
     parser.add_argument("--speed", type=float, default=1.0, help="time scale of the devices (default 1)")
     parser.add_argument("--emulators", type=int, default=1, help="emulator processes to spread subjects over")
     # the device tunables, passed on to the emulators; live mode on by default (wire.LIVE_MODE)
@@ -75,7 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
                         help="also start the SlimeVR gateway: trackers send to this UDP port (their default: 6969); "
                              "with --subjects 0 only real trackers run")
-    parser.add_argument("--slimevr-subject", default="sv01",
+    parser.add_argument("--slimevr-subject", default="sv01", action=flags.Given,
                         help="subject of the SlimeVR trackers (default sv01)")
     parser.add_argument("--max-exits", type=int, default=RestartPolicy.max_exits,
                         help=f"stop everything when one part exits this many times within "
@@ -148,14 +150,26 @@ def dashboard_env(status_file: Path) -> dict[str, str]:
 def start(args: argparse.Namespace, launcher: Launcher, supervisor: Supervisor, status_file: Path,
           dashboard: bool) -> dict[str, str]:
     """Start the router, the parts and the dashboard, each once ready (ChildExited, PortTaken or
-    TimeoutError if one cannot); the dashboard's extra variables."""
+    TimeoutError if one cannot; KeyboardInterrupt at the next step once ``launcher.abort`` is
+    set: a signal never lands inside a fork); the dashboard's extra variables."""
+
+    def step(message: str = "") -> None:
+        if launcher.abort is not None and launcher.abort.is_set():
+            raise KeyboardInterrupt
+        if message:
+            progress(message)
+    step(f"starting the router on {args.router}")
     launcher.router(args.router, timeout=ROUTER_TIMEOUT_S)
     write_status(status_file, "starting", supervisor)
-    for name, argv in plan(args):
+    parts = plan(args)
+    step(f"starting {', '.join(name for name, _ in parts)}")
+    for name, argv in parts:
+        step()
         launcher.start(name, *argv)
     write_status(status_file, "starting", supervisor)
     dashboard_vars = dashboard_env(status_file)
     if dashboard:
+        step(f"starting the dashboard on http://{args.http}/")
         launcher.dashboard(args.http, args.router, env=dashboard_vars, timeout=DASHBOARD_TIMEOUT_S)
     return dashboard_vars
 
@@ -182,22 +196,34 @@ def banner(args: argparse.Namespace, launcher: Launcher, devices: list[tuple[str
         print(f"              {command}")
 
 
-def _abort_start(*_) -> None:
-    raise KeyboardInterrupt
-
-
 def say(message: str) -> None:
     print(f"limbstream up: {message}", file=sys.stderr, flush=True)
+
+
+def progress(message: str) -> None:
+    """A step of the start, on stdout (``limbstream up: starting ...``): where a Ctrl-C came."""
+    print(f"limbstream up: {message}", flush=True)
 
 
 def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     """Every flag and the source, before any part starts: ValueError naming the first problem
     (a flag, or the source's file and what is wrong with it). Returns the segments of each
     emulated subject's devices."""
-    split_endpoint(args.router)
-    split_endpoint(args.http)
     if args.subjects is None:
         args.subjects = default_subjects(args.source)
+    if "," not in args.router:
+        zconfig.check_endpoint(args.router, "--router", listen=True)
+    if args.router.split("/", 1)[0] not in zconfig.HOST_PORT_PROTOCOLS or "," in args.router:
+        raise ValueError(f"--router {args.router}: expected one endpoint PROTOCOL/HOST:PORT, e.g. "
+                         f"{zconfig.DEFAULT_ROUTER} (the router listens there, every part connects there)")
+    if split_endpoint(args.router)[1] == 0:
+        raise ValueError(f"--router {args.router}: the parts need the router's port: 0 picks none")
+    flags.parse_http(args.http, allow_zero=False)
+    for flag, dest, needs, present in (("--http", "http", "the dashboard (without --no-dashboard)", not args.no_dashboard),
+                                       ("--slimevr-subject", "slimevr_subject", "--slimevr", args.slimevr is not None)):
+        if flags.given(args, dest) and not present:
+            raise ValueError(f"{flag} applies only with {needs}")
+    flags.check_shared(args)  # (the sensors' flags; limbstream has checked them too)
     least = 0 if args.slimevr is not None else 1
     for flag, value, low in (("--subjects", args.subjects, least), ("--emulators", args.emulators, 1),
                              ("--max-exits", args.max_exits, 1)):
@@ -222,14 +248,30 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     return [motions[clip_of(k, len(motions))[0]].segments for k in range(1, args.subjects + 1)]
 
 
+def typed_command() -> str:
+    """How to type this interpreter's ``limbstream`` command in the shell ``up`` runs in, so that the
+    banner's commands work as printed: ``limbstream`` when PATH finds this very one (e.g. in an
+    activated virtual environment), else the path of its entry point, relative to the working
+    directory when below it (``.venv/bin/limbstream`` under ``make run``), else ``python -m``."""
+    script = Path(sys.executable).parent / "limbstream"
+    found = shutil.which("limbstream")
+    if found is not None and Path(found).resolve() == script.resolve():
+        return "limbstream"
+    if not script.is_file():
+        return f"{shlex.quote(sys.executable)} -P -m limbstream.cli"
+    relative = os.path.relpath(script)
+    return shlex.quote(relative if not relative.startswith("..") else str(script))
+
+
 def client_commands(args: argparse.Namespace) -> list[str]:
-    """Ready-to-paste commands of clients of this system (with ``--connect`` unless they would
-    find its router by default)."""
+    """Ready-to-paste commands of clients of this system (:func:`typed_command`; with ``--connect``
+    unless they would find its router by default)."""
     subject = "s01" if args.subjects != 0 else args.slimevr_subject  # None: the source's default, >= 1
     default = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER)
     connect = "" if args.router == default else f" --connect {args.router}"
-    return [f"limbstream watch {subject}{connect}", f"limbstream record session.mcap --duration 60{connect}",
-            f"limbstream calibrate {subject} --pose rest{connect}"]
+    command = typed_command()
+    return [f"{command} watch {subject}{connect}", f"{command} record session.mcap --duration 60{connect}",
+            f"{command} calibrate {subject} --pose rest{connect}"]
 
 
 def running(devices: list[tuple[str, ...]], args: argparse.Namespace) -> str:
@@ -262,11 +304,21 @@ def supervise(supervisor: Supervisor, status_file: Path, stop: threading.Event) 
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+    """Check, start, supervise, stop. Ctrl-C (or SIGTERM once started) at any moment: the parts
+    started so far are stopped, ``limbstream up: stopped``; exit status 0 once everything ran,
+    130 when the start was cut short, 2 for a bad flag or source, 1 when a part cannot start."""
     try:
+        if args.source != "generator":
+            progress(f"loading {args.source}")
         devices = check(args)
     except (ValueError, argparse.ArgumentTypeError) as exc:  # MotionFileError is a ValueError
         print(f"limbstream up: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("limbstream up: stopped", flush=True)
+        return 130
+    # from here on Ctrl-C or SIGTERM set stop: the start ends at its next step, a running system at once
+    stop = stop_on_signals(stop)
     temp = None
     if args.status_file is None:
         temp = Path(tempfile.mkdtemp(prefix="limbstream-up-"))
@@ -275,7 +327,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     launcher = Launcher()
     supervisor = Supervisor(launcher.children, RestartPolicy(max_exits=args.max_exits), report=say)
     dashboard = not args.no_dashboard and importlib.util.find_spec("limbstream.services.dashboard.main") is not None
-    signal.signal(signal.SIGTERM, _abort_start)  # while starting, Ctrl-C or SIGTERM abort the start
+    launcher.abort = stop
     try:
         try:
             dashboard_vars = start(args, launcher, supervisor, status_file, dashboard)
@@ -290,7 +342,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             say(f"{late.name} did not come up within "
                 f"{ROUTER_TIMEOUT_S if late.name == 'router' else DASHBOARD_TIMEOUT_S:g} s: {late.last_line()}")
             return 1
-        stop = stop_on_signals(stop)
+        if stop.is_set():
+            raise KeyboardInterrupt
         write_status(status_file, "running", supervisor)
         banner(args, launcher, devices, dashboard_vars if dashboard else None, status_file)
         print("\nCtrl-C stops everything.\n", flush=True)
@@ -298,7 +351,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # stopping: not interrupted again
+        for sig in (signal.SIGINT, signal.SIGTERM):  # stopping: not interrupted again
+            signal.signal(sig, signal.SIG_IGN)
         launcher.stop()
         if temp is not None:  # the status file and what the parts kept beside it (calibrations)
             shutil.rmtree(temp, ignore_errors=True)

@@ -7,7 +7,12 @@ pose stream API's rule); the header line names the kind of the frame shown. A fr
 MISSING says which segments have no data and why (no device, or its device offline), from the
 subject's stats. With ``--joints`` the subject's joint angles of the same kind follow
 (docs/protocol.md, "Joint angles"): a value per angle, ``-`` for one without (its segment missing),
-``~`` after one near gimbal lock, or the reason there are none (the subject not calibrated)."""
+``~`` after one near gimbal lock, or the reason there are none (the subject not calibrated).
+
+A subject without frames (a typo: ``watch s99``) is named after :data:`HINT_S` seconds, with the
+subjects that are streaming; ``watch`` then keeps waiting (a subject may start later) until
+Ctrl-C, or exits with status 1 after ``--timeout``. ``--timeout 0`` (the default) waits for the
+router and the frames however long it takes."""
 from __future__ import annotations
 
 import argparse
@@ -17,7 +22,7 @@ import time
 
 import numpy as np
 
-from limbstream import quat, wire, zconfig
+from limbstream import quat, wire
 from limbstream.cli import flags
 from limbstream.sources import SEGMENTS
 from limbstream.services.outputs.subscription import Subscription, subscribe_pose  # noqa: F401  (re-exported)
@@ -25,6 +30,10 @@ from limbstream.services.outputs.subscription import Subscription, subscribe_pos
 KINDS: dict[str, int | None] = {**wire.FRAME_KINDS, wire.AUTO: None}
 """``--kind``: a frame kind, or ``auto`` (the pose stream API's rule: :func:`limbstream.wire.auto_kind`)."""
 SHOWN_JOINTS = ("head", "l_wrist", "r_wrist", "l_ankle", "r_ankle")
+HINT_S = 3.0
+"""Seconds without a frame of the subject after which ``watch`` names the subjects streaming (their
+stats come once a second)."""
+PROG = "limbstream watch"
 
 
 def why_missing(devices: dict[str, bool] | None) -> str:
@@ -88,7 +97,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="exit after this many frames (with --joints: and a joint-angle message; 0: run until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0,
                         help="exit with status 1 if the router does not answer or no frame arrives for this many "
-                             f"seconds (0: wait for frames forever, for the router {zconfig.CONNECT_TIMEOUT_S:g} s)")
+                             f"seconds (0, the default: wait for the router and the frames however long it takes; "
+                             f"after {HINT_S:g} s without a frame the subjects streaming are named)")
     flags.add_zenoh(parser, timeout=False)
 
 
@@ -123,30 +133,49 @@ class _Newest:
         return frame
 
 
+def no_frames(args: argparse.Namespace, seconds: float, streaming: set[str]) -> str:
+    """What ``watch`` says when no frame of the subject came for ``seconds``: which subjects do
+    stream (their stats came), so that a typo shows."""
+    what = f"{PROG}: no {args.kind} frame of {args.subject} for {seconds:g} s; "
+    if args.subject in streaming:
+        return what + f"its stats come, its {args.kind} frames do not (is its aggregator running? try --kind auto)"
+    if not streaming:
+        return what + "no subject is streaming (is `limbstream up` running?)"
+    return what + f"subjects streaming: {', '.join(sorted(streaming))}"
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         wire.check_chunk(args.subject, "subject")
     except ValueError as exc:
-        raise SystemExit(f"limbstream watch: {exc}") from None
-    if args.refresh <= 0:
-        raise SystemExit("limbstream watch: --refresh must be > 0")
-    if not args.timeout >= 0:
-        raise SystemExit("limbstream watch: --timeout must be >= 0")
+        raise flags.FlagError(str(exc)) from None
+    if not args.refresh > 0:
+        raise flags.FlagError(f"--refresh must be > 0, got {args.refresh:g}")
+    if not args.timeout >= 0 or args.count < 0:
+        raise flags.FlagError("--timeout and --count must be >= 0")
     newest = _Newest(KINDS[args.kind])
     tty = sys.stdout.isatty()
-    last_count, last_time, last_seen = 0, time.monotonic(), time.monotonic()
-    settings = flags.session_settings(args, "limbstream watch", args.timeout or zconfig.CONNECT_TIMEOUT_S)
+    settings = flags.session_settings(args, PROG, args.timeout or None)
     kinds = (wire.POSE, wire.STATS) + ((wire.ANGLES,) if args.joints else ())
-    with Subscription(settings, args.subject, kinds) as sub:
+    with Subscription(settings, args.subject, kinds) as sub, \
+            Subscription(sub.session, "*", (wire.STATS,), capacity=1024) as everyone:
+        print(f"{PROG}: waiting for {args.kind} frames of {args.subject}", file=sys.stderr, flush=True)
+        last_count, last_time, last_seen = 0, time.monotonic(), time.monotonic()
+        streaming: set[str] = set()
+        hinted = False
         while True:
             first = sub.get(timeout=1.0 / args.refresh)
             frame = newest.take(([first] if first is not None else []) + sub.drain())  # keep the newest
+            streaming.update(item.subject for item in everyone.drain())
             now = time.monotonic()
             if frame is None:
                 if args.timeout and now - last_seen > args.timeout:
-                    print(f"limbstream watch: no {args.kind} frame of {args.subject} for {args.timeout:g} s",
-                          file=sys.stderr)
+                    print(no_frames(args, args.timeout, streaming), file=sys.stderr)
                     return 1
+                if not hinted and not newest.count and now - last_seen >= HINT_S:
+                    print(no_frames(args, HINT_S, streaming) + "; still waiting (Ctrl-C stops)", file=sys.stderr,
+                          flush=True)
+                    hinted = True
                 continue
             last_seen = now
             rate = (newest.count - last_count) / max(now - last_time, 1e-6)

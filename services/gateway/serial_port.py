@@ -34,13 +34,14 @@ class LinkClosed(ConnectionError):
     """The link ended (the device went away)."""
 
 
-def open_port(port: str, timeout_s: float = 10.0):
+def open_port(port: str, timeout_s: float = 10.0, stop: threading.Event | None = None):
     """(read(n) -> bytes, b"" at the end, None if nothing came for a while; write(bytes);
     wake() the reader blocked in read; close()) of ``port``: ``tcp:HOST:PORT`` (retried for ``timeout_s``: an emulator that is
-    still starting) or a serial device path (raw mode)."""
+    still starting; ConnectionAbortedError once ``stop`` is set) or a serial device path (raw mode)."""
     if port.startswith("tcp:"):
         host, _, number = port[4:].rpartition(":")
         deadline = time.monotonic() + timeout_s
+        stop = stop or threading.Event()
         while True:
             try:
                 sock = socket.create_connection((host or "127.0.0.1", int(number)), timeout=timeout_s)
@@ -48,7 +49,8 @@ def open_port(port: str, timeout_s: float = 10.0):
             except OSError:
                 if time.monotonic() > deadline:
                     raise
-                time.sleep(0.05)
+                if stop.wait(0.05):
+                    raise ConnectionAbortedError(f"{port}: stopped") from None
         sock.settimeout(None)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
@@ -89,9 +91,10 @@ class SerialLink:
     last_heard : time.monotonic() of the last bytes read (the device's heartbeat comes every second).
     """
 
-    def __init__(self, port: str, timeout_s: float = 10.0):
+    def __init__(self, port: str, timeout_s: float = 10.0, stop: threading.Event | None = None):
         self.port = port
-        self._read, self._write, self._wake, self._close = open_port(port, timeout_s)
+        self._stop = stop or threading.Event()  # set: requests stop waiting for their answers
+        self._read, self._write, self._wake, self._close = open_port(port, timeout_s, self._stop)
         self.reader = link.FrameReader(link.DEVICE_BODIES)
         self.inbox: queue.Queue = queue.Queue(INBOX)
         self.dropped = 0
@@ -176,7 +179,13 @@ class SerialLink:
         self._waiting[request] = (event, answer)
         try:
             self.send(encode(request))
-            if not event.wait(timeout_s) or not answer:
+            deadline = time.monotonic() + timeout_s
+            while not event.wait(min(0.05, max(0.0, deadline - time.monotonic()))):
+                if self._stop.is_set() or time.monotonic() >= deadline:
+                    break
+            if not answer and self._stop.is_set():
+                raise LinkClosed(f"{self.port}: stopped")
+            if not answer:
                 raise (LinkClosed if self.closed.is_set() else TimeoutError)(
                     f"{self.port}: no answer to request {request} in {timeout_s:g} s")
             return answer[0]
