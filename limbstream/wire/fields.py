@@ -145,6 +145,8 @@ FIELDS: tuple[StatsField, ...] = (
     # ---- per subject
     StatsField("frames", int, "subject", "exact frames published"),
     StatsField("skipped_frames", int, "subject", "frame times skipped (no data could make them)"),
+    StatsField("live_missed", int, "subject", "live frame deadlines missed: the aggregator's loop came more than half a "
+               "live period after the deadline, no live frame for it"),
     StatsField("watermark_us", int, "subject", "exact frames are final up to this device time", "us"),
     StatsField("frame_aad_deg", float, "subject", "mean angle between each exact frame's segments and the truth at "
                "the frame's reference instant (alignment-aware error; truth tap with reference times; the aggregator's error window, --error-window)",
