@@ -53,7 +53,7 @@ def _not_still(replies: list) -> bool:
         answer = wire.decode_calibrate_answer(replies[0].ok.payload.to_bytes())
     except wire.WireError:
         return False  # (said by run)
-    return not answer.ok and NOT_STILL in answer.reason
+    return not answer.ok and NOT_STILL in (answer.reason or "")
 
 
 def ask_until_still(session, key: str, args: argparse.Namespace) -> list:
