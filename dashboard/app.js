@@ -128,14 +128,20 @@ function renderExactLatency() {  // from /api/subjects: measured by the dashboar
   showLatency($("tot-lat-exact"), ss.map((s) => s.exact_latency_p50_ms), ss.map((s) => s.exact_latency_p99_ms));
 }
 
-function liveCell(d) {  // live p99 / the device's live-rule bound
-  const p99 = d.live_p99_deg === null || d.live_p99_deg === undefined ? "–" : `${fmt(d.live_p99_deg, 1)}°`;
+function liveCell(d) {  // the live bound's figure (against the device's own orientation) / the bound
+  const known = (v) => v !== null && v !== undefined;
+  const own = known(d.live_own_max_deg);  // (a truth tap without own orientations: the true-body figure, uncoloured)
+  const shown = own ? d.live_own_max_deg : d.live_p99_deg;
+  const text = known(shown) ? `${fmt(shown, 1)}°` : "–";
   const b = d.live_bound_deg;
   const bound = b === null || b === undefined ? "–" : (b === 0 || b >= 180 ? "off" : fmtDeg(b));
-  const over = b > 0 && b < 180 && d.live_p99_deg > b + 0.05 ? " bad" : "";
-  const tip = `live-view error p99 ${fmt(d.live_p99_deg)}°, mean ${fmt(d.live_err_deg)}°, max ${fmt(d.live_max_deg)}° ` +
-    `(60 s); live bound ${bound}; live latency p50 ${fmt(d.live_latency_p50_ms, 1)} ms, p99 ${fmt(d.live_latency_p99_ms, 1)} ms`;
-  return `<td class="num live${over}" title="${esc(tip)}">${p99} / ${bound}</td>`;
+  const over = own && b > 0 && b < 180 && d.live_own_max_deg > b + 0.01 ? " bad" : "";
+  const tip = (own ? `live bound's figure: max ${fmt(d.live_own_max_deg)}°, p99 ${fmt(d.live_own_p99_deg)}° against ` +
+    "the device's own orientation; " : "") +
+    `against the true body (with fusion and calibration errors): p99 ${fmt(d.live_p99_deg)}°, ` +
+    `mean ${fmt(d.live_err_deg)}°, max ${fmt(d.live_max_deg)}° (60 s); live bound ${bound}; ` +
+    `live latency p50 ${fmt(d.live_latency_p50_ms, 1)} ms, p99 ${fmt(d.live_latency_p99_ms, 1)} ms`;
+  return `<td class="num live${over}" title="${esc(tip)}">${text} / ${bound}</td>`;
 }
 
 function renderTable() {

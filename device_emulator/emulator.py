@@ -12,7 +12,8 @@ kernel no sample that tick (a NaN row, rejected without touching its state; the 
 which counts calls, is mapped back to the device's sample number); its sample is the motion at
 the sample's true instant (SLERP between the feed's samples). A device whose feed ends
 (``--once``, clips of different lengths) publishes its last point as FINAL then, and nothing
-after it. The truth tap carries raw sample batches with each sample's reference time. A device
+after it. The truth tap carries raw sample batches with each sample's reference time and the
+device's own orientation (what its kernel compressed: its sensor's reading). A device
 whose time base steps (its first sync after starting unsynced, or a resync after its holdover
 that moved more than 128 ms) starts a new stream.
 
@@ -147,6 +148,7 @@ class Emulator:
             self._ring_n, self._ring_t = np.full((ring, n), -1, np.int64), np.zeros((ring, n), np.int64)
         self._ring_ref = np.zeros((ring, n), np.int64)        # its reference (true) time, us
         self._ring_q = np.zeros((ring, n, 4), np.float32)     # its value
+        self._ring_own = np.zeros((ring, n, 4), np.float32)   # what the device compressed (its own orientation)
         self.start_us = 0
         self.ticks = 0
         self.finished = threading.Event()
@@ -250,7 +252,8 @@ class Emulator:
         rows, cols, n, count, slots = rows[taken], cols[taken], n[taken], count[has], slots[has]
         b = self.bank.kernel
         payload, ends = wire.encode_raws(b.stream[slots], n[np.cumsum(count) - count] - b.base[slots], count,
-                                         self._ring_t[rows, cols], self._ring_q[rows, cols], self._ring_ref[rows, cols])
+                                         self._ring_t[rows, cols], self._ring_q[rows, cols], self._ring_ref[rows, cols],
+                                         self._ring_own[rows, cols])
         self.host.publish_raws(slots, payload, ends)
 
     def step(self, k: int) -> None:
@@ -271,6 +274,7 @@ class Emulator:
                     self._new_stream(self.devices[slot], k)
             y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept
             y[taken] = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.host.fs, q)
+            self._ring_own[row, taken] = y[taken]
             ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
                      & 0xFFFFFFFF).astype(np.uint32)
             self.bank.update(ticks, y, taken, stamps)
@@ -305,6 +309,7 @@ class Emulator:
             took = np.flatnonzero(b.update_raw(ticks, stamps, gyr[i], acc[i]))
             self._ring_n[row, took] = b.kernel.base[took] + b.calls[took] - 1
             self._ring_t[row, took] = stamps[took]
+            self._ring_own[row, took] = b.kernel.newest_samples(m)[took]  # its filter's orientation, fused
 
     def _restart_raw(self, d: Device, k: int) -> None:
         """Device d (raw sensors) starts a new stream at tick k: its stream so far ended (FINAL),

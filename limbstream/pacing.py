@@ -8,6 +8,7 @@ one. Times are seconds.
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -70,14 +71,15 @@ class PacedLoop:
         self.stats = LoopStats() if stats is None else stats
 
     def run(self, stop: threading.Event, tick: Callable[[int, float], bool | None], ticks: int | None = None,
-            between: Callable[[float], None] | None = None) -> int:
+            between: Callable[[float], None] | None = None, start: float | None = None) -> int:
         """Call ``tick(k, now)`` for k = 0, 1, ... as each comes due, until ``stop`` is set,
         ``ticks`` ticks ran (None: no limit) or a tick returns False; the ticks run.
 
         ``between(deadline)`` runs while the next tick is not due and returns at the latest at
-        ``deadline`` (the loop's clock); by default the loop waits on ``stop``.
+        ``deadline`` (the loop's clock); by default the loop waits on ``stop``. Tick 0 is due at
+        ``start`` (the loop's clock; default: now).
         """
-        start = self.clock()
+        start = self.clock() if start is None else start
         k = 0
         while not stop.is_set() and (ticks is None or k < ticks):
             deadline = start + k * self.period_s
@@ -97,3 +99,26 @@ class PacedLoop:
             if more is False:
                 break
         return k
+
+
+class Deadlines:
+    """Deadlines every ``period_s`` from ``start`` (the loop's clock, s), each met at most once:
+    by a tick within half a period after it, else missed (so the ticks that meet two deadlines in
+    a row are at least half a period apart)."""
+
+    def __init__(self, period_s: float, start: float):
+        if not period_s > 0:
+            raise ValueError(f"period_s must be > 0, got {period_s}")
+        self.period_s, self.start = float(period_s), start
+        self.next = 0  # the first deadline not yet met or missed
+
+    def due(self, now: float) -> tuple[bool, int]:
+        """At ``now``: (whether the newest deadline passed is met now, deadlines missed since the
+        last call)."""
+        k = math.floor((now - self.start) / self.period_s + 1e-6)  # the newest deadline passed
+        if k < self.next:
+            return False, 0
+        met = now - (self.start + k * self.period_s) <= self.period_s / 2
+        missed = k - self.next + (0 if met else 1)
+        self.next = k + 1
+        return met, missed

@@ -367,3 +367,32 @@ def test_page_plots_each_subjects_joint_angles(stack):  # noqa: F811
             browser.close()
     assert not errors, errors
     assert (ARTIFACTS / "joints.png").stat().st_size > 10_000
+
+
+LIVE_CELL = """(d) => { const t = document.createElement('tr'); t.innerHTML = liveCell(d); const c = t.firstChild;
+  return [c.textContent, c.classList.contains('bad'), c.title]; }"""
+
+
+def test_the_live_column_colours_only_the_bound_figure(stack):  # noqa: F811
+    """The live column shows and colours the live error against the device's own orientation
+    (what the bound holds); the error against the true body, which holds the sensor's fusion and
+    calibration errors too, may exceed the bound without colouring it, and is in the tooltip."""
+    chromium = require_chromium()
+    stack.router()
+    url = stack.dashboard()
+    base = {"live_bound_deg": 5.0, "live_p99_deg": 5.6, "live_err_deg": 1.2, "live_max_deg": 6.95,
+            "live_own_p99_deg": 4.8, "live_latency_p50_ms": 10.0, "live_latency_p99_ms": 20.0}
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page()
+            page.goto(url + "/")
+            within = page.evaluate(LIVE_CELL, base | {"live_own_max_deg": 4.99})
+            beyond = page.evaluate(LIVE_CELL, base | {"live_own_max_deg": 5.4})
+            old_tap = page.evaluate(LIVE_CELL, base | {"live_own_max_deg": None})
+        finally:
+            browser.close()
+    assert within[:2] == ["5.0° / 5°", False], within
+    assert "6.95" in within[2] and "true body" in within[2] and "own orientation" in within[2], within
+    assert beyond[:2] == ["5.4° / 5°", True], beyond
+    assert old_tap[:2] == ["5.6° / 5°", False], old_tap  # no own orientations: the true-body p99, uncoloured

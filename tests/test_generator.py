@@ -209,3 +209,23 @@ def test_transitions_are_cross_fades():
 def test_bad_arguments(kwargs, message):
     with pytest.raises(ValueError, match=message):
         GeneratorSource(**kwargs)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 7])
+def test_the_default_motion_holds_the_rest_pose_still_about_every_30_s(seed):
+    """Twice a loop the default motion stands perfectly still in the rest pose (every segment at
+    the subject's heading alone) for STILL_S seconds: no still moment is more than 33 s from the
+    last one, so a rest calibration asked for at any time finds one soon."""
+    from limbstream.sources.generator import STILL_S
+    src = GeneratorSource(seed, FS)
+    t = np.arange(0, 2 * src.period_s, 1 / FS)
+    q = src.orientations(t)
+    heading = np.broadcast_to(q[:, :1], q.shape)
+    rest = quat.angle_deg(q.reshape(-1, 4), heading.reshape(-1, 4)).reshape(len(t), -1).max(axis=1) < 1e-6
+    still = rest[1:] & rest[:-1] & (quat.angle_deg(q[1:].reshape(-1, 4), q[:-1].reshape(-1, 4))
+                                    .reshape(len(t) - 1, -1).max(axis=1) < 1e-9)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(int), [0]])))
+    runs = edges.reshape(-1, 2) / FS  # (start, end) s of each still run
+    assert len(runs) >= 4 and ((runs[:, 1] - runs[:, 0]) >= STILL_S - 2 / FS).all(), runs
+    assert np.diff(runs[:, 0]).max() <= 33.0 and runs[0, 0] <= 33.0, runs
+    assert set(src.activity_at(runs[:, 0] + 1.0)) == {"still"}

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support.profiles import scaled
 
-from limbstream import kernel, wire
+from limbstream import kernel, quat, wire
 from limbstream.sources import SEGMENTS
 
 u16 = st.integers(0, 0xFFFF)
@@ -128,7 +128,7 @@ def test_raw_batch_round_trip_and_errors():
     assert back.stream == 7 and back.first_index == 1000
     assert np.array_equal(back.t_us, t) and np.array_equal(back.q, q)
     raw = wire.encode_raw(batch)
-    for bad, reason in ((raw[:-3], "size"), (raw[:10], "size"), (bytes([3]) + raw[1:], "version")):
+    for bad, reason in ((raw[:-3], "size"), (raw[:10], "size"), (bytes([4]) + raw[1:], "version")):
         with pytest.raises(wire.WireError) as err:
             wire.decode_raw(bad)
         assert err.value.reason == reason
@@ -487,3 +487,30 @@ def test_a_device_status_says_what_its_orientations_are():
     data = status.as_dict() | {"orientations": "quaternions"}
     with pytest.raises(wire.WireError, match="orientations must be one of segments, rest, sensors"):
         wire.decode_status(json.dumps(data).encode())
+
+
+def test_truth_tap_v3_carries_the_devices_own_orientation_and_v2_still_decodes():
+    """Version 3 adds each sample's own orientation (what the device compressed); a version 2 or
+    1 batch (a recording's) decodes as before, without one, alone and among others."""
+    rng = np.random.default_rng(3)
+    n = 5
+    t = 1_790_000_000_000_000 + 20_000 * np.arange(n)
+    q, own = (quat.normalize(rng.normal(size=(n, 4))).astype(np.float32) for _ in range(2))
+    v3 = wire.encode_raw(wire.RawBatch(7, 100, t, q, t + 3, own))
+    v2 = wire.encode_raw(wire.RawBatch(7, 100, t, q, t + 3))
+    v1 = wire.encode_raw(wire.RawBatch(7, 100, t, q))
+    assert (v3[0], v2[0], v1[0]) == (3, 2, 1) and len(v3) == 28 + 40 * n
+    b = wire.decode_raw(v3)
+    assert (b.own == own).all() and (b.q == q).all() and (b.ref_us == t + 3).all()
+    assert wire.decode_raw(v2).own is None and wire.decode_raw(v1).own is None
+    cols = wire.decode_raws([v2, v3, v1])
+    assert cols.reason == [None] * 3 and cols.has_own.tolist() == [False, True, False]
+    assert (cols.batch(1).own == own).all() and cols.batch(0).own is None and np.isnan(cols.own[:n]).all()
+    payload, ends = wire.encode_raws(np.array([7, 8]), np.array([100, 0]), np.array([n, n]), np.concatenate([t, t]),
+                                     np.concatenate([q, q]), np.concatenate([t, t]), np.concatenate([own, own]))
+    assert payload[: int(ends[0])] == wire.encode_raw(wire.RawBatch(7, 100, t, q, t, own))
+    bad = bytearray(v3)
+    bad[-4:] = np.float32(np.nan).tobytes()
+    with pytest.raises(wire.WireError) as err:
+        wire.decode_raw(bytes(bad))
+    assert err.value.reason == "non_finite" and wire.decode_raws([bytes(bad)]).reason == ["non_finite"]

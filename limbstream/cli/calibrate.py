@@ -1,5 +1,7 @@
 """``limbstream calibrate s01 --pose rest [--countdown 3]``: calibrate a subject's devices from the
-pose it holds (docs/evaluation.md, "Calibration"); the aggregator serving the subject answers."""
+pose it holds (docs/evaluation.md, "Calibration"); the aggregator serving the subject answers.
+A refusal because the subject is not still is asked again, until it holds still or ``--wait``
+seconds passed (the built-in motion stands still in the rest pose about every 30 s)."""
 from __future__ import annotations
 
 import argparse
@@ -12,6 +14,8 @@ from limbstream import wire, zconfig
 from limbstream.cli import flags
 
 PROG = "limbstream calibrate"
+NOT_STILL = "not still"
+"""What the aggregator's refusal says when the subject moved during the hold (calibration.still_mean)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "yaw: heading only, in the rest pose")
     parser.add_argument("--countdown", type=float, default=0.0, metavar="S",
                         help="count down this many seconds first, to get into the pose (default 0)")
+    parser.add_argument("--wait", type=float, default=45.0, metavar="S",
+                        help="while the subject is not still, ask again for up to this many seconds (default 45: "
+                             "the built-in motion stands still about every 30 s; 0: ask once)")
     flags.add_zenoh(parser)
 
 
@@ -38,11 +45,41 @@ def answers(replies, poll_s: float = 0.05) -> list:
             got.append(reply)
 
 
+def _not_still(replies: list) -> bool:
+    """The answer is a refusal because the subject moved during the hold."""
+    if not replies or replies[0].ok is None:
+        return False
+    try:
+        answer = wire.decode_calibrate_answer(replies[0].ok.payload.to_bytes())
+    except wire.WireError:
+        return False  # (said by run)
+    return not answer.ok and NOT_STILL in (answer.reason or "")
+
+
+def ask_until_still(session, key: str, args: argparse.Namespace) -> list:
+    """The replies of the calibration request, asked again while the subject is not still, for up
+    to ``args.wait`` seconds (said once, on the first such refusal)."""
+    until = time.monotonic() + args.wait
+    told = False
+    while True:
+        replies = answers(session.get(key, payload=wire.encode_calibrate_request(args.pose),
+                                      timeout=wire.CALIBRATION_ANSWER_TIMEOUT_S))
+        if not _not_still(replies) or time.monotonic() >= until:
+            return replies
+        if not told:
+            print(f"not still yet: asking again until the subject holds the {args.pose} pose still "
+                  f"(up to {args.wait:g} s)", flush=True)
+            told = True
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         key = wire.calibrate_key(args.subject)
     except ValueError as exc:
         print(f"limbstream calibrate: error: {exc}", file=sys.stderr)
+        return 2
+    if not args.wait >= 0:
+        print(f"limbstream calibrate: error: --wait must be >= 0, got {args.wait}", file=sys.stderr)
         return 2
     if not args.countdown >= 0:
         print(f"limbstream calibrate: error: --countdown must be >= 0, got {args.countdown}", file=sys.stderr)
@@ -55,8 +92,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"hold the {args.pose} pose in {left} ...", flush=True)
             time.sleep(1.0)
         print(f"hold the {args.pose} pose still for {wire.CALIBRATION_HOLD_S:g} s", flush=True)
-        replies = answers(session.get(key, payload=wire.encode_calibrate_request(args.pose),
-                                      timeout=wire.CALIBRATION_ANSWER_TIMEOUT_S))
+        replies = ask_until_still(session, key, args)
     finally:
         session.close()
     if not replies:

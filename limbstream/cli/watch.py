@@ -5,7 +5,7 @@ default: the aggregator's frames at the devices' "now"), exact frames (``--kind 
 behind by up to the max segment length) or ``--kind auto`` (live while they come, else exact: the
 pose stream API's rule); the header line names the kind of the frame shown. A frame flagged
 MISSING says which segments have no data and why (no device, or its device offline), from the
-subject's stats. With ``--joints`` the subject's joint angles of the same kind follow
+subject's stats. With ``--joints`` the frame's own joint angles follow (paired by seq and time)
 (docs/protocol.md, "Joint angles"): a value per angle, ``-`` for one without (its segment missing),
 ``~`` after one near gimbal lock, or the reason there are none (the subject not calibrated).
 
@@ -16,6 +16,7 @@ router and the frames however long it takes."""
 from __future__ import annotations
 
 import argparse
+import collections
 import math
 import sys
 import time
@@ -104,13 +105,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 class _Newest:
     """What the screen shows: the newest frame of the kind asked for (``wanted``; None: auto), the
-    frames counted, and the subject's devices ({segment: online}) from its newest stats."""
+    frames counted, the subject's devices ({segment: online}) from its newest stats, and the joint
+    angles of recent frames by the frame they come from (kind, seq, time), so that a frame is
+    shown with its own angles (:meth:`paired`)."""
+
+    KEPT = 64  # recent frames and angle messages kept for pairing
 
     def __init__(self, wanted: int | None):
         self.wanted = wanted
         self.count = 0
         self.devices: dict[str, bool] | None = None
-        self.angles: wire.JointAngles | None = None  # the newest joint angles of the kind shown
+        self.frames: collections.deque[wire.PoseFrame] = collections.deque(maxlen=self.KEPT)
+        self.angles: dict[tuple[int, int, int], wire.JointAngles] = {}  # by (kind, seq, t_us) of their frame
         self.last_live = -math.inf  # monotonic time of the newest live frame (auto)
 
     def take(self, items: list) -> wire.PoseFrame | None:
@@ -121,16 +127,27 @@ class _Newest:
                 self.devices = {d["segment"]: bool(d["online"]) for d in item.value["devices"]}
                 continue
             if item.kind == wire.ANGLES:
-                wanted = self.wanted if self.wanted is not None else wire.auto_kind(time.monotonic() - self.last_live)
-                if item.value.kind == wanted:
-                    self.angles = item.value
+                a = item.value
+                self.angles[a.kind, a.seq, a.t_us] = a
+                while len(self.angles) > self.KEPT:
+                    del self.angles[next(iter(self.angles))]
                 continue
             if item.value.kind == wire.KIND_LIVE:
                 self.last_live = time.monotonic()
             kind = self.wanted if self.wanted is not None else wire.auto_kind(time.monotonic() - self.last_live)
             if item.value.kind == kind:
                 frame, self.count = item.value, self.count + 1
+                self.frames.append(frame)
         return frame
+
+    def paired(self) -> tuple[wire.PoseFrame, wire.JointAngles | None]:
+        """The newest frame kept whose joint angles came, with them; the newest frame and None if
+        none of the frames kept has its angles yet."""
+        for frame in reversed(self.frames):
+            angles = self.angles.get((frame.kind, frame.seq, frame.t_us))
+            if angles is not None:
+                return frame, angles
+        return self.frames[-1], None
 
 
 def no_frames(args: argparse.Namespace, seconds: float, streaming: set[str]) -> str:
@@ -180,10 +197,13 @@ def run(args: argparse.Namespace) -> int:
             last_seen = now
             rate = (newest.count - last_count) / max(now - last_time, 1e-6)
             last_count, last_time = newest.count, now
+            angles = None
+            if args.joints:  # the newest frame whose angles came, with its own angles
+                frame, angles = newest.paired()
             text = render(args.subject, frame, rate, newest.devices)
             if args.joints:
-                text += "\n" + render_angles(newest.angles)
+                text += "\n" + render_angles(angles)
             print(("\x1b[H\x1b[2J" if tty else "") + text, flush=True)
-            if args.count and newest.count >= args.count and (newest.angles is not None or not args.joints):
+            if args.count and newest.count >= args.count and (angles is not None or not args.joints):
                 return 0
             time.sleep(max(0.0, 1.0 / args.refresh - (time.monotonic() - now)))

@@ -8,8 +8,12 @@ from collections.abc import Callable
 import numpy as np
 
 from limbstream import wire
-from limbstream.kernel._lib import (_POINT_DTYPE, MAX_DIM, POINT, STATE_SIZE, TICK_HZ, BankWire, Point,
+from limbstream.kernel._lib import (_POINT_DTYPE, MAX_DIM, POINT, STATE_SIZE, TICK_HZ, BankWire, Point, Settings,
                                     _lib, body_rates, live_rule, make_settings)
+
+_NEWEST_Y = ctypes.sizeof(Settings) + 8 + ctypes.sizeof(Point) + Point.y.offset
+"""Offset of the newest accepted sample's value in a FastswState (settings, next_index, count,
+anchor, then ``prev``: fastsw.h)."""
 
 
 class Segmenter:
@@ -193,6 +197,12 @@ class SegmenterBank:
         self._n = n
         end = int(self._ends[k - 1]) if k else 0
         return self._slots[:k].copy(), self._out[:end].tobytes(), self._ends[:k].copy()
+
+    def newest_samples(self, n: int) -> np.ndarray:
+        """(n, dim) float32 copy: the newest sample each of streams 0..n-1 accepted (its state's
+        ``prev``: what it compresses, e.g. the orientation a fusion stage in front gave it)."""
+        rows = np.frombuffer(memoryview(self._states), np.uint8, n * STATE_SIZE).reshape(n, STATE_SIZE)
+        return rows[:, _NEWEST_Y:_NEWEST_Y + 4 * self.dim].copy().view(np.float32)
 
     @property
     def status(self) -> np.ndarray:

@@ -12,7 +12,8 @@ turned by the subject's heading about Y) every segment orientation is the headin
 X points to the subject's left. Every value is a pure function of time (and of the sample
 index for the noise), so :meth:`GeneratorSource.chunk` gives the same samples as
 :func:`generate` and a live emulator can stream forever. A seed is a subject: it sets
-cadence, amplitudes, phases, posture, heading, schedule lengths and the mounting offsets.
+cadence, amplitudes, phases, posture, heading, schedule lengths and the mounting offsets. The
+default motion holds the rest pose still for :data:`STILL_S` s about every 30 s.
 """
 
 from __future__ import annotations
@@ -57,22 +58,29 @@ abduction and internal rotation positive). The generator stays inside these rang
 
 JOINTS: tuple[str, ...] = tuple(JOINT_RANGES)
 
-ACTIVITIES: tuple[str, ...] = ("standing", "walking", "running", "arm_circles", "jumping_jacks")
-"""Activity names; ``"transition"`` labels the cross-fades between them."""
+ACTIVITIES: tuple[str, ...] = ("standing", "walking", "running", "arm_circles", "jumping_jacks", "still")
+"""Activity names (``still``: the rest pose, not moving at all); ``"transition"`` labels the
+cross-fades between them."""
+
+TRANSITION_S = 1.5
+"""Length of the joint-angle cross-fade at the start of each activity, seconds."""
+STILL_S = 3.0
+"""How long the default motion holds the rest pose perfectly still, twice a loop (about every
+30 s): after its cross-fade into it, seconds; not scaled with the subject's schedule."""
 
 DEFAULT_SCHEDULE: tuple[tuple[str, float], ...] = (
     ("standing", 4.0),
     ("walking", 12.0),
     ("running", 8.0),
+    ("still", TRANSITION_S + STILL_S),
     ("standing", 3.0),
     ("arm_circles", 8.0),
     ("jumping_jacks", 8.0),
     ("walking", 6.0),
+    ("still", TRANSITION_S + STILL_S),
 )
-"""(activity, seconds) played in a loop when no activities are given."""
-
-TRANSITION_S = 1.5
-"""Length of the joint-angle cross-fade at the start of each activity, seconds."""
+"""(activity, seconds) played in a loop when no activities are given: the rest pose held still
+for :data:`STILL_S` s about every 30 s (a rest calibration can be made then)."""
 
 NOISE_BLOCK = 1024
 """Samples per independently seeded block of sensor noise (keeps chunks equal to the batch)."""
@@ -140,9 +148,12 @@ def _standing(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
     return a
 
 
-def _gait(
-    t: np.ndarray, p: _Subject, step_hz: float, phase: float
-) -> tuple[np.ndarray, np.ndarray]:
+def _still(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
+    """The rest pose (standing, arms hanging), not moving: every joint angle 0."""
+    return {j: np.zeros(len(t)) for j in JOINTS}
+
+
+def _gait(t: np.ndarray, p: _Subject, step_hz: float, phase: float) -> tuple[np.ndarray, np.ndarray]:
     """Gait-cycle fractions (left, right) in [0, 1) for a step frequency (two steps per cycle)."""
     s = (0.5 * step_hz * p.cadence * t + phase) % 1.0
     return s, (s + 0.5) % 1.0
@@ -255,6 +266,7 @@ _ACTIVITY_FUNCS: dict[str, Callable[[np.ndarray, _Subject], dict[str, np.ndarray
     "running": _running,
     "arm_circles": _arm_circles,
     "jumping_jacks": _jumping_jacks,
+    "still": _still,
 }
 
 
@@ -270,13 +282,9 @@ def _schedule(
     for item in activities:
         name, seconds = (item, 8.0) if isinstance(item, str) else item
         if name not in _ACTIVITY_FUNCS:
-            raise ValueError(
-                f"activities: unknown activity {name!r} (known: {', '.join(ACTIVITIES)})"
-            )
+            raise ValueError(f"activities: unknown activity {name!r} (known: {', '.join(ACTIVITIES)})")
         if not seconds > TRANSITION_S:
-            raise ValueError(
-                f"activities: {name!r} lasts {seconds} s, must exceed {TRANSITION_S} s"
-            )
+            raise ValueError(f"activities: {name!r} lasts {seconds} s, must exceed {TRANSITION_S} s")
         out.append((name, float(seconds)))
     if not out:
         raise ValueError("activities: empty")
@@ -338,14 +346,8 @@ class GeneratorSource:
 
     segments: tuple[str, ...] = SEGMENTS
 
-    def __init__(
-        self,
-        seed: int = 0,
-        fs: float = wire.DEVICE_RATE_HZ,
-        activities=None,
-        noise_deg: float = 0.0,
-        mounting_offsets: bool = False,
-    ):
+    def __init__(self, seed: int = 0, fs: float = wire.DEVICE_RATE_HZ, activities=None, noise_deg: float = 0.0,
+                 mounting_offsets: bool = False):
         if int(seed) < 0:
             raise ValueError(f"seed must be >= 0, got {seed}")
         if not fs > 0:
@@ -358,7 +360,7 @@ class GeneratorSource:
         self.mounting_offsets = bool(mounting_offsets)
         self._subject = _Subject(self.seed)
         scale = self._subject.schedule_scale if activities is None else 1.0
-        self._schedule = [(n, s * scale) for n, s in _schedule(activities)]
+        self._schedule = [(n, s if n == "still" else s * scale) for n, s in _schedule(activities)]
         self._starts = np.cumsum([0.0] + [s for _, s in self._schedule])
         self._mount = quat.from_rotation(Rotation.from_rotvec(self._subject.mounting))
 
@@ -437,12 +439,8 @@ class GeneratorSource:
         """(count, 10, 4) noise rotations of samples start .. start + count - 1."""
         first, last = start // NOISE_BLOCK, (start + count - 1) // NOISE_BLOCK
         sigma = np.radians(self.noise_deg) / np.sqrt(3.0)  # per axis, so the RMS angle is noise_deg
-        blocks = [
-            np.random.default_rng([self.seed, 0x4E01, b]).normal(
-                0.0, sigma, (NOISE_BLOCK, len(SEGMENTS), 3)
-            )
-            for b in range(first, last + 1)
-        ]
+        blocks = [np.random.default_rng([self.seed, 0x4E01, b]).normal(0.0, sigma, (NOISE_BLOCK, len(SEGMENTS), 3))
+                  for b in range(first, last + 1)]
         rotvec = np.concatenate(blocks)[start - first * NOISE_BLOCK :][:count]
         return quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(
             count, len(SEGMENTS), 4
@@ -482,14 +480,8 @@ class GeneratorSource:
         return Motion(t, q, SEGMENTS, f"synthetic-seed{self.seed}")
 
 
-def generate(
-    duration_s: float = 60.0,
-    fs: float = wire.DEVICE_RATE_HZ,
-    seed: int = 0,
-    activities=None,
-    noise_deg: float = 0.0,
-    mounting_offsets: bool = False,
-) -> Motion:
+def generate(duration_s: float = 60.0, fs: float = wire.DEVICE_RATE_HZ, seed: int = 0, activities=None,
+             noise_deg: float = 0.0, mounting_offsets: bool = False) -> Motion:
     """Synthetic full-body motion of one subject (see :class:`GeneratorSource` for the arguments).
 
     Returns

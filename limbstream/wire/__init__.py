@@ -43,7 +43,7 @@ from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VER
 from .pose import (AUTO, AUTO_LIVE_WINDOW_S, FRAME_KINDS, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
                    PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, kind_name, pose_stream, rest_pose_flag)
 from .rejects import POINT_DROPS, RAW_DROPS, UNCHARGED, device_reason, undecodable
-from .raw import (MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_VERSION, RawBatch, RawColumns, decode_raw,
+from .raw import (MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_SAMPLE_DTYPE_V3, RAW_VERSION, RawBatch, RawColumns, decode_raw,
                   decode_raws, encode_raw, encode_raws)
 from .stats import (STATS_NUMBERS, STATS_TEXTS, STATS_VERSION, decode_stats, encode_stats, encode_stats_json,
                     encode_stats_table, stats_devices, stats_json)

@@ -82,8 +82,15 @@ FIELDS: tuple[StatsField, ...] = (
             metric="limbstream_device_live_p50_degrees"),
     _device("live_p99_deg", float, "99th percentile of that live-view error (the aggregator's error window, --error-window)", "deg", chart=True,
             metric="limbstream_device_live_p99_degrees"),
-    _device("live_max_deg", float, "largest live-view error (the aggregator's error window, --error-window)", "deg",
+    _device("live_max_deg", float, "largest live-view error against the true segment: the live bound's error plus "
+            "the sensor's fusion and calibration errors (the aggregator's error window, --error-window)", "deg",
             metric="limbstream_device_live_max_degrees"),
+    _device("live_own_p99_deg", float, "99th percentile of the live-view error against the device's own orientation "
+            "(what its kernel compressed; truth tap v3; the aggregator's error window, --error-window)", "deg",
+            metric="limbstream_device_live_own_p99_degrees"),
+    _device("live_own_max_deg", float, "largest live-view error against the device's own orientation: what its live "
+            "bound holds, at most live_bound_deg (the aggregator's error window, --error-window)", "deg", chart=True,
+            metric="limbstream_device_live_own_max_degrees"),
     _device("live_latency_p50_ms", float, "median live latency: live frame publication (wall clock) minus the "
             "device time the frame shows (last 3000 live frames)", "ms",
             metric="limbstream_device_live_latency_p50_milliseconds"),
@@ -145,6 +152,8 @@ FIELDS: tuple[StatsField, ...] = (
     # ---- per subject
     StatsField("frames", int, "subject", "exact frames published"),
     StatsField("skipped_frames", int, "subject", "frame times skipped (no data could make them)"),
+    StatsField("live_missed", int, "subject", "live frame deadlines missed: the aggregator's loop came more than half a "
+               "live period after the deadline, no live frame for it"),
     StatsField("watermark_us", int, "subject", "exact frames are final up to this device time", "us"),
     StatsField("frame_aad_deg", float, "subject", "mean angle between each exact frame's segments and the truth at "
                "the frame's reference instant (alignment-aware error; the segments a frame has, not those it holds as MISSING; truth tap with reference times; the aggregator's error window, --error-window)",

@@ -2,8 +2,11 @@
 
 Version 2 adds each sample's *reference time*: when the sample was really taken, on the
 reference system's clock (the emulator's true time stands in for an external reference such as
-an optical system). Receivers use it only to measure alignment, never to align. Version 1
-batches (no reference time) are still decoded.
+an optical system). Receivers use it only to measure alignment, never to align. Version 3 adds
+each sample's *own orientation*: the device's own estimate of its orientation at the sample (what
+its kernel compressed: its fused sensor reading, which the truth differs from by the sensor's
+fusion and mounting errors), against which the live bound is kept. Versions 1 and 2 are still
+decoded (a recording may hold them).
 """
 from __future__ import annotations
 
@@ -15,14 +18,16 @@ import numpy as np
 from .errors import WireError
 from .point import joined
 
-RAW_VERSION = 2
-"""Format version of truth-tap batches written with reference times (1: without)."""
+RAW_VERSION = 3
+"""Format version of truth-tap batches written with reference times and own orientations (2:
+reference times only; 1: neither)."""
 _HEADER_V1 = struct.Struct("<BBHHHIq")   # version, flags, stream, count, reserved, first_index, t0_us
 _HEADER_V2 = struct.Struct("<BBHHHIqq")  # ... and ref0_us
 RAW_SAMPLE_DTYPE = np.dtype([("dt_us", "<u4"), ("q", "<f4", (4,))])
 RAW_SAMPLE_DTYPE_V2 = np.dtype([("dt_us", "<u4"), ("ref_dt_us", "<u4"), ("q", "<f4", (4,))])
+RAW_SAMPLE_DTYPE_V3 = np.dtype([("dt_us", "<u4"), ("ref_dt_us", "<u4"), ("q", "<f4", (4,)), ("own", "<f4", (4,))])
 MAX_RAW_BATCH = 4096
-_LAYOUT = {1: (_HEADER_V1, RAW_SAMPLE_DTYPE), 2: (_HEADER_V2, RAW_SAMPLE_DTYPE_V2)}
+_LAYOUT = {1: (_HEADER_V1, RAW_SAMPLE_DTYPE), 2: (_HEADER_V2, RAW_SAMPLE_DTYPE_V2), 3: (_HEADER_V2, RAW_SAMPLE_DTYPE_V3)}
 
 
 @dataclass(frozen=True)
@@ -38,10 +43,13 @@ class RawBatch:
     t_us : (n,) int64
         Device timestamps (as its segment points carry them), microseconds since the Unix epoch.
     q : (n, 4) float32
-        Orientations (w, x, y, z).
+        True orientations (w, x, y, z) of the segment.
     ref_us : (n,) int64 or None
-        Reference times: when each sample was really taken, us since the epoch (version 2;
-        None in a version 1 batch).
+        Reference times: when each sample was really taken, us since the epoch (versions 2 and
+        3; None in a version 1 batch).
+    own : (n, 4) float32 or None
+        The device's own orientation at each sample, what its kernel compressed (version 3, which
+        needs ``ref_us``; None in versions 1 and 2).
     """
 
     stream: int
@@ -49,13 +57,15 @@ class RawBatch:
     t_us: np.ndarray
     q: np.ndarray
     ref_us: np.ndarray | None = None
+    own: np.ndarray | None = None
 
 
 def encode_raw(batch: RawBatch) -> bytes:
     """RawBatch -> bytes. Without reference times, version 1: header (20 B: u8 version, u8 flags,
     u16 stream, u16 count, u16 reserved, u32 first_index, i64 t0_us) + count x (u32 dt_us from
     t0, 4 x f32 q). With them, version 2: the same header + i64 ref0_us (28 B), then count x
-    (u32 dt_us, u32 ref_dt_us from ref0, 4 x f32 q)."""
+    (u32 dt_us, u32 ref_dt_us from ref0, 4 x f32 q). With own orientations too, version 3: as
+    version 2, each sample followed by 4 x f32 own."""
     n = len(batch.t_us)
     if not 0 < n <= MAX_RAW_BATCH:
         raise ValueError(f"raw batch must hold 1..{MAX_RAW_BATCH} samples, got {n}")
@@ -65,16 +75,19 @@ def encode_raw(batch: RawBatch) -> bytes:
         header = _HEADER_V1.pack(1, 0, batch.stream, n, 0, batch.first_index, t0)
     else:
         ref0 = int(batch.ref_us[0])
-        body = np.empty(n, RAW_SAMPLE_DTYPE_V2)
+        version = 2 if batch.own is None else 3
+        body = np.empty(n, _LAYOUT[version][1])
         body["ref_dt_us"] = np.asarray(batch.ref_us, np.int64) - ref0
-        header = _HEADER_V2.pack(2, 0, batch.stream, n, 0, batch.first_index, t0, ref0)
+        header = _HEADER_V2.pack(version, 0, batch.stream, n, 0, batch.first_index, t0, ref0)
+        if batch.own is not None:
+            body["own"] = batch.own
     body["dt_us"] = np.asarray(batch.t_us, np.int64) - t0
     body["q"] = batch.q
     return header + body.tobytes()
 
 
 def encode_raws(stream: np.ndarray, first_index: np.ndarray, count: np.ndarray, t_us: np.ndarray, q: np.ndarray,
-                ref_us: np.ndarray | None = None) -> tuple[bytes, np.ndarray]:
+                ref_us: np.ndarray | None = None, own: np.ndarray | None = None) -> tuple[bytes, np.ndarray]:
     """Many truth-tap batches at once, laid end to end: the bytes of :func:`encode_raw` of each.
 
     Parameters
@@ -83,6 +96,7 @@ def encode_raws(stream: np.ndarray, first_index: np.ndarray, count: np.ndarray, 
     t_us : (S,) int64 device times of all samples, batch after batch (S = count.sum()).
     q : (S, 4) float32 their orientations.
     ref_us : (S,) int64 their reference times (version 2), or None (version 1).
+    own : (S, 4) float32 the devices' own orientations (version 3, with ``ref_us``), or None.
 
     Returns
     -------
@@ -92,7 +106,9 @@ def encode_raws(stream: np.ndarray, first_index: np.ndarray, count: np.ndarray, 
     count = np.asarray(count, np.int64)
     if len(count) and not (count.min() > 0 and count.max() <= MAX_RAW_BATCH):
         raise ValueError(f"raw batches must hold 1..{MAX_RAW_BATCH} samples, got {count.min()}..{count.max()}")
-    version = 1 if ref_us is None else 2
+    if own is not None and ref_us is None:
+        raise ValueError("own orientations go with reference times (version 3)")
+    version = 1 if ref_us is None else 2 if own is None else 3
     header, dtype = _LAYOUT[version]
     first = np.cumsum(count) - count
     heads = np.zeros(len(count), _HEADS[version])
@@ -106,6 +122,8 @@ def encode_raws(stream: np.ndarray, first_index: np.ndarray, count: np.ndarray, 
         ref_us = np.asarray(ref_us, np.int64)
         heads["ref0"] = ref_us[first]
         body["ref_dt_us"] = ref_us - np.repeat(heads["ref0"], count)
+    if own is not None:
+        body["own"] = own
     ends = np.cumsum(header.size + count * dtype.itemsize)
     out = np.empty(int(ends[-1]) if len(ends) else 0, np.uint8)
     if len(count) and count.min() == count.max():  # batches of one size: a (B, message) table
@@ -122,13 +140,13 @@ def encode_raws(stream: np.ndarray, first_index: np.ndarray, count: np.ndarray, 
 
 
 def decode_raw(payload: bytes) -> RawBatch:
-    """Bytes (version 1 or 2) -> RawBatch; WireError with reason size / version / non_finite /
+    """Bytes (version 1, 2 or 3) -> RawBatch; WireError with reason size / version / non_finite /
     time_backwards (device or reference times)."""
     if len(payload) < _HEADER_V1.size:
         raise WireError("size", f"raw batch has {len(payload)} bytes, less than its header")
     version = payload[0]
     if version not in _LAYOUT:
-        raise WireError("version", f"raw batch version {version}, expected 1 or {RAW_VERSION}")
+        raise WireError("version", f"raw batch version {version}, expected 1 to {RAW_VERSION}")
     header, dtype = _LAYOUT[version]
     if len(payload) < header.size:
         raise WireError("size", f"raw batch has {len(payload)} bytes, less than its header")
@@ -138,13 +156,14 @@ def decode_raw(payload: bytes) -> RawBatch:
         raise WireError("size", f"raw batch of {n} samples has {len(payload)} bytes, expected {expected}")
     body = np.frombuffer(payload, dtype, count=n, offset=header.size)
     q = body["q"].copy()
-    if not np.all(np.isfinite(q)):
+    own = body["own"].copy() if version == 3 else None
+    if not (np.all(np.isfinite(q)) and (own is None or np.all(np.isfinite(own)))):
         raise WireError("non_finite", "raw batch has non-finite samples")
     dt = body["dt_us"].astype(np.int64)
     ref = body["ref_dt_us"].astype(np.int64) if ref0 else None
     if n > 1 and (np.any(np.diff(dt) < 0) or (ref is not None and np.any(np.diff(ref) < 0))):
         raise WireError("time_backwards", "raw batch timestamps go backwards")
-    return RawBatch(stream, first_index, t0 + dt, q, None if ref is None else ref0[0] + ref)
+    return RawBatch(stream, first_index, t0 + dt, q, None if ref is None else ref0[0] + ref, own)
 
 
 @dataclass(frozen=True)
@@ -157,13 +176,15 @@ class RawColumns:
     stream, first_index, start, count : (B,) int64
         Per batch, as in :class:`RawBatch` (0 for an invalid message).
     has_ref : (B,) bool
-        The batch carries reference times (version 2).
+        The batch carries reference times (versions 2 and 3).
+    has_own : (B,) bool
+        The batch carries own orientations (version 3).
     reason : list of B (str or None)
         Why the message is not a valid batch (the reasons of :func:`decode_raw`); None where it is.
     t_us, ref_us : (S,) int64
         Per sample: device time; reference time (0 in a batch without).
-    q : (S, 4) float32
-        Per sample: orientation.
+    q, own : (S, 4) float32
+        Per sample: true orientation; the device's own (NaN in a batch without).
     """
 
     stream: np.ndarray
@@ -175,18 +196,21 @@ class RawColumns:
     t_us: np.ndarray
     ref_us: np.ndarray
     q: np.ndarray
+    has_own: np.ndarray
+    own: np.ndarray
 
     def batch(self, i: int) -> RawBatch:
         """Batch ``i`` (valid) as a :class:`RawBatch` of its own arrays."""
         rows = slice(int(self.start[i]), int(self.start[i] + self.count[i]))
         return RawBatch(int(self.stream[i]), int(self.first_index[i]), self.t_us[rows].copy(), self.q[rows].copy(),
-                        self.ref_us[rows].copy() if self.has_ref[i] else None)
+                        self.ref_us[rows].copy() if self.has_ref[i] else None,
+                        self.own[rows].copy() if self.has_own[i] else None)
 
 
 _HEADS = {v: np.dtype([("version", "u1"), ("flags", "u1"), ("stream", "<u2"), ("count", "<u2"), ("reserved", "<u2"),
-                       ("first_index", "<u4"), ("t0", "<i8")] + ([("ref0", "<i8")] if v == 2 else []))
+                       ("first_index", "<u4"), ("t0", "<i8")] + ([("ref0", "<i8")] if v >= 2 else []))
           for v in _LAYOUT}
-"""The headers of both versions as NumPy record types (the bytes of the structs above)."""
+"""The headers of every version as NumPy record types (the bytes of the structs above)."""
 
 
 def decode_raws(payloads: list[bytes]) -> RawColumns:
@@ -202,13 +226,14 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
         ok = (head["count"] > 0) & (nbytes[mine] == header.size + head["count"].astype(np.int64) * dtype.itemsize)
         mine, head = mine[ok], head[ok]
         stream[mine], count[mine], first_index[mine], t0[mine] = head["stream"], head["count"], head["first_index"], head["t0"]
-        if v == 2:
+        if v >= 2:
             ref0[mine] = head["ref0"]
     start = np.cumsum(count) - count
     total = int(count.sum())
     sample_batch = np.repeat(np.arange(b), count)
     rank = np.arange(total) - start[sample_batch]
     t_us, ref_us, q = np.zeros(total, np.int64), np.zeros(total, np.int64), np.zeros((total, 4), np.float32)
+    own = np.full((total, 4), np.nan, np.float32)
     for v, (header, dtype) in _LAYOUT.items():
         batches = np.flatnonzero((version == v) & (count > 0))
         if len(batches) == 0:
@@ -217,9 +242,12 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
         body = np.frombuffer(b"".join([payloads[i][header.size:] for i in batches.tolist()]), dtype)
         t_us[rows] = t0[sample_batch[rows]] + body["dt_us"]
         q[rows] = body["q"]
-        if v == 2:
+        if v >= 2:
             ref_us[rows] = ref0[sample_batch[rows]] + body["ref_dt_us"]
-    finite = np.bincount(sample_batch[~np.isfinite(q).all(axis=1)], minlength=b) == 0
+        if v == 3:
+            own[rows] = body["own"]
+    bad = ~np.isfinite(q).all(axis=1) | ((version[sample_batch] == 3) & ~np.isfinite(own).all(axis=1))
+    finite = np.bincount(sample_batch[bad], minlength=b) == 0
     later = rank[1:] > 0  # a sample after the first of its batch: its times may not go back
     back = later & ((np.diff(t_us) < 0) | (np.diff(ref_us) < 0))
     backwards = np.bincount(sample_batch[1:][back], minlength=b) > 0
@@ -231,4 +259,4 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
             reason[i] = "version"
         else:
             reason[i] = "non_finite" if not finite[i] else "time_backwards"
-    return RawColumns(stream, first_index, start, count, version == 2, reason, t_us, ref_us, q)
+    return RawColumns(stream, first_index, start, count, version >= 2, reason, t_us, ref_us, q, version == 3, own)

@@ -20,7 +20,7 @@ import zenoh
 import zenoh.ext as zext
 
 from limbstream import heap, wire, zconfig
-from limbstream.pacing import PacedLoop
+from limbstream.pacing import Deadlines, PacedLoop
 from limbstream.services.aggregator.angles import JointStage
 from limbstream.services.aggregator.devices import NO_TIME
 from limbstream.services.aggregator.frames import FrameBatch, FrameStage
@@ -350,7 +350,9 @@ class Aggregator:
         """The subject fields of the subjects' stats messages."""
         view = self.fusion.device_view()
         scores = self.fusion.scoring.subject_figures([sub.index for sub in subjects])
-        return [{"frames": int(self.fusion.frames.made[sub.index]), "skipped_frames": int(self.fusion.frames.skipped[sub.index]),
+        frames = self.fusion.frames
+        return [{"frames": int(frames.made[sub.index]), "skipped_frames": int(frames.skipped[sub.index]),
+                 "live_missed": int(frames.live_missed[sub.index]),
                  "watermark_us": None if view.watermark[sub.index] == NO_TIME else int(view.watermark[sub.index]),
                  "frame_aad_deg": aad, "joint_aad_deg": joints, "frame_error_frames": compared, "facing_deg": facing}
                 for sub, (aad, compared, facing, joints) in zip(subjects, scores)]
@@ -390,25 +392,27 @@ class Aggregator:
     # ------------------------------------------------------------------ loop
 
     def run(self, stop: threading.Event) -> AggregatorCounters:
-        """Loop until ``stop``: drain, advance frames every tick, stats about once a second."""
+        """Loop until ``stop``: drain, advance frames every tick (a live frame per live deadline:
+        ``pacing.Deadlines``, those missed counted per subject), stats about once a second."""
         s = self.settings
+        tick_s = min(s.tick_s, 1.0 / s.live_rate) if s.live_rate > 0 else s.tick_s
         start = time.perf_counter()
-        next_live = next_config = next_frames = next_prune = next_trim = start
+        next_config = next_frames = next_prune = next_trim = start
         next_unsynced = start + UNSYNCED_POLL_S
         watch_until = start  # the stats follow devices resyncing until then
-        ticks = max(1, round(s.stats_period_s / s.tick_s))  # a stats round per period, in batches
+        ticks = max(1, round(s.stats_period_s / tick_s))  # a stats round per period, in batches
         stats_parts = min(STATS_BATCHES, ticks)
         stats_every = ticks // stats_parts
+        deadlines = Deadlines(1.0 / s.live_rate, start) if s.live_rate > 0 else None
 
         def tick(k: int, now: float) -> None:
-            nonlocal next_live, next_config, next_frames, next_prune, next_trim, next_unsynced, watch_until
+            nonlocal next_config, next_frames, next_prune, next_trim, next_unsynced, watch_until
             with self.lock:
+                now = time.perf_counter()  # (the lock may have kept the tick waiting: arrivals at the drain)
                 self.drain(now)
-                live = s.live_rate > 0 and now >= next_live
-                if live:  # on a fixed schedule (no drift); after a stall, from now on
-                    next_live += 1.0 / s.live_rate
-                    if next_live <= now:
-                        next_live = now + 1.0 / s.live_rate
+                live, missed = (False, 0) if deadlines is None else deadlines.due(now)
+                if missed:
+                    self.fusion.frames.miss_live(missed)
                 if live or now >= next_frames:
                     prune = now >= next_prune
                     self.advance(live, prune, now)
@@ -432,7 +436,7 @@ class Aggregator:
                 heap.release_free_heap()
                 next_trim = now + s.trim_s
 
-        PacedLoop(s.tick_s, stats=self.loop.pacing).run(stop, tick)
+        PacedLoop(tick_s, stats=self.loop.pacing).run(stop, tick, start=start)
         return self.loop
 
 

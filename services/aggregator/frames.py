@@ -8,7 +8,9 @@ point and the frame is flagged MISSING. Live frames: at each subject's device ti
 newest device time seen, advanced by the arrival clock since it arrived), every segment exact
 (SLERP) where a point at or after that time is known, else its newest point extrapolated with
 the point's body rate (``quat.predict``: the prediction the device's live rule keeps within
-``live_bound_deg``; a point without a rate is held).
+``live_bound_deg``; a point without a rate is held). A subject's "now" is the clock plus its
+live clock offset (device time minus arrival of its least delayed message, eased down at
+LIVE_EASE): its live frames' times strictly increase.
 
 A tick plans the exact frames that became final and the live frames due (who, when, which
 device at which time, flags), reconstructs every segment of all of them in one
@@ -37,6 +39,11 @@ FIRST_FRAME_WAIT_S = 1.0
 """How long a subject's first exact frame waits, at most, for all of its devices to settle
 (DeviceTrack.settled) after it could first start, seconds; then it starts from the settled
 ones (a device whose stream keeps restarting must not hold the others back)."""
+LIVE_EASE = 0.1
+"""How fast a subject's live clock offset may come down, s per s of the aggregator's clock: a
+message that arrives later than the best one seen (transport delay, a stalled loop) lowers the
+offset no faster than this, so live frame times never go back and advance at least 0.9 times as
+fast as the clock (device clocks running at ``--speed 1``)."""
 OVERDUE_GRACE_S = 0.25
 """A live frame extrapolates an active device's newest point for at most its max segment length
 (``max_len`` samples at the frame rate: by then the device has sent its next point) plus this
@@ -97,12 +104,17 @@ class FrameBuilder:
         self.next_frame = np.zeros(0, np.int64)
         self.exact_seq = np.zeros(0, np.int64)
         self.live_seq = np.zeros(0, np.int64)
+        self.live_t = np.zeros(0, np.int64)          # newest live frame time, us (NO_TIME: none)
+        self.live_offset = np.zeros(0, np.float64)   # device time - clock, us (NaN: none yet)
+        self.live_missed = np.zeros(0, np.int64)     # live frame deadlines missed (counted by the loop)
+        self._live_clock = math.nan                  # the clock of the last live plan, s
         self.rest_flag = np.zeros(0, np.uint8)
         self.made = np.zeros(0, np.int64)     # exact frames per subject
         self.skipped = np.zeros(0, np.int64)  # frame times skipped per subject
 
     def add_subject(self, rest_flag: int) -> None:
-        for name, value in (("next_frame", -1), ("exact_seq", 0), ("live_seq", 0), ("made", 0), ("skipped", 0)):
+        for name, value in (("next_frame", -1), ("exact_seq", 0), ("live_seq", 0), ("made", 0), ("skipped", 0),
+                            ("live_t", NO_TIME), ("live_offset", math.nan), ("live_missed", 0)):
             setattr(self, name, np.append(getattr(self, name), value))
         self.rest_flag = np.append(self.rest_flag, np.uint8(rest_flag))
 
@@ -172,23 +184,45 @@ class FrameBuilder:
                 gap[a:b] |= track.in_gap(t_us[a:b])
         return np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | self.rest_flag[owner], lacking
 
+    def miss_live(self, deadlines: int) -> None:
+        """``deadlines`` live frame deadlines passed without a frame (the loop was late): counted
+        for every subject that has had live frames."""
+        self.live_missed[self.live_seq > 0] += deadlines
+
+    def _live_now(self, table: DeviceTable, rows: np.ndarray, has_points: np.ndarray, now: float) -> np.ndarray:
+        """(subjects,) each subject's device time "now", us (NO_TIME: no data): the clock ``now``
+        (s) plus its live clock offset, the largest of (newest device time - its arrival) over its
+        devices, kept from tick to tick and eased down at most LIVE_EASE; never before its
+        newest device time, never at or before its previous live frame."""
+        latest = np.where(has_points, table.latest_t[rows], NO_TIME)
+        newest = latest.max(axis=1, initial=NO_TIME)
+        offset = np.nan_to_num(np.where(has_points, latest - table.latest_arrival[rows] * 1e6, -np.inf),
+                               nan=-np.inf).max(axis=1, initial=-np.inf)
+        elapsed = 0.0 if math.isnan(self._live_clock) else max(now - self._live_clock, 0.0)
+        self._live_clock = now
+        eased = self.live_offset - LIVE_EASE * elapsed * 1e6
+        offset = np.where(np.isnan(eased) | (offset > eased), offset, eased)
+        self.live_offset = np.where(np.isfinite(offset), offset, self.live_offset)
+        t = np.round(now * 1e6 + np.nan_to_num(self.live_offset, nan=0.0, neginf=0.0))
+        t = np.maximum(np.maximum(t, newest), self.live_t + 1).astype(np.int64)
+        return np.where(newest != NO_TIME, t, NO_TIME)
+
     def plan_live(self, view: DeviceView, table: DeviceTable, store: PointStore,
-                  now: float | None) -> tuple[np.ndarray, ...]:
-        """The live frames due: one per subject with data at its device time "now": the newest
-        device time of its devices, each advanced by the arrival clock ``now`` (s) since it
-        arrived. Returns (subject index (L,), time (L,) us, seq (L,), flags (L,), segment slots
-        (L, 10), each segment's query time (L, 10) us, devices with points (L, 10) bool, segments
-        lacking (L, 10) bool). A segment is held at its newest point (frame MISSING) where its
-        device is offline or ended, or silent for longer than its horizon (OVERDUE_GRACE_S)."""
+                  now: float) -> tuple[np.ndarray, ...]:
+        """The live frames due: one per subject with data at its device time "now"
+        (:meth:`_live_now`, the arrival clock ``now`` in s). Returns (subject index (L,), time (L,)
+        us, seq (L,), flags (L,), segment slots (L, 10), each segment's query time (L, 10) us,
+        devices with points (L, 10) bool, segments lacking (L, 10) bool). A segment is held at its
+        newest point (frame MISSING) where its device is offline or ended, or silent for longer
+        than its horizon (OVERDUE_GRACE_S)."""
         slots = table.seg_slots
         valid = slots >= 0
         rows = np.maximum(slots, 0)
         has_points = valid & (store.n[rows] > 0)
-        ahead = 0.0 if now is None else np.maximum(np.nan_to_num(now - table.latest_arrival[rows]), 0.0)
-        device_now = np.where(has_points, table.latest_t[rows] + np.round(ahead * 1e6).astype(np.int64), NO_TIME)
-        latest = device_now.max(axis=1, initial=NO_TIME)
+        latest = self._live_now(table, rows, has_points, now)
         index = np.flatnonzero(latest != NO_TIME)
         t_us, slots, valid, has_points, rows = latest[index], slots[index], valid[index], has_points[index], rows[index]
+        self.live_t[index] = t_us
         at = np.broadcast_to(t_us[:, None], slots.shape).copy()
         last_t = view.last_t[rows]
         since = np.where(has_points, at - np.maximum(last_t, 0), 0)

@@ -67,6 +67,7 @@ class Fusion:
         self.calibrating = Calibrating(self.store, calibrate_on_start, calibration_file)
         self.heading = HeadingStage(heading_correction, rate)
         self.scoring.turns = self.heading.turns
+        self.scoring.own_correction = self.calibrating.correct
         self.subjects: dict[str, Subject] = {}
         self.tracks: list[DeviceTrack] = []  # by slot
         self.clock = 0.0  # newest arrival time seen (s): the "now" of the history grace period

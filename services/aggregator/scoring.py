@@ -3,7 +3,11 @@ kept apart from frame building (:mod:`.frames`), which never reads the truth.
 
 - Per device, at every truth sample once its reconstruction is final: the angular error of the
   exact reconstruction (SLERP between segment points) and of the live view (the newest point at
-  or before the sample, extrapolated to it: what a live frame at that instant showed).
+  or before the sample, extrapolated to it: what a live frame at that instant showed) against the
+  true segment; and, where the tap carries it, of the live view against the device's own
+  orientation at the sample (what its kernel compressed, corrected as its points are): the
+  figure the device's live bound holds. The first holds the sensor's fusion and calibration
+  errors as well; the second the live rule's alone.
 - Per subject, alignment-aware: when the truth tap carries reference times (the instant each
   sample was really taken), every exact frame at time ``t`` is compared, segment by segment,
   with the truth at reference instant ``t`` (SLERP between the truth samples around it) once
@@ -67,6 +71,8 @@ class Scoring:
         self.truth = TruthQueue()
         self.exact = ErrorRings(error_window)
         self.live = ErrorRings(error_window)
+        self.live_own = ErrorRings(error_window)  # the live view against the device's own orientation
+        self.own_correction: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None] | None = None
         self.latency = SubjectRings(error_window)
         self.reference = PointStore(2048)          # truth samples by reference time, per device slot
         self.frame_errors = ErrorRings(error_window)
@@ -93,6 +99,7 @@ class Scoring:
         self.reference.add_slot()
         self.exact.ensure(slot + 1)
         self.live.ensure(slot + 1)
+        self.live_own.ensure(slot + 1)
         self.latency.add_device()
 
     def reset(self, slot: int) -> None:
@@ -101,6 +108,7 @@ class Scoring:
         self.reference.reset(slot)
         self.exact.reset(slot)
         self.live.reset(slot)
+        self.live_own.reset(slot)
         self.latency.reset(slot)
 
     def refit_facing(self, subject: int) -> None:
@@ -109,7 +117,7 @@ class Scoring:
 
     def take_truth(self, slot: int, batch: wire.RawBatch) -> None:
         """A truth-tap batch of the device's current stream."""
-        self.truth.put(slot, batch.t_us, batch.q)
+        self.truth.put(slot, batch.t_us, batch.q, batch.own)
         if batch.ref_us is not None:
             self._reference(slot, batch.ref_us, batch.q)
 
@@ -118,7 +126,7 @@ class Scoring:
         its device's current stream, in arrival order."""
         count, start = batches.count[rows], batches.start[rows]
         samples = np.repeat(start - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
-        self.truth.put(np.repeat(slots, count), batches.t_us[samples], batches.q[samples])
+        self.truth.put(np.repeat(slots, count), batches.t_us[samples], batches.q[samples], batches.own[samples])
         for slot, i in zip(slots[batches.has_ref[rows]].tolist(), rows[batches.has_ref[rows]].tolist()):
             part = slice(int(batches.start[i]), int(batches.start[i] + batches.count[i]))
             self._reference(slot, batches.ref_us[part], batches.q[part])
@@ -155,16 +163,31 @@ class Scoring:
         final (``usable_t``: (slots,) newest usable point time, us). Returns the slots of the
         samples dropped: (queue overflow,) and (before the stream's first point known: no
         reconstruction,), one entry per sample."""
-        slots, t_us, truth, overflow = self.truth.take_ready(usable_t)
+        slots, t_us, both, overflow = self.truth.take_ready(usable_t)
         before = t_us < self.store.t[slots, 0]
-        slots, t_us, truth, early = slots[~before], t_us[~before], truth[~before], slots[before]
+        slots, t_us, both, early = slots[~before], t_us[~before], both[~before], slots[before]
         if len(slots):
+            truth = both[:, :4]
+            self._score_own(slots, t_us, both[:, 4:])
             if self.turns is not None:  # the reconstruction turned by c is compared: truth turned by -c
                 truth = quat.multiply(calibration.yaw(-self.turns(slots, t_us)), truth.astype(np.float64))
             exact, predicted = self.store.errors(slots, t_us, truth)
             self.exact.add(slots, exact)
             self.live.add(slots, predicted)
         return overflow, early
+
+    def _score_own(self, slots: np.ndarray, t_us: np.ndarray, own: np.ndarray) -> None:
+        """The live view's error against the devices' own orientations ``own`` (k, 4) (NaN: not
+        carried) at ``t_us`` (k,): each corrected as the point the view comes from was
+        (``own_correction`` at that point's time), so the angle is the device's own live error."""
+        known = np.isfinite(own).all(axis=1)
+        if not known.any():
+            return
+        slots, t_us, own = slots[known], t_us[known], own[known].astype(np.float64)
+        if self.own_correction is not None:
+            k = np.maximum(self.store.locate(slots, t_us), 0)
+            self.own_correction(slots, self.store.t[slots, k], own, np.zeros((len(own), 3)))
+        self.live_own.add(slots, quat.angle_deg(self.store.predicted(slots, t_us), own))
 
     def evaluate_frames(self, seg_slots: np.ndarray) -> int:
         """Alignment-aware error of the exact frames waiting for it: each segment of a frame at
@@ -255,12 +278,14 @@ class Scoring:
         by stats field name, each (k,) (NaN: none)."""
         aad, mx, p99 = self.exact.summary(slots, (0.99,))
         live, live_max, live_p50, live_p99 = self.live.summary(slots, (0.5, 0.99))
+        _, own_max, own_p99 = self.live_own.summary(slots, (0.99,))
         lat_p50, lat_p99 = self.latency.quantiles(slots, owner, (0.5, 0.99))
         count = self.exact.count[slots]
         aad_all = np.where(count > 0, self.exact.total[slots] / np.maximum(count, 1), np.nan)
         return {"aad_deg": aad, "p99_deg": p99, "max_deg": mx, "live_err_deg": live, "aad_all_deg": aad_all,
                 "error_samples": count, "live_p50_deg": live_p50, "live_p99_deg": live_p99,
-                "live_max_deg": live_max, "live_latency_p50_ms": lat_p50, "live_latency_p99_ms": lat_p99}
+                "live_max_deg": live_max, "live_own_p99_deg": own_p99, "live_own_max_deg": own_max,
+                "live_latency_p50_ms": lat_p50, "live_latency_p99_ms": lat_p99}
 
     def truth_keep(self, slots: int) -> np.ndarray:
         """(slots,) time of each device's oldest truth sample still waiting (int64 max if none)."""

@@ -221,22 +221,27 @@ class PointStore:
 class TruthQueue:
     """Truth-tap samples of every device waiting for the device's watermark to pass them, in
     arrival order. A device's new stream drops the samples of its old one (:meth:`drop`): they
-    are never compared with the new one."""
+    are never compared with the new one. Each sample's ``q`` is (8,): its true orientation, then
+    the device's own (NaN where the tap does not carry it)."""
 
     def __init__(self, limit: int = 2_000_000):
         self.limit = limit
         self.slot = np.zeros(0, np.int64)
         self.t = np.zeros(0, np.int64)
-        self.q = np.zeros((0, 4), np.float32)
+        self.q = np.zeros((0, 8), np.float32)
         self._incoming: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (slot, t_us, q) per sample
 
     def __len__(self) -> int:
         return len(self.t) + sum(len(b[1]) for b in self._incoming)
 
-    def put(self, slots: np.ndarray | int, t_us: np.ndarray, q: np.ndarray) -> None:
-        """Samples at device times ``t_us`` (k,) us, orientations ``q`` (k, 4), of devices ``slots``
-        (k,) (or one for all)."""
-        self._incoming.append((np.broadcast_to(np.asarray(slots, np.int64), t_us.shape), t_us, q))
+    def put(self, slots: np.ndarray | int, t_us: np.ndarray, q: np.ndarray, own: np.ndarray | None = None) -> None:
+        """Samples at device times ``t_us`` (k,) us, true orientations ``q`` (k, 4) and the devices'
+        own ``own`` (k, 4) (None or NaN rows: not known), of devices ``slots`` (k,) (or one for all)."""
+        both = np.full((len(t_us), 8), np.nan, np.float32)
+        both[:, :4] = q
+        if own is not None:
+            both[:, 4:] = own
+        self._incoming.append((np.broadcast_to(np.asarray(slots, np.int64), t_us.shape), t_us, both))
 
     def drop(self, slot: int) -> None:
         """Forget the samples of ``slot`` (its device began a new stream)."""
@@ -252,7 +257,7 @@ class TruthQueue:
             self._incoming = []
 
     def take_ready(self, watermark: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Remove and return (slot, t_us, q float32) of every sample at or before its slot's
+        """Remove and return (slot, t_us, q (k, 8) float32: true and own) of every sample at or before its slot's
         ``watermark``, and the slots of the samples dropped because more than ``limit`` wait
         (the oldest first, one entry per sample)."""
         self._merge()

@@ -88,4 +88,4 @@ class ReferenceEmulator(Emulator):
         b = self.bank.kernel
         self.host.publish_raw(self.devices[slot], wire.RawBatch(
             int(b.stream[slot]), int(self._ring_n[rows[0], slot] - b.base[slot]), self._ring_t[rows, slot],
-            self._ring_q[rows, slot], self._ring_ref[rows, slot]))
+            self._ring_q[rows, slot], self._ring_ref[rows, slot], self._ring_own[rows, slot]))

@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from limbstream import wire
+from limbstream.services.aggregator.frames import LIVE_EASE
 from support.reference_aggregator.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
 from support.reference_aggregator.calibrating import Calibrating
@@ -81,6 +82,9 @@ class Fusion(Scoring, Calibrating):
         self.next_frame = np.zeros(0, np.int64)  # grid index of each subject's next exact frame, -1 unset
         self.exact_seq = np.zeros(0, np.int64)
         self.live_seq = np.zeros(0, np.int64)
+        self.live_t = {}                         # per subject index: newest live frame time, us
+        self.live_offset = {}                    # per subject index: device time - clock, us
+        self.live_clock = None                   # the clock of the last live frames, s
         self.rest_flag = np.zeros(0, np.uint8)   # per subject: pose-frame flag bits of its rest pose
         # per device slot, kept current as messages arrive, so a tick reads them without a loop
         self.owner = np.zeros(0, np.int64)        # subject index
@@ -304,6 +308,30 @@ class Fusion(Scoring, Calibrating):
         return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
                                                              self.skeleton.positions(q, rest != 0))
 
+    def _live_now(self, has_points: np.ndarray, now: float | None) -> np.ndarray:
+        """(subjects,) each subject's device time "now" (the rule of frames.FrameBuilder._live_now,
+        subject by subject): the clock plus the largest (newest device time - its arrival) of its
+        devices, kept and eased down at most LIVE_EASE; at least its newest device time, after its
+        previous live frame."""
+        elapsed = 0.0 if self.live_clock is None or now is None else max(now - self.live_clock, 0.0)
+        self.live_clock = now if now is not None else self.live_clock
+        latest = np.full(len(self.seg_slots), _NONE)
+        for i, slots in enumerate(self.seg_slots):
+            mine = [int(s) for s, has in zip(slots, has_points[i]) if has]
+            if not mine:
+                continue
+            newest = max(int(self.latest_t[s]) for s in mine)
+            offset = max((float(self.latest_t[s]) - float(self.latest_arrival[s]) * 1e6 for s in mine
+                          if math.isfinite(self.latest_arrival[s])), default=-math.inf)
+            if i in self.live_offset and not offset > self.live_offset[i] - LIVE_EASE * elapsed * 1e6:
+                offset = self.live_offset[i] - LIVE_EASE * elapsed * 1e6
+            if math.isfinite(offset):
+                self.live_offset[i] = offset
+            t = newest if now is None else round(now * 1e6 + self.live_offset.get(i, 0.0))
+            latest[i] = max(t, newest, self.live_t.get(i, _NONE) + 1)
+            self.live_t[i] = int(latest[i])
+        return latest
+
     def live_frames(self, now: float | None = None, wall: float | None = None) -> tuple[list[Subject], wire.PoseFrames]:
         """One frame per subject at its device time "now": the newest device time of its devices,
         each advanced by the arrival clock ``now`` (s) since it arrived. Every segment is exact
@@ -316,9 +344,7 @@ class Fusion(Scoring, Calibrating):
         valid = slots >= 0
         rows = np.maximum(slots, 0)
         has_points = valid & (self.store.n[rows] > 0)
-        ahead = 0.0 if now is None else np.maximum(np.nan_to_num(now - self.latest_arrival[rows]), 0.0)
-        device_now = np.where(has_points, self.latest_t[rows] + np.round(ahead * 1e6).astype(np.int64), _NONE)
-        latest = device_now.max(axis=1, initial=_NONE)
+        latest = self._live_now(has_points, now)
         index = np.flatnonzero(latest != _NONE)
         if len(index) == 0:
             return [], wire.PoseFrames.empty(wire.KIND_LIVE)
