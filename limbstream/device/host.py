@@ -48,7 +48,8 @@ class HostSettings:
     truth : publish each device's truth tap (its samples, with their reference times).
     raw_batch : samples per truth-tap message (at most).
     cache : segment points each device keeps for recovery (advanced publisher cache).
-    heartbeat_s : miss-detection heartbeat period, s.
+    heartbeat_s : segment points' miss-detection heartbeat period, s: sporadic, sent only if a
+        point went out since the last one (:func:`limbstream.device.io.point_publisher`).
     """
 
     fs: float = wire.DEVICE_RATE_HZ
@@ -56,7 +57,7 @@ class HostSettings:
     truth: bool = True
     raw_batch: int = 25
     cache: int = 512
-    heartbeat_s: float = 0.5
+    heartbeat_s: float = 2.0
 
 
 @dataclass(eq=False)
@@ -153,7 +154,7 @@ class DeviceHost(Generic[S]):
         s = self.settings
         d.publisher = io.point_publisher(self.session, d.subject, d.segment, s.cache, s.heartbeat_s)
         if s.truth:
-            d.raw_pub = io.raw_publisher(self.session, d.subject, d.segment, s.heartbeat_s)
+            d.raw_pub = io.raw_publisher(self.session, d.subject, d.segment)
 
     def _declare_queryable(self, subject: str) -> None:
         self._queryables[subject] = self.session.declare_queryable(wire.device_selector(wire.CONFIG, subject),

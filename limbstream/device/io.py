@@ -15,27 +15,35 @@ from limbstream import wire, zconfig
 log = logging.getLogger("limbstream.device")
 RAW_CACHE = 64
 """Truth-tap batches a device keeps for recovery (32 s at 50 Hz in batches of 25)."""
+RAW_HEARTBEAT_S = 0.5
+"""The truth-tap publisher's miss-detection heartbeat period, s (periodic)."""
 
 
 def point_publisher(session: zenoh.Session, subject: str, segment: str, cache: int, heartbeat_s: float):
     """The segment point publisher: an advanced publisher with a cache of ``cache`` points (a
     router restart or a cut link costs nothing), miss detection and the "seg" options (never drop
-    a point under load)."""
+    a point under load).
+
+    Its miss-detection heartbeat is sporadic, every ``heartbeat_s`` seconds only if a point went
+    out since the last one: a streaming device sends a point at least every ``max_len`` samples,
+    and each point's sequence number already tells a subscriber what it missed before it; the
+    heartbeat is what tells it, within ``heartbeat_s``, that it missed the last point before a
+    pause (a FINAL point, a device that stops)."""
     return zext.declare_advanced_publisher(
         session, wire.seg_key(subject, segment),
         cache=zext.CacheConfig(max_samples=cache),
-        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]  # (the stubs want every option)
+        sample_miss_detection=zext.MissDetectionConfig(sporadic_heartbeat=heartbeat_s),  # type: ignore[call-arg]  # (the stubs want every option)
         publisher_detection=True,
         **zconfig.publisher_options(wire.SEG),
     )
 
 
-def raw_publisher(session: zenoh.Session, subject: str, segment: str, heartbeat_s: float):
-    """The truth-tap publisher, recoverable too (:data:`RAW_CACHE`), so a cut link costs no
-    evaluation samples."""
+def raw_publisher(session: zenoh.Session, subject: str, segment: str):
+    """The truth-tap publisher, recoverable too (:data:`RAW_CACHE`, heartbeat every
+    :data:`RAW_HEARTBEAT_S`), so a cut link costs no evaluation samples."""
     return zext.declare_advanced_publisher(
         session, wire.raw_key(subject, segment), cache=zext.CacheConfig(max_samples=RAW_CACHE),
-        sample_miss_detection=zext.MissDetectionConfig(heartbeat=heartbeat_s),  # type: ignore[call-arg]
+        sample_miss_detection=zext.MissDetectionConfig(heartbeat=RAW_HEARTBEAT_S),  # type: ignore[call-arg]
         publisher_detection=True, **zconfig.publisher_options(wire.RAW))
 
 

@@ -1,0 +1,105 @@
+"""Segment points' miss-detection heartbeats (limbstream.device.io.point_publisher): sporadic,
+so a streaming device sends at most one per period and a paused one a single one after its last
+point; the last points before a pause that a subscriber missed (sent while the router was down)
+still reach it, as an aggregator subscribes (history on detection, recovery on heartbeat)."""
+from __future__ import annotations
+
+import signal
+import threading
+import time
+
+import pytest
+import zenoh
+import zenoh.ext as zext
+
+from limbstream import wire, zconfig
+from limbstream.device.host import Device, DeviceHost, HostSettings
+from limbstream.launch import Launcher, free_port, port_open, wait_until
+
+pytestmark = pytest.mark.e2e
+HEARTBEAT_S = 0.5
+
+
+def point(seq: int) -> bytes:
+    """A distinct payload per point (what the subscriber sees; not decoded here)."""
+    return seq.to_bytes(4, "little") * 9
+
+
+@pytest.fixture
+def router(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with Launcher(tmp_path) as launcher:
+        yield launcher, endpoint, launcher.router(endpoint)
+
+
+def device_host(endpoint: str) -> tuple[zenoh.Session, DeviceHost, Device]:
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+    host: DeviceHost = DeviceHost(session, HostSettings(truth=False, heartbeat_s=HEARTBEAT_S),
+                                  lambda d, c: None, lambda d: wire.DeviceStatus(d.id, d.config, 0, 0, 0))
+    d = host.add("s01", "hip")
+    host.declare()
+    return session, host, d
+
+
+def test_heartbeats_come_only_after_points(router):
+    """Streaming for 2 s: at most one heartbeat per period; pausing for 2 s (four periods): one."""
+    _, endpoint, _ = router
+    observer = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+    beats: list[float] = []
+    sub = observer.declare_subscriber(wire.seg_key("s01", "hip") + "/@adv/pub/**", lambda s: beats.append(time.monotonic()))
+    session, host, d = device_host(endpoint)
+    try:
+        began = time.monotonic()
+        for seq in range(20):  # a point every 0.1 s, 2 s
+            time.sleep(0.1)
+            host.publish(d, point(seq))
+        paused = time.monotonic()  # after the last point
+        time.sleep(4 * HEARTBEAT_S)
+        streaming = [t for t in beats if began <= t < paused]
+        after = [t for t in beats if t >= paused]
+        assert len(streaming) <= (paused - began) / HEARTBEAT_S + 1, streaming
+        assert len(after) == 1, f"{len(after)} heartbeats in {4 * HEARTBEAT_S} s of pause (one says the last point)"
+        assert after[0] - paused <= 1.5 * HEARTBEAT_S
+    finally:
+        sub.undeclare()
+        host.close()
+        session.close()
+        observer.close()
+
+
+def test_points_sent_while_the_router_was_down_reach_a_subscriber_after_a_pause(router):
+    """Points 0-9 delivered; the router killed; points 10-12 published (lost to the subscriber,
+    kept in the device's cache) and the device pauses; the router restarted on the same port:
+    the subscriber gets 10-12, in order, with no new point to reveal the gap."""
+    launcher, endpoint, proc = router
+    sub_session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+    got: list[bytes] = []
+    lock = threading.Lock()
+
+    def take(sample: zenoh.Sample) -> None:
+        with lock:
+            got.append(sample.payload.to_bytes())
+    sub = zext.declare_advanced_subscriber(
+        sub_session, wire.device_selector(wire.SEG, "*"), take,
+        history=zext.HistoryConfig(detect_late_publishers=True, max_samples=512),
+        recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
+    session, host, d = device_host(endpoint)
+    try:
+        for seq in range(10):
+            host.publish(d, point(seq))
+        wait_until(lambda: len(got) == 10, 10, "points 0-9")
+        proc.signal(signal.SIGKILL)
+        proc.popen.wait()
+        wait_until(lambda: not port_open("127.0.0.1", int(endpoint.rsplit(":", 1)[1])), 5, "the router to be gone")
+        for seq in range(10, 13):
+            host.publish(d, point(seq))
+        time.sleep(2 * HEARTBEAT_S)  # its one heartbeat goes out while the router is down
+        launcher.router(endpoint)
+        wait_until(lambda: len(got) >= 13, 20, "points 10-12 after the restart")
+        with lock:
+            assert got == [point(seq) for seq in range(13)]
+    finally:
+        sub.undeclare()
+        host.close()
+        session.close()
+        sub_session.close()
