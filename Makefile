@@ -18,7 +18,7 @@ STAMP := build/.installed
 .venv/bin/python:
 	$(SYSTEM_PYTHON) -m venv .venv
 
-$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/include/*.h firmware_c/host/*) | $(VENV)
+$(STAMP): pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/src/*.hpp firmware_c/include/*.h firmware_c/host/*) | $(VENV)
 	$(PYTHON) -m pip install -q --upgrade pip
 	$(PYTHON) -m pip install -e '.[test]'
 	@mkdir -p build && touch $@
@@ -54,11 +54,12 @@ lint: $(STAMP)
 	$(PYTHON) -m ruff check .
 	$(PYTHON) -m mypy limbstream
 
-icount:
-	$(MAKE) -C firmware_c icount
+# the firmware's build reads VQF's C++ from the vqf package installed beside limbstream
+icount: $(STAMP)
+	$(MAKE) -C firmware_c icount PYTHON="$$($(PYTHON) -c 'import sys; print(sys.executable)')"
 
-m4:
-	$(MAKE) -C firmware_c m4
+m4: $(STAMP)
+	$(MAKE) -C firmware_c m4 PYTHON="$$($(PYTHON) -c 'import sys; print(sys.executable)')"
 
 bench: $(STAMP)
 	$(PYTHON) bench/kernel_speed.py

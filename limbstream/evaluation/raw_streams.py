@@ -34,16 +34,17 @@ def device_stream(t: np.ndarray, q_earth: np.ndarray, device_rate_hz: float = wi
     return idx, fusion.y_up(q_earth[idx]).astype(np.float64)
 
 
-def recording_streams(rec: RawRecording, mag: bool = False,
-                      rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS) -> list[Stream]:
+def recording_streams(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS,
+                      vqf_precision: str = fusion.DEFAULT_VQF_PRECISION) -> list[Stream]:
     """One stream per sensor of a raw recording, fused 6D (9D with ``mag``; ValueError without a
-    magnetometer); with a reference, scored over its movement phases (all samples if unmarked)."""
+    magnetometer) by VQF in ``vqf_precision`` (``fusion.VQF_PRECISIONS``); with a reference, scored
+    over its movement phases (all samples if unmarked)."""
     if mag and rec.mag is None:
         raise ValueError(f"{rec.name}: no magnetometer channel (imu_mag): evaluate it without --mag (6D)")
     out = []
     for s, sensor in enumerate(rec.sensors):
         q = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rec.mag[:, s] if mag and rec.mag is not None else None,
-                        rate_hz=rec.fs, t=rec.t, rest_th_gyr_dps=rest_th_gyr_dps)
+                        rate_hz=rec.fs, t=rec.t, rest_th_gyr_dps=rest_th_gyr_dps, vqf_precision=vqf_precision)
         idx, samples = device_stream(rec.t, q)
         earth = None
         if rec.truth is not None:

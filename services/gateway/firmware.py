@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 from limbstream.launch import _die_with_parent, free_port
@@ -22,7 +23,8 @@ def build(build_dir: Path | None = None) -> Path:
     the ELF's path. RuntimeError with make's output if the build fails."""
     if not (FIRMWARE_DIR / "Makefile").exists():
         raise RuntimeError(f"no firmware source at {FIRMWARE_DIR}: build device.elf from a checkout and give its path")
-    args = ["make", "-s", "-C", str(FIRMWARE_DIR), "device"] + ([f"BUILD={build_dir}"] if build_dir else [])
+    args = ["make", "-s", "-C", str(FIRMWARE_DIR), "device", f"PYTHON={sys.executable}"]  # it has vqf's C++
+    args += [f"BUILD={build_dir}"] if build_dir else []
     done = subprocess.run(args, capture_output=True, text=True, timeout=300)
     if done.returncode != 0:
         raise RuntimeError(f"make device failed:\n{done.stdout}\n{done.stderr}")
