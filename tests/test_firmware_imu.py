@@ -25,10 +25,16 @@ START, COUNT = 9500, 1500
 """BROAD trial 21 from 3.5 s before its fast motion: 5.3 s, 263 device samples."""
 
 
+@pytest.fixture(scope="module", params=fusion.VQF_PRECISIONS)
+def precision(request) -> str:
+    """VQF's precision: the firmware built with it, the host's bank run in it."""
+    return request.param
+
+
 @pytest.fixture(scope="module")
-def device(tmp_path_factory):
+def device(tmp_path_factory, precision):
     require_tools("arm-none-eabi-gcc", "arm-none-eabi-g++", "qemu-system-arm", "make")
-    elf = firmware.build(tmp_path_factory.mktemp("device"))
+    elf = firmware.build(tmp_path_factory.mktemp("device"), vqf_precision=precision)
     with firmware.FirmwareDevice(elf) as fw:
         port = SerialLink(fw.port)
         try:
@@ -47,10 +53,11 @@ def broad() -> dict:
             "ticks": np.round(np.arange(COUNT) / rate * 1e6).astype(np.int64)}
 
 
-def host_points(d: dict, stream: int, nine_d: bool, bad=None) -> tuple[list[bytes], fusion.ImuBank]:
-    """The host pipeline's messages for the raw samples, one ImuBank call each, then END's."""
+def host_points(d: dict, stream: int, nine_d: bool, precision: str, bad=None) -> tuple[list[bytes], fusion.ImuBank]:
+    """The host pipeline's messages for the raw samples (VQF in ``precision``), one ImuBank call
+    each, then END's."""
     bank = fusion.ImuBank(1, d["rate"], nine_d=nine_d, threshold=LIVE.threshold, max_len=LIVE.max_len,
-                          live_bound_deg=LIVE.live_bound_deg, ring=4)
+                          live_bound_deg=LIVE.live_bound_deg, ring=4, vqf_precision=precision)
     bank.segments.stream[0] = stream
     out: list[bytes] = []
     for tick, g, a, m in samples(d, bad):
@@ -95,9 +102,10 @@ def differences(got: list[bytes], expected: list[bytes]) -> str:
 
 
 @pytest.mark.parametrize("nine_d", [False, True], ids=["6D", "9D"])
-def test_raw_samples_give_the_host_pipelines_points(device, broad, nine_d):
+def test_raw_samples_give_the_host_pipelines_points(device, broad, nine_d, precision):
+    """In each precision, the firmware built with it sends the host's points bit for bit."""
     drain(device)
-    expected, bank = host_points(broad, 40 + nine_d, nine_d)
+    expected, bank = host_points(broad, 40 + nine_d, nine_d, precision)
     got = firmware_points(device, broad, 40 + nine_d, nine_d)
     assert got == expected, differences(got, expected)
     decoded = [wire.decode_point(p) for p in expected]
@@ -110,7 +118,7 @@ def test_raw_samples_give_the_host_pipelines_points(device, broad, nine_d):
     assert status.faults == {name: int(host[name][0]) for name in fusion.FAULTS}
 
 
-def test_bad_raw_samples_and_frames_are_counted_and_the_stream_goes_on(device, broad):
+def test_bad_raw_samples_and_frames_are_counted_and_the_stream_goes_on(device, broad, precision):
     """Invalid samples (NaN, saturated, stuck, back in time) are handled as on the host; RAW frames
     that are cut, corrupted or of the wrong length are counted by reason and change nothing."""
     def nan(row):
@@ -139,7 +147,7 @@ def test_bad_raw_samples_and_frames_are_counted_and_the_stream_goes_on(device, b
 
     drain(device)
     before = device.status().bad
-    expected, bank = host_points(broad, 50, False, bad)
+    expected, bank = host_points(broad, 50, False, precision, bad)
     assert firmware_points(device, broad, 50, False, bad, between) == expected
     after = device.status().bad
     assert {reason: after[reason] - before[reason] for reason in malformed} == {

@@ -55,10 +55,11 @@ def recording_streams(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: flo
 
 
 def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, model: imu.ImuModel,
-                     rate_hz: float = imu.DEFAULT_RATE_HZ) -> list[Stream]:
+                     rate_hz: float = imu.DEFAULT_RATE_HZ, vqf_precision: str = fusion.DEFAULT_VQF_PRECISION
+                     ) -> list[Stream]:
     """Every motion's segment streams as devices with raw sensors of ``model`` at ``rate_hz``
-    (mountings and filter headings of ``sensors``, drawn per motion) send them, after the
-    calibration script."""
+    (mountings and filter headings of ``sensors``, drawn per motion; VQF in ``vqf_precision``) send
+    them, after the calibration script."""
     out = []
     for index, motion in enumerate(motions):
         devices = imu.ImuDevices(len(motion.segments), model, rate_hz, sensors, stream=index)
@@ -68,7 +69,8 @@ def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, mo
         pose = calibration.mounting_pose(motion.segments)
         back = quat.conjugate(devices.mounting)
         for s, segment in enumerate(motion.segments):
-            q = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rate_hz=rate_hz, heading_rad=float(devices.heading[s]))
+            q = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rate_hz=rate_hz, heading_rad=float(devices.heading[s]),
+                            vqf_precision=vqf_precision)
             idx, samples = device_stream(rec.t, q)
             t = rec.t[idx]
             segment_truth = quat.multiply(quat.multiply(quat.Z_UP_TO_Y_UP, rec.truth[idx, s]), back[s])
