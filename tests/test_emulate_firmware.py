@@ -110,8 +110,8 @@ def test_firmware_devices_fuse_raw_samples_as_the_host_devices_do(stack, elf, sh
     raw = ["--imu", "raw", "--imu-model", "icm42688p", "--mounting-deg", "90", "--heading-deg", "180"]
     stack.router()
     # Real time, as a device runs: each M4 runs VQF in double precision (80,011 instructions per
-    # device sample), and ten of them at twice real time beside a loaded suite on 2 cores fell
-    # behind (one device's points then began later than the host's).
+    # device sample); one that falls behind on a loaded machine keeps beating and ends its stream
+    # (test_firmware_imu.py::test_a_device_behind_its_frames_keeps_beating_and_ends_its_stream).
     host = run_once(stack, short_clip, *raw, speed=1.0)
     fw = run_once(stack, short_clip, *raw, "--firmware", "--firmware-elf", str(elf), speed=1.0)
     assert_same_points(host, fw)

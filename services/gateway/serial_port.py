@@ -169,14 +169,21 @@ class SerialLink:
         """One raw IMU sample (see :func:`limbstream.wire.serial_link.encode_raw`)."""
         self.send(link.encode_raw(tick, t_us, gyr, acc, mag))
 
-    def _ask(self, encode, timeout_s: float = ANSWER_TIMEOUT_S):
+    def _ask(self, encode, timeout_s: float = ANSWER_TIMEOUT_S, while_heard: bool = False):
+        """Send a request and wait for its answer: ``timeout_s``, or with ``while_heard`` as long as
+        the device is heard from (anything it sends: its heartbeat comes every second) and
+        ``timeout_s`` of silence at most."""
         request = next(self._requests) & 0xFFFF or next(self._requests)
         event: threading.Event = threading.Event()
         answer: list = []
         self._waiting[request] = (event, answer)
         try:
             self.send(encode(request))
-            if not event.wait(timeout_s) or not answer:
+            answered = event.wait(timeout_s)
+            while not answered and while_heard and not self.closed.is_set() and \
+                    time.monotonic() - self.last_heard < timeout_s:
+                answered = event.wait(timeout_s)
+            if not answered or not answer:
                 raise (LinkClosed if self.closed.is_set() else TimeoutError)(
                     f"{self.port}: no answer to request {request} in {timeout_s:g} s")
             return answer[0]
@@ -193,8 +200,10 @@ class SerialLink:
 
     def end(self, timeout_s: float = ANSWER_TIMEOUT_S) -> link.Ack:
         """End the stream: its last point (FINAL) comes before the ack. The device answers once it
-        has taken every frame sent before (``timeout_s``: how long that may take)."""
-        return self._ask(lambda r: link.encode_request(link.END, r), timeout_s)
+        has taken every frame sent before, which takes a device that fell behind (a slow core, a
+        backlog of frames) a while: the ack is waited for as long as the device is heard from
+        (its heartbeat, every second even while it works), ``timeout_s`` of silence at most."""
+        return self._ask(lambda r: link.encode_request(link.END, r), timeout_s, while_heard=True)
 
     def status(self) -> link.LinkStatus:
         return self._ask(lambda r: link.encode_request(link.STATUS_REQ, r))
