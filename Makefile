@@ -13,7 +13,7 @@ PYTHON ?= .venv/bin/python
 VENV := .venv/bin/python
 endif
 PYTEST_ARGS ?=
-SOURCES := pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/include/*.h firmware_c/host/*)
+SOURCES := pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/src/*.hpp firmware_c/include/*.h firmware_c/host/*)
 # Each stamp is newer than the sources once its install is done; the test install holds the run
 # install, so it renews both stamps (make run after make test installs nothing).
 STAMP := build/.installed
@@ -66,11 +66,12 @@ lint: $(TEST_STAMP)
 	$(PYTHON) -m ruff check .
 	$(PYTHON) -m mypy limbstream
 
-icount:
-	$(MAKE) -C firmware_c icount
+# the firmware's build reads VQF's C++ from the vqf package installed beside limbstream
+icount: $(STAMP)
+	$(MAKE) -C firmware_c icount PYTHON="$$($(PYTHON) -c 'import sys; print(sys.executable)')"
 
-m4:
-	$(MAKE) -C firmware_c m4
+m4: $(STAMP)
+	$(MAKE) -C firmware_c m4 PYTHON="$$($(PYTHON) -c 'import sys; print(sys.executable)')"
 
 bench: $(STAMP)
 	$(PYTHON) bench/kernel_speed.py

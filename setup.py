@@ -10,7 +10,9 @@ The compile flags are the ones the Cortex-M4 build uses for its arithmetic
 
 VQF, the orientation filter, is C++ from the `vqf` package (a build requirement, pinned in
 pyproject.toml): its vqf.cpp, as it ships, compiled inside the C wrapper firmware_c/src/lsw_vqf.cpp
-into a static library (build_clib, with C++ flags) that setuptools links into the extension.
+into a static library (build_clib, with C++ flags) that setuptools links into the extension, with
+the elementary functions it calls from firmware_c/src/lsw_math.hpp (not libm: the firmware runs
+the same source).
 """
 import sys
 from glob import glob
@@ -24,14 +26,15 @@ from vqf_cpp import vqf_cpp_dir  # noqa: E402  (firmware_c/tools: shared with th
 KERNEL_CFLAGS = ["-std=c99", "-O3", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra"]
 VQF_CXXFLAGS = ["-std=c++17", "-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-exceptions", "-fno-rtti",
                 "-Wall"]
-"""The M4 build's (firmware_c/Makefile VQF_CXXFLAGS): VQF in single precision, no FMA, no asserts."""
+"""The M4 build's (firmware_c/Makefile VQF_CXXFLAGS): no FMA, no asserts. The host library holds VQF in
+both precisions (LSW_VQF_BOTH), chosen per device at run time; the firmware one."""
 VQF_DIR = vqf_cpp_dir()
 VQF_LIBRARY = ("lsw_vqf", {
     "sources": ["firmware_c/src/lsw_vqf.cpp"],  # includes VQF_DIR/vqf.cpp
     "include_dirs": ["firmware_c/include", VQF_DIR],
-    "macros": [("VQF_SINGLE_PRECISION", None), ("NDEBUG", None)],
+    "macros": [("VQF_SINGLE_PRECISION", None), ("NDEBUG", None), ("LSW_VQF_BOTH", "1")],
     "cflags": VQF_CXXFLAGS,
-    "obj_deps": {"": sorted(glob("firmware_c/include/*.h")) + [str(Path(VQF_DIR) / name) for name in ("vqf.cpp", "vqf.hpp")]},
+    "obj_deps": {"": sorted(glob("firmware_c/include/*.h")) + ["firmware_c/src/lsw_math.hpp"] + [str(Path(VQF_DIR) / name) for name in ("vqf.cpp", "vqf.hpp")]},
 })
 
 PARTS = ("services", "device_emulator", "dashboard")

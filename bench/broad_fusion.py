@@ -13,7 +13,13 @@ the device's filter settings) and compressed at its instants with make run's set
 error of their reconstruction (segment points SLERPed), 9D total and 6D inclination and drift,
 with ICR.
 
-    python bench/broad_fusion.py ../shared/data/broad [--chain]
+Third table (``--precision``), the device's VQF in single and in double precision (the kernel's
+VQF, the device's settings, every raw sample): 9D total and 6D total (heading aligned once at the
+start) RMSE against the optical truth over the movement phases, single minus double, and the
+largest |single - double| over the trials; the firmware's precision is single when that stays
+within 0.05 deg on every trial (docs/kernel.md, "VQF's precision").
+
+    python bench/broad_fusion.py ../shared/data/broad [--chain] [--precision]
 """
 from __future__ import annotations
 
@@ -27,6 +33,7 @@ from limbstream import wire
 from limbstream.evaluation import evaluate
 from limbstream.evaluation.fusion import VQF_VERSION, fusion_error, reference_vqf
 from limbstream.evaluation.raw_streams import recording_streams
+from limbstream.kernel import fusion
 from limbstream.sources import load_raw
 
 
@@ -62,15 +69,44 @@ def chain(paths: list[Path]) -> None:
     print(f"\nlargest chain - fusion (9D total): {worst:+.3f} deg")
 
 
+def precision_errors(path: Path, precision: str) -> tuple[float, float]:
+    """(9D total, 6D total with the heading aligned at the start) RMSE, deg, of one trial fused by
+    the kernel's VQF in ``precision``."""
+    r = load_raw(path)
+    out = []
+    for mag in (r.mag[:, 0], None):
+        q = fusion.fuse(r.gyr[:, 0], r.acc[:, 0], mag, rate_hz=r.fs, t=r.t, vqf_precision=precision)
+        out.append(fusion_error(q, r.truth[:, 0], r.t, r.movement, align_heading=mag is None).total_deg)
+    return out[0], out[1]
+
+
+def precision(paths: list[Path]) -> None:
+    """The third table: single against double precision, per trial."""
+    print("\nThe device's VQF (kernel, the device's settings) in single and double precision, every raw sample, "
+          "movement phases (total RMSE, deg)\n")
+    print("| trial | 9D single | 9D double | 9D single - double | 6D single | 6D double | 6D single - double |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    worst = 0.0
+    for path in paths:
+        (s9, s6), (d9, d6) = (precision_errors(path, p) for p in ("single", "double"))
+        worst = max(worst, abs(s9 - d9), abs(s6 - d6))
+        print(f"| {path.stem} | {s9:.4f} | {d9:.4f} | {s9 - d9:+.4f} | {s6:.4f} | {d6:.4f} | {s6 - d6:+.4f} |")
+    print(f"\nlargest |single - double|: {worst:.4f} deg")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("folder", type=Path, help="a folder of BROAD trials (.mat)")
     parser.add_argument("--chain", action="store_true", help="also the device's fusion and chain errors")
+    parser.add_argument("--precision", action="store_true", help="only the device's VQF in single and double precision")
     args = parser.parse_args()
     paths = sorted(args.folder.glob("*.mat"))
     if not paths:
         print(f"{args.folder}: no .mat files", file=sys.stderr)
         return 2
+    if args.precision:
+        precision(paths)
+        return 0
     print(f"VQF {VQF_VERSION} (PyPI, default parameters), {len(paths)} BROAD trials, movement phases\n")
     print("| trial | 9D total RMSE (deg) | 9D heading | 9D inclination | 6D inclination RMSE (deg) | "
           "6D heading drift (deg/min) |")

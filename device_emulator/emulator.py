@@ -43,6 +43,7 @@ from limbstream.device.host import Device, DeviceHost, HostSettings
 from limbstream.device.readings import RawSensors
 from limbstream.device.sync import SyncClient
 from limbstream.imu import ImuModel
+from limbstream.kernel import fusion
 from limbstream.pacing import LoopStats, PacedLoop
 
 log = logging.getLogger("limbstream.emulator")
@@ -70,6 +71,7 @@ class EmulatorSettings:
         samples (:class:`~limbstream.device.bank.RawStage`); None: devices are handed their
         sensors' orientations.
     imu_rate_hz : the raw sensors' rate, Hz.
+    vqf_precision : the devices' VQF precision (``fusion.VQF_PRECISIONS``; default the firmware's).
     """
 
     host: HostSettings = HostSettings()
@@ -80,6 +82,7 @@ class EmulatorSettings:
     clock_id: int = 0
     imu: ImuModel | None = None
     imu_rate_hz: float = 200.0
+    vqf_precision: str = fusion.DEFAULT_VQF_PRECISION
 
 
 class Emulator:
@@ -119,7 +122,8 @@ class Emulator:
             self.raw = RawSensors(self._by_length, settings.imu, settings.imu_rate_hz, settings.sensors,
                                   settings.clock_id)
         self.bank = DeviceBank(self.host, n, ring, None if self.raw is None else
-                               RawStage(settings.imu_rate_hz, self.raw.devices.heading))
+                               RawStage(settings.imu_rate_hz, self.raw.devices.heading,
+                                                        vqf_precision=settings.vqf_precision))
         for d in self.devices:
             self.bank.start_stream(d, 0)
         self.n = self.bank.n  # samples each device has taken

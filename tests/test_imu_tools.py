@@ -36,6 +36,33 @@ def test_fuse_writes_the_devices_orientation_of_a_broad_trial(tmp_path):
     assert np.sqrt(np.mean(quat.angle_deg(d["quat"][ok], rec.truth[ok, 0]) ** 2)) < 3.0
 
 
+def test_fuse_and_eval_take_vqfs_precision(tmp_path, capsys):
+    """``--vqf-precision single|double``: ``fuse`` writes the kernel's fusion in that precision
+    (the default is the firmware's), ``eval`` scores it; an unknown one is refused."""
+    path = require_data(BROAD_TRIAL)
+    rec = load_raw(path)
+    got = {}
+    for precision in fusion.VQF_PRECISIONS:
+        out = tmp_path / f"{precision}.npz"
+        assert cli.main(["fuse", str(path), "-o", str(out), "--mag", "--vqf-precision", precision]) == 0
+        got[precision] = np.load(out)["quat"]
+        want = fusion.fuse(rec.gyr[:, 0], rec.acc[:, 0], rec.mag[:, 0], rate_hz=rec.fs, t=rec.t, vqf_precision=precision)
+        assert np.array_equal(got[precision], want)
+    assert not np.array_equal(got["single"], got["double"])
+    assert cli.main(["fuse", str(path), "-o", str(tmp_path / "d.npz"), "--mag"]) == 0
+    assert np.array_equal(np.load(tmp_path / "d.npz")["quat"], got[fusion.DEFAULT_VQF_PRECISION])
+    with pytest.raises(SystemExit):
+        cli.main(["fuse", str(path), "-o", str(tmp_path / "x.npz"), "--vqf-precision", "half"])
+    assert "invalid choice: 'half'" in capsys.readouterr().err
+    scores = {}
+    for precision in fusion.VQF_PRECISIONS:
+        out = tmp_path / f"{precision}.json"
+        assert cli.main(["eval", str(path), "--mag", "--thresholds", "9e-4", "--max-len", "25", "--live-bound", "5",
+                         "--vqf-precision", precision, "--json", str(out)]) == 0
+        scores[precision] = out.read_text()
+    assert scores["single"] != scores["double"]
+
+
 def test_fuse_writes_every_sensor_of_the_qmt_recording(tmp_path, capsys):
     """16 sensors, 6D (the recording has no magnetometer: --mag is refused naming the channel)."""
     path = require_data(QMT)

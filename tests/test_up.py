@@ -163,6 +163,8 @@ def test_up_passes_raw_sensors_on_and_calibrates_them():
     emulate = " ".join(parts["emulator"])
     assert "--imu raw --imu-model icm42688p --imu-rate 200" in emulate and "--mounting-deg 90" in emulate, emulate
     assert "--calibrate-on-start" in parts["aggregator"]
+    parts = dict(up_cli.plan(parser.parse_args(["--no-sync", "--imu", "raw", "--vqf-precision", "single"])))
+    assert "--vqf-precision single" in " ".join(parts["emulator"])
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -25,14 +25,18 @@
 #endif
 
 /*
- * VQF (src/lsw_vqf.cpp) with its low-pass filter states, their coefficients and its 3x3 inverse
- * in float instead of double: no soft-float double arithmetic per raw sample on a Cortex-M4 (about
- * 1,950 instead of 19,100 instructions per raw sample), at a cost in accuracy against VQF as its
- * authors built it (docs/kernel.md, "Raw samples: VQF on the device"). 0: VQF's own precision.
- * Set it here, not on one build's command line: host and firmware must compute the same.
+ * VQF's precision (src/lsw_vqf.cpp, lsw_vqf.h): 1, double (VQF's own: its low-pass filter states,
+ * their coefficients and its 3x3 inverse in double, soft-float on a Cortex-M4), or 0, single (those
+ * in float too: a tenth of the instructions, but up to 0.21 deg more error against optical truth
+ * on BROAD: docs/kernel.md, "VQF's precision"). The firmware is built with this one only
+ * (firmware_c/Makefile VQF_PRECISION); the host library with both (LSW_VQF_BOTH 1, setup.py),
+ * chosen per device at run time (LswImuSettings.vqf_precision), this one by default.
  */
-#ifndef LSW_VQF_FLOAT
-#define LSW_VQF_FLOAT 0
+#ifndef LSW_VQF_DEFAULT_DOUBLE
+#define LSW_VQF_DEFAULT_DOUBLE 1
+#endif
+#ifndef LSW_VQF_BOTH
+#define LSW_VQF_BOTH 0
 #endif
 
 #if defined(FASTSW_FIXED_DIM)

@@ -67,12 +67,15 @@ typedef struct {
     float rest_th_acc;    /**< VQF's rest threshold on the specific force, m/s^2 (VQF's default: 0.5) */
     float heading[2];     /**< the filter's start heading about the earth's vertical (and after a reset):
                                cos and sin of half its angle, (1, 0) for none */
+    uint32_t vqf_precision; /**< LSW_VQF_SINGLE or LSW_VQF_DOUBLE (a build holding only the other
+                                 runs that one; lsw_vqf.h) */
 } LswImuSettings;
 
 /**
  * 200 Hz raw, 50 Hz out (us ticks), max_gap 0.1 s, acc_limit 156 m/s^2 (a +-16 g part), 6D; rest
  * thresholds 0.5 deg/s and 0.5 m/s^2 (a body tracker's: VQF's 2 deg/s takes quiet standing sway
- * for rest and learns the sway as gyro bias; docs/kernel.md, "Filter settings"), heading 0.
+ * for rest and learns the sway as gyro bias; docs/kernel.md, "Filter settings"), heading 0, VQF in
+ * the build's default precision (LSW_VQF_DEFAULT_DOUBLE, fastsw_config.h).
  */
 extern const LswImuSettings lsw_imu_default_settings;
 

@@ -4,8 +4,11 @@
  * D. Laidig, T. Seel, "VQF: Highly Accurate IMU Orientation Estimation with Bias Estimation and
  * Magnetic Disturbance Rejection", Information Fusion 91, 2023. Its C++ (class VQF, MIT licence)
  * comes from the `vqf` Python package's own sources, compiled unchanged with
- * -DVQF_SINGLE_PRECISION (floats in and out; VQF keeps its low-pass filter states in double)
- * and -ffp-contract=off on the host and on the Cortex-M4 alike.
+ * -DVQF_SINGLE_PRECISION (floats in and out) and -ffp-contract=off on the host and on the
+ * Cortex-M4 alike, in one or both of two precisions (LSW_VQF_SINGLE: VQF's low-pass filter states,
+ * their coefficients and its 3x3 inverse in float too; LSW_VQF_DOUBLE: those in double, as VQF's
+ * authors built it). The host library holds both, the firmware one (fastsw_config.h). The
+ * elementary functions VQF calls are src/lsw_math.hpp's on every target: the same bits.
  *
  * The filter lives in caller-owned storage (LswVqf): VQF holds its parameters, coefficients and
  * state as plain members and allocates nothing, so it is constructed in place there.
@@ -23,8 +26,13 @@ extern "C" {
 /** Bytes reserved for one VQF object (lsw_vqf.cpp checks sizeof(VQF) fits at compile time). */
 #define LSW_VQF_STORAGE 856u
 
+/** VQF's precisions (lsw_vqf_init). */
+#define LSW_VQF_SINGLE 0u /**< filter states, coefficients and 3x3 inverse in float */
+#define LSW_VQF_DOUBLE 1u /**< those in double (VQF's own), the rest float */
+
 /** Caller-owned storage of one filter. Private. */
 typedef struct {
+    uint32_t precision; /* LSW_VQF_SINGLE or LSW_VQF_DOUBLE: the filter in u */
     union {
         double align; /* VQF's members include doubles */
         unsigned char bytes[LSW_VQF_STORAGE];
@@ -33,9 +41,11 @@ typedef struct {
 
 /**
  * Construct a filter in *v with VQF's default parameters (rest detection, rest and motion bias
- * estimation and magnetic disturbance rejection on) for samples every period_s seconds (> 0).
+ * estimation and magnetic disturbance rejection on) for samples every period_s seconds (> 0), in
+ * the given precision (LSW_VQF_SINGLE or LSW_VQF_DOUBLE) if this build holds it, else in the one
+ * it holds. Returns the precision constructed.
  */
-void lsw_vqf_init(LswVqf *v, float period_s);
+uint32_t lsw_vqf_init(LswVqf *v, float period_s, uint32_t precision);
 
 /** Back to the state after lsw_vqf_init (identity orientation, zero bias), parameters kept. */
 void lsw_vqf_reset(LswVqf *v);
@@ -73,8 +83,15 @@ void lsw_vqf_bias(const LswVqf *v, float bias[3]);
 /** 1 while VQF detects rest (the sensor still for restMinT, 1.5 s), else 0. */
 int lsw_vqf_rest(const LswVqf *v);
 
-/** sizeof(VQF) in this build (at most LSW_VQF_STORAGE). */
-size_t lsw_vqf_size(void);
+/** sizeof the VQF object in *v (at most LSW_VQF_STORAGE). */
+size_t lsw_vqf_size(const LswVqf *v);
+
+/**
+ * For tests: out[k] = f(x[k]) (atan2: f(y[k], x[k])) for n arguments, with lsw_math.hpp's function
+ * fn (0 sin, 1 cos, 2 tan, 3 exp, 4 asin, 5 acos, 6 atan2) in double (in_double) or float (the
+ * arguments rounded to float first). Returns n.
+ */
+size_t lsw_math_eval(int fn, size_t n, const double *x, const double *y, double *out, int in_double);
 
 #ifdef __cplusplus
 }

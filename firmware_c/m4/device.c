@@ -195,6 +195,7 @@ static void on_fusion(Device *d, uint16_t request, const uint8_t *body)
     s.rest_th_acc = lsw_get_f32(body + 21);
     s.heading[0] = lsw_get_f32(body + 25);
     s.heading[1] = lsw_get_f32(body + 29);
+    s.vqf_precision = lsw_imu_default_settings.vqf_precision; /* the one this firmware is built with */
     if (!(s.raw_period_s > 0.0f && s.raw_period_s <= 1.0f) || s.out_period == 0u || s.max_gap == 0u ||
         !(s.acc_limit > 0.0f && s.acc_limit <= LSW_IMU_RANGE) || s.nine_d > 1u ||
         !(s.rest_th_gyr > 0.0f && s.rest_th_gyr <= 1000.0f) || !(s.rest_th_acc > 0.0f && s.rest_th_acc <= 1000.0f) ||

@@ -12,6 +12,7 @@ const LswImuSettings lsw_imu_default_settings = {
     0.5f,    /* rest_th_gyr: deg/s, a body tracker's (VQF's default 2) */
     0.5f,    /* rest_th_acc: m/s^2, VQF's default */
     {1.0f, 0.0f}, /* heading: none */
+    LSW_VQF_DEFAULT_DOUBLE ? LSW_VQF_DOUBLE : LSW_VQF_SINGLE, /* vqf_precision */
 };
 
 /** The filter from scratch with the settings' rest thresholds and start heading. */
@@ -20,7 +21,7 @@ static void start_filter(LswImu *imu, int reset)
     if (reset) {
         lsw_vqf_reset(&imu->vqf);
     } else {
-        lsw_vqf_init(&imu->vqf, imu->settings.raw_period_s);
+        imu->settings.vqf_precision = lsw_vqf_init(&imu->vqf, imu->settings.raw_period_s, imu->settings.vqf_precision);
         lsw_vqf_set_rest_thresholds(&imu->vqf, imu->settings.rest_th_gyr, imu->settings.rest_th_acc);
     }
     if (imu->settings.heading[1] != 0.0f) {

@@ -2,8 +2,15 @@
  * lsw_vqf.cpp - the C API of lsw_vqf.h over VQF's own C++ class.
  *
  * VQF's source (vqf.cpp and vqf.hpp from the `vqf` package, unchanged) is compiled inside this
- * file, so that the one compile-time switch about it (LSW_VQF_FLOAT, fastsw_config.h) reaches it
- * and the Cortex-M4 build inlines VQF's updates into the calls below.
+ * file, once per precision it is built in (fastsw_config.h: LSW_VQF_BOTH, LSW_VQF_DEFAULT_DOUBLE),
+ * each in a namespace of its own:
+ *   lsw_vqf_single  VQF with its low-pass filter states, their coefficients and its 3x3 inverse in
+ *                   float (`double` defined as `float` around VQF's code only): no soft-float double
+ *                   arithmetic per raw sample on a Cortex-M4;
+ *   lsw_vqf_double  VQF as its authors built it (those in double, the rest float).
+ * In both, VQF's `std::` names are lsw_math_std's (lsw_math.hpp): sin, cos, tan, exp, asin, acos
+ * and atan2 from the same source on every target, so the host library and the firmware compute
+ * the same bits.
  */
 #include "lsw_vqf.h"
 
@@ -16,99 +23,169 @@
 #include <new>
 
 #include "fastsw_config.h"
-
-#if LSW_VQF_FLOAT
-/* VQF's double-precision filter states, coefficients and 3x3 inverse become float: every
- * standard header VQF includes is in above, so only VQF's own code sees this. */
-#define double float
-#endif
-#include "vqf.cpp"
-#if LSW_VQF_FLOAT
-#undef double
-#endif
+#include "lsw_math.hpp"
 
 #ifndef VQF_SINGLE_PRECISION
 #error "VQF is built with -DVQF_SINGLE_PRECISION on every target (lsw_vqf.h)"
 #endif
 
+#define LSW_VQF_HAS_SINGLE (LSW_VQF_BOTH || !LSW_VQF_DEFAULT_DOUBLE)
+#define LSW_VQF_HAS_DOUBLE (LSW_VQF_BOTH || LSW_VQF_DEFAULT_DOUBLE)
+
+#if LSW_VQF_HAS_SINGLE
+namespace lsw_vqf_single {
+namespace std = ::lsw_math_std;
+/* every standard header VQF includes is in above, so only VQF's own code sees this */
+#define double float
+#undef VQF_HPP
+#include "vqf.cpp"
+#undef double
 static_assert(sizeof(VQF) <= LSW_VQF_STORAGE, "LSW_VQF_STORAGE is too small for VQF");
 static_assert(alignof(VQF) <= alignof(LswVqf), "LswVqf is not aligned for VQF");
+} /* namespace lsw_vqf_single */
+#endif
 
-/** The VQF object constructed in *v. */
-static inline VQF *filter(LswVqf *v)
+#if LSW_VQF_HAS_DOUBLE
+namespace lsw_vqf_double {
+namespace std = ::lsw_math_std;
+#undef VQF_HPP
+#include "vqf.cpp"
+static_assert(sizeof(VQF) <= LSW_VQF_STORAGE, "LSW_VQF_STORAGE is too small for VQF");
+static_assert(alignof(VQF) <= alignof(LswVqf), "LswVqf is not aligned for VQF");
+} /* namespace lsw_vqf_double */
+#endif
+
+/** The filter of type F constructed in *v. */
+template <typename F> static inline F *filter_as(const LswVqf *v)
 {
-    return std::launder(reinterpret_cast<VQF *>(v->u.bytes));
+    return std::launder(reinterpret_cast<F *>(const_cast<unsigned char *>(v->u.bytes)));
 }
 
-static inline const VQF *filter(const LswVqf *v)
+/** fn(filter) on the filter in *v, as the precision it was constructed in. */
+template <typename Fn> static inline auto with_filter(const LswVqf *v, Fn fn)
 {
-    return std::launder(reinterpret_cast<const VQF *>(v->u.bytes));
+#if LSW_VQF_HAS_SINGLE && LSW_VQF_HAS_DOUBLE
+    if (v->precision == LSW_VQF_DOUBLE) {
+        return fn(filter_as<lsw_vqf_double::VQF>(v));
+    }
+    return fn(filter_as<lsw_vqf_single::VQF>(v));
+#elif LSW_VQF_HAS_DOUBLE
+    return fn(filter_as<lsw_vqf_double::VQF>(v));
+#else
+    return fn(filter_as<lsw_vqf_single::VQF>(v));
+#endif
+}
+
+/** lsw_math's function number fn (lsw_vqf.h: lsw_math_eval) at (x, y). */
+template <typename T> static T math_at(int fn, T x, T y)
+{
+    switch (fn) {
+    case 0: return lsw_math_std::sin(x);
+    case 1: return lsw_math_std::cos(x);
+    case 2: return lsw_math_std::tan(x);
+    case 3: return lsw_math_std::exp(x);
+    case 4: return lsw_math_std::asin(x);
+    case 5: return lsw_math_std::acos(x);
+    default: return lsw_math_std::atan2(y, x);
+    }
 }
 
 extern "C" {
 
-void lsw_vqf_init(LswVqf *v, float period_s)
+uint32_t lsw_vqf_init(LswVqf *v, float period_s, uint32_t precision)
 {
-    new (v->u.bytes) VQF(period_s); /* trivially destructible: storage may be reused or dropped */
+    /* trivially destructible: storage may be reused or dropped */
+#if LSW_VQF_HAS_DOUBLE
+    if (precision == LSW_VQF_DOUBLE || !LSW_VQF_HAS_SINGLE) {
+        v->precision = LSW_VQF_DOUBLE;
+        new (v->u.bytes) lsw_vqf_double::VQF(period_s);
+        return v->precision;
+    }
+#endif
+#if LSW_VQF_HAS_SINGLE
+    (void)precision;
+    v->precision = LSW_VQF_SINGLE;
+    new (v->u.bytes) lsw_vqf_single::VQF(period_s);
+#endif
+    return v->precision;
 }
 
 void lsw_vqf_reset(LswVqf *v)
 {
-    filter(v)->resetState();
+    with_filter(v, [](auto *f) { f->resetState(); });
 }
 
 void lsw_vqf_set_rest_thresholds(LswVqf *v, float gyr_dps, float acc)
 {
-    filter(v)->setRestDetectionThresholds(gyr_dps, acc);
+    with_filter(v, [&](auto *f) { f->setRestDetectionThresholds(gyr_dps, acc); });
 }
 
 void lsw_vqf_set_heading(LswVqf *v, const float heading[2])
 {
-    VQFState state = filter(v)->getState();
-    state.gyrQuat[0] = heading[0];
-    state.gyrQuat[1] = 0.0f;
-    state.gyrQuat[2] = 0.0f;
-    state.gyrQuat[3] = heading[1];
-    filter(v)->setState(state);
+    with_filter(v, [&](auto *f) {
+        auto state = f->getState();
+        state.gyrQuat[0] = heading[0];
+        state.gyrQuat[1] = 0.0f;
+        state.gyrQuat[2] = 0.0f;
+        state.gyrQuat[3] = heading[1];
+        f->setState(state);
+    });
 }
 
 void lsw_vqf_gyr(LswVqf *v, const float gyr[3])
 {
-    filter(v)->updateGyr(gyr);
+    with_filter(v, [&](auto *f) { f->updateGyr(gyr); });
 }
 
 void lsw_vqf_acc(LswVqf *v, const float acc[3])
 {
-    filter(v)->updateAcc(acc);
+    with_filter(v, [&](auto *f) { f->updateAcc(acc); });
 }
 
 void lsw_vqf_mag(LswVqf *v, const float mag[3])
 {
-    filter(v)->updateMag(mag);
+    with_filter(v, [&](auto *f) { f->updateMag(mag); });
 }
 
 void lsw_vqf_quat(const LswVqf *v, int nine_d, float q[4])
 {
-    if (nine_d) {
-        filter(v)->getQuat9D(q);
-    } else {
-        filter(v)->getQuat6D(q);
-    }
+    with_filter(v, [&](auto *f) {
+        if (nine_d) {
+            f->getQuat9D(q);
+        } else {
+            f->getQuat6D(q);
+        }
+    });
 }
 
 void lsw_vqf_bias(const LswVqf *v, float bias[3])
 {
-    (void)filter(v)->getBiasEstimate(bias);
+    with_filter(v, [&](auto *f) { (void)f->getBiasEstimate(bias); });
 }
 
 int lsw_vqf_rest(const LswVqf *v)
 {
-    return filter(v)->getRestDetected() ? 1 : 0;
+    return with_filter(v, [](auto *f) { return f->getRestDetected() ? 1 : 0; });
 }
 
-size_t lsw_vqf_size(void)
+size_t lsw_vqf_size(const LswVqf *v)
 {
-    return sizeof(VQF);
+    return with_filter(v, [](auto *f) { return sizeof *f; });
+}
+
+size_t lsw_math_eval(int fn, size_t n, const double *x, const double *y, double *out, int in_double)
+{
+    size_t k;
+    for (k = 0u; k < n; k++) {
+        double r;
+        if (in_double) {
+            r = math_at(fn, x[k], y[k]);
+        } else {
+            r = static_cast<double>(math_at(fn, static_cast<float>(x[k]), static_cast<float>(y[k])));
+        }
+        out[k] = r;
+    }
+    return n;
 }
 
 } /* extern "C" */

@@ -230,7 +230,7 @@ def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
                             speed=args.speed, clock=clock_settings(args),
                             anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
                             clock_id=args.first_subject, sensors=sensors, imu=flags.imu_model(args),
-                            imu_rate_hz=args.imu_rate)
+                            imu_rate_hz=args.imu_rate, vqf_precision=args.vqf_precision)
 
 
 def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettings,
@@ -245,7 +245,7 @@ def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettin
                          "device clock models (--clock-offset-ms, --clock-drift-ppm, --clock-jitter-us) and "
                          "modelled sensor errors are not available with it (raw sensors are: --imu raw)")
     try:
-        elf = args.firmware_elf or firmware.build()
+        elf = args.firmware_elf or firmware.build(vqf_precision=settings.vqf_precision)
     except (RuntimeError, OSError) as exc:
         raise SystemExit(f"limbstream emulate: error: {exc}") from None
     if not elf.exists():
@@ -255,4 +255,4 @@ def run_firmware(args: argparse.Namespace, feeds: dict, settings: EmulatorSettin
         ordered = sorted(feeds.values(), key=lambda f: -(f.length or float("inf")))
         raw = RawSensors(ordered, settings.imu, settings.imu_rate_hz, settings.sensors, settings.clock_id)
     return firmware_devices.run(feeds, settings.host, settings.speed, flags.session_settings(args, PROG), elf,
-                                args.duration, stop, raw, settings.imu_rate_hz)
+                                args.duration, stop, raw, settings.imu_rate_hz, settings.vqf_precision)

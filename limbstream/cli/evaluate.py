@@ -246,10 +246,11 @@ def _streams(args: argparse.Namespace, sensors: calibration.SensorModel, motions
                              f"({', '.join(r.name for r in recordings)})")
         motions = raw_streams.looped(motions, args.loop_minutes)
     model = flags.imu_model(args)
-    streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate) if model is not None
+    streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate, args.vqf_precision)
+               if model is not None
                else streams_of(motions, sensors))
     for rec in recordings:
-        streams += raw_streams.recording_streams(rec, args.mag)
+        streams += raw_streams.recording_streams(rec, args.mag, vqf_precision=args.vqf_precision)
     return streams
 
 

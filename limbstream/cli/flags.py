@@ -129,6 +129,15 @@ def add_sensor_model(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--imu-rate", type=float, default=200.0, metavar="HZ", action=Given,
                        help=f"with --imu raw: the sensors' rate, a whole multiple of the device rate "
                             f"{wire.DEVICE_RATE_HZ:g} Hz (default 200)")
+    add_vqf_precision(group)
+
+
+def add_vqf_precision(parser) -> None:
+    """``--vqf-precision`` (every command that fuses raw samples: ``emulate``, ``up``, ``eval``, ``fuse``)."""
+    from limbstream.kernel import fusion
+    parser.add_argument("--vqf-precision", choices=fusion.VQF_PRECISIONS, default=fusion.DEFAULT_VQF_PRECISION,
+                        help="VQF's filter states in single or double precision (docs/kernel.md, \"VQF's precision\"; "
+                             f"default the firmware's, {fusion.DEFAULT_VQF_PRECISION})")
 
 
 IMU_KINDS: tuple[str, ...] = ("orientation", "raw")
@@ -163,7 +172,8 @@ def sensor_model_argv(model: SensorModel, args: argparse.Namespace | None = None
     argv = ["--mounting-deg", f"{model.mounting_deg:g}", "--heading-deg", f"{model.heading_deg:g}",
             "--yaw-drift-dps", f"{model.yaw_drift_dps:g}", "--sensor-seed", str(model.seed)]
     if args is not None and args.imu == "raw":
-        argv += ["--imu", "raw", "--imu-model", args.imu_model, "--imu-rate", f"{args.imu_rate:g}"]
+        argv += ["--imu", "raw", "--imu-model", args.imu_model, "--imu-rate", f"{args.imu_rate:g}",
+                 "--vqf-precision", args.vqf_precision]
     return argv
 
 

@@ -34,12 +34,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rest-th-gyr", type=float, default=fusion.REST_TH_GYR_DPS, metavar="DPS",
                         help="VQF's rest threshold on the angular rate, deg/s (default the device's, "
                              f"{fusion.REST_TH_GYR_DPS:g}; VQF's own: {fusion.VQF_REST_TH_GYR_DPS:g})")
+    flags.add_vqf_precision(parser)
 
 
-def fuse_recording(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS
-                   ) -> np.ndarray:
+def fuse_recording(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS,
+                   vqf_precision: str = fusion.DEFAULT_VQF_PRECISION) -> np.ndarray:
     """(n, S, 4) every sensor's device orientation (:func:`limbstream.sources.raw.fuse`)."""
-    return raw.fuse(rec, mag, rest_th_gyr_dps)
+    return raw.fuse(rec, mag, rest_th_gyr_dps, vqf_precision)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         return flags.fail(PROG, f"-o {args.output}: folder {args.output.parent} does not exist")
     try:
         rec = load_raw(args.path)
-        q = fuse_recording(rec, args.mag, args.rest_th_gyr)
+        q = fuse_recording(rec, args.mag, args.rest_th_gyr, args.vqf_precision)
     except (MotionFileError, ValueError) as exc:
         return flags.fail(PROG, str(exc))
     arrays = {"t": rec.t}

@@ -34,12 +34,14 @@ class RawStage:
     rate_hz : the sensors' sample rate, Hz (the device rate stays the host's).
     headings : (size,) each device's filter start heading, rad (None: 0).
     rest_th_gyr_dps, rest_th_acc : VQF's rest thresholds (the device's defaults).
+    vqf_precision : VQF's precision, ``"single"`` or ``"double"`` (default the firmware's).
     """
 
     rate_hz: float
     headings: np.ndarray | None = None
     rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS
     rest_th_acc: float = fusion.REST_TH_ACC
+    vqf_precision: str = fusion.DEFAULT_VQF_PRECISION
 
 
 class DeviceBank:
@@ -64,7 +66,8 @@ class DeviceBank:
         else:
             self.imus = fusion.ImuBank(size, raw.rate_hz, host.settings.fs, False, c.threshold, c.max_len,
                                        c.live_bound_deg, ring, rest_th_gyr_dps=raw.rest_th_gyr_dps,
-                                       rest_th_acc=raw.rest_th_acc, headings=raw.headings)
+                                       rest_th_acc=raw.rest_th_acc, headings=raw.headings,
+                                       vqf_precision=raw.vqf_precision)
             self.kernel = self.imus.segments
         self.n = np.zeros(size, np.int64)      # samples each device has taken
         self.calls = np.zeros(size, np.int64)  # kernel calls of each device since its reset (the kernel's index)

@@ -35,11 +35,12 @@ def device_stream(t: np.ndarray, q_earth: np.ndarray, device_rate_hz: float = wi
     return idx, fusion.y_up(q_earth[idx]).astype(np.float64)
 
 
-def recording_streams(rec: RawRecording, mag: bool = False,
-                      rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS) -> list[Stream]:
+def recording_streams(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS,
+                      vqf_precision: str = fusion.DEFAULT_VQF_PRECISION) -> list[Stream]:
     """One stream per sensor of a raw recording, fused 6D (9D with ``mag``; ValueError without a
-    magnetometer); with a reference, scored over its movement phases (all samples if unmarked)."""
-    fused = raw.fuse(rec, mag, rest_th_gyr_dps)
+    magnetometer) by VQF in ``vqf_precision`` (``fusion.VQF_PRECISIONS``); with a reference, scored
+    over its movement phases (all samples if unmarked)."""
+    fused = raw.fuse(rec, mag, rest_th_gyr_dps, vqf_precision)
     out = []
     for s, sensor in enumerate(rec.sensors):
         idx, samples = device_stream(rec.t, fused[:, s])
@@ -52,10 +53,11 @@ def recording_streams(rec: RawRecording, mag: bool = False,
 
 
 def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, model: imu.ImuModel,
-                     rate_hz: float = imu.DEFAULT_RATE_HZ) -> list[Stream]:
+                     rate_hz: float = imu.DEFAULT_RATE_HZ, vqf_precision: str = fusion.DEFAULT_VQF_PRECISION
+                     ) -> list[Stream]:
     """Every motion's segment streams as devices with raw sensors of ``model`` at ``rate_hz``
-    (mountings and filter headings of ``sensors``, drawn per motion) send them, after the
-    calibration script."""
+    (mountings and filter headings of ``sensors``, drawn per motion; VQF in ``vqf_precision``) send
+    them, after the calibration script."""
     out = []
     for index, motion in enumerate(motions):
         devices = imu.ImuDevices(len(motion.segments), model, rate_hz, sensors, stream=index)
@@ -65,7 +67,8 @@ def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, mo
         pose = calibration.mounting_pose(motion.segments)
         back = quat.conjugate(devices.mounting)
         for s, segment in enumerate(motion.segments):
-            q = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rate_hz=rate_hz, heading_rad=float(devices.heading[s]))
+            q = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rate_hz=rate_hz, heading_rad=float(devices.heading[s]),
+                            vqf_precision=vqf_precision)
             idx, samples = device_stream(rec.t, q)
             t = rec.t[idx]
             segment_truth = quat.multiply(quat.multiply(quat.Z_UP_TO_Y_UP, rec.truth[idx, s]), back[s])

@@ -193,11 +193,11 @@ class RawSample(ctypes.Structure):
 class ImuSettings(ctypes.Structure):
     """LswImuSettings (lsw_imu.h): sensor period (s), device period, largest time step (ticks),
     accelerometer saturation (m/s^2), 9D, VQF's rest thresholds (deg/s, m/s^2), start heading (cos, sin
-    of half its angle)."""
+    of half its angle), VQF's precision (0 single, 1 double)."""
 
     _fields_ = [("raw_period_s", ctypes.c_float), ("out_period", ctypes.c_uint32), ("max_gap", ctypes.c_uint32),
                 ("acc_limit", ctypes.c_float), ("nine_d", ctypes.c_uint32), ("rest_th_gyr", ctypes.c_float),
-                ("rest_th_acc", ctypes.c_float), ("heading", ctypes.c_float * 2)]
+                ("rest_th_acc", ctypes.c_float), ("heading", ctypes.c_float * 2), ("vqf_precision", ctypes.c_uint32)]
 
 
 class FuseRows(ctypes.Structure):

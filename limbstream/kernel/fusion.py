@@ -34,13 +34,19 @@ REST_TH_GYR_DPS: float = round(float(_DEFAULTS.rest_th_gyr), 6)
 """The device's VQF rest threshold on the angular rate, deg/s (a body tracker's; lsw_imu.h)."""
 REST_TH_ACC: float = round(float(_DEFAULTS.rest_th_acc), 6)
 """The device's VQF rest threshold on the specific force, m/s^2 (VQF's own)."""
+VQF_PRECISIONS: tuple[str, ...] = ("single", "double")
+"""VQF's precisions (lsw_vqf.h): its low-pass filter states, their coefficients and its 3x3 inverse in
+float (single) or in double (VQF's own); the host library holds both, the firmware one."""
+DEFAULT_VQF_PRECISION: str = VQF_PRECISIONS[int(_DEFAULTS.vqf_precision)]
+"""The firmware's precision (LSW_VQF_DEFAULT_DOUBLE, fastsw_config.h): double."""
 VQF_REST_TH_GYR_DPS = 2.0
 """VQF's own default rest threshold on the angular rate, deg/s (``VQFParams.restThGyr``)."""
 
 
 def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, nine_d: bool = False, max_gap_s: float | None = None,
                  acc_limit: float | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS,
-                 rest_th_acc: float = REST_TH_ACC, heading_rad: float = 0.0) -> ImuSettings:
+                 rest_th_acc: float = REST_TH_ACC, heading_rad: float = 0.0,
+                 vqf_precision: str = DEFAULT_VQF_PRECISION) -> ImuSettings:
     """Validated pipeline settings (LswImuSettings).
 
     Parameters
@@ -53,6 +59,7 @@ def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, ni
     rest_th_gyr_dps, rest_th_acc : VQF's rest detection thresholds, deg/s and m/s^2 (> 0; the
         device's defaults :data:`REST_TH_GYR_DPS`, :data:`REST_TH_ACC`).
     heading_rad : the filter's start heading about the earth's vertical, rad (|h| <= 2 pi).
+    vqf_precision : ``"single"`` or ``"double"`` (:data:`VQF_PRECISIONS`; default the firmware's).
     """
     rate_hz, device_rate_hz = float(rate_hz), float(device_rate_hz)
     if not np.isfinite(rate_hz) or rate_hz <= 0:
@@ -64,10 +71,13 @@ def imu_settings(rate_hz: float, device_rate_hz: float = wire.DEVICE_RATE_HZ, ni
             raise ValueError(f"{name} must be in (0, 1000], got {value}")
     if not (np.isfinite(heading_rad) and abs(heading_rad) <= 2 * np.pi):
         raise ValueError(f"heading_rad must be within +-2 pi, got {heading_rad}")
+    if vqf_precision not in VQF_PRECISIONS:
+        raise ValueError(f"vqf_precision must be one of {VQF_PRECISIONS}, got {vqf_precision!r}")
     gap = _DEFAULTS.max_gap if max_gap_s is None else int(round(float(max_gap_s) * TICK_HZ))
     return ImuSettings(1.0 / rate_hz, int(round(TICK_HZ / device_rate_hz)), gap,
                        _DEFAULTS.acc_limit if acc_limit is None else float(acc_limit), int(bool(nine_d)),
-                       float(rest_th_gyr_dps), float(rest_th_acc), heading_turn(heading_rad))
+                       float(rest_th_gyr_dps), float(rest_th_acc), heading_turn(heading_rad),
+                       VQF_PRECISIONS.index(vqf_precision))
 
 
 def heading_turn(heading_rad: float):
@@ -136,7 +146,7 @@ def raw_samples(ticks: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.nda
 
 def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_hz: float = 200.0,
          t: np.ndarray | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS, rest_th_acc: float = REST_TH_ACC,
-         heading_rad: float = 0.0) -> np.ndarray:
+         heading_rad: float = 0.0, vqf_precision: str = DEFAULT_VQF_PRECISION) -> np.ndarray:
     """The device's orientation after each raw sample (VQF in the kernel library, exactly as a
     device computes it, bad samples handled as there).
 
@@ -147,7 +157,7 @@ def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_h
     mag : (n, 3) magnetic field (uT), or None: 9D with it, else 6D.
     rate_hz : the sensor's sample rate, Hz (VQF's time step is 1 / rate_hz).
     t : (n,) sample times, s (default: uniform at rate_hz); used for the bad-time checks.
-    rest_th_gyr_dps, rest_th_acc, heading_rad : as :func:`imu_settings`.
+    rest_th_gyr_dps, rest_th_acc, heading_rad, vqf_precision : as :func:`imu_settings`.
 
     Returns
     -------
@@ -159,7 +169,8 @@ def fuse(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, rate_h
     ticks = np.round((times - (times[0] if n else 0.0)) * TICK_HZ).astype(np.int64) & 0xFFFFFFFF
     raw = raw_samples(ticks, gyr, acc, mag)
     state = ctypes.create_string_buffer(IMU_STATE_SIZE)
-    settings = imu_settings(rate_hz, rate_hz, mag is not None, None, None, rest_th_gyr_dps, rest_th_acc, heading_rad)
+    settings = imu_settings(rate_hz, rate_hz, mag is not None, None, None, rest_th_gyr_dps, rest_th_acc, heading_rad,
+                            vqf_precision)
     _lib.lsw_imu_init(state, ctypes.byref(settings))
     q = np.zeros((n, 4), np.float32)
     _lib.lsw_imu_fuse_batch(state, raw.ctypes.data, n, q.ctypes.data)
@@ -178,8 +189,8 @@ class ImuBank:
     Parameters
     ----------
     count : int, number of devices.
-    rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit, rest_th_gyr_dps, rest_th_acc : as
-        :func:`imu_settings`, shared.
+    rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit, rest_th_gyr_dps, rest_th_acc, vqf_precision :
+        as :func:`imu_settings`, shared.
     threshold, max_len, live_bound_deg, ring : as :class:`SegmenterBank`.
     headings : (count,) each device's filter start heading, rad (default 0).
 
@@ -191,12 +202,14 @@ class ImuBank:
                  threshold=wire.THRESHOLD.default, max_len=wire.MAX_LEN.default,
                  live_bound_deg=wire.LIVE_BOUND_DEG.default, ring: int = 0, max_gap_s: float | None = None,
                  acc_limit: float | None = None, rest_th_gyr_dps: float = REST_TH_GYR_DPS,
-                 rest_th_acc: float = REST_TH_ACC, headings: np.ndarray | None = None):
+                 rest_th_acc: float = REST_TH_ACC, headings: np.ndarray | None = None,
+                 vqf_precision: str = DEFAULT_VQF_PRECISION):
         self.count = count
         self.segments = SegmenterBank(count, threshold, max_len, 4, live_bound_deg, ring)
         self.nine_d = bool(nine_d)
         self.imu_settings = imu_settings(rate_hz, device_rate_hz, nine_d, max_gap_s, acc_limit, rest_th_gyr_dps,
-                                         rest_th_acc)
+                                         rest_th_acc, vqf_precision=vqf_precision)
+        self.vqf_precision = vqf_precision
         self.headings = np.zeros(count) if headings is None else np.asarray(headings, np.float64).reshape(count)
         self._imus = ctypes.create_string_buffer(IMU_STATE_SIZE * max(count, 1))
         for k in range(count):

@@ -149,10 +149,12 @@ def raw_files(path: str | Path) -> list[Path]:
     return mats if mats and len(mats) == len([f for f in files if f.suffix.lower() != ".license"]) else []
 
 
-def fuse(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float | None = None) -> np.ndarray:
+def fuse(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float | None = None,
+         vqf_precision: str | None = None) -> np.ndarray:
     """(n, S, 4) every sensor's orientation after each sample as a device fuses it (the kernel's
     VQF, :func:`limbstream.kernel.fusion.fuse`; 9D with ``mag``), in the filter's Z-up earth frame,
-    scalar-first; ValueError when ``mag`` is asked of a recording without a magnetometer."""
+    scalar-first; VQF in ``vqf_precision`` (``fusion.VQF_PRECISIONS``; None: the firmware's);
+    ValueError when ``mag`` is asked of a recording without a magnetometer."""
     from limbstream.kernel import fusion
 
     if mag and rec.mag is None:
@@ -161,7 +163,8 @@ def fuse(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float | None = N
     out = np.empty(rec.gyr.shape[:2] + (4,))
     for s in range(len(rec.sensors)):
         out[:, s] = fusion.fuse(rec.gyr[:, s], rec.acc[:, s], rec.mag[:, s] if mag and rec.mag is not None else None,
-                                rate_hz=rec.fs, t=rec.t, rest_th_gyr_dps=threshold)
+                                rate_hz=rec.fs, t=rec.t, rest_th_gyr_dps=threshold,
+                                vqf_precision=vqf_precision or fusion.DEFAULT_VQF_PRECISION)
     return out
 
 

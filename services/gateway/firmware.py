@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 from limbstream.launch import _die_with_parent, free_port
@@ -16,13 +17,21 @@ DEFAULT_ELF = FIRMWARE_DIR / "build" / "device.elf"
 QEMU = "qemu-system-arm"
 
 
-def build(build_dir: Path | None = None) -> Path:
-    """``make device`` (into firmware_c/build, or ``build_dir``) in the source checkout this
-    package runs from (an installed wheel carries no firmware source: give an ELF instead);
-    the ELF's path. RuntimeError with make's output if the build fails."""
+def build(build_dir: Path | None = None, vqf_precision: str | None = None) -> Path:
+    """``make device`` (into firmware_c/build, firmware_c/build-single for VQF in single precision,
+    or ``build_dir``) in the source checkout this package runs from (an installed wheel carries no
+    firmware source: give an ELF instead), with VQF in ``vqf_precision`` (``"single"`` or
+    ``"double"``; default the firmware's); the ELF's path. RuntimeError with make's output if the
+    build fails."""
+    from limbstream.kernel import fusion
+    vqf_precision = vqf_precision or fusion.DEFAULT_VQF_PRECISION
+    if build_dir is None and vqf_precision != fusion.DEFAULT_VQF_PRECISION:
+        build_dir = FIRMWARE_DIR / f"build-{vqf_precision}"
     if not (FIRMWARE_DIR / "Makefile").exists():
         raise RuntimeError(f"no firmware source at {FIRMWARE_DIR}: build device.elf from a checkout and give its path")
-    args = ["make", "-s", "-C", str(FIRMWARE_DIR), "device"] + ([f"BUILD={build_dir}"] if build_dir else [])
+    args = ["make", "-s", "-C", str(FIRMWARE_DIR), "device", f"PYTHON={sys.executable}",  # it has vqf's C++
+            f"VQF_PRECISION={vqf_precision}"]
+    args += [f"BUILD={build_dir}"] if build_dir else []
     done = subprocess.run(args, capture_output=True, text=True, timeout=300)
     if done.returncode != 0:
         raise RuntimeError(f"make device failed:\n{done.stdout}\n{done.stderr}")

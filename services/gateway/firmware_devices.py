@@ -52,11 +52,12 @@ class FirmwareConnector:
             self.device = None
 
 
-def feedings(feeds: dict, raw: RawSensors | None = None, rate_hz: float = 200.0, fs: float = 50.0
-             ) -> list[tuple[str, str, serial_gateway.Feeding]]:
+def feedings(feeds: dict, raw: RawSensors | None = None, rate_hz: float = 200.0, fs: float = 50.0,
+             vqf_precision: str = fusion.DEFAULT_VQF_PRECISION) -> list[tuple[str, str, serial_gateway.Feeding]]:
     """(subject, segment, feeding) of every device of ``feeds`` ({subject: feed}); with raw
     sensors (``raw``: made over the feeds in the emulator's slot order, longest first) each is
-    fed its own sensor's readings and its filter's settings."""
+    fed its own sensor's readings and its filter's settings (VQF's precision is the one its
+    firmware is built with: :func:`firmware.build`)."""
     first: dict[int, int] = {}  # id of a feed -> its first slot among raw's sensors
     for f in raw.feeds if raw is not None else ():
         first[id(f)] = sum(len(g.segments) for g in raw.feeds[:len(first)])
@@ -67,17 +68,18 @@ def feedings(feeds: dict, raw: RawSensors | None = None, rate_hz: float = 200.0,
                 out.append((subject, segment, serial_gateway.Feeding(feed, column)))
                 continue
             slot = first[id(feed)] + column
-            settings = fusion.imu_settings(rate_hz, fs, heading_rad=float(raw.devices.heading[slot]))
+            settings = fusion.imu_settings(rate_hz, fs, heading_rad=float(raw.devices.heading[slot]),
+                                           vqf_precision=vqf_precision)
             out.append((subject, segment, serial_gateway.Feeding(feed, column, raw, slot, settings)))
     return out
 
 
 def run(feeds: dict, settings: HostSettings, speed: float, zenoh: zconfig.ZenohSettings, elf: Path,
         duration: float | None = None, stop: threading.Event | None = None, raw: RawSensors | None = None,
-        raw_rate_hz: float = 200.0) -> int:
+        raw_rate_hz: float = 200.0, vqf_precision: str = fusion.DEFAULT_VQF_PRECISION) -> int:
     """Run one firmware device per segment of each feed ({subject: feed}) at ``speed`` until
     ``stop``, a signal or ``duration`` s of device time (a finite feed: its end, then idle); with
-    ``raw``, devices fed raw samples at ``raw_rate_hz``; exit code."""
+    ``raw``, devices fed raw samples at ``raw_rate_hz`` (their firmware's VQF in ``vqf_precision``); exit code."""
     stop, session = zconfig.part_session(zenoh, stop)
     if session is None:
         return 0
@@ -87,7 +89,7 @@ def run(feeds: dict, settings: HostSettings, speed: float, zenoh: zconfig.ZenohS
         host = serial_gateway.serial_host(session, settings)
         host.declare()
         try:
-            for subject, segment, feeding in feedings(feeds, raw, raw_rate_hz, settings.fs):
+            for subject, segment, feeding in feedings(feeds, raw, raw_rate_hz, settings.fs, vqf_precision):
                 connector = FirmwareConnector(elf)
                 connectors.append(connector)
                 gateways.append(serial_gateway.SerialGateway(host, connector, subject, segment, feeding,

@@ -172,7 +172,10 @@ class SerialLink:
         """One raw IMU sample (see :func:`limbstream.wire.serial_link.encode_raw`)."""
         self.send(link.encode_raw(tick, t_us, gyr, acc, mag))
 
-    def _ask(self, encode, timeout_s: float = ANSWER_TIMEOUT_S):
+    def _ask(self, encode, timeout_s: float = ANSWER_TIMEOUT_S, while_heard: bool = False):
+        """Send a request and wait for its answer: ``timeout_s``, or with ``while_heard`` as long as
+        the device is heard from (anything it sends: its heartbeat comes every second) and
+        ``timeout_s`` of silence at most."""
         request = next(self._requests) & 0xFFFF or next(self._requests)
         event: threading.Event = threading.Event()
         answer: list = []
@@ -181,8 +184,11 @@ class SerialLink:
             self.send(encode(request))
             deadline = time.monotonic() + timeout_s
             while not event.wait(min(0.05, max(0.0, deadline - time.monotonic()))):
-                if self._stop.is_set() or time.monotonic() >= deadline:
+                if self._stop.is_set() or self.closed.is_set():
                     break
+                if time.monotonic() >= deadline:  # (while the device is heard from, it is still working)
+                    if not (while_heard and time.monotonic() - self.last_heard < timeout_s):
+                        break
             if not answer and self._stop.is_set():
                 raise LinkClosed(f"{self.port}: stopped")
             if not answer:
@@ -202,8 +208,10 @@ class SerialLink:
 
     def end(self, timeout_s: float = ANSWER_TIMEOUT_S) -> link.Ack:
         """End the stream: its last point (FINAL) comes before the ack. The device answers once it
-        has taken every frame sent before (``timeout_s``: how long that may take)."""
-        return self._ask(lambda r: link.encode_request(link.END, r), timeout_s)
+        has taken every frame sent before, which takes a device that fell behind (a slow core, a
+        backlog of frames) a while: the ack is waited for as long as the device is heard from
+        (its heartbeat, every second even while it works), ``timeout_s`` of silence at most."""
+        return self._ask(lambda r: link.encode_request(link.END, r), timeout_s, while_heard=True)
 
     def status(self) -> link.LinkStatus:
         return self._ask(lambda r: link.encode_request(link.STATUS_REQ, r))

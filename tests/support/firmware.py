@@ -26,7 +26,7 @@ def require_tools(*tools: str) -> None:
 def make_m4(tmp_path_factory, name: str) -> Path:
     """A fresh ``make m4`` (the Cortex-M4 images) into a temporary build folder ``name``."""
     build = tmp_path_factory.mktemp(name)
-    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}"],
+    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "m4", f"BUILD={build}", f"PYTHON={sys.executable}"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, f"make m4 failed:\n{done.stdout}\n{done.stderr}"
     return build
