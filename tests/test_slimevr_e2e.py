@@ -69,9 +69,8 @@ def test_ten_trackers_reach_the_aggregator(stack):  # noqa: F811
 def test_up_starts_the_gateway(stack, tmp_path):  # noqa: F811
     """``limbstream up --subjects 0 --slimevr PORT``: the gateway alone behind the router and the
     aggregator; a tracker finds it and its device reaches the stats."""
-    from support.stack import free_port
     port = free_udp_port()
-    stack.start("up", "up", "--router", stack.endpoint, "--http", f"127.0.0.1:{free_port()}", "--no-dashboard",
+    stack.start("up", "up", "--router", stack.endpoint, "--no-dashboard",
                 "--subjects", "0", "--slimevr", f"127.0.0.1:{port}", "--slimevr-subject", "sv07",
                 "--status-file", str(tmp_path / "status.json"))
     fleet = Fleet(("127.0.0.1", port), motion(50.0, 4.0)[:, :1], ["hip"], 50.0)

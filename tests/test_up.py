@@ -57,7 +57,8 @@ class Up:
         self.status_file = tmp_path / "up-status.json"
         self.http = http or f"127.0.0.1:{free_port()}"
         self.url = f"http://{self.http}"
-        self.child = stack.start("up", "up", "--router", stack.endpoint, "--http", self.http,
+        dashboard = () if "--no-dashboard" in extra else ("--http", self.http)  # (--http needs the dashboard)
+        self.child = stack.start("up", "up", "--router", stack.endpoint, *dashboard,
                                  "--status-file", str(self.status_file), *extra)
         self.logs = stack.logs
 
@@ -479,7 +480,7 @@ def test_up_draws_the_lower_body_recording_as_a_person(stack, tmp_path, xio_dir)
     up = Up(stack, tmp_path, "--source", str(xio_dir), "--subjects", "1", "--speed", "3", "--no-dashboard")
     # subscribed as soon as up's router listens (the session waits for it), before the emulator and
     # the aggregator have started: every exact frame from the stream's start comes here
-    session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,), connect_timeout_s=60))
     pose = session.declare_subscriber(wire.pose_key("s01"), zenoh.handlers.FifoChannel(1 << 16))
     frames: list[wire.PoseFrame] = []
 
