@@ -14,7 +14,7 @@ from limbstream.heading.filter import JointFilters, wrap
 from limbstream.heading.joints import Layout, joint_errors_deg, relative, vertical_in
 from limbstream.heading.simulate import DriftModel
 from limbstream.sources import load
-from limbstream.sources.generator import generate
+from limbstream.sources.generator import DEFAULT_SCHEDULE, generate
 from limbstream.sources.loop import looped
 from limbstream.wire import SEGMENTS
 
@@ -239,7 +239,10 @@ def session():
     drift; 3: drifting, its right shank restarting at 60 s with its heading half a turn off;
     4: no drift, the head turned to 85 deg from 45 to 135 s."""
     n = round(SESSION_S * FS)
-    truth = np.stack([generate(SESSION_S, FS, seed=s).q for s in range(5)], axis=1)
+    # the default schedule without its still moments: a still, standing body is a known pose, which
+    # would tell the stiff knees' headings (subject 2) apart from their bending
+    moving = [item for item in DEFAULT_SCHEDULE if item[0] != "still"]
+    truth = np.stack([generate(SESSION_S, FS, seed=s, activities=moving).q for s in range(5)], axis=1)
     truth[:, 1] = truth[0, 1]
     truth[:, 2, SEG["l_shank"]], truth[:, 2, SEG["r_shank"]] = truth[:, 2, SEG["l_thigh"]], truth[:, 2, SEG["r_thigh"]]
     held = slice(round(HOLD_S[0] * FS), round(HOLD_S[1] * FS))
