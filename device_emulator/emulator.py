@@ -319,7 +319,7 @@ class Emulator:
         """Device d (raw sensors) starts a new stream at tick k: its stream so far ended (FINAL),
         a fresh fastSW from this tick's sample."""
         if self.settings.host.truth:
-            self._flush_tap(d, k - 1)
+            self._flush_tap(np.array([d.slot]), k - 1)
         self.bank.end_stream(d)
         self.bank.start_stream(d, reset=True)
         self.raw_next[d.slot] = k
