@@ -119,6 +119,7 @@ def test_firmware_devices_fuse_raw_samples_as_the_host_devices_do(stack, elf, sh
     assert all(10 < n < 700 for n in counts), counts
 
 
+@pytest.mark.slow  # (80 s: ten M4s fusing at real time; alone, as the slow end-to-end tests run)
 def test_ideal_raw_sensors_on_a_longer_clip_give_the_same_points_on_the_firmware(stack, elf, cmu_npz, tmp_path_factory):
     """CMU 131_02 (520 samples) with ``--imu raw`` (an ideal part): with the libm of each target
     (glibc's on the host, newlib's on the M4) r_thigh's points differed from its 28th on."""
