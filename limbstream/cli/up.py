@@ -195,8 +195,8 @@ def banner(args: argparse.Namespace, launcher: Launcher, devices: list[tuple[str
     for command in commands[1:]:
         print(f"              {command}")
     if args.source == "generator" and args.subjects:  # (the built-in motion's still moments: generator.STILL_S)
-        print("              (the built-in motion stands still in the rest pose for 3 s about every 30 s: "
-              "calibrate waits for that)")
+        print("  still       the built-in motion stands still in the rest pose for 3 s about every 30 s "
+              "(calibrate waits for that)")
 
 
 def say(message: str) -> None:
