@@ -20,7 +20,7 @@ from limbstream.cli import flags
 from limbstream.kernel import fusion
 from limbstream.sources import MotionFileError
 from limbstream.sources import raw
-from limbstream.sources.raw import RawRecording, load_raw
+from limbstream.sources.raw import load_raw
 
 PROG = "limbstream fuse"
 
@@ -37,12 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     flags.add_vqf_precision(parser)
 
 
-def fuse_recording(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float = fusion.REST_TH_GYR_DPS,
-                   vqf_precision: str = fusion.DEFAULT_VQF_PRECISION) -> np.ndarray:
-    """(n, S, 4) every sensor's device orientation (:func:`limbstream.sources.raw.fuse`)."""
-    return raw.fuse(rec, mag, rest_th_gyr_dps, vqf_precision)
-
-
 def run(args: argparse.Namespace) -> int:
     if args.output.suffix.lower() != ".npz":
         return flags.fail(PROG, f"-o {args.output}: must end in .npz")
@@ -50,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         return flags.fail(PROG, f"-o {args.output}: folder {args.output.parent} does not exist")
     try:
         rec = load_raw(args.path)
-        q = fuse_recording(rec, args.mag, args.rest_th_gyr, args.vqf_precision)
+        q = raw.fuse(rec, args.mag, args.rest_th_gyr, args.vqf_precision)
     except (MotionFileError, ValueError) as exc:
         return flags.fail(PROG, str(exc))
     arrays = {"t": rec.t}
