@@ -48,11 +48,12 @@ run: $(STAMP)
 	$(PYTHON) -m limbstream.cli up $(RUN_FLAGS)
 
 # every test: on three workers (the end-to-end tests mostly wait on real time: the whole suite keeps
-# about one core busy; a module stays on one worker), then the slow end-to-end tests alone (a soak
-# that counts late ticks must not share the cores with another test)
+# about one core busy; a module stays on one worker), then, alone, the tests that need the cores to
+# themselves: the slow end-to-end ones (a soak that counts late ticks) and the Cortex-M4 ones (up to
+# ten QEMU devices at real time would starve the other workers' real-time tests of both cores)
 test: $(TEST_STAMP)
-	$(PYTHON) -m pytest -n 3 --dist loadfile -m "not (slow and e2e)" $(PYTEST_ARGS)
-	$(PYTHON) -m pytest -m "slow and e2e" $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -n 3 --dist loadfile -m "not (slow and e2e) and not qemu" $(PYTEST_ARGS)
+	$(PYTHON) -m pytest -m "(slow and e2e) or qemu" $(PYTEST_ARGS)
 
 # the edit loop: every test that needs nothing beyond Python (no processes, QEMU, browser, root),
 # on 4 workers (they wait on sockets and subprocesses as much as they compute; a module stays on
