@@ -94,10 +94,8 @@ def positions_of(body: Body) -> Positions:
     source = body.source
     if source is not None:
         dimensions = source.body(LAYOUT)
-        truth = source.at(body.source_t, LAYOUT)
-        truth[np.isnan(forward(dimensions, body.truth, body.rest_pose))] = np.nan  # where the truth has no data
-        return Positions(forward(dimensions, body.estimated, body.rest_pose), truth, source.joints(LAYOUT), True,
-                         dimensions, source.unit_m)
+        return Positions(forward(dimensions, body.estimated, body.rest_pose), source.at(body.source_t, LAYOUT),
+                         source.joints(LAYOUT), True, dimensions, source.unit_m)
     dimensions = Dimensions.default(LAYOUT)
     return Positions(forward(dimensions, body.estimated, body.rest_pose), forward(dimensions, body.truth, body.rest_pose),
                      LAYOUT.joints, False, dimensions, math.nan)
