@@ -149,3 +149,29 @@ def test_with_a_sensor_model_the_frames_keep_their_file_times(cmu_bvh_dir):
     assert s.t[s.motion_from] + s.source_offset_s == pytest.approx(0.0, abs=0.021)  # the first device instant
     [row] = evaluation.evaluate(raw, ["fastsw"], [9e-4], 25)
     assert 0.0 < row["pos_cm"] < 20.0 and row["positions"]["knee"]["n"] > 0
+
+
+def test_other_exporters_files_give_the_same_joints_and_a_skeleton_paper10_cannot_take_has_none(
+        cmu_bvh_dir, tmp_path, capsys):
+    """Position channels on every joint and a floor root above the pelvis (other exporters'
+    files) give the same joints, root relative; a skeleton on which a paper10 bone has no length
+    (the hip joint at the pelvis) loads without positions of its own, and eval says so."""
+    from support.bvh import write_bvh
+
+    clip = parse_bvh(cmu_bvh_dir / "131_03.bvh")
+    [plain] = load(cmu_bvh_dir / "131_03.bvh")
+    six = tmp_path / "six.bvh"
+    six.write_text(write_bvh(clip, six=True, floor_root="Root"))
+    [other] = load(six)
+    assert other.positions is not None and other.positions.joints() == plain.positions.joints()
+    t = np.asarray(plain.t)
+    np.testing.assert_allclose(other.positions.at(t), plain.positions.at(t), atol=1e-5)  # 6 decimals in the file
+    offsets = clip.offsets.copy()
+    offsets[clip.joints.index("LeftHip")] = 0.0
+    flat = tmp_path / "flat_hip.bvh"
+    flat.write_text(write_bvh(clip, offsets=offsets))
+    [motion] = load(flat)
+    assert motion.positions is None
+    assert cli.main(["eval", str(flat), "--algorithms", "fastsw", "--thresholds", "9e-4"]) == 0
+    text = capsys.readouterr().out
+    assert "every motion: no positions of its own" in text and "paper10's default" in text, text

@@ -354,8 +354,10 @@ def load_bvh(
     -------
     Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame
     from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`), the file's own joint
-    positions (``positions``, :class:`.bvh_positions.BvhPositions`) and, where the hip joint has a path (position channels on it or above it) and the map names the left thigh
-    and shank, the pelvis's path (:func:`root_path`, linearly resampled with the orientations).
+    positions (``positions``, :class:`.bvh_positions.BvhPositions`; None if paper10's bones cannot
+    be measured on its skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint
+    has a path (position channels on it or above it) and the map names the left thigh and shank,
+    the pelvis's path (:func:`root_path`, linearly resampled with the orientations).
 
     Raises
     ------
@@ -378,7 +380,12 @@ def load_bvh(
     root = root_path(clip, segment_map)
     root = None if root is None else root[first:]
     t = np.arange(len(q)) * clip.frame_time
-    positions = BvhPositions(clip, dict(segment_map), corrections, rest_pose, first * clip.frame_time)
+    positions: BvhPositions | None = BvhPositions(clip, dict(segment_map), corrections, rest_pose,
+                                                  first * clip.frame_time)
+    try:
+        positions.body()  # the layout's bones measured on the file (each within the body's bounds)
+    except ValueError:
+        positions = None  # a skeleton paper10 cannot take: no positions of its own
     if fs is None:
         return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root, positions=positions)
     t_out, q = resample(t, q, fs)
