@@ -380,10 +380,10 @@ def load_bvh(
     root = root_path(clip, segment_map)
     root = None if root is None else root[first:]
     t = np.arange(len(q)) * clip.frame_time
-    positions: BvhPositions | None = BvhPositions(clip, dict(segment_map), corrections, rest_pose,
-                                                  first * clip.frame_time)
+    own = BvhPositions(clip, dict(segment_map), corrections, rest_pose, first * clip.frame_time)
     try:
-        positions.body()  # the layout's bones measured on the file (each within the body's bounds)
+        own.body()  # the layout's bones measured on the file (each within the body's bounds)
+        positions: BvhPositions | None = own
     except ValueError:
         positions = None  # a skeleton paper10 cannot take: no positions of its own
     if fs is None:
