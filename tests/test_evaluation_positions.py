@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from test_rest_pose import read_bvh_positions
+from support.bvh import read_bvh_positions, write_bvh
 
 from limbstream import calibration, cli, evaluation, quat
 from limbstream.body import PAPER10
@@ -156,8 +156,6 @@ def test_other_exporters_files_give_the_same_joints_and_a_skeleton_paper10_canno
     """Position channels on every joint and a floor root above the pelvis (other exporters'
     files) give the same joints, root relative; a skeleton on which a paper10 bone has no length
     (the hip joint at the pelvis) loads without positions of its own, and eval says so."""
-    from support.bvh import write_bvh
-
     clip = parse_bvh(cmu_bvh_dir / "131_03.bvh")
     [plain] = load(cmu_bvh_dir / "131_03.bvh")
     six = tmp_path / "six.bvh"
