@@ -299,9 +299,10 @@ def _position_sources(motions: list[Motion], looped: bool) -> str:
         parts.append(f"{', '.join(m.name for m in own)}: the file's own joints (forward kinematics of its skeleton), "
                      f"the estimate on the layout's bones measured on its OFFSETs ({' / '.join(units)} m per unit)")
     if len(own) < len(motions):
-        parts.append(f"{'the other motions' if own else 'every motion'}: no positions of its own"
-                     f"{' (looped)' if looped and any(m.positions for m in motions) else ''}: the true orientations' "
-                     "joints on the same body, paper10's default (an adult of about 1.75 m)")
+        who = "the other motions: no positions of their own" if own else "every motion: no positions of its own"
+        why = " (looped)" if looped and any(m.positions for m in motions) else ""
+        parts.append(f"{who}{why}: the true orientations' joints on the same body, paper10's default (an adult of "
+                     "about 1.75 m)")
     return "; ".join(parts)
 
 
