@@ -171,10 +171,10 @@ def test_bad_samples_are_left_out():
     for predictor in evaluation.PREDICTORS:
         rows += evaluation.evaluate(broken, ["fastsw"], [1e-3], live_bound_deg=[5.0], predictor=predictor)
     for r in rows:
-        skipped = ("body_aad", "joint_aad", *RAW_SENSOR_MEASURES)
+        skipped = ("body_aad", "joint_aad", "pos_cm", *RAW_SENSOR_MEASURES)
         assert all(np.isfinite(r[k]) for k in evaluation.MEASURES if k not in skipped), r
         assert np.isnan(r["body_aad"]), "no sensor model: no body error"
-        assert np.isnan(r["joint_aad"]), "streams of no body's segments: no joint error"
+        assert np.isnan(r["joint_aad"]) and np.isnan(r["pos_cm"]), "streams of no body's segments: no joint error"
         assert all(np.isnan(r[k]) for k in RAW_SENSOR_MEASURES), "no raw sensors: no fusion or chain error"
         assert 0 < r["icr"] < 1, r
     assert all(r["live_max"] <= 5.002 for r in rows[2:]), rows[2:]
@@ -210,14 +210,16 @@ def test_cli_writes_table_json_and_plot(cmu_npz, tmp_path, capsys):
     assert "60 streams" in text and "fastsw" in text and "swing" in text, text
     main, _, per_joint = text.partition("joint error per joint")
     table = [line.split() for line in main.splitlines() if line.startswith(("fastsw ", "swing "))]
-    assert len(table) == 6 and all(line[-5:-1] == ["–"] * 4 for line in table), text  # no live error, no body
-    assert all(float(line[-1]) >= 0 for line in table), text  # the joints' error (of the reconstruction)
+    assert len(table) == 6 and all(line[-6:-2] == ["–"] * 4 for line in table), text  # no live error, no body
+    assert all(float(line[-2]) >= 0 and float(line[-1]) >= 0 for line in table), text  # joint and position errors
+    per_joint, _, positions = per_joint.partition("joint positions")
     assert len([line for line in per_joint.splitlines() if line.startswith(("fastsw ", "swing "))]) == 6 * 5, text
+    assert len([line for line in positions.splitlines() if line.startswith(("fastsw ", "swing "))]) == 6 * 8, text
     assert "  –" in text and "does not apply to the row" in text and "nan" not in text, text
     assert "  AAD (deg)" in text and "  ICR  " in text, "a legend under the table"
     rows = json.loads(out_json.read_text())
     assert len(rows) == 6, rows
-    assert all(list(r) == [*evaluation.KEYS, "joint_kinds"] for r in rows), rows[0]
+    assert all(list(r) == [*evaluation.KEYS, "joint_kinds", "positions"] for r in rows), rows[0]
     fast = next(r for r in rows if r["algorithm"] == "fastsw" and r["threshold"] == 1e-2)
     assert fast["icr"] == pytest.approx(0.099, abs=0.001), fast
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -312,7 +314,7 @@ def test_live_rows_match_the_oracle(cmu_motions, predictor):
     for row in rows:
         want = live_oracle(streams, row["threshold"], 25, row["live_bound_deg"], predictor)
         label = f"{predictor} TH={row['threshold']} bound={row['live_bound_deg']}"
-        assert row["predictor"] == predictor and list(row) == [*evaluation.KEYS, "joint_kinds"], label
+        assert row["predictor"] == predictor and list(row) == [*evaluation.KEYS, "joint_kinds", "positions"], label
         assert row["icr"] == pytest.approx(want["icr"], rel=2e-3), label
         for field in ("live_aad", "live_p99", "live_max"):
             assert row[field] == pytest.approx(want[field], rel=2e-3, abs=2e-3), f"{label} {field}"

@@ -6,6 +6,7 @@ The computation is :mod:`limbstream.evaluation`; this module parses, prints and 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -19,8 +20,8 @@ from limbstream.wire import DEVICE_RATE_HZ as DEVICE_RATE
 from limbstream.calibration import CalibrationError
 from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
-                                   format_joint_errors, format_joint_kinds, format_table, frontier, streams_of,
-                                   write_json)
+                                   format_joint_errors, format_joint_kinds, format_positions, format_table, frontier,
+                                   streams_of, write_json)
 from limbstream.evaluation.table import Progress
 from limbstream.kernel import fusion
 from limbstream.sources import Motion, MotionFileError, load
@@ -181,8 +182,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(with a sensor model the calibration script plays once, at the start)")
     flags.add_heading_correction(parser, default="off")
     parser.add_argument("--dump", type=Path, metavar="DIR",
-                        help="write each motion's compared orientations into DIR/<motion>.npz: t, estimated and "
-                             "truth (frames, 10, 4), segment_names (docs/evaluation.md, 'Dumps'); one row")
+                        help="write each motion's compared orientations and joint positions into DIR/<motion>.npz: "
+                             "t, estimated and truth (frames, 10, 4), segment_names, source_t, positions and "
+                             "true_positions (frames, J, 3), position_joints (docs/evaluation.md, 'Dumps'); one row")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here")
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG")
 
@@ -249,6 +251,8 @@ def _streams(args: argparse.Namespace, sensors: calibration.SensorModel, motions
     streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate, args.vqf_precision)
                if model is not None
                else streams_of(motions, sensors))
+    if args.loop_minutes is not None:  # a looped clip's times are no longer its file's
+        streams = [dataclasses.replace(s, source=None, source_offset_s=math.nan) for s in streams]
     for rec in recordings:
         streams += raw_streams.recording_streams(rec, args.mag, vqf_precision=args.vqf_precision)
     return streams
@@ -284,6 +288,22 @@ def _raw_notes(args: argparse.Namespace, recordings: list[RawRecording]) -> None
     if blind:
         _note(f"{', '.join(blind)}: no reference orientation: no fusion or chain error for its streams (ICR and AAD "
               "only)")
+
+
+def _position_sources(motions: list[Motion], looped: bool) -> str:
+    """Where the true joint positions of ``motions`` come from, and the bodies, as a sentence."""
+    own = [] if looped else [m for m in motions if m.positions is not None]
+    parts = []
+    if own:
+        units = sorted({f"{m.positions.unit_m:.6g}" for m in own if m.positions is not None})
+        parts.append(f"{', '.join(m.name for m in own)}: the file's own joints (forward kinematics of its skeleton), "
+                     f"the estimate on the layout's bones measured on its OFFSETs ({' / '.join(units)} m per unit)")
+    if len(own) < len(motions):
+        who = "the other motions: no positions of their own" if own else "every motion: no positions of its own"
+        why = " (looped)" if looped and any(m.positions for m in motions) else ""
+        parts.append(f"{who}{why}: the true orientations' joints on the same body, paper10's default (an adult of "
+                     "about 1.75 m)")
+    return "; ".join(parts)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -365,12 +385,15 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
         held = ", its headings held by the joints" if sensors.on and args.heading_correction == "joints" else ""
         print(f"\njoint error per joint, of the {what}{held}, against the truth")
         print(format_joint_kinds(rows))
+        print(f"\njoint positions of the {what}{held}, the pelvis at the origin, against the truth's: "
+              f"{_position_sources(motions, args.loop_minutes is not None)}")
+        print(format_positions(rows))
     if args.joint_angles:
         print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")
         print(format_joint_errors(rows))
     if args.dump is not None:
-        print(f"wrote {len(motions)} motion{'s' if len(motions) != 1 else ''}' orientations to {args.dump}/ "
-              "(<motion>.npz)")
+        print(f"wrote {len(motions)} motion{'s' if len(motions) != 1 else ''}' orientations and joint positions to "
+              f"{args.dump}/ (<motion>.npz)")
     if args.json is not None:
         write_json(rows, args.json)
         print(f"wrote {len(rows)} rows to {args.json}")

@@ -17,6 +17,9 @@ SLERP between their (normalised) segment points and compared with the original s
   estimated and the true relative orientation of each pair of adjacent segments
   (:mod:`.body`), whichever way the body faces; with a sensor model of the calibrated
   reconstruction, its headings held by the joints when asked (``heading``).
+- ``pos_cm`` and, per joint kind, ``positions``: the mean per-joint position error, cm, the
+  pelvis at the origin (:mod:`.positions`): the estimated orientations' joints on the source's
+  body against the source file's own joints (BVH) or the true orientations' on the same body.
 - ``live_aad``, ``live_p99``, ``live_max``: the live error at every sample (docs/evaluation.md,
   "Live mode"): the receiver's view of the sample's time, made from the points it has by then
   (the newest one extrapolated at its rate, :func:`limbstream.quat.predict`), against the
@@ -32,7 +35,7 @@ largest absolute deviation per component for swing), so algorithms are compared 
 :func:`at_icr` interpolates each measure at given ICRs.
 
 Modules: :mod:`.sweep` (the sweep and the measures), :mod:`.body` (whole bodies: heading
-correction, joint error, dumps), :mod:`.live_model` (the live view),
+correction, joint error, dumps), :mod:`.positions` (joint positions), :mod:`.live_model` (the live view),
 :mod:`.report` (the tables, frontier, JSON), :mod:`.fusion` (a fusion filter's orientation error against
 a reference, as the BROAD benchmark scores it). Command line: ``limbstream eval``
 (:mod:`limbstream.cli.evaluate`).
@@ -40,11 +43,12 @@ a reference, as the BROAD benchmark scores it). Command line: ``limbstream eval`
 from __future__ import annotations
 
 from limbstream.evaluation.live_model import simulate_live
-from limbstream.evaluation.report import format_joint_errors, format_joint_kinds, format_table, frontier, write_json
+from limbstream.evaluation.report import (format_joint_errors, format_joint_kinds, format_positions, format_table, frontier,
+                                          write_json)
 from limbstream.evaluation.sweep import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, KEYS, MAX_LEN, MEASURES, PREDICTORS, THRESHOLDS,
                                          Stream, at_icr, evaluate, evaluate_threshold, streams_of)
 from limbstream.evaluation.sweep import _Pool  # noqa: F401  (the tests' pooled streams)
 
 __all__ = ["ALGORITHMS", "CALIBRATIONS", "ICR_TARGETS", "KEYS", "MAX_LEN", "MEASURES", "PREDICTORS", "THRESHOLDS", "Stream",
-           "at_icr", "evaluate", "evaluate_threshold", "format_joint_errors", "format_joint_kinds", "format_table", "frontier", "simulate_live", "streams_of",
+           "at_icr", "evaluate", "evaluate_threshold", "format_joint_errors", "format_joint_kinds", "format_positions", "format_table", "frontier", "simulate_live", "streams_of",
            "write_json"]

@@ -11,7 +11,7 @@ lets anyone recompute every figure.
 - :func:`joint_figures`: the joint error (the angle between the estimated and the true relative
   orientation of each pair of adjacent segments, :func:`limbstream.heading.joints.joint_errors_deg`)
   pooled over bodies, overall and per joint kind, with its first and last minute.
-- :func:`dump`: one body as an npz file (docs/evaluation.md, "Dumps").
+- :func:`dump`: one body as an npz file, its joint positions too (docs/evaluation.md, "Dumps").
 """
 from __future__ import annotations
 
@@ -19,12 +19,17 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from limbstream import wire
 from limbstream.heading import HeadingCorrection
 from limbstream.heading.joints import Layout, joint_errors_deg, kind
+
+if TYPE_CHECKING:
+    from limbstream.evaluation.positions import Positions
+    from limbstream.sources.bvh_positions import BvhPositions
 
 KINDS: tuple[str, ...] = ("knee", "elbow", "hip", "shoulder", "neck")
 """The joint kinds of the per-joint table, in its order (each pools its left and right)."""
@@ -45,6 +50,8 @@ class Body:
     rest_pose : what identity means for the motion's orientations.
     streams : {segment index: the pool's stream index} of the body's segments.
     calibrated : whether ``estimated`` is a calibrated reconstruction (a sensor model).
+    source_t : (m,) s, each frame's time in the source file (NaN: none).
+    source : the source file's own joint positions, if it has them (a BVH file's).
     """
 
     name: str
@@ -54,6 +61,8 @@ class Body:
     rest_pose: str
     streams: dict[int, int]
     calibrated: bool
+    source_t: np.ndarray
+    source: BvhPositions | None = None
 
 
 def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[Body]:
@@ -73,7 +82,9 @@ def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.nda
             estimate, truth, t = rec[pool.start[j]:pool.start[j + 1]], s.q, s.t
         if motion not in out:
             empty = np.full((len(truth), len(wire.SEGMENTS), 4), np.nan)
-            out[motion] = Body(motion, np.asarray(t, np.float64), empty, empty.copy(), s.rest_pose, {}, j in calibrated)
+            t = np.asarray(t, np.float64)
+            out[motion] = Body(motion, t, empty, empty.copy(), s.rest_pose, {}, j in calibrated, t + s.source_offset_s,
+                               s.source)
         body = out[motion]
         k = wire.SEGMENTS.index(segment)
         body.estimated[:, k], body.truth[:, k] = estimate, truth
@@ -123,15 +134,20 @@ def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, d
     return (float(everything.mean()) if everything.size else math.nan), figures
 
 
-def dump(body: Body, folder: Path, heading: str) -> Path:
+def dump(body: Body, folder: Path, heading: str, positions: Positions) -> Path:
     """Write ``body`` to ``folder/<motion>.npz`` (the name's characters other than letters,
     digits, ``._-`` as ``_``): ``t`` (m,) s, ``estimated`` and ``truth`` (m, 10, 4) float64
     scalar-first (NaN: no data), ``segment_names`` (10,), ``rest_pose``, ``heading_correction``
     (``off`` or ``joints``), ``joints`` (J,) the joints' names and ``joint_parent``,
-    ``joint_child`` (J,) their segments' indices. Returns the path."""
+    ``joint_child`` (J,) their segments' indices; from ``positions``
+    (:mod:`limbstream.evaluation.positions`): ``source_t`` (m,) s, ``positions`` and
+    ``true_positions`` (m, P, 3) m, ``position_joints`` (P,), ``positions_from_file``,
+    ``source_unit_m``. Returns the path."""
     path = Path(folder) / (re.sub(r"[^A-Za-z0-9._-]", "_", body.name) + ".npz")
     np.savez(path, t=body.t, estimated=body.estimated, truth=body.truth, segment_names=np.array(wire.SEGMENTS),
              rest_pose=np.array(body.rest_pose), heading_correction=np.array(heading),
-             joints=np.array(LAYOUT.joints), joint_parent=LAYOUT.parent, joint_child=LAYOUT.child)
+             joints=np.array(LAYOUT.joints), joint_parent=LAYOUT.parent, joint_child=LAYOUT.child,
+             source_t=body.source_t, positions=positions.estimated, true_positions=positions.truth,
+             position_joints=np.array(positions.joints), positions_from_file=np.array(positions.from_file),
+             source_unit_m=np.array(positions.unit_m))
     return path
-

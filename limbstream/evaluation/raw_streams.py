@@ -19,6 +19,7 @@ import numpy as np
 
 from limbstream import calibration, imu, quat, wire
 from limbstream.evaluation.fusion import EarthTruth
+from limbstream.evaluation.positions import source_of
 from limbstream.evaluation.sweep import Stream
 from limbstream.imu.feed import script_samples
 from limbstream.kernel import fusion
@@ -77,7 +78,7 @@ def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, mo
                               mounting=_window(t, calibration.REST_S + calibration.MOVE_S,
                                                calibration.REST_S + calibration.MOVE_S + calibration.MOUNTING_S),
                               pose=pose[s], motion_from=int(np.searchsorted(t, script_s - 1e-9)),
-                              rest_pose=motion.rest_pose,
+                              rest_pose=motion.rest_pose, **source_of(motion, script_s),
                               earth=EarthTruth(rec.truth[idx, s], rec.movement[idx], align_heading=True)))
     return out
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from limbstream.evaluation.sweep import ICR_TARGETS, KEYS, at_icr
+from limbstream.evaluation.sweep import EXTRAS, ICR_TARGETS, KEYS, at_icr
 from limbstream.evaluation.table import Column, render
 from limbstream.joints import GIMBAL_DEG
 
@@ -48,6 +48,9 @@ EVAL_COLUMNS: tuple[Column, ...] = (
            "orientation of each pair of adjacent segments (knees, elbows, hips, shoulders, neck), whichever way the "
            "body faces; with a sensor model the calibrated reconstruction's (heading-corrected with "
            "--heading-correction joints)"),
+    Column("pos_cm", "pos", "cm", "mean per-joint position error: the distance between each estimated and true "
+           "joint, the pelvis at the origin in both (hips, knees, ankles, shoulders, elbows, wrists, neck base, head; "
+           "docs/evaluation.md, 'Joint positions')", ".2f"),
 )
 """The columns of every ``limbstream eval`` table, in order (a new measure: one more here)."""
 
@@ -81,6 +84,18 @@ JOINT_KIND_COLUMNS: tuple[Column, ...] = (
 """The columns of the per-joint table of ``limbstream eval``: one line per (row, joint kind)."""
 
 
+POSITION_COLUMNS: tuple[Column, ...] = (
+    _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
+    Column("joint", "joint", "", "the joints of one kind, left and right together (neck base: the top of the "
+           "spine; head: the end of the neck segment)", ""),
+    Column("mean", "mean", "cm", "mean distance between the estimated and the true joint, the pelvis at the origin",
+           ".2f"),
+    Column("p99", "p99", "cm", "its 99th percentile", ".2f"),
+    Column("n", "samples", "", "joint samples scored (the segments placing the joint present in both)", "d"),
+)
+"""The columns of the per-joint position table of ``limbstream eval``: one line per (row, joint kind)."""
+
+
 def format_table(
     rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] | None = ICR_TARGETS,
     live_bound_deg: Sequence[float] = (0.0,),
@@ -109,6 +124,15 @@ def format_joint_kinds(rows: Sequence[dict]) -> str:
     lines = [r | {"joint": f"{name}s" if name != "neck" else name} | figures
              for r in rows for name, figures in r.get("joint_kinds", {}).items()]
     return render(JOINT_KIND_COLUMNS, lines)
+
+
+def format_positions(rows: Sequence[dict]) -> str:
+    """The joint position error of the rows that have it per joint kind (``positions``:
+    :func:`limbstream.evaluation.positions.position_figures`), one line per (row, kind), with the
+    legend."""
+    lines = [r | {"joint": f"{name}s" if name not in ("neck_base", "head") else name} | figures
+             for r in rows for name, figures in r.get("positions", {}).items()]
+    return render(POSITION_COLUMNS, lines)
 
 
 def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
@@ -140,7 +164,7 @@ def _finite(value):
 
 
 def write_json(rows: Sequence[dict], path: str | Path) -> None:
-    """All rows as a JSON list of objects with the :data:`KEYS` (and ``joint_kinds``, ``joints``
-    where scored); NaN becomes null."""
-    clean = [_finite({k: r[k] for k in KEYS} | {k: r[k] for k in ("joint_kinds", "joints") if k in r}) for r in rows]
+    """All rows as a JSON list of objects with the :data:`KEYS` (and the ``EXTRAS``, ``joint_kinds``,
+    ``joints``, ``positions``, where scored); NaN becomes null."""
+    clean = [_finite({k: r[k] for k in KEYS} | {k: r[k] for k in EXTRAS if k in r}) for r in rows]
     Path(path).write_text(json.dumps(clean, indent=1) + "\n")

@@ -11,8 +11,10 @@ import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
 from limbstream.sources import Motion
+from limbstream.sources.bvh_positions import BvhPositions
 from limbstream.evaluation.fusion import FIGURES, EarthTruth, pooled_error
 from limbstream.evaluation import body as bodies_of
+from limbstream.evaluation import positions as positions_of
 from limbstream.evaluation.live_model import accepted, segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
@@ -52,11 +54,15 @@ KEYS: tuple[str, ...] = (
     "body_aad",
     *(f"{stage}_{figure}" for stage in ("fusion", "chain") for figure in FIGURES),
     "joint_aad",
+    "pos_cm",
 )
 """Fields of one result row, in output order."""
 
 MEASURES: tuple[str, ...] = KEYS[5:]
-"""The angular measures of a row, degrees."""
+"""The measures of a row: degrees, ``pos_cm`` centimetres."""
+
+EXTRAS: tuple[str, ...] = ("joint_kinds", "joints", "positions")
+"""A row's figures per joint (:func:`evaluate_threshold`), where scored."""
 
 
 @dataclass(frozen=True)
@@ -78,6 +84,8 @@ class Stream:
     rest_pose : what identity means for the motion's orientations (joint angles).
     earth : a raw sensor's stream (``q``: its device's orientation at the device's samples, Y
         up): the reference of its fusion and chain errors (BROAD's metric), None for others.
+    source : the source file's own joint positions (``Motion.positions``), if it has them.
+    source_offset_s : the source's time minus the stream's, s (NaN: unknown).
     """
 
     t: np.ndarray
@@ -90,6 +98,8 @@ class Stream:
     motion_from: int = 0
     rest_pose: str = wire.DEFAULT_REST_POSE
     earth: EarthTruth | None = None
+    source: BvhPositions | None = None
+    source_offset_s: float = 0.0
 
 
 def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None) -> list[Stream]:
@@ -108,6 +118,7 @@ def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | Non
                     np.asarray(motion.q[:, s, :], np.float64),
                     f"{motion.name}/{segment}",
                     rest_pose=motion.rest_pose,
+                    **positions_of.source_of(motion),
                 )
             )
     return out
@@ -123,7 +134,7 @@ def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int
     draws = sensors.draw(len(motion.segments), stream=index)
     pose = calibration.mounting_pose(motion.segments)
     return [Stream(t, draws.report(s, t - t[0], q[:, s]), f"{motion.name}/{segment}", truth=q[:, s], rest=rest,
-                   mounting=mounting, pose=pose[s], motion_from=start, rest_pose=motion.rest_pose)
+                   mounting=mounting, pose=pose[s], motion_from=start, rest_pose=motion.rest_pose, **positions_of.source_of(motion))
             for s, segment in enumerate(motion.segments)]
 
 
@@ -263,15 +274,16 @@ def evaluate_threshold(
     ``live_*`` fields are NaN). Streams with a truth (a sensor model) are calibrated from their
     reconstruction with ``poses`` (one of :data:`CALIBRATIONS`) for ``body_aad``, and with
     ``heading`` their bodies' headings are then held by the joints (:mod:`.body`). The row's
-    ``joint_aad`` and ``joint_kinds`` are the joint error (:func:`.body.joint_figures`). With
+    ``joint_aad`` and ``joint_kinds`` are the joint error (:func:`.body.joint_figures`), its
+    ``pos_cm`` and ``positions`` the joint position error (:func:`.positions.position_figures`). With
     ``angles`` the row also holds ``joints``: per joint angle the error figures of the
     (calibrated) reconstruction's angles against the truth's (:func:`limbstream.joints.pooled_errors`).
     With ``dump_to`` (a folder) each body is written there (:func:`.body.dump`).
 
     Returns
     -------
-    dict with the fields of :data:`KEYS` (degrees for the angular measures), ``joint_kinds`` and
-    ``joints``.
+    dict with the fields of :data:`KEYS` (degrees for the angular measures, cm for ``pos_cm``)
+    and the :data:`EXTRAS`.
     """
     if live_bound_deg > 0 and algorithm != "fastsw":
         raise ValueError(f"the live rule is fastSW's, not {algorithm!r}'s")
@@ -299,11 +311,13 @@ def evaluate_threshold(
     body = (np.concatenate([quat.angle_deg(c[ok], t[ok]) for c, t, ok in calibrated.values()])
             if calibrated else np.zeros(0))
     row["joint_aad"], row["joint_kinds"] = bodies_of.joint_figures(bodies)
+    places = [positions_of.positions_of(b) for b in bodies]
+    row["pos_cm"], row["positions"] = positions_of.position_figures(places)
     if angles:
         row["joints"] = joints.pooled_errors([(b.estimated, b.truth, b.rest_pose) for b in bodies])
     if dump_to is not None:
-        for b in bodies:
-            bodies_of.dump(b, dump_to, "joints" if heading else "off")
+        for b, place in zip(bodies, places):
+            bodies_of.dump(b, dump_to, "joints" if heading else "off", place)
     pdev = np.concatenate(pts.dev)
     point_aad, point_max = _mean_max(pdev[np.isfinite(pdev)])
     live_aad, live_max = _mean_max(errors)
@@ -313,7 +327,7 @@ def evaluate_threshold(
         "live_aad": live_aad, "live_p99": float(np.percentile(errors, 99)) if errors.size else math.nan,
         "live_max": live_max, "body_aad": float(body.mean()) if body.size else math.nan,
     } | fusion | chain
-    return {k: row[k] for k in KEYS} | {k: row[k] for k in ("joint_kinds", "joints") if k in row}
+    return {k: row[k] for k in KEYS} | {k: row[k] for k in EXTRAS if k in row}
 
 
 def _calibrated(pool: _Pool, rec: np.ndarray,

@@ -12,7 +12,7 @@ joint (some exporters write six on every one); only the pelvis's path is read fr
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 from limbstream import quat, wire
 from limbstream.sources import Motion, MotionFileError, bvh_names, bvh_rest, is_number
 from limbstream.sources.bvh_names import CMU_SEGMENT_MAPS, pick_segment_map  # noqa: F401  (re-exported)
+from limbstream.sources.bvh_positions import BvhPositions
 
 _AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 _POSITIONS = {"Xposition", "Yposition", "Zposition"}
@@ -352,9 +353,11 @@ def load_bvh(
     Returns
     -------
     Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame
-    from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`) and, where the hip
-    joint has a path (position channels on it or above it) and the map names the left thigh
-    and shank, the pelvis's path (:func:`root_path`, linearly resampled with the orientations).
+    from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`), the file's own joint
+    positions (``positions``, :class:`.bvh_positions.BvhPositions`; None if paper10's bones cannot
+    be measured on its skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint
+    has a path (position channels on it or above it) and the map names the left thigh and shank,
+    the pelvis's path (:func:`root_path`, linearly resampled with the orientations).
 
     Raises
     ------
@@ -377,33 +380,55 @@ def load_bvh(
     root = root_path(clip, segment_map)
     root = None if root is None else root[first:]
     t = np.arange(len(q)) * clip.frame_time
+    own = BvhPositions(clip, dict(segment_map), corrections, rest_pose, first * clip.frame_time)
+    try:
+        own.body()  # the layout's bones measured on the file (each within the body's bounds)
+        positions: BvhPositions | None = own
+    except ValueError:
+        positions = None  # a skeleton paper10 cannot take: no positions of its own
     if fs is None:
-        return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root)
+        return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root, positions=positions)
     t_out, q = resample(t, q, fs)
     if root is not None:
         root = np.stack([np.interp(t_out, t, axis) for axis in root.T], axis=1)
-    return Motion(t_out, q, segments, clip.path.stem, rest_pose, root)
+    return Motion(t_out, q, segments, clip.path.stem, rest_pose, root, positions=positions)
 
 
-def _positions(clip: BvhClip, joint: int) -> np.ndarray | None:
-    """(F, 3) the joint's position in the world (file units): its parents' positions and
-    rotations applied to its OFFSET, or to its position channels where it has all three (they
-    stand for the OFFSET). None if no joint from the root down to it has position channels."""
-    chain = [joint]
-    while clip.parents[chain[-1]] >= 0:
-        chain.append(int(clip.parents[chain[-1]]))
-    chain.reverse()
-    moving = False
-    place = np.zeros((clip.n_frames, 3))
-    turn = Rotation.identity(clip.n_frames)
-    for j in chain:
+def joint_positions(clip: BvhClip, joints: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The file's forward kinematics, file units: (F, J, 3) float64 every joint's world position
+    and (F, J, 3) its End Site's (NaN where it has none), of ``joints`` (and the joints above
+    them; None: every joint; the others are NaN). A joint's position is its parent's plus the
+    parent's global rotation applied to its OFFSET, or to its position channels where it has all
+    three (they stand for the OFFSET; the root's are its path); its global rotation is its
+    parent's times its local one (:func:`local_rotations`); an End Site is its joint's position
+    plus the joint's global rotation applied to the site's OFFSET."""
+    n, count = clip.n_frames, len(clip.joints)
+    needed = set(range(count)) if joints is None else set()
+    for j in joints or ():
+        while j >= 0 and j not in needed:
+            needed.add(j)
+            j = int(clip.parents[j])
+    place, ends = np.full((n, count, 3), np.nan), np.full((n, count, 3), np.nan)
+    turns: dict[int, Rotation] = {}
+    for j in sorted(needed):  # parents come before their children
         names = clip.channels[j]
         cols = [clip.channel_start(j) + names.index(a) for a in ("Xposition", "Yposition", "Zposition") if a in names]
-        local = clip.motion[:, cols] if len(cols) == 3 else np.broadcast_to(clip.offsets[j], (clip.n_frames, 3))
-        moving = moving or len(cols) == 3
-        place = place + turn.apply(local)
-        turn = turn * local_rotations(clip, j)
-    return place if moving else None
+        local = clip.motion[:, cols] if len(cols) == 3 else clip.offsets[j]
+        parent = int(clip.parents[j])
+        place[:, j] = local if parent < 0 else place[:, parent] + turns[parent].apply(local)
+        turns[j] = local_rotations(clip, j) if parent < 0 else turns[parent] * local_rotations(clip, j)
+        if np.all(np.isfinite(clip.end_offsets[j])):
+            ends[:, j] = place[:, j] + turns[j].apply(clip.end_offsets[j])
+    return place, ends
+
+
+def _moves(clip: BvhClip, joint: int) -> bool:
+    """Whether a joint from the root down to ``joint`` has all three position channels."""
+    while joint >= 0:
+        if _POSITIONS <= set(clip.channels[joint]):
+            return True
+        joint = int(clip.parents[joint])
+    return False
 
 
 def root_path(clip: BvhClip, segment_map: Mapping[str, str]) -> np.ndarray | None:
@@ -424,9 +449,9 @@ def root_path(clip: BvhClip, segment_map: Mapping[str, str]) -> np.ndarray | Non
     below = [j for j in range(len(clip.joints)) if clip.parents[j] == shank] if shank >= 0 else []
     if shank < 0 or not below or clip.joints[clip.parents[shank]] != segment_map.get("l_thigh"):
         return None
-    path = _positions(clip, hip)
     leg = np.linalg.norm(clip.offsets[shank]) + np.linalg.norm(clip.offsets[below[0]])
-    if path is None or not leg > 0:
+    if not _moves(clip, hip) or not leg > 0:
         return None
+    path = joint_positions(clip, [hip])[0][:, hip]
     default = Skeleton()
     return path * ((default.thigh + default.shank) / leg)

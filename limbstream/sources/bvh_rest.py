@@ -41,21 +41,29 @@ def zero_pose_positions(clip: BvhClip) -> np.ndarray:
     return out
 
 
-def bone_vector(clip: BvhClip, joint: int, at: np.ndarray) -> np.ndarray | None:
-    """(3,) the zero-pose bone from ``joint`` to the first joint below it at another place
-    (depth first, file order), else to its End Site; None if neither exists."""
+def bone_end(clip: BvhClip, joint: int, at: np.ndarray) -> int | None:
+    """The first joint below ``joint`` (depth first, file order) at another place in the zero
+    pose ``at`` (J, 3): where the bone from ``joint`` ends; None if every joint below sits on it."""
     children: dict[int, list[int]] = {}
     for j, parent in enumerate(clip.parents):
         children.setdefault(int(parent), []).append(j)
     todo = list(children.get(joint, []))
     while todo:
         j = todo.pop(0)
-        step = at[j] - at[joint]
-        if np.linalg.norm(step) > 1e-9:
-            return step
+        if np.linalg.norm(at[j] - at[joint]) > 1e-9:
+            return j
         todo[:0] = children.get(j, [])
-    end = clip.end_offsets[joint]
-    return end if np.all(np.isfinite(end)) and np.linalg.norm(end) > 1e-9 else None
+    return None
+
+
+def bone_vector(clip: BvhClip, joint: int, at: np.ndarray) -> np.ndarray | None:
+    """(3,) the zero-pose bone from ``joint`` to :func:`bone_end`, else to its End Site; None if
+    neither exists."""
+    end = bone_end(clip, joint, at)
+    if end is not None:
+        return at[end] - at[joint]
+    site = clip.end_offsets[joint]
+    return site if np.all(np.isfinite(site)) and np.linalg.norm(site) > 1e-9 else None
 
 
 def shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:

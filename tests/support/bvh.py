@@ -1,5 +1,6 @@
 """BVH fixtures made from a parsed clip: renamed joints, six channels on every joint, a floor root
-below the pelvis, arms posed differently at rest: what other tools' exporters write."""
+below the pelvis, arms posed differently at rest: what other tools' exporters write; and an
+independent reader of a file's joint positions (:func:`read_bvh_positions`)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -69,3 +70,61 @@ def _rotation_channels(clip: BvhClip, j: int) -> tuple[tuple[str, ...], np.ndarr
     """(names, (F, 3) degrees) of joint j's rotation channels (ZXY zeros where it has none)."""
     names = tuple(n for n in clip.channels[j] if n in _AXES) or ("Zrotation", "Xrotation", "Yrotation")
     return names, local_rotations(clip, j).as_euler("".join(_AXES[n] for n in names), degrees=True)
+
+
+def read_bvh_positions(path) -> dict[str, np.ndarray]:
+    """An independent BVH reader (from the format's definition, scipy for the Euler angles):
+    every joint's world position per frame, {name: (F, 3)}."""
+    tokens = path.read_text().split()
+    joints, parents, offsets, channels, stack_ = [], [], [], [], []
+    i = 0
+    while tokens[i] != "MOTION":
+        word = tokens[i]
+        if word in ("ROOT", "JOINT"):
+            joints.append(tokens[i + 1])
+            parents.append(stack_[-1] if stack_ else -1)
+            i += 2
+        elif word == "End":
+            joints.append(None)
+            parents.append(stack_[-1])
+            i += 2
+        elif word == "{":
+            stack_.append(len(joints) - 1)
+            i += 1
+        elif word == "}":
+            stack_.pop()
+            i += 1
+        elif word == "OFFSET":
+            offsets.append([float(v) for v in tokens[i + 1:i + 4]])
+            i += 4
+        elif word == "CHANNELS":
+            n = int(tokens[i + 1])
+            channels.append(tokens[i + 2:i + 2 + n])
+            i += 2 + n
+        else:
+            i += 1
+    n_frames = int(tokens[tokens.index("Frames:") + 1])
+    start = tokens.index("Time:") + 2
+    values = np.array(tokens[start:], float).reshape(n_frames, -1)
+    world_r, world_p, out, col, ch = {}, {}, {}, 0, iter(channels)
+    for j, name in enumerate(joints):
+        parent = parents[j]
+        chans = [] if name is None else next(ch)
+        v = values[:, col:col + len(chans)]
+        col += len(chans)
+        local_p = np.broadcast_to(np.array(offsets[j]), (n_frames, 3)).copy()
+        rot_names = [c for c in chans if c.endswith("rotation")]
+        for k, c in enumerate(chans):
+            if c.endswith("position"):
+                local_p[:, "XYZ".index(c[0])] = v[:, k]
+        rot = Rotation.from_euler("".join(c[0] for c in rot_names),
+                                  v[:, [chans.index(c) for c in rot_names]], degrees=True) if rot_names \
+            else Rotation.identity(n_frames)
+        if parent < 0:
+            world_p[j], world_r[j] = local_p, rot
+        else:
+            world_p[j] = world_p[parent] + world_r[parent].apply(local_p)
+            world_r[j] = world_r[parent] * rot
+        if name is not None:
+            out[name] = world_p[j]
+    return out
