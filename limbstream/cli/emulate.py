@@ -224,9 +224,11 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
 
 
 def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
-    """The EmulatorSettings of the flags."""
+    """The EmulatorSettings of the flags. The emulator's truth tap goes out one message per subject
+    (its devices sample together); firmware devices each send their own, per device."""
     return EmulatorSettings(HostSettings(fs=args.rate, config=flags.device_config(args), truth=args.truth,
-                                         raw_batch=args.raw_batch, cache=args.cache),
+                                         raw_batch=args.raw_batch, truth_by_subject=not args.firmware,
+                                         cache=args.cache),
                             speed=args.speed, clock=clock_settings(args),
                             anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
                             clock_id=args.first_subject, sensors=sensors, imu=flags.imu_model(args),
