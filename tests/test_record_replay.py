@@ -139,6 +139,8 @@ def test_record_then_replay_rebuilds_the_same_frames(stack, watch, cmu_npz, tmp_
     angles = [wire.decode_angles(e.payload) for e in Recording(live).entries(["angles"])]  # the live frames' joint angles
     assert len(angles) == counts[TOPICS["angles"]] > 0 and angles[-1].calibration.name == "segments", counts
     assert {s.name for s in summary.schemas.values()} >= {"limbstream.seg", "foxglove.SceneUpdate"}
+    # the emulator's truth came a message per subject: recorded per device, as recordings always held it
+    assert {wire.parse_device_key(e.key)[2] for e in Recording(live).entries(["raw"])} == {"raw"}
     seg_of = {(e.key, e.payload) for e in Recording(live).entries(["seg", "raw"])}
     assert seg_of == {(e.key, e.payload) for e in Recording(late).entries(["seg", "raw"])}
 

@@ -9,6 +9,7 @@ import struct
 
 import numpy as np
 import pytest
+from support.stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import quat, wire, zconfig
 from limbstream.calibration import SensorModel
@@ -18,6 +19,7 @@ from limbstream.device.host import HostSettings
 from limbstream.device_emulator.emulator import Emulator, EmulatorSettings
 from limbstream.services.aggregator.aggregator import Aggregator
 from limbstream.services.aggregator.settings import AggregatorSettings
+from limbstream.services.outputs.subscription import Subscription
 from limbstream.sources import Motion
 from limbstream.sources.generator import GeneratorSource
 
@@ -101,6 +103,28 @@ def test_a_bad_batch_in_a_truth_message_counts_on_its_device_and_the_others_are_
     assert agg.bad_keys == {"raw_undecodable": 1} and len(agg.fusion.tracks) == 2
     agg.on_truth(wire.seg_key("s01", "hip"), GOOD, 0.2)  # not a truth key
     assert agg.bad_keys["key"] == 1
+
+
+def test_a_raw_subscription_takes_both_forms_as_device_batches(stack):  # noqa: F811
+    """Through a real router: the outputs' ``raw`` subscription (the recorder's) gives a subject
+    truth message as the raw items of its batches (each its device's key and its batch's bytes),
+    alongside a device's own raw message, and counts one that does not split."""
+    stack.router()
+    hip, head, knee = batch(3, 0, 5, 1), batch(4, 0, 5, 2), batch(5, 0, 5, 3)
+    with zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,))) as pub, \
+            Subscription(zconfig.ZenohSettings(connect=(stack.endpoint,)), "a*", ("raw",)) as sub:
+        wait_for_subscribers(stack.endpoint, [wire.raw_key("a1", "hip"), wire.truth_key("a1")], "the subscription")
+        pub.put(wire.truth_key("a1"), wire.encode_truth(["hip", "head"], [hip, head]))
+        pub.put(wire.truth_key("a1"), b"\x01\x00\x00\x00")  # no entries
+        pub.put(wire.raw_key("a2", "l_knee"), knee)
+        first = sub.get(timeout=10)  # one item at a time: the message's second batch waits its turn
+        got = [first] + [sub.get(timeout=10) for _ in range(2)]
+        assert sub.get(timeout=0.2) is None
+        assert sorted((i.kind, i.key, i.subject, i.segment, i.payload) for i in got) == sorted([
+            ("raw", wire.raw_key("a1", "hip"), "a1", "hip", hip), ("raw", wire.raw_key("a1", "head"), "a1", "head", head),
+            ("raw", wire.raw_key("a2", "l_knee"), "a2", "l_knee", knee)])
+        assert all(isinstance(i.value, wire.RawBatch) for i in got)
+        assert dict(sub.errors) == {"truth_size": 1}
 
 
 class Recorder:

@@ -101,7 +101,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = real time)")
     flags.add_device_config(parser)  # --threshold, --max-len: the device tunables
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
-    parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
+    parser.add_argument("--raw-batch", type=int, default=25,
+                        help="samples per truth-tap batch (default 25; one message per subject and batch)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
     parser.add_argument("--seed", type=int, default=0, help="generator seed offset")
     parser.add_argument("--firmware", action="store_true",

@@ -43,10 +43,12 @@ RAW_DROPS: dict[str, str] = {
 
 UNCHARGED: dict[str, str] = {
     "key": "a key that is not a device key of the kind its subscription carries "
-           "(`limbstream/<subject>/<segment>/seg` for segment points)",
+           "(`limbstream/<subject>/<segment>/seg` for segment points), or not a subject's `truth` key for a subject "
+           "truth-tap message",
     "seg_undecodable": "a segment point that does not decode (`size`, `version`, `non_finite`, `non_unit`), on the key of a device not seen "
                        "before: no device is made for it",
-    "raw_undecodable": "a truth-tap batch that does not decode, on the key of a device not seen before",
+    "raw_undecodable": "a truth-tap batch that does not decode, on the key of a device not seen before (or its "
+                       "entry in a subject truth-tap message)",
     "truth_size": "a subject truth-tap message shorter than its header or one of its entries, with no entries, "
                   "or with bytes after its last entry (its batches are not taken in)",
     "truth_version": "a subject truth-tap message whose version byte is not 1",
