@@ -4,8 +4,8 @@ device (docs/protocol.md, "Key expressions").
 Per device: its segment point publisher (advanced: a cache for recovery, miss detection), its
 truth-tap publisher (with ``truth``; with ``truth_by_subject`` one per subject instead, its
 messages holding the batches of all the subject's devices: ``wire.truth``), and its liveliness
-token while it is online. Per subject: one config queryable, read between ticks (never in a Zenoh callback), at most
-:data:`QUERIES_PER_TICK` queries per call. What a device answers comes from its owner: the
+token while it is online. Per subject: one config queryable, read between ticks (never in a
+Zenoh callback), at most :data:`QUERIES_PER_TICK` queries per call. What a device answers comes from its owner: the
 ``configure`` and ``status`` callbacks (devices whose kernels run in this process:
 :class:`~limbstream.device.bank.DeviceBank`; a device on a serial link asks its firmware).
 """
