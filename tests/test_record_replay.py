@@ -208,7 +208,6 @@ def test_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(stack, tmp_
     stack.emulator(2, 1.0)
     killed, stopped = tmp_path / "killed.mcap", tmp_path / "stopped.mcap"
     victim = stack.start("record", "record", str(killed), "--connect", stack.endpoint)
-    stack.start("record", "record", str(stopped), "--connect", stack.endpoint, "--duration", "3")
 
     def complete_chunks():
         count = 0
@@ -219,6 +218,9 @@ def test_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(stack, tmp_
         except (McapError, OSError):
             pass
         return count
+    # the --duration recorder once messages flow (its 3 s must not pass while the others start)
+    wait_until(lambda: complete_chunks() >= 1, 30, "a flushed chunk", on_fail=stack.logs)
+    stack.start("record", "record", str(stopped), "--connect", stack.endpoint, "--duration", "3")
     wait_until(lambda: complete_chunks() >= 3, 30, "three flushed chunks", on_fail=stack.logs)
     os.killpg(victim.popen.pid, signal.SIGKILL)
     victim.popen.wait(10)
