@@ -62,6 +62,7 @@ MALFORMED = {
     "short header": (GOOD[:3], "size"),
     "version 2": (b"\x02" + GOOD[1:], "version"),
     "no entries": (struct.pack("<BBH", 1, 0, 0), "size"),
+    "too many entries": (struct.pack("<BBH", 1, 0, wire.MAX_TRUTH_ENTRIES + 1) + GOOD[4:], "size"),
     "cut in a name": (GOOD[:6], "size"),
     "cut in a size": (GOOD[:9], "size"),
     "cut in a batch": (GOOD[:-1], "size"),

@@ -49,8 +49,8 @@ UNCHARGED: dict[str, str] = {
                        "before: no device is made for it",
     "raw_undecodable": "a truth-tap batch that does not decode, on the key of a device not seen before (or its "
                        "entry in a subject truth-tap message)",
-    "truth_size": "a subject truth-tap message shorter than its header or one of its entries, with no entries, "
-                  "or with bytes after its last entry (its batches are not taken in)",
+    "truth_size": "a subject truth-tap message shorter than its header or one of its entries, with no entries "
+                  "or more than 1024, or with bytes after its last entry (its batches are not taken in)",
     "truth_version": "a subject truth-tap message whose version byte is not 1",
     "truth_segment": "a subject truth-tap message with an entry that names no segment (not a key chunk) or names "
                      "one twice (a batch of it that does not decode counts on its device, as on its `raw` key)",

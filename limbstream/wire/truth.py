@@ -47,15 +47,16 @@ def encode_truth(segments: Sequence[str], batches: Sequence[bytes]) -> bytes:
 def decode_truth(payload: bytes) -> list[tuple[str, bytes]]:
     """A subject truth-tap message -> [(segment, its batch's bytes)], in order (the batches are
     decoded as a device's ``raw`` messages are: ``wire.decode_raws``). WireError with reason
-    ``size`` (shorter than its header or an entry, no entries, or bytes left over), ``version``,
+    ``size`` (shorter than its header or an entry, no entries or more than
+    :data:`MAX_TRUTH_ENTRIES`, or bytes left over), ``version``,
     ``segment`` (a name that is not a key chunk, or one named twice)."""
     if len(payload) < _HEADER.size:
         raise WireError("size", f"truth message has {len(payload)} bytes, less than its header")
     version, _, count = _HEADER.unpack_from(payload)
     if version != TRUTH_VERSION:
         raise WireError("version", f"truth message version {version}, expected {TRUTH_VERSION}")
-    if count == 0:
-        raise WireError("size", "truth message holds no batches")
+    if not 0 < count <= MAX_TRUTH_ENTRIES:
+        raise WireError("size", f"truth message holds {count} batches, expected 1..{MAX_TRUTH_ENTRIES}")
     entries: list[tuple[str, bytes]] = []
     at = _HEADER.size
     view = memoryview(payload)
