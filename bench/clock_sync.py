@@ -160,7 +160,7 @@ class Watch:
     def __init__(self, endpoint: str):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
         self.stats = self.session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(1 << 14))
-        self.raw = self.session.declare_subscriber(wire.device_selector("raw"), zenoh.handlers.FifoChannel(1 << 16))
+        self.raw = self.session.declare_subscriber(wire.subject_selector(wire.TRUTH), zenoh.handlers.FifoChannel(1 << 16))
         self.series: dict[str, list] = collections.defaultdict(list)  # subject -> (watermark us, frame_aad)
         self.errors: dict[str, list] = collections.defaultdict(list)  # device -> (ref us, stamp - ref us)
 
@@ -169,11 +169,12 @@ class Watch:
             d = wire.decode_stats(s.payload.to_bytes())
             if d.get("watermark_us") and d.get("frame_aad_deg") is not None:
                 self.series[d["subject"]].append((d["watermark_us"], d["frame_aad_deg"], d.get("frame_error_frames")))
-        while (s := self.raw.try_recv()) is not None:
-            subject, segment, _ = wire.parse_device_key(str(s.key_expr))
-            b = wire.decode_raw(s.payload.to_bytes())
-            if b.ref_us is not None:
-                self.errors[f"{subject}/{segment}"].append((int(b.ref_us[-1]), int(b.t_us[-1] - b.ref_us[-1])))
+        while (s := self.raw.try_recv()) is not None:  # the emulator's truth tap: a message per subject
+            for key, payload in wire.truth_batches(str(s.key_expr), s.payload.to_bytes()):
+                subject, segment, _ = wire.parse_device_key(key)
+                b = wire.decode_raw(payload)
+                if b.ref_us is not None:
+                    self.errors[f"{subject}/{segment}"].append((int(b.ref_us[-1]), int(b.t_us[-1] - b.ref_us[-1])))
 
     def close(self) -> None:
         self.session.close()

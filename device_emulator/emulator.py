@@ -13,7 +13,8 @@ which counts calls, is mapped back to the device's sample number); its sample is
 the sample's true instant (SLERP between the feed's samples). A device whose feed ends
 (``--once``, clips of different lengths) publishes its last point as FINAL then, and nothing
 after it. The truth tap carries raw sample batches with each sample's reference time and the
-device's own orientation (what its kernel compressed: its sensor's reading). A device
+device's own orientation (what its kernel compressed: its sensor's reading); with
+``HostSettings.truth_by_subject`` (``limbstream emulate``) one message per subject and batch. A device
 whose time base steps (its first sync after starting unsynced, or a resync after its holdover
 that moved more than 128 ms) starts a new stream.
 
@@ -235,9 +236,15 @@ class Emulator:
 
     def _tap(self, k: int, m: int) -> None:
         """Truth tap: each streaming device publishes its samples of the last raw_batch ticks,
-        staggered over devices so each tick sends a few."""
+        staggered over devices so each tick sends a few (with ``truth_by_subject`` over subjects:
+        a subject's devices together, one message)."""
         batch = self.settings.host.raw_batch
-        slots = np.arange(-(k % batch) % batch, m, batch)  # (k + slot) % batch == 0
+        if self.settings.host.truth_by_subject:  # all the devices of a subject at once, subjects staggered
+            due = [np.arange(first, min(end, m)) for i, (first, end) in enumerate(self._feed_slots)
+                   if first < m and (k + i) % batch == 0]
+            slots = np.concatenate(due) if due else np.zeros(0, np.int64)
+        else:
+            slots = np.arange(-(k % batch) % batch, m, batch)  # (k + slot) % batch == 0
         self._flush_tap(slots[~self.ended[slots]], k)
 
     def _flush_tap(self, slots: np.ndarray, k: int) -> None:
@@ -285,8 +292,7 @@ class Emulator:
         self.ticks = k + 1
         if self.settings.host.truth:
             self._tap(k, m)
-        for slot in taken[self.n[taken] > self.n_last[taken]]:
-            self._end(self.devices[slot], k)
+        self._end(taken[self.n[taken] > self.n_last[taken]], k)
         self.host.answer_queries()
 
     def _step_raw(self, k: int, m: int, taken: np.ndarray) -> None:
@@ -349,19 +355,21 @@ class Emulator:
         """The tick (<= k) whose samples ring row ``row`` holds."""
         return k - ((k - row) % self._ring)
 
-    def _end(self, d: Device, k: int) -> None:
-        """End device d's stream after its last sample (tick k): flush its last point (FINAL)
-        and its truth tap."""
-        self.bank.end_stream(d)
+    def _end(self, slots: np.ndarray, k: int) -> None:
+        """End the streams of devices ``slots`` after their last sample (tick k): flush each one's
+        last point (FINAL), then their truth taps together (per subject: one message)."""
+        if len(slots) == 0:
+            return
+        for slot in slots.tolist():
+            self.bank.end_stream(self.devices[slot])
         if self.settings.host.truth:
-            self._flush_tap(np.array([d.slot]), k)
-        self.ended[d.slot] = True
+            self._flush_tap(slots, k)
+        self.ended[slots] = True
         self._m = None
 
     def finish(self) -> None:
         """End of a finite run: end every stream that has not ended yet."""
-        for slot in np.flatnonzero(~self.ended):
-            self._end(self.devices[slot], self.ticks - 1)
+        self._end(np.flatnonzero(~self.ended), self.ticks - 1)
         self.finished.set()
 
     def start_clocks(self, stop: threading.Event) -> None:

@@ -56,6 +56,7 @@ QOS: dict[str, Qos] = {
     wire.SEG: Qos(_BLOCK, zenoh.Priority.DATA),
     # truth batches: the evaluation's record, recovered from the device's cache like points
     wire.RAW: Qos(_BLOCK, zenoh.Priority.DATA_LOW),
+    wire.TRUTH: Qos(_BLOCK, zenoh.Priority.DATA_LOW),  # a subject's truth batches in one message
     # final frames: recorders and the dashboard's history keep them, incl. the burst after a restart
     wire.pose_stream(wire.KIND_EXACT): Qos(_BLOCK, zenoh.Priority.DATA),
     # superseded 20 ms later: never wait for them; their own queue, ahead of the bulk. Not express:

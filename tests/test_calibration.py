@@ -351,15 +351,17 @@ def test_calibration_on_request_from_rest_api_and_command(stack, tmp_path, drift
     auth = {"Authorization": "Bearer t0ken"}
     truth_pose = cal.mounting_pose()[SEGMENTS.index("l_thigh")]
     session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
-    raw = session.declare_subscriber(wire.raw_key("s01", "l_thigh"), zenoh.handlers.FifoChannel(4096))
+    raw = session.declare_subscriber(wire.truth_key("s01"), zenoh.handlers.FifoChannel(4096))  # the emulator's tap
     seen = {"t0": None, "t": None, "q": None}
 
     def holding(target, after_s):
         """The subject has held ``target`` (the l_thigh truth) for 0.5 s, ``after_s`` into its stream."""
         while (sample := raw.try_recv()) is not None:
-            batch = wire.decode_raw(sample.payload.to_bytes())
-            seen["t0"] = seen["t0"] or int(batch.t_us[0])
-            seen["t"], seen["q"] = batch.t_us, batch.q
+            for segment, payload in wire.decode_truth(sample.payload.to_bytes()):
+                if segment == "l_thigh":
+                    batch = wire.decode_raw(payload)
+                    seen["t0"] = seen["t0"] or int(batch.t_us[0])
+                    seen["t"], seen["q"] = batch.t_us, batch.q
         if seen["q"] is None or (seen["t"][-1] - seen["t0"]) / 1e6 < after_s:
             return False
         recent = seen["q"][-min(len(seen["q"]), 25):].astype(np.float64)

@@ -37,15 +37,16 @@ class Taps:
 
     def __init__(self, endpoint: str, subjects: str = "*"):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.sub = self.session.declare_subscriber(wire.device_selector("raw", subjects),
-                                                   zenoh.handlers.FifoChannel(1 << 16))
+        self.sub = self.session.declare_subscriber(wire.subject_selector(wire.TRUTH, subjects),  # the emulator's:
+                                                   zenoh.handlers.FifoChannel(1 << 16))  # per subject
         self.samples: dict[str, list] = collections.defaultdict(list)
 
     def poll(self) -> dict[str, np.ndarray]:
         while (sample := self.sub.try_recv()) is not None:
-            subject, segment, _ = wire.parse_device_key(str(sample.key_expr))
-            b = wire.decode_raw(sample.payload.to_bytes())
-            self.samples[f"{subject}/{segment}"].extend(zip(b.ref_us.tolist(), b.t_us.tolist()))
+            for key, payload in wire.truth_batches(str(sample.key_expr), sample.payload.to_bytes()):
+                subject, segment, _ = wire.parse_device_key(key)
+                b = wire.decode_raw(payload)
+                self.samples[f"{subject}/{segment}"].extend(zip(b.ref_us.tolist(), b.t_us.tolist()))
         return {k: np.array(v, np.int64) for k, v in self.samples.items()}
 
     def errors_after(self, t_us: float) -> dict[str, np.ndarray]:

@@ -25,7 +25,7 @@ from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSett
 from support.profiles import scaled
 
 SEED = 20240607
-BULK = {"point": 45_000, "raw": 15_000, "pose": 15_000, "angles": 10_000, "key": 20_000, "aggregator_input": 8_000}
+BULK = {"point": 45_000, "raw": 15_000, "truth": 5_000, "pose": 15_000, "angles": 10_000, "key": 20_000, "aggregator_input": 8_000}
 """Seeded bulk cases of each test under the thorough profile (messages or keys decoded)."""
 EXAMPLES = 100
 """Hypothesis examples of each property test under the thorough profile."""
@@ -122,6 +122,30 @@ def test_raw_batch_decoder_bulk():
         reasons[key] = reasons.get(key, 0) + 1
     assert sum(reasons.values()) == scaled(BULK["raw"])
     assert {"size", "version", "non_finite", "time_backwards", "ok"} <= set(reasons), reasons
+
+
+def test_truth_message_decoder_bulk():
+    """Subject truth-tap messages (a few devices' batches), valid and mutated: each splits into
+    named batches that are exactly bytes of the message, or is refused with a reason of its own."""
+    rng = np.random.default_rng(SEED + 7)
+    batch = wire.encode_raw(wire.RawBatch(1, 0, np.arange(5, dtype=np.int64) * 20_000, np.tile(
+        np.float32([1, 0, 0, 0]), (5, 1))))
+    reasons: dict = {}
+    for k in range(scaled(BULK["truth"])):
+        segments = list(rng.choice(SEGMENTS, int(rng.integers(1, 5)), replace=False))
+        payload = wire.encode_truth(segments, [batch[:int(rng.integers(0, len(batch) + 1))] for _ in segments])
+        if k % 4:
+            payload = mutate(rng, payload)
+        result = decodes_or_wire_error(wire.decode_truth, payload)
+        if isinstance(result, str):
+            assert wire.truth_reason(result) in wire.UNCHARGED, result
+        else:
+            assert result and len({s for s, _ in result}) == len(result)
+            assert sum(len(b) for _, b in result) <= len(payload) and all(b in payload for _, b in result)
+        key = result if isinstance(result, str) else "ok"
+        reasons[key] = reasons.get(key, 0) + 1
+    assert sum(reasons.values()) == scaled(BULK["truth"])
+    assert {"size", "version", "segment", "ok"} <= set(reasons), reasons
 
 
 def test_pose_frame_decoder_bulk():

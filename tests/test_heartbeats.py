@@ -1,4 +1,5 @@
-"""Segment points' miss-detection heartbeats (limbstream.device.io.point_publisher): sporadic,
+"""Segment points' and subject truth messages' miss-detection heartbeats
+(limbstream.device.io.point_publisher, truth_publisher): sporadic,
 so a streaming device sends at most one per period and a paused one a single one after its last
 point; the last points before a pause that a subscriber missed (sent while the router was down)
 still reach it, as an aggregator subscribes (history on detection, recovery on heartbeat)."""
@@ -8,11 +9,13 @@ import signal
 import threading
 import time
 
+import numpy as np
 import pytest
 import zenoh
 import zenoh.ext as zext
 
 from limbstream import wire, zconfig
+from limbstream.device import io
 from limbstream.device.host import Device, DeviceHost, HostSettings
 from limbstream.launch import Launcher, free_port, port_open, wait_until
 
@@ -60,6 +63,40 @@ def test_heartbeats_come_only_after_points(router):
         assert len(streaming) <= (paused - began) / HEARTBEAT_S + 1, streaming
         assert len(after) == 1, f"{len(after)} heartbeats in {4 * HEARTBEAT_S} s of pause (one says the last point)"
         assert after[0] - paused <= 1.5 * HEARTBEAT_S
+    finally:
+        sub.undeclare()
+        host.close()
+        session.close()
+        observer.close()
+
+
+def test_subject_truth_heartbeats_come_only_after_messages(router, monkeypatch):
+    """A subject's truth publisher (io.truth_publisher, its period set to HEARTBEAT_S here): a
+    message every 0.1 s for 2 s, at most one heartbeat per period; then a pause of four periods:
+    one heartbeat (the per-device publisher's periodic one sent one every period, paused or not)."""
+    _, endpoint, _ = router
+    monkeypatch.setattr(io, "TRUTH_HEARTBEAT_S", HEARTBEAT_S)
+    observer = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+    beats: list[float] = []
+    sub = observer.declare_subscriber(wire.truth_key("s01") + "/@adv/pub/**", lambda s: beats.append(time.monotonic()))
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+    host: DeviceHost = DeviceHost(session, HostSettings(truth_by_subject=True), lambda d, c: None,
+                                  lambda d: wire.DeviceStatus(d.id, d.config, 0, 0, 0))
+    hip, head = host.add("s01", "hip"), host.add("s01", "head")
+    host.declare()
+    try:
+        began = time.monotonic()
+        for k in range(20):
+            time.sleep(0.1)
+            payload, ends = wire.encode_raws(np.array([1, 2]), np.array([k, k]), np.array([1, 1]),
+                                             np.array([k, k], np.int64), np.tile(np.float32([1, 0, 0, 0]), (2, 1)))
+            host.publish_raws(np.array([hip.slot, head.slot]), payload, ends)
+        paused = time.monotonic()
+        time.sleep(4 * HEARTBEAT_S)
+        streaming = [t for t in beats if began <= t < paused]
+        after = [t for t in beats if t >= paused]
+        assert len(streaming) <= (paused - began) / HEARTBEAT_S + 1, streaming
+        assert len(after) == 1, f"{len(after)} heartbeats in {4 * HEARTBEAT_S} s of pause (one says the last message)"
     finally:
         sub.undeclare()
         host.close()

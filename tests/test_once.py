@@ -33,8 +33,7 @@ def test_each_subject_ends_with_its_own_clip(stack, watch, tmp_path):  # noqa: F
     # the short subject's own streams, as sent (the tail is what matters: its end)
     points = {seg: watch.session.declare_subscriber(wire.seg_key("s01", seg), zenoh.handlers.FifoChannel(1 << 14))
               for seg in SEGMENTS}
-    raws = {seg: watch.session.declare_subscriber(wire.raw_key("s01", seg), zenoh.handlers.FifoChannel(1 << 12))
-            for seg in SEGMENTS}
+    truth = watch.session.declare_subscriber(wire.truth_key("s01"), zenoh.handlers.FifoChannel(1 << 12))  # one per batch
     stack.emulator(2, 10.0, "--source", str(path), "--once", "--max-len", "25")
 
     def finished():
@@ -43,6 +42,10 @@ def test_each_subject_ends_with_its_own_clip(stack, watch, tmp_path):  # noqa: F
                                            for d in devices.values()) and devices)
     devices = wait_until(finished, 60, "every device final and evaluated to its last sample", on_fail=stack.logs)
 
+    raws: dict[str, list] = {seg: [] for seg in SEGMENTS}
+    for message in iter(truth.try_recv, None):
+        for seg, payload in wire.decode_truth(message.payload.to_bytes()):
+            raws[seg].append(wire.decode_raw(payload))
     for seg in SEGMENTS:
         got = [wire.decode_point(s.payload.to_bytes()) for s in iter(points[seg].try_recv, None)]
         assert got, f"s01/{seg}: no points received"
@@ -50,8 +53,7 @@ def test_each_subject_ends_with_its_own_clip(stack, watch, tmp_path):  # noqa: F
         assert len(finals) == 1 and got[-1] is finals[0], f"s01/{seg}: FINAL points {finals}, last {got[-1]}"
         assert got[-1].index == LENGTHS["s01"] - 1, f"s01/{seg}: last point at {got[-1].index}"
         assert max(p.index for p in got) == LENGTHS["s01"] - 1
-        batches = [wire.decode_raw(s.payload.to_bytes()) for s in iter(raws[seg].try_recv, None)]
-        last = max(b.first_index + len(b.t_us) for b in batches)
+        last = max(b.first_index + len(b.t_us) for b in raws[seg])
         assert last == LENGTHS["s01"], f"s01/{seg}: truth tap up to sample {last - 1}"
 
     for subject, m in LENGTHS.items():

@@ -139,6 +139,8 @@ def test_record_then_replay_rebuilds_the_same_frames(stack, watch, cmu_npz, tmp_
     angles = [wire.decode_angles(e.payload) for e in Recording(live).entries(["angles"])]  # the live frames' joint angles
     assert len(angles) == counts[TOPICS["angles"]] > 0 and angles[-1].calibration.name == "segments", counts
     assert {s.name for s in summary.schemas.values()} >= {"limbstream.seg", "foxglove.SceneUpdate"}
+    # the emulator's truth came a message per subject: recorded per device, as recordings always held it
+    assert {wire.parse_device_key(e.key)[2] for e in Recording(live).entries(["raw"])} == {"raw"}
     seg_of = {(e.key, e.payload) for e in Recording(live).entries(["seg", "raw"])}
     assert seg_of == {(e.key, e.payload) for e in Recording(late).entries(["seg", "raw"])}
 
@@ -216,6 +218,9 @@ def test_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(stack, tmp_
         except (McapError, OSError):
             pass
         return count
+    # the --duration recorder once messages flow (its 3 s must not pass while the others start)
+    wait_until(lambda: complete_chunks() >= 1, 30, "a flushed chunk", on_fail=stack.logs)
+    stack.start("record", "record", str(stopped), "--connect", stack.endpoint, "--duration", "3")
     wait_until(lambda: complete_chunks() >= 3, 30, "three flushed chunks", on_fail=stack.logs)
     # started once points flow: its history query brings the devices' cached points at once
     timed = stack.start("record", "record", str(stopped), "--connect", stack.endpoint, "--duration", "3")

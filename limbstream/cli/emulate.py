@@ -101,7 +101,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = real time)")
     flags.add_device_config(parser)  # --threshold, --max-len: the device tunables
     parser.add_argument("--no-truth", dest="truth", action="store_false", help="do not publish the truth tap")
-    parser.add_argument("--raw-batch", type=int, default=25, help="samples per truth-tap message (default 25)")
+    parser.add_argument("--raw-batch", type=int, default=25,
+                        help="samples per truth-tap batch (default 25; one message per subject and batch)")
     parser.add_argument("--cache", type=int, default=512, help="segment points kept per device for recovery")
     parser.add_argument("--seed", type=int, default=0, help="generator seed offset")
     parser.add_argument("--firmware", action="store_true",
@@ -224,9 +225,11 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
 
 
 def settings_of(args: argparse.Namespace, sensors) -> EmulatorSettings:
-    """The EmulatorSettings of the flags."""
+    """The EmulatorSettings of the flags. The emulator's truth tap goes out one message per subject
+    (its devices sample together); firmware devices each send their own, per device."""
     return EmulatorSettings(HostSettings(fs=args.rate, config=flags.device_config(args), truth=args.truth,
-                                         raw_batch=args.raw_batch, cache=args.cache),
+                                         raw_batch=args.raw_batch, truth_by_subject=not args.firmware,
+                                         cache=args.cache),
                             speed=args.speed, clock=clock_settings(args),
                             anchor_us=None if args.time_anchor is None else args.time_anchor * 1e6,
                             clock_id=args.first_subject, sensors=sensors, imu=flags.imu_model(args),

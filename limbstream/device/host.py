@@ -2,9 +2,10 @@
 device (docs/protocol.md, "Key expressions").
 
 Per device: its segment point publisher (advanced: a cache for recovery, miss detection), its
-truth-tap publisher (with ``truth``), and its liveliness token while it is online. Per subject:
-one config queryable, read between ticks (never in a Zenoh callback), at most
-:data:`QUERIES_PER_TICK` queries per call. What a device answers comes from its owner: the
+truth-tap publisher (with ``truth``; with ``truth_by_subject`` one per subject instead, its
+messages holding the batches of all the subject's devices: ``wire.truth``), and its liveliness
+token while it is online. Per subject: one config queryable, read between ticks (never in a
+Zenoh callback), at most :data:`QUERIES_PER_TICK` queries per call. What a device answers comes from its owner: the
 ``configure`` and ``status`` callbacks (devices whose kernels run in this process:
 :class:`~limbstream.device.bank.DeviceBank`; a device on a serial link asks its firmware).
 """
@@ -46,7 +47,12 @@ class HostSettings:
     fs : device sample rate, Hz.
     config : initial fastSW settings of every device (limbstream.wire.TUNABLES).
     truth : publish each device's truth tap (its samples, with their reference times).
-    raw_batch : samples per truth-tap message (at most).
+    raw_batch : samples per truth-tap batch (at most).
+    truth_by_subject : the truth tap goes out one message per subject and batch, on the subject's
+        ``truth`` key, holding the batches of its devices that are due together
+        (:meth:`DeviceHost.publish_raws`): a host that samples a subject's devices together (the
+        emulator). Else one message per device and batch on its ``raw`` key (gateways, replay:
+        their devices' batches come one at a time).
     cache : segment points each device keeps for recovery (advanced publisher cache).
     heartbeat_s : segment points' miss-detection heartbeat period, s: sporadic, sent only if a
         point went out since the last one (:func:`limbstream.device.io.point_publisher`).
@@ -56,6 +62,7 @@ class HostSettings:
     config: wire.DeviceConfig = wire.DeviceConfig()
     truth: bool = True
     raw_batch: int = 25
+    truth_by_subject: bool = False
     cache: int = 512
     heartbeat_s: float = 2.0
 
@@ -120,6 +127,7 @@ class DeviceHost(Generic[S]):
         self.by_id: dict[str, Device[S]] = {}
         self.subjects: dict[str, list[tuple[zenoh.KeyExpr, Device[S]]]] = {}  # each served subject's devices
         self._queryables: dict[str, Any] = {}    # by subject
+        self.truth_pubs: dict[str, Any] = {}     # by subject, with truth_by_subject
         self.declared = False
 
     def add(self, subject: str, segment: str, source: S | None = None) -> Device[S]:
@@ -139,6 +147,7 @@ class DeviceHost(Generic[S]):
             self.subjects[subject] = []
             if self.declared:
                 self._declare_queryable(subject)
+                self._declare_truth(subject)
 
     def declare(self) -> None:
         """Declare the publishers of the devices added so far and the subjects' queryables."""
@@ -147,14 +156,19 @@ class DeviceHost(Generic[S]):
         self.declared = True
         for subject in self.subjects:
             self._declare_queryable(subject)
+            self._declare_truth(subject)
         for d in self.devices:
             self._declare(d)
 
     def _declare(self, d: Device[S]) -> None:
         s = self.settings
         d.publisher = io.point_publisher(self.session, d.subject, d.segment, s.cache, s.heartbeat_s)
-        if s.truth:
+        if s.truth and not s.truth_by_subject:
             d.raw_pub = io.raw_publisher(self.session, d.subject, d.segment)
+
+    def _declare_truth(self, subject: str) -> None:
+        if self.settings.truth and self.settings.truth_by_subject:
+            self.truth_pubs[subject] = io.truth_publisher(self.session, subject)
 
     def _declare_queryable(self, subject: str) -> None:
         self._queryables[subject] = self.session.declare_queryable(wire.device_selector(wire.CONFIG, subject),
@@ -195,18 +209,33 @@ class DeviceHost(Generic[S]):
             d.points += 1
 
     def publish_raw(self, d: Device[S], batch: wire.RawBatch | bytes) -> None:
-        """One truth-tap batch, or its payload as encoded (nothing without ``truth``)."""
+        """One truth-tap batch, or its payload as encoded (nothing without ``truth``); with
+        ``truth_by_subject``, a subject message of this batch alone."""
+        payload = batch if isinstance(batch, bytes) else wire.encode_raw(batch)
         if d.raw_pub is not None:
-            d.raw_pub.put(batch if isinstance(batch, bytes) else wire.encode_raw(batch))
+            d.raw_pub.put(payload)
+        elif d.subject in self.truth_pubs:
+            self.truth_pubs[d.subject].put(wire.encode_truth([d.segment], [payload]))
 
     def publish_raws(self, slots: np.ndarray, payload: bytes, ends: np.ndarray) -> None:
         """Truth-tap batches of several devices, laid end to end (as :meth:`publish_points`;
-        ``wire.encode_raws`` writes them so): :meth:`publish_raw` of each."""
+        ``wire.encode_raws`` writes them so): one message per device (:meth:`publish_raw` of
+        each), or with ``truth_by_subject`` one per subject holding its devices' batches, in order."""
         devices = self.devices
+        if not self.truth_pubs:
+            for slot, message in _messages(slots, payload, ends):
+                pub = devices[slot].raw_pub
+                if pub is not None:
+                    pub.put(message)
+            return
+        by_subject: dict[str, tuple[list[str], list[bytes]]] = {}
         for slot, message in _messages(slots, payload, ends):
-            pub = devices[slot].raw_pub
-            if pub is not None:
-                pub.put(message)
+            d = devices[slot]
+            segments, batches = by_subject.setdefault(d.subject, ([], []))
+            segments.append(d.segment)
+            batches.append(message)
+        for subject, (segments, batches) in by_subject.items():
+            self.truth_pubs[subject].put(wire.encode_truth(segments, batches))
 
     def answer_queries(self, budget: int = QUERIES_PER_TICK) -> None:
         """Apply and answer the config queries that arrived since the last call, at most ``budget``."""
@@ -234,7 +263,8 @@ class DeviceHost(Generic[S]):
                 if obj is not None:
                     obj.undeclare()
             d.publisher = d.raw_pub = None
-        for queryable in self._queryables.values():
-            queryable.undeclare()
+        for obj in [*self._queryables.values(), *self.truth_pubs.values()]:
+            obj.undeclare()
         self._queryables.clear()
+        self.truth_pubs.clear()
         self.declared = False

@@ -16,7 +16,10 @@ log = logging.getLogger("limbstream.device")
 RAW_CACHE = 64
 """Truth-tap batches a device keeps for recovery (32 s at 50 Hz in batches of 25)."""
 RAW_HEARTBEAT_S = 0.5
-"""The truth-tap publisher's miss-detection heartbeat period, s (periodic)."""
+"""A device's truth-tap publisher's miss-detection heartbeat period, s (periodic)."""
+TRUTH_HEARTBEAT_S = 2.0
+"""A subject's truth-tap publisher's miss-detection heartbeat period, s (sporadic: only after a
+message went out since the last heartbeat)."""
 
 
 def point_publisher(session: zenoh.Session, subject: str, segment: str, cache: int, heartbeat_s: float):
@@ -45,6 +48,18 @@ def raw_publisher(session: zenoh.Session, subject: str, segment: str):
         session, wire.raw_key(subject, segment), cache=zext.CacheConfig(max_samples=RAW_CACHE),
         sample_miss_detection=zext.MissDetectionConfig(heartbeat=RAW_HEARTBEAT_S),  # type: ignore[call-arg]
         publisher_detection=True, **zconfig.publisher_options(wire.RAW))
+
+
+def truth_publisher(session: zenoh.Session, subject: str):
+    """The subject truth-tap publisher (``limbstream/<subject>/truth``, one message per batch for
+    all the subject's devices), recoverable as a device's (:data:`RAW_CACHE` messages). Its
+    heartbeat is sporadic, every :data:`TRUTH_HEARTBEAT_S` only after a message went out: each
+    message's sequence number shows a subscriber what it missed before it; the heartbeat shows
+    a missed last message before a pause (a flushed tap, a host that stops)."""
+    return zext.declare_advanced_publisher(
+        session, wire.truth_key(subject), cache=zext.CacheConfig(max_samples=RAW_CACHE),
+        sample_miss_detection=zext.MissDetectionConfig(sporadic_heartbeat=TRUTH_HEARTBEAT_S),  # type: ignore[call-arg]
+        publisher_detection=True, **zconfig.publisher_options(wire.TRUTH))
 
 
 def alive_token(session: zenoh.Session, subject: str, segment: str):

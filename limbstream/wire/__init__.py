@@ -6,7 +6,8 @@ module          what it holds
 :mod:`.keys`    key-expression grammar: builders for every key and selector
 :mod:`.body`    body layout: segments, joints, bones
 :mod:`.point`   segment point codec (device -> aggregator)
-:mod:`.raw`     truth-tap batch codec
+:mod:`.raw`     truth-tap batch codec (one device's)
+:mod:`.truth`   subject truth-tap codec (the batches of a subject's devices in one message)
 :mod:`.pose`    pose frame codec (aggregator -> clients)
 :mod:`.angles`  joint-angle codec (aggregator -> clients)
 :mod:`.fields`  the stats field table; :mod:`.stats` its codec (compact, JSON)
@@ -35,16 +36,17 @@ from .errors import WireError
 from .fields import (AGGREGATOR_FIELDS, AGGREGATOR_FIGURES, DEVICE_FIELDS, FIELDS, HISTORY_FIELDS, STATS_FIELDS, SUBJECT_FIELDS,
                      StatsField)
 from .gateway import Assignment, decode_assignment, decode_sensors, encode_assignment, encode_sensors
-from .keys import (ALIVE, ANGLES, CALIBRATE, CONFIG, POSE, RAW, SEG, STATS, CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, angles_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
+from .keys import (ALIVE, ANGLES, CALIBRATE, CONFIG, POSE, RAW, SEG, STATS, TRUTH, CHUNK_PATTERN, DEVICE_KINDS, GATEWAY_CHUNK, PREFIX, SUBJECT_KINDS, TIME_CHUNK, alive_key, angles_key, calibrate_key, check_chunk, to_chunk, config_key, device_id, device_key,
                    device_selector, gateway_key, gateway_selector, history_selector, parse_device_key, parse_gateway_key, parse_subject_key, pose_key, raw_key, seg_key,
-                   split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key)
+                   split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key, truth_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, PointColumns,
                     SegmentPoint, decode_point, decode_points, encode_point)
 from .pose import (AUTO, AUTO_LIVE_WINDOW_S, FRAME_KINDS, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
                    PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, kind_name, pose_stream, rest_pose_flag)
-from .rejects import POINT_DROPS, RAW_DROPS, UNCHARGED, device_reason, undecodable
+from .rejects import POINT_DROPS, RAW_DROPS, UNCHARGED, device_reason, truth_reason, undecodable
 from .raw import (MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_SAMPLE_DTYPE_V3, RAW_VERSION, RawBatch, RawColumns, decode_raw,
                   decode_raws, encode_raw, encode_raws)
+from .truth import MAX_TRUTH_ENTRIES, TRUTH_VERSION, decode_truth, encode_truth, truth_batches
 from .stats import (STATS_NUMBERS, STATS_TEXTS, STATS_VERSION, decode_stats, encode_stats, encode_stats_json,
                     encode_stats_table, stats_devices, stats_json)
 from .time import (MAX_TIME_US, TIME_ANSWER_SIZE, TIME_REQUEST_SIZE, TIME_VERSION, TimeAnswer, TimeRequest,

@@ -11,6 +11,7 @@ key                                                     payload                 
 ``limbstream/<subject>/stats``                          stats (JSON on query)      aggregator
 ``limbstream/<subject>/angles``                         joint angles               aggregator
 ``limbstream/<subject>/calibrate``                      queryable: calibration     aggregator
+``limbstream/<subject>/truth``                          subject truth tap          device host
 ``limbstream/@time``                                    queryable: time exchange   time service
 ``limbstream/@gateway/<gateway>``                       queryable: sensors/assign  gateway
 =====================================================  =========================  ==========
@@ -31,11 +32,11 @@ from .errors import WireError
 PREFIX = "limbstream"
 SEG, RAW, ALIVE, CONFIG = "seg", "raw", "alive", "config"
 """The message kinds of a device: the last chunk of its keys."""
-POSE, STATS, CALIBRATE, ANGLES = "pose", "stats", "calibrate", "angles"
+POSE, STATS, CALIBRATE, ANGLES, TRUTH = "pose", "stats", "calibrate", "angles", "truth"
 """The message kinds of a subject: the last chunk of its keys."""
 DEVICE_KINDS: tuple[str, ...] = (SEG, RAW, ALIVE, CONFIG)
 """Last chunk of a device key."""
-SUBJECT_KINDS: tuple[str, ...] = (POSE, STATS, CALIBRATE, ANGLES)
+SUBJECT_KINDS: tuple[str, ...] = (POSE, STATS, CALIBRATE, ANGLES, TRUTH)
 """Last chunk of a subject key."""
 TIME_CHUNK = "@time"
 """Second chunk of the time service's key (a verbatim chunk: wildcards never match it)."""
@@ -114,6 +115,12 @@ def stats_key(subject: str) -> str:
 def angles_key(subject: str) -> str:
     """``limbstream/<subject>/angles``: the subject's joint angles (:mod:`limbstream.wire.angles`)."""
     return subject_key(subject, ANGLES)
+
+
+def truth_key(subject: str) -> str:
+    """``limbstream/<subject>/truth``: the truth-tap batches of the subject's devices, one message
+    per batch for all of them (:mod:`limbstream.wire.truth`)."""
+    return subject_key(subject, TRUTH)
 
 
 def calibrate_key(subject: str) -> str:

@@ -29,7 +29,7 @@ POINT_DROPS: dict[str, str] = {
 
 RAW_DROPS: dict[str, str] = {
     "raw_size": "payload shorter than its header, with no samples, or not the size its count says",
-    "raw_version": "version byte is neither 1 nor 2",
+    "raw_version": "version byte is not 1, 2 or 3",
     "raw_non_finite": "a quaternion component is NaN or ±Inf",
     "raw_time_backwards": "device or reference times going back within the batch",
     "raw_time_range": "device times outside [0, 2⁵³) µs",
@@ -43,14 +43,26 @@ RAW_DROPS: dict[str, str] = {
 
 UNCHARGED: dict[str, str] = {
     "key": "a key that is not a device key of the kind its subscription carries "
-           "(`limbstream/<subject>/<segment>/seg` for segment points)",
+           "(`limbstream/<subject>/<segment>/seg` for segment points), or not a subject's `truth` key for a subject "
+           "truth-tap message",
     "seg_undecodable": "a segment point that does not decode (`size`, `version`, `non_finite`, `non_unit`), on the key of a device not seen "
                        "before: no device is made for it",
-    "raw_undecodable": "a truth-tap batch that does not decode, on the key of a device not seen before",
+    "raw_undecodable": "a truth-tap batch that does not decode, on the key of a device not seen before (or its "
+                       "entry in a subject truth-tap message)",
+    "truth_size": "a subject truth-tap message shorter than its header or one of its entries, with no entries "
+                  "or more than 1024, or with bytes after its last entry (its batches are not taken in)",
+    "truth_version": "a subject truth-tap message whose version byte is not 1",
+    "truth_segment": "a subject truth-tap message with an entry that names no segment (not a key chunk) or names "
+                     "one twice (a batch of it that does not decode counts on its device, as on its `raw` key)",
     "too_many_devices": "a message of a new device while the aggregator tracks its most devices (`max_devices`)",
     "config_reply": "a device's config reply (its status) that does not decode",
 }
 """Messages no device can be charged with, counted per aggregator (``bad_keys``), by reason."""
+
+
+def truth_reason(reason: str) -> str:
+    """The :data:`UNCHARGED` reason of a subject truth-tap message its decoder refused with ``reason``."""
+    return f"truth_{reason}"
 
 
 def undecodable(kind: str) -> str:

@@ -75,6 +75,7 @@ class Aggregator:
             self.frame_stages.append(JointStage(self.fusion, live=settings.live_rate > 0))
         self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
+        self._truth_subs: list = []  # subjects' truth taps (per-device ones: _raw_subs)
         self._stats_qs: list = []
         self._time_service = None     # the time service's presence (a querier's matching listener)
         self.lock = threading.Lock()  # guards snapshots read by other threads (tests, tools)
@@ -107,10 +108,12 @@ class Aggregator:
             )
             self._seg_subs.append(sub)
             self._misses.append(sub.sample_miss_listener(zenoh.handlers.FifoChannel(1024)))
-            self._raw_subs.append(zext.declare_advanced_subscriber(  # truth tap: recovered like points
-                self.session, wire.device_selector(wire.RAW, pattern), zenoh.handlers.FifoChannel(1 << 14),
-                history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
-                recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
+            for selector, subs in ((wire.device_selector(wire.RAW, pattern), self._raw_subs),  # truth tap: recovered
+                                   (wire.subject_selector(wire.TRUTH, pattern), self._truth_subs)):  # like points
+                subs.append(zext.declare_advanced_subscriber(
+                    self.session, selector, zenoh.handlers.FifoChannel(1 << 14),
+                    history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
+                    recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
             self._calibrate_qs.append(self.session.declare_queryable(
                 wire.subject_selector(wire.CALIBRATE, pattern), zenoh.handlers.FifoChannel(256)))
             self._stats_qs.append(self.session.declare_queryable(  # the stats as JSON, on request
@@ -124,7 +127,7 @@ class Aggregator:
             with query:
                 query.reply_err("the aggregator is stopping")
         self._calibrating = []
-        for group in (self._misses, self._seg_subs, self._raw_subs, self._alive_subs, self._calibrate_qs,
+        for group in (self._misses, self._seg_subs, self._raw_subs, self._truth_subs, self._alive_subs, self._calibrate_qs,
                       self._stats_qs):
             for entity in group:
                 entity.undeclare()
@@ -159,6 +162,10 @@ class Aggregator:
         """A drain's truth-tap messages (Intake.take_raw)."""
         self.intake.take_raw(keys, payloads, now)
 
+    def on_truth(self, key: str, payload: bytes, now: float) -> None:
+        """One subject truth-tap message (a drain of one)."""
+        self.intake.take_truth([key], [payload], now)
+
     def on_alive(self, key: str, online: bool) -> None:
         """A device's liveliness token appeared or vanished."""
         self.intake.on_alive(key, online)
@@ -179,8 +186,11 @@ class Aggregator:
         if keys:
             self.intake.take_points(keys, payloads, now, samples)
         keys, payloads, _ = self._receive(self._raw_subs, budget - handled)
-        handled += len(keys)
-        if keys:
+        truth_keys, truth_payloads, _ = self._receive(self._truth_subs, budget - handled - len(keys))
+        handled += len(keys) + len(truth_keys)
+        if truth_keys:
+            self.intake.take_truth(truth_keys, truth_payloads, now, keys, payloads)
+        elif keys:
             self.intake.take_raw(keys, payloads, now)
         if self.history is not None:
             self.history.ask()

@@ -2,7 +2,8 @@
 
 Every message's key names its device; a key never seen is checked (its grammar and kind) and its
 device made, at most ``max_devices`` of them. Segment points and truth batches of a drain are
-decoded together (``wire.decode_points``, ``wire.decode_raws``) and taken in as one batch each;
+decoded together (``wire.decode_points``, ``wire.decode_raws``) and taken in as one batch each
+(a subject's truth-tap message is split into its devices' batches first, ``wire.truth_batches``);
 an undecodable message is counted against its device (or, for a device never seen, in
 ``bad_keys``) and dropped (the reasons: ``wire.POINT_DROPS``, ``wire.RAW_DROPS``, ``wire.UNCHARGED``).
 """
@@ -93,6 +94,25 @@ class Intake:
         batches = wire.decode_raws(payloads)
         items = self._items(keys, batches.reason, "raw", self._raw_tracks)
         self.counters.raw_batches += self.fusion.add_raws(items, batches, now)
+
+    def take_truth(self, keys: list[str], payloads: list[bytes], now: float,
+                   raw_keys: list[str] | None = None, raw_payloads: list[bytes] | None = None) -> None:
+        """The subject truth-tap messages of one drain (and its device truth-tap messages, taken
+        in first): each split into the device batches it holds, then all taken in as
+        :meth:`take_raw` takes a device's. A message that does not split is counted in
+        ``bad_keys`` (``truth_<reason>``, ``key``) and dropped."""
+        keys_in, payloads_in = list(raw_keys or ()), list(raw_payloads or ())
+        for key, payload in zip(keys, payloads):
+            try:
+                batches = wire.truth_batches(key, payload)
+            except wire.WireError as exc:
+                self.bad_keys["key" if exc.reason == "key" else wire.truth_reason(exc.reason)] += 1
+                continue
+            for device_key, batch in batches:
+                keys_in.append(device_key)
+                payloads_in.append(batch)
+        if keys_in:
+            self.take_raw(keys_in, payloads_in, now)
 
     def _items(self, keys: list[str], reasons: list, kind: str, known: dict[str, DeviceTrack]) -> list:
         """(track, row) of each message of ``kind`` (``seg``, ``raw``) that decoded (``reasons[row]``

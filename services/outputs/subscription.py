@@ -9,6 +9,9 @@ decoders; undecodable messages are counted by reason in :attr:`Subscription.erro
 
 Segment points and truth batches come through advanced subscribers with history, like the
 aggregator's, so a consumer that starts after the devices still gets what their caches hold.
+Truth batches come on a device's ``raw`` key or, several devices' at once, on its subject's
+``truth`` key: a ``raw`` subscription takes both, and gives a subject message's batches as the
+``raw`` items they stand for (each with its device's ``raw`` key and its own batch's bytes).
 
 Example::
 
@@ -95,7 +98,7 @@ class Subscription:
     Attributes
     ----------
     errors : Counter of dropped messages by reason: ``<kind>_key`` (a key outside the grammar),
-        ``<kind>_<wire reason>`` (e.g. ``pose_size``, ``stats_json``).
+        ``<kind>_<wire reason>`` (e.g. ``pose_size``, ``stats_json``, ``truth_size``).
     received : messages taken out of the channels so far (decoded or not).
     """
 
@@ -120,15 +123,23 @@ class Subscription:
         self._subscribers: list[tuple[str, object]] = []
         self._turn = 0  # which channel get() looks at first (each gets its turn)
         self._keys: dict[str, tuple[str, str | None]] = {}  # valid keys seen, parsed
+        self._pending: collections.deque[Item] = collections.deque()  # the rest of a split truth message
         try:
             for kind in kinds:
                 self._subscribers.append((kind, self._declare(kind, history)))
+                if kind == wire.RAW:  # a subject's truth message: its devices' batches, split into raw items
+                    self._subscribers.append((wire.TRUTH, self._declare(wire.TRUTH, history)))
         except BaseException:
             self.close()
             raise
 
     def _declare(self, kind: str, history: int):
         channel = zenoh.handlers.FifoChannel(self.capacity)
+        if kind == wire.TRUTH:
+            return zext.declare_advanced_subscriber(
+                self.session, wire.subject_selector(kind, self.subjects), channel,
+                history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
+                recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
         if kind in wire.SUBJECT_KINDS:
             return self.session.declare_subscriber(wire.subject_selector(kind, self.subjects), channel)
         return zext.declare_advanced_subscriber(
@@ -138,9 +149,27 @@ class Subscription:
 
     # ------------------------------------------------------------------ consumer side
 
-    def _decode(self, kind: str, sample: zenoh.Sample, received_ns: int) -> Item | None:
+    def _split_truth(self, sample: zenoh.Sample, received_ns: int) -> Item | None:
+        """A subject truth message as the raw items of the batches it holds: the first returned,
+        the rest pending (a message that does not split counts as ``truth_<reason>``)."""
         self.received += 1
-        key = str(sample.key_expr)
+        try:
+            batches = wire.truth_batches(str(sample.key_expr), sample.payload.to_bytes())
+        except wire.WireError as exc:
+            self.errors[f"truth_{exc.reason}"] += 1
+            return None
+        items = [item for key, batch in batches if (item := self._item(wire.RAW, key, batch, received_ns)) is not None]
+        self._pending.extend(items[1:])
+        return items[0] if items else None
+
+    def _decode(self, kind: str, sample: zenoh.Sample, received_ns: int) -> Item | None:
+        if kind == wire.TRUTH:
+            return self._split_truth(sample, received_ns)
+        self.received += 1
+        return self._item(kind, str(sample.key_expr), sample.payload.to_bytes(), received_ns)
+
+    def _item(self, kind: str, key: str, payload: bytes, received_ns: int) -> Item | None:
+        """The message ``payload`` of ``kind`` on ``key`` decoded, or None (counted in ``errors``)."""
         try:
             ids = self._keys.get(key)
             if ids is None:
@@ -155,7 +184,6 @@ class Subscription:
                 if len(self._keys) < _MAX_KEYS:
                     self._keys[key] = ids
             subject, segment = ids
-            payload = sample.payload.to_bytes()
             return Item(kind, subject, segment, _DECODERS[kind](payload), key, payload, received_ns)
         except wire.WireError as exc:
             self.errors[f"{kind}_{exc.reason}"] += 1
@@ -167,6 +195,8 @@ class Subscription:
         deadline = None if timeout is None else time.monotonic() + timeout
         n = len(self._subscribers)
         while True:
+            if self._pending:
+                return self._pending.popleft()
             for k in range(n):
                 kind, sub = self._subscribers[(self._turn + k) % n]
                 while (sample := sub.try_recv()) is not None:
@@ -180,13 +210,16 @@ class Subscription:
 
     def drain(self, limit: int = 1 << 20) -> list[Item]:
         """Every decodable message waiting now (at most ``limit`` taken out), without blocking."""
-        items: list[Item] = []
+        items: list[Item] = list(self._pending)
+        self._pending.clear()
         taken, now = 0, time.time_ns()
         for kind, sub in self._subscribers:
             while taken < limit and (sample := sub.try_recv()) is not None:
                 taken += 1
                 if (item := self._decode(kind, sample, now)) is not None:
                     items.append(item)
+                    items.extend(self._pending)
+                    self._pending.clear()
         return items
 
     def close(self) -> None:
