@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 UPPER = {"core": ("limbstream.cli", "limbstream.services", "limbstream.device_emulator"), "parts": ("limbstream.cli",)}
+SOURCES = ("limbstream", "services", "device_emulator")
+"""The folders of the layers (only these are read: globbing the whole checkout walks .venv too)."""
 
 
 def imported(path: Path) -> set[str]:
@@ -40,7 +44,7 @@ def layer(path: Path) -> str | None:
 
 def test_no_module_imports_a_layer_above_it():
     wrong = []
-    for path in sorted(ROOT.glob("*/**/*.py")):
+    for path in sorted(p for folder in SOURCES for p in (ROOT / folder).glob("**/*.py")):
         kind = layer(path)
         if kind is None:
             continue
@@ -48,3 +52,16 @@ def test_no_module_imports_a_layer_above_it():
             if any(name == up or name.startswith(up + ".") for up in UPPER[kind]):
                 wrong.append(f"{path.relative_to(ROOT)} ({kind}) imports {name}")
     assert not wrong, "\n".join(wrong)
+
+
+LAUNCHED = ("emulate", "aggregate", "router", "clock", "dashboard", "record", "replay", "up")
+"""Commands that ``limbstream up`` or a test starts as processes: each one's start-up imports."""
+
+
+def test_launched_commands_do_not_import_scipys_signal_or_stats():
+    """scipy.signal (which brings scipy.stats and scipy.interpolate) costs about a second of CPU
+    per process to import; only the raw-sensor model needs it, so it is imported where it is used."""
+    modules = ", ".join(f"limbstream.cli.{'evaluate' if c == 'eval' else c}" for c in LAUNCHED)
+    code = f"import sys, {modules}; print(sorted(m for m in sys.modules if m.startswith(('scipy.signal', 'scipy.stats'))))"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "[]", out.stdout[:500]
