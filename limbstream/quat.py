@@ -4,8 +4,12 @@ scipy's Rotation is scalar-last; the converters here are the only place that swa
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+if TYPE_CHECKING:  # imported where it is used: scipy.spatial costs ~0.4 s of CPU at every process's start
+    from scipy.spatial.transform import Rotation
 
 Z_UP_TO_Y_UP = np.array([np.sqrt(0.5), -np.sqrt(0.5), 0.0, 0.0])
 """-90 degrees about X: ``multiply(Z_UP_TO_Y_UP, q)`` turns an orientation in a Z-up world (a
@@ -24,6 +28,7 @@ def normalize(q: np.ndarray) -> np.ndarray:
 
 def to_rotation(q: np.ndarray) -> Rotation:
     """(..., 4) scalar-first -> scipy Rotation."""
+    from scipy.spatial.transform import Rotation
     q = np.asarray(q, np.float64)
     return Rotation.from_quat(q[..., [1, 2, 3, 0]])
 

@@ -48,43 +48,51 @@ def truth(q: np.ndarray, first: int, stream_id: int) -> list[tuple[int, bytes]]:
     return out
 
 
-def session(heading: bool, segments: tuple[str, ...] = SEGMENTS, seconds: float = SECONDS,
-            restart: float | None = RESTART_S):
-    """One subject, its sensors strapped at up to 90 deg with headings anywhere and drifting
-    (up to DRIFT_DPS), the calibration script first; its right shank restarts at ``restart`` s
-    (None: never) with a new stream that begins with the script again (its heading elsewhere),
-    with heading correction ``heading`` or none; only ``segments`` have a device. Returns the
-    aggregator, its exact frames as (t_us, q (10, 4)), the subject's stats each second, and the
-    truth (m, 10, 4) by tick."""
+SUBJECTS = (("s01", SEGMENTS, RESTART_S), ("s02", ("l_shank", "r_shank", "l_thigh", "r_thigh", "hip"), None))
+"""The subjects of the sessions: (name, the segments that have a device, when the right shank
+restarts or None). s02 is a lower body alone (pelvis, thighs, shanks: no arms, no neck) that never
+restarts; both wear the same sensors on the same motion, in one aggregator."""
+LOWER_BODY = SUBJECTS[1][1]
+
+
+def session(heading: bool, subjects=SUBJECTS, seconds: float = SECONDS):
+    """Subjects of one motion, their sensors strapped at up to 90 deg with headings anywhere and
+    drifting (up to DRIFT_DPS), the calibration script first; a subject's right shank restarts
+    at its restart time (s; None: never) with a new stream that begins with the script again (its
+    heading elsewhere), with heading correction ``heading`` or none; only a subject's segments
+    have a device. Returns the aggregator, each subject's exact frames as (t_us, q (10, 4)), its
+    stats each second (by subject name), and the truth (m, 10, 4) by tick."""
     motion = generate(seconds, FS, seed=21)
     q, _, _ = calibration.with_script(motion.q, FS)
     m = len(q)
     sensors = calibration.SensorModel(90, 180, DRIFT_DPS, seed=5).draw(len(SEGMENTS))
     t = np.arange(m) / FS
-    k = round((restart or seconds) * FS)
     events: dict[int, list[tuple[str, str, bytes]]] = {}
-    for j, seg in enumerate(SEGMENTS):
-        if seg not in segments:
-            continue
-        reading = sensors.report(j, t, q[:, j])
-        parts = [(0, reading, q[:, j], 1)]
-        if seg == RESTARTED and restart is not None:  # the restart: the script again, a new filter heading
-            again, _, _ = calibration.with_script(motion.q[k:, None, j], FS, (seg,))
-            later = calibration.SensorModel(90, 180, DRIFT_DPS, seed=9).draw(len(SEGMENTS))
-            parts = [(0, reading[:k], q[:k, j], 1),
-                     (k, later.report(j, np.arange(len(again)) / FS, again[:, 0])[:m - k], again[:m - k, 0], 2)]
-        for first, r, true, sid in parts:
-            for tick, payload in stream(r, first, sid):
-                events.setdefault(tick, []).append(("seg", wire.seg_key("s01", seg), payload))
-            for tick, payload in truth(true, first, sid):
-                events.setdefault(tick, []).append(("raw", wire.raw_key("s01", seg), payload))
+    for name, segments, restart in subjects:
+        k = round((restart or seconds) * FS)
+        for j, seg in enumerate(SEGMENTS):
+            if seg not in segments:
+                continue
+            reading = sensors.report(j, t, q[:, j])
+            parts = [(0, reading, q[:, j], 1)]
+            if seg == RESTARTED and restart is not None:  # the restart: the script again, a new filter heading
+                again, _, _ = calibration.with_script(motion.q[k:, None, j], FS, (seg,))
+                later = calibration.SensorModel(90, 180, DRIFT_DPS, seed=9).draw(len(SEGMENTS))
+                parts = [(0, reading[:k], q[:k, j], 1),
+                         (k, later.report(j, np.arange(len(again)) / FS, again[:, 0])[:m - k], again[:m - k, 0], 2)]
+            for first, r, true, sid in parts:
+                for tick, payload in stream(r, first, sid):
+                    events.setdefault(tick, []).append(("seg", wire.seg_key(name, seg), payload))
+                for tick, payload in truth(true, first, sid):
+                    events.setdefault(tick, []).append(("raw", wire.raw_key(name, seg), payload))
     agg = Aggregator(None, AggregatorSettings(calibrate_on_start=True, heading_correction=heading))
-    exact: list[tuple[int, np.ndarray]] = []
-    agg._publish = lambda subject, payload: exact.extend(
+    exact: dict[str, list[tuple[int, np.ndarray]]] = {name: [] for name, _, _ in subjects}
+    agg._publish = lambda subject, payload: exact[subject].extend(
         [(f.t_us, f.q)] if (f := wire.decode_pose(payload)).kind == wire.KIND_EXACT else [])
-    for seg in segments:
-        agg.on_alive(wire.alive_key("s01", seg), True)
-    stats = []
+    for name, segments, _ in subjects:
+        for seg in segments:
+            agg.on_alive(wire.alive_key(name, seg), True)
+    stats: dict[str, list[dict]] = {name: [] for name, _, _ in subjects}
     for tick in range(m + 30):
         now = tick / FS
         mine = events.get(tick, [])
@@ -95,20 +103,21 @@ def session(heading: bool, segments: tuple[str, ...] = SEGMENTS, seconds: float 
                     keys, [p for what, _, p in mine if what == kind], now)
         agg.advance(True, tick % 25 == 0, now)
         if tick % 50 == 49:
-            stats.append(agg.subject_stats("s01", now))
+            for name in stats:
+                stats[name].append(agg.subject_stats(name, now))
     return agg, exact, stats, q
 
 
 @pytest.fixture(scope="module")
 def runs():
     """The session without and with heading correction (``off``, ``joints``); what the estimator
-    took in the ``joints`` one (its ``take`` spied on): ``seen``, (q (R, 10, 4), present (R, 10))
-    per call."""
-    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    took for s01 in the ``joints`` one (its ``take`` spied on): ``seen``, (q (R, 10, 4), present
+    (R, 10)) per call."""
+    seen: list[tuple[HeadingCorrection, np.ndarray, np.ndarray, np.ndarray]] = []
     real = HeadingCorrection.take
 
     def take(self, rows, q, present=None):
-        seen.append((q.copy(), present.copy()))
+        seen.append((self, np.asarray(rows).copy(), q.copy(), present.copy()))
         return real(self, rows, q, present)
 
     out = {"off": session(False)}
@@ -117,7 +126,10 @@ def runs():
         out["joints"] = session(True)
     finally:
         HeadingCorrection.take = real  # type: ignore[method-assign]
-    return out | {"seen": seen}
+    agg = out["joints"][0]
+    pose, row = agg.fusion.heading.place[agg.subjects["s01"].index]
+    est = agg.fusion.heading.estimators[pose]
+    return out | {"seen": [(q[rows == row], present[rows == row]) for e, rows, q, present in seen if e is est]}
 
 
 def frames_of(exact: list[tuple[int, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
@@ -131,13 +143,13 @@ def test_the_frames_are_the_calibrated_ones_turned_by_what_the_joints_hold(runs)
     since the devices were calibrated; the joints are nearer the truth for it."""
     _, off_frames, off_stats, q = runs["off"]
     agg, on_frames, on_stats, _ = runs["joints"]
-    ticks, off = frames_of(off_frames)
-    ticks_on, on = frames_of(on_frames)
+    ticks, off = frames_of(off_frames["s01"])
+    ticks_on, on = frames_of(on_frames["s01"])
     assert np.array_equal(ticks, ticks_on)
     turn = quat.multiply(on, quat.conjugate(off))  # world-frame turn of each segment
     assert np.abs(turn[..., [1, 3]]).max() < 1e-5  # about the vertical only
     angle = 2 * np.degrees(np.arctan2(turn[..., 2], turn[..., 0]))
-    taken = int(agg.fusion.heading.taken[0])
+    taken = int(agg.fusion.heading.taken[agg.subjects["s01"].index])
     learnt = slice(len(ticks) - taken, round((RESTART_S - 1) * FS))  # every frame since calibration, all devices
     assert taken > 0.8 * len(ticks) and np.abs(angle[:learnt.start]).max() < 1e-3
     assert np.abs(angle[learnt].mean(axis=1)).max() < 1e-3 and np.abs(angle[learnt]).max() > 1.0
@@ -147,17 +159,19 @@ def test_the_frames_are_the_calibrated_ones_turned_by_what_the_joints_hold(runs)
     before = joint_errors_deg(off[late], q[ticks[late]], layout)[:, no_knee].mean()
     after = joint_errors_deg(on[late], q[ticks[late]], layout)[:, no_knee].mean()
     assert after < 0.85 * before, (before, after)
-    assert on_stats[-1]["joint_aad_deg"] < off_stats[-1]["joint_aad_deg"], (on_stats[-1], off_stats[-1])
+    assert on_stats["s01"][-1]["joint_aad_deg"] < off_stats["s01"][-1]["joint_aad_deg"], (on_stats["s01"][-1],
+                                                                                      off_stats["s01"][-1])
 
 
 def test_the_estimator_learns_from_the_calibrated_frames_exactly(runs):
     """What the estimator takes is each exact frame's calibrated reconstruction (the turn put on
     after SLERP taken off again), where the device is corrected and present."""
     _, off_frames, _, _ = runs["off"]
-    ticks, off = frames_of(off_frames)
+    ticks, off = frames_of(off_frames["s01"])
     q = np.concatenate([s[0] for s in runs["seen"]])  # (one subject: its frames in order)
     present = np.concatenate([s[1] for s in runs["seen"]])
-    assert len(q) == runs["joints"][0].fusion.heading.taken[0]
+    agg = runs["joints"][0]
+    assert len(q) == agg.fusion.heading.taken[agg.subjects["s01"].index]
     mine = off[len(off) - len(q):]  # the frames since calibration
     before = ticks[len(off) - len(q):] < (RESTART_S - 1) * FS
     assert before.sum() > 1000 and present[before].all()
@@ -167,8 +181,8 @@ def test_the_estimator_learns_from_the_calibrated_frames_exactly(runs):
 
 
 def test_the_devices_stats_say_each_correction(runs):
-    _, _, off_stats, _ = runs["off"]
-    _, _, stats, _ = runs["joints"]
+    off_stats = runs["off"][2]["s01"]
+    stats = runs["joints"][2]["s01"]
     devices = {d["segment"]: d for d in stats[round(RESTART_S) - 2]["devices"]}
     assert all(d["calibrated"] for d in devices.values())
     offsets = np.array([d["heading_offset_deg"] for d in devices.values()])
@@ -179,7 +193,7 @@ def test_the_devices_stats_say_each_correction(runs):
 
 
 def test_a_restarted_device_rejoins_with_its_correction_learnt_afresh(runs):
-    _, _, stats, _ = runs["joints"]
+    stats = runs["joints"][2]["s01"]
     shank = [next(d for d in s["devices"] if d["segment"] == RESTARTED) for s in stats]
     at = round(RESTART_S) - 1
     assert shank[at - 1]["stream"] == 1 and shank[at + 1]["stream"] == 2
@@ -191,16 +205,15 @@ def test_a_restarted_device_rejoins_with_its_correction_learnt_afresh(runs):
     assert shank[-1]["heading_confidence"] > 0.0
 
 
-LOWER_BODY = ("l_shank", "r_shank", "l_thigh", "r_thigh", "hip")
-
-
-def test_a_lower_body_alone_is_corrected():
-    """Pelvis, thighs and shanks only (no arms, no neck): their devices are corrected (the turns
-    averaging 0 over the five) and their knees' and hips' error against the truth is lower for it."""
+def test_a_lower_body_alone_is_corrected(runs):
+    """Pelvis, thighs and shanks only (no arms, no neck: s02): their devices are corrected (the
+    turns averaging 0 over the five) and their knees' and hips' error against the truth is lower
+    for it."""
     figures = {}
-    for heading in (False, True):
-        _, exact, stats, q = session(heading, LOWER_BODY, restart=None)
-        ticks, frames = frames_of(exact)
+    for heading, run in ((False, "off"), (True, "joints")):
+        _, exact, by_subject, q = runs[run]
+        stats = by_subject["s02"]
+        ticks, frames = frames_of(exact["s02"])
         late = (ticks > (SECONDS - 10) * FS) & (ticks < len(q))
         layout = Layout.of(LOWER_BODY)
         have = [SEGMENTS.index(s) for s in LOWER_BODY]

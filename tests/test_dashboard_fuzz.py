@@ -21,6 +21,8 @@ from limbstream.services.dashboard.settings import DashboardSettings
 
 schemathesis = pytest.importorskip("schemathesis")
 
+pytestmark = pytest.mark.e2e  # a real Zenoh router, uvicorn and a gateway serve the fuzzed API
+
 TOKEN = "fuzz-token"
 
 

@@ -24,8 +24,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.signal import butter, sosfiltfilt
 
 from limbstream import quat
 from limbstream.skeleton import Skeleton
@@ -75,6 +73,10 @@ class SmoothMotion:
     def __init__(self, motion: Motion, smooth_hz: float | None = SMOOTH_HZ):
         if len(motion.t) < 4:
             raise ValueError(f"motion {motion.name!r}: needs at least 4 samples to differentiate, got {len(motion.t)}")
+        # imported here: scipy.signal (with scipy.stats) costs about a second of CPU to import, and
+        # every emulator imports this module whether its devices read raw sensors or not
+        from scipy.interpolate import CubicSpline
+        from scipy.signal import butter, sosfiltfilt
         self.segments, self.rest_pose = motion.segments, motion.rest_pose
         n, s = motion.q.shape[:2]
         q = quat.continuous(motion.q).reshape(n, 4 * s)
