@@ -14,7 +14,8 @@ from pathlib import Path
 
 from limbstream.body.builtin import (DEFAULT_HEIGHT_M, FULL, LAYOUTS, PAPER10, PAPER10_BONES, WINTER_HEIGHTS,
                                      WINTER_LENGTHS, builtin_layout)
-from limbstream.body.dimensions import HEIGHT_BOUNDS_M, MAX_BONE_M, Body, check_height, check_length, rest_heights
+from limbstream.body.dimensions import (HEIGHT_BOUNDS_M, MAX_BONE_M, Body, check_height, check_length, lengths_of,
+                                        rest_heights)
 from limbstream.body.files import layout_from_dict, load_layout, read_table
 from limbstream.body.layout import Bone, Layout, Offset, Segment, offset, segment
 
@@ -30,5 +31,5 @@ def layout(name_or_path: str | Path) -> Layout:
 
 __all__ = ["DEFAULT_HEIGHT_M", "FULL", "HEIGHT_BOUNDS_M", "LAYOUTS", "MAX_BONE_M", "PAPER10", "PAPER10_BONES",
            "WINTER_HEIGHTS", "WINTER_LENGTHS", "Body", "Bone", "Layout", "Offset", "Segment", "builtin_layout",
-           "check_height", "check_length", "layout", "layout_from_dict", "load_layout", "offset", "read_table",
+           "check_height", "check_length", "layout", "lengths_of", "layout_from_dict", "load_layout", "offset", "read_table",
            "rest_heights", "segment"]

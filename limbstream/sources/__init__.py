@@ -10,11 +10,15 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from limbstream import wire
 from limbstream.wire.body import SEGMENTS  # noqa: F401  (re-exported: the 10-IMU layout)
+
+if TYPE_CHECKING:
+    from limbstream.body import Body
 
 
 class MotionFileError(ValueError):
@@ -68,6 +72,8 @@ class Motion:
         What ``q`` are, one of :data:`ORIENTATIONS`: the segments' own (motion files, the
         generator), or real sensors' rest-calibrated or uncalibrated (IMU recordings, set by
         :func:`.imu_files.to_body`).
+    body : the wearer's dimensions where the source gives them (a BVH clip's, from its OFFSETs:
+        :func:`.bvh_body.body_of`), None: not given (the default adult).
     """
 
     t: np.ndarray
@@ -77,6 +83,7 @@ class Motion:
     rest_pose: str = wire.DEFAULT_REST_POSE
     root: np.ndarray | None = None
     orientations: str = "segments"
+    body: Body | None = None
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:

@@ -1,0 +1,109 @@
+"""The wearer's dimensions in the wire contract (a device status's ``"body"``, docs/protocol.md
+"Body dimensions") and on the command line (``--height-m``, ``--body`` of ``emulate`` and ``up``):
+read back equal, old statuses without them still read, bad ones refused with the bound."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from support import ROOT
+
+from limbstream import wire
+from limbstream.body import PAPER10, Body
+
+STATUS = wire.DeviceStatus("s01/hip", wire.DeviceConfig(), 3, 100, 12)
+
+
+def decoded(body) -> wire.DeviceStatus:
+    """A status carrying ``body`` (any JSON) as its ``"body"``, decoded."""
+    return wire.decode_status(json.dumps(STATUS.as_dict() | {"body": body}).encode())
+
+
+def same_bones(a: Body, b: Body) -> bool:
+    return all(np.array_equal(a.vectors[p], b.vectors[p]) for p in wire.REST_POSES)
+
+
+@pytest.mark.parametrize("body", [Body.from_height(PAPER10, 1.5), Body.from_height(PAPER10, 1.9),
+                                  Body.default(PAPER10)], ids=["1.5_m", "1.9_m", "default"])
+def test_a_status_carries_its_body_and_reads_back_the_same_bones(body):
+    status = wire.decode_status(wire.encode_status(STATUS.__class__(**{**STATUS.__dict__, "body": body})))
+    assert status.body is not None and status.body_error is None
+    assert same_bones(status.body, body) and status.body.height_m == body.height_m
+    assert status.body.layout is PAPER10
+
+
+def test_an_old_status_without_a_body_still_reads_as_the_default_adult():
+    old = {k: v for k, v in STATUS.as_dict().items() if k != "body"}
+    status = wire.decode_status(json.dumps(old).encode())
+    assert status.body is None and status.body_error is None and status.config == STATUS.config
+    assert "body" not in STATUS.as_dict()
+
+
+BONES = {k: v for k, v in Body.default(PAPER10).to_dict().items() if k != "layout"}
+
+
+@pytest.mark.parametrize("body, said", [
+    ({"layout": "paper10", "bones": BONES | {"l_thigh": 1.6}}, "bone 'l_thigh' must be in (0, 1.5] m, got 1.6"),
+    ({"layout": "paper10", "bones": BONES | {"l_shank": 0}}, "bone 'l_shank' must be in (0, 1.5] m, got 0"),
+    ({"layout": "paper10", "bones": BONES | {"neck": -0.2}}, "bone 'neck' must be in (0, 1.5] m, got -0.2"),
+    ({"layout": "paper10", "height_m": 175, "bones": BONES}, "height must be within [0.5, 2.5] m, got 175"),
+    ({"layout": "paper10", "height_m": 0.3, "bones": BONES}, "height must be within [0.5, 2.5] m, got 0.3"),
+    ({"layout": "paper10", "bones": {k: v for k, v in BONES.items() if k != "neck"}}, "missing bone 'neck'"),
+    ({"layout": "paper10", "bones": BONES | {"tail": 0.3}}, "layout paper10 has no bone 'tail'"),
+    ({"layout": "paper10", "bones": BONES | {"l_shoulder": [0.2, "x", 0]}}, "bone 'l_shoulder' must be a length"),
+    ({"layout": "nobody", "bones": BONES}, "layout must be one of paper10, full"),
+    ({"bones": [0.4, 0.5]}, "body bones must be an object"),
+    ("tall", "body must be an object"),
+    ({"layout": "paper10", "bones": BONES, "weight_kg": 70}, "body must be an object of layout, height_m and bones"),
+])
+def test_a_malformed_body_is_refused_with_the_bound_and_the_rest_of_the_status_reads(body, said):
+    status = decoded(body)
+    assert status.body is None and said in status.body_error and "\n" not in status.body_error
+    assert status.config == STATUS.config and status.points == 12 and status.rest_pose == "standing"
+
+
+def limbstream(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "limbstream.cli", *argv], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60)
+
+
+@pytest.mark.parametrize("command", ["up", "emulate"])
+@pytest.mark.parametrize("flags, said", [
+    (["--height-m", "175"], "--height-m: height must be within [0.5, 2.5] m, got 175.0"),
+    (["--height-m", "0"], "--height-m: height must be within [0.5, 2.5] m, got 0.0"),
+    (["--height-m", "1.5,-1"], "--height-m: height must be within [0.5, 2.5] m, got -1.0"),
+    (["--height-m", "tall"], "--height-m: a height in m, or several: H,H,..., got 'tall'"),
+    (["--height-m", "1.7", "--body", "me.toml"], "--height-m and --body both give the subjects' dimensions"),
+    (["--body", "{dir}/long.toml"], "long.toml: bone 'l_thigh' must be in (0, 1.5] m, got 1.6"),
+    (["--body", "{dir}/zero.json"], "zero.json: bone 'l_shank' must be in (0, 1.5] m, got 0"),
+    (["--body", "{dir}/broken.toml"], "broken.toml: not valid TOML"),
+    (["--body", "{dir}/short.toml"], "short.toml: missing bone 'neck' of layout paper10"),
+    (["--body", "{dir}/none.toml"], "none.toml: cannot read"),
+], ids=["height_175", "height_0", "second_height_negative", "height_text", "both", "thigh_1.6_m", "shank_0",
+        "not_toml", "bone_missing", "no_file"])
+def test_bad_dimensions_on_the_command_line_are_refused_up_front_in_one_line(tmp_path, command, flags, said):
+    lines = [f"{k} = {v}" for k, v in BONES.items() if not isinstance(v, list)]
+    lines += [f"{k} = {v}" for k, v in BONES.items() if isinstance(v, list)]
+    (tmp_path / "long.toml").write_text("\n".join(lines).replace("l_thigh = 0.45", "l_thigh = 1.6"))
+    (tmp_path / "short.toml").write_text("\n".join(line for line in lines if not line.startswith("neck")))
+    (tmp_path / "broken.toml").write_text("hip = = 0.5")
+    (tmp_path / "zero.json").write_text(json.dumps(BONES | {"l_shank": 0}))
+    out = limbstream(command, *(f.format(dir=tmp_path) for f in flags))
+    assert out.returncode == 2, (out.stdout, out.stderr)
+    assert out.stderr.count("\n") == 1 and out.stderr.startswith(f"limbstream {command}: error: "), out.stderr
+    assert said in out.stderr, out.stderr
+    assert "starting" not in out.stdout  # refused before anything started
+
+
+def test_a_good_body_file_sizes_the_subject_as_it_says(tmp_path):
+    path = tmp_path / "me.toml"
+    path.write_text("\n".join(f"{k} = {v}" if not isinstance(v, str) else f'{k} = "{v}"'
+                              for k, v in (Body.from_height(PAPER10, 1.62).to_dict()).items()))
+    from limbstream.cli import flags
+    args = type("Args", (), {"height_m": None, "body": f"{path},{path}"})()
+    given = flags.bodies(args)
+    assert len(given) == 2 and same_bones(given[0], Body.from_height(PAPER10, 1.62))
+    assert flags.body_argv(args) == ["--body", f"{path.resolve()},{path.resolve()}"]
