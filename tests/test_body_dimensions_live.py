@@ -11,11 +11,13 @@ import time
 import numpy as np
 import pytest
 import zenoh
+from support import require_data
 from support.stack import StatsWatch, http_json, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 from limbstream.body import PAPER10, Body
 from limbstream.services.outputs.subscription import Subscription
+from limbstream.sources.bvh import parse_bvh
 
 pytestmark = pytest.mark.e2e
 
@@ -146,3 +148,34 @@ def test_a_malformed_body_on_the_wire_is_counted_on_its_device_and_dropped_the_r
     finally:
         watch.close()
         fake.close()
+
+
+CMU_UNIT_M = 0.0254 / 0.45
+"""The CMU clips' OFFSET unit, m."""
+
+
+def test_a_bvh_source_streams_with_its_own_skeletons_bone_lengths(stack):  # noqa: F811
+    path = require_data("cmu/01_01.bvh")
+    clip = parse_bvh(path)
+    at = {name: j for j, name in enumerate(clip.joints)}
+
+    def offset(joint: str) -> float:  # a bone's length: the OFFSET of the joint it leads to, m
+        return float(np.linalg.norm(clip.offsets[at[joint]])) * CMU_UNIT_M
+    own = {"l_thigh": offset("LeftLeg"), "l_shank": offset("LeftFoot"), "r_thigh": offset("RightLeg"),
+           "r_shank": offset("RightFoot"), "l_upperarm": offset("LeftForeArm"), "l_lowerarm": offset("LeftHand"),
+           "r_upperarm": offset("RightForeArm"), "r_lowerarm": offset("RightHand")}
+    stack.router()
+    stack.aggregator()
+    url = stack.dashboard()
+    wait_for_subscribers(stack.endpoint, [wire.seg_key("s01", "hip")], "the aggregator", on_fail=stack.logs)
+    stack.emulator(1, 1.0, "--source", str(path))
+
+    def drawn(newest) -> bool:
+        frame = newest.get(("s01", wire.KIND_EXACT))
+        return frame is not None and all(abs(bone_lengths(frame.joints)[b] - m) <= F32 * m + 1e-7 for b, m in own.items())
+    frames = frames_until(stack.endpoint, drawn, "s01's frames drawn with the clip's bones", stack.logs)
+    assert wire.frame_rest_pose(frames[("s01", wire.KIND_EXACT)].flags) == "tpose"
+    detail = wait_until(lambda: (lambda r: r[1] if r[0] == 200 and r[1].get("bones_m") else None)(
+        http_json(f"{url}/api/subjects/s01")), 30, "s01 on the dashboard", on_fail=stack.logs)
+    assert detail["layout"] == "paper10" and detail["height_m"] is None
+    assert {b: detail["bones_m"][b] for b in own} == pytest.approx(own, rel=1e-9)
