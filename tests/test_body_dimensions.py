@@ -107,3 +107,26 @@ def test_a_good_body_file_sizes_the_subject_as_it_says(tmp_path):
     given = flags.bodies(args)
     assert len(given) == 2 and same_bones(given[0], Body.from_height(PAPER10, 1.62))
     assert flags.body_argv(args) == ["--body", f"{path.resolve()},{path.resolve()}"]
+
+
+def decoded_message(message):
+    """A foxglove-sdk message decoded with the protobuf schema it carries (as the app reads it)."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    schema = message.get_schema()
+    pool = descriptor_pool.DescriptorPool()
+    for f in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name)).FromString(message.encode())
+
+
+@pytest.mark.parametrize("height_m", [1.5, 1.9])
+def test_foxglove_stands_each_subject_on_the_grid_on_its_own_legs(height_m):
+    from limbstream.services.outputs import foxglove as fox
+    body = Body.from_height(PAPER10, height_m)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1)).astype(np.float32)
+    frame = wire.PoseFrame(0, 1_000_000, wire.KIND_LIVE, 0, q, body.positions(q))
+    got = decoded_message(fox.frame_transforms("s01", frame))
+    root = next(t for t in got.transforms if t.child_frame_id == "s01")
+    leg = body.lengths["l_thigh"] + body.lengths["l_shank"]
+    assert root.translation.z == pytest.approx(leg, rel=1e-6)  # standing: the ankles on the grid (z = 0)
+    assert decoded_message(fox.placement(0, fox.leg_m(frame))).position.z == pytest.approx(leg, rel=1e-6)

@@ -62,3 +62,15 @@ def test_a_bone_of_no_length_is_refused_with_its_bound(clip, tmp_path):
 def test_a_map_of_other_segments_gives_no_body(clip, cmu_bvh_dir):
     motion = bvh.load_bvh(cmu_bvh_dir / "01_01.bvh", segment_map={"l_thigh": "LeftUpLeg", "l_shank": "LeftLeg"})
     assert motion.body is None
+
+
+def test_a_bvh_exported_from_a_bvh_source_keeps_its_bones(cmu_bvh_dir, tmp_path):
+    from limbstream.services.outputs.export import bvh_text, read_take
+    source = cmu_bvh_dir / "01_01.bvh"
+    own = bvh.load_bvh(source).body
+    path = tmp_path / "exported.bvh"
+    path.write_text(bvh_text(read_take(source, None)))
+    back = bvh.load_bvh(path).body
+    assert back.lengths == pytest.approx(own.lengths, abs=2e-6)  # (OFFSETs in metres, 6 decimals)
+    for pose in own.vectors:
+        assert np.allclose(back.vectors[pose], own.vectors[pose], atol=2e-6)
