@@ -130,3 +130,28 @@ def test_foxglove_stands_each_subject_on_the_grid_on_its_own_legs(height_m):
     leg = body.lengths["l_thigh"] + body.lengths["l_shank"]
     assert root.translation.z == pytest.approx(leg, rel=1e-6)  # standing: the ankles on the grid (z = 0)
     assert decoded_message(fox.placement(0, fox.leg_m(frame))).position.z == pytest.approx(leg, rel=1e-6)
+
+
+def bone_positions(bundle: bytes) -> dict[str, np.ndarray]:
+    """Bone name -> its /VMC/Ext/Bone/Pos position (3,) of a VMC bundle."""
+    from pythonosc.osc_bundle import OscBundle
+    return {m.params[0]: np.array(m.params[1:4]) for m in OscBundle(bundle) if m.address == "/VMC/Ext/Bone/Pos"}
+
+
+def test_vmc_sends_the_bone_offsets_of_each_subjects_body():
+    from limbstream.services.outputs import vmc
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1)).astype(np.float32)
+    encoder = vmc.VmcEncoder()
+    default = bone_positions(encoder.encode(wire.PoseFrame(0, 0, wire.KIND_LIVE, 0, q, Body.default(PAPER10).positions(q))))
+    assert all(np.array_equal(default[b.name], p) for b, p in zip(vmc.VMC_BONES, vmc.rest_positions().astype(np.float32)))
+    for k, height_m in enumerate((1.5, 1.9, 1.5), start=1):  # each change of body is sent (read once a second)
+        body = Body.from_height(PAPER10, height_m)
+        got = bone_positions(encoder.encode(wire.PoseFrame(k, k * vmc.SIZE_EVERY_US, wire.KIND_LIVE, 0, q,
+                                                           body.positions(q))))
+        bones = body.lengths
+        assert got["Hips"][1] == pytest.approx(bones["l_thigh"] + bones["l_shank"], rel=1e-6)
+        assert got["LeftLowerLeg"][1] == pytest.approx(-bones["l_thigh"], rel=1e-6)
+        assert got["LeftFoot"][1] == pytest.approx(-bones["l_shank"], rel=1e-6)
+        assert got["RightLowerArm"][0] == pytest.approx(bones["r_upperarm"], rel=1e-6)  # (Unity's x: to the right)
+        assert got["RightHand"][0] == pytest.approx(bones["r_lowerarm"], rel=1e-6)
+        assert got["Head"][1] == pytest.approx(bones["neck"], rel=1e-6)

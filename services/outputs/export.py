@@ -99,17 +99,9 @@ class Sized:
 
 
 def skeleton_of(frame: wire.PoseFrame, rest_pose: str | None = None) -> Skeleton:
-    """The body an aggregator used for ``frame``: bone lengths from its joint positions, rest pose
-    from its flags (``rest_pose``: an override)."""
-    j = {name: np.asarray(frame.joints[i], np.float64) for i, name in enumerate(wire.JOINTS)}
-
-    def length(a: str, b: str) -> float:
-        return float(np.linalg.norm(j[a] - j[b]))
-    return Skeleton(thigh=length("l_knee", "l_hip"), shank=length("l_ankle", "l_knee"),
-                    upperarm=length("l_elbow", "l_shoulder"), lowerarm=length("l_wrist", "l_elbow"),
-                    spine=length("neck_base", "pelvis"), neck=length("head", "neck_base"),
-                    hip_width=length("l_hip", "r_hip"), shoulder_width=length("l_shoulder", "r_shoulder"),
-                    rest_pose=rest_pose or wire.frame_rest_pose(frame.flags))
+    """The body an aggregator used for ``frame``: bone lengths from its joint positions
+    (``Skeleton.of_joints``), rest pose from its flags (``rest_pose``: an override)."""
+    return Skeleton.of_joints(frame.joints, rest_pose or wire.frame_rest_pose(frame.flags))
 
 
 def from_recording(recording: Recording, subject: str | None, rest_pose: str | None = None) -> Take:
