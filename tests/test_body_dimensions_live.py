@@ -5,6 +5,7 @@ dropped while everything streams on."""
 from __future__ import annotations
 
 import json
+import signal
 import threading
 import time
 
@@ -16,6 +17,7 @@ from support.stack import StatsWatch, http_json, stack, wait_for_subscribers, wa
 
 from limbstream import wire, zconfig
 from limbstream.body import PAPER10, Body
+from limbstream.services.outputs.recording import Recording, RecordingError
 from limbstream.services.outputs.subscription import Subscription
 from limbstream.sources.bvh import parse_bvh
 
@@ -179,3 +181,30 @@ def test_a_bvh_source_streams_with_its_own_skeletons_bone_lengths(stack):  # noq
         http_json(f"{url}/api/subjects/s01")), 30, "s01 on the dashboard", on_fail=stack.logs)
     assert detail["layout"] == "paper10" and detail["height_m"] is None
     assert {b: detail["bones_m"][b] for b in own} == pytest.approx(own, rel=1e-9)
+
+
+def test_a_recording_replays_its_subjects_body(stack, tmp_path):  # noqa: F811
+    """Recorded devices' statuses carry their body: the replayed devices announce it again (at the
+    aggregator's next poll once the replay has read them: the recording is replayed in a loop)."""
+    path = tmp_path / "session.mcap"
+    stack.router()
+    stack.aggregator()
+    recorder = stack.start("record", "record", str(path), "--connect", stack.endpoint)
+    wait_for_subscribers(stack.endpoint, [wire.seg_key("s01", "hip")],
+                         "the aggregator and the recorder", on_fail=stack.logs)
+    stack.emulator(1, 1.0, "--height-m", "1.5")
+    small = Body.from_height(PAPER10, 1.5)
+    frames_until(stack.endpoint, lambda n: ("s01", wire.KIND_EXACT) in n and drawn_with(n[("s01", wire.KIND_EXACT)], small),
+                 "s01 drawn at 1.5 m", stack.logs)
+
+    def statuses() -> int:
+        try:
+            return len({e.key for e in Recording(path).entries(["config"])})
+        except RecordingError:
+            return 0
+    wait_until(lambda: statuses() == 10, 30, "every device's status recorded", on_fail=stack.logs)
+    recorder.signal(signal.SIGTERM)
+    assert recorder.popen.wait(20) == 0, stack.logs()
+    stack.start("replay", "replay", str(path), "--connect", stack.endpoint, "--subject-prefix", "r-", "--loop")
+    frames_until(stack.endpoint, lambda n: ("r-s01", wire.KIND_EXACT) in n
+                 and drawn_with(n[("r-s01", wire.KIND_EXACT)], small), "the replayed r-s01 drawn at 1.5 m", stack.logs)
