@@ -155,3 +155,16 @@ def test_vmc_sends_the_bone_offsets_of_each_subjects_body():
         assert got["RightLowerArm"][0] == pytest.approx(bones["r_upperarm"], rel=1e-6)  # (Unity's x: to the right)
         assert got["RightHand"][0] == pytest.approx(bones["r_lowerarm"], rel=1e-6)
         assert got["Head"][1] == pytest.approx(bones["neck"], rel=1e-6)
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["slimevr", "--height-m", "2.6"], "--height-m: height must be within [0.5, 2.5] m, got 2.6"),
+    (["slimevr", "--height-m", "1.5,1.6"], "--height-m: one wearer's dimensions for the gateway's devices, got 2"),
+    (["serial", "--port", "tcp:127.0.0.1:1", "--subject", "s01", "--segment", "hip", "--height-m", "0.4"],
+     "--height-m: height must be within [0.5, 2.5] m, got 0.4"),
+    (["serial", "--port", "tcp:127.0.0.1:1", "--subject", "s01", "--segment", "hip", "--body", "none.toml"],
+     "--body none.toml: cannot read"),
+], ids=["slimevr_height", "slimevr_two", "serial_height", "serial_no_file"])
+def test_a_gateways_bad_dimensions_are_refused_in_one_line(argv, said):
+    out = limbstream("gateway", *argv)
+    assert out.returncode == 2 and out.stderr.count("\n") == 1 and said in out.stderr, out.stderr

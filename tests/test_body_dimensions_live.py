@@ -208,3 +208,28 @@ def test_a_recording_replays_its_subjects_body(stack, tmp_path):  # noqa: F811
     stack.start("replay", "replay", str(path), "--connect", stack.endpoint, "--subject-prefix", "r-", "--loop")
     frames_until(stack.endpoint, lambda n: ("r-s01", wire.KIND_EXACT) in n
                  and drawn_with(n[("r-s01", wire.KIND_EXACT)], small), "the replayed r-s01 drawn at 1.5 m", stack.logs)
+
+
+def test_slimevr_trackers_announce_their_wearers_height(stack):  # noqa: F811
+    from limbstream.device_emulator.slimevr_tracker import Fleet
+    from support.slimevr import free_udp_port
+    stack.router()
+    stack.aggregator()
+    port = free_udp_port()
+    stack.start("gateway", "gateway", "slimevr", "--connect", stack.endpoint, "--udp", f"127.0.0.1:{port}",
+                "--subject", "sv01", "--height-m", "1.6", "--no-sync")
+    t = np.arange(500) / 50.0
+    q = np.zeros((len(t), len(wire.SEGMENTS), 4))
+    q[..., 0], q[..., 2] = np.cos(0.3 * np.sin(t))[:, None], np.sin(0.3 * np.sin(t))[:, None]  # turning about Y
+    fleet = Fleet(("127.0.0.1", port), q, wire.SEGMENTS, 50.0)
+    stop = threading.Event()
+    sender = threading.Thread(target=lambda: (fleet.connect(), fleet.run(stop)))
+    sender.start()
+    try:
+        tall = Body.from_height(PAPER10, 1.6)
+        frames_until(stack.endpoint, lambda n: ("sv01", wire.KIND_EXACT) in n
+                     and drawn_with(n[("sv01", wire.KIND_EXACT)], tall), "sv01 drawn at 1.6 m", stack.logs, 60)
+    finally:
+        stop.set()
+        sender.join()
+        fleet.close()

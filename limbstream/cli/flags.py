@@ -302,11 +302,12 @@ def names_argv(mapping: dict[str, str] | None) -> list[str]:
 
 # ----------------------------------------------------------------------------- the wearer's dimensions
 
-def add_body(parser: argparse.ArgumentParser) -> None:
+def add_body(parser: argparse.ArgumentParser, whose: str = "") -> None:
     """``--height-m H[,H...]`` and ``--body FILE[,FILE...]``: the subjects' dimensions, one value
-    per subject in turn (``emulate``, ``up``; checked by :func:`bodies`)."""
-    group = parser.add_argument_group("the wearer's dimensions (docs/body.md; default: the default adult of about "
-                                      "1.75 m, a BVH source's own skeleton)")
+    per subject in turn (``emulate``, ``up``; checked by :func:`bodies`); a gateway's, one for all
+    its devices (``whose`` says whose, :func:`one_body`)."""
+    group = parser.add_argument_group("the wearer's dimensions (docs/body.md; " + (
+        whose or "default: the default adult of about 1.75 m, a BVH source's own skeleton") + ")")
     group.add_argument("--height-m", default=None, metavar="H[,H...]",
                        help="the subjects' heights, m, within [0.5, 2.5]: each bone by Winter's proportions; "
                             "several go to the subjects in turn")
@@ -340,6 +341,16 @@ def bodies(args: argparse.Namespace) -> list[Body] | None:
                 raise FlagError(f"--body {exc}") from None
         return out
     return None
+
+
+def one_body(args: argparse.Namespace) -> Body | None:
+    """The one body of a gateway's ``--height-m`` or ``--body`` (None: neither); FlagError for a
+    bad one or for several (its devices are one wearer's)."""
+    given = bodies(args)
+    if given is not None and len(given) > 1:
+        flag = "--height-m" if getattr(args, "height_m", None) is not None else "--body"
+        raise FlagError(f"{flag}: one wearer's dimensions for the gateway's devices, got {len(given)}")
+    return None if given is None else given[0]
 
 
 def body_argv(args: argparse.Namespace) -> list[str]:
