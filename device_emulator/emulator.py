@@ -93,7 +93,8 @@ class Emulator:
     ----------
     session : an open Zenoh session (client).
     feeds : {subject: feed}, a feed has ``segments``, ``sample(k) -> (S, 4) float32``,
-        ``length`` (samples, or None for endless) and ``rest_pose``.
+        ``length`` (samples, or None for endless), ``rest_pose`` and, optionally, ``body`` (its
+        wearer's dimensions, :class:`limbstream.body.Body`, which its devices announce).
     settings : EmulatorSettings.
     """
 
@@ -173,11 +174,13 @@ class Emulator:
         self.host.close()
 
     def _status(self, d: Device) -> wire.DeviceStatus:
-        """The device's own view: config, counters of its current stream, clock sync, and what its
-        orientations are: its sensor's reading under a sensor model, else its feed's."""
+        """The device's own view: config, counters of its current stream, clock sync, what its
+        orientations are (its sensor's reading under a sensor model, else its feed's) and its
+        feed's body."""
         clock = self.sync.status(d.slot) if self.sync is not None else wire.ClockStatus()
         orientations = "sensors" if self.sensors is not None else d.source.orientations
-        return self.bank.status(d, clock, d.source.rest_pose, orientations=orientations)
+        return self.bank.status(d, clock, d.source.rest_pose, orientations=orientations,
+                                body=getattr(d.source, "body", None))
 
     def _configure(self, d: Device, config: wire.DeviceConfig) -> None:
         self.bank.configure(d, config)

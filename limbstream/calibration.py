@@ -182,12 +182,12 @@ def with_script(q: np.ndarray, fs: float, segments=SEGMENTS) -> tuple[np.ndarray
 
 class ScriptedFeed:
     """A feed (``segments``, ``sample(k) -> (S, 4)``, ``length``, ``rest_pose``,
-    ``orientations``) that starts with the calibration script: at the start of an endless feed
+    ``orientations``, ``body``) that starts with the calibration script: at the start of an endless feed
     (the generator), before every pass of a looped or finite one (a file)."""
 
     def __init__(self, feed, fs: float, loop_length: int | None = None):
         self.feed, self.segments, self.rest_pose = feed, feed.segments, feed.rest_pose
-        self.orientations = feed.orientations
+        self.orientations, self.body = feed.orientations, feed.body
         script, _, _ = with_script(np.asarray(feed.sample(0), np.float64)[None], fs, feed.segments)
         self.script = script[:-1].astype(np.float32)  # without the motion's first sample itself
         self.loop = loop_length  # samples per pass of a looped feed (None: endless or finite)

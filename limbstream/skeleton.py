@@ -79,6 +79,13 @@ class Skeleton:
             tpose = self.rest_pose == "tpose"
         return self._chain.positions(q, tpose, dtype)
 
+    @classmethod
+    def of_joints(cls, joints: np.ndarray, rest_pose: str = wire.DEFAULT_REST_POSE) -> Skeleton:
+        """The skeleton whose bones joint positions ``joints`` (15, 3) m (a pose frame's, JOINTS
+        order) have (:func:`joint_lengths`); ValueError if a length is not > 0."""
+        thigh, shank, upperarm, lowerarm, spine, neck, hip_width, shoulder_width = joint_lengths(joints).tolist()
+        return cls(thigh, shank, upperarm, lowerarm, spine, neck, hip_width, shoulder_width, rest_pose)
+
     @cached_property
     def _chain(self) -> reconstruct.Chain:
         """The bones in the order their joints are placed: the segment that turns each, its joint
@@ -98,6 +105,20 @@ class Skeleton:
         return reconstruct.Chain([_S[seg] for _, _, seg, _, _ in rows], [_J[joint] for joint, *_ in rows],
                           [-1 if up is None else _J[up] for _, up, *_ in rows], np.array([r[3] for r in rows]),
                           np.array([r[3] if r[4] is None else r[4] for r in rows]), len(JOINTS))
+
+
+_LENGTH_PAIRS = np.array([[_J[a], _J[b]] for a, b in (
+    ("l_knee", "l_hip"), ("l_ankle", "l_knee"), ("l_elbow", "l_shoulder"), ("l_wrist", "l_elbow"),
+    ("neck_base", "pelvis"), ("head", "neck_base"), ("l_hip", "r_hip"), ("l_shoulder", "r_shoulder"))])
+
+
+def joint_lengths(joints: np.ndarray) -> np.ndarray:
+    """(8,) float64 the :class:`Skeleton` lengths (thigh, shank, upperarm, lowerarm, spine, neck,
+    hip_width, shoulder_width), m, of joint positions ``joints`` (15, 3) m: the left limbs', the
+    widths between the two sides' joints."""
+    j = np.asarray(joints, np.float64)
+    d = j[_LENGTH_PAIRS[:, 0]] - j[_LENGTH_PAIRS[:, 1]]
+    return np.sqrt(np.einsum("ij,ij->i", d, d))
 
 
 def bone_axis(segment: str, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:

@@ -5,8 +5,9 @@ forward kinematics (docs/body.md).
 Built-in layouts: ``paper10`` (wire.SEGMENTS and wire.JOINTS, the skeleton of the paper's
 evaluation) and ``full`` (15 segments); a ``.toml`` or ``.json`` layout file adds others
 (:func:`load_layout`). Bodies: :class:`Body` (``from_height``, ``from_file``, ``from_vectors``,
-``default``). Not yet wired into the wire contract or the services: those use
-:mod:`limbstream.skeleton`, which ``paper10`` reproduces bit for bit.
+``default``). A subject's body travels in its devices' status (``wire.encode_body``) and the
+aggregator draws its ``paper10`` frames with it; a subject without one is drawn with
+:mod:`limbstream.skeleton`, which ``paper10``'s default body reproduces bit for bit.
 """
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ from pathlib import Path
 
 from limbstream.body.builtin import (DEFAULT_HEIGHT_M, FULL, LAYOUTS, PAPER10, PAPER10_BONES, WINTER_HEIGHTS,
                                      WINTER_LENGTHS, builtin_layout)
-from limbstream.body.dimensions import HEIGHT_BOUNDS_M, MAX_BONE_M, Body, check_height, check_length, rest_heights
+from limbstream.body.dimensions import (HEIGHT_BOUNDS_M, MAX_BONE_M, Body, check_height, check_length, lengths_of,
+                                        rest_heights)
 from limbstream.body.files import layout_from_dict, load_layout, read_table
 from limbstream.body.layout import Bone, Layout, Offset, Segment, offset, segment
 
@@ -30,5 +32,5 @@ def layout(name_or_path: str | Path) -> Layout:
 
 __all__ = ["DEFAULT_HEIGHT_M", "FULL", "HEIGHT_BOUNDS_M", "LAYOUTS", "MAX_BONE_M", "PAPER10", "PAPER10_BONES",
            "WINTER_HEIGHTS", "WINTER_LENGTHS", "Body", "Bone", "Layout", "Offset", "Segment", "builtin_layout",
-           "check_height", "check_length", "layout", "layout_from_dict", "load_layout", "offset", "read_table",
+           "check_height", "check_length", "layout", "lengths_of", "layout_from_dict", "load_layout", "offset", "read_table",
            "rest_heights", "segment"]

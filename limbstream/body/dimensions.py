@@ -192,6 +192,14 @@ def _vector(name: str, value: Any) -> np.ndarray:
     return vec
 
 
+def lengths_of(layout: Layout, positions: np.ndarray) -> dict[str, float]:
+    """Bone name -> length, m, of joint positions ``positions`` (J, 3) m in ``layout.joints``
+    order (a pose frame's): the distance from each bone's origin joint to its joint, in float64."""
+    at = layout.joint_index
+    p = np.asarray(positions, np.float64)
+    return {b.name: float(np.linalg.norm(p[at[b.joint]] - p[at[b.origin]])) for b in layout.bones}
+
+
 def rest_heights(body: Body) -> dict[str, float]:
     """Joint name -> height above the lowest joint, m, standing in the rest pose (identity
     orientations, ``standing``)."""

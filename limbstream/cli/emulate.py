@@ -27,10 +27,19 @@ def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
     """{subject: feed} from --source: the generator (seed = subject number) or a motion file, whose
     clips the subjects share in turn (:func:`clip_of`); ``scripted``: each begins with the
     calibration script (limbstream.calibration). With ``--imu raw``: raw sensor feeds (each with
-    the script, every subject from its clip's start)."""
+    the script, every subject from its clip's start). Each feed's ``body`` (its wearer's
+    dimensions, which its devices announce) is its clip's own (a BVH file's skeleton; None: the
+    default adult) unless ``--height-m`` or ``--body`` give the subjects theirs, in turn."""
     names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
-    if args.imu == "raw":
-        return raw_feeds(args, names)
+    feeds = raw_feeds(args, names) if args.imu == "raw" else motion_feeds(args, names, scripted)
+    given = flags.bodies(args) or []
+    for i, feed in enumerate(feeds.values() if given else ()):
+        feed.body = given[(args.first_subject + i - 1) % len(given)]
+    return feeds
+
+
+def motion_feeds(args: argparse.Namespace, names: list[str], scripted: bool) -> dict:
+    """{subject: feed} of orientations (see :func:`build_feeds`)."""
     feeds: dict[str, GeneratorFeed | LoopFeed]
     if args.source == "generator":
         feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
@@ -113,6 +122,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
     add_clock_arguments(parser)
     flags.add_sensor_model(parser)
+    flags.add_body(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
     flags.add_zenoh(parser)
 
@@ -204,6 +214,7 @@ def validate(args: argparse.Namespace) -> None:
     for ok, message in checks:
         if not ok:
             raise SystemExit(f"limbstream emulate: error: {message}")
+    flags.bodies(args)  # FlagError: one line, exit status 2
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:

@@ -10,12 +10,14 @@ import argparse
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 from limbstream import wire, zconfig
 from limbstream.sources import names
 
 if TYPE_CHECKING:  # (calibration brings scipy: the commands without sensors start without it)
+    from limbstream.body import Body
     from limbstream.calibration import SensorModel
 
 
@@ -296,3 +298,65 @@ def add_names(parser: argparse.ArgumentParser) -> None:
 def names_argv(mapping: dict[str, str] | None) -> list[str]:
     """The flags that give ``mapping`` to a child process (none for None)."""
     return [] if mapping is None else ["--names", ",".join(f"{sensor}={segment}" for sensor, segment in mapping.items())]
+
+
+# ----------------------------------------------------------------------------- the wearer's dimensions
+
+def add_body(parser: argparse.ArgumentParser, whose: str = "") -> None:
+    """``--height-m H[,H...]`` and ``--body FILE[,FILE...]``: the subjects' dimensions, one value
+    per subject in turn (``emulate``, ``up``; checked by :func:`bodies`); a gateway's, one for all
+    its devices (``whose`` says whose, :func:`one_body`)."""
+    group = parser.add_argument_group("the wearer's dimensions (docs/body.md; " + (
+        whose or "default: the default adult of about 1.75 m, a BVH source's own skeleton") + ")")
+    group.add_argument("--height-m", default=None, metavar="H[,H...]",
+                       help="the subjects' heights, m, within [0.5, 2.5]: each bone by Winter's proportions; "
+                            "several go to the subjects in turn")
+    group.add_argument("--body", default=None, metavar="FILE[,FILE...]",
+                       help="a .toml or .json file of the subjects' bone lengths, m (docs/body.md, 'Bodies'); "
+                            "several go to the subjects in turn")
+
+
+def bodies(args: argparse.Namespace) -> list[Body] | None:
+    """The bodies of ``--height-m`` or ``--body`` (of layout ``paper10``), one per value; None when
+    neither is given. FlagError naming the flag, the value and the bound."""
+    from limbstream.body import PAPER10, Body
+    height, files = getattr(args, "height_m", None), getattr(args, "body", None)
+    if height is not None and files is not None:
+        raise FlagError("--height-m and --body both give the subjects' dimensions: give one")
+    if height is not None:
+        out = []
+        for part in (p.strip() for p in height.split(",")):
+            try:
+                out.append(Body.from_height(PAPER10, float(part)))
+            except ValueError as exc:
+                detail = str(exc) if part and "height" in str(exc) else f"a height in m, or several: H,H,..., got {part!r}"
+                raise FlagError(f"--height-m: {detail}") from None
+        return out
+    if files is not None:
+        out = []
+        for part in (p.strip() for p in files.split(",")):
+            try:
+                out.append(Body.from_file(PAPER10, part))
+            except ValueError as exc:
+                raise FlagError(f"--body {exc}") from None
+        return out
+    return None
+
+
+def one_body(args: argparse.Namespace) -> Body | None:
+    """The one body of a gateway's ``--height-m`` or ``--body`` (None: neither); FlagError for a
+    bad one or for several (its devices are one wearer's)."""
+    given = bodies(args)
+    if given is not None and len(given) > 1:
+        flag = "--height-m" if getattr(args, "height_m", None) is not None else "--body"
+        raise FlagError(f"{flag}: one wearer's dimensions for the gateway's devices, got {len(given)}")
+    return None if given is None else given[0]
+
+
+def body_argv(args: argparse.Namespace) -> list[str]:
+    """The flags that give ``--height-m`` or ``--body`` to a child process (files as absolute paths)."""
+    if getattr(args, "height_m", None) is not None:
+        return ["--height-m", args.height_m]
+    if getattr(args, "body", None) is not None:
+        return ["--body", ",".join(str(Path(p.strip()).resolve()) for p in args.body.split(","))]
+    return []

@@ -35,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cache", type=int, default=512, help="segment points kept for recovery (default 512)")
     parser.add_argument("--link-timeout", type=float, default=10.0,
                         help="seconds to keep trying to open the link at start (default 10)")
+    flags.add_body(parser, "of the device's wearer; default: a --source BVH file's own skeleton, else the default "
+                           "adult of about 1.75 m")
     parser.add_argument("--silence-s", type=float, default=10.0,
                         help="a device not heard from for this long (it sends a heartbeat every second) is offline: "
                              "its link is reopened as a new stream (default 10)")
@@ -73,7 +75,9 @@ def run(args: argparse.Namespace) -> int:
         wire.check_chunk(args.subject, "subject"), wire.check_chunk(args.segment, "segment")
     except ValueError as exc:
         raise SystemExit(f"limbstream gateway serial: error: {exc}") from None
+    body = flags.one_body(args)  # FlagError: one line, exit status 2
     feed, rest_pose = feeding(args)
+    body = body or (None if feed is None else feed.feed.body)
     stop = stop_on_signals()
     session = zconfig.open_session(flags.session_settings(args, "limbstream gateway serial"), stop)
     if session is None:
@@ -90,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
             return links[-1]
 
         gateway = serial_gateway.SerialGateway(host, connect, args.subject, args.segment, feed, rest_pose=rest_pose,
-                                               silence_s=args.silence_s)
+                                               silence_s=args.silence_s, body=body)
         print(f"limbstream gateway serial: connected; opening the link {args.port} (up to {args.link_timeout:g} s)",
               file=sys.stderr, flush=True)
         if not gateway.open():

@@ -84,6 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="stamp with the gateway's own clock (no time service)")
     group.add_argument("--sync-wait-s", type=float, default=10.0,
                        help="at start, wait at most this long for the first time answers (default 10)")
+    flags.add_body(parser, "of the trackers' wearer (default: the default adult of about 1.75 m)")
     parser.add_argument("-v", "--verbose", action="store_true")
     flags.add_zenoh(parser)
 
@@ -101,6 +102,7 @@ def validate(args: argparse.Namespace) -> None:
     for ok, message in checks:
         if not ok:
             raise SystemExit(f"limbstream gateway slimevr: error: {message}")
+    flags.one_body(args)  # FlagError: one line, exit status 2
 
 
 def settings_from_args(args: argparse.Namespace):
@@ -111,7 +113,7 @@ def settings_from_args(args: argparse.Namespace):
     return GatewaySettings(subject=args.subject, name=args.name, assign=assign, host=host, delay_ms=args.delay_ms,
                            timeout_s=args.timeout, max_devices=args.max_devices,
                            clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)),
-                           assignments_file=args.assignments_file)
+                           assignments_file=args.assignments_file, body=flags.one_body(args))
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:

@@ -72,6 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the devices run their firmware under QEMU (emulate --firmware: one process per device)")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     flags.add_sensor_model(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
+    flags.add_body(parser)  # the subjects' dimensions, passed on: their devices announce them
     flags.add_heading_correction(parser)  # the aggregator's, for the calibrated devices
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
     parser.add_argument("--slimevr", default=None, metavar="[HOST:]PORT",
@@ -107,7 +108,8 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
             break
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
                 *flags.names_argv(args.names), *(["--same-start"] if args.same_start else []),
-                "--speed", str(args.speed), *flags.device_config(args).flags(), *clock_flags(args), *anchor]
+                "--speed", str(args.speed), *flags.device_config(args).flags(), *clock_flags(args), *anchor,
+                *flags.body_argv(args)]
         if args.no_truth:
             argv.append("--no-truth")
         if args.firmware:
@@ -239,6 +241,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
         parse_address(args.slimevr)
         wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
     flags.sensor_model(args)  # a bad sensor bound, or one raw sensors do not take
+    flags.bodies(args)  # a height or bone out of bounds, a malformed body file
     check_clock(args)
     if args.imu == "raw" and (args.clock_offset_ms or args.clock_drift_ppm or args.clock_jitter_us):
         raise ValueError("--imu raw samples on the feed's own clock: device clock models (--clock-offset-ms, "

@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from limbstream import kernel, wire
+from limbstream.body import Body
 from limbstream.device.host import Device, DeviceHost
 from limbstream.kernel import fusion
 
@@ -169,13 +170,14 @@ class DeviceBank:
         d.config = config
 
     def status(self, d: Device, clock: wire.ClockStatus | None, rest_pose: str = wire.DEFAULT_REST_POSE,
-               link: wire.LinkStatus | None = None, orientations: str | None = None) -> wire.DeviceStatus:
+               link: wire.LinkStatus | None = None, orientations: str | None = None,
+               body: Body | None = None) -> wire.DeviceStatus:
         """Device d's own view: its config and the counters of its current stream, its clock and
-        link, what its orientations are (wire.ORIENTATIONS), and its fusion filter where it has a
-        raw stage."""
+        link, what its orientations are (wire.ORIENTATIONS), its fusion filter where it has a
+        raw stage, and its wearer's dimensions (``body``; None: not said)."""
         b = self.kernel
         return wire.DeviceStatus(d.id, d.config, int(b.stream[d.slot]), int(self.n[d.slot] - b.base[d.slot]),
-                                 d.points, clock, rest_pose, link, self.fusion_status(d.slot), orientations)
+                                 d.points, clock, rest_pose, link, self.fusion_status(d.slot), orientations, body)
 
     def fusion_status(self, slot: int) -> wire.FusionStatus | None:
         """The filter of the device in ``slot`` (None without a raw stage)."""

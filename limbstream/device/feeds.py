@@ -48,6 +48,7 @@ class LoopFeed:
         self.segments = self.motion.segments
         self.rest_pose = self.motion.rest_pose
         self.orientations = self.motion.orientations  # wire.ORIENTATIONS
+        self.body = self.motion.body  # its wearer's dimensions (None: the default adult), its devices announce
         self.length = len(self.q) if once else None
 
     def sample(self, k: int) -> np.ndarray:
@@ -67,6 +68,7 @@ class GeneratorFeed:
     CHUNK_S = 10.0
     rest_pose = "standing"
     orientations = "segments"  # wire.ORIENTATIONS: the generated segments' own
+    body = None  # the default adult (``limbstream emulate --height-m`` sets another)
 
     def __init__(self, seed: int, fs: float, noise_deg: float = 0.0):
         self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg)

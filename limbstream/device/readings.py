@@ -52,6 +52,7 @@ class RawFeed:
         self.per = raw_per_sample(rate_hz, fs)
         self.readings_feed = imu.ReadingFeed(source, rate_hz, once=once)
         self.segments, self.rest_pose = self.readings_feed.segments, self.readings_feed.rest_pose
+        self.body = getattr(source, "body", None)  # a recording's wearer (the generator's: the default adult)
         raw = self.readings_feed.length
         self.length = None if raw is None else -(-raw // self.per)  # device instants on raw samples 0, per, ...
         self._tick: tuple[int, Readings] | None = None

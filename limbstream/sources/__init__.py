@@ -19,6 +19,7 @@ from limbstream.wire.body import SEGMENTS  # noqa: F401  (re-exported: the 10-IM
 
 if TYPE_CHECKING:
     from limbstream.sources.bvh_positions import BvhPositions
+    from limbstream.body import Body
 
 
 class MotionFileError(ValueError):
@@ -74,6 +75,8 @@ class Motion:
         :func:`.imu_files.to_body`).
     positions : the source's own joint positions where it has them (a BVH file read as it is:
         :class:`.bvh_positions.BvhPositions`), else None.
+    body : the wearer's dimensions where the source gives them (a BVH clip's, from its OFFSETs:
+        :func:`.bvh_body.body_of`), None: not given (the default adult).
     """
 
     t: np.ndarray
@@ -84,6 +87,7 @@ class Motion:
     root: np.ndarray | None = None
     orientations: str = "segments"
     positions: BvhPositions | None = None
+    body: Body | None = None
 
     def __post_init__(self):
         if self.t.ndim != 1 or self.q.ndim != 3 or self.q.shape[0] != len(self.t) or self.q.shape[2] != 4:

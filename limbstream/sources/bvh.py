@@ -20,7 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat, wire
-from limbstream.sources import Motion, MotionFileError, bvh_names, bvh_rest, is_number
+from limbstream.body import Body
+from limbstream.sources import SEGMENTS, Motion, MotionFileError, bvh_body, bvh_names, bvh_rest, is_number
 from limbstream.sources.bvh_names import CMU_SEGMENT_MAPS, pick_segment_map  # noqa: F401  (re-exported)
 from limbstream.sources.bvh_positions import BvhPositions
 
@@ -353,11 +354,12 @@ def load_bvh(
     Returns
     -------
     Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame
-    from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`), the file's own joint
-    positions (``positions``, :class:`.bvh_positions.BvhPositions`; None if paper10's bones cannot
-    be measured on its skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint
-    has a path (position channels on it or above it) and the map names the left thigh and shank,
-    the pelvis's path (:func:`root_path`, linearly resampled with the orientations).
+    from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`), its wearer's body
+    from its OFFSETs (``body``, :func:`wearer`), the file's own joint positions (``positions``,
+    :class:`.bvh_positions.BvhPositions`; None if paper10's bones cannot be measured on its
+    skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint has a path
+    (position channels on it or above it) and the map names the left thigh and shank, the
+    pelvis's path (:func:`root_path`, linearly resampled with the orientations).
 
     Raises
     ------
@@ -386,12 +388,25 @@ def load_bvh(
         positions: BvhPositions | None = own
     except ValueError:
         positions = None  # a skeleton paper10 cannot take: no positions of its own
+    body = wearer(clip, segment_map)
     if fs is None:
-        return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root, positions=positions)
+        return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root, positions=positions, body=body)
     t_out, q = resample(t, q, fs)
     if root is not None:
         root = np.stack([np.interp(t_out, t, axis) for axis in root.T], axis=1)
-    return Motion(t_out, q, segments, clip.path.stem, rest_pose, root, positions=positions)
+    return Motion(t_out, q, segments, clip.path.stem, rest_pose, root, positions=positions, body=body)
+
+
+def wearer(clip: BvhClip, segment_map: Mapping[str, str]) -> Body | None:
+    """The clip's body from its OFFSETs (:func:`.bvh_body.body_of`); None where its map is not of
+    the 10 segments or its joints do not give every bone. MotionFileError naming the file, the bone
+    and its bound where a bone they give is out of bounds."""
+    if set(segment_map) != set(SEGMENTS) or bvh_body.bone_vectors(clip, segment_map) is None:
+        return None
+    try:
+        return bvh_body.body_of(clip, segment_map)
+    except ValueError as exc:
+        raise MotionFileError.at(clip.path, None, f"its skeleton's OFFSETs give no body: {exc}") from None
 
 
 def joint_positions(clip: BvhClip, joints: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:

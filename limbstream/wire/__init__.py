@@ -4,7 +4,7 @@
 module          what it holds
 ==============  ==============================================================
 :mod:`.keys`    key-expression grammar: builders for every key and selector
-:mod:`.body`    body layout: segments, joints, bones
+:mod:`.body`    body layout: segments, joints, bones; a wearer's dimensions
 :mod:`.point`   segment point codec (device -> aggregator)
 :mod:`.raw`     truth-tap batch codec (one device's)
 :mod:`.truth`   subject truth-tap codec (the batches of a subject's devices in one message)
@@ -28,7 +28,7 @@ from .angles import (ANGLE_BASES, ANGLE_FLAGS, ANGLE_GIMBAL, ANGLE_MISSING, ANGL
                      ANGLES_VERSION, BASIS, AngleBasis, AngleFrames, JointAngles, decode_angles, decode_angles_many,
                      encode_angles)
 from .body import (BONES, DEFAULT_REST_POSE, JOINT_ANGLES, JOINT_TABLE, JOINTS, ORIENTATIONS, REST_POSES, SEGMENTS, Joint,
-                   check_rest_pose)
+                   check_rest_pose, decode_body, encode_body)
 from .config import (DEVICE_RATE_HZ, LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
                      DeviceStatus, FusionStatus, FUSION_MODES, LinkStatus, Tunable, decode_config, decode_status,
                      encode_config, encode_status)
@@ -43,7 +43,7 @@ from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VER
                     SegmentPoint, decode_point, decode_points, encode_point)
 from .pose import (AUTO, AUTO_LIVE_WINDOW_S, FRAME_KINDS, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE, POSE_DTYPE,
                    PoseFrame, PoseFrames, auto_kind, decode_pose, encode_pose, frame_rest_pose, kind_name, pose_stream, rest_pose_flag)
-from .rejects import POINT_DROPS, RAW_DROPS, UNCHARGED, device_reason, truth_reason, undecodable
+from .rejects import POINT_DROPS, RAW_DROPS, STATUS_DROPS, UNCHARGED, device_reason, truth_reason, undecodable
 from .raw import (MAX_RAW_BATCH, RAW_SAMPLE_DTYPE, RAW_SAMPLE_DTYPE_V2, RAW_SAMPLE_DTYPE_V3, RAW_VERSION, RawBatch, RawColumns, decode_raw,
                   decode_raws, encode_raw, encode_raws)
 from .truth import MAX_TRUTH_ENTRIES, TRUTH_VERSION, decode_truth, encode_truth, truth_batches

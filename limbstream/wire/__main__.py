@@ -3,7 +3,7 @@ joint-angle and drop reason tables of docs/protocol.md, printed as Markdown from
 (tests/test_wire.py checks the docs hold exactly these)."""
 from __future__ import annotations
 
-from . import ANGLE_BASES, FIELDS, JOINT_TABLE, POINT_DROPS, RAW_DROPS, STATS_NUMBERS, STATS_TEXTS, TUNABLES, UNCHARGED
+from . import ANGLE_BASES, FIELDS, JOINT_TABLE, POINT_DROPS, RAW_DROPS, STATS_NUMBERS, STATUS_DROPS, STATS_TEXTS, TUNABLES, UNCHARGED
 
 
 def fields_table(scope: str) -> str:
@@ -67,6 +67,7 @@ def tables() -> dict[str, str]:
             "Per aggregator": fields_table("aggregator"), "Compact form": compact_table(), "Tunables": tunables_table(),
             "Joint angles": angles_table(), "Calibration of the angles": bases_table(),
             "Segment points dropped": reasons_table(POINT_DROPS), "Truth-tap batches dropped": reasons_table(RAW_DROPS),
+            "Body dimensions dropped": reasons_table(STATUS_DROPS),
             "Messages no device can be charged with": reasons_table(UNCHARGED, "message")}
 
 

@@ -87,3 +87,30 @@ JOINT_TABLE: tuple[Joint, ...] = (
 JOINT_ANGLES: tuple[str, ...] = tuple(a for j in JOINT_TABLE for a in j.angles if a is not None)
 """The joint angles (OpenSim's Rajagopal model's names), in this order in every angle vector:
 joint-angle messages, ``limbstream.joints.ANGLES``, ``.mot`` files (degrees)."""
+
+
+def encode_body(body) -> dict:
+    """A wearer's dimensions as a device status carries them (``"body"``, docs/protocol.md "Body
+    dimensions"): ``{"layout": name, "height_m": m or null, "bones": {bone: m, or [x, y, z] m in
+    the standing frame where it lies off its rest direction}}``. ``body``: a
+    :class:`limbstream.body.Body` of a built-in layout."""
+    table = body.to_dict()
+    layout = table.pop("layout")
+    return {"layout": layout, "height_m": body.height_m, "bones": table}
+
+
+def decode_body(data):
+    """The :class:`limbstream.body.Body` of a status's ``"body"`` entry (:func:`encode_body`);
+    ValueError naming the problem (not an object, an unknown key or layout, a bone missing, unknown
+    or out of bounds, a height out of bounds). The bounds and the checks are the body's own
+    (:mod:`limbstream.body.dimensions`)."""
+    from limbstream.body import Body, builtin_layout  # (the body package is built on this module)
+    if not isinstance(data, dict) or set(data) - {"layout", "height_m", "bones"} or "bones" not in data:
+        raise ValueError(f"body must be an object of layout, height_m and bones, got {str(data)[:80]!r}")
+    bones = data["bones"]
+    if not isinstance(bones, dict):
+        raise ValueError(f"body bones must be an object of bone -> metres, got {str(bones)[:80]!r}")
+    layout = data.get("layout", "paper10")
+    if not isinstance(layout, str):
+        raise ValueError(f"body layout must be a name, got {layout!r}")
+    return Body(builtin_layout(layout), bones, height_m=data.get("height_m"))

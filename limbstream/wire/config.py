@@ -17,9 +17,13 @@ import json
 import math
 import numbers
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import TYPE_CHECKING
 
-from .body import DEFAULT_REST_POSE, ORIENTATIONS, check_rest_pose
+from .body import DEFAULT_REST_POSE, ORIENTATIONS, check_rest_pose, decode_body, encode_body
 from .errors import WireError
+
+if TYPE_CHECKING:
+    from limbstream.body import Body
 
 DEVICE_RATE_HZ = 50.0
 """A device's sample rate unless it is told another (every device, gateway grid and aggregator
@@ -155,6 +159,9 @@ class DeviceStatus:
         None for others.
     orientations : what its orientations are (wire.ORIENTATIONS: its segment's own, rest-calibrated
         or its sensor's reading); None: it does not say (a reader takes them as a sensor's).
+    body : its wearer's dimensions (:class:`limbstream.body.Body`), None: not said (the default adult).
+    body_error : why the ``"body"`` a status carried was refused (:func:`decode_status` reads the
+        rest of such a status; None: none refused).
     """
 
     device: str
@@ -167,15 +174,18 @@ class DeviceStatus:
     link: LinkStatus | None = None
     fusion: FusionStatus | None = None
     orientations: str | None = None
+    body: Body | None = None
+    body_error: str | None = None
 
     def as_dict(self) -> dict:
         clock = {} if self.clock is None else self.clock.as_dict()
         link = {} if self.link is None else self.link.as_dict()
         fusion = {} if self.fusion is None else self.fusion.as_dict()
         said = {} if self.orientations is None else {"orientations": self.orientations}
+        body = {} if self.body is None else {"body": encode_body(self.body)}
         return {"device": self.device, **self.config.as_dict(), "stream": self.stream,
                 "samples": self.samples, "points": self.points, **clock, "rest_pose": self.rest_pose, **link,
-                **fusion, **said}
+                **fusion, **said, **body}
 
 
 FUSION_MODES: tuple[str, ...] = ("6D", "9D")
@@ -304,8 +314,19 @@ def _fusion(data: dict) -> FusionStatus | None:
     return FusionStatus(mode, (float(bias[0]), float(bias[1]), float(bias[2])), rest, faults)
 
 
+def _body(data: dict) -> tuple[Body | None, str | None]:
+    """(the body of a status reply or None, why its ``"body"`` was refused or None)."""
+    if "body" not in data:
+        return None, None
+    try:
+        return decode_body(data["body"]), None
+    except ValueError as exc:
+        return None, str(exc).splitlines()[0] if str(exc) else "bad body"
+
+
 def decode_status(payload: bytes) -> DeviceStatus:
-    """A config reply -> DeviceStatus; WireError('status') if it is not one."""
+    """A config reply -> DeviceStatus; WireError('status') if it is not one. A malformed
+    ``"body"`` does not refuse the status: it is read without it, the reason in ``body_error``."""
     try:
         data = json.loads(bytes(payload))
         if not isinstance(data, dict):
@@ -315,10 +336,11 @@ def decode_status(payload: bytes) -> DeviceStatus:
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (stream, samples, points)):
             raise TypeError(f"stream, samples and points must be integers, got {[stream, samples, points]}")
         orientations = data.get("orientations")
+        body, body_error = _body(data)
         if orientations is not None and orientations not in ORIENTATIONS:
             raise ValueError(f"orientations must be one of {', '.join(ORIENTATIONS)}, got {orientations!r}")
         return DeviceStatus(str(data["device"]), config, stream, samples, points, clock=_clock(data),
                             rest_pose=check_rest_pose(data.get("rest_pose", DEFAULT_REST_POSE)), link=_link(data),
-                            fusion=_fusion(data), orientations=orientations)
+                            fusion=_fusion(data), orientations=orientations, body=body, body_error=body_error)
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
         raise WireError("status", f"bad device status: {exc}") from None

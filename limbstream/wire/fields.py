@@ -164,6 +164,12 @@ FIELDS: tuple[StatsField, ...] = (
     StatsField("frame_error_frames", int, "subject", "exact frames compared with the truth so far"),
     StatsField("facing_deg", float, "subject", "the turn about the vertical from the calibrated frames to the truth's "
                "world, fitted from the first frames compared after the subject's calibration (0: none fitted)", "deg"),
+    StatsField("layout", str, "subject", "the body layout of the body its devices announce (docs/body.md; null: "
+               "they announce none, its frames are drawn with the aggregator's own skeleton)"),
+    StatsField("height_m", float, "subject", "the wearer's height in the body its devices announce (null: none "
+               "announced, or one given bone by bone)", "m"),
+    StatsField("bones_m", dict, "subject", "the bone lengths of the body its devices announce, by bone of the "
+               "layout: its frames' joint positions are drawn with them (null: none announced)", "m"),
     # ---- the aggregator's own loop
     _aggregator("id", str, "host:pid of the aggregator process"),
     _aggregator("subjects", int, "subjects it tracks", metric="limbstream_aggregator_subjects"),

@@ -41,6 +41,14 @@ RAW_DROPS: dict[str, str] = {
 }
 """Truth-tap batches (or their samples) dropped and counted on their device, by reason."""
 
+STATUS_DROPS: dict[str, str] = {
+    "status_body": "a device status whose `body` (its wearer's dimensions, \"Body dimensions\") is malformed: not "
+                   "an object of `layout`, `height_m` and `bones`, a layout that is not built in, a bone missing, "
+                   "unknown or not in (0, 1.5] m, a height outside [0.5, 2.5] m; or of another layout than the "
+                   "frames' (`paper10`). The rest of the status is taken; the subject keeps the body it had",
+}
+"""Parts of a device's status dropped and counted on the device, by reason."""
+
 UNCHARGED: dict[str, str] = {
     "key": "a key that is not a device key of the kind its subscription carries "
            "(`limbstream/<subject>/<segment>/seg` for segment points), or not a subject's `truth` key for a subject "

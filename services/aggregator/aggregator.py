@@ -365,7 +365,7 @@ class Aggregator:
                  "live_missed": int(frames.live_missed[sub.index]),
                  "watermark_us": None if view.watermark[sub.index] == NO_TIME else int(view.watermark[sub.index]),
                  "frame_aad_deg": aad, "joint_aad_deg": joints, "frame_error_frames": compared, "facing_deg": facing}
-                for sub, (aad, compared, facing, joints) in zip(subjects, scores)]
+                | self.fusion.body_fields(sub) for sub, (aad, compared, facing, joints) in zip(subjects, scores)]
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop

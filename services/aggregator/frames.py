@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from limbstream import wire
+from limbstream.body import Body
 from limbstream.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
 from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
@@ -90,12 +91,14 @@ FrameStage = Callable[[FrameBatch], Iterable[tuple[str, str, bytes]]]
 
 class FrameBuilder:
     """Per subject: the next exact frame (grid index, -1 before the first), the sequence numbers
-    of both kinds, the rest-pose flag, and the frames made and skipped.
+    of both kinds, the rest-pose flag, the body its joints are drawn with, and the frames made
+    and skipped.
 
     Parameters
     ----------
     period_us : exact frame period, us.
-    skeleton : forward-kinematics model for the joint positions.
+    skeleton : forward-kinematics model for the joint positions of subjects whose devices announce
+        no body (``bodies``: those of the others).
     max_backlog : frames further behind than this are skipped (counted) instead of built.
     """
 
@@ -109,6 +112,7 @@ class FrameBuilder:
         self.live_missed = np.zeros(0, np.int64)     # live frame deadlines missed (counted by the loop)
         self._live_clock = math.nan                  # the clock of the last live plan, s
         self.rest_flag = np.zeros(0, np.uint8)
+        self.bodies: list[Body | None] = []  # per subject: the body its devices announce (None: ``skeleton``)
         self.made = np.zeros(0, np.int64)     # exact frames per subject
         self.skipped = np.zeros(0, np.int64)  # frame times skipped per subject
 
@@ -117,6 +121,7 @@ class FrameBuilder:
                             ("live_t", NO_TIME), ("live_offset", math.nan), ("live_missed", 0)):
             setattr(self, name, np.append(getattr(self, name), value))
         self.rest_flag = np.append(self.rest_flag, np.uint8(rest_flag))
+        self.bodies.append(None)
 
     def start(self, subjects: list, view: DeviceView, table: DeviceTable, store: PointStore, clock: float) -> None:
         """Fix the first frame of the subjects that can start: where every device they have is
@@ -235,6 +240,22 @@ class FrameBuilder:
         flags = np.where(lacking.any(axis=1), wire.FRAME_MISSING, 0) | self.rest_flag[index]
         return index, t_us, seq, flags, slots, at, has_points, lacking | ~has_points
 
+    def positions(self, q: np.ndarray, owner: np.ndarray) -> np.ndarray:
+        """(F, 15, 3) float32 joint positions of frames ``q`` (F, 10, 4) of subjects ``owner`` (F,):
+        each subject's by its body (the skeleton's where it has none), in its rest pose."""
+        tpose = self.rest_flag[owner] != 0
+        sized = [i for i, body in enumerate(self.bodies) if body is not None]
+        if not sized:
+            return self.skeleton.positions(q, tpose)
+        joints = np.empty((len(owner), len(wire.JOINTS), 3), np.float32)
+        own = np.isin(owner, sized)
+        joints[~own] = self.skeleton.positions(q[~own], tpose[~own])
+        for i in sized:
+            rows = owner == i
+            if rows.any():
+                joints[rows] = self.bodies[i].positions(q[rows], tpose[rows])  # type: ignore[union-attr]
+        return joints
+
     def build(self, store: PointStore, table: DeviceTable, exact: tuple[np.ndarray, ...],
               live: tuple[np.ndarray, ...] | None, correct: Correction | None = None) -> FrameBatch:
         """Orientations and joints of the planned frames, one reconstruction and one forward
@@ -260,7 +281,7 @@ class FrameBuilder:
             turned = q[valid]
             correct(all_slots[valid], at, turned)
             q[valid] = turned
-        joints = self.skeleton.positions(q, self.rest_flag[np.concatenate([e_owner, l_owner])] != 0)
+        joints = self.positions(q, np.concatenate([e_owner, l_owner]))
         n = len(e_t)
         exact_frames = wire.PoseFrames(e_seq, e_t, wire.KIND_EXACT, e_flags, q[:n], joints[:n])
         live_frames = (wire.PoseFrames.empty(wire.KIND_LIVE) if live is None else

@@ -19,6 +19,7 @@ from collections.abc import Callable
 import numpy as np
 
 from limbstream import wire
+from limbstream.body import PAPER10, Body
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.calibrating import CalibrationRequest, Calibrating
 from limbstream.services.aggregator.devices import NO_TIME, SEGMENT_INDEX, DeviceTable
@@ -38,6 +39,7 @@ class Subject:
         self.name, self.index = name, index
         self.tracks: dict[str, DeviceTrack] = {}
         self.rest_pose: str | None = None  # as its devices announce it (None: not yet heard)
+        self.body: Body | None = None  # its wearer's dimensions as its devices announce them (None: the default)
         self.waiting_since: float | None = None  # arrival clock (s) when its first frame could start
 
 
@@ -111,6 +113,23 @@ class Fusion:
         if sub.rest_pose != rest_pose:
             sub.rest_pose = rest_pose
             self.frames.rest_flag[sub.index] = wire.rest_pose_flag(rest_pose)
+
+    def set_body(self, track: DeviceTrack, body: Body | None, refused: str | None = None) -> None:
+        """The body a device's status announces (None: none; ``refused``: why a malformed one was
+        dropped, counted on the device as ``status_body``): its subject's frames are drawn with
+        it from now on. A body of another layout than the frames' (paper10) is counted the same
+        way; a status without a body leaves the subject's as it is."""
+        if body is not None and body.layout != PAPER10:
+            body, refused = None, f"a body of layout {body.layout.name}, the frames are paper10"
+        if refused is not None:
+            track.dropped["status_body"] += 1
+        if body is None:
+            return
+        sub = self.subjects[track.subject]
+        same = sub.body is not None and sub.body.height_m == body.height_m and all(
+            np.array_equal(sub.body.vectors[pose], body.vectors[pose]) for pose in body.vectors)
+        if not same:  # (each device says it again every poll: the chain is built once per body)
+            sub.body = self.frames.bodies[sub.index] = body
 
     def history_done(self, track: DeviceTrack) -> None:
         """The aggregator's history query for the track's stream has completed: it is settled."""
@@ -430,6 +449,14 @@ class Fusion:
         return answer
 
     # ------------------------------------------------------------------ figures
+
+    def body_fields(self, sub: Subject) -> dict:
+        """A subject's body in its stats, where its devices announce one: ``layout``, ``height_m``
+        (null: not given) and ``bones_m`` (bone -> length, m). None of them for a subject drawn with
+        the aggregator's own skeleton (its stats are then as they were before bodies travelled)."""
+        if sub.body is None:
+            return {}
+        return {"layout": sub.body.layout.name, "height_m": sub.body.height_m, "bones_m": sub.body.lengths}
 
     def stats_table(self, subjects: list[Subject], now: float) -> tuple[list[int], np.ndarray, dict[str, list]]:
         """The device columns of the stats messages of ``subjects``, their devices by segment name,

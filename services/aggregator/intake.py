@@ -153,6 +153,7 @@ class Intake:
         if track is not None:
             self.fusion.set_config(track, status.config)
             self.fusion.set_rest_pose(track.subject, status.rest_pose)
+            self.fusion.set_body(track, status.body, status.body_error)
             track.clock = status.clock
             track.link = status.link
             track.fusion = status.fusion

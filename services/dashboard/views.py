@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from limbstream import wire
+from limbstream.body import PAPER10, lengths_of
 
 from .entries import HISTORY_FIELDS
 from .state import LiveState
@@ -108,6 +109,9 @@ class Views:
             **self.exact_latency_view(name),
             **self.live.subject_stats.get(name, {}),
         }
+        if view.get("bones_m") is None and pose is not None:  # no body announced: the lengths its frames are drawn with
+            view |= {"layout": PAPER10.name, "height_m": None,
+                     "bones_m": {b: round(m, 5) for b, m in lengths_of(PAPER10, pose.frame.joints).items()}}
         if with_devices:
             have = {v["segment"] for v in views}
             view |= {"device_list": views, "missing_segments": [s for s in wire.SEGMENTS if s not in have]}

@@ -93,7 +93,7 @@ def run(feeds: dict, settings: HostSettings, speed: float, zenoh: zconfig.ZenohS
                 connector = FirmwareConnector(elf)
                 connectors.append(connector)
                 gateways.append(serial_gateway.SerialGateway(host, connector, subject, segment, feeding,
-                                                             feeds[subject].rest_pose))
+                                                             feeds[subject].rest_pose, body=feeds[subject].body))
             for connector in connectors:
                 connector.launch()
             online = sum(g.open() for g in gateways)

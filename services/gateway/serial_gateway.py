@@ -26,6 +26,7 @@ import numpy as np
 import zenoh
 
 from limbstream import wire
+from limbstream.body import Body
 from limbstream.device.host import Device, DeviceHost, HostSettings, Refused
 from limbstream.device.readings import RawSensors
 from limbstream.pacing import PacedLoop
@@ -89,15 +90,17 @@ class SerialGateway:
     subject, segment : the device's name.
     feeding : the samples it is fed (None: they come from elsewhere; no truth tap then).
     rest_pose : what identity orientations mean (wire.REST_POSES).
+    body : its wearer's dimensions, which the device announces (None: none, the default adult).
     silence_s : a device not heard from for this long is offline (its link is dropped and reopened).
     """
 
     def __init__(self, host: DeviceHost, connect: Callable[[], SerialLink | None], subject: str, segment: str,
-                 feeding: Feeding | None = None, rest_pose: str = wire.DEFAULT_REST_POSE, silence_s: float = SILENCE_S):
+                 feeding: Feeding | None = None, rest_pose: str = wire.DEFAULT_REST_POSE, silence_s: float = SILENCE_S,
+                 body: Body | None = None):
         self.host, self.connect = host, connect
         self.device: Device = host.add(wire.check_chunk(subject, "subject"), wire.check_chunk(segment, "segment"), self)
         self.device.config = self.device.config.validate()
-        self.feeding, self.rest_pose, self.silence_s = feeding, rest_pose, silence_s
+        self.feeding, self.rest_pose, self.silence_s, self.body = feeding, rest_pose, silence_s, body
         self.period_us = 1e6 / host.settings.fs
         self.counters = GatewayCounters()
         self.link: SerialLink | None = None
@@ -271,7 +274,7 @@ class SerialGateway:
             raise Refused(str(exc)) from None
         fed = "sensors" if self.feeding is None else self.feeding.feed.orientations  # wire.ORIENTATIONS
         return wire.DeviceStatus(self.id, self.device.config, status.stream, status.samples, status.points, None,
-                                 self.rest_pose, fusion=fusion, orientations=fed)
+                                 self.rest_pose, fusion=fusion, orientations=fed, body=self.body)
 
     def _fusion_status(self) -> wire.FusionStatus | None:
         """The filter of a device fed raw samples, as it reports it (FUSION_STATUS)."""

@@ -51,6 +51,7 @@ import numpy as np
 import zenoh
 
 from limbstream import quat, wire
+from limbstream.body import Body
 from limbstream.device.bank import DeviceBank
 from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device.host import Device, DeviceHost, HostSettings
@@ -117,6 +118,8 @@ class GatewaySettings:
     clock : time sync (one clock: the gateway's).
     assignments_file : where run-time assignments are kept (:mod:`.assignments`): loaded at start,
         rewritten after each change; None: they last while the gateway runs.
+    body : the wearer's dimensions every device announces (``gateway slimevr --height-m``,
+        ``--body``); None: none (the default adult).
     """
 
     subject: str
@@ -128,6 +131,7 @@ class GatewaySettings:
     max_devices: int = 256
     clock: ClockSettings = field(default_factory=ClockSettings)
     assignments_file: str | None = None
+    body: Body | None = None
 
 
 class SlimeVRGateway:
@@ -241,7 +245,7 @@ class SlimeVRGateway:
             loss = t.loss()
             link = wire.LinkStatus(d.source.name, t.battery_pct, t.signal_dbm,
                                    None if loss is None else round(loss, 6), round(t.pps(time.monotonic()), 3))
-        return self.bank.status(d, clock, link=link, orientations="sensors")
+        return self.bank.status(d, clock, link=link, orientations="sensors", body=self.settings.body)
 
     def _configure(self, d: Device[Sensor], config: wire.DeviceConfig) -> None:
         self.bank.configure(d, config)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import joints, quat, wire
+from limbstream.body import Body
 from limbstream.calibration import START_STILL_S
 from limbstream.skeleton import Skeleton
 from limbstream.sources import Motion, MotionFileError, load, load_raw, raw
@@ -71,7 +72,7 @@ class Take:
     seq: np.ndarray
     flags: np.ndarray
     filled: np.ndarray
-    skeleton: Skeleton
+    skeleton: Skeleton | Sized
     notes: list[str] = field(default_factory=list)
     present: np.ndarray | None = None
     basis: str = "the source's own segment orientations"
@@ -81,21 +82,26 @@ class Take:
         return len(self.t_us)
 
 
+@dataclass(frozen=True)
+class Sized:
+    """A motion's own body (``Motion.body``: a BVH file's bones) drawn as a
+    :class:`~limbstream.skeleton.Skeleton` is, on ``rest_pose``."""
+
+    body: Body
+    rest_pose: str
+
+    def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None, dtype: type = np.float32) -> np.ndarray:
+        """(..., 15, 3) joint positions of orientations (..., 10, 4) (``Skeleton.positions``)."""
+        return self.body.positions(q, self.rest_pose == "tpose" if tpose is None else tpose, dtype)
+
+
 # ----------------------------------------------------------------------------- sources
 
 
 def skeleton_of(frame: wire.PoseFrame, rest_pose: str | None = None) -> Skeleton:
-    """The body an aggregator used for ``frame``: bone lengths from its joint positions, rest pose
-    from its flags (``rest_pose``: an override)."""
-    j = {name: np.asarray(frame.joints[i], np.float64) for i, name in enumerate(wire.JOINTS)}
-
-    def length(a: str, b: str) -> float:
-        return float(np.linalg.norm(j[a] - j[b]))
-    return Skeleton(thigh=length("l_knee", "l_hip"), shank=length("l_ankle", "l_knee"),
-                    upperarm=length("l_elbow", "l_shoulder"), lowerarm=length("l_wrist", "l_elbow"),
-                    spine=length("neck_base", "pelvis"), neck=length("head", "neck_base"),
-                    hip_width=length("l_hip", "r_hip"), shoulder_width=length("l_shoulder", "r_shoulder"),
-                    rest_pose=rest_pose or wire.frame_rest_pose(frame.flags))
+    """The body an aggregator used for ``frame``: bone lengths from its joint positions
+    (``Skeleton.of_joints``), rest pose from its flags (``rest_pose``: an override)."""
+    return Skeleton.of_joints(frame.joints, rest_pose or wire.frame_rest_pose(frame.flags))
 
 
 def from_recording(recording: Recording, subject: str | None, rest_pose: str | None = None) -> Take:
@@ -137,7 +143,7 @@ def from_recording(recording: Recording, subject: str | None, rest_pose: str | N
     take = Take(subject, period, times[0] + grid * period, np.stack([f.q for f in chosen]).astype(np.float64),
                 np.stack([f.joints for f in chosen]), np.array([f.seq for f in chosen]),
                 np.array([f.flags for f in chosen]) | np.where(filled, wire.FRAME_GAP, 0), filled,
-                skeleton_of(chosen[0], rest_pose), basis="the aggregator's segments (its device calibrations)")
+                skeleton_of(chosen[-1], rest_pose), basis="the aggregator's segments (its device calibrations)")
     take.present = ~((take.flags & wire.FRAME_MISSING != 0)[:, None] & (take.q == _IDENTITY).all(axis=-1))
     if filled.any():
         take.notes.append(f"{int(filled.sum())} of {len(grid)} frames were not recorded: each repeats the frame "
@@ -188,7 +194,8 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
             lacking.append(seg)
             if parent is not None:
                 q[:, i] = q[:, wire.SEGMENTS.index(parent)]
-    skeleton = Skeleton(rest_pose=rest_pose or motion.rest_pose)
+    pose = rest_pose or motion.rest_pose
+    skeleton: Skeleton | Sized = Skeleton(rest_pose=pose) if motion.body is None else Sized(motion.body, pose)
     n = len(t)
     take = Take(motion.name or path.stem, int(round(1e6 / fs)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
                 skeleton.positions(q), np.arange(n), np.full(n, wire.FRAME_MISSING if lacking else 0),

@@ -16,7 +16,8 @@ topic              schema                      content
 
 Frames: the subject frame ``<s>`` is limbstream's (Y up, X to the subject's left, pelvis at the
 origin); ``world -> <s>`` turns it Z up (Foxglove's and ROS's convention: limbstream's Z, X, Y
-become world X, Y, Z), lifts the pelvis to the default leg length so the feet touch the grid,
+become world X, Y, Z), lifts the pelvis to its leg length (thigh + shank, the frames' own: its
+subject's body) so the feet touch the grid,
 and places the n-th subject seen (from 0) :data:`SPACING_M` to the right of the one before.
 ``<s>/<segment>`` sits at the joint where the segment starts (``l_thigh`` at ``l_hip``) and has
 the pose frame's global segment orientation, unchanged. Frames shown: live ones first
@@ -25,6 +26,7 @@ the pose frame's global segment orientation, unchanged. Frames shown: live ones 
 from __future__ import annotations
 
 import foxglove
+import numpy as np
 from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 from foxglove.messages import (Color, FrameTransform, FrameTransforms, LinePrimitive, LinePrimitiveLineType,
                                Point3, Pose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp,
@@ -68,7 +70,7 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
     slot : the subject's place in the row (0, 1, ...), :data:`SPACING_M` apart.
     """
     stamp = _stamp(frame.t_us)
-    translation, rotation = _placement(slot)
+    translation, rotation = _placement(slot, leg_m(frame))
     out = [FrameTransform(timestamp=stamp, parent_frame_id="world", child_frame_id=subject,
                           translation=translation, rotation=rotation)]
     q, joints = frame.q.tolist(), frame.joints.tolist()
@@ -80,15 +82,24 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
     return FrameTransforms(transforms=out)
 
 
-def _placement(slot: int) -> tuple[Vector3, Quaternion]:
+def leg_m(frame: wire.PoseFrame) -> float:
+    """The length of the frame's left leg, thigh + shank, m: its subject's (the frames are drawn
+    with its body), the height its pelvis is lifted to."""
+    j = frame.joints.astype(np.float64)
+    hip, knee, ankle = j[_J["l_hip"]], j[_J["l_knee"]], j[_J["l_ankle"]]
+    return float(np.linalg.norm(knee - hip) + np.linalg.norm(ankle - knee))
+
+
+def _placement(slot: int, leg: float = _LEG_M) -> tuple[Vector3, Quaternion]:
     x, y, z, w = _Y_UP_TO_Z_UP
-    return Vector3(x=0.0, y=-SPACING_M * slot, z=_LEG_M), Quaternion(x=x, y=y, z=z, w=w)
+    return Vector3(x=0.0, y=-SPACING_M * slot, z=leg), Quaternion(x=x, y=y, z=z, w=w)
 
 
-def placement(slot: int) -> Pose:
+def placement(slot: int, leg: float = _LEG_M) -> Pose:
     """Where the body frame of the ``slot``-th subject (from 0) sits in ``world``: turned Z up, the
-    pelvis lifted by the default leg length, :data:`SPACING_M` to the right of the one before."""
-    position, orientation = _placement(slot)
+    pelvis lifted by its leg length (:func:`leg_m`; default the default adult's), :data:`SPACING_M`
+    to the right of the one before."""
+    position, orientation = _placement(slot, leg)
     return Pose(position=position, orientation=orientation)
 
 

@@ -163,7 +163,7 @@ class RecordingWriter:
             from foxglove.channels import SceneUpdateChannel
 
             known = self._skeletons[subject] = (SceneUpdateChannel(skeleton_topic(subject), context=self._context),
-                                                self._fox.placement(len(self._skeletons)))
+                                                self._fox.placement(len(self._skeletons), self._fox.leg_m(frame)))
         channel, where = known
         channel.log(self._fox.scene_update(subject, frame, where), log_time=log_ns)
         self.counts["skeleton"] += 1

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 import zenoh
 
 from limbstream import wire
+from limbstream.body import Body
 from limbstream.device.host import Device, DeviceHost, HostSettings, Refused
 
 from .recording import Entry, Recording
@@ -72,6 +73,7 @@ class ReplayedDevice:
     clock: wire.ClockStatus | None = None
     rest_pose: str = wire.DEFAULT_REST_POSE
     orientations: str | None = None  # what the recorded device said its orientations are (wire.ORIENTATIONS)
+    body: Body | None = None  # the wearer's dimensions the recorded device announced (None: none)
     from_status: bool = False  # config taken from a recorded status (stats rows then no longer count)
     stream: int = 0
     samples: int = 0
@@ -153,6 +155,7 @@ class Replayer:
                     state = self._state[did]
                     state.config, state.clock, state.from_status = status.config, status.clock, True
                     state.rest_pose, state.orientations = status.rest_pose, status.orientations
+                    state.body = status.body
                 return
             for row in wire.decode_stats(entry.payload)["devices"]:
                 did = self._renamed(row.get("device", ""))
@@ -183,7 +186,7 @@ class Replayer:
         if state.config is None:
             raise Refused(f"replayed device {d.id}: the recording holds no settings of it (yet)")
         return wire.DeviceStatus(d.id, state.config, state.stream, state.samples, state.points, state.clock,
-                                 state.rest_pose, orientations=state.orientations)
+                                 state.rest_pose, orientations=state.orientations, body=state.body)
 
     def answer_queries(self) -> None:
         """Answer the config queries that arrived (status, or :data:`FIXED` for a change)."""

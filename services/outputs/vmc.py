@@ -35,7 +35,7 @@ from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from limbstream import quat, wire
-from limbstream.skeleton import Skeleton, rest_offsets
+from limbstream.skeleton import Skeleton, joint_lengths, rest_offsets
 from limbstream.services.outputs.kinds import LiveFirst
 from limbstream.services.outputs.subscription import Subscription
 
@@ -63,24 +63,25 @@ class VmcBone:
     offset: tuple[float, float, float]
 
 
-def _bones() -> tuple[VmcBone, ...]:
-    spine, leg = _S.spine, _S.thigh + _S.shank
+def _bones(sk: Skeleton = _S) -> tuple[VmcBone, ...]:
+    """The bones sent, their offsets those of skeleton ``sk``."""
+    spine, leg = sk.spine, sk.thigh + sk.shank
     bones = [
         VmcBone("Hips", "", "hip", (0.0, leg, 0.0)),
         VmcBone("Spine", "Hips", "", (0.0, spine / 4, 0.0)),
         VmcBone("Chest", "Spine", "", (0.0, spine / 4, 0.0)),
         VmcBone("Neck", "Chest", "neck", (0.0, spine / 2, 0.0)),
-        VmcBone("Head", "Neck", "", (0.0, _S.neck, 0.0)),
+        VmcBone("Head", "Neck", "", (0.0, sk.neck, 0.0)),
     ]
     for side, s, x in (("Left", "l", 1.0), ("Right", "r", -1.0)):
         bones += [
-            VmcBone(f"{side}UpperLeg", "Hips", f"{s}_thigh", (x * _S.hip_width / 2, 0.0, 0.0)),
-            VmcBone(f"{side}LowerLeg", f"{side}UpperLeg", f"{s}_shank", (0.0, -_S.thigh, 0.0)),
-            VmcBone(f"{side}Foot", f"{side}LowerLeg", "", (0.0, -_S.shank, 0.0)),
+            VmcBone(f"{side}UpperLeg", "Hips", f"{s}_thigh", (x * sk.hip_width / 2, 0.0, 0.0)),
+            VmcBone(f"{side}LowerLeg", f"{side}UpperLeg", f"{s}_shank", (0.0, -sk.thigh, 0.0)),
+            VmcBone(f"{side}Foot", f"{side}LowerLeg", "", (0.0, -sk.shank, 0.0)),
             VmcBone(f"{side}Shoulder", "Chest", "", (0.0, spine / 2 - 0.05, 0.0)),
-            VmcBone(f"{side}UpperArm", f"{side}Shoulder", f"{s}_upperarm", (x * _S.shoulder_width / 2, 0.0, 0.0)),
-            VmcBone(f"{side}LowerArm", f"{side}UpperArm", f"{s}_lowerarm", (x * _S.upperarm, 0.0, 0.0)),
-            VmcBone(f"{side}Hand", f"{side}LowerArm", "", (x * _S.lowerarm, 0.0, 0.0)),
+            VmcBone(f"{side}UpperArm", f"{side}Shoulder", f"{s}_upperarm", (x * sk.shoulder_width / 2, 0.0, 0.0)),
+            VmcBone(f"{side}LowerArm", f"{side}UpperArm", f"{s}_lowerarm", (x * sk.upperarm, 0.0, 0.0)),
+            VmcBone(f"{side}Hand", f"{side}LowerArm", "", (x * sk.lowerarm, 0.0, 0.0)),
         ]
     return tuple(bones)
 
@@ -145,9 +146,16 @@ def local_rotations(q: np.ndarray, rest_pose: str = "standing") -> np.ndarray:
     return (a[..., :, None] * b[..., None, :]).reshape(a.shape[:-1] + (16,)) @ _LOCAL
 
 
-def rest_positions() -> np.ndarray:
-    """(B, 3) local bone positions (m) in Unity's frame, :data:`VMC_BONES` order."""
-    return np.array([b.offset for b in VMC_BONES]) * _MIRROR_P + 0.0  # + 0.0: no -0.0
+def rest_positions(skeleton: Skeleton | None = None) -> np.ndarray:
+    """(B, 3) local bone positions (m) in Unity's frame, :data:`VMC_BONES` order, of ``skeleton``
+    (None: the default one's)."""
+    bones = VMC_BONES if skeleton is None else _bones(skeleton)
+    return np.array([b.offset for b in bones]) * _MIRROR_P + 0.0  # + 0.0: no -0.0
+
+
+SIZE_EVERY_US = 1_000_000
+"""How often (frame time, us) an encoder reads the subject's bone lengths from its frames: a body
+changes seldom (its devices' status, polled every 5 s), and reading it costs as much as a frame."""
 
 
 class VmcEncoder:
@@ -182,9 +190,22 @@ class VmcEncoder:
         self._floats, self._ints = words, np.frombuffer(self.buffer, ">i4")
         bone_ends = np.array(ends[1:1 + len(VMC_BONES)]) // 4
         self._rot = bone_ends[:, None] - 4 + np.arange(4)  # qx qy qz qw: the last 4 words
+        self._pos = bone_ends[:, None] - 7 + np.arange(3)  # x y z: the 3 words before them
+        self._lengths = joint_lengths(_S.positions(np.tile([1.0, 0.0, 0.0, 0.0], (_ROOT, 1))))  # the template's
+        self._sized_us = -SIZE_EVERY_US  # frame time the bones were last sized at (:meth:`_size`)
         self._tracking = ends[-2] // 4 - 1
         self._time = ends[-1] // 4 - 1
         self.t0_us: int | None = None
+
+    def _size(self, joints: np.ndarray) -> None:
+        """The bones' positions of the subject's body, as its frames draw it (``joints``: a
+        frame's positions), written when its lengths change (by more than 0.1 mm); once per
+        :data:`SIZE_EVERY_US` of frame time (and when frame time goes back)."""
+        lengths = joint_lengths(joints)
+        if np.all(np.abs(lengths - self._lengths) <= 1e-4) or not np.all((lengths > 0) & np.isfinite(lengths)):
+            return
+        self._lengths = lengths
+        self._floats[self._pos] = rest_positions(Skeleton.of_joints(joints))
 
     @staticmethod
     def _message(address: str, name: str | None, floats: list[float]):
@@ -200,6 +221,9 @@ class VmcEncoder:
         already computed. ValueError on a zero-norm quaternion."""
         if local is None:
             local = local_rotations(frame.q, self.rest_pose or wire.frame_rest_pose(frame.flags))
+        if not 0 <= frame.t_us - self._sized_us < SIZE_EVERY_US:
+            self._size(frame.joints)
+            self._sized_us = frame.t_us
         self._floats[self._rot] = local[:, [1, 2, 3, 0]]
         self._ints[self._tracking] = 0 if frame.flags & wire.FRAME_MISSING else 1
         if self.t0_us is None:
