@@ -1,16 +1,17 @@
 """A BVH file's wearer from its own OFFSETs (limbstream.sources.bvh_body, docs/protocol.md "Body
 dimensions"): the same body whatever unit the file is written in, its bones' lengths the OFFSETs',
-out-of-bounds bones refused with the bound."""
+a skeleton with a bone out of bounds drawn as the default adult, with a warning naming the bound."""
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
 from support.bvh import write_bvh
 
 from limbstream.body import PAPER10
-from limbstream.sources import MotionFileError, bvh, load
+from limbstream.sources import bvh, load
 from limbstream.sources.bvh_body import UNITS
 
 CMU_UNIT_M = 0.0254 / 0.45
@@ -49,14 +50,14 @@ def test_the_same_body_whatever_unit_the_file_is_in(clip, unit, tmp_path):
         assert np.allclose(body.vectors[pose], want.vectors[pose], rtol=1e-5, atol=2e-6), unit  # (6 decimals)
 
 
-def test_a_bone_of_no_length_is_refused_with_its_bound(clip, tmp_path):
+def test_a_bone_of_no_length_gives_the_default_adult_and_says_so_with_its_bound(clip, tmp_path, caplog):
     offsets = clip.offsets.copy()
     offsets[clip.joints.index("LeftForeArm")] = 0.0  # the elbow on the shoulder
     path = tmp_path / "no_upper_arm.bvh"
     path.write_text(write_bvh(clip, offsets=offsets))
-    with pytest.raises(MotionFileError, match=r"no_upper_arm\.bvh: its skeleton's OFFSETs give no body: bone "
-                                              r"'l_upperarm' must be in \(0, 1\.5\] m, got 0\.0"):
-        bvh.load_bvh(path)
+    assert bvh.load_bvh(path).body is None
+    assert re.search(r"no_upper_arm\.bvh: its skeleton's OFFSETs give no body \(bone 'l_upperarm' must be in "
+                     r"\(0, 1\.5\] m, got 0\.0\): drawn with the default adult's bones", caplog.text), caplog.text
 
 
 def test_a_map_of_other_segments_gives_no_body(clip, cmu_bvh_dir):

@@ -12,6 +12,7 @@ joint (some exporters write six on every one); only the pelvis's path is read fr
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +26,7 @@ from limbstream.sources import SEGMENTS, Motion, MotionFileError, bvh_body, bvh_
 from limbstream.sources.bvh_names import CMU_SEGMENT_MAPS, pick_segment_map  # noqa: F401  (re-exported)
 from limbstream.sources.bvh_positions import BvhPositions
 
+log = logging.getLogger("limbstream.sources")
 _AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 _POSITIONS = {"Xposition", "Yposition", "Zposition"}
 
@@ -398,15 +400,18 @@ def load_bvh(
 
 
 def wearer(clip: BvhClip, segment_map: Mapping[str, str]) -> Body | None:
-    """The clip's body from its OFFSETs (:func:`.bvh_body.body_of`); None where its map is not of
-    the 10 segments or its joints do not give every bone. MotionFileError naming the file, the bone
-    and its bound where a bone they give is out of bounds."""
+    """The clip's body from its OFFSETs (:func:`.bvh_body.body_of`); None (the default adult)
+    where its map is not of the 10 segments, its joints do not give every bone, or a bone they
+    give is out of bounds (a thigh joint on the pelvis, an elbow on its shoulder: a warning names
+    the file, the bone and its bound; ``--height-m`` or ``--body`` give the wearer's)."""
     if set(segment_map) != set(SEGMENTS) or bvh_body.bone_vectors(clip, segment_map) is None:
         return None
     try:
         return bvh_body.body_of(clip, segment_map)
     except ValueError as exc:
-        raise MotionFileError.at(clip.path, None, f"its skeleton's OFFSETs give no body: {exc}") from None
+        log.warning("%s: its skeleton's OFFSETs give no body (%s): drawn with the default adult's bones "
+                    "(--height-m or --body give the wearer's)", clip.path, exc)
+        return None
 
 
 def joint_positions(clip: BvhClip, joints: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,9 @@ from limbstream.sources.bvh_rest import bone_vector, zero_pose_positions
 if TYPE_CHECKING:
     from limbstream.sources.bvh import BvhClip
 
-UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "CMU's 1/0.45 in": 0.0254 / 0.45}
+CMU_UNIT_M = 0.0254 / 0.45
+"""The CMU clips' unit, m (1/0.45 inch)."""
+UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "CMU's 1/0.45 in": CMU_UNIT_M}
 """The units a BVH file's OFFSETs may be in, metres each."""
 DEFAULT_LEG_M = float(PAPER10_BONES["l_thigh"]) + float(PAPER10_BONES["l_shank"])  # type: ignore[arg-type]
 """The default adult's thigh + shank, m: what picks a file's unit."""
@@ -65,11 +67,15 @@ def bone_vectors(clip: BvhClip, segment_map: Mapping[str, str]) -> dict[str, np.
 
 
 def unit_of(vectors: Mapping[str, np.ndarray]) -> float:
-    """Metres per file unit: the :data:`UNITS` entry that puts the left leg (thigh + shank) nearest
-    :data:`DEFAULT_LEG_M` (by ratio)."""
-    leg = float(np.linalg.norm(vectors["l_thigh"]) + np.linalg.norm(vectors["l_shank"]))
+    """Metres per file unit of the bones ``vectors`` (:func:`unit_of_leg` of their left leg)."""
+    return unit_of_leg(float(np.linalg.norm(vectors["l_thigh"]) + np.linalg.norm(vectors["l_shank"])), 1.0)
+
+
+def unit_of_leg(leg: float, unknown: float) -> float:
+    """Metres per file unit: the :data:`UNITS` entry that puts a leg (thigh + shank) of ``leg``
+    file units nearest :data:`DEFAULT_LEG_M` (by ratio); ``unknown`` where ``leg`` is not > 0."""
     if not leg > 0:
-        return 1.0
+        return unknown
     return min(UNITS.values(), key=lambda m: abs(math.log(leg * m / DEFAULT_LEG_M)))
 
 

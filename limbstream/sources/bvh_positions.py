@@ -7,13 +7,11 @@ bones measured on the file's zero pose, so that the layout's forward kinematics
 (:meth:`limbstream.body.Body.positions`) driven by the segments' true orientations puts every
 joint where the file does, wherever the file has no joint between them that the layout lacks.
 
-Units: BVH files do not say theirs. :func:`metres_per_unit` takes the one among metres,
-centimetres, millimetres, inches and CMU's 1/0.45 inch that gives the legs (thigh + shank) the
-length nearest an adult's (:data:`ADULT_LEG_M`).
+Units: BVH files do not say theirs; :func:`metres_per_unit` picks one as the wearer's body does
+(:func:`.bvh_body.unit_of_leg`).
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -23,17 +21,11 @@ import numpy as np
 
 from limbstream import quat
 from limbstream.body import PAPER10, Body, Layout
+from limbstream.sources.bvh_body import CMU_UNIT_M, unit_of_leg
 from limbstream.sources.bvh_rest import bone_end, zero_pose_positions
 
 if TYPE_CHECKING:
     from limbstream.sources.bvh import BvhClip
-
-UNITS_M: Mapping[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "cmu": 0.0254 / 0.45}
-"""The units a BVH file may be in, metres each (``cmu``: the CMU database's 1/0.45 inch)."""
-
-ADULT_LEG_M = 0.88
-"""Thigh + shank of the default body (:data:`limbstream.body.PAPER10_BONES`), m."""
-
 
 @dataclass(frozen=True, eq=False)
 class BvhPositions:
@@ -145,16 +137,12 @@ _SITE = "/End Site"
 
 
 def metres_per_unit(clip: BvhClip, segment_map: Mapping[str, str]) -> float:
-    """Metres per unit of ``clip``: of :data:`UNITS_M` the one giving the left leg (the
-    ``l_thigh`` joint to the ``l_shank`` joint to the end of its bone) the length nearest
-    :data:`ADULT_LEG_M` (ratio), CMU's where the map has no such leg."""
+    """Metres per unit of ``clip`` (:func:`.bvh_body.unit_of_leg` of its left leg: the ``l_thigh``
+    joint to the ``l_shank`` joint to the end of its bone), CMU's where the map has no such leg."""
     index = {name: j for j, name in enumerate(clip.joints)}
     at = zero_pose_positions(clip)
     thigh, shank = index.get(segment_map.get("l_thigh", "")), index.get(segment_map.get("l_shank", ""))
     end = bone_end(clip, shank, at) if shank is not None else None
     if thigh is None or end is None:
-        return UNITS_M["cmu"]
-    leg = float(np.linalg.norm(at[shank] - at[thigh]) + np.linalg.norm(at[end] - at[shank]))
-    if not leg > 0:
-        return UNITS_M["cmu"]
-    return min(UNITS_M.values(), key=lambda unit: abs(math.log(leg * unit / ADULT_LEG_M)))
+        return CMU_UNIT_M
+    return unit_of_leg(float(np.linalg.norm(at[shank] - at[thigh]) + np.linalg.norm(at[end] - at[shank])), CMU_UNIT_M)
