@@ -234,3 +234,27 @@ def continuous(q: np.ndarray, axis: int = 0) -> np.ndarray:
     flips = np.cumsum(dots < 0, axis=0) % 2
     sign = np.concatenate([np.ones_like(flips[:1]), 1 - 2 * flips]).astype(np.float64)
     return np.moveaxis(q * sign[..., None], 0, axis)
+
+
+def mirror_x(q: np.ndarray) -> np.ndarray:
+    """(..., 4) -> (..., 4) float64 (w, x, -y, -z): the rotation seen in the frame mirrored in x
+    (M R M with M = diag(-1, 1, 1)), e.g. limbstream's right-handed frame -> Unity's left-handed one."""
+    return np.asarray(q, np.float64) * np.array([1.0, 1.0, -1.0, -1.0])
+
+
+def unity_euler_deg(q: np.ndarray) -> np.ndarray:
+    """Unity's Euler angles of (..., 4) scalar-first unit quaternions already in Unity's frame.
+
+    Unity's ``Quaternion.Euler(x, y, z)`` turns z degrees about Z, then x about X, then y about Y
+    (world axes): q = qy * qx * qz, the same product as scipy's intrinsic ``"YXZ"``.
+
+    Returns
+    -------
+    (..., 3) float64 degrees (x, y, z): x in [-90, 90], y and z in (-180, 180]; at x = +-90
+    (gimbal lock: only y - z or y + z is defined) z is 0.
+    """
+    import warnings
+    with warnings.catch_warnings():  # scipy warns at gimbal lock; the angles returned are exact
+        warnings.simplefilter("ignore", UserWarning)
+        yxz = to_rotation(normalize(q)).as_euler("YXZ", degrees=True)
+    return yxz[..., [1, 0, 2]]

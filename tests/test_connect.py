@@ -33,6 +33,7 @@ CLIENTS = {
     "record": (["record", "{tmp}/session.mcap"], "recording subjects"),
     "foxglove": (["foxglove", "--port", "0"], "connected; waiting for the pose and stats"),
     "vmc": (["vmc", "--subject", "s01", "--to", "127.0.0.1:{port}"], "s01 -> 127.0.0.1"),
+    "vrchat": (["vrchat", "--subject", "s01", "--to", "127.0.0.1:{port}"], "s01 -> 127.0.0.1"),
     "replay": (["replay", "{tmp}/take.mcap"], "replaying"),
     "aggregate": (["aggregate"], "aggregating subjects"),
     "emulate": (["emulate", "--subjects", "1"], "emulating 10 devices"),

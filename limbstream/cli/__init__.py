@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("limbstream.cli.export", "export a recording or motion file to BVH, CSV or npz"),
     "foxglove": ("limbstream.cli.foxglove", "serve the live pose and stats to the Foxglove app (WebSocket)"),
     "vmc": ("limbstream.cli.vmc", "send a subject's live pose to avatar apps (VMC protocol, OSC/UDP)"),
+    "vrchat": ("limbstream.cli.vrchat", "send a subject's live pose to VRChat as OSC trackers (OSC/UDP)"),
 }
 
 

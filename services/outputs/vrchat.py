@@ -1,0 +1,174 @@
+"""VRChat output: pose frames as VRChat's OSC trackers (OSC over UDP, VRChat listens on port 9000).
+
+Per pose frame sent, one OSC message (3 floats) per address, in this order:
+``/tracking/trackers/N/position`` and ``/tracking/trackers/N/rotation`` for each tracker of
+:data:`TRACKERS` (N = 1..8), then ``/tracking/trackers/head/position`` and ``/rotation``.
+
+Convention (docs.vrchat.com "OSC Trackers", docs/outputs.md "VRChat"): world positions in metres
+and Euler angles in degrees, Unity's left-handed frame (Y up, X to the right, facing +Z), the
+angles in Unity's order (z about Z, then x about X, then y about Y: :func:`quat.unity_euler_deg`).
+limbstream's frame (right-handed, Y up, X to the subject's left, facing +Z) becomes Unity's by
+the mirror x -> -x, as in :mod:`limbstream.services.outputs.vmc`: a position (x, y, z) becomes
+(-x, y, z), a quaternion (w, x, y, z) becomes (w, x, -y, -z) (:func:`quat.mirror_x`).
+
+Pose frames put the pelvis at the origin (no body translation yet): each frame's joints are
+lifted so that the lower ankle is on the floor (y = 0), the pelvis at standing height.
+"""
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pythonosc.osc_message_builder import OscMessageBuilder
+
+from limbstream import quat, wire
+from limbstream.services.outputs.kinds import LiveFirst
+from limbstream.services.outputs.subscription import Subscription
+from limbstream.services.outputs.vmc import parse_target
+
+__all__ = ["TRACKERS", "VrchatSender", "parse_target", "serve", "tracker_values"]
+
+
+@dataclass(frozen=True)
+class Tracker:
+    """One OSC tracker: ``address`` is ``/tracking/trackers/<address>/...``; its position is the
+    joint ``joint`` (or ``share`` of the way from ``joint`` to ``toward``); its rotation is the
+    global orientation of ``segment``."""
+
+    address: str
+    name: str
+    joint: str
+    segment: str
+    toward: str = ""
+    share: float = 0.0
+
+
+TRACKERS: tuple[Tracker, ...] = (
+    Tracker("1", "hip", "pelvis", "hip"),
+    Tracker("2", "chest", "pelvis", "hip", toward="neck_base", share=2 / 3),
+    Tracker("3", "left foot", "l_ankle", "l_shank"),
+    Tracker("4", "right foot", "r_ankle", "r_shank"),
+    Tracker("5", "left knee", "l_knee", "l_thigh"),
+    Tracker("6", "right knee", "r_knee", "r_thigh"),
+    Tracker("7", "left elbow", "l_elbow", "l_upperarm"),
+    Tracker("8", "right elbow", "r_elbow", "r_upperarm"),
+    Tracker("head", "head", "head", "neck"),
+)
+"""The trackers sent, in order. The chest has no sensor of its own: the trunk follows the pelvis
+segment (``hip``: pelvis -> neck base), so the chest tracker sits two thirds of the way up it
+with its orientation."""
+
+_J = {name: i for i, name in enumerate(wire.JOINTS)}
+_S = {name: i for i, name in enumerate(wire.SEGMENTS)}
+_FEET = [_J["l_ankle"], _J["r_ankle"]]
+_SEG_ROWS = np.array([_S[t.segment] for t in TRACKERS])
+_MIX = np.zeros((len(TRACKERS), len(wire.JOINTS)))
+for _k, _t in enumerate(TRACKERS):
+    _MIX[_k, _J[_t.joint]] += 1.0 - _t.share
+    if _t.toward:
+        _MIX[_k, _J[_t.toward]] += _t.share
+_MIRROR_P = np.array([-1.0, 1.0, 1.0])
+ADDRESSES: tuple[str, ...] = tuple(f"/tracking/trackers/{t.address}/{what}"
+                                   for t in TRACKERS for what in ("position", "rotation"))
+"""Every address sent, in the order sent per frame."""
+
+
+def tracker_values(frame: wire.PoseFrame) -> tuple[np.ndarray, np.ndarray]:
+    """The trackers of ``frame`` in VRChat's convention.
+
+    Parameters
+    ----------
+    frame : a pose frame (q (10, 4) scalar-first, joints (15, 3) m, pelvis at the origin).
+
+    Returns
+    -------
+    positions (T, 3) metres and rotations (T, 3) Unity Euler angles in degrees (x, y, z), Unity's
+    frame, :data:`TRACKERS` order, the joints lifted so the lower ankle is at y = 0. ValueError on
+    a zero-norm or non-finite quaternion or non-finite joints.
+    """
+    joints = np.asarray(frame.joints, np.float64)
+    if not np.all(np.isfinite(joints)):
+        raise ValueError("joints are not finite")
+    lifted = joints - np.array([0.0, joints[_FEET, 1].min(), 0.0])
+    positions = _MIX @ lifted * _MIRROR_P + 0.0  # + 0.0: no -0.0
+    rotations = quat.unity_euler_deg(quat.mirror_x(quat.normalize(frame.q)[_SEG_ROWS])) + 0.0
+    return positions, rotations
+
+
+def _message(address: str, values) -> bytes:
+    m = OscMessageBuilder(address)
+    for v in values:
+        m.add_arg(float(v), "f")
+    return m.build().dgram
+
+
+@dataclass
+class VrchatCounters:
+    """What a :class:`VrchatSender` did: frames sent, frames refused (a quaternion of zero norm
+    or not finite), send errors (e.g. ICMP port unreachable reported on a later send)."""
+
+    sent: int = 0
+    bad: int = 0
+    send_errors: int = 0
+
+
+class VrchatSender:
+    """Sends one subject's pose frames (of the kind
+    :class:`~limbstream.services.outputs.kinds.LiveFirst` picks) as OSC tracker messages to
+    ``target`` (host, port)."""
+
+    def __init__(self, subject: str, target: tuple[str, int]):
+        self.subject = subject
+        self.target = target
+        self.kinds = LiveFirst()
+        self.counters = VrchatCounters()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def send(self, frame: wire.PoseFrame, now: float | None = None) -> bool:
+        """Send ``frame`` if it is of the kind shown; True if sent. A frame lacking a segment's
+        data (``FRAME_MISSING``) is sent as it is (its segments hold their last orientation)."""
+        if not self.kinds.wanted(self.subject, frame, now):
+            return False
+        try:
+            positions, rotations = tracker_values(frame)
+        except ValueError:
+            self.counters.bad += 1
+            return False
+        for k, t in enumerate(TRACKERS):
+            for what, values in (("position", positions[k]), ("rotation", rotations[k])):
+                try:
+                    self.sock.sendto(_message(f"/tracking/trackers/{t.address}/{what}", values), self.target)
+                except OSError:
+                    self.counters.send_errors += 1
+        self.counters.sent += 1
+        return True
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def serve(sender: VrchatSender, subscription: Subscription, stop: threading.Event,
+          wait_s: float = 0.0, period_s: float = 0.01) -> bool:
+    """Send every pose frame ``subscription`` brings until ``stop`` is set.
+
+    Parameters
+    ----------
+    wait_s : no pose frame after this many seconds is an error (0: wait forever).
+    period_s : how often the channel is drained, seconds.
+
+    Returns
+    -------
+    True when stopped, False when no frame came within ``wait_s``.
+    """
+    start = time.monotonic()
+    seen = False
+    while not stop.wait(period_s):
+        for item in subscription.drain():
+            seen = True
+            sender.send(item.value)
+        if wait_s and not seen and time.monotonic() - start > wait_s:
+            return False
+    return True
