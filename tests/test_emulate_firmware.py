@@ -53,7 +53,7 @@ def run_once(stack, clip, *extra: str, speed: float = 2.0) -> dict[str, list[tup
         child = stack.start("emulate", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--source", str(clip),
                             "--once", "--speed", f"{speed:g}", "--no-truth", "--no-sync", *LIVE_FLAGS, *extra)
         wait_until(lambda: log.ended(10), 120, f"the 10 devices' last points ({' '.join(extra) or 'host kernel'})",
-                   on_fail=stack.logs)
+                   on_fail=lambda: f"{log.describe()}\n{stack.logs()}")
         points = log.fill_starts()  # before the emulator stops: its caches answer
         print(f"emulate {' '.join(extra)}: Zenoh reported missed {log.misses or 'none'}; "
               f"starts taken from the caches {log.filled or 'none'}")

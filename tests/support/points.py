@@ -80,5 +80,11 @@ class PointLog:
                 self.filled[device] = self.filled.get(device, 0) + first - min(by_sn)
         return self.points()
 
+    def describe(self) -> str:
+        """One line per publisher heard (points, sequence numbers, newest point), and Zenoh's misses."""
+        lines = [f"{device} {source}: {len(by_sn)} points, sn {min(by_sn)}..{max(by_sn)}, newest {by_sn[max(by_sn)]}"
+                 for device, sources in self._by_source.items() for source, by_sn in sources.items()]
+        return "\n".join([*lines, f"Zenoh reported missed: {self.misses or 'none'}"])
+
     def close(self):
         self.session.close()
