@@ -3,11 +3,12 @@
 cache asked for a stream's start that Zenoh did not deliver (``HistoryQueries`` in
 services/aggregator/history.py does the same for the aggregator).
 
-Zenoh 1.10's advanced subscriber holds a new publisher's live samples back while its first
-history query is under way; when that query ends while the publisher's own query (on detecting
-it, or for a gap) is still under way, the next live sample is delivered at once and the older
-ones held back are dropped as duplicates, without a miss (``tests/test_point_log.py`` shows it
-with a slow answerer of both queries; under load the emulator's devices met it now and then).
+Zenoh 1.10's advanced subscriber holds a new publisher's live samples back only while its first
+history query is under way; while the publisher's own query (on detecting it, or for samples
+held back) is under way, the next live sample is delivered at once and the older ones that
+query brings are dropped as duplicates, without a miss. A stream whose first points did not come
+live before (held back by a slow first query, or lost with a cut link) loses its start so
+(``tests/test_point_log.py``; docs/reliability.md).
 """
 from __future__ import annotations
 
