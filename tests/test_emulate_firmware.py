@@ -13,10 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-import zenoh.ext as zext
-
-from limbstream import wire, zconfig
+from limbstream import wire
 from support.firmware import require_tools
+from support.points import PointLog
 from support.stack import wait_until
 
 pytestmark = pytest.mark.qemu
@@ -46,34 +45,6 @@ def short_clip(cmu_npz, tmp_path_factory):
     return one_clip(cmu_npz, tmp_path_factory, "05_06")
 
 
-class PointLog:
-    """Every segment point on the router, by device, read as the aggregator reads them: an
-    advanced subscriber that recovers a point lost on the way from the device's cache (on a
-    loaded machine a plain subscriber here once missed a run of points the devices had put)."""
-
-    def __init__(self, endpoint: str):
-        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.sub = zext.declare_advanced_subscriber(
-            self.session, wire.device_selector("seg"), zenoh.handlers.FifoChannel(100_000),
-            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1024),
-            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
-        self.points: dict[str, list[wire.SegmentPoint]] = {}
-
-    def poll(self) -> dict[str, list[wire.SegmentPoint]]:
-        while (sample := self.sub.try_recv()) is not None:
-            subject, segment, _ = wire.parse_device_key(str(sample.key_expr))
-            self.points.setdefault(wire.device_id(subject, segment), []).append(
-                wire.decode_point(sample.payload.to_bytes()))
-        return self.points
-
-    def ended(self, devices: int) -> bool:
-        points = self.poll()
-        return len(points) == devices and all(p[-1].flags & wire.FLAG_FINAL for p in points.values())
-
-    def close(self):
-        self.session.close()
-
-
 def run_once(stack, clip, *extra: str, speed: float = 2.0) -> dict[str, list[tuple]]:
     """The points of one ``emulate --once`` run of one subject at ``speed`` times real time:
     {device: [(index, q, omega, flags)]}."""
@@ -82,10 +53,13 @@ def run_once(stack, clip, *extra: str, speed: float = 2.0) -> dict[str, list[tup
         child = stack.start("emulate", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--source", str(clip),
                             "--once", "--speed", f"{speed:g}", "--no-truth", "--no-sync", *LIVE_FLAGS, *extra)
         wait_until(lambda: log.ended(10), 120, f"the 10 devices' last points ({' '.join(extra) or 'host kernel'})",
-                   on_fail=stack.logs)
+                   on_fail=lambda: f"{log.describe()}\n{stack.logs()}")
+        points = log.fill_starts()  # before the emulator stops: its caches answer
+        print(f"emulate {' '.join(extra)}: Zenoh reported missed {log.misses or 'none'}; "
+              f"starts taken from the caches {log.filled or 'none'}")
         child.signal(15)
         wait_until(lambda: not child.alive(), 30, "the emulator to stop", on_fail=stack.logs)
-        return {d: [(p.index, p.q, p.omega, p.flags) for p in points] for d, points in log.poll().items()}
+        return {d: [(p.index, p.q, p.omega, p.flags) for p in device_points] for d, device_points in points.items()}
     finally:
         log.close()
 
