@@ -150,10 +150,14 @@ class StatsWatch:
         return self.devices
 
     def device_status(self, device: str) -> dict:
-        """The device's own counters, asked over its config queryable."""
+        """The device's own counters, asked over its config queryable (again while a busy device
+        lets a query time out without a reply)."""
         subject, segment = device.split("/")
-        replies = list(self.session.get(wire.config_key(subject, segment), timeout=5.0))
-        return json.loads(replies[0].ok.payload.to_bytes())
+
+        def ask():
+            replies = [r.ok for r in self.session.get(wire.config_key(subject, segment), timeout=5.0) if r.ok]
+            return json.loads(replies[0].payload.to_bytes()) if replies else None
+        return wait_until(ask, 60, f"{device}'s status")
 
     def close(self):
         self.session.close()
