@@ -261,7 +261,7 @@ class Fusion:
             appended.append((slot, i))
             if track.gaps != gaps:
                 self._gappy.add(track)
-        elif how == "insert":  # an earlier point of the stream's start, in time order
+        elif how == "insert":  # an earlier point (the stream's start, a gap filled), in time order
             self._store(appended, points)
             self._insert(track, points, i)
         return True

@@ -156,8 +156,8 @@ class DeviceTrack:
                      stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
         """Sequence and time checks of a point of the current stream (sequence number ``seq``,
         sample ``index``, device time ``t_us`` us, ``flags``, ``nbytes`` on the wire, arrived at
-        ``now``). Returns "append" (newest point), "insert" (an earlier point of the stream's
-        start arriving late, e.g. history), "final" (the newest point repeated with FINAL: the
+        ``now``). Returns "append" (newest point), "insert" (an earlier point arriving
+        late: of the stream's start, e.g. history, or of a gap, from the device's cache), "final" (the newest point repeated with FINAL: the
         stream ends, no new point), or None when it is dropped (counted by reason).
         ``stored(t_us)``: a point with that time is already kept."""
         if not 0 <= t_us < MAX_T_US:
