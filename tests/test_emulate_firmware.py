@@ -56,7 +56,7 @@ def run_once(stack, clip, *extra: str, speed: float = 2.0) -> dict[str, list[tup
                    on_fail=lambda: f"{log.describe()}\n{stack.logs()}")
         points = log.fill_starts()  # before the emulator stops: its caches answer
         print(f"emulate {' '.join(extra)}: Zenoh reported missed {log.misses or 'none'}; "
-              f"starts taken from the caches {log.filled or 'none'}")
+              f"points taken from the caches (starts, misses) {log.filled or 'none'}")
         child.signal(15)
         wait_until(lambda: not child.alive(), 30, "the emulator to stop", on_fail=stack.logs)
         return {d: [(p.index, p.q, p.omega, p.flags) for p in device_points] for d, device_points in points.items()}

@@ -194,7 +194,7 @@ class Aggregator:
             self.intake.take_raw(keys, payloads, now)
         if self.history is not None:
             self.history.ask()
-            self.loop.points += self.history.drain(now)
+            self.loop.points += self.history.drain(now) + self.history.refill(now)
         self._count_misses(now)
         self._take_statuses()
         self.loop.max_backlog = max(self.loop.max_backlog, handled)
@@ -215,11 +215,20 @@ class Aggregator:
         return keys, payloads, samples
 
     def _count_misses(self, now: float) -> None:
-        """Points Zenoh's miss detection reports lost for good: counted, logged at most every 5 s."""
+        """Points Zenoh's miss detection reports lost that the device's cache could not give again
+        either (HistoryQueries.refill; without a session, as reported): counted, logged at most
+        every 5 s."""
+        lost = 0
         for listener in self._misses:
             while (miss := listener.try_recv()) is not None:
-                self.loop.missed += miss.nb
-                self._missed_unlogged += miss.nb
+                if self.history is None:
+                    lost += miss.nb
+                else:
+                    self.history.missed(str(miss.source), miss.nb, now)
+        if self.history is not None:
+            lost += self.history.settle(now)
+        self.loop.missed += lost
+        self._missed_unlogged += lost
         if self._missed_unlogged and now >= self._next_miss_log:
             log.warning("zenoh reports %d segment points missed for good (%d in all)",
                         self._missed_unlogged, self.loop.missed)

@@ -183,7 +183,7 @@ class FrameBuilder:
         for track, a, b in zip(tracks, start.tolist(), end.tolist()):  # a subject's frames: one run of ``owner``
             if a == b:
                 continue
-            if track.gap_spans[-1][1] <= t_us[a]:  # spans end in time order
+            if not track.gap_spans or track.gap_spans[-1][1] <= t_us[a]:  # spans end in time order (or all filled)
                 gappy.discard(track)
             else:
                 gap[a:b] |= track.in_gap(t_us[a:b])

@@ -160,13 +160,16 @@ class Fusion:
         return self.add_points([(track, 0)], wire.PointColumns.of([p], [nbytes]), now) == 1
 
     def add_points(self, items: list[tuple[DeviceTrack, int]], points: wire.PointColumns, now: float,
-                   taken: Callable[[DeviceTrack, int], None] | None = None) -> int:
+                   taken: Callable[[DeviceTrack, int], None] | None = None,
+                   gapped: Callable[[DeviceTrack, int, int], None] | None = None) -> int:
         """The valid points of one drain, in arrival order: (track, row of ``points``) each.
         The usual ones (:meth:`_usual`) are taken in all at once from the devices' columns; the
         others one by one by the full rules (:meth:`_accept`). Those kept are corrected
         (calibration) and stored in one go. ``taken(track, row)`` is called, at once, for each
         point taken in of a stream whose history is not settled yet (``DeviceTrack.history``
-        "none": it may want its start). Returns how many were taken in."""
+        "none": it may want its start); ``gapped(track, row, points)`` for each point taken in after a
+        gap of that many points the device's cache may still hold (``DeviceTrack.holes``). Returns how
+        many were taken in."""
         self.advance_clock(now)
         if not items:
             return 0
@@ -181,10 +184,13 @@ class Fusion:
         kept = slots[fast].tolist()
         for j in np.flatnonzero(~fast).tolist():
             track, i = items[j]
+            last_gap = track.gap_spans[-1] if track.gap_spans else None
             if self._accept(track, i, stream, seq, index, t_us, flags, nbytes, now, appended, points):
                 kept.append(track.slot)
                 if taken is not None and track.history == "none":  # (a stream that may want its start)
                     taken(track, i)
+                if gapped is not None and track.gap_spans and (gap := track.gap_spans[-1]) != last_gap and gap in track.holes:
+                    gapped(track, i, len(track.holes[gap]))
         self._store(appended, points)
         table = self.table
         table.active[kept] = table.online[kept] & ~table.final[kept]
@@ -255,7 +261,7 @@ class Fusion:
             appended.append((slot, i))
             if track.gaps != gaps:
                 self._gappy.add(track)
-        elif how == "insert":  # an earlier point of the stream's start, in time order
+        elif how == "insert":  # an earlier point (the stream's start, a gap filled), in time order
             self._store(appended, points)
             self._insert(track, points, i)
         return True

@@ -7,14 +7,47 @@ received, in a drain, is not its start, the aggregator asks the device's cache f
 missing of the ``depth`` points before the newest one received (Zenoh's sequence numbers: nothing
 when Zenoh's history came), and the query's end, an event, settles the stream
 (tests/test_history.py; docs/protocol.md).
+
+Points Zenoh reports missed are asked of the device's cache again the same way (:meth:`refill`):
+Zenoh's own recovery query ends with no reply when the device's link is cut meanwhile, and it
+never asks again, although the cache (512 points) still holds them. The aggregator asks for the
+gap's sequence numbers up to REFILL_TRIES times, REFILL_RETRY_S apart, and counts as ``missed``
+only what no answer brought (tests/test_refill.py).
 """
 from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
 
 import zenoh
 
 from limbstream import wire
 from limbstream.services.aggregator.fusion import Fusion
 from limbstream.services.aggregator.track import HISTORY_WAIT_S, DeviceTrack
+
+REFILL_TRIES = 3
+"""Queries of a device's cache for the points of one gap, at most."""
+REFILL_RETRY_S = 1.0
+"""Time between the end of a gap's query that left points out and the next one, s (a device
+whose link was cut is back within about a second: its lease)."""
+MISS_WAIT_S = 1.0
+"""How long a miss Zenoh reports waits, s, for the gap it belongs to before it is counted."""
+
+
+@dataclass
+class Refill:
+    """The points of one gap of a device's stream, asked of its cache (Zenoh's sequence numbers
+    ``first``..``last`` of publisher ``source``)."""
+
+    track: DeviceTrack
+    generation: int
+    source: str
+    first: int
+    last: int
+    tries: int = 0
+    due: float = 0.0      # arrival clock of the next query, s
+    replies: object = None  # the query under way, or None
+    got: set = field(default_factory=set)  # sequence numbers answered and taken in
 
 
 class HistoryQueries:
@@ -31,6 +64,9 @@ class HistoryQueries:
         self.session, self.fusion, self.depth = session, fusion, depth
         self._due: dict[DeviceTrack, tuple[int | None, int | None]] = {}  # Zenoh sequence numbers (first, newest)
         self._replies: list = []  # (track, its stream's generation, reply channel)
+        self._refills: list[Refill] = []
+        self._reported: dict[str, list[float | int]] = {}  # source -> [first report's clock, points missed]
+        self._recovered: collections.Counter = collections.Counter()  # source -> points its refills brought
 
     def taken(self, track: DeviceTrack, sample: zenoh.Sample | None) -> None:
         """A point of ``track`` was taken in (``sample``: the Zenoh sample that carried it, whose
@@ -85,3 +121,75 @@ class HistoryQueries:
             return False
         return (point.stream == track.stream and track.first_seq is not None and point.seq < track.first_seq
                 and self.fusion.add_point(track, point, len(payload), now))
+
+    @property
+    def refilling(self) -> bool:
+        """Whether a gap's refill or a reported miss is still open (``missed`` may yet change)."""
+        return bool(self._refills or self._reported)
+
+    def gap(self, track: DeviceTrack, sample: zenoh.Sample | None, points: int, now: float) -> None:
+        """A point of ``track`` (carried by ``sample``) came after a gap of ``points`` points: ask
+        the device's cache for them (the Zenoh sequence numbers before the sample's)."""
+        info = sample.source_info if sample is not None else None
+        if info is not None and info.source_sn >= points > 0:
+            self._refills.append(Refill(track, track.generation, str(info.source_id),
+                                        info.source_sn - points, info.source_sn - 1, due=now))
+
+    def missed(self, source: str, points: int, now: float) -> None:
+        """Zenoh reports ``points`` points of publisher ``source`` missed (counted by :meth:`settle`)."""
+        reported = self._reported.setdefault(source, [now, 0])
+        reported[1] += points
+
+    def refill(self, now: float) -> int:
+        """Ask the caches for the gaps due, take in what answered; returns the points taken in."""
+        taken, still = 0, []
+        for r in self._refills:
+            if r.replies is None and now >= r.due and r.track.generation == r.generation:
+                r.tries += 1
+                r.replies = self.session.get(
+                    wire.history_selector(r.track.subject, r.track.segment, self.depth, (r.first, r.last)),
+                    zenoh.handlers.FifoChannel(max(1024, self.depth)), accept_replies=zenoh.ReplyKeyExpr.ANY,
+                    target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE, timeout=HISTORY_WAIT_S)
+            if r.replies is not None:
+                taken += self._refill_replies(r, now)
+            if r.track.generation == r.generation and len(r.got) <= r.last - r.first and (
+                    r.replies is not None or r.tries < REFILL_TRIES):
+                still.append(r)
+        self._refills = still
+        return taken
+
+    def _refill_replies(self, r: Refill, now: float) -> int:
+        """Take in the answers of a gap's query; at its end, the next query is due REFILL_RETRY_S later."""
+        taken = 0
+        try:
+            while (reply := r.replies.try_recv()) is not None:  # type: ignore[attr-defined]
+                info = reply.ok.source_info if reply.ok is not None else None
+                if (info is not None and str(info.source_id) == r.source and r.first <= info.source_sn <= r.last
+                        and info.source_sn not in r.got and r.track.generation == r.generation):
+                    payload = reply.ok.payload.to_bytes()
+                    if self._take(r.track, payload, now):
+                        r.got.add(info.source_sn)
+                        self._recovered[r.source] += 1
+                        taken += 1
+        except zenoh.ZError:  # complete and empty
+            r.replies, r.due = None, now + REFILL_RETRY_S
+        return taken
+
+    def _take(self, track: DeviceTrack, payload: bytes, now: float) -> bool:
+        try:
+            point = wire.decode_point(payload)
+        except wire.WireError as exc:
+            track.dropped[exc.reason] += 1
+            return False
+        return point.stream == track.stream and self.fusion.add_point(track, point, len(payload), now)
+
+    def settle(self, now: float) -> int:
+        """Points Zenoh reported missed that no refill brought, once every refill of their publisher
+        has ended (or none came within MISS_WAIT_S): returns them (to be counted ``missed``)."""
+        busy = {r.source for r in self._refills}
+        lost = 0
+        for source, (since, points) in list(self._reported.items()):
+            if source not in busy and (self._recovered[source] or now - since >= MISS_WAIT_S):
+                lost += max(0, int(points) - self._recovered.pop(source, 0))
+                del self._reported[source]
+        return lost

@@ -85,8 +85,14 @@ class Intake:
         points = wire.decode_points(payloads)
         items = self._items(keys, points.reason, "seg", self._seg_tracks)
         history = self.history
-        taken = None if history is None else (lambda track, i: history.taken(track, samples[i] if samples else None))
-        self.counters.points += self.fusion.add_points(items, points, now, taken)
+        taken = gapped = None
+        if history is not None:
+            def taken(track, i):
+                history.taken(track, samples[i] if samples else None)
+
+            def gapped(track, i, missing):
+                history.gap(track, samples[i] if samples else None, missing, now)
+        self.counters.points += self.fusion.add_points(items, points, now, taken, gapped)
 
     def take_raw(self, keys: list[str], payloads: list[bytes], now: float) -> None:
         """The truth-tap messages of one drain, in arrival order: decoded together, counted and

@@ -22,6 +22,10 @@ aggregator joins late) may still be waited for, seconds. A stream whose first po
 start is settled sooner once the aggregator's own history query for it has completed
 (:meth:`DeviceTrack.wants_history`); this bound covers a query that never completes."""
 
+REFILL_MAX = 1024
+"""Most points of one sequence gap that are remembered and may be filled later from the device's
+cache (a larger jump is counted as a gap for good: no cache holds that much)."""
+
 RATE_WINDOW_S = 5.0
 """Sliding window of the data-rate figures, seconds (arrival time)."""
 
@@ -129,6 +133,7 @@ class DeviceTrack:
         self.final = False
         self.gaps = 0
         self.gap_spans: collections.deque = collections.deque(maxlen=64)  # (t0, t1) us
+        self.holes: dict[tuple[int, int], set[int]] = {}  # gap span -> its sequence numbers not filled yet
         self.table.arrivals.reset(self.slot)
         self.latest_arrival = math.nan
 
@@ -151,14 +156,17 @@ class DeviceTrack:
                      stored: Callable[[int], bool] = lambda t_us: False) -> str | None:
         """Sequence and time checks of a point of the current stream (sequence number ``seq``,
         sample ``index``, device time ``t_us`` us, ``flags``, ``nbytes`` on the wire, arrived at
-        ``now``). Returns "append" (newest point), "insert" (an earlier point of the stream's
-        start arriving late, e.g. history), "final" (the newest point repeated with FINAL: the
+        ``now``). Returns "append" (newest point), "insert" (an earlier point arriving
+        late: of the stream's start, e.g. history, or of a gap, from the device's cache), "final" (the newest point repeated with FINAL: the
         stream ends, no new point), or None when it is dropped (counted by reason).
         ``stored(t_us)``: a point with that time is already kept."""
         if not 0 <= t_us < MAX_T_US:
             self.dropped["time_range"] += 1
             return None
         if self.next_seq is not None and seq < self.next_seq:
+            if self._fills(seq, t_us, stored):
+                self._count(t_us, nbytes, now)
+                return "insert"
             if (seq < self.first_seq and seq not in self.early and t_us < self.first_t_us
                     and not self.settled(now) and not stored(t_us)):
                 self.early.add(seq)
@@ -179,12 +187,30 @@ class DeviceTrack:
             self.first_seq, self.first_arrival, self.first_t_us = seq, now, t_us
         elif seq > self.next_seq:
             self.gaps += seq - self.next_seq
-            self.gap_spans.append((self.last_t_us, t_us))
+            span = (self.last_t_us, t_us)
+            if len(self.gap_spans) == self.gap_spans.maxlen:
+                self.holes.pop(self.gap_spans[0], None)
+            self.gap_spans.append(span)
+            if seq - self.next_seq <= REFILL_MAX:
+                self.holes[span] = set(range(self.next_seq, seq))
         self.next_seq = seq + 1
         self.last_t_us, self.last_index = t_us, index
         self.final = bool(flags & wire.FLAG_FINAL)
         self._count(t_us, nbytes, now)
         return "append"
+
+    def _fills(self, seq: int, t_us: int, stored: Callable[[int], bool]) -> bool:
+        """Whether a point (sequence number ``seq``, time ``t_us``) fills a gap of the stream (a point
+        Zenoh reported missed, from the device's cache): the gap shrinks, and goes once filled."""
+        for span, seqs in self.holes.items():
+            if seq in seqs and span[0] < t_us < span[1] and not stored(t_us):
+                seqs.discard(seq)
+                self.gaps -= 1
+                if not seqs:
+                    del self.holes[span]
+                    self.gap_spans.remove(span)
+                return True
+        return False
 
     def _count(self, t_us: int, nbytes: int, now: float) -> None:
         self.points += 1

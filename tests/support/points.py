@@ -1,7 +1,7 @@
 """Every segment point on a router, by device, read as the aggregator reads them
 (:class:`PointLog`): Zenoh's advanced subscriber with history and recovery, and the device's
-cache asked for a stream's start that Zenoh did not deliver (``HistoryQueries`` in
-services/aggregator/history.py does the same for the aggregator).
+cache asked for a stream's start that Zenoh did not deliver and for points it reported missed
+(``HistoryQueries`` in services/aggregator/history.py does the same for the aggregator).
 
 Zenoh 1.10's advanced subscriber holds a new publisher's live samples back only while its first
 history query is under way; while the publisher's own query (on detecting it, or for samples
@@ -24,7 +24,8 @@ CACHE = 512
 class PointLog:
     """The points of every device on the router at ``endpoint``, by device, publisher and Zenoh
     sequence number. :meth:`fill_starts` then asks each device's cache for the start of a stream that
-    Zenoh dropped (the query's end, an event, ends it); :meth:`points` lists them in order."""
+    Zenoh dropped and for points it reported missed (the query's end, an event, ends it);
+    :meth:`points` lists them in order."""
 
     def __init__(self, endpoint: str):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
@@ -36,7 +37,7 @@ class PointLog:
         self._miss_listener = self.sub.sample_miss_listener(lambda m: self.misses.append((str(m.source), m.nb)))
         # device -> its publishers (in the order first heard) -> Zenoh sequence number -> point
         self._by_source: dict[str, dict[str, dict[int, wire.SegmentPoint]]] = {}
-        self.filled: dict[str, int] = {}  # device -> points of its start taken from its cache
+        self.filled: dict[str, int] = {}  # device -> points taken from its cache (its start, misses)
 
     def _take(self, sample: zenoh.Sample, source: str | None = None) -> None:
         """Keep one point (``source``: only if its publisher is this one)."""
@@ -63,22 +64,25 @@ class PointLog:
         return len(points) == devices and all(p[-1].flags & wire.FLAG_FINAL for p in points.values())
 
     def fill_starts(self) -> dict[str, list[wire.SegmentPoint]]:
-        """Ask the cache of each publisher whose first point received is not its first (sequence
-        number 0) for the points before it, and wait for each query's end."""
+        """Ask the cache of each publisher for the points it sent that did not arrive: those before
+        its first point received (a start Zenoh dropped) and those between (points Zenoh reported
+        missed after a recovery query that got no reply), by Zenoh's sequence numbers, and wait for
+        each query's end (``HistoryQueries`` and its refill do the same for the aggregator)."""
         self.poll()
         for device, sources in self._by_source.items():
             for source, by_sn in sources.items():
-                first = min(by_sn)
-                if first == 0:
+                newest = max(by_sn)
+                if len(by_sn) == newest + 1:  # 0..newest all in
                     continue
+                had = len(by_sn)
                 subject, segment = device.split("/")
-                replies = self.session.get(wire.history_selector(subject, segment, CACHE, (0, first - 1)),
+                replies = self.session.get(wire.history_selector(subject, segment, CACHE, (0, newest - 1)),
                                            zenoh.handlers.FifoChannel(CACHE), accept_replies=zenoh.ReplyKeyExpr.ANY,
                                            target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
                 for reply in replies:  # until the query's end
                     if reply.ok is not None:
                         self._take(reply.ok, source)
-                self.filled[device] = self.filled.get(device, 0) + first - min(by_sn)
+                self.filled[device] = self.filled.get(device, 0) + len(by_sn) - had
         return self.points()
 
     def describe(self) -> str:
