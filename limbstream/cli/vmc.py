@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from limbstream import wire, zconfig
 from limbstream.cli import flags
 from limbstream.signals import stop_on_signals
 from limbstream.services.outputs import vmc
 from limbstream.services.outputs.subscription import Subscription
+
+
+PROG = "limbstream vmc"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,8 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _error(message: str) -> int:
-    print(f"limbstream vmc: error: {message}", file=sys.stderr)
-    return 2
+    return flags.fail(PROG, message)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -3,7 +3,6 @@ trackers (:mod:`limbstream.services.outputs.vrchat`, docs/outputs.md "VRChat")."
 from __future__ import annotations
 
 import argparse
-import sys
 
 from limbstream import wire, zconfig
 from limbstream.cli import flags
@@ -12,6 +11,9 @@ from limbstream.services.outputs import vrchat
 from limbstream.services.outputs.subscription import Subscription
 
 DEFAULT_TO = "127.0.0.1:9000"
+
+
+PROG = "limbstream vrchat"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,8 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _error(message: str) -> int:
-    print(f"limbstream vrchat: error: {message}", file=sys.stderr)
-    return 2
+    return flags.fail(PROG, message)
 
 
 def run(args: argparse.Namespace) -> int:
