@@ -19,7 +19,8 @@ POINT_DROPS: dict[str, str] = {
                  "is settled, earlier points of its start (history of a device the aggregator joined late, which "
                  "can arrive after live points) are inserted in time order. A stream is settled once its start is "
                  "complete, once the aggregator's own query of the device's cache for it has ended (see \"Joining "
-                 "late\" above), or 5 s after its first point",
+                 "late\" above), or 5 s after its first point; and a point of a gap not filled yet (the device's "
+                 "cache answering the aggregator's query for it, below) is inserted likewise, once",
     "time_backwards": "device time or sample index not after the previous point's (except the `FINAL` repeat of "
                       "the newest point, next sequence number: it ends the stream)",
     "stale_stream": "a stream id the device already replaced",
