@@ -49,7 +49,7 @@ run: $(STAMP)
 
 # every test: on three workers (the end-to-end tests mostly wait on real time: the whole suite keeps
 # about one core busy; a module stays on one worker), then, alone, the tests that need the cores to
-# themselves: the slow end-to-end ones (a soak that counts late ticks) and the Cortex-M4 ones (up to
+# themselves: the slow end-to-end ones (a soak that counts late ticks, the clocks' timestamp errors) and the Cortex-M4 ones (up to
 # ten QEMU devices at real time would starve the other workers' real-time tests of both cores)
 test: $(TEST_STAMP)
 	$(PYTHON) -m pytest -n 3 --dist loadfile -m "not (slow and e2e) and not qemu" $(PYTEST_ARGS)
