@@ -5,11 +5,9 @@ services/outputs/vmc.py, and compares it with the pose frames published."""
 from __future__ import annotations
 
 import socket
-import threading
 
 import numpy as np
 import pytest
-from pythonosc import dispatcher, osc_server
 from pythonosc.osc_bundle import OscBundle
 from scipy.spatial.transform import Rotation
 
@@ -18,6 +16,7 @@ from limbstream.cli import main
 from limbstream.sources import generator
 from limbstream.services.outputs import vmc
 from limbstream.services.outputs.kinds import LiveFirst
+from support.osc import OscReceiver
 from support.stack import wait_until
 
 PARENT = {  # Unity's humanoid hierarchy (the bones sent)
@@ -129,40 +128,6 @@ def test_a_bad_frame_is_counted_and_the_others_sent():
         receiver.close()
 
 
-class OscReceiver:
-    """A python-osc UDP server on a free port collecting messages, grouped per bundle."""
-
-    def __init__(self):
-        self.messages: list[tuple[str, list]] = []
-        self.lock = threading.Lock()
-        d = dispatcher.Dispatcher()
-        d.set_default_handler(lambda address, *args: self._add(address, list(args)))
-        self.server = osc_server.BlockingOSCUDPServer(("127.0.0.1", 0), d)
-        self.port = self.server.server_address[1]
-        self.thread = threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True)
-        self.thread.start()
-
-    def _add(self, address, args):
-        with self.lock:
-            self.messages.append((address, args))
-
-    def bundles(self) -> list[list[tuple[str, list]]]:
-        """Messages split after each /VMC/Ext/T (the last of a bundle)."""
-        with self.lock:
-            messages = list(self.messages)
-        out, current = [], []
-        for m in messages:
-            current.append(m)
-            if m[0] == "/VMC/Ext/T":
-                out.append(current)
-                current = []
-        return out
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
-
-
 def test_vmc_process_sends_every_live_frame(stack):
     stack.router()
     receiver = OscReceiver()
@@ -185,12 +150,12 @@ def test_vmc_process_sends_every_live_frame(stack):
                     pub.put(wire.encode_pose(wire.PoseFrame(i, t0 - 400_000, wire.KIND_EXACT, 0, noise)))
                 if i % 20 == 0:  # let the receiver keep up (loopback UDP buffer)
                     n = i + 1
-                    wait_until(lambda n=n: len(receiver.bundles()) >= n, 20, f"{n} bundles")
-            wait_until(lambda: len(receiver.bundles()) >= len(q), 20, f"{len(q)} VMC bundles",
+                    wait_until(lambda n=n: len(receiver.bundles("/VMC/Ext/T")) >= n, 20, f"{n} bundles")
+            wait_until(lambda: len(receiver.bundles("/VMC/Ext/T")) >= len(q), 20, f"{len(q)} VMC bundles",
                        on_fail=lambda: print(stack.logs()))
         finally:
             session.close()
-        bundles = receiver.bundles()
+        bundles = receiver.bundles("/VMC/Ext/T")
         assert len(bundles) == len(q)
         bone_names = {b.name for b in vmc.VMC_BONES}
         worst = 0.0

@@ -4,18 +4,17 @@ the mirror, units) checked against constructions written here independently."""
 from __future__ import annotations
 
 import signal
-import socket
 import threading
 
 import numpy as np
 import pytest
-from pythonosc import dispatcher, osc_server
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat, wire, zconfig
 from limbstream.cli import main
 from limbstream.skeleton import Skeleton
 from limbstream.services.outputs import vrchat
+from support.osc import OscReceiver
 from support.stack import wait_for_subscribers, wait_until
 
 MIRROR = np.diag([-1.0, 1.0, 1.0])  # Unity (x right) <-> limbstream (x left)
@@ -97,42 +96,6 @@ def test_a_bad_frame_is_counted_and_a_missing_segment_does_not_stop_it():
     finally:
         sender.close()
         receiver.close()
-
-
-SO_RCVBUFFORCE = 33  # Linux's (Python's socket module does not name it)
-
-
-class OscReceiver:
-    """A python-osc UDP server on a free port collecting (address, args) in arrival order."""
-
-    def __init__(self):
-        self.messages: list[tuple[str, list]] = []
-        self.lock = threading.Lock()
-        d = dispatcher.Dispatcher()
-        d.set_default_handler(lambda address, *args: self._add(address, list(args)))
-        self.server = osc_server.BlockingOSCUDPServer(("127.0.0.1", 0), d)
-        try:  # room for seconds of messages while this process waits for a core (root: beyond rmem_max)
-            self.server.socket.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, 1 << 24)
-        except PermissionError:
-            self.server.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 24)
-        self.port = self.server.server_address[1]
-        self.thread = threading.Thread(target=self.server.serve_forever, args=(0.05,), daemon=True)
-        self.thread.start()
-
-    def _add(self, address, args):
-        with self.lock:
-            self.messages.append((address, args))
-
-    def snapshot(self) -> list[tuple[str, list]]:
-        with self.lock:
-            return list(self.messages)
-
-    def count(self, address: str) -> int:
-        return sum(a == address for a, _ in self.snapshot())
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
 
 
 class PoseFrames:
