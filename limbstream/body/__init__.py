@@ -30,7 +30,20 @@ def layout(name_or_path: str | Path) -> Layout:
     return builtin_layout(str(name_or_path))
 
 
+def layout_for(segments) -> Layout:
+    """The smallest built-in layout holding every segment name of ``segments`` (``paper10`` before
+    ``full``); ValueError naming the segments no built-in layout has."""
+    names = set(segments)
+    for candidate in LAYOUTS.values():
+        if names <= set(candidate.segment_names):
+            return candidate
+    known = set().union(*(set(lay.segment_names) for lay in LAYOUTS.values()))
+    unknown = sorted(names - known)
+    what = f"segments {', '.join(unknown)}" if unknown else f"all of the segments {', '.join(sorted(names))}"
+    raise ValueError(f"no built-in layout ({', '.join(LAYOUTS)}) has {what}; give a layout file (--layout FILE)")
+
+
 __all__ = ["DEFAULT_HEIGHT_M", "FULL", "HEIGHT_BOUNDS_M", "LAYOUTS", "MAX_BONE_M", "PAPER10", "PAPER10_BONES",
            "WINTER_HEIGHTS", "WINTER_LENGTHS", "Body", "Bone", "Layout", "Offset", "Segment", "builtin_layout",
-           "check_height", "check_length", "layout", "lengths_of", "layout_from_dict", "load_layout", "offset", "read_table",
+           "check_height", "check_length", "layout", "layout_for", "lengths_of", "layout_from_dict", "load_layout", "offset", "read_table",
            "rest_heights", "segment"]

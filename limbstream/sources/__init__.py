@@ -19,7 +19,7 @@ from limbstream.wire.body import SEGMENTS  # noqa: F401  (re-exported: the 10-IM
 
 if TYPE_CHECKING:
     from limbstream.sources.bvh_positions import BvhPositions
-    from limbstream.body import Body
+    from limbstream.body import Body, Layout
 
 
 class MotionFileError(ValueError):
@@ -104,6 +104,13 @@ class Motion:
     def fs(self) -> float:
         """Mean sample rate, Hz."""
         return (len(self.t) - 1) / (self.t[-1] - self.t[0]) if len(self.t) > 1 else float("nan")
+
+    @property
+    def layout(self) -> Layout:
+        """The body layout of this motion: its body's, else the smallest built-in layout holding its
+        segments (:func:`limbstream.body.layout_for`)."""
+        from limbstream.body import layout_for
+        return self.body.layout if self.body is not None else layout_for(self.segments)
 
     def segment(self, name: str) -> np.ndarray:
         """(m, 4) stream of one segment."""
