@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from support.profiles import scaled
 
 from limbstream import kernel, quat, wire
+from limbstream.body import FULL, PAPER10
 from limbstream.sources import SEGMENTS
 
 u16 = st.integers(0, 0xFFFF)
@@ -235,24 +236,71 @@ def test_pose_frame_round_trip():
 
 
 def test_pose_frames_encode_as_the_documented_layout():
-    """A batch encodes frame by frame to the bytes docs/protocol.md gives: header
-    <BBBBIq (version, kind, flags, n_segments, seq, t_us), then 10 x 4 and 15 x 3 float32."""
+    """A batch encodes frame by frame to the bytes docs/protocol.md gives: header <BBBBIqBBBB3f
+    (version 2, kind, flags, n_segments, seq, t_us, layout, n_joints, contacts, 0, root), then
+    S x 4 and J x 3 float32: 372 bytes for paper10, 512 for full."""
     rng = np.random.default_rng(2)
     n = 7
-    frames = wire.PoseFrames(rng.integers(0, 2**32, n), rng.integers(0, 2**53, n), wire.KIND_EXACT,
-                             rng.integers(0, 4, n), rng.normal(size=(n, len(SEGMENTS), 4)),
-                             rng.normal(size=(n, len(wire.JOINTS), 3)))
-    payloads = frames.encode()
-    assert len(payloads) == n and all(len(p) == 356 for p in payloads)
-    header = struct.Struct("<BBBBIq")
-    for i, payload in enumerate(payloads):
-        expected = (header.pack(wire.VERSION, wire.KIND_EXACT, int(frames.flags[i]), len(SEGMENTS),
-                                int(frames.seq[i]), int(frames.t_us[i]))
-                    + frames.q[i].astype("<f4").tobytes() + frames.joints[i].astype("<f4").tobytes())
-        assert payload == expected == wire.encode_pose(frames[i])
-        back = wire.decode_pose(payload)
-        assert (back.seq, back.t_us, back.flags) == (frames.seq[i], frames.t_us[i], frames.flags[i])
-    assert wire.PoseFrames.empty(wire.KIND_LIVE).encode() == []
+    header = struct.Struct("<BBBBIqBBBB3f")
+    assert header.size == wire.pose.HEADER_SIZE
+    for layout, code, size in ((PAPER10, 0, 372), (FULL, 1, 512)):
+        frames = wire.PoseFrames(rng.integers(0, 2**32, n), rng.integers(0, 2**53, n), wire.KIND_EXACT,
+                                 rng.integers(0, 4, n), rng.normal(size=(n, len(layout.segments), 4)),
+                                 rng.normal(size=(n, len(layout.joints), 3)), layout,
+                                 rng.normal(size=(n, 3)), rng.integers(0, 16, n))
+        payloads = frames.encode()
+        assert len(payloads) == n and all(len(p) == size for p in payloads)
+        for i, payload in enumerate(payloads):
+            expected = (header.pack(2, wire.KIND_EXACT, int(frames.flags[i]), len(layout.segments), int(frames.seq[i]),
+                                    int(frames.t_us[i]), code, len(layout.joints), int(frames.contacts[i]), 0,
+                                    *frames.root[i].astype("<f4"))
+                        + frames.q[i].astype("<f4").tobytes() + frames.joints[i].astype("<f4").tobytes())
+            assert payload == expected == wire.encode_pose(frames[i])
+            back = wire.decode_pose(payload)
+            assert (back.seq, back.t_us, back.flags, back.contacts) == (
+                frames.seq[i], frames.t_us[i], frames.flags[i], frames.contacts[i])
+            assert back.layout == layout and np.array_equal(back.root, frames.root[i].astype(np.float32))
+        assert wire.PoseFrames.empty(wire.KIND_LIVE, layout).encode() == []
+
+
+def test_version_1_pose_frames_are_still_read_as_paper10():
+    """Recordings hold 356-byte version-1 frames: read as paper10 frames at the origin, no contacts."""
+    rng = np.random.default_rng(3)
+    q, joints = rng.normal(size=(10, 4)).astype("<f4"), rng.normal(size=(15, 3)).astype("<f4")
+    payload = struct.pack("<BBBBIq", 1, wire.KIND_LIVE, wire.FRAME_MISSING, 10, 9, 1234) + q.tobytes() + joints.tobytes()
+    assert len(payload) == 356
+    frame = wire.decode_pose(payload)
+    assert frame.layout is PAPER10 and (frame.seq, frame.t_us, frame.flags, frame.contacts) == (9, 1234, wire.FRAME_MISSING, 0)
+    assert np.array_equal(frame.q, q) and np.array_equal(frame.joints, joints) and not frame.root.any()
+
+
+def test_full_layout_frames_name_their_segments_joints_root_and_contacts_in_json():
+    rng = np.random.default_rng(4)
+    frame = wire.PoseFrame(1, 2_000_000, wire.KIND_EXACT, 0, rng.normal(size=(15, 4)).astype(np.float32),
+                           rng.normal(size=(20, 3)).astype(np.float32), FULL, np.array([1.0, 0.9, -2.0], np.float32), 0b0101)
+    as_json = wire.decode_pose(wire.encode_pose(frame)).to_json("s01")
+    assert as_json["layout"] == "full" and list(as_json["segments"]) == list(FULL.segment_names)
+    assert list(as_json["joints"]) == list(FULL.joints) and as_json["root"] == [1.0, 0.9, -2.0]
+    assert as_json["contacts"] == ["l_heel", "r_heel"]
+
+
+def test_pose_frames_that_break_the_contract_are_refused_by_reason():
+    frame = wire.PoseFrame(1, 2, wire.KIND_EXACT, 0, np.zeros((15, 4), np.float32), np.zeros((20, 3), np.float32), FULL)
+    payload = bytearray(wire.encode_pose(frame))
+    cases = {"size": [b"", bytes(payload[:20]), bytes(payload[:-1])], "version": [bytes([3]) + bytes(payload[1:])]}
+    other = bytearray(payload)
+    other[16] = wire.OTHER_LAYOUT  # a layout file's frame, read without its layout
+    wrong = bytearray(payload)
+    wrong[16] = 0  # says paper10 with full's counts
+    unknown = bytearray(payload)
+    unknown[16] = 7
+    cases["layout"] = [bytes(other), bytes(wrong), bytes(unknown)]
+    for reason, payloads in cases.items():
+        for bad in payloads:
+            with pytest.raises(wire.WireError) as err:
+                wire.decode_pose(bad)
+            assert err.value.reason == reason, (reason, err.value)
+    assert wire.decode_pose(bytes(other), FULL).layout is FULL  # the subject's layout, passed in
 
 
 SAMPLE_VALUES = {float: 0.5, int: 3, bool: True, str: "s01/hip", dict: {"size": 1}}

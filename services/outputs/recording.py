@@ -49,7 +49,7 @@ METADATA_NAME = "limbstream"
 _PAYLOADS = {
     "seg": "segment point, 36 bytes (docs/protocol.md: Segment point)",
     "raw": "truth-tap batch (docs/protocol.md: Truth tap)",
-    "pose": "pose frame, 356 bytes, exact or live (docs/protocol.md: Pose frame)",
+    "pose": "pose frame, exact or live, the subject's layout (docs/protocol.md: Pose frame)",
     "stats": "stats message of one subject, compact or JSON form (docs/protocol.md: Stats)",
     "config": "device status JSON, a config query's reply (docs/protocol.md: Device config)",
     "angles": "joint angles of a pose frame, 115 bytes (docs/protocol.md: Joint angles)",
