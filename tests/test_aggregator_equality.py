@@ -255,7 +255,7 @@ def compare_frames(key: str, old: list[bytes], new: list[bytes]) -> None:
         assert np.abs(fa.joints - fb.joints).max() <= 1e-6, (where, fa.joints, fb.joints)
 
 
-LATER_FIELDS = {"joint_aad_deg", "live_missed", "heading_offset_deg", "heading_rate_dpm", "heading_confidence"}
+LATER_FIELDS = {"joint_aad_deg", "live_missed", "heading_offset_deg", "heading_rate_dpm", "heading_confidence", "layout"}
 """Figures added after the plain aggregator (tests/test_aggregator_scoring.py checks them)."""
 
 

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from limbstream import wire
+from limbstream.body import PAPER10
 from limbstream.sources import SEGMENTS
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 from limbstream.services.aggregator.frames import FIRST_FRAME_WAIT_S
@@ -283,7 +284,8 @@ def test_a_frame_stage_takes_each_ticks_frames_of_every_subject_before_they_are_
 
     def stage(batch):
         batches.append(batch)
-        return [(wire.subject_key(SUBJECTS[i], "stats"), "stats", bytes([i])) for i in batch.live_owner.tolist()]
+        live = batch.group(wire.KIND_LIVE, PAPER10)
+        return [(wire.subject_key(SUBJECTS[i], "stats"), "stats", bytes([i])) for i in live.owner.tolist()]
 
     agg.frame_stages = [stage]
     agg._put = lambda key, kind, payload: published.append((key, kind, payload))
@@ -292,8 +294,9 @@ def test_a_frame_stage_takes_each_ticks_frames_of_every_subject_before_they_are_
             send(agg, segment, range(6), now=0.0, subject=subject)
     agg.advance(live=True, now=0.1)
     batch = batches[-1]
-    assert batch.exact.q.dtype == np.float64 and batch.exact.q.shape == (len(exact(sent)), len(SEGMENTS), 4)
-    assert sorted(set(batch.exact_owner.tolist())) == [0, 1] and batch.live_owner.tolist() == [0, 1]
+    exact_frames = batch.group(wire.KIND_EXACT, PAPER10).frames
+    assert exact_frames.q.dtype == np.float64 and exact_frames.q.shape == (len(exact(sent)), len(SEGMENTS), 4)
+    assert sorted(set(batch.exact_owner.tolist())) == [0, 1] and batch.group(wire.KIND_LIVE, PAPER10).owner.tolist() == [0, 1]
     assert published == [(wire.stats_key(s), "stats", bytes([i])) for i, s in enumerate(SUBJECTS)]
 
 

@@ -164,8 +164,9 @@ FIELDS: tuple[StatsField, ...] = (
     StatsField("frame_error_frames", int, "subject", "exact frames compared with the truth so far"),
     StatsField("facing_deg", float, "subject", "the turn about the vertical from the calibrated frames to the truth's "
                "world, fitted from the first frames compared after the subject's calibration (0: none fitted)", "deg"),
-    StatsField("layout", str, "subject", "the body layout of the body its devices announce (docs/body.md; null: "
-               "they announce none, its frames are drawn with the aggregator's own skeleton)"),
+    StatsField("layout", str, "subject", "the subject's body layout, its frames' (docs/body.md): the one its "
+               "devices' status body names, else the smallest built-in layout holding its devices' segments "
+               "(docs/protocol.md, \"Body layouts in the aggregator\")"),
     StatsField("height_m", float, "subject", "the wearer's height in the body its devices announce (null: none "
                "announced, or one given bone by bone)", "m"),
     StatsField("bones_m", dict, "subject", "the bone lengths of the body its devices announce, by bone of the "

@@ -25,6 +25,8 @@ POINT_DROPS: dict[str, str] = {
                       "the newest point, next sequence number: it ends the stream)",
     "stale_stream": "a stream id the device already replaced",
     "buffer_full": "the device's row of points in the aggregator is full: its oldest point is forgotten",
+    "segment_not_in_layout": "the device's segment is not in its subject's body layout (\"Body layouts in the "
+                             "aggregator\"): its points are left out, the rest of the subject streams",
 }
 """Segment points dropped and counted on their device, by reason."""
 
@@ -39,14 +41,19 @@ RAW_DROPS: dict[str, str] = {
     "raw_before_first_point": "a sample older than the stream's first known segment point: nothing to compare it "
                               "with (counted per sample)",
     "raw_overflow": "more samples wait for their reconstruction than the aggregator keeps (counted per sample)",
+    "raw_segment_not_in_layout": "a batch of a device whose segment is not in its subject's body layout (as "
+                                 "`segment_not_in_layout`)",
 }
 """Truth-tap batches (or their samples) dropped and counted on their device, by reason."""
 
 STATUS_DROPS: dict[str, str] = {
     "status_body": "a device status whose `body` (its wearer's dimensions, \"Body dimensions\") is malformed: not "
                    "an object of `layout`, `height_m` and `bones`, a layout that is not built in, a bone missing, "
-                   "unknown or not in (0, 1.5] m, a height outside [0.5, 2.5] m; or of another layout than the "
-                   "frames' (`paper10`). The rest of the status is taken; the subject keeps the body it had",
+                   "unknown or not in (0, 1.5] m, a height outside [0.5, 2.5] m. The rest of the status is taken; "
+                   "the subject keeps the body it had",
+    "status_layout": "a device status whose `body` is of another layout than its subject's, the one its devices "
+                     "named first (\"Body layouts in the aggregator\"). The rest of the status is taken; the subject "
+                     "keeps its layout and body",
 }
 """Parts of a device's status dropped and counted on the device, by reason."""
 

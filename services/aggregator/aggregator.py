@@ -315,17 +315,18 @@ class Aggregator:
         self._publish_frames(batch)
         if prune:
             self.fusion.prune()
-        self.loop.frames += len(batch.exact)
-        return len(batch.exact)
+        self.loop.frames += len(batch.exact_owner)
+        return len(batch.exact_owner)
 
     def _publish_frames(self, batch: FrameBatch) -> None:
-        """A tick's frames, per subject exact ones first, and what the frame stages make of them."""
+        """A tick's frames, per subject exact ones first (each subject's in its layout), and what
+        the frame stages make of them."""
         for stage in self.frame_stages:
             for key, kind, payload in stage(batch):
                 self._put(key, kind, payload)
         names = list(self.subjects)
-        for frames, owner in ((batch.exact, batch.exact_owner), (batch.live, batch.live_owner)):
-            for i, payload in zip(owner.tolist(), frames.encode()):
+        for group in batch.exact + batch.live:  # one batch per layout and kind
+            for i, payload in zip(group.owner.tolist(), group.frames.encode()):
                 self._publish(names[i], payload)
 
     def serve_calibrations(self) -> None:
@@ -374,7 +375,7 @@ class Aggregator:
                  "live_missed": int(frames.live_missed[sub.index]),
                  "watermark_us": None if view.watermark[sub.index] == NO_TIME else int(view.watermark[sub.index]),
                  "frame_aad_deg": aad, "joint_aad_deg": joints, "frame_error_frames": compared, "facing_deg": facing}
-                | self.fusion.body_fields(sub) for sub, (aad, compared, facing, joints) in zip(subjects, scores)]
+                | self.fusion.layouts.fields(sub) for sub, (aad, compared, facing, joints) in zip(subjects, scores)]
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:
         """Stats of the subjects whose index % ``parts`` == ``part`` (all by default); the loop

@@ -14,7 +14,7 @@ uncalibrated; with rest-calibrated devices, the facing found from the hinges' mo
 calibration, per subject) undoes the heading of those devices' segments once a knee or an elbow
 has moved enough (``functional``); until then no angles (``no_facing``).
 
-A segment a frame lacks (no device, offline, no data yet: :attr:`.frames.FrameBatch.live_missing`)
+A segment a frame lacks (no device, offline, no data yet: :attr:`.frames.FrameGroup.missing`)
 gives its joints no angles (flag MISSING); an angle near gimbal lock is flagged GIMBAL.
 """
 from __future__ import annotations
@@ -25,6 +25,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from limbstream import joints, wire
+from limbstream.body import PAPER10
 from limbstream.services.aggregator.frames import FrameBatch
 from limbstream.services.aggregator.fusion import Fusion
 
@@ -71,8 +72,9 @@ class JointStage:
         self._any_rest = False  # some subject has rest-calibrated segments
 
     def __call__(self, batch: FrameBatch) -> Iterable[tuple[str, str, bytes]]:
-        frames, owner, missing = ((batch.live, batch.live_owner, batch.live_missing) if self.live
-                                  else (batch.exact, batch.exact_owner, batch.exact_missing))
+        # paper10's subjects: the joints of other layouts get their angles with those layouts' joint tables
+        group = batch.group(wire.KIND_LIVE if self.live else wire.KIND_EXACT, PAPER10)
+        frames, owner, missing = group.frames, group.owner, group.missing
         if not len(frames):
             return []
         now = self.clock()
@@ -134,7 +136,7 @@ class JointStage:
         if calibrations:
             level[np.fromiter(calibrations, np.int64, len(calibrations))] = [
                 _MOUNTING if {"mounting", "functional"} & set(c.poses) else _REST for c in calibrations.values()]
-        slots = table.seg_slots
+        slots = table.seg_slots[:, :len(wire.SEGMENTS)]  # (paper10's segments: the table's first columns)
         rows = np.maximum(slots, 0)
         online = (slots >= 0) & table.online[rows]
         seg_level = np.where(online, level[rows], _NONE)  # (S, 10)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import calibration, quat, wire
+from limbstream.body import PAPER10, Layout
 from limbstream.services.aggregator.store import PointStore
 from limbstream.services.aggregator.track import DeviceTrack
 
@@ -230,11 +231,12 @@ class Calibrating:
     # ------------------------------------------------------------------ requests
 
     def start_request(self, subject: str, tracks: dict[str, DeviceTrack] | None, pose: str, latest_t: np.ndarray,
-                      wall: float) -> CalibrationRequest | str:
+                      wall: float, layout: Layout | None = None) -> CalibrationRequest | str:
         """Begin a calibration of ``subject``'s devices that stream (``tracks``: by segment, None:
         no such subject here; streaming: online, with points) from ``pose`` held from now on
         (``latest_t``: (slots,) newest device time of each device, us); a refusal sentence instead
-        if it cannot begin (unknown subject, no device streams)."""
+        if it cannot begin (unknown subject, no device streams). ``layout``: the subject's (default
+        paper10), whose segments without a device streaming the answer names."""
         if tracks is None:
             return f"{subject}: no such subject here"
         chosen = [t for t in tracks.values() if t.online and latest_t[t.slot] >= 0]
@@ -247,7 +249,7 @@ class Calibrating:
         t_from = int(max(latest_t[t.slot] for t in chosen))
         return CalibrationRequest(subject, pose, chosen, {t.slot: t.generation for t in chosen}, t_from,
                                   t_from + round(wire.CALIBRATION_HOLD_S * 1e6), wall,
-                                  calibration.absent_segments(t.segment for t in chosen))
+                                  [s for s in (layout or PAPER10).segment_names if s not in {t.segment for t in chosen}])
 
     def finish_request(self, req: CalibrationRequest, wall: float) -> tuple[wire.CalibrateAnswer | None, list]:
         """The answer once every device's points passed the hold (None: not yet), and the devices

@@ -33,6 +33,7 @@ COLUMNS: dict[str, tuple[type, object]] = {
     "horizon_us": (np.int64, 0),        # longest extrapolation of the newest point in a live frame
     "settled": (bool, True),            # DeviceTrack.settled, as last refreshed
     "orientations": (np.int8, -1),      # what its status says its orientations are (wire.ORIENTATIONS; -1: not said)
+    "placed": (bool, False),            # its segment is in its subject's layout (else its points are dropped)
 }
 """Every per-slot column: its type and the value of a fresh row (and of "none")."""
 
@@ -120,8 +121,10 @@ class ArrivalWindows:
 class DeviceTable:
     """Per device slot (rows in the order devices were first seen; the point store's rows), the
     columns of :data:`COLUMNS` (each (slots,)) and its points' arrivals (``arrivals``); per subject,
-    ``seg_slots`` (subjects, 10) int64: the device slot of each segment (SEGMENTS order), -1 where
-    the subject has no such device."""
+    over the segment ``columns`` (C names: wire.SEGMENTS first, then each other segment name of a
+    subject's layout as it appears), ``seg_slots`` (subjects, C) int64: the device slot of each
+    segment, -1 where the subject has no such device or its layout lacks the segment, and
+    ``in_layout`` (subjects, C) bool: the segment is in the subject's layout."""
 
     owner: np.ndarray
     online: np.ndarray
@@ -141,9 +144,13 @@ class DeviceTable:
     horizon_us: np.ndarray
     settled: np.ndarray
     orientations: np.ndarray
+    placed: np.ndarray
 
     def __init__(self) -> None:
+        self.columns: list[str] = list(SEGMENTS)
+        self.column_index = dict(SEGMENT_INDEX)
         self.seg_slots = np.full((0, len(SEGMENTS)), -1, np.int64)
+        self.in_layout = np.zeros((0, len(SEGMENTS)), bool)
         for name, (dtype, _) in COLUMNS.items():
             setattr(self, name, np.zeros(0, dtype))
         self.arrivals = ArrivalWindows()
@@ -152,17 +159,44 @@ class DeviceTable:
         return len(self.owner)
 
     def add_subject(self) -> int:
-        """A new subject without devices; returns its index."""
-        self.seg_slots = np.vstack([self.seg_slots, np.full((1, len(SEGMENTS)), -1, np.int64)])
+        """A new subject without devices (its layout: none yet, :meth:`set_layout`); returns its index."""
+        self.seg_slots = np.vstack([self.seg_slots, np.full((1, len(self.columns)), -1, np.int64)])
+        self.in_layout = np.vstack([self.in_layout, np.zeros((1, len(self.columns)), bool)])
         return len(self.seg_slots) - 1
 
-    def add_device(self, subject: int, segment: str, horizon_us: int) -> int:
-        """A new device of ``subject`` (offline, no data yet); returns its slot."""
+    def add_device(self, subject: int, horizon_us: int) -> int:
+        """A new device of ``subject`` (offline, no data yet, not placed: :meth:`set_layout`);
+        returns its slot."""
         slot = len(self.owner)
         for name, (dtype, fresh) in COLUMNS.items():
             setattr(self, name, np.append(getattr(self, name), np.array(fresh, dtype)))
         self.owner[slot], self.horizon_us[slot] = subject, horizon_us
         self.arrivals.add_slot()
-        if segment in SEGMENT_INDEX:
-            self.seg_slots[subject, SEGMENT_INDEX[segment]] = slot
         return slot
+
+    def columns_of(self, segments: tuple[str, ...]) -> np.ndarray:
+        """(S,) the columns of segment names ``segments``, in their order; a name without one gets
+        a new column (appended: the columns of the others stay)."""
+        new = [name for name in segments if name not in self.column_index]
+        if new:
+            for name in new:
+                self.column_index[name] = len(self.columns)
+                self.columns.append(name)
+            more = len(new)
+            self.seg_slots = np.hstack([self.seg_slots, np.full((len(self.seg_slots), more), -1, np.int64)])
+            self.in_layout = np.hstack([self.in_layout, np.zeros((len(self.in_layout), more), bool)])
+        return np.array([self.column_index[name] for name in segments], np.int64)
+
+    def set_layout(self, subject: int, segments: tuple[str, ...], devices: dict[str, int]) -> np.ndarray:
+        """The subject's layout is of ``segments`` (names), its devices ``devices`` (segment ->
+        slot): those on a segment of it are placed, the others not. Returns the layout's columns (S,)."""
+        cols = self.columns_of(segments)
+        self.in_layout[subject] = False
+        self.in_layout[subject, cols] = True
+        self.seg_slots[subject] = -1
+        for segment, slot in devices.items():
+            column = self.column_index.get(segment)
+            self.placed[slot] = column is not None and bool(self.in_layout[subject, column])
+            if self.placed[slot]:
+                self.seg_slots[subject, column] = slot
+        return cols

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from limbstream import wire
-from limbstream.body import Body
+from limbstream.body import PAPER10, Body, Layout
 from limbstream.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
 from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
@@ -56,7 +56,7 @@ flagged MISSING."""
 class DeviceView:
     """What frames and truth evaluation need of every device at a tick: (slots,) newest usable
     point time (NO_TIME: no points yet, or earlier points of its stream may still arrive), (slots,)
-    newest point time, (subjects,) watermark (us; NO_TIME if no data) and (subjects, 10) bool stale
+    newest point time, (subjects,) watermark (us; NO_TIME if no data) and (subjects, C) bool stale
     segments (no device, offline, ended, or not settled: held and flagged)."""
 
     usable_t: np.ndarray
@@ -66,18 +66,43 @@ class DeviceView:
 
 
 @dataclass(frozen=True)
+class FrameGroup:
+    """One layout's frames of one kind in a tick: the subject index of each (``owner`` (F,)), the
+    frames (in the layout's segments and joints; orientations float64 until encoded) and the
+    segments each lacks (``missing`` (F, S) bool, the layout's order: no device, no data at the
+    frame's time, or held: what sets a frame's MISSING flag)."""
+
+    owner: np.ndarray
+    frames: wire.PoseFrames
+    missing: np.ndarray
+
+    @classmethod
+    def empty(cls, kind: int, layout: Layout) -> FrameGroup:
+        return cls(np.zeros(0, np.int64), wire.PoseFrames.empty(kind, layout), np.zeros((0, len(layout.segments)), bool))
+
+
+@dataclass(frozen=True)
 class FrameBatch:
-    """The frames of one tick: exact frames (per subject oldest first) and live frames, with the
-    subject index of each (``exact_owner`` (E,), ``live_owner`` (L,)) and the segments each lacks
-    (``exact_missing`` (E, 10), ``live_missing`` (L, 10) bool: no device, no data at the frame's
-    time, or held: what sets a frame's MISSING flag); their orientations are float64 until encoded."""
+    """The frames of one tick. Every subject's exact frames (per subject oldest first) over the
+    device table's segment columns (C): subject ``exact_owner`` (E,), time ``exact_t`` (E,) us,
+    orientations ``exact_q`` (E, C, 4) float64 (identity where the subject has no device or its
+    layout lacks the segment), segments lacking ``exact_lacking`` (E, C) (only ever those of the
+    subject's layout); and the frames to publish, one :class:`FrameGroup` per layout and kind
+    (``exact``, ``live``: paper10's first, a layout without frames left out)."""
 
     exact_owner: np.ndarray
-    exact: wire.PoseFrames
-    live_owner: np.ndarray
-    live: wire.PoseFrames
-    exact_missing: np.ndarray
-    live_missing: np.ndarray
+    exact_t: np.ndarray
+    exact_q: np.ndarray
+    exact_lacking: np.ndarray
+    exact: list[FrameGroup]
+    live: list[FrameGroup]
+
+    def group(self, kind: int, layout: Layout) -> FrameGroup:
+        """The frames of ``kind`` (wire.KIND_EXACT, KIND_LIVE) of ``layout``'s subjects (none: empty)."""
+        for g in self.live if kind == wire.KIND_LIVE else self.exact:
+            if g.frames.layout == layout:
+                return g
+        return FrameGroup.empty(kind, layout)
 
 
 Correction = Callable[[np.ndarray, np.ndarray, np.ndarray], None]
@@ -91,14 +116,15 @@ FrameStage = Callable[[FrameBatch], Iterable[tuple[str, str, bytes]]]
 
 class FrameBuilder:
     """Per subject: the next exact frame (grid index, -1 before the first), the sequence numbers
-    of both kinds, the rest-pose flag, the body its joints are drawn with, and the frames made
-    and skipped.
+    of both kinds, the rest-pose flag, its layout and the body its joints are drawn with, and the
+    frames made and skipped.
 
     Parameters
     ----------
     period_us : exact frame period, us.
-    skeleton : forward-kinematics model for the joint positions of subjects whose devices announce
-        no body (``bodies``: those of the others).
+    skeleton : forward-kinematics model for the joint positions of paper10 subjects whose devices
+        announce no body (``bodies``: those of the others; a subject of another layout without one
+        is drawn with that layout's default body).
     max_backlog : frames further behind than this are skipped (counted) instead of built.
     """
 
@@ -113,6 +139,10 @@ class FrameBuilder:
         self._live_clock = math.nan                  # the clock of the last live plan, s
         self.rest_flag = np.zeros(0, np.uint8)
         self.bodies: list[Body | None] = []  # per subject: the body its devices announce (None: ``skeleton``)
+        self.layouts: list[Layout] = [PAPER10]  # the layouts of the subjects, by code
+        self.layout_cols = [np.arange(len(SEGMENTS))]  # by code: the table's columns of its segments (S,)
+        self.layout_code = np.zeros(0, np.int64)  # per subject
+        self._defaults: dict[Layout, Body] = {}  # the default body of each layout but paper10
         self.made = np.zeros(0, np.int64)     # exact frames per subject
         self.skipped = np.zeros(0, np.int64)  # frame times skipped per subject
 
@@ -122,6 +152,14 @@ class FrameBuilder:
             setattr(self, name, np.append(getattr(self, name), value))
         self.rest_flag = np.append(self.rest_flag, np.uint8(rest_flag))
         self.bodies.append(None)
+        self.layout_code = np.append(self.layout_code, 0)
+
+    def set_layout(self, subject: int, layout: Layout, cols: np.ndarray) -> None:
+        """The subject's frames are of ``layout`` from now on, its segments the table's columns ``cols`` (S,)."""
+        if layout not in self.layouts:
+            self.layouts.append(layout)
+            self.layout_cols.append(cols)
+        self.layout_code[subject] = self.layouts.index(layout)
 
     def start(self, subjects: list, view: DeviceView, table: DeviceTable, store: PointStore, clock: float) -> None:
         """Fix the first frame of the subjects that can start: where every device they have is
@@ -163,18 +201,18 @@ class FrameBuilder:
 
     def exact_flags(self, owner: np.ndarray, t_us: np.ndarray, view: DeviceView, table: DeviceTable,
                     store: PointStore, gappy: set[DeviceTrack]) -> tuple[np.ndarray, np.ndarray]:
-        """(E,) flags of exact frames (subject ``owner``, time ``t_us``) and (E, 10) the segments
-        they lack: MISSING where a segment has no device, is held beyond a stale device's last
+        """(E,) flags of exact frames (subject ``owner``, time ``t_us``) and (E, C) the segments
+        of their layouts they lack: MISSING where a segment has no device, is held beyond a stale device's last
         point or lies before its first point;
         GAP inside a span whose points were lost (``gappy``: the devices with such spans; one whose
         spans all end before its subject's frames is taken out: no frame to come is in them); the
         subject's rest pose."""
-        slots = table.seg_slots[owner]                       # (E, 10)
+        slots = table.seg_slots[owner]                       # (E, C)
         valid = slots >= 0
         rows = np.maximum(slots, 0)
         beyond = valid & (view.last_t[rows] < t_us[:, None])
         before = valid & (store.n[rows] > 0) & (store.t[rows, 0] > t_us[:, None])
-        lacking = (view.stale[owner] & beyond) | before | ~valid
+        lacking = ((view.stale[owner] & beyond) | before | ~valid) & table.in_layout[owner]
         missing = lacking.any(axis=1)
         gap = np.zeros(len(owner), bool)
         tracks = list(gappy)
@@ -216,8 +254,8 @@ class FrameBuilder:
                   now: float) -> tuple[np.ndarray, ...]:
         """The live frames due: one per subject with data at its device time "now"
         (:meth:`_live_now`, the arrival clock ``now`` in s). Returns (subject index (L,), time (L,)
-        us, seq (L,), flags (L,), segment slots (L, 10), each segment's query time (L, 10) us,
-        devices with points (L, 10) bool, segments lacking (L, 10) bool). A segment is held at its
+        us, seq (L,), flags (L,), segment slots (L, C), each segment's query time (L, C) us,
+        devices with points (L, C) bool, segments of its layout lacking (L, C) bool). A segment is held at its
         newest point (frame MISSING) where its device is offline or ended, or silent for longer
         than its horizon (OVERDUE_GRACE_S)."""
         slots = table.seg_slots
@@ -234,39 +272,49 @@ class FrameBuilder:
         overdue = valid & (since > table.horizon_us[rows])  # silent too long: no guess
         held = valid & (~table.active[rows] | overdue)       # offline, ended or overdue: held
         at[held] = np.minimum(at[held], last_t[held])
-        lacking = ~valid | ~table.online[rows] | overdue
+        mine = table.in_layout[index]
+        lacking = (~valid | ~table.online[rows] | overdue) & mine
         seq = self.live_seq[index].copy()
         self.live_seq[index] += 1
         flags = np.where(lacking.any(axis=1), wire.FRAME_MISSING, 0) | self.rest_flag[index]
-        return index, t_us, seq, flags, slots, at, has_points, lacking | ~has_points
+        return index, t_us, seq, flags, slots, at, has_points, (lacking | ~has_points) & mine
 
-    def positions(self, q: np.ndarray, owner: np.ndarray) -> np.ndarray:
-        """(F, 15, 3) float32 joint positions of frames ``q`` (F, 10, 4) of subjects ``owner`` (F,):
-        each subject's by its body (the skeleton's where it has none), in its rest pose."""
+    def positions(self, q: np.ndarray, owner: np.ndarray, layout: Layout) -> np.ndarray:
+        """(F, J, 3) float32 joint positions of frames ``q`` (F, S, 4) of ``layout``'s subjects
+        ``owner`` (F,): each subject's by its body (where it has none: paper10's by the skeleton,
+        another layout's by its default body), in its rest pose."""
         tpose = self.rest_flag[owner] != 0
-        sized = [i for i, body in enumerate(self.bodies) if body is not None]
-        if not sized:
-            return self.skeleton.positions(q, tpose)
-        joints = np.empty((len(owner), len(wire.JOINTS), 3), np.float32)
+        sized = [i for i in np.unique(owner).tolist() if self.bodies[i] is not None]
+        if layout == PAPER10:
+            if not sized:
+                return self.skeleton.positions(q, tpose)
+            fallback = self.skeleton.positions
+        else:
+            default = self._defaults.get(layout)
+            if default is None:
+                default = self._defaults[layout] = Body.default(layout)
+            fallback = default.positions
+        joints = np.empty((len(owner), len(layout.joints), 3), np.float32)
         own = np.isin(owner, sized)
-        joints[~own] = self.skeleton.positions(q[~own], tpose[~own])
+        joints[~own] = fallback(q[~own], tpose[~own])
         for i in sized:
             rows = owner == i
-            if rows.any():
-                joints[rows] = self.bodies[i].positions(q[rows], tpose[rows])  # type: ignore[union-attr]
+            joints[rows] = self.bodies[i].positions(q[rows], tpose[rows])  # type: ignore[union-attr]
         return joints
 
     def build(self, store: PointStore, table: DeviceTable, exact: tuple[np.ndarray, ...],
               live: tuple[np.ndarray, ...] | None, correct: Correction | None = None) -> FrameBatch:
-        """Orientations and joints of the planned frames, one reconstruction and one forward
-        kinematics for all. ``exact``: (subject, time, seq, flags, segments lacking) of
+        """Orientations and joints of the planned frames, one reconstruction for all and one forward
+        kinematics per layout. ``exact``: (subject, time, seq, flags, segments lacking) of
         :meth:`plan_exact` and :meth:`exact_flags`; ``live``: :meth:`plan_live`, or None for no
         live frames; ``correct``: a correction of the reconstructed segments before the forward
         kinematics."""
         e_owner, e_t, e_seq, e_flags, e_missing = exact
-        shape = (len(e_t), len(SEGMENTS))
+        shape = (len(e_t), len(table.columns))
         slots, times, live_view = [table.seg_slots[e_owner]], [np.broadcast_to(e_t[:, None], shape)], [np.zeros(shape, bool)]
-        l_owner, l_missing = np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS)), bool)
+        l_owner = np.zeros(0, np.int64)
+        l_seq = l_t = l_flags = l_owner
+        l_missing = np.zeros((0, shape[1]), bool)
         if live is not None:
             l_owner, l_t, l_seq, l_flags, l_slots, l_at, _, l_missing = live
             slots.append(l_slots)
@@ -281,9 +329,20 @@ class FrameBuilder:
             turned = q[valid]
             correct(all_slots[valid], at, turned)
             q[valid] = turned
-        joints = self.positions(q, np.concatenate([e_owner, l_owner]))
-        n = len(e_t)
-        exact_frames = wire.PoseFrames(e_seq, e_t, wire.KIND_EXACT, e_flags, q[:n], joints[:n])
-        live_frames = (wire.PoseFrames.empty(wire.KIND_LIVE) if live is None else
-                       wire.PoseFrames(l_seq, l_t, wire.KIND_LIVE, l_flags, q[n:], joints[n:]))
-        return FrameBatch(e_owner, exact_frames, l_owner, live_frames, e_missing, l_missing)
+        owner, n = np.concatenate([e_owner, l_owner]), len(e_t)
+        codes = self.layout_code[owner]
+        groups: tuple[list[FrameGroup], list[FrameGroup]] = ([], [])
+        for code in np.unique(codes).tolist():  # paper10 (code 0) first
+            layout, cols = self.layouts[code], self.layout_cols[code]
+            rows = np.flatnonzero(codes == code)
+            mine = q[rows][:, cols]
+            joints = self.positions(mine, owner[rows], layout)
+            e, k = rows < n, rows[rows >= n] - n
+            r = rows[e]
+            if len(r):
+                groups[0].append(FrameGroup(e_owner[r], wire.PoseFrames(e_seq[r], e_t[r], wire.KIND_EXACT, e_flags[r],
+                                                                        mine[e], joints[e], layout), e_missing[r][:, cols]))
+            if len(k):
+                groups[1].append(FrameGroup(l_owner[k], wire.PoseFrames(l_seq[k], l_t[k], wire.KIND_LIVE, l_flags[k],
+                                                                        mine[~e], joints[~e], layout), l_missing[k][:, cols]))
+        return FrameBatch(e_owner, e_t, q[:n], e_missing, *groups)

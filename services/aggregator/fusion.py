@@ -19,12 +19,13 @@ from collections.abc import Callable
 import numpy as np
 
 from limbstream import wire
-from limbstream.body import PAPER10, Body
+from limbstream.body import PAPER10, Body, Layout
 from limbstream.skeleton import Skeleton
 from limbstream.services.aggregator.calibrating import CalibrationRequest, Calibrating
-from limbstream.services.aggregator.devices import NO_TIME, SEGMENT_INDEX, DeviceTable
+from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
 from limbstream.services.aggregator.frames import OVERDUE_GRACE_S, DeviceView, FrameBatch, FrameBuilder
 from limbstream.services.aggregator.heading import HeadingStage
+from limbstream.services.aggregator.layouts import SubjectLayouts
 from limbstream.services.aggregator.scoring import Scoring
 from limbstream.services.aggregator.store import PointStore
 from limbstream.services.aggregator.track import NUMBERS as TRACK_NUMBERS
@@ -33,11 +34,13 @@ from limbstream.services.aggregator.track import MAX_T_US, DeviceTrack, stream_f
 
 
 class Subject:
-    """A subject's devices (by segment) and its first frame's wait."""
+    """A subject's devices (by segment), its layout and its first frame's wait."""
 
     def __init__(self, name: str, index: int):
         self.name, self.index = name, index
         self.tracks: dict[str, DeviceTrack] = {}
+        self.layout: Layout = PAPER10  # its frames' (:mod:`.layouts`)
+        self.announced = False  # its layout is the one its devices' status names (else: of its devices' segments)
         self.rest_pose: str | None = None  # as its devices announce it (None: not yet heard)
         self.body: Body | None = None  # its wearer's dimensions as its devices announce them (None: the default)
         self.waiting_since: float | None = None  # arrival clock (s) when its first frame could start
@@ -68,6 +71,7 @@ class Fusion:
         self.scoring = Scoring(self.store, error_window)
         self.calibrating = Calibrating(self.store, calibrate_on_start, calibration_file)
         self.heading = HeadingStage(heading_correction, rate)
+        self.layouts = SubjectLayouts(self.table, self.frames, self.heading, self.scoring)
         self.scoring.turns = self.heading.turns
         self.scoring.own_correction = self.calibrating.correct
         self.subjects: dict[str, Subject] = {}
@@ -87,15 +91,17 @@ class Fusion:
             self.frames.add_subject(wire.rest_pose_flag(self.skeleton.rest_pose))
             self.scoring.add_subject(len(self.subjects))
             self.heading.add_subject()
+            self.layouts.set_layout(sub, PAPER10)
         track = sub.tracks.get(segment)
         if track is None:
             slot = self.store.add_slot()
-            if self.table.add_device(sub.index, segment, self._horizon_us(int(wire.MAX_LEN.default))) != slot:
+            if self.table.add_device(sub.index, self._horizon_us(int(wire.MAX_LEN.default))) != slot:
                 raise RuntimeError("device table and point store out of step")
             self.scoring.add_device(slot)
             self.heading.add_device()
             track = sub.tracks[segment] = DeviceTrack(subject, segment, slot, self.table)
             self.tracks.append(track)
+            self.layouts.add_device(sub, track)
             self._view = None
         return track
 
@@ -115,21 +121,9 @@ class Fusion:
             self.frames.rest_flag[sub.index] = wire.rest_pose_flag(rest_pose)
 
     def set_body(self, track: DeviceTrack, body: Body | None, refused: str | None = None) -> None:
-        """The body a device's status announces (None: none; ``refused``: why a malformed one was
-        dropped, counted on the device as ``status_body``): its subject's frames are drawn with
-        it from now on. A body of another layout than the frames' (paper10) is counted the same
-        way; a status without a body leaves the subject's as it is."""
-        if body is not None and body.layout != PAPER10:
-            body, refused = None, f"a body of layout {body.layout.name}, the frames are paper10"
-        if refused is not None:
-            track.dropped["status_body"] += 1
-        if body is None:
-            return
-        sub = self.subjects[track.subject]
-        same = sub.body is not None and sub.body.height_m == body.height_m and all(
-            np.array_equal(sub.body.vectors[pose], body.vectors[pose]) for pose in body.vectors)
-        if not same:  # (each device says it again every poll: the chain is built once per body)
-            sub.body = self.frames.bodies[sub.index] = body
+        """The body a device's status announces (SubjectLayouts.set_body)."""
+        self.layouts.set_body(self.subjects[track.subject], track, body, refused)
+        self._view = None
 
     def history_done(self, track: DeviceTrack) -> None:
         """The aggregator's history query for the track's stream has completed: it is settled."""
@@ -171,6 +165,7 @@ class Fusion:
         gap of that many points the device's cache may still hold (``DeviceTrack.holes``). Returns how
         many were taken in."""
         self.advance_clock(now)
+        items = self._placed(items, "segment_not_in_layout")
         if not items:
             return 0
         slots = np.fromiter((t.slot for t, _ in items), np.int64, len(items))
@@ -196,6 +191,17 @@ class Fusion:
         table.active[kept] = table.online[kept] & ~table.final[kept]
         self._view = None
         return len(kept)
+
+    def _placed(self, items: list[tuple[DeviceTrack, int]], reason: str) -> list[tuple[DeviceTrack, int]]:
+        """The ``items`` of devices placed in their subject's layout; each of the others is counted
+        on its device as ``reason`` (:mod:`.layouts`)."""
+        placed = self.table.placed
+        if all(placed[t.slot] for t, _ in items):
+            return items
+        for track, _ in items:
+            if not placed[track.slot]:
+                track.dropped[reason] += 1
+        return [(t, i) for t, i in items if placed[t.slot]]
 
     def _usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> np.ndarray:
         """(P,) which points are the usual case (DeviceTrack.accept_point appends them without a
@@ -315,6 +321,7 @@ class Fusion:
         taken in all at once from the devices' columns, the others one by one
         (DeviceTrack.accept_raw). Returns how many were taken in."""
         self.advance_clock(now)
+        items = self._placed(items, wire.device_reason("raw", "segment_not_in_layout"))
         if not items:
             return 0
         table = self.table
@@ -397,8 +404,8 @@ class Fusion:
         batch = self.frames.build(self.store, self.table, (owner, t_us, seq, flags, lacking), planned,
                                   None if heading is None else heading.correct)
         if heading is not None:
-            heading.take_frames(owner, t_us, batch.exact.q, self.table.seg_slots, view.stale, self.frames.rest_flag)
-        self.scoring.score_later(owner, t_us, batch.exact.q, self.table.seg_slots[owner], lacking)
+            heading.take_frames(owner, t_us, batch.exact_q, self.table.seg_slots, view.stale, self.frames.rest_flag)
+        self.scoring.score_later(owner, t_us, batch.exact_q, self.table.seg_slots[owner], lacking)
         self.scoring.evaluate_frames(self.table.seg_slots)
         if planned is not None and wall is not None:
             index, l_t, _, _, l_slots, _, has_points, _ = planned
@@ -445,7 +452,7 @@ class Fusion:
         """Begin a calibration of ``subject``'s devices from ``pose`` (Calibrating.start_request)."""
         sub = self.subjects.get(subject)
         return self.calibrating.start_request(subject, None if sub is None else sub.tracks, pose,
-                                              self.table.latest_t, wall)
+                                              self.table.latest_t, wall, None if sub is None else sub.layout)
 
     def finish_request(self, req: CalibrationRequest, wall: float) -> wire.CalibrateAnswer | None:
         """The request's answer once its pose hold is complete (None: not yet)."""
@@ -455,14 +462,6 @@ class Fusion:
         return answer
 
     # ------------------------------------------------------------------ figures
-
-    def body_fields(self, sub: Subject) -> dict:
-        """A subject's body in its stats, where its devices announce one: ``layout``, ``height_m``
-        (null: not given) and ``bones_m`` (bone -> length, m). None of them for a subject drawn with
-        the aggregator's own skeleton (its stats are then as they were before bodies travelled)."""
-        if sub.body is None:
-            return {}
-        return {"layout": sub.body.layout.name, "height_m": sub.body.height_m, "bones_m": sub.body.lengths}
 
     def stats_table(self, subjects: list[Subject], now: float) -> tuple[list[int], np.ndarray, dict[str, list]]:
         """The device columns of the stats messages of ``subjects``, their devices by segment name,
@@ -478,8 +477,7 @@ class Fusion:
         texts = {name: [t[j] for _, t in own] for j, name in enumerate(TRACK_TEXTS)}
         for name, values in self.calibrating.figures(slots.tolist()).items():
             (texts if name in wire.STATS_TEXTS else columns)[name] = values
-        seg_index = np.array([SEGMENT_INDEX.get(t.segment, -1) for t in flat], np.int64)
-        columns |= self.heading.figures(slots, self.table.owner[slots], seg_index)
+        columns |= self.heading.figures(slots, self.table.owner[slots], [t.segment for t in flat])
         numbers = np.column_stack([np.asarray(columns[name], np.float64) for name in wire.STATS_NUMBERS])
         return [len(mine) for mine in tracks], numbers.reshape(len(flat), len(wire.STATS_NUMBERS)), texts
 

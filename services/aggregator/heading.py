@@ -26,14 +26,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from limbstream import quat, wire
+from limbstream import quat
+from limbstream.body import PAPER10, Layout
 from limbstream.calibration import yaw
 from limbstream.heading import HeadingCorrection
-from limbstream.heading.joints import Layout
-from limbstream.wire import SEGMENTS
+from limbstream.services.aggregator.layouts import joints_of
 
 class HeadingStage:
-    """The heading corrections of an aggregator's devices (by slot) and subjects (by index).
+    """The heading corrections of an aggregator's devices (by slot) and subjects (by index); an
+    estimator per body layout and rest pose, over the layout's segments and joints
+    (:func:`.layouts.joints_of`).
 
     Parameters
     ----------
@@ -43,8 +45,10 @@ class HeadingStage:
 
     def __init__(self, on: bool, rate: float):
         self.enabled, self.rate = on, rate
-        self.estimators: dict[str, HeadingCorrection] = {}  # by rest pose
-        self.place: list[tuple[str, int] | None] = []       # by subject index: (rest pose, row)
+        self.estimators: dict[tuple[int, str], HeadingCorrection] = {}  # by (layout code, rest pose)
+        self.place: list[tuple[tuple[int, str], int] | None] = []  # by subject index: (its estimator's key, row)
+        self.layouts: list[tuple[Layout, np.ndarray]] = [(PAPER10, np.arange(len(PAPER10.segments)))]
+        self.code = np.zeros(0, np.int64)    # by subject: its layout (an index of ``layouts``: the layout, its table columns)
         self.on = np.zeros(0, bool)          # by slot: corrected (calibrated, heading drifting)
         self.offset = np.zeros(0)            # by slot: c(t_ref), rad
         self.slope = np.zeros(0)             # by slot: dc/dt, rad/s
@@ -58,7 +62,16 @@ class HeadingStage:
 
     def add_subject(self) -> None:
         self.place.append(None)
+        self.code = np.append(self.code, 0)
         self.taken = np.append(self.taken, 0)
+
+    def set_layout(self, subject: int, layout: Layout, cols: np.ndarray) -> None:
+        """The subject's layout, its segments the table's columns ``cols`` (S,): a new one is learnt
+        from nothing (in the estimator of that layout)."""
+        known = [lay for lay, _ in self.layouts]
+        if layout not in known:
+            self.layouts.append((layout, cols))
+        self.code[subject] = known.index(layout) if layout in known else len(known)
 
     def add_device(self) -> None:
         for name, value in (("on", False), ("offset", 0.0), ("slope", 0.0), ("t_ref", 0)):
@@ -72,8 +85,9 @@ class HeadingStage:
         self.on[slot] = on and self.enabled
         self.offset[slot] = self.slope[slot] = 0.0
         where = self.place[subject]
-        if where is not None and segment in SEGMENTS:
-            self.estimators[where[0]].restart(where[1], SEGMENTS.index(segment), calibrated=known)
+        index = None if where is None else self.layouts[where[0][0]][0].segment_index
+        if where is not None and segment in index:  # type: ignore[operator]
+            self.estimators[where[0]].restart(where[1], index[segment], calibrated=known)  # type: ignore[index]
 
     # ------------------------------------------------------------------ applying
 
@@ -95,8 +109,8 @@ class HeadingStage:
     def take_frames(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, seg_slots: np.ndarray,
                     stale: np.ndarray, rest_flag: np.ndarray) -> None:
         """The exact frames of a tick, corrected (per subject oldest first: subject ``owner``
-        (E,), time ``t_us`` (E,) us, orientations ``q`` (E, 10, 4)), with ``seg_slots``
-        (subjects, 10) each segment's device slot, ``stale`` (subjects, 10) its device held,
+        (E,), time ``t_us`` (E,) us, orientations ``q`` (E, C, 4) over the device table's segment
+        columns), with ``seg_slots`` (subjects, C) each segment's device slot, ``stale`` (subjects, C) its device held,
         ``rest_flag`` (subjects,) each subject's rest pose flag: their corrected devices' calibrated
         orientations go to the estimators, a tick per frame, and the lines of these subjects'
         devices are renewed."""
@@ -108,35 +122,37 @@ class HeadingStage:
         owner, t_us, q, slots, present = owner[keep], t_us[keep], q[keep], slots[keep], present[keep]
         times = np.broadcast_to(t_us[:, None], slots.shape)
         calibrated = quat.multiply(yaw(-self.turns(np.maximum(slots, 0), times) * present), q)
-        for est, frames, rows in self._by_estimator(owner, rest_flag):
-            est.take(rows, calibrated[frames], present[frames])
+        for est, frames, rows, cols in self._by_estimator(owner, rest_flag):
+            est.take(rows, calibrated[frames][:, cols], present[frames][:, cols])
             newest = np.r_[owner[frames][1:] != owner[frames][:-1], True]  # each subject's newest frame
-            self._renew(est, rows[newest], slots[frames[newest]], t_us[frames[newest]])
+            self._renew(est, rows[newest], slots[frames[newest]][:, cols], t_us[frames[newest]])
         np.add.at(self.taken, owner, 1)
 
     def _by_estimator(self, subjects: np.ndarray, rest_flag: np.ndarray):
-        """(estimator, positions in ``subjects``, their rows) per rest pose, each
-        subject placed (a row in the estimator of its rest pose) on first sight or when its rest
-        pose changed."""
-        poses = np.where(rest_flag[subjects] != 0, "tpose", "standing")
-        for pose in np.unique(poses).tolist():
-            mine = np.flatnonzero(poses == pose)
+        """(estimator, positions in ``subjects``, their rows, the table's columns of its segments)
+        per layout and rest pose, each subject placed (a row in the estimator of its layout and rest
+        pose) on first sight or when either changed."""
+        kinds = 2 * self.code[subjects] + (rest_flag[subjects] != 0)
+        for kind in np.unique(kinds).tolist():
+            key = (kind // 2, "tpose" if kind % 2 else "standing")
+            mine = np.flatnonzero(kinds == kind)
             each, index = np.unique(subjects[mine], return_inverse=True)
-            rows = np.array([self._row(s, pose) for s in each.tolist()], np.int64)[index]
-            yield self.estimators[pose], mine, rows
+            rows = np.array([self._row(s, key) for s in each.tolist()], np.int64)[index]
+            yield self.estimators[key], mine, rows, self.layouts[key[0]][1]
 
-    def _row(self, subject: int, pose: str) -> int:
-        """The subject's row in the estimator of ``pose`` (a new one on first sight, or when its
-        rest pose changed: learnt from nothing)."""
+    def _row(self, subject: int, key: tuple[int, str]) -> int:
+        """The subject's row in the estimator of ``key`` (layout, rest pose) (a new one on first
+        sight, or when its layout or rest pose changed: learnt from nothing)."""
         where = self.place[subject]
-        if where is None or where[0] != pose:
-            if pose not in self.estimators:
-                self.estimators[pose] = HeadingCorrection(Layout.of(SEGMENTS, pose), 0, self.rate)
-            where = self.place[subject] = (pose, int(self.estimators[pose].add_subjects(1)[0]))
+        if where is None or where[0] != key:
+            if key not in self.estimators:
+                self.estimators[key] = HeadingCorrection(joints_of(self.layouts[key[0]][0], rest_pose=key[1]), 0,
+                                                         self.rate)
+            where = self.place[subject] = (key, int(self.estimators[key].add_subjects(1)[0]))
         return where[1]
 
     def _renew(self, est: HeadingCorrection, rows: np.ndarray, slots: np.ndarray, t_us: np.ndarray) -> None:
-        """The lines of the devices ``slots`` (R, 10) of estimator rows ``rows`` (R,) that just
+        """The lines of the devices ``slots`` (R, S) of estimator rows ``rows`` (R,) that just
         took a frame at ``t_us`` (R,) us: ``t_ref`` is the time the estimator's last step stands
         for."""
         offset, slope = est.lines(rows)
@@ -148,16 +164,17 @@ class HeadingStage:
 
     # ------------------------------------------------------------------ figures
 
-    def figures(self, slots: np.ndarray, owner: np.ndarray, seg_index: np.ndarray) -> dict[str, np.ndarray]:
+    def figures(self, slots: np.ndarray, owner: np.ndarray, segments: list[str]) -> dict[str, np.ndarray]:
         """The heading fields of the stats entries of devices ``slots`` (k,) of subjects ``owner``
-        (k,) on segments ``seg_index`` (k,) (SEGMENTS index; -1: none), each (k,) (NaN where a
-        device is not corrected): the correction applied now, its rate and its confidence
-        (:meth:`HeadingCorrection.status`)."""
+        (k,) on ``segments`` (k names), each (k,) (NaN where a device is not corrected): the
+        correction applied now, its rate and its confidence (:meth:`HeadingCorrection.status`)."""
         out = {name: np.full(len(slots), np.nan) for name in FIELDS.values()}
         places = [self.place[s] for s in owner.tolist()]
-        for pose, est in self.estimators.items():
+        for key, est in self.estimators.items():
+            index = self.layouts[key[0]][0].segment_index
+            seg_index = np.array([index.get(name, -1) for name in segments], np.int64)
             mine = np.flatnonzero(self.on[slots] & (seg_index >= 0)
-                                  & np.array([p is not None and p[0] == pose for p in places], bool))
+                                  & np.array([p is not None and p[0] == key for p in places], bool))
             if len(mine):
                 rows = np.array([places[k][1] for k in mine.tolist()], np.int64)  # type: ignore[index]
                 status = est.status(rows)
@@ -169,8 +186,3 @@ class HeadingStage:
 FIELDS = {"offset_deg": "heading_offset_deg", "rate_dpm": "heading_rate_dpm", "confidence": "heading_confidence"}
 """The stats fields of :meth:`HeadingStage.figures`, by :meth:`HeadingCorrection.status` key."""
 
-
-def joint_layout() -> Layout:
-    """The joints among the body's segments (relative orientations do not depend on the rest
-    pose)."""
-    return Layout.of(SEGMENTS, wire.DEFAULT_REST_POSE)

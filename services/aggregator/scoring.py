@@ -36,8 +36,11 @@ import numpy as np
 from collections.abc import Callable
 
 from limbstream import calibration, quat, wire
+from limbstream.body import PAPER10
+from limbstream.body import Layout as BodyLayout
 from limbstream.heading.joints import Layout, joint_errors_deg
 from limbstream.wire import SEGMENTS
+from limbstream.services.aggregator.layouts import joints_of
 from limbstream.services.aggregator.rings import ErrorRings, SubjectRings
 from limbstream.services.aggregator.store import PointStore, TruthQueue
 
@@ -48,8 +51,8 @@ truth of its devices to pass it; then it is compared with the truth there is."""
 FACING_FIT_FRAMES = 50
 """Frames (a second at 50 Hz) a subject's facing is fitted from after its calibration."""
 
-JOINTS = Layout.of(SEGMENTS)
-"""The joints among the body's segments (their relative orientations: the rest pose does not matter)."""
+JOINTS = joints_of(PAPER10)
+"""The joints among paper10's segments (their relative orientations: the rest pose does not matter)."""
 
 
 class Scoring:
@@ -79,9 +82,12 @@ class Scoring:
         self.joint_errors = ErrorRings(error_window)
         self.turns: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
         self.facing = np.zeros((0, 4))
+        self.layouts: list[BodyLayout] = [PAPER10]  # the subjects' layouts, by code,
+        self.joints: list[Layout] = [JOINTS]        # and their joints over the device table's columns
+        self.joint_code = np.zeros(0, np.int64)    # per subject
         self._facing_fit: dict[int, list[float]] = {}  # subject index -> [sum sin, sum cos, frames]
-        # exact frames waiting for the truth: (subject index,), (time us,), (frame, 10, 4) float32,
-        # (frame, 10) the segments it lacks (held or missing: not scored)
+        # exact frames waiting for the truth: (subject index,), (time us,), (frame, C, 4) float32,
+        # (frame, C) the segments it lacks (held or missing: not scored), over the table's columns
         self._pending = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(SEGMENTS), 4), np.float32),
                          np.zeros((0, len(SEGMENTS)), bool))
 
@@ -90,10 +96,19 @@ class Scoring:
         self.frame_errors.ensure(subjects)
         self.joint_errors.ensure(subjects)
         self.latency.add_subject(subjects)
+        self.joint_code = np.append(self.joint_code, np.zeros(subjects - len(self.joint_code), np.int64))
         grown = np.zeros((subjects, 4))
         grown[:, 0] = 1.0
         grown[: len(self.facing)] = self.facing
         self.facing = grown
+
+    def set_layout(self, subject: int, layout: BodyLayout, columns: list[str]) -> None:
+        """The subject's layout: its frames are scored on its joints (over the device table's
+        segment ``columns``: a layout's columns never move)."""
+        if layout not in self.layouts:
+            self.layouts.append(layout)
+            self.joints.append(joints_of(layout, columns))
+        self.joint_code[subject] = self.layouts.index(layout)
 
     def add_device(self, slot: int) -> None:
         self.reference.add_slot()
@@ -140,13 +155,17 @@ class Scoring:
 
     def score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, slots: np.ndarray,
                     lacking: np.ndarray) -> None:
-        """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions, (F, 10)
-        device slots, (F, 10) the segments each lacks: held or missing, flagged MISSING, never
+        """Exact frames just built ((F,) subject index, (F,) time us, (F, C, 4) quaternions over the
+        table's segment columns, (F, C) device slots, (F, C) the segments each lacks: held or missing, flagged MISSING, never
         scored): those with a device that has reference times wait to be compared
         (:meth:`evaluate_frames`)."""
         with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
         if with_truth.any():
             po, pt, pq, pl = self._pending
+            more = q.shape[1] - pq.shape[1]  # segment columns added since (appended)
+            if more:
+                pq = np.concatenate([pq, np.tile(np.float32([1, 0, 0, 0]), (len(pq), more, 1))], axis=1)
+                pl = np.concatenate([pl, np.zeros((len(pl), more), bool)], axis=1)
             self._pending = (np.concatenate([po, owner[with_truth]]), np.concatenate([pt, t_us[with_truth]]),
                              np.concatenate([pq, q[with_truth].astype(np.float32)]),
                              np.concatenate([pl, lacking[with_truth]]))
@@ -193,13 +212,13 @@ class Scoring:
         """Alignment-aware error of the exact frames waiting for it: each segment of a frame at
         ``t`` against its device's truth at reference time ``t``, once every device of the frame
         with reference times has truth past ``t`` (or the frame waited FRAME_ERROR_WAIT_S);
-        ``seg_slots``: (subjects, 10) device slot of each segment.
+        ``seg_slots``: (subjects, C) device slot of each segment column.
         Adds each frame's mean over its compared segments (those it has) to its subject's window.
         Returns the frames compared."""
         owner, t_us, q, lacking = self._pending
         if len(owner) == 0:
             return 0
-        slots = seg_slots[owner]                                        # (P, 10)
+        slots = seg_slots[owner][:, :q.shape[1]]                        # (P, C)
         rows = np.maximum(slots, 0)
         n = self.reference.n[rows]
         has = (slots >= 0) & (n > 0) & ~lacking
@@ -222,26 +241,29 @@ class Scoring:
         err = quat.angle_deg(quat.multiply(self.facing[owner[f]], frames), truth)
         per_frame = np.bincount(f, err, minlength=len(owner))
         self.frame_errors.add(owner[done], per_frame[done] / count[done])
-        self._score_joints(owner, done, f, s, frames, truth)
+        self._score_joints(owner, done, f, s, frames, truth, q.shape[1])
         keep = ~ready
         self._pending = (owner[keep], t_us[keep], q[keep], lacking[keep])
         return int(done.sum())
 
     def _score_joints(self, owner: np.ndarray, done: np.ndarray, f: np.ndarray, s: np.ndarray, frames: np.ndarray,
-                      truth: np.ndarray) -> None:
+                      truth: np.ndarray, width: int) -> None:
         """Add the mean joint error of each frame ``done`` (P,) that has a joint with both segments
         compared (frame ``f`` (k,), segment ``s`` (k,): ``frames``, ``truth`` (k, 4)) to its
-        subject's window."""
-        estimated = np.zeros((len(owner), len(SEGMENTS), 4))
+        subject's window (``width``: the frames' segment columns C)."""
+        estimated = np.zeros((len(owner), width, 4))
         estimated[..., 0] = 1.0
         true = estimated.copy()
-        used = np.zeros((len(owner), len(SEGMENTS)), bool)
+        used = np.zeros((len(owner), width), bool)
         estimated[f, s], true[f, s], used[f, s] = frames, truth, True
-        both = used[:, JOINTS.parent] & used[:, JOINTS.child] & done[:, None]
-        scored = both.any(axis=1)
-        if scored.any():
-            err = np.where(both[scored], joint_errors_deg(estimated[scored], true[scored], JOINTS), 0.0)
-            self.joint_errors.add(owner[scored], err.sum(axis=1) / both[scored].sum(axis=1))
+        codes = self.joint_code[owner]
+        for code in np.unique(codes[done]).tolist():  # the joints of each layout
+            joints = self.joints[code]
+            both = used[:, joints.parent] & used[:, joints.child] & (done & (codes == code))[:, None]
+            scored = both.any(axis=1)
+            if scored.any():
+                err = np.where(both[scored], joint_errors_deg(estimated[scored], true[scored], joints), 0.0)
+                self.joint_errors.add(owner[scored], err.sum(axis=1) / both[scored].sum(axis=1))
 
     def _fitting(self, owner: np.ndarray, f: np.ndarray, frames: np.ndarray, truth: np.ndarray,
                  done: np.ndarray) -> np.ndarray:
