@@ -1,0 +1,118 @@
+"""Body layouts from the data over a real Zenoh router (e2e, docs/protocol.md "Body layouts in the
+aggregator"): 15 devices announcing a ``full`` body get their subject 512-byte frames of 15
+segments drawn with that body, beside an emulated ``paper10`` subject streaming as before; a
+device whose segment ``full`` lacks, and one whose status names another layout, are counted on
+themselves while the rest streams."""
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+import zenoh
+from support.stack import StatsWatch, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+
+from limbstream import wire, zconfig
+from limbstream.body import FULL, PAPER10, Body
+from limbstream.skeleton import Skeleton
+from test_aggregator_layouts import pose_of
+
+pytestmark = pytest.mark.e2e
+
+
+class FakeDevices:
+    """Devices of one subject in the test's own session: each a liveliness token, a status
+    (announcing its body) and segment points of its segment's constant orientation at 50 Hz."""
+
+    def __init__(self, endpoint: str, subject: str, bodies: dict[str, Body]):
+        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+        self.subject, self.bodies, self.stop, self.sent = subject, bodies, threading.Event(), 0
+        self.pubs = {s: self.session.declare_publisher(wire.seg_key(subject, s)) for s in bodies}
+        self.tokens = [self.session.liveliness().declare_token(wire.alive_key(subject, s)) for s in bodies]
+        self.queryables = [self.session.declare_queryable(wire.config_key(subject, s), self._answerer(s)) for s in bodies]
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def _answerer(self, segment: str):
+        def answer(query: zenoh.Query) -> None:
+            status = wire.DeviceStatus(f"{self.subject}/{segment}", wire.DeviceConfig(), 7, self.sent, self.sent)
+            query.reply(query.key_expr, json.dumps(status.as_dict() | {"body": wire.encode_body(self.bodies[segment])}).encode())
+        return answer
+
+    def run(self) -> None:
+        start = int(time.time() * 1e6)
+        while not self.stop.wait(0.02):
+            for segment, pub in self.pubs.items():
+                point = wire.SegmentPoint(7, self.sent, self.sent, start + 20_000 * self.sent, tuple(pose_of(segment)),
+                                          omega=(0.0, 0.0, 0.0))
+                pub.put(wire.encode_point(point))
+            self.sent += 1
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.session.close()
+
+
+def test_a_full_subject_streams_512_byte_frames_beside_a_paper10_subject_and_devices_off_its_layout_are_counted(stack):  # noqa: F811
+    stack.router()
+    stack.aggregator()
+    wait_for_subscribers(stack.endpoint, [wire.seg_key("f01", "hip")], "the aggregator", on_fail=stack.logs)
+    stack.emulator(1, 1.0)
+    tall = Body.from_height(FULL, 1.8)
+    frames: dict[tuple[str, int], list[bytes]] = {}
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
+    subs = [session.declare_subscriber(wire.pose_key(s), zenoh.handlers.FifoChannel(1 << 14)) for s in ("f01", "s01")]
+    full = FakeDevices(stack.endpoint, "f01", {s: tall for s in (*FULL.segment_names, "neck")})
+    mixed = FakeDevices(stack.endpoint, "m01", {"hip": Body.default(FULL)})
+    watch = StatsWatch(stack.endpoint)
+    late = None
+    try:
+        wait_until(lambda: watch.poll() and watch.subjects.get("m01", {}).get("layout") == "full", 30,
+                   "m01's layout full", on_fail=stack.logs)
+        late = FakeDevices(stack.endpoint, "m01", {"l_shank": Body.default(PAPER10)})  # another layout than m01's
+
+        def complete() -> bool:
+            for sub in subs:
+                while (sample := sub.try_recv()) is not None:
+                    payload = sample.payload.to_bytes()
+                    frame = wire.decode_pose(payload)
+                    if not frame.flags & wire.FRAME_MISSING:
+                        frames.setdefault((str(sample.key_expr).split("/")[1], frame.kind), []).append(payload)
+            return all(len(frames.get((s, k), ())) >= 20 for s in ("f01", "s01") for k in (wire.KIND_EXACT, wire.KIND_LIVE))
+        wait_until(complete, 40, "complete frames of both subjects, both kinds", on_fail=stack.logs)
+        for kind in (wire.KIND_EXACT, wire.KIND_LIVE):
+            assert {len(p) for p in frames["f01", kind]} == {512}
+            assert {len(p) for p in frames["s01", kind]} == {372}
+            for payload in frames["f01", kind]:
+                f = wire.decode_pose(payload)
+                want = np.array([pose_of(s) for s in FULL.segment_names])
+                assert f.layout == FULL and np.abs(np.abs((f.q * want).sum(axis=1)) - 1).max() < 1e-6
+                assert np.abs(f.joints - tall.positions(f.q.astype(np.float64))).max() < 1e-5
+            for payload in frames["s01", kind]:
+                f = wire.decode_pose(payload)
+                assert f.layout == PAPER10 and np.abs(f.joints - Skeleton().positions(f.q.astype(np.float64))).max() < 1e-6
+
+        def counted():
+            devices = watch.poll()
+            neck, shank = devices.get("f01/neck", {}), devices.get("m01/l_shank", {})
+            return (neck.get("dropped_by_reason") or {}).get("segment_not_in_layout") and \
+                (shank.get("dropped_by_reason") or {}).get("status_layout")
+        wait_until(counted, 30, "f01/neck and m01/l_shank counted", on_fail=stack.logs)
+        devices = watch.poll()
+        assert set(devices["f01/neck"]["dropped_by_reason"]) == {"segment_not_in_layout"}
+        assert set(devices["m01/l_shank"]["dropped_by_reason"]) == {"status_layout"}
+        assert not any(devices[f"f01/{s}"]["dropped_by_reason"] for s in FULL.segment_names)
+        assert watch.subjects["f01"]["layout"] == "full" and watch.subjects["m01"]["layout"] == "full"
+        assert watch.subjects["s01"]["layout"] == "paper10"
+        assert watch.subjects["f01"]["bones_m"] == pytest.approx(tall.lengths)
+        points = devices["m01/l_shank"]["points"]
+        wait_until(lambda: watch.poll()["m01/l_shank"]["points"] > points + 25, 20, "m01/l_shank's points taken on",
+                   on_fail=stack.logs)
+    finally:
+        for part in (watch, full, mixed, late):
+            if part is not None:
+                part.close()
+        session.close()
