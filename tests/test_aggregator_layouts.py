@@ -48,16 +48,23 @@ def device(agg: Aggregator, subject: str, segment: str, body: Body | None = None
     agg.on_config(wire.config_key(subject, segment), status(subject, segment, body))
 
 
+TRUTH_TURNS_DEG = {"chest": 9.0}
+"""Segments whose truth is turned from what their points say (about X), degrees."""
+
+
 def send(agg: Aggregator, subject: str, segment: str, seqs, now: float, truth: bool = False) -> None:
     """Points of sequence numbers ``seqs`` (point k at T0 + k * 100 ms) holding the segment's
-    constant orientation, arriving at ``now``; with ``truth``, truth samples of it with reference times."""
+    constant orientation, arriving at ``now``; with ``truth``, truth samples of it with reference
+    times (turned by TRUTH_TURNS_DEG)."""
     q = pose_of(segment)
+    turn = np.radians(TRUTH_TURNS_DEG.get(segment, 0.0)) / 2
+    true = quat.multiply(np.array([np.cos(turn), np.sin(turn), 0.0, 0.0]), q)
     for k in seqs:
         point = wire.SegmentPoint(1, k, 5 * k, T0 + k * STEP_US, tuple(q), omega=(0.0, 0.0, 0.0))
         agg.on_point(wire.seg_key(subject, segment), wire.encode_point(point), now)
         if truth:
             t = np.array([T0 + k * STEP_US])
-            batch = wire.RawBatch(1, 5 * k, t, q[None].astype(np.float32), t.copy())
+            batch = wire.RawBatch(1, 5 * k, t, true[None].astype(np.float32), t.copy())
             agg.on_raw(wire.raw_key(subject, segment), wire.encode_raw(batch), now)
 
 
@@ -147,18 +154,21 @@ def test_a_device_whose_status_names_another_layout_is_counted_and_the_subject_k
 
 
 def test_truth_scoring_compares_every_segment_and_joint_of_a_full_subject():
+    """The chest's truth is 9 degrees off what its points say: 9/15 degrees per frame of the full
+    subject, 9 degrees on each shoulder (the chest is their parent) of its 8 joints."""
     agg, _ = aggregator()
     for segment in FULL.segment_names:
         device(agg, "f01", segment, Body.default(FULL))
     for segment in wire.SEGMENTS:
         device(agg, "s01", segment)
     stream(agg, {"f01": FULL.segment_names, "s01": wire.SEGMENTS}, steps=21, truth=True)
-    for subject in ("f01", "s01"):
-        agg.advance(live=False, now=1.0)
+    agg.advance(live=False, now=1.0)
+    for subject, frame_deg, joint_deg in (("f01", 9.0 / 15, 2 * 9.0 / 8), ("s01", 0.0, 0.0)):
         fields, devices = subject_stats(agg, subject)
-        assert fields["frame_error_frames"] > 0 and fields["frame_aad_deg"] == pytest.approx(0.0, abs=0.05)
-        assert fields["joint_aad_deg"] == pytest.approx(0.0, abs=0.05)
-        assert all(d["error_samples"] > 0 and d["aad_deg"] < 0.05 for d in devices.values())
+        assert fields["frame_error_frames"] > 0 and fields["frame_aad_deg"] == pytest.approx(frame_deg, abs=1e-3)
+        assert fields["joint_aad_deg"] == pytest.approx(joint_deg, abs=1e-3)
+        assert all(d["error_samples"] > 0 and d["aad_deg"] == pytest.approx(TRUTH_TURNS_DEG.get(s, 0.0), abs=1e-3)
+                   for s, d in devices.items())
 
 
 def test_the_joints_of_a_layout_hang_the_shoulders_off_its_chest_and_keep_paper10s_own():
