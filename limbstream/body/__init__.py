@@ -6,8 +6,8 @@ Built-in layouts: ``paper10`` (wire.SEGMENTS and wire.JOINTS, the skeleton of th
 evaluation) and ``full`` (15 segments); a ``.toml`` or ``.json`` layout file adds others
 (:func:`load_layout`). Bodies: :class:`Body` (``from_height``, ``from_file``, ``from_vectors``,
 ``default``). A subject's body travels in its devices' status (``wire.encode_body``) and the
-aggregator draws its ``paper10`` frames with it; a subject without one is drawn with
-:mod:`limbstream.skeleton`, which ``paper10``'s default body reproduces bit for bit.
+aggregator draws its frames, of that body's layout, with it; a ``paper10`` subject without one is
+drawn with :mod:`limbstream.skeleton`, which ``paper10``'s default body reproduces bit for bit.
 """
 from __future__ import annotations
 
