@@ -195,13 +195,12 @@ class Fusion:
     def _placed(self, items: list[tuple[DeviceTrack, int]], reason: str) -> list[tuple[DeviceTrack, int]]:
         """The ``items`` of devices placed in their subject's layout; each of the others is counted
         on its device as ``reason`` (:mod:`.layouts`)."""
-        placed = self.table.placed
-        if all(placed[t.slot] for t, _ in items):
+        placed = self.table.placed[np.fromiter((t.slot for t, _ in items), np.int64, len(items))]
+        if placed.all():
             return items
-        for track, _ in items:
-            if not placed[track.slot]:
-                track.dropped[reason] += 1
-        return [(t, i) for t, i in items if placed[t.slot]]
+        for j in np.flatnonzero(~placed).tolist():
+            items[j][0].dropped[reason] += 1
+        return [item for item, ok in zip(items, placed.tolist()) if ok]
 
     def _usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> np.ndarray:
         """(P,) which points are the usual case (DeviceTrack.accept_point appends them without a
