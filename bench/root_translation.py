@@ -7,12 +7,12 @@ moved by the truly stillest foot point's motion, frame by frame).
     python bench/root_translation.py            # every clip of ../shared/data/cmu
     python bench/root_translation.py 02_01 131_01
 
-Columns: the clip's length and horizontal path (m, the root's path over 0.1 s steps); the
-horizontal root error at the end (cm, and % of the path) after aligning the start once (the mean
-horizontal offset over the first 0.5 s; the feet come in world axes, so no heading to align); the
-mean and largest root height error (cm, the floor at the file's lowest foot point); the share of
-frames in flight; the oracle's end error; the truth's own skating (mean world speed of its
-stillest foot point, m/s).
+Columns (limbstream.evaluation.translation): the clip's length and horizontal path (m, the
+root's path over 0.1 s steps); the horizontal root error at the end (cm, and % of the path) after
+aligning the start once (the mean horizontal offset over the first 0.5 s; the feet come in world
+axes, so no heading to align); the mean root height error (cm, the floor at the file's lowest
+foot point); the estimated foot points' horizontal speed while the file's are planted, and the
+file's own over the same frames (cm/s); the share of frames in flight; the oracle's end error.
 """
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream.body.translation import RootTracker
+from limbstream.evaluation.translation import translation_figures
 from limbstream.sources.bvh import global_rotations, joint_positions, parse_bvh
 from limbstream.sources.bvh_body import CMU_UNIT_M
 
@@ -57,24 +58,17 @@ def file_feet(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def figures(path: Path) -> dict[str, float]:
     """One clip's row (see the module)."""
     t, root, feet = file_feet(path)
-    est, bits = RootTracker(1, NAMES).track(t, feet - root[:, None])
-    start = t < 0.5
-    offset = (root[start] - est[start]).mean(axis=0)
-    offset[1] = 0.0
-    est = est + offset
-    step = max(1, round(0.1 / (t[1] - t[0])))
-    path_m = float(np.linalg.norm(np.diff(root[::step, [0, 2]], axis=0), axis=1).sum())
-    end = float(np.linalg.norm(est[-1, [0, 2]] - root[-1, [0, 2]]))
-    height = np.abs(est[:, 1] - root[:, 1])
-    world_speed = np.linalg.norm(np.diff(feet[:, :, [0, 2]], axis=0), axis=2) / (t[1] - t[0])
+    rel = feet - root[:, None]
+    est, bits = RootTracker(1, NAMES).track(t, rel)
+    f = translation_figures(t, est, est[:, None] + rel, root, feet)
+    world_speed = np.linalg.norm(np.diff(feet[:, :, [0, 2]], axis=0), axis=2) / np.diff(t)[:, None]
     stillest = world_speed.argmin(axis=1)
-    rel = np.diff(feet - root[:, None], axis=0)[:, :, [0, 2]]
-    oracle = -rel[np.arange(len(stillest)), stillest].sum(axis=0)
-    return {"s": float(t[-1]), "path_m": path_m, "end_cm": 100 * end, "end_pct": 100 * end / max(path_m, 1e-9),
-            "height_mean_cm": 100 * float(height.mean()), "height_max_cm": 100 * float(height.max()),
+    steps = np.diff(rel, axis=0)[:, :, [0, 2]]
+    oracle = -steps[np.arange(len(stillest)), stillest].sum(axis=0)
+    return {"s": float(t[-1]), "path_m": f.path_m, "end_cm": f.end_cm, "end_pct": f.end_pct,
+            "height_cm": f.height_cm, "skate": f.skate_cmps, "true_skate": f.true_skate_cmps,
             "flight": float(np.mean(bits == 0)),
-            "oracle_cm": 100 * float(np.linalg.norm(oracle - (root[-1, [0, 2]] - root[0, [0, 2]]))),
-            "skate_mps": float(world_speed.min(axis=1).mean())}
+            "oracle_cm": 100 * float(np.linalg.norm(oracle - (root[-1, [0, 2]] - root[0, [0, 2]])))}
 
 
 def main() -> None:
@@ -83,13 +77,14 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DATA, help="folder of CMU .bvh clips")
     args = ap.parse_args()
     paths = [args.data / f"{c}.bvh" for c in args.clips] or sorted(args.data.glob("*.bvh"))
-    print("| clip | s | path, m | end error, cm | % of path | height error mean / max, cm | in flight | oracle end, cm | truth skating, m/s |")
-    print("|---|---:|---:|---:|---:|---|---:|---:|---:|")
+    print("| clip | s | path, m | end error, cm | % of path | height error, cm | skating, cm/s (truth's) | in flight | "
+          "oracle end, cm |")
+    print("|---|---:|---:|---:|---:|---:|---|---:|---:|")
     for path in paths:
         r = figures(path)
         print(f"| {path.stem} | {r['s']:.1f} | {r['path_m']:.2f} | {r['end_cm']:.1f} | {r['end_pct']:.1f} | "
-              f"{r['height_mean_cm']:.1f} / {r['height_max_cm']:.1f} | {r['flight']:.2f} | {r['oracle_cm']:.1f} | "
-              f"{r['skate_mps']:.3f} |")
+              f"{r['height_cm']:.1f} | {r['skate']:.1f} ({r['true_skate']:.1f}) | {r['flight']:.2f} | "
+              f"{r['oracle_cm']:.1f} |")
 
 
 if __name__ == "__main__":

@@ -94,3 +94,32 @@ def test_a_frame_ahead_of_the_final_ones_does_not_move_the_state():
     assert root[0, 2] > before[0][0, 2] + 0.015
     assert np.array_equal(tracker.root, before[0]) and np.array_equal(tracker.anchor, before[1])
     assert np.array_equal(tracker.t, before[2])
+
+
+def test_translation_figures_align_the_start_once_and_measure_the_rest():
+    """A true walk and an estimate of it in a world turned by 30 degrees and shifted: aligned on
+    the first 0.5 s, a perfect estimate scores 0; one whose root falls 10 cm behind by the end and
+    floats 2 cm high scores exactly that; feet through the floor and skating show."""
+    from limbstream.evaluation.translation import translation_figures
+
+    points, truth = gait(int(10 * FS))
+    t = np.arange(len(truth)) / FS
+    feet = truth[:, None] + points
+    heading = np.radians(30.0)
+    c, s = np.cos(heading), np.sin(heading)
+    to_estimate = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # the inverse of the alignment's turn
+    shift = np.array([2.0, 0.0, -1.0])
+    est_root, est_feet = truth @ to_estimate.T + shift, feet @ to_estimate.T + shift
+    f = translation_figures(t, est_root, est_feet, truth, feet, heading)
+    assert f.end_cm < 1e-9 and f.height_cm < 1e-9 and f.below_cm == 0.0
+    assert abs(f.path_m - (truth[-1, 2] - truth[0, 2])) < 1e-9
+    assert f.skate_cmps < 1e-9 and f.true_skate_cmps < 1e-9
+
+    lag = np.clip(t - 0.5, 0.0, None)[:, None] * [0.0, 0.0, -0.1 / (t[-1] - 0.5)]
+    lagged = est_root + lag @ to_estimate.T + [0.0, 0.02, 0.0]
+    sunk = est_feet + (lag @ to_estimate.T)[:, None] - [0.0, 0.03, 0.0]
+    f = translation_figures(t, lagged, sunk, truth, feet, heading)
+    assert abs(f.end_cm - 10.0) < 1e-6 and abs(f.end_pct - 10.0 / f.path_m) < 1e-6
+    assert abs(f.height_cm - 2.0) < 1e-6 and abs(f.below_cm - 3.0) < 1e-6
+    sliding = 100 * 0.1 / (t[-1] - 0.5)  # cm/s: the lag slides the planted feet too, after the first 0.5 s
+    assert 0.9 * sliding < f.skate_cmps <= sliding + 1e-9 and f.true_skate_cmps < 1e-9
