@@ -46,37 +46,39 @@ VELOCITY_S = 0.05
 _FEET = {"l": ("l_ankle", "l_foot", "l_toe"), "r": ("r_ankle", "r_foot", "r_toe")}
 
 
-def foot_points(layout: Layout, body: Body, q: np.ndarray, joints: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
+def heel_drops(layout: Layout, body: Body) -> np.ndarray:
+    """(2,) how far below its ankle each heel (left, right) lies in the rest pose, m: the foot
+    bone's fall from ankle to toe (a layout with feet), else the ankle's standing height (Winter's
+    0.039 of the body's height, the default adult's where the body does not say)."""
+    drops = np.full(2, WINTER_HEIGHTS["ankle"] * float(body.height_m or DEFAULT_HEIGHT_M))
+    for i, (_, foot, _) in enumerate(_FEET.values()):
+        if foot in layout.segment_index:
+            drops[i] = -float(body.vectors["standing"][layout.bone_names.index(foot)][1])
+    return drops
+
+
+def foot_points(layout: Layout, drops: np.ndarray, q: np.ndarray, joints: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
     """The feet's contact points of frames: their names (a subset of ``CONTACTS``, in its order)
     and positions (F, C, 3) m, root-relative as ``joints`` (F, J, 3) (``layout.joints`` order) of
-    orientations ``q`` (F, S, 4). A heel is below its ankle by the ankle's height standing, turned
-    by the foot (the layout's foot segment; a layout without feet: not turned, the foot flat); a
-    toe is the foot's toe joint."""
+    orientations ``q`` (F, S, 4). ``drops`` (F, 2) or (2,): each frame's :func:`heel_drops`. A heel
+    is below its ankle by its drop, turned by the foot (a layout without feet: the foot taken
+    flat); a toe is the foot's toe joint."""
     at, seg = layout.joint_index, layout.segment_index
+    drops = np.broadcast_to(np.asarray(drops, np.float64), (len(q), 2))
     names, points = [], []
-    for side, (ankle, foot, toe) in _FEET.items():
+    for i, (side, (ankle, foot, toe)) in enumerate(_FEET.items()):
         if ankle not in at:
             continue
-        ankle_xyz = joints[:, at[ankle]].astype(np.float64)
-        if foot in seg:
-            bone = body.vectors["standing"][layout.bone_names.index(foot)]
-            drop = np.array([0.0, float(bone[1]), 0.0])  # the foot bone's fall from ankle to toe
-            names.append(f"{side}_heel")
-            points.append(ankle_xyz + quat.rotate(q[:, seg[foot]], drop))
-            if toe in at:
-                names.append(f"{side}_toe")
-                points.append(joints[:, at[toe]].astype(np.float64))
-        else:
-            names.append(f"{side}_heel")
-            points.append(ankle_xyz - np.array([0.0, ankle_height(body), 0.0]))
-    order = sorted(range(len(names)), key=lambda i: CONTACTS.index(names[i]))
-    return tuple(names[i] for i in order), np.stack([points[i] for i in order], axis=1)
-
-
-def ankle_height(body: Body) -> float:
-    """The ankle's height standing of a body without feet, m: Winter's 0.039 of its height (the
-    default adult's where the body does not say)."""
-    return WINTER_HEIGHTS["ankle"] * float(body.height_m or DEFAULT_HEIGHT_M)
+        down = np.zeros((len(q), 3))
+        down[:, 1] = -drops[:, i]
+        heel = joints[:, at[ankle]].astype(np.float64) + (quat.rotate(q[:, seg[foot]], down) if foot in seg else down)
+        names.append(f"{side}_heel")
+        points.append(heel)
+        if foot in seg and toe in at:
+            names.append(f"{side}_toe")
+            points.append(joints[:, at[toe]].astype(np.float64))
+    order = sorted(range(len(names)), key=lambda k: CONTACTS.index(names[k]))
+    return tuple(names[k] for k in order), np.stack([points[k] for k in order], axis=1)
 
 
 class RootTracker:
