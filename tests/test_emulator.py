@@ -22,13 +22,18 @@ def test_generator_feed_is_continuous_across_staggered_chunks(seed):
     assert np.array_equal(got, want)
 
 
-@pytest.mark.parametrize("rates", [(50.0, 50.0), (50.0, 100.0)], ids=["one gather", "chunks of two lengths"])
-def test_feed_rows_are_each_feeds_sample_stacked(rates):
+@pytest.mark.parametrize("rates, layouts", [((50.0, 50.0), ("paper10",) * 2), ((50.0, 100.0), ("paper10",) * 2),
+                                            ((50.0, 50.0), ("full",) * 2), ((50.0, 50.0), ("paper10", "full"))],
+                         ids=["one gather", "chunks of two lengths", "full bodies", "two layouts"])
+def test_feed_rows_are_each_feeds_sample_stacked(rates, layouts):
     rng = np.random.default_rng(4)
     q = quat.normalize(np.cumsum(rng.normal(0, 0.02, (90, 2, 4)), axis=0) + [1, 0, 0, 0])
     clip = Motion(np.arange(90) / 50.0, q, ("hip", "neck"), "short")
-    feeds = [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0]), GeneratorFeed(5, rates[1]), LoopFeed(clip, 50.0, once=True)]
-    plain = [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0]), GeneratorFeed(5, rates[1]), LoopFeed(clip, 50.0, once=True)]
+
+    def made() -> list:
+        return [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0], layout=layouts[0]),
+                GeneratorFeed(5, rates[1], layout=layouts[1]), LoopFeed(clip, 50.0, once=True)]
+    feeds, plain = made(), made()
     rows = FeedRows(feeds)
     for k in [*range(0, 1300, 7), 3, 2000]:  # chunk after chunk, back to the first one, a jump ahead
         for count in (4, 3, 2):

@@ -227,7 +227,7 @@ def test_up_banner_counts_the_devices_that_run_and_prints_client_commands(xio_di
     assert up_cli.running(up_cli.check(default), default) == "2 subjects x 10 devices, source generator"
 
 
-def test_up_streams_the_generator_in_the_layout_asked_for(xio_dir):
+def test_up_streams_the_generator_in_the_layout_asked_for(xio_dir, tmp_path, monkeypatch):
     """``up --layout full``: its emulators get the layout and the body flags; a recording's
     segments must be in the layout."""
     from limbstream.body import FULL
@@ -244,6 +244,15 @@ def test_up_streams_the_generator_in_the_layout_asked_for(xio_dir):
     with pytest.raises(ValueError, match="--layout paper10: the source .* moves segments l_foot, r_foot, not in"):
         up_cli.check(parser.parse_args(["--source", str(xio_dir), "--layout", "paper10"]))
     assert up_cli.check(parser.parse_args(["--source", str(xio_dir), "--layout", "full"]))[0][0] == "l_foot"
+    legs = {"name": "legs", "segments": [  # a layout file of segments the generator moves: passed on by its path
+        {"name": "hip", "joint": "pelvis", "end": "spine", "direction": [0, 1, 0]},
+        {"name": "r_thigh", "parent": "hip", "joint": "pelvis", "end": "r_knee", "direction": [0, -1, 0]}]}
+    (tmp_path / "legs.json").write_text(json.dumps(legs))
+    monkeypatch.chdir(tmp_path)
+    args = parser.parse_args(["--layout", "legs.json", "--no-sync"])
+    assert up_cli.check(args) == [("hip", "r_thigh")] * 2
+    emulate = dict(up_cli.plan(args))["emulator"]
+    assert emulate[emulate.index("--layout") + 1] == str(tmp_path / "legs.json")
 
 
 def test_a_recording_is_one_subject_unless_more_are_asked_for(xsens_dir, monkeypatch):
