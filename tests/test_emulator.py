@@ -6,10 +6,11 @@ import argparse
 import numpy as np
 import pytest
 
-from limbstream.cli import emulate
+from limbstream.body import FULL, PAPER10
+from limbstream.cli import emulate, flags
 from limbstream.device.feeds import FeedRows, GeneratorFeed, LoopFeed, resample
 from limbstream import kernel, quat
-from limbstream.sources import Motion
+from limbstream.sources import SEGMENTS, Motion
 from limbstream.sources.generator import GeneratorSource
 
 
@@ -21,13 +22,18 @@ def test_generator_feed_is_continuous_across_staggered_chunks(seed):
     assert np.array_equal(got, want)
 
 
-@pytest.mark.parametrize("rates", [(50.0, 50.0), (50.0, 100.0)], ids=["one gather", "chunks of two lengths"])
-def test_feed_rows_are_each_feeds_sample_stacked(rates):
+@pytest.mark.parametrize("rates, layouts", [((50.0, 50.0), ("paper10",) * 2), ((50.0, 100.0), ("paper10",) * 2),
+                                            ((50.0, 50.0), ("full",) * 2), ((50.0, 50.0), ("paper10", "full"))],
+                         ids=["one gather", "chunks of two lengths", "full bodies", "two layouts"])
+def test_feed_rows_are_each_feeds_sample_stacked(rates, layouts):
     rng = np.random.default_rng(4)
     q = quat.normalize(np.cumsum(rng.normal(0, 0.02, (90, 2, 4)), axis=0) + [1, 0, 0, 0])
     clip = Motion(np.arange(90) / 50.0, q, ("hip", "neck"), "short")
-    feeds = [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0]), GeneratorFeed(5, rates[1]), LoopFeed(clip, 50.0, once=True)]
-    plain = [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0]), GeneratorFeed(5, rates[1]), LoopFeed(clip, 50.0, once=True)]
+
+    def made() -> list:
+        return [LoopFeed(clip, 50.0), GeneratorFeed(2, rates[0], layout=layouts[0]),
+                GeneratorFeed(5, rates[1], layout=layouts[1]), LoopFeed(clip, 50.0, once=True)]
+    feeds, plain = made(), made()
     rows = FeedRows(feeds)
     for k in [*range(0, 1300, 7), 3, 2000]:  # chunk after chunk, back to the first one, a jump ahead
         for count in (4, 3, 2):
@@ -124,3 +130,40 @@ def test_subject_names_are_key_chunks():
     assert emulate.subject_names(3, 9) == ["s09", "s10", "s11"]
     with pytest.raises(ValueError):
         emulate.subject_names(1, 1, prefix="a/b")
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--layout", "fullest"], "--layout: layout must be one of paper10, full or a .toml/.json file, got 'fullest'"),
+    (["--layout", "examples/layouts/suit17.toml"], "layout suit17: the generator moves no segment 'l_clavicle'"),
+    (["--layout", "examples/layouts/suit17.toml", "--height-m", "1.7"],
+     "--height-m applies to the built-in layouts (paper10, full): devices announce no body of layout suit17"),
+    (["--layout", "full", "--body", "examples/bodies/nope.toml"], "nope.toml"),
+])
+def test_a_layout_the_generator_cannot_move_is_a_clear_error(argv, words):
+    with pytest.raises((SystemExit, flags.FlagError)) as caught:
+        emulate.run(parse(*argv, "--duration", "0.1"))
+    assert words in str(caught.value)
+
+
+def test_a_motion_files_segments_must_be_in_the_layout(tmp_path):
+    """A motion file streams its own segments: ``--layout`` names the body they announce."""
+    path = tmp_path / "clip.npz"
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (50, len(SEGMENTS), 1))
+    np.savez(path, clip_a=q, fs=50.0, segment_names=np.array(SEGMENTS), rest_pose=np.array("standing"))
+    with pytest.raises(SystemExit, match="--layout full: the source .*clip.npz moves segment neck, not in the layout"):
+        emulate.run(parse("--source", str(path), "--layout", "full", "--duration", "0.1"))
+    args = parse("--source", str(path), "--layout", "paper10", "--height-m", "1.6", "--subjects", "1")
+    [feed] = emulate.build_feeds(args).values()
+    assert feed.segments == SEGMENTS and feed.body.layout is PAPER10 and feed.body.height_m == 1.6
+
+
+def test_generator_feeds_of_a_layout_and_the_body_they_announce():
+    [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", "full")).values()
+    assert feed.segments == FULL.segment_names and feed.body.layout is FULL and feed.body.height_m == 1.75
+    assert feed.sample(3).shape == (15, 4)
+    [feed] = emulate.build_feeds(parse("--subjects", "1")).values()
+    assert feed.segments == SEGMENTS and feed.body is None  # paper10's default adult, as before
+    [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", "full", "--height-m", "1.9")).values()
+    assert feed.body.layout is FULL and feed.body.height_m == 1.9
+    [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", "full", "--imu", "raw")).values()
+    assert feed.segments == FULL.segment_names

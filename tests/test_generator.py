@@ -39,6 +39,10 @@ HUMAN_ROM = {
     "pelvis_tilt": (-30, 30),
     "pelvis_obliquity": (-20, 20),
     "pelvis_yaw": (-30, 30),
+    "ankle_flex": (-50, 35),  # dorsiflexion positive; loaded (a lunge, a landing): about 35-45, unloaded 20
+    "subtalar": (-15, 35),  # inversion positive
+    "wrist_flex": (-70, 80),
+    "wrist_dev": (-30, 20),  # radial deviation positive
 }
 
 

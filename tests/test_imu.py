@@ -91,6 +91,34 @@ def test_specific_force_of_a_shank_turning_about_the_knee():
     assert np.allclose(r.gyr[keep, s], [omega, 0.0, 0.0], atol=1e-3)
 
 
+def test_a_full_body_places_its_hand_sensor_on_the_hand():
+    """The full layout's sensors sit on its own body: the left arm turning about the shoulder at
+    omega (lateral axis), the hand's sensor, halfway down the hand, reads the centripetal
+    acceleration of its distance from the shoulder."""
+    from limbstream.body import FULL, Body
+
+    omega = 1.5
+    arm = [FULL.segment_index[s] for s in ("l_upperarm", "l_lowerarm", "l_hand")]
+
+    def swing(t):
+        q = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), len(FULL.segments), 1))
+        q[:, arm] = quat.from_rotation(Rotation.from_rotvec(np.outer(omega * t, [1.0, 0.0, 0.0])))[:, None]
+        return q
+
+    t = np.arange(round(6.0 * 50) + 1) / 50
+    m = Motion(t, swing(t), FULL.segment_names, "test", "standing")
+    r = ideal(m)
+    keep = middle(r, 1.5)
+    lengths = Body.default(FULL).lengths
+    radius = lengths["l_upperarm"] + lengths["l_lowerarm"] + 0.5 * lengths["l_hand"]
+    h = FULL.segment_index["l_hand"]
+    seg = Rotation.from_quat(r.q[keep, h][:, [1, 2, 3, 0]])
+    want = np.array([0.0, omega**2 * radius, 0.0]) + seg.inv().apply([0.0, G, 0.0])
+    assert np.abs(r.acc[keep, h] - want).max() < 2e-3, np.abs(r.acc[keep, h] - want).max()
+    still = [FULL.segment_index[s] for s in ("hip", "chest", "l_foot")]
+    assert np.abs(r.acc[keep][:, still] - [0.0, G, 0.0]).max() < 1e-6  # the rest of the body stands still
+
+
 def test_root_travel_reaches_every_sensor():
     a0 = np.array([0.8, -0.3, 1.5])  # m/s^2, constant
     still = np.tile([1.0, 0.0, 0.0, 0.0], (1, 10, 1))

@@ -43,7 +43,7 @@ def test_sensors_are_listed_assigned_moved_and_refused():
             wait_until(lambda: {"s01/l_thigh", "s01/l_lowerarm"} <= set(g.poll()), 10, "points of the placed sensors")
             listing, _ = ask(g)
             assert listing["gateway"] == "slimevr" and listing["subject"] == "s01"
-            assert listed(listing) == {f"{a.mac_text}/0": (None, "body position 1 has no segment"),
+            assert listed(listing) == {f"{a.mac_text}/0": (None, "body position 1 has no segment in the layout"),
                                        f"{a.mac_text}/1": ("s01/l_thigh", None),
                                        f"{b.mac_text}/0": ("s01/l_lowerarm", None)}
             assert all(s["online"] for s in listing["sensors"])
@@ -169,3 +169,31 @@ def test_assignments_made_at_run_time_outlive_the_gateway(tmp_path):
         finally:
             t.close()
             g.close()
+
+
+def test_a_full_set_is_placed_by_body_position_on_the_full_layout():
+    """SlimeVR's positions of a full set (head, neck, upper chest, hip, legs, feet, arms, hands,
+    shoulders) feed the full layout's segments without --assign; on paper10 the same set places
+    only what paper10 has (the neck on its neck), and a position with no segment says so."""
+    from limbstream.body import FULL, PAPER10
+    from limbstream.services.gateway.slimevr_protocol import position_segment
+
+    assert [position_segment(p, FULL.segment_names) for p in (1, 2, 3, 4, 5, 6, 11, 12, 17, 18, 19)] == [
+        "head", "head", "chest", "chest", "hip", "hip", "l_foot", "r_foot", "l_hand", "r_hand", None]
+    assert [position_segment(p, PAPER10.segment_names) for p in (1, 2, 3, 6, 11, 17)] == [
+        None, "neck", None, "hip", None, None]
+    assert position_segment(None, FULL.segment_names) is None and position_segment(24, FULL.segment_names) is None
+
+    g = Running(layout=FULL)
+    positions = {0: 1, 1: 3, 2: 6, 3: 11, 4: 12, 5: 17, 6: 18, 7: 19}  # head, upper chest, hip, feet, hands, shoulder
+    a = Tracker(g.address, bytes([2, 0, 0, 0, 2, 1]), positions)
+    try:
+        with streaming([a], {a.mac_text: list(positions)}):
+            placed = {"s01/head", "s01/chest", "s01/hip", "s01/l_foot", "s01/r_foot", "s01/l_hand", "s01/r_hand"}
+            wait_until(lambda: placed <= set(g.poll()), 10, "points of every placed sensor")
+            listing, _ = ask(g)
+            assert listed(listing)[f"{a.mac_text}/7"] == (None, "body position 19 has no segment in the layout")
+            assert set(g.poll()) == placed
+    finally:
+        a.close()
+        g.close()

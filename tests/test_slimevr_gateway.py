@@ -149,7 +149,7 @@ def test_trackers_become_devices(gateway):
         decoded = wire.decode_status(json.dumps(status).encode())
         assert decoded.link is not None and decoded.link.tracker == f"{a.mac_text}/0"
         report = wait_until(lambda: gateway.report().get("unassigned"), 5, "the unassigned head sensor reported")
-        assert report == {f"{b.mac_text}/0": "body position 1 has no segment"}
+        assert report == {f"{b.mac_text}/0": "body position 1 has no segment in the layout"}
         assert gateway.alive() == {"s01/l_thigh", "s01/l_lowerarm"}
         assert a.heartbeats >= 1 and a.pings >= 1  # the keepalive reached the tracker, which answered
         tracker = gateway.report()["trackers"][a.mac_text]

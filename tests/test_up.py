@@ -191,6 +191,8 @@ def test_up_passes_raw_sensors_on_and_calibrates_them():
     (["--imu", "raw", "--imu-model", "bmi270"], "--imu-model must be one of ideal, icm42688p, got 'bmi270'"),
     (["--slimevr-subject", "sv02"], "--slimevr-subject applies only with --slimevr"),
     (["--no-dashboard", "--http", "127.0.0.1:8001"], "--http applies only with the dashboard"),
+    (["--layout", "fullest"], "--layout: layout must be one of paper10, full or a .toml/.json file, got 'fullest'"),
+    (["--layout", "full", "--height-m", "3"], "--height-m: height must be within [0.5, 2.5] m, got 3.0"),
 ])
 def test_up_checks_its_flags_and_source_before_starting_anything(argv, message, tmp_path, xsens_dir, capsys):
     """A bad flag or source is one error line naming it alone, exit 2, before any part starts."""
@@ -223,6 +225,34 @@ def test_up_banner_counts_the_devices_that_run_and_prints_client_commands(xio_di
     default = parser.parse_args([])
     assert default.router == "tcp/127.0.0.1:7448" and up_cli.client_commands(default)[0] == f"{command} watch s01"
     assert up_cli.running(up_cli.check(default), default) == "2 subjects x 10 devices, source generator"
+
+
+def test_up_streams_the_generator_in_the_layout_asked_for(xio_dir, tmp_path, monkeypatch):
+    """``up --layout full``: its emulators get the layout and the body flags; a recording's
+    segments must be in the layout."""
+    from limbstream.body import FULL
+    from limbstream.cli import up as up_cli
+    parser = argparse.ArgumentParser()
+    up_cli.add_arguments(parser)
+    args = parser.parse_args(["--layout", "full", "--height-m", "1.8", "--no-sync"])
+    assert up_cli.check(args) == [FULL.segment_names] * 2
+    assert up_cli.running(up_cli.check(args), args).startswith("2 subjects x 15 devices (hip, chest, head, ")
+    [emulate] = [argv for name, argv in up_cli.plan(args) if name == "emulator"]
+    assert emulate[emulate.index("--layout") + 1] == "full" and emulate[emulate.index("--height-m") + 1] == "1.8"
+    default = parser.parse_args(["--no-sync"])
+    assert "--layout" not in dict(up_cli.plan(default))["emulator"] and up_cli.check(default) == [wire.SEGMENTS] * 2
+    with pytest.raises(ValueError, match="--layout paper10: the source .* moves segments l_foot, r_foot, not in"):
+        up_cli.check(parser.parse_args(["--source", str(xio_dir), "--layout", "paper10"]))
+    assert up_cli.check(parser.parse_args(["--source", str(xio_dir), "--layout", "full"]))[0][0] == "l_foot"
+    legs = {"name": "legs", "segments": [  # a layout file of segments the generator moves: passed on by its path
+        {"name": "hip", "joint": "pelvis", "end": "spine", "direction": [0, 1, 0]},
+        {"name": "r_thigh", "parent": "hip", "joint": "pelvis", "end": "r_knee", "direction": [0, -1, 0]}]}
+    (tmp_path / "legs.json").write_text(json.dumps(legs))
+    monkeypatch.chdir(tmp_path)
+    args = parser.parse_args(["--layout", "legs.json", "--no-sync"])
+    assert up_cli.check(args) == [("hip", "r_thigh")] * 2
+    emulate = dict(up_cli.plan(args))["emulator"]
+    assert emulate[emulate.index("--layout") + 1] == str(tmp_path / "legs.json")
 
 
 def test_a_recording_is_one_subject_unless_more_are_asked_for(xsens_dir, monkeypatch):

@@ -24,12 +24,13 @@ PROG = "limbstream emulate"
 
 
 def build_feeds(args: argparse.Namespace, scripted: bool = False) -> dict:
-    """{subject: feed} from --source: the generator (seed = subject number) or a motion file, whose
-    clips the subjects share in turn (:func:`clip_of`); ``scripted``: each begins with the
-    calibration script (limbstream.calibration). With ``--imu raw``: raw sensor feeds (each with
-    the script, every subject from its clip's start). Each feed's ``body`` (its wearer's
-    dimensions, which its devices announce) is its clip's own (a BVH file's skeleton; None: the
-    default adult) unless ``--height-m`` or ``--body`` give the subjects theirs, in turn."""
+    """{subject: feed} from --source: the generator (seed = subject number, the body of
+    ``--layout``) or a motion file, whose clips the subjects share in turn (:func:`clip_of`);
+    ``scripted``: each begins with the calibration script (limbstream.calibration). With ``--imu
+    raw``: raw sensor feeds (each with the script, every subject from its clip's start). Each
+    feed's ``body`` (its wearer's dimensions, which its devices announce) is its clip's own (a BVH
+    file's skeleton; the generator's: None for paper10, the default adult, else its layout's
+    default body) unless ``--height-m`` or ``--body`` give the subjects theirs, in turn."""
     names = subject_names(args.subjects, args.first_subject, args.subject_prefix)
     feeds = raw_feeds(args, names) if args.imu == "raw" else motion_feeds(args, names, scripted)
     given = flags.bodies(args) or []
@@ -42,10 +43,11 @@ def motion_feeds(args: argparse.Namespace, names: list[str], scripted: bool) -> 
     """{subject: feed} of orientations (see :func:`build_feeds`)."""
     feeds: dict[str, GeneratorFeed | LoopFeed]
     if args.source == "generator":
-        feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg)
-                 for i, name in enumerate(names)}
+        layout = flags.layout(args)
+        feeds = {name: GeneratorFeed(seed=args.seed + args.first_subject + i, fs=args.rate, noise_deg=args.noise_deg,
+                                     layout=layout) for i, name in enumerate(names)}
     else:
-        motions = load(args.source, args.names)
+        motions = source_motions(args)
         feeds = {}
         for i, name in enumerate(names):
             clip, start = clip_of(args.first_subject + i, len(motions), args.same_start)
@@ -59,11 +61,20 @@ def motion_feeds(args: argparse.Namespace, names: list[str], scripted: bool) -> 
 def raw_feeds(args: argparse.Namespace, names: list[str]) -> dict[str, RawFeed]:
     """{subject: RawFeed} of ``--imu raw`` (see :func:`build_feeds`)."""
     if args.source == "generator":
-        return {name: RawFeed(GeneratorSource(seed=args.seed + args.first_subject + i, fs=args.rate), args.imu_rate,
-                              args.rate) for i, name in enumerate(names)}
-    motions = load(args.source, args.names)
+        return {name: RawFeed(GeneratorSource(seed=args.seed + args.first_subject + i, fs=args.rate,
+                                              layout=flags.layout(args)), args.imu_rate, args.rate)
+                for i, name in enumerate(names)}
+    motions = source_motions(args)
     return {name: RawFeed(motions[clip_of(args.first_subject + i, len(motions), True)[0]], args.imu_rate, args.rate,
                           once=args.once) for i, name in enumerate(names)}
+
+
+def source_motions(args: argparse.Namespace) -> list:
+    """The clips of a motion file ``--source``; FlagError when ``--layout`` is not theirs."""
+    motions = load(args.source, args.names)
+    for motion in motions:
+        flags.check_source_layout(args, motion.segments, args.source)
+    return motions
 
 
 START_STEP = (5 ** 0.5 - 1) / 2
@@ -122,6 +133,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise-deg", type=float, default=0.0, help="generator sensor noise, RMS degrees")
     add_clock_arguments(parser)
     flags.add_sensor_model(parser)
+    flags.add_layout(parser)
     flags.add_body(parser)
     parser.add_argument("-v", "--verbose", action="store_true")
     flags.add_zenoh(parser)
@@ -214,7 +226,8 @@ def validate(args: argparse.Namespace) -> None:
     for ok, message in checks:
         if not ok:
             raise SystemExit(f"limbstream emulate: error: {message}")
-    flags.bodies(args)  # FlagError: one line, exit status 2
+    flags.layout(args)  # FlagError: one line, exit status 2
+    flags.bodies(args)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:

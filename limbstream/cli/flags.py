@@ -17,7 +17,7 @@ from limbstream import wire, zconfig
 from limbstream.sources import names
 
 if TYPE_CHECKING:  # (calibration brings scipy: the commands without sensors start without it)
-    from limbstream.body import Body
+    from limbstream.body import Body, Layout
     from limbstream.calibration import SensorModel
 
 
@@ -300,6 +300,53 @@ def names_argv(mapping: dict[str, str] | None) -> list[str]:
     return [] if mapping is None else ["--names", ",".join(f"{sensor}={segment}" for sensor, segment in mapping.items())]
 
 
+# ----------------------------------------------------------------------------- the body's layout
+
+def add_layout(parser: argparse.ArgumentParser) -> None:
+    """``--layout paper10|full|FILE``: the body the built-in generator moves, one device per
+    segment, and the layout of the body the devices announce (``emulate``, ``up``; checked by
+    :func:`layout`)."""
+    parser.add_argument("--layout", default=None, metavar="paper10|full|FILE",
+                        help="the subjects' body layout (docs/body.md): the generator moves a device per segment of "
+                             "it, paper10 (10 segments, default), full (15: chest, head, hands and feet too) or a "
+                             ".toml/.json layout file of segments it moves; a motion file streams its own segments, "
+                             "which the layout must hold; --height-m and --body size a body of it")
+
+
+def layout(args: argparse.Namespace) -> Layout:
+    """The layout of ``--layout`` (``paper10`` when not given); FlagError naming a bad one."""
+    from limbstream import body
+    value = getattr(args, "layout", None)
+    if value is None:
+        return body.PAPER10
+    try:
+        return body.layout(value)
+    except (OSError, ValueError) as exc:
+        raise FlagError(f"--layout {exc}" if str(exc).startswith(str(value)) else f"--layout: {exc}") from None
+
+
+def check_source_layout(args: argparse.Namespace, segments: tuple[str, ...], source: str) -> None:
+    """A motion file's devices are its own segments: ``--layout``, when given, is the layout of
+    the body they announce (``--height-m``, ``--body``) and must hold every one of ``segments``;
+    FlagError naming those it has not."""
+    if getattr(args, "layout", None) is None:
+        return
+    wanted = layout(args)
+    missing = [s for s in segments if s not in wanted.segment_names]
+    if missing:
+        raise FlagError(f"--layout {wanted.name}: the source {source} moves segment{'s' * (len(missing) > 1)} "
+                        f"{', '.join(missing)}, not in the layout (a motion file's devices are its own segments)")
+
+
+def layout_argv(args: argparse.Namespace) -> list[str]:
+    """The flags that give ``--layout`` to a child process (a file as an absolute path)."""
+    value = getattr(args, "layout", None)
+    if value is None:
+        return []
+    from limbstream.body import LAYOUTS
+    return ["--layout", value if value in LAYOUTS else str(Path(value).resolve())]
+
+
 # ----------------------------------------------------------------------------- the wearer's dimensions
 
 def add_body(parser: argparse.ArgumentParser, whose: str = "") -> None:
@@ -317,17 +364,22 @@ def add_body(parser: argparse.ArgumentParser, whose: str = "") -> None:
 
 
 def bodies(args: argparse.Namespace) -> list[Body] | None:
-    """The bodies of ``--height-m`` or ``--body`` (of layout ``paper10``), one per value; None when
-    neither is given. FlagError naming the flag, the value and the bound."""
-    from limbstream.body import PAPER10, Body
+    """The bodies of ``--height-m`` or ``--body`` (of the ``--layout``, paper10 by default), one per
+    value; None when neither is given. FlagError naming the flag, the value and the bound (or a
+    layout file's: a body travels with a built-in layout only, ``wire.decode_body``)."""
+    from limbstream.body import LAYOUTS, Body
     height, files = getattr(args, "height_m", None), getattr(args, "body", None)
     if height is not None and files is not None:
         raise FlagError("--height-m and --body both give the subjects' dimensions: give one")
+    lay = layout(args)
+    if (height is not None or files is not None) and LAYOUTS.get(lay.name) != lay:
+        raise FlagError(f"--{'height-m' if height is not None else 'body'} applies to the built-in layouts "
+                        f"({', '.join(LAYOUTS)}): devices announce no body of layout {lay.name}")
     if height is not None:
         out = []
         for part in (p.strip() for p in height.split(",")):
             try:
-                out.append(Body.from_height(PAPER10, float(part)))
+                out.append(Body.from_height(lay, float(part)))
             except ValueError as exc:
                 detail = str(exc) if part and "height" in str(exc) else f"a height in m, or several: H,H,..., got {part!r}"
                 raise FlagError(f"--height-m: {detail}") from None
@@ -336,7 +388,7 @@ def bodies(args: argparse.Namespace) -> list[Body] | None:
         out = []
         for part in (p.strip() for p in files.split(",")):
             try:
-                out.append(Body.from_file(PAPER10, part))
+                out.append(Body.from_file(lay, part))
             except ValueError as exc:
                 raise FlagError(f"--body {exc}") from None
         return out

@@ -39,8 +39,9 @@ def parse_assign(text: str) -> tuple[tuple[str, int | None], tuple[str | None, s
         number = int(sensor) if slash else None
         if not sep or not tracker or (number is not None and not 0 <= number <= 255):
             raise ValueError
-        if segment not in wire.SEGMENTS:
-            raise argparse.ArgumentTypeError(f"--assign {text!r}: segment must be one of {', '.join(wire.SEGMENTS)}")
+        if segment not in wire.builtin_segments():
+            raise argparse.ArgumentTypeError(f"--assign {text!r}: segment must be one of "
+                                             f"{', '.join(wire.builtin_segments())}")
         if subject:
             wire.check_chunk(subject, "subject")
     except ValueError:

@@ -54,8 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="subjects to emulate, each with a device per segment of the source (default: 2 on the "
                              "generator, 1 on a motion file or recording, whose person it is; more are copies)")
     parser.add_argument("--source", default="generator",
-                        help="'generator' (default: 10 segments) or a motion file/folder (.npz, .bvh, x-IMU3 .csv, "
-                             "Xsens .txt); its clips go to the subjects in turn")
+                        help="'generator' (default: the body of --layout) or a motion file/folder (.npz, .bvh, x-IMU3 "
+                             ".csv, Xsens .txt); its clips go to the subjects in turn")
     add_source_arguments(parser)  # --names, --same-start: passed on
     router = os.environ.get(zconfig.ROUTER_ENV, zconfig.DEFAULT_ROUTER)
     parser.add_argument("--router", default=router, metavar="ENDPOINT",
@@ -72,6 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the devices run their firmware under QEMU (emulate --firmware: one process per device)")
     add_clock_arguments(parser, tuning=False)  # device clocks, passed on; with sync a time service is started
     flags.add_sensor_model(parser)  # sensors, passed on; on, the aggregator calibrates every new stream
+    flags.add_layout(parser)  # the generator's body, passed on
     flags.add_body(parser)  # the subjects' dimensions, passed on: their devices announce them
     flags.add_heading_correction(parser)  # the aggregator's, for the calibrated devices
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the dashboard")
@@ -109,7 +110,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         argv = ["emulate", "--subjects", str(count), "--first-subject", str(first), "--source", args.source,
                 *flags.names_argv(args.names), *(["--same-start"] if args.same_start else []),
                 "--speed", str(args.speed), *flags.device_config(args).flags(), *clock_flags(args), *anchor,
-                *flags.body_argv(args)]
+                *flags.layout_argv(args), *flags.body_argv(args)]
         if args.no_truth:
             argv.append("--no-truth")
         if args.firmware:
@@ -241,7 +242,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
         parse_address(args.slimevr)
         wire.check_chunk(args.slimevr_subject, "--slimevr-subject")
     flags.sensor_model(args)  # a bad sensor bound, or one raw sensors do not take
-    flags.bodies(args)  # a height or bone out of bounds, a malformed body file
+    flags.bodies(args)  # a bad layout, a height or bone out of bounds, a malformed body file
     check_clock(args)
     if args.imu == "raw" and (args.clock_offset_ms or args.clock_drift_ppm or args.clock_jitter_us):
         raise ValueError("--imu raw samples on the feed's own clock: device clock models (--clock-offset-ms, "
@@ -249,8 +250,10 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     if args.source == "generator":
         if args.names is not None:
             raise ValueError("--names maps the sensors of an IMU recording; the generator has none")
-        return [wire.SEGMENTS] * args.subjects
+        return [flags.layout(args).segment_names] * args.subjects
     motions = sources.load(args.source, args.names)
+    for motion in motions:
+        flags.check_source_layout(args, motion.segments, args.source)
     return [motions[clip_of(k, len(motions))[0]].segments for k in range(1, args.subjects + 1)]
 
 

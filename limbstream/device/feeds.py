@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from limbstream import quat
+from limbstream.body import LAYOUTS, PAPER10, Body, Layout, builtin_layout
 from limbstream.sources import Motion
 from limbstream.sources.generator import GeneratorSource
 
@@ -59,20 +60,25 @@ class LoopFeed:
 
 
 class GeneratorFeed:
-    """The built-in synthetic motion of one subject, generated in chunks as time goes on.
+    """The built-in synthetic motion of one subject, generated in chunks as time goes on: the
+    segments of ``layout`` (a built-in's name or a Layout, :class:`GeneratorSource`).
 
     Chunk boundaries are staggered by seed, so many subjects in one process do not all
-    generate their next chunk on the same tick.
+    generate their next chunk on the same tick. Its ``body`` (which its devices announce;
+    ``limbstream emulate --height-m`` sets another): paper10's None (the default adult, drawn with
+    the aggregator's skeleton), another built-in layout's default body (it names the layout),
+    None for a layout file's.
     """
 
     CHUNK_S = 10.0
     rest_pose = "standing"
     orientations = "segments"  # wire.ORIENTATIONS: the generated segments' own
-    body = None  # the default adult (``limbstream emulate --height-m`` sets another)
 
-    def __init__(self, seed: int, fs: float, noise_deg: float = 0.0):
-        self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg)
+    def __init__(self, seed: int, fs: float, noise_deg: float = 0.0, layout: str | Layout = "paper10"):
+        self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg, layout=layout)
         self.segments = self.source.segments
+        lay = builtin_layout(layout) if isinstance(layout, str) else layout
+        self.body: Body | None = None if lay.name == PAPER10.name or LAYOUTS.get(lay.name) != lay else Body.default(lay)
         self.chunk_len = int(round(self.CHUNK_S * fs))
         self.offset = (seed * 7919) % self.chunk_len
         self.length = None

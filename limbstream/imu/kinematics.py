@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from limbstream import quat
+from limbstream.body import Body
 from limbstream.skeleton import Skeleton
 from limbstream.sources import Motion
 from limbstream.wire import JOINTS, SEGMENTS
@@ -52,8 +53,8 @@ PLACES: dict[str, tuple[str, str, float]] = {
                                     ("upperarm", "shoulder", "elbow"), ("lowerarm", "elbow", "wrist"))},
 }
 """Where each segment's sensor sits: (joint, next joint, fraction of the way): halfway down the
-limb bones and the neck, on the pelvis for the hip. A segment outside the 10-IMU layout (a foot)
-has no place on the skeleton: its sensor sits on the root."""
+limb bones and the neck, on the pelvis for the hip. A motion of another layout (``full``) places
+its sensors on its own body likewise (halfway along each bone, the root's on the pelvis)."""
 
 
 class SmoothMotion:
@@ -78,6 +79,7 @@ class SmoothMotion:
         from scipy.interpolate import CubicSpline
         from scipy.signal import butter, sosfiltfilt
         self.segments, self.rest_pose = motion.segments, motion.rest_pose
+        self.source = motion  # its layout and body place the sensors
         n, s = motion.q.shape[:2]
         q = quat.continuous(motion.q).reshape(n, 4 * s)
         values = q if motion.root is None else np.concatenate([q, motion.root], axis=1)
@@ -141,6 +143,8 @@ def readings(motion: SmoothMotion, t: np.ndarray, rate: float, skeleton: Skeleto
 
 def _places(motion: SmoothMotion, t: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     """(n, S, 3) positions of the sensors' places at ``t``, m, world frame."""
+    if not set(motion.segments) <= set(SEGMENTS):
+        return _layout_places(motion, t)
     q = motion.orientations(t)
     full = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (len(t), len(SEGMENTS), 1))
     for s, name in enumerate(motion.segments):
@@ -153,6 +157,28 @@ def _places(motion: SmoothMotion, t: np.ndarray, skeleton: Skeleton) -> np.ndarr
             top, bottom, fraction = PLACES[name]
             a, b = joints[:, JOINTS.index(top)], joints[:, JOINTS.index(bottom)]
             places[:, s] = a + fraction * (b - a)
+    root = motion.root(t)
+    return places if root is None else places + root[:, None, :]
+
+
+def _layout_places(motion: SmoothMotion, t: np.ndarray) -> np.ndarray:
+    """:func:`_places` of a motion of another layout than the 10-IMU one (``full``, a layout
+    file): drawn with its body (the layout's default where it has none); each sensor halfway
+    along its segment's bone, the root's on its proximal joint (the pelvis)."""
+    layout = motion.source.layout
+    body = motion.source.body or Body.default(layout)
+    q = motion.orientations(t)
+    full = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (len(t), len(layout.segments), 1))
+    index = layout.segment_index
+    for s, name in enumerate(motion.segments):
+        full[:, index[name]] = q[:, s]
+    joints = body.positions(full, motion.rest_pose == "tpose", dtype=np.float64)
+    at = layout.joint_index
+    places = np.zeros((len(t), len(motion.segments), 3))
+    for s, name in enumerate(motion.segments):
+        seg = layout.segment(name)
+        a = joints[:, at[seg.joint]]
+        places[:, s] = a if seg.parent is None else 0.5 * (a + joints[:, at[seg.end]])
     root = motion.root(t)
     return places if root is None else places + root[:, None, :]
 

@@ -1,16 +1,21 @@
 """Synthetic full-body motion: the embedded default source of demos and tests.
 
 Joint angles (degrees) of a few activities are cross-faded at activity changes and pushed
-through a small kinematic tree to global orientations of the 10 :data:`SEGMENTS`:
+through a small kinematic tree to global orientations of the segments of a body layout
+(``paper10``: the 10 :data:`SEGMENTS`; ``full``: its 15, :data:`limbstream.body.FULL`):
 
-    hip (pelvis) -> l/r_thigh -> l/r_shank
-    hip -> trunk (not output) -> neck
-    trunk -> l/r_upperarm -> l/r_lowerarm
+    hip (pelvis) -> l/r_thigh -> l/r_shank -> l/r_foot (full)
+    hip -> trunk (full: chest) -> neck (full: head)
+    trunk -> l/r_upperarm -> l/r_lowerarm -> l/r_hand (full)
 
-Frames: world Y up; in the neutral standing pose (arms hanging, subject facing the world +Z
-turned by the subject's heading about Y) every segment orientation is the heading alone, and
-X points to the subject's left. Every value is a pure function of time (and of the sample
-index for the noise), so :meth:`GeneratorSource.chunk` gives the same samples as
+``paper10``'s segments are the same in both layouts (``full`` adds the chest, the hands and the
+feet, and calls the head ``head``). The activities' joint angles are :mod:`.generator_activities`',
+the hands' and feet's :mod:`.generator_limbs`'.
+
+Frames: world Y up; in the neutral standing pose (arms hanging, feet flat on the floor, subject
+facing the world +Z turned by the subject's heading about Y) every segment orientation is the
+heading alone, and X points to the subject's left. Every value is a pure function of time (and
+of the sample index for the noise), so :meth:`GeneratorSource.chunk` gives the same samples as
 :func:`generate` and a live emulator can stream forever. A seed is a subject: it sets
 cadence, amplitudes, phases, posture, heading, schedule lengths and the mounting offsets. The
 default motion holds the rest pose still for :data:`STILL_S` s about every 30 s.
@@ -18,45 +23,18 @@ default motion holds the rest pose still for :data:`STILL_S` s about every 30 s.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat, wire
+from limbstream.body import FULL, Layout
 from limbstream.sources import SEGMENTS, Motion
-
-JOINT_RANGES: dict[str, tuple[float, float]] = {
-    "pelvis_tilt": (-20, 25),
-    "pelvis_obliquity": (-15, 15),
-    "pelvis_yaw": (-20, 20),
-    "trunk_flex": (-20, 60),
-    "trunk_lat": (-25, 25),
-    "trunk_rot": (-30, 30),
-    "neck_flex": (-40, 50),
-    "neck_lat": (-30, 30),
-    "neck_rot": (-60, 60),
-    "hip_flex_l": (-25, 120),
-    "hip_abd_l": (-20, 40),
-    "hip_rot_l": (-30, 30),
-    "hip_flex_r": (-25, 120),
-    "hip_abd_r": (-20, 40),
-    "hip_rot_r": (-30, 30),
-    "knee_flex_l": (0, 140),
-    "knee_flex_r": (0, 140),
-    "shoulder_flex_l": (-50, 170),
-    "shoulder_abd_l": (0, 175),
-    "shoulder_rot_l": (-60, 60),
-    "shoulder_flex_r": (-50, 170),
-    "shoulder_abd_r": (0, 175),
-    "shoulder_rot_r": (-60, 60),
-    "elbow_flex_l": (0, 145),
-    "elbow_flex_r": (0, 145),
-}
-"""Human range of motion of every joint angle the generator produces, degrees (flexion,
-abduction and internal rotation positive). The generator stays inside these ranges."""
-
-JOINTS: tuple[str, ...] = tuple(JOINT_RANGES)
+from limbstream.sources import generator_limbs as limbs
+from limbstream.sources.generator_activities import ACTIVITY_FUNCS as _ACTIVITY_FUNCS
+from limbstream.sources.generator_activities import Subject
+from limbstream.sources.generator_activities import JOINT_RANGES, JOINTS  # noqa: F401  (re-exported)
 
 ACTIVITIES: tuple[str, ...] = ("standing", "walking", "running", "arm_circles", "jumping_jacks", "still")
 """Activity names (``still``: the rest pose, not moving at all); ``"transition"`` labels the
@@ -86,188 +64,6 @@ NOISE_BLOCK = 1024
 """Samples per independently seeded block of sensor noise (keeps chunks equal to the batch)."""
 
 _X, _Y, _Z = np.eye(3)
-
-
-def _bump(s: np.ndarray, centre: float, kappa: float) -> np.ndarray:
-    """Smooth periodic bump in [0, 1] peaking at cycle fraction ``centre`` (von Mises shape)."""
-    return np.exp(kappa * (np.cos(2 * np.pi * (s - centre)) - 1.0))
-
-
-def _open(s: np.ndarray) -> np.ndarray:
-    """0 -> 1 -> 0 over one cycle, smooth."""
-    return 0.5 * (1.0 - np.cos(2 * np.pi * s))
-
-
-class _Subject:
-    """Seeded per-subject parameters."""
-
-    def __init__(self, seed: int):
-        rng = np.random.default_rng([int(seed), 0x11B5])
-        self.cadence = rng.uniform(0.93, 1.07)
-        self.amplitude = rng.uniform(0.9, 1.1)
-        self.phase = rng.uniform(0.0, 1.0, size=8)
-        self.heading = rng.uniform(-20.0, 20.0)
-        self.posture = {  # small constant offsets, degrees
-            "trunk_flex": rng.uniform(0, 5),
-            "neck_flex": rng.uniform(0, 8),
-            "shoulder_abd": rng.uniform(4, 10),
-            "elbow_flex": rng.uniform(8, 18),
-            "knee_flex": rng.uniform(2, 6),
-        }
-        self.sway = rng.uniform(0.08, 0.3, size=6)  # Hz
-        self.schedule_scale = rng.uniform(0.9, 1.1)
-        self.mounting = Rotation.random(len(SEGMENTS), random_state=rng).as_rotvec()
-        self.mounting *= (
-            rng.uniform(5, 15, len(SEGMENTS)) / np.degrees(np.linalg.norm(self.mounting, axis=1))
-        )[:, None]
-
-
-def _standing(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
-    """Quiet standing with slow postural sway."""
-    sw = [np.sin(2 * np.pi * f * t + 2 * np.pi * ph) for f, ph in zip(p.sway, p.phase[:6])]
-    a = {
-        "pelvis_tilt": 2 + 1.5 * sw[0],
-        "pelvis_obliquity": 1.2 * sw[1],
-        "pelvis_yaw": 2 * sw[2],
-        "trunk_flex": p.posture["trunk_flex"] + 1.5 * sw[3],
-        "trunk_lat": 1.5 * sw[4],
-        "trunk_rot": 2 * sw[5],
-        "neck_flex": p.posture["neck_flex"] + 3 * sw[2],
-        "neck_lat": 2 * sw[0],
-        "neck_rot": 6 * sw[1],
-    }
-    for side, sign in (("l", 1.0), ("r", -1.0)):
-        a[f"hip_flex_{side}"] = 3 + 1.0 * sw[3] * sign
-        a[f"hip_abd_{side}"] = 4 + 1.0 * sw[1] * sign
-        a[f"hip_rot_{side}"] = 3 + 0 * t
-        a[f"knee_flex_{side}"] = p.posture["knee_flex"] + 1.0 * sw[4]
-        a[f"shoulder_flex_{side}"] = 2 + 2 * sw[5] * sign
-        a[f"shoulder_abd_{side}"] = p.posture["shoulder_abd"] + 1.0 * sw[0]
-        a[f"shoulder_rot_{side}"] = 5 + 0 * t
-        a[f"elbow_flex_{side}"] = p.posture["elbow_flex"] + 2 * sw[2]
-    return a
-
-
-def _still(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
-    """The rest pose (standing, arms hanging), not moving: every joint angle 0."""
-    return {j: np.zeros(len(t)) for j in JOINTS}
-
-
-def _gait(t: np.ndarray, p: _Subject, step_hz: float, phase: float) -> tuple[np.ndarray, np.ndarray]:
-    """Gait-cycle fractions (left, right) in [0, 1) for a step frequency (two steps per cycle)."""
-    s = (0.5 * step_hz * p.cadence * t + phase) % 1.0
-    return s, (s + 0.5) % 1.0
-
-
-def _walking(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
-    """Walking, ~1.8 steps/s: hip 30 deg flexion to 10 deg extension, knee to ~60 deg in swing."""
-    k = p.amplitude
-    sl, sr = _gait(t, p, 1.8, p.phase[0])
-    two = np.sin(4 * np.pi * sl)
-    a = {
-        "pelvis_tilt": 4 + 2 * two,
-        "pelvis_obliquity": 4 * k * np.sin(2 * np.pi * sl),
-        "pelvis_yaw": 5 * k * np.cos(2 * np.pi * sl),
-        "trunk_flex": p.posture["trunk_flex"] + 2 + 1.5 * two,
-        "trunk_lat": -2 * np.sin(2 * np.pi * sl),
-        "trunk_rot": -7 * k * np.cos(2 * np.pi * sl),
-        "neck_flex": p.posture["neck_flex"] + 1.5 * two,
-        "neck_lat": 1.5 * np.sin(2 * np.pi * sl),
-        "neck_rot": 3 * np.cos(2 * np.pi * sl),
-    }
-    for side, s, other in (("l", sl, sr), ("r", sr, sl)):
-        a[f"hip_flex_{side}"] = 10 + 20 * k * np.cos(2 * np.pi * s)
-        a[f"hip_abd_{side}"] = 2 + 3 * np.sin(2 * np.pi * s)
-        a[f"hip_rot_{side}"] = 4 * np.cos(2 * np.pi * s)
-        a[f"knee_flex_{side}"] = 4 + 12 * k * _bump(s, 0.13, 5.0) + 54 * k * _bump(s, 0.72, 4.0)
-        a[f"shoulder_flex_{side}"] = 3 + 16 * k * np.cos(
-            2 * np.pi * other
-        )  # arm swings with the other leg
-        a[f"shoulder_abd_{side}"] = p.posture["shoulder_abd"] + 2 * np.sin(2 * np.pi * s)
-        a[f"shoulder_rot_{side}"] = 8 + 0 * t
-        a[f"elbow_flex_{side}"] = p.posture["elbow_flex"] + 8 + 10 * k * _open(other + 0.25)
-    return a
-
-
-def _running(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
-    """Running on the spot, ~2.7 steps/s: knees lifted to ~55 deg hip flexion, heels kicked back."""
-    k = p.amplitude
-    sl, sr = _gait(t, p, 2.7, p.phase[1])
-    two = np.sin(4 * np.pi * sl)
-    a = {
-        "pelvis_tilt": 7 + 3 * two,
-        "pelvis_obliquity": 4 * np.sin(2 * np.pi * sl),
-        "pelvis_yaw": 4 * np.cos(2 * np.pi * sl),
-        "trunk_flex": p.posture["trunk_flex"] + 6 + 2 * two,
-        "trunk_lat": -2 * np.sin(2 * np.pi * sl),
-        "trunk_rot": -6 * np.cos(2 * np.pi * sl),
-        "neck_flex": p.posture["neck_flex"] - 4 + 2 * two,
-        "neck_lat": 2 * np.sin(2 * np.pi * sl),
-        "neck_rot": 3 * np.cos(2 * np.pi * sl),
-    }
-    for side, s, other in (("l", sl, sr), ("r", sr, sl)):
-        a[f"hip_flex_{side}"] = 5 + 48 * k * _bump(s, 0.3, 1.2)
-        a[f"hip_abd_{side}"] = 3 + 2 * np.sin(2 * np.pi * s)
-        a[f"hip_rot_{side}"] = 3 * np.cos(2 * np.pi * s)
-        a[f"knee_flex_{side}"] = 12 + 78 * k * _bump(s, 0.22, 1.2)
-        a[f"shoulder_flex_{side}"] = 8 + 30 * k * np.cos(2 * np.pi * (other - 0.3))
-        a[f"shoulder_abd_{side}"] = p.posture["shoulder_abd"] + 4 + 3 * np.sin(2 * np.pi * s)
-        a[f"shoulder_rot_{side}"] = 15 + 0 * t
-        a[f"elbow_flex_{side}"] = 80 + 12 * np.cos(2 * np.pi * (other - 0.3))
-    return a
-
-
-def _arm_circles(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
-    """Forward arm circles at ~0.8 Hz with the arms held out to the sides."""
-    k = p.amplitude
-    theta = 2 * np.pi * (0.8 * p.cadence * t + p.phase[2])
-    a = _standing(t, p)
-    for side in ("l", "r"):
-        a[f"shoulder_abd_{side}"] = 80 + 25 * k * np.cos(theta)
-        a[f"shoulder_flex_{side}"] = 5 + 28 * k * np.sin(theta)
-        a[f"shoulder_rot_{side}"] = 10 * np.sin(theta)
-        a[f"elbow_flex_{side}"] = 6 + 3 * np.cos(theta)
-    a["trunk_flex"] = a["trunk_flex"] + 2 * np.sin(theta)
-    return a
-
-
-def _jumping_jacks(t: np.ndarray, p: _Subject) -> dict[str, np.ndarray]:
-    """Jumping jacks, ~1 per second: arms 10 -> 160 deg abduction, legs apart, landing knee dips."""
-    k = p.amplitude
-    s = (1.0 * p.cadence * t + p.phase[3]) % 1.0
-    w = _open(s)
-    land = _bump(s, 0.5, 8.0) + _bump(s, 0.0, 8.0)
-    a = {
-        "pelvis_tilt": 3 + 3 * land,
-        "pelvis_obliquity": 0 * t,
-        "pelvis_yaw": 0 * t,
-        "trunk_flex": p.posture["trunk_flex"] + 3 * land,
-        "trunk_lat": 0 * t,
-        "trunk_rot": 0 * t,
-        "neck_flex": p.posture["neck_flex"] - 10 * w + 4 * land,
-        "neck_lat": 0 * t,
-        "neck_rot": 0 * t,
-    }
-    for side in ("l", "r"):
-        a[f"hip_flex_{side}"] = 4 + 14 * land
-        a[f"hip_abd_{side}"] = 3 + 20 * k * w
-        a[f"hip_rot_{side}"] = 8 * w
-        a[f"knee_flex_{side}"] = 6 + 28 * land
-        a[f"shoulder_flex_{side}"] = 3 + 4 * w
-        a[f"shoulder_abd_{side}"] = 8 + 150 * k * w
-        a[f"shoulder_rot_{side}"] = 5 + 0 * t
-        a[f"elbow_flex_{side}"] = 12 - 6 * w
-    return a
-
-
-_ACTIVITY_FUNCS: dict[str, Callable[[np.ndarray, _Subject], dict[str, np.ndarray]]] = {
-    "standing": _standing,
-    "walking": _walking,
-    "running": _running,
-    "arm_circles": _arm_circles,
-    "jumping_jacks": _jumping_jacks,
-    "still": _still,
-}
 
 
 def _schedule(
@@ -318,9 +114,20 @@ def _elementary_all(a: dict[str, np.ndarray], heading: float) -> dict[str, np.nd
     < 180; the pelvis yaw plus the heading), continuous in the angle; one scipy call for all."""
     angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
     angle[0] = heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
-    rotvec = np.radians(angle)[:, :, None] * _TREE_AXIS
-    q = quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(len(_TREE_AXES), -1, 4)
-    return dict(zip(_TREE_JOINTS, q))
+    return dict(zip(_TREE_JOINTS, _rotations(angle, _TREE_AXIS)))
+
+
+def _rotations(angle: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(j, n, 4) the rotations by ``angle`` (j, n) degrees about ``axis`` (j, 1, 3), one scipy call."""
+    rotvec = np.radians(angle)[:, :, None] * axis
+    return quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(len(angle), -1, 4)
+
+
+def _limb_rotations(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """{joint: (n, 4)} the rotations of the feet and hands (:data:`.generator_limbs.AXES`)."""
+    angle = np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES])
+    return dict(zip([joint for joint, _, _ in limbs.AXES],
+                    _rotations(angle, np.stack([axis for _, _, axis in limbs.AXES])[:, None, :])))
 
 
 def _chains(parent: np.ndarray, e: dict[str, np.ndarray], *steps: list[str]) -> np.ndarray:
@@ -342,12 +149,16 @@ class GeneratorSource:
         names (8 s each) or (name, seconds) pairs, played in a loop with cross-fades.
     noise_deg : RMS angle of white sensor noise added to every sample, degrees.
     mounting_offsets : apply a fixed 5-15 deg sensor-to-segment rotation per segment.
+    layout : the body whose segments it outputs, in its order: ``"paper10"`` (:data:`SEGMENTS`),
+        ``"full"`` (:data:`limbstream.body.FULL`, 15 segments) or a Layout whose segments are all
+        among :data:`KNOWN_SEGMENTS`. A segment's motion, mounting offset and noise are the same in
+        every layout that has it (``full``'s head is paper10's neck).
     """
 
     segments: tuple[str, ...] = SEGMENTS
 
     def __init__(self, seed: int = 0, fs: float = wire.DEVICE_RATE_HZ, activities=None, noise_deg: float = 0.0,
-                 mounting_offsets: bool = False):
+                 mounting_offsets: bool = False, layout: str | Layout = "paper10"):
         if int(seed) < 0:
             raise ValueError(f"seed must be >= 0, got {seed}")
         if not fs > 0:
@@ -358,11 +169,16 @@ class GeneratorSource:
         self.fs = float(fs)
         self.noise_deg = float(noise_deg)
         self.mounting_offsets = bool(mounting_offsets)
-        self._subject = _Subject(self.seed)
+        self._subject = Subject(self.seed)
         scale = self._subject.schedule_scale if activities is None else 1.0
         self._schedule = [(n, s if n == "still" else s * scale) for n, s in _schedule(activities)]
         self._starts = np.cumsum([0.0] + [s for _, s in self._schedule])
-        self._mount = quat.from_rotation(Rotation.from_rotvec(self._subject.mounting))
+        self.segments = _segments_of(layout)
+        self._limbs = self.segments != SEGMENTS  # paper10 alone computes neither hands nor feet
+        mounting = dict(zip(SEGMENTS + limbs.SEGMENTS, np.concatenate([self._subject.mounting,
+                                                                       self._subject.limbs.mounting])))
+        mounting["head"] = mounting["neck"]
+        self._mount = quat.from_rotation(Rotation.from_rotvec(np.stack([mounting[s] for s in self.segments])))
 
     @property
     def period_s(self) -> float:
@@ -410,14 +226,16 @@ class GeneratorSource:
             angles = _ACTIVITY_FUNCS[self._schedule[idx][0]](t[mask], self._subject)
             for j in JOINTS:
                 out[j][mask] += weight[mask] * angles[j]
+        limbs.on_the_floor(out)  # after the cross-fades: the feet keep to the floor through them too
         return out
 
     def orientations(self, t: np.ndarray) -> np.ndarray:
-        """(n, 10, 4) noise-free global segment orientations at times ``t`` (s), SEGMENTS order.
+        """(n, S, 4) noise-free global orientations of :attr:`segments` at times ``t`` (s).
 
         Mounting offsets apply if enabled; noise does not (it belongs to sample indices).
         """
-        e = _elementary_all(self.joint_angles(t), self._subject.heading)
+        a = self.joint_angles(t)
+        e = _elementary_all(a, self._subject.heading)
         # each level of the tree in one product per factor: all chains of a level advance together
         pelvis = quat.multiply(quat.multiply(e["pelvis_yaw"], e["pelvis_tilt"]), e["pelvis_obliquity"])
         trunk, thigh_l, thigh_r = _chains(pelvis, e, ["trunk_rot", "hip_abd_l", "hip_abd_r"],
@@ -430,21 +248,37 @@ class GeneratorSource:
             [e["knee_flex_l"], e["knee_flex_r"], e["elbow_flex_l"], e["elbow_flex_r"]]))
         seg = dict(hip=pelvis, neck=neck, l_thigh=thigh_l, r_thigh=thigh_r, l_shank=shank_l, r_shank=shank_r,
                    l_upperarm=upper_l, r_upperarm=upper_r, l_lowerarm=lower_l, r_lowerarm=lower_r)
-        q = np.stack([seg[s] for s in SEGMENTS], axis=1)
+        if self._limbs:
+            e = _limb_rotations(a)
+            tips = ("ankle_flex", "subtalar"), ("wrist_flex", "wrist_dev")  # foot off the shank, hand off the forearm
+            parents = np.stack([shank_l, shank_r, lower_l, lower_r])
+            for step in range(2):
+                parents = quat.multiply(parents, np.stack([e[f"{tips[limb][step]}_{side}"] for limb in (0, 1)
+                                                           for side in ("l", "r")]))
+            seg.update(zip(("l_foot", "r_foot", "l_hand", "r_hand"), parents), chest=trunk, head=neck)
+        q = np.stack([seg[s] for s in self.segments], axis=1)
         if self.mounting_offsets:
             q = quat.multiply(q, self._mount[None, :, :])
         return q
 
     def _noise(self, start: int, count: int) -> np.ndarray:
-        """(count, 10, 4) noise rotations of samples start .. start + count - 1."""
+        """(count, S, 4) noise rotations of samples start .. start + count - 1 (paper10's segments
+        from one stream, the others from a second one: a segment's noise is the same in every layout)."""
+        rotvec = self._noise_rotvec(start, count, 0x4E01, len(SEGMENTS))
+        if self._limbs:
+            by_name = dict(zip(SEGMENTS + limbs.SEGMENTS, np.concatenate(
+                [rotvec, self._noise_rotvec(start, count, 0x4E02, len(limbs.SEGMENTS))], axis=1).swapaxes(0, 1)))
+            by_name["head"] = by_name["neck"]
+            rotvec = np.stack([by_name[s] for s in self.segments], axis=1)
+        return quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(count, len(self.segments), 4)
+
+    def _noise_rotvec(self, start: int, count: int, stream: int, width: int) -> np.ndarray:
+        """(count, width, 3) white noise rotation vectors, rad, of samples start .. start + count - 1."""
         first, last = start // NOISE_BLOCK, (start + count - 1) // NOISE_BLOCK
         sigma = np.radians(self.noise_deg) / np.sqrt(3.0)  # per axis, so the RMS angle is noise_deg
-        blocks = [np.random.default_rng([self.seed, 0x4E01, b]).normal(0.0, sigma, (NOISE_BLOCK, len(SEGMENTS), 3))
+        blocks = [np.random.default_rng([self.seed, stream, b]).normal(0.0, sigma, (NOISE_BLOCK, width, 3))
                   for b in range(first, last + 1)]
-        rotvec = np.concatenate(blocks)[start - first * NOISE_BLOCK :][:count]
-        return quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(
-            count, len(SEGMENTS), 4
-        )
+        return np.concatenate(blocks)[start - first * NOISE_BLOCK :][:count]
 
     def chunk(self, start: int, count: int) -> tuple[np.ndarray, np.ndarray]:
         """Samples ``start`` .. ``start + count - 1``.
@@ -452,7 +286,7 @@ class GeneratorSource:
         Returns
         -------
         t : (count,) float64 seconds (``k / fs``).
-        q : (count, 10, 4) float64 scalar-first unit quaternions, SEGMENTS order.
+        q : (count, S, 4) float64 scalar-first unit quaternions, :attr:`segments` order.
         """
         if start < 0 or count < 1:
             raise ValueError(f"chunk needs start >= 0 and count >= 1, got {start}, {count}")
@@ -463,7 +297,7 @@ class GeneratorSource:
         return t, q
 
     def sample(self, k: int) -> np.ndarray:
-        """(10, 4) orientations of sample ``k`` (same values as in :meth:`chunk`)."""
+        """(S, 4) orientations of sample ``k`` (same values as in :meth:`chunk`)."""
         return self.chunk(k, 1)[1][0]
 
     def motion(self, duration_s: float) -> Motion:
@@ -471,21 +305,37 @@ class GeneratorSource:
 
         Returns
         -------
-        Motion with t (m,) seconds and q (m, 10, 4), named ``synthetic-seed<seed>``.
+        Motion with t (m,) seconds and q (m, S, 4) of :attr:`segments`, named ``synthetic-seed<seed>``.
         """
         count = round(duration_s * self.fs)
         if count < 1:
             raise ValueError(f"duration_s must give at least one sample, got {duration_s}")
         t, q = self.chunk(0, count)
-        return Motion(t, q, SEGMENTS, f"synthetic-seed{self.seed}")
+        return Motion(t, q, self.segments, f"synthetic-seed{self.seed}")
+
+
+KNOWN_SEGMENTS: tuple[str, ...] = FULL.segment_names + ("neck",)
+"""The segments the generator moves: ``full``'s and paper10's ``neck`` (the same as ``head``)."""
+
+
+def _segments_of(layout: str | Layout) -> tuple[str, ...]:
+    """The segments of a layout (a built-in's name or a Layout); ValueError naming those the
+    generator does not move."""
+    from limbstream.body import builtin_layout
+    lay = builtin_layout(layout) if isinstance(layout, str) else layout
+    unknown = [s for s in lay.segment_names if s not in KNOWN_SEGMENTS]
+    if unknown:
+        raise ValueError(f"layout {lay.name}: the generator moves no segment {', '.join(map(repr, unknown))} "
+                         f"(it moves {', '.join(KNOWN_SEGMENTS)})")
+    return lay.segment_names
 
 
 def generate(duration_s: float = 60.0, fs: float = wire.DEVICE_RATE_HZ, seed: int = 0, activities=None,
-             noise_deg: float = 0.0, mounting_offsets: bool = False) -> Motion:
+             noise_deg: float = 0.0, mounting_offsets: bool = False, layout: str | Layout = "paper10") -> Motion:
     """Synthetic full-body motion of one subject (see :class:`GeneratorSource` for the arguments).
 
     Returns
     -------
-    Motion with t (m,) = k / fs seconds and q (m, 10, 4) global segment orientations.
+    Motion with t (m,) = k / fs seconds and q (m, S, 4) global orientations of the layout's segments.
     """
-    return GeneratorSource(seed, fs, activities, noise_deg, mounting_offsets).motion(duration_s)
+    return GeneratorSource(seed, fs, activities, noise_deg, mounting_offsets, layout).motion(duration_s)

@@ -28,7 +28,7 @@ from .angles import (ANGLE_BASES, ANGLE_FLAGS, ANGLE_GIMBAL, ANGLE_MISSING, ANGL
                      ANGLES_VERSION, BASIS, AngleBasis, AngleFrames, JointAngles, decode_angles, decode_angles_many,
                      encode_angles)
 from .body import (BONES, DEFAULT_REST_POSE, JOINT_ANGLES, JOINT_TABLE, JOINTS, ORIENTATIONS, REST_POSES, SEGMENTS, Joint,
-                   check_rest_pose, decode_body, encode_body)
+                   builtin_segments, check_rest_pose, decode_body, encode_body)
 from .config import (DEVICE_RATE_HZ, LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
                      DeviceStatus, FusionStatus, FUSION_MODES, LinkStatus, Tunable, decode_config, decode_status,
                      encode_config, encode_status)

@@ -27,6 +27,13 @@ BONES: tuple[tuple[str, str], ...] = (
 )
 """Lines a client draws between joints."""
 
+def builtin_segments() -> tuple[str, ...]:
+    """Every segment name of the built-in layouts (``paper10``'s in its order, then ``full``'s
+    others): what a segment named before its subject's layout is known may be."""
+    from limbstream.body import LAYOUTS  # (the body package is built on this module)
+    return tuple(dict.fromkeys(name for layout in LAYOUTS.values() for name in layout.segment_names))
+
+
 REST_POSES: tuple[str, ...] = ("standing", "tpose")
 """What identity segment orientations mean, the body's **rest pose**: ``standing`` (arms hanging
 along -Y: the built-in generator, IMU recordings, BVH files whose zero pose hangs the arms) or

@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
-from .body import SEGMENTS
+from .body import builtin_segments
 from .errors import WireError
 from .keys import check_chunk
 
@@ -45,8 +45,9 @@ def decode_assignment(payload: bytes) -> Assignment:
         raise WireError("assign", f"tracker must be the tracker's name (its MAC or ip:port), got {tracker!r}")
     if isinstance(sensor, bool) or not isinstance(sensor, int) or not 0 <= sensor <= 255:
         raise WireError("assign", f"sensor must be an integer in 0..255, got {sensor!r}")
-    if segment is not None and segment not in SEGMENTS:
-        raise WireError("assign", f"segment must be one of {', '.join(SEGMENTS)} or null (unassign), got {segment!r}")
+    if segment is not None and segment not in builtin_segments():
+        raise WireError("assign", f"segment must be one of {', '.join(builtin_segments())} or null (unassign), "
+                                  f"got {segment!r}")
     if subject is not None:
         try:
             check_chunk(subject, "subject")

@@ -51,7 +51,7 @@ import numpy as np
 import zenoh
 
 from limbstream import quat, wire
-from limbstream.body import Body
+from limbstream.body import PAPER10, Body, Layout
 from limbstream.device.bank import DeviceBank
 from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
 from limbstream.device.host import Device, DeviceHost, HostSettings
@@ -120,6 +120,8 @@ class GatewaySettings:
         rewritten after each change; None: they last while the gateway runs.
     body : the wearer's dimensions every device announces (``gateway slimevr --height-m``,
         ``--body``); None: none (the default adult).
+    layout : the body layout whose segments sensors feed by their body position
+        (:func:`~.slimevr_protocol.position_segment`); None: the body's, else ``paper10``.
     """
 
     subject: str
@@ -132,6 +134,13 @@ class GatewaySettings:
     clock: ClockSettings = field(default_factory=ClockSettings)
     assignments_file: str | None = None
     body: Body | None = None
+    layout: Layout | None = None
+
+    @property
+    def segments(self) -> tuple[str, ...]:
+        """The segments sensors feed by body position: their layout's (see ``layout``)."""
+        layout = self.layout or (self.body.layout if self.body is not None else PAPER10)
+        return layout.segment_names
 
 
 class SlimeVRGateway:

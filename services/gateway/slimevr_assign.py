@@ -3,7 +3,8 @@ moves one at run time (docs/protocol.md, "SlimeVR gateway").
 
 A sensor's device comes from a run-time assignment (kept in the assignments file, if any:
 :mod:`.assignments`), else from ``--assign`` (MAC[/SENSOR]=[SUBJECT/]SEGMENT), else from the body
-position it reports in its sensor info (:data:`~.slimevr_protocol.POSITION_SEGMENTS`). A sensor
+position it reports in its sensor info (:data:`~.slimevr_protocol.POSITION_SEGMENTS`, the first segment of
+its subject's layout that may carry it). A sensor
 with none of these, or whose device another sensor feeds, is listed with the reason, not published.
 """
 from __future__ import annotations
@@ -80,10 +81,11 @@ class Assignments:
         else:
             a = self.settings.assign
             target = a.get(key) or a.get((sensor.tracker.name, None))
-            if target is None and sensor.position in proto.POSITION_SEGMENTS:
-                target = (self.settings.subject, proto.POSITION_SEGMENTS[sensor.position])
+            segment = proto.position_segment(sensor.position, self.settings.segments)
+            if target is None and segment is not None:
+                target = (self.settings.subject, segment)
         if target is None:
-            sensor.why = (f"body position {sensor.position} has no segment" if sensor.position
+            sensor.why = (f"body position {sensor.position} has no segment in the layout" if sensor.position
                           else "no body position and no --assign")
             return
         refused = self._feed(sensor, *target)

@@ -270,10 +270,22 @@ def feature_flags() -> bytes:
 
 # ---------------------------------------------------------------- body positions
 
-POSITION_SEGMENTS: dict[int, str] = {
-    2: "neck", 6: "hip",
-    7: "l_thigh", 8: "r_thigh", 9: "l_shank", 10: "r_shank",
-    13: "l_lowerarm", 14: "r_lowerarm", 15: "l_upperarm", 16: "r_upperarm",
+POSITION_SEGMENTS: dict[int, tuple[str, ...]] = {
+    1: ("head",), 2: ("neck", "head"), 3: ("chest",), 4: ("chest",), 5: ("hip",), 6: ("hip",),
+    7: ("l_thigh",), 8: ("r_thigh",), 9: ("l_shank",), 10: ("r_shank",), 11: ("l_foot",), 12: ("r_foot",),
+    13: ("l_lowerarm",), 14: ("r_lowerarm",), 15: ("l_upperarm",), 16: ("r_upperarm",),
+    17: ("l_hand",), 18: ("r_hand",), 19: ("l_shoulder",), 20: ("r_shoulder",),
 }
-"""SlimeVR body position ids (TrackerPosition) -> limbstream segments; other positions (head,
-chest, feet, hands, fingers ...) have none: such a sensor needs ``--assign``."""
+"""SlimeVR body position ids (TrackerPosition: 1 head, 2 neck, 3 upper chest, 4 chest, 5 waist,
+6 hip, 7-10 upper and lower legs, 11-12 feet, 13-14 lower arms, 15-16 upper arms, 17-18 hands,
+19-20 shoulders) -> the segments that may carry it, first choice first: a sensor feeds the first
+one its subject's layout has (:func:`position_segment`). The neck is ``paper10``'s head-and-neck
+segment and the ``full`` layout's head; chest and upper chest both feed the chest, as the waist
+and the hip feed the pelvis (the first such sensor placed takes it: a second is listed as taken);
+the shoulders have a segment only in a layout file that names one. Finger positions have none."""
+
+
+def position_segment(position: int | None, segments: tuple[str, ...]) -> str | None:
+    """The segment a sensor at SlimeVR body position ``position`` feeds among ``segments`` (its
+    subject's layout's), or None."""
+    return next((s for s in POSITION_SEGMENTS.get(position or 0, ()) if s in segments), None)

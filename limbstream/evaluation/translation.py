@@ -1,0 +1,80 @@
+"""Translation figures: how far the estimated root wanders from the true one, how high it floats,
+and how much the estimated feet skate where the true ones stand (docs/evaluation.md, "Root
+translation").
+
+Both paths are first aligned once, on the first :data:`ALIGN_S` seconds: the estimate's world is
+turned about the vertical by the heading the caller measured (``heading_rad``, e.g. the pelvis'
+mean heading difference over that window) and shifted horizontally by the mean offset there. The
+floor of each is its own: height 0 for the estimate (the tracker's floor), the true feet's lowest
+point for the truth.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+ALIGN_S = 0.5
+"""The start window the estimate is aligned to the truth on, s."""
+PLANTED_M = 0.02
+"""A true foot point is planted within this of the frame's lowest true foot point, m, ..."""
+PLANTED_MPS = 0.1
+"""... while its height changes slower than this, m/s."""
+
+
+@dataclass(frozen=True)
+class TranslationFigures:
+    """One motion's figures: ``path_m`` the true root's horizontal path (m, over 0.1 s steps);
+    ``end_cm`` the horizontal root error at the end (cm) and ``end_pct`` it as a percentage of the
+    path; ``height_cm`` the mean absolute root height error (cm); ``below_cm`` how far an estimated
+    foot point went below the floor at most (cm, 0 if never); ``skate_cmps`` the estimated foot
+    points' mean horizontal speed while the true ones are planted and ``true_skate_cmps`` the
+    truth's own over the same frames (cm/s)."""
+
+    path_m: float
+    end_cm: float
+    end_pct: float
+    height_cm: float
+    below_cm: float
+    skate_cmps: float
+    true_skate_cmps: float
+
+
+def _yaw(rad: float) -> np.ndarray:
+    c, s = np.cos(rad), np.sin(rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def translation_figures(t: np.ndarray, root: np.ndarray, feet: np.ndarray, true_root: np.ndarray,
+                        true_feet: np.ndarray, heading_rad: float = 0.0) -> TranslationFigures:
+    """The figures of one motion: times ``t`` (m,) s; the estimated root (m, 3) and foot points
+    (m, C, 3), metres, its world (floor at 0, Y up); the true ones likewise in the truth's world
+    (``true_feet``: the same C points). ``heading_rad``: the turn about +Y taking the estimate's
+    world to the truth's."""
+    turn = _yaw(heading_rad)
+    root = root @ turn.T
+    feet = feet @ turn.T
+    start = t - t[0] < ALIGN_S
+    offset = (true_root[start] - root[start]).mean(axis=0)
+    offset[1] = 0.0
+    root, feet = root + offset, feet + offset
+    floor = float(np.nanmin(true_feet[:, :, 1]))
+    true_root = true_root - [0.0, floor, 0.0]
+    true_feet = true_feet - [0.0, floor, 0.0]
+    step = max(1, round(0.1 / float(np.median(np.diff(t)))))
+    every = np.unique(np.r_[np.arange(0, len(t), step), len(t) - 1])
+    path = float(np.linalg.norm(np.diff(true_root[every][:, [0, 2]], axis=0), axis=1).sum())
+    end = float(np.linalg.norm(root[-1, [0, 2]] - true_root[-1, [0, 2]]))
+    dt = np.diff(t)[:, None]
+    lowest = true_feet[:, :, 1].min(axis=1, keepdims=True)
+    rising = np.abs(np.diff(true_feet[:, :, 1], axis=0)) / dt
+    planted = ((true_feet[1:, :, 1] - lowest[1:]) < PLANTED_M) & (rising < PLANTED_MPS)
+    speed = np.linalg.norm(np.diff(feet[:, :, [0, 2]], axis=0), axis=2) / dt
+    true_speed = np.linalg.norm(np.diff(true_feet[:, :, [0, 2]], axis=0), axis=2) / dt
+    some = planted.any()
+    return TranslationFigures(
+        path_m=path, end_cm=100 * end, end_pct=100 * end / path if path > 0 else float("nan"),
+        height_cm=100 * float(np.abs(root[:, 1] - true_root[:, 1]).mean()),
+        below_cm=100 * max(0.0, -float(np.nanmin(feet[:, :, 1]))),
+        skate_cmps=100 * float(speed[planted].mean()) if some else float("nan"),
+        true_skate_cmps=100 * float(true_speed[planted].mean()) if some else float("nan"))

@@ -1,0 +1,78 @@
+"""Root translation of every subject's frames (docs/body.md, "Root translation").
+
+Each subject's exact frames, oldest first, move its root tracker (:class:`RootTracker`, one per
+layout's set of foot points, a row per subject); a live frame gets the root the tracker gives it
+from the newest exact frame's state without moving it, so live and exact frames share one path
+and a live frame's guess never steers the final one. A subject that starts over (its devices'
+streams all restarted, a calibration) starts over at the origin (:meth:`Rooting.reset`).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from limbstream.body import Body, Layout
+from limbstream.body.translation import RootTracker, foot_points, heel_drops
+
+
+class Rooting:
+    """Root positions (F, 3) m and contact bits (F,) of frames, per subject row."""
+
+    def __init__(self) -> None:
+        self.trackers: dict[tuple[str, ...], RootTracker] = {}
+        self.drops: dict[tuple[Layout, int], tuple[Body, np.ndarray]] = {}  # (layout, id(body)) -> (body, its heel drops)
+
+    def _drops(self, layout: Layout, body: Body) -> np.ndarray:
+        key = (layout, id(body))
+        found = self.drops.get(key)
+        if found is None or found[0] is not body:
+            found = self.drops[key] = (body, heel_drops(layout, body))
+        return found[1]
+
+    def _tracker(self, names: tuple[str, ...], rows: int) -> RootTracker:
+        tracker = self.trackers.get(names)
+        if tracker is None:
+            tracker = self.trackers[names] = RootTracker(0, names)
+        tracker.grow(rows)
+        return tracker
+
+    def reset(self, subject: int) -> None:
+        """Subject row ``subject`` starts over at the origin at its next frame."""
+        for tracker in self.trackers.values():
+            if subject < len(tracker.t):
+                tracker.reset(np.array([subject]))
+
+    def place(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, joints: np.ndarray, layout: Layout,
+              bodies: Sequence[Body], commit: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The roots and contacts of frames of one layout: subject rows ``owner`` (F,) (each
+        subject's frames oldest first), times ``t_us`` (F,) µs, orientations ``q`` (F, S, 4),
+        root-relative joints ``joints`` (F, J, 3) m; ``bodies[row]`` each subject's body.
+        ``commit``: the frames are final (exact) and move the trackers; else (live frames, one per
+        subject) they only read them."""
+        root, contacts = np.zeros((len(owner), 3)), np.zeros(len(owner), np.int64)
+        if not len(owner):
+            return root, contacts
+        rows = np.unique(owner)
+        drops = np.zeros((int(rows.max()) + 1, 2))
+        for row in rows:
+            drops[row] = self._drops(layout, bodies[row])
+        names, points = foot_points(layout, drops[owner], q, joints)
+        tracker = self._tracker(names, int(owner.max()) + 1)
+        rank = _rank(owner)
+        t = t_us / 1e6
+        for r in range(int(rank.max()) + 1):
+            at = np.flatnonzero(rank == r)
+            root[at], contacts[at] = tracker.step(owner[at], t[at], points[at], commit=commit)
+        return root, contacts
+
+
+def _rank(owner: np.ndarray) -> np.ndarray:
+    """(F,) each frame's place among its subject's frames, in the order given (0 for the first)."""
+    order = np.argsort(owner, kind="stable")
+    sorted_owner = owner[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(sorted_owner)) + 1]
+    counts = np.diff(np.r_[starts, len(owner)])
+    rank = np.empty(len(owner), np.int64)
+    rank[order] = np.arange(len(owner)) - np.repeat(starts, counts)
+    return rank

@@ -1,0 +1,125 @@
+"""Root translation from foot contacts (limbstream.body.translation): a body that stands still does
+not drift, a gait whose planted foot is still in the world moves the root by its steps, a jump
+flies and lands on the floor, and frames ahead of the final ones leave the state alone."""
+from __future__ import annotations
+
+import numpy as np
+
+from limbstream.body.translation import GRAVITY, RootTracker
+from limbstream.wire import CONTACTS
+
+NAMES = ("l_heel", "l_toe", "r_heel", "r_toe")
+FS = 50.0
+
+
+def standing(n: int, rng: np.random.Generator, noise_m: float) -> np.ndarray:
+    """(n, 4, 3) foot points of a body standing with its pelvis 0.95 m up, each point jittering."""
+    base = np.array([[0.1, -0.95, -0.05], [0.1, -0.95, 0.15], [-0.1, -0.95, -0.05], [-0.1, -0.95, 0.15]])
+    return base + rng.normal(0.0, noise_m, (n, 4, 3))
+
+
+def test_a_body_standing_still_for_ten_minutes_stays_where_it_stood():
+    rng = np.random.default_rng(1)
+    n = int(600 * FS)
+    tracker = RootTracker(1, NAMES)
+    root, bits = tracker.track(np.arange(n) / FS, standing(n, rng, 0.001))
+    drift = np.linalg.norm(root[:, [0, 2]] - root[0, [0, 2]], axis=1)
+    assert drift.max() < 0.05, drift.max()
+    assert abs(root[:, 1].mean() - 0.95) < 0.01 and (bits != 0).all()
+
+
+def gait(n: int, step_m: float = 0.6, step_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """A walk straight ahead (+Z) at step_m per step_s: each foot planted in turn, the root moving
+    at constant speed; foot points root-relative, and the true root path."""
+    t = np.arange(n) / FS
+    speed = step_m / step_s
+    root = np.stack([np.zeros(n), np.full(n, 0.95), speed * t], axis=1)
+    points = np.zeros((n, 4, 3))
+    for side, (x, phase) in enumerate(((0.1, 0.0), (-0.1, 1.0))):
+        # a foot is down for one step, then swings two step lengths forward in the next
+        cycle = (t / step_s + phase) % 2.0
+        k = np.floor((t / step_s + phase) / 2.0)
+        down_z = (2 * k + 1 - phase) * step_m  # where it is put down this cycle
+        swing = np.clip(cycle - 1.0, 0.0, 1.0)
+        z = np.where(cycle < 1.0, down_z, down_z + 2 * step_m * swing)
+        lift = np.where(cycle < 1.0, 0.0, 0.08 * np.sin(np.pi * swing))
+        for c, dz in ((0, -0.05), (1, 0.15)):
+            points[:, 2 * side + c] = np.stack([np.full(n, x), lift, z + dz], axis=1) - root
+    return points, root
+
+
+def test_a_walk_moves_the_root_by_its_steps():
+    points, truth = gait(int(20 * FS))
+    root, bits = RootTracker(1, NAMES).track(np.arange(len(points)) / FS, points)
+    err = np.linalg.norm((root - root[0])[:, [0, 2]] - (truth - truth[0])[:, [0, 2]], axis=1)
+    path = np.linalg.norm(truth[-1] - truth[0])
+    assert err[-1] < 0.01 * path, (err[-1], path)
+    assert np.abs(root[:, 1] - 0.95).max() < 1e-6
+    left = bits & (1 << CONTACTS.index("l_heel")) != 0
+    assert 0.3 < left.mean() < 0.7  # each foot down about half the time
+
+
+def test_a_jump_flies_under_gravity_and_lands_on_the_floor():
+    n = int(3 * FS)
+    t = np.arange(n) / FS
+    points = standing(n, np.random.default_rng(2), 0.0)
+    # a crouch and push-off: the legs extend (the pelvis rises relative to the feet) at 1.5 m/s,
+    # then tuck during the flight, then stand
+    up = (t >= 1.0) & (t < 1.1)
+    extend = np.where(up, 1.5 * (t - 1.0), np.where(t >= 1.1, 0.15, 0.0))
+    tuck = np.where((t >= 1.1) & (t < 1.4), 0.1, 0.0)
+    points[:, :, 1] = -0.8 - extend[:, None] + tuck[:, None]
+    tracker = RootTracker(1, NAMES)
+    root, bits = tracker.track(t, points)
+    flying = bits == 0
+    assert flying[(t > 1.15) & (t < 1.3)].all() and not flying[t < 1.0].any() and not flying[t > 2.0].any()
+    assert root[:, 1].max() > 0.95 + 0.03  # it rose above the extended legs' height
+    air = np.flatnonzero(flying)
+    fall = np.diff(root[air, 1], 2) * FS ** 2
+    assert np.allclose(fall, -GRAVITY, atol=1e-6)  # under gravity alone
+    feet = root[:, 1:2] + points[:, :, 1]
+    assert feet.min() > -0.02  # never through the floor by more than 2 cm
+    assert abs(root[-1, 1] - 0.95) < 1e-6  # landed and standing again
+
+
+def test_a_frame_ahead_of_the_final_ones_does_not_move_the_state():
+    rng = np.random.default_rng(3)
+    points = standing(10, rng, 0.0)
+    tracker = RootTracker(1, NAMES)
+    tracker.track(np.arange(5) / FS, points[:5])
+    before = tracker.root.copy(), tracker.anchor.copy(), tracker.t.copy()
+    ahead = points[5:6].copy()
+    ahead[:, :, 2] -= 0.02  # the planted feet slid back: the root moved forward
+    root, _ = tracker.step(np.array([0]), np.array([5 / FS]), ahead, commit=False)
+    assert root[0, 2] > before[0][0, 2] + 0.015
+    assert np.array_equal(tracker.root, before[0]) and np.array_equal(tracker.anchor, before[1])
+    assert np.array_equal(tracker.t, before[2])
+
+
+def test_translation_figures_align_the_start_once_and_measure_the_rest():
+    """A true walk and an estimate of it in a world turned by 30 degrees and shifted: aligned on
+    the first 0.5 s, a perfect estimate scores 0; one whose root falls 10 cm behind by the end and
+    floats 2 cm high scores exactly that; feet through the floor and skating show."""
+    from limbstream.evaluation.translation import translation_figures
+
+    points, truth = gait(int(10 * FS))
+    t = np.arange(len(truth)) / FS
+    feet = truth[:, None] + points
+    heading = np.radians(30.0)
+    c, s = np.cos(heading), np.sin(heading)
+    to_estimate = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # the inverse of the alignment's turn
+    shift = np.array([2.0, 0.0, -1.0])
+    est_root, est_feet = truth @ to_estimate.T + shift, feet @ to_estimate.T + shift
+    f = translation_figures(t, est_root, est_feet, truth, feet, heading)
+    assert f.end_cm < 1e-9 and f.height_cm < 1e-9 and f.below_cm == 0.0
+    assert abs(f.path_m - (truth[-1, 2] - truth[0, 2])) < 1e-9
+    assert f.skate_cmps < 1e-9 and f.true_skate_cmps < 1e-9
+
+    lag = np.clip(t - 0.5, 0.0, None)[:, None] * [0.0, 0.0, -0.1 / (t[-1] - 0.5)]
+    lagged = est_root + lag @ to_estimate.T + [0.0, 0.02, 0.0]
+    sunk = est_feet + (lag @ to_estimate.T)[:, None] - [0.0, 0.03, 0.0]
+    f = translation_figures(t, lagged, sunk, truth, feet, heading)
+    assert abs(f.end_cm - 10.0) < 1e-6 and abs(f.end_pct - 10.0 / f.path_m) < 1e-6
+    assert abs(f.height_cm - 2.0) < 1e-6 and abs(f.below_cm - 3.0) < 1e-6
+    sliding = 100 * 0.1 / (t[-1] - 0.5)  # cm/s: the lag slides the planted feet too, after the first 0.5 s
+    assert 0.9 * sliding < f.skate_cmps <= sliding + 1e-9 and f.true_skate_cmps < 1e-9
