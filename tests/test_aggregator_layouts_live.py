@@ -116,3 +116,40 @@ def test_a_full_subject_streams_512_byte_frames_beside_a_paper10_subject_and_dev
             if part is not None:
                 part.close()
         session.close()
+
+
+def test_an_emulated_full_subject_streams_its_15_segments_drawn_with_the_body_it_announces(stack):  # noqa: F811
+    """The generator's full body (``emulate --layout full``): its devices announce full's default
+    body, and its frames are full's, drawn with it."""
+    stack.router()
+    stack.aggregator()
+    wait_for_subscribers(stack.endpoint, [wire.seg_key("s01", "hip")], "the aggregator", on_fail=stack.logs)
+    stack.emulator(1, 1.0, "--layout", "full")
+    session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
+    sub = session.declare_subscriber(wire.pose_key("s01"), zenoh.handlers.FifoChannel(1 << 14))
+    watch = StatsWatch(stack.endpoint)
+    frames: dict[int, list[bytes]] = {}
+    try:
+        def complete() -> bool:
+            while (sample := sub.try_recv()) is not None:
+                payload = sample.payload.to_bytes()
+                frame = wire.decode_pose(payload)
+                if not frame.flags & wire.FRAME_MISSING:
+                    frames.setdefault(frame.kind, []).append(payload)
+            return all(len(frames.get(k, ())) >= 20 for k in (wire.KIND_EXACT, wire.KIND_LIVE))
+        wait_until(complete, 40, "complete frames of s01, both kinds", on_fail=stack.logs)
+        body = Body.default(FULL)
+        for kind in (wire.KIND_EXACT, wire.KIND_LIVE):
+            assert {len(p) for p in frames[kind]} == {512}
+            for payload in frames[kind]:
+                f = wire.decode_pose(payload)
+                assert f.layout == FULL and np.abs(f.joints - body.positions(f.q.astype(np.float64))).max() < 1e-5
+        wait_until(lambda: watch.poll() and watch.subjects.get("s01", {}).get("layout") == "full", 20,
+                   "s01's layout in its stats", on_fail=stack.logs)
+        devices = watch.poll()
+        assert {d.split("/")[1] for d in devices if d.startswith("s01/")} == set(FULL.segment_names)
+        assert not any(set(d["dropped_by_reason"] or ()) & {"segment_not_in_layout", "status_layout", "status_body"}
+                       for d in devices.values())
+    finally:
+        watch.close()
+        session.close()
