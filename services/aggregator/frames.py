@@ -170,7 +170,7 @@ class FrameBuilder:
             sub = subjects[i]
             if sub.waiting_since is None:
                 sub.waiting_since = clock
-            tracks = list(sub.tracks.values())
+            tracks = [t for t in sub.tracks.values() if table.placed[t.slot]]  # (those its layout has)
             if all(table.settled[t.slot] for t in tracks) or clock - sub.waiting_since >= FIRST_FRAME_WAIT_S:
                 ready = [t for t in tracks if table.settled[t.slot]] or tracks
                 first = max(store.first_t(t.slot) or 0 for t in ready)

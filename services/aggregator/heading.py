@@ -9,8 +9,8 @@ frame and no joint can be formed with it. Its correction starts again from none 
 calibration changes or its stream restarts (a restarted filter's heading is anywhere), and is
 learnt afresh: never applied stale.
 
-What is learnt: each subject's exact frames, as they are built, go to the estimator (one per rest
-pose, a row per subject; its subjects' steps spread over the ticks) with the correction taken off
+What is learnt: each subject's exact frames, as they are built, go to the estimator (one per body
+layout and rest pose, over the layout's joints, :func:`.layouts.joints_of`; a row per subject; its subjects' steps spread over the ticks) with the correction taken off
 again. Each device's correction is then a line in device time, ``c(t) = offset + rate * (t -
 t_ref)``, as the estimator's last step left it (:meth:`HeadingCorrection.lines`).
 
