@@ -29,7 +29,7 @@ from limbstream.device.host import HostSettings
 from limbstream.device_emulator.main import subject_names
 from limbstream import wire, zconfig
 from limbstream.launch import Child, Launcher, free_port, stop_all, wait_until
-from limbstream.sources import SEGMENTS
+from limbstream.body import Body, builtin_layout
 from limbstream.services.aggregator.aggregator import STATS_BATCHES, Aggregator, AggregatorSettings
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -192,20 +192,27 @@ def bench_aggregator(subject_counts: list[int], seconds: float, record: bool = F
               f"{dropped} |{missed}")
 
 
-def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list, int]:
-    """Segment points and truth batches of ``subjects`` generator subjects, as the devices would
-    publish them: (sample tick when published, kind 0 point / 1 raw, key, payload), in order."""
+def subject_layouts(subjects: int, layout: str) -> list[str]:
+    """Each bench subject's body layout: ``paper10``, ``full``, or ``mixed`` (every other one ``full``)."""
+    return ["full" if layout == "full" or (layout == "mixed" and s % 2) else "paper10" for s in range(subjects)]
+
+
+def replay_events(subjects: int, seconds: float, fs: float = 50.0, layout: str = "paper10") -> tuple[list, int]:
+    """Segment points and truth batches of ``subjects`` generator subjects (of ``layout``:
+    :func:`subject_layouts`), as the devices would publish them: (sample tick when published, kind
+    0 point / 1 raw, key, payload), in order."""
     from limbstream import kernel
     from limbstream.sources.generator import GeneratorSource
 
     m = int(seconds * fs)
     start_us = 1_800_000_000_000_000
     events = []
-    for s in range(subjects):
-        q = GeneratorSource(s + 1, fs).chunk(0, m)[1].astype(np.float32)
+    for s, lay in enumerate(subject_layouts(subjects, layout)):
+        source = GeneratorSource(s + 1, fs, layout=lay)
+        q = source.chunk(0, m)[1].astype(np.float32)
         t = np.arange(m) / fs
         name = f"s{s + 1:03d}"
-        for j, seg in enumerate(SEGMENTS):
+        for j, seg in enumerate(source.segments):
             r = kernel.segment(t, q[:, j], 1e-2, 25)
             for n, idx in enumerate(r.index):
                 p = wire.SegmentPoint(s, n, int(idx), start_us + int(idx) * 20000, tuple(map(float, q[idx, j])))
@@ -218,29 +225,35 @@ def replay_events(subjects: int, seconds: float, fs: float = 50.0) -> tuple[list
 
 
 def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: float = 50.0,
-                          joint_angles: bool = True, heading: bool = False) -> None:
+                          joint_angles: bool = True, heading: bool = False, layout: str = "paper10") -> None:
     """The aggregator's own work without Zenoh: replayed messages taken in tick by tick as a drain
     takes them, frames built and encoded (live frames at ``live_rate`` Hz, a divisor of 50), their
     joint angles (``joint_angles``; the devices say they send their segments' own orientations, as
     the generator's do), stats of every subject once a second, spread over the ticks as the loop
     does; CPU per second of stream = load at real time. With ``heading``, every device is corrected
-    by the joints from the start, as a calibrated 6D sensor is (services/aggregator/heading.py)."""
+    by the joints from the start, as a calibrated 6D sensor is (services/aggregator/heading.py).
+    ``layout``: the subjects' body layouts (:func:`subject_layouts`; a ``full`` subject's devices
+    announce its default body)."""
     every = max(1, round(50.0 / live_rate))
     angles = "joint angles of the live frames" if joint_angles else "no joint angles"
     print(f"\n### Aggregator core, replayed messages ({seconds:g} s of stream, 50 Hz, truth tap on, "
-          f"live frames at {50.0 / every:g} Hz, {angles}, heading correction {'on' if heading else 'off'}; "
+          f"live frames at {50.0 / every:g} Hz, {angles}, heading correction {'on' if heading else 'off'}, "
+          f"layout {layout}; "
           "frames, angles and stats encoded, not sent)\n")
     print("| subjects | devices | points/s | truth samples/s | frames/s | CPU per second of stream | "
           "subjects at 100 % of one core |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for subjects in subject_counts:
-        events, m = replay_events(subjects, seconds)
+        events, m = replay_events(subjects, seconds, layout=layout)
         agg = Aggregator(None, AggregatorSettings(live_rate=50.0 / every, joint_angles=joint_angles))
         agg._publish = agg._publish_stats = lambda subject, payload: None
-        for name in (f"s{s + 1:03d}" for s in range(subjects)):
-            for seg in SEGMENTS:
+        for s, lay in enumerate(subject_layouts(subjects, layout)):
+            name = f"s{s + 1:03d}"
+            for seg in builtin_layout(lay).segment_names:
                 agg.fusion.set_online(agg.track(name, seg), True)
                 agg.track(name, seg).orientations = "segments"  # as the generator's devices say in their status
+                if lay != "paper10":  # its devices announce its body (paper10's announce none)
+                    agg.fusion.set_body(agg.track(name, seg), Body.default(builtin_layout(lay)))
         i = n_points = 0
         cpu0 = cpu_now()
         for k in range(m):
@@ -260,7 +273,8 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
             if k % (50 // STATS_BATCHES) == 0:  # one round a second, in batches as the loop sends it
                 agg.publish_stats(now, k // (50 // STATS_BATCHES) % STATS_BATCHES, STATS_BATCHES)
         load = (cpu_now() - cpu0) / seconds
-        print(f"| {subjects} | {10 * subjects} | {n_points / seconds:.0f} | {500 * subjects:.0f} | "
+        devices = len(agg.fusion.tracks)
+        print(f"| {subjects} | {devices} | {n_points / seconds:.0f} | {50 * devices:.0f} | "
               f"{agg.loop.frames / seconds:.0f} | {100 * load:.1f} % | {subjects / load:.0f} |")
 
 
@@ -372,6 +386,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="core rows: the aggregator without its joint-angle stage (to compare)")
     parser.add_argument("--heading-correction", choices=("off", "joints"), default="off",
                         help="core rows: every device's heading corrected by the joints (default off)")
+    parser.add_argument("--layout", choices=("paper10", "full", "mixed"), default="paper10",
+                        help="core rows: the subjects' body layouts (mixed: every other one full)")
     parser.add_argument("--raw-sensors", action="store_true",
                         help="live-latency: the devices read make run's sensors (raw ICM-42688-P, strapped on "
                              "at up to 90 deg, fused on the device), as make run starts them")
@@ -386,7 +402,7 @@ def main(argv: list[str] | None = None) -> int:
                          args.live_rate if args.record else 0.0)
     if args.what in ("core", "all"):
         bench_aggregator_core([int(n) for n in args.subjects.split(",")], args.seconds, args.live_rate,
-                              args.joint_angles, args.heading_correction == "joints")
+                              args.joint_angles, args.heading_correction == "joints", args.layout)
     if args.what in ("latency", "all"):
         for max_len in (25, 1000):
             bench_latency(args.seconds, 2, max_len)

@@ -284,9 +284,12 @@ class FrameBuilder:
         ``owner`` (F,): each subject's by its body (where it has none: paper10's by the skeleton,
         another layout's by its default body), in its rest pose."""
         tpose = self.rest_flag[owner] != 0
-        sized = [i for i in np.unique(owner).tolist() if self.bodies[i] is not None]
+        by_body: dict[int, tuple[Body, list[int]]] = {}  # the subjects drawn with each body (shared: equal bodies are one)
+        for i in np.unique(owner).tolist():
+            if (body := self.bodies[i]) is not None:
+                by_body.setdefault(id(body), (body, []))[1].append(i)
         if layout == PAPER10:
-            if not sized:
+            if not by_body:
                 return self.skeleton.positions(q, tpose)
             fallback = self.skeleton.positions
         else:
@@ -295,11 +298,12 @@ class FrameBuilder:
                 default = self._defaults[layout] = Body.default(layout)
             fallback = default.positions
         joints = np.empty((len(owner), len(layout.joints), 3), np.float32)
-        own = np.isin(owner, sized)
+        own = np.zeros(len(owner), bool)
+        for body, subjects in by_body.values():
+            rows = np.isin(owner, subjects)
+            joints[rows] = body.positions(q[rows], tpose[rows])
+            own |= rows
         joints[~own] = fallback(q[~own], tpose[~own])
-        for i in sized:
-            rows = owner == i
-            joints[rows] = self.bodies[i].positions(q[rows], tpose[rows])  # type: ignore[union-attr]
         return joints
 
     def build(self, store: PointStore, table: DeviceTable, exact: tuple[np.ndarray, ...],

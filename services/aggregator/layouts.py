@@ -103,6 +103,7 @@ class SubjectLayouts:
 
     def __init__(self, table: DeviceTable, frames: FrameBuilder, heading: HeadingStage, scoring: Scoring):
         self.table, self.frames, self.heading, self.scoring = table, frames, heading, scoring
+        self._bodies: dict[tuple, Body] = {}  # every body announced, once per value: subjects of one body share it
 
     def set_layout(self, sub: Subject, layout: Layout) -> None:
         """The subject's frames are of ``layout`` from now on: its devices on its segments placed,
@@ -137,7 +138,8 @@ class SubjectLayouts:
             sub.announced = True
             self.set_layout(sub, body.layout)
         if not same_body(sub.body, body):  # (each device says it again every poll: the chain is built once per body)
-            sub.body = self.frames.bodies[sub.index] = body
+            key = (body.layout.name, body.height_m, *(body.vectors[pose].tobytes() for pose in sorted(body.vectors)))
+            sub.body = self.frames.bodies[sub.index] = self._bodies.setdefault(key, body)
 
     @staticmethod
     def fields(sub: Subject) -> dict:
