@@ -22,6 +22,12 @@ from test_aggregator_layouts import pose_of
 pytestmark = pytest.mark.e2e
 
 
+def drawn_with(payload: bytes, body: Body) -> bool:
+    """The pose frame's joints are ``body``'s at its orientations (float32)."""
+    f = wire.decode_pose(payload)
+    return bool(np.abs(f.joints - body.positions(f.q.astype(np.float64))).max() < 1e-5)
+
+
 class FakeDevices:
     """Devices of one subject in the test's own session: each a liveliness token, a status
     (announcing its body) and segment points of its segment's constant orientation at 50 Hz."""
@@ -30,8 +36,8 @@ class FakeDevices:
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
         self.subject, self.bodies, self.stop, self.sent = subject, bodies, threading.Event(), 0
         self.pubs = {s: self.session.declare_publisher(wire.seg_key(subject, s)) for s in bodies}
-        self.tokens = [self.session.liveliness().declare_token(wire.alive_key(subject, s)) for s in bodies]
         self.queryables = [self.session.declare_queryable(wire.config_key(subject, s), self._answerer(s)) for s in bodies]
+        self.tokens = [self.session.liveliness().declare_token(wire.alive_key(subject, s)) for s in bodies]
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
@@ -79,18 +85,24 @@ def test_a_full_subject_streams_512_byte_frames_beside_a_paper10_subject_and_dev
                 while (sample := sub.try_recv()) is not None:
                     payload = sample.payload.to_bytes()
                     frame = wire.decode_pose(payload)
-                    if not frame.flags & wire.FRAME_MISSING:
+                    # complete: every segment has data (a live frame does not flag a device online
+                    # without a point yet; no constant pose here is the identity)
+                    if not frame.flags & wire.FRAME_MISSING and (frame.q[:, 0] < 1).all():
                         frames.setdefault((str(sample.key_expr).split("/")[1], frame.kind), []).append(payload)
-            return all(len(frames.get((s, k), ())) >= 20 for s in ("f01", "s01") for k in (wire.KIND_EXACT, wire.KIND_LIVE))
+            return all(len(frames.get((s, k), ())) >= 20 for s in ("f01", "s01") for k in (wire.KIND_EXACT, wire.KIND_LIVE)) \
+                and all(drawn_with(frames["f01", k][-1], tall) for k in (wire.KIND_EXACT, wire.KIND_LIVE))
         wait_until(complete, 40, "complete frames of both subjects, both kinds", on_fail=stack.logs)
         for kind in (wire.KIND_EXACT, wire.KIND_LIVE):
             assert {len(p) for p in frames["f01", kind]} == {512}
             assert {len(p) for p in frames["s01", kind]} == {372}
+            drawn = [drawn_with(p, tall) for p in frames["f01", kind]]
+            # the first frames may be drawn before the body arrives (with full's default), none after
+            assert drawn[drawn.index(True):] == [True] * (len(drawn) - drawn.index(True))
+            assert all(drawn_with(p, Body.default(FULL)) for p, ok in zip(frames["f01", kind], drawn) if not ok)
             for payload in frames["f01", kind]:
                 f = wire.decode_pose(payload)
                 want = np.array([pose_of(s) for s in FULL.segment_names])
                 assert f.layout == FULL and np.abs(np.abs((f.q * want).sum(axis=1)) - 1).max() < 1e-6
-                assert np.abs(f.joints - tall.positions(f.q.astype(np.float64))).max() < 1e-5
             for payload in frames["s01", kind]:
                 f = wire.decode_pose(payload)
                 assert f.layout == PAPER10 and np.abs(f.joints - Skeleton().positions(f.q.astype(np.float64))).max() < 1e-6
