@@ -29,32 +29,47 @@ def drawn_with(payload: bytes, body: Body) -> bool:
 
 
 class FakeDevices:
-    """Devices of one subject in the test's own session: each a liveliness token, a status
-    (announcing its body) and segment points of its segment's constant orientation at 50 Hz."""
+    """Devices in the test's own session (:meth:`add`): each a status queryable (announcing its
+    body), a liveliness token and segment points of its segment's constant orientation at 50 Hz,
+    each stream numbered from 0 when its device is added."""
 
-    def __init__(self, endpoint: str, subject: str, bodies: dict[str, Body]):
+    def __init__(self, endpoint: str):
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.subject, self.bodies, self.stop, self.sent = subject, bodies, threading.Event(), 0
-        self.pubs = {s: self.session.declare_publisher(wire.seg_key(subject, s)) for s in bodies}
-        self.queryables = [self.session.declare_queryable(wire.config_key(subject, s), self._answerer(s)) for s in bodies]
-        self.tokens = [self.session.liveliness().declare_token(wire.alive_key(subject, s)) for s in bodies]
+        self.stop, self.lock = threading.Event(), threading.Lock()
+        self.devices: list[tuple[str, str, zenoh.Publisher, list[int]]] = []  # subject, segment, publisher, [sent]
+        self.entities: list = []
+        self.start = int(time.time() * 1e6)
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
-    def _answerer(self, segment: str):
+    def add(self, subject: str, bodies: dict[str, Body]) -> None:
+        for segment, body in bodies.items():
+            sent = [0]
+            pub = self.session.declare_publisher(wire.seg_key(subject, segment))
+            self.entities.append(self.session.declare_queryable(wire.config_key(subject, segment),
+                                                                self._answerer(subject, segment, body, sent)))
+            self.entities.append(self.session.liveliness().declare_token(wire.alive_key(subject, segment)))
+            with self.lock:
+                self.devices.append((subject, segment, pub, sent))
+
+    @staticmethod
+    def _answerer(subject: str, segment: str, body: Body, sent: list[int]):
         def answer(query: zenoh.Query) -> None:
-            status = wire.DeviceStatus(f"{self.subject}/{segment}", wire.DeviceConfig(), 7, self.sent, self.sent)
-            query.reply(query.key_expr, json.dumps(status.as_dict() | {"body": wire.encode_body(self.bodies[segment])}).encode())
+            status = wire.DeviceStatus(f"{subject}/{segment}", wire.DeviceConfig(), 7, sent[0], sent[0])
+            query.reply(query.key_expr, json.dumps(status.as_dict() | {"body": wire.encode_body(body)}).encode())
         return answer
 
     def run(self) -> None:
-        start = int(time.time() * 1e6)
+        tick = 0
         while not self.stop.wait(0.02):
-            for segment, pub in self.pubs.items():
-                point = wire.SegmentPoint(7, self.sent, self.sent, start + 20_000 * self.sent, tuple(pose_of(segment)),
-                                          omega=(0.0, 0.0, 0.0))
+            tick += 1
+            with self.lock:
+                devices = list(self.devices)
+            for _, segment, pub, sent in devices:
+                n = sent[0]
+                point = wire.SegmentPoint(7, n, n, self.start + 20_000 * tick, tuple(pose_of(segment)), omega=(0.0, 0.0, 0.0))
                 pub.put(wire.encode_point(point))
-            self.sent += 1
+                sent[0] = n + 1
 
     def close(self) -> None:
         self.stop.set()
@@ -71,14 +86,14 @@ def test_a_full_subject_streams_512_byte_frames_beside_a_paper10_subject_and_dev
     frames: dict[tuple[str, int], list[bytes]] = {}
     session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
     subs = [session.declare_subscriber(wire.pose_key(s), zenoh.handlers.FifoChannel(1 << 14)) for s in ("f01", "s01")]
-    full = FakeDevices(stack.endpoint, "f01", {s: tall for s in (*FULL.segment_names, "neck")})
-    mixed = FakeDevices(stack.endpoint, "m01", {"hip": Body.default(FULL)})
+    fakes = FakeDevices(stack.endpoint)
+    fakes.add("f01", {s: tall for s in (*FULL.segment_names, "neck")})
+    fakes.add("m01", {"hip": Body.default(FULL)})
     watch = StatsWatch(stack.endpoint)
-    late = None
     try:
         wait_until(lambda: watch.poll() and watch.subjects.get("m01", {}).get("layout") == "full", 30,
                    "m01's layout full", on_fail=stack.logs)
-        late = FakeDevices(stack.endpoint, "m01", {"l_shank": Body.default(PAPER10)})  # another layout than m01's
+        fakes.add("m01", {"l_shank": Body.default(PAPER10)})  # another layout than m01's
 
         def complete() -> bool:
             for sub in subs:
@@ -124,9 +139,8 @@ def test_a_full_subject_streams_512_byte_frames_beside_a_paper10_subject_and_dev
         wait_until(lambda: watch.poll()["m01/l_shank"]["points"] > points + 25, 20, "m01/l_shank's points taken on",
                    on_fail=stack.logs)
     finally:
-        for part in (watch, full, mixed, late):
-            if part is not None:
-                part.close()
+        watch.close()
+        fakes.close()
         session.close()
 
 
