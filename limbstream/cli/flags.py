@@ -302,15 +302,15 @@ def names_argv(mapping: dict[str, str] | None) -> list[str]:
 
 # ----------------------------------------------------------------------------- the body's layout
 
-def add_layout(parser: argparse.ArgumentParser) -> None:
+def add_layout(parser: argparse.ArgumentParser, help_text: str | None = None) -> None:
     """``--layout paper10|full|FILE``: the body the built-in generator moves, one device per
     segment, and the layout of the body the devices announce (``emulate``, ``up``; checked by
-    :func:`layout`)."""
+    :func:`layout`); ``help_text``: another command's use of it (a gateway's)."""
     parser.add_argument("--layout", default=None, metavar="paper10|full|FILE",
-                        help="the subjects' body layout (docs/body.md): the generator moves a device per segment of "
-                             "it, paper10 (10 segments, default), full (15: chest, head, hands and feet too) or a "
-                             ".toml/.json layout file of segments it moves; a motion file streams its own segments, "
-                             "which the layout must hold; --height-m and --body size a body of it")
+                        help=help_text or "the subjects' body layout (docs/body.md): the generator moves a device per "
+                             "segment of it, paper10 (10 segments, default), full (15: chest, head, hands and feet too) "
+                             "or a .toml/.json layout file of segments it moves; a motion file streams its own "
+                             "segments, which the layout must hold; --height-m and --body size a body of it")
 
 
 def layout(args: argparse.Namespace) -> Layout:
