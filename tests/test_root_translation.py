@@ -123,3 +123,42 @@ def test_translation_figures_align_the_start_once_and_measure_the_rest():
     assert abs(f.height_cm - 2.0) < 1e-6 and abs(f.below_cm - 3.0) < 1e-6
     sliding = 100 * 0.1 / (t[-1] - 0.5)  # cm/s: the lag slides the planted feet too, after the first 0.5 s
     assert 0.9 * sliding < f.skate_cmps <= sliding + 1e-9 and f.true_skate_cmps < 1e-9
+
+
+def test_the_aggregator_stage_gives_each_subject_its_own_path():
+    """services.aggregator.rooting: frames of two subjects (one full, walking; one paper10)
+    interleaved in ticks of several frames each give every subject the path its frames alone give
+    it, and a live frame between ticks reads the state without moving it."""
+    from limbstream.body import FULL, PAPER10, Body
+    from limbstream.body.translation import foot_points, heel_drops
+    from limbstream.services.aggregator.rooting import Rooting
+    from limbstream.sources.generator import GeneratorSource
+
+    n = 400
+    t_us = (np.arange(n) * 20_000).astype(np.int64)
+    bodies = {FULL: Body.from_height(FULL, 1.8), PAPER10: Body.default(PAPER10)}
+    frames = {}
+    for layout, seed in ((FULL, 3), (PAPER10, 4)):
+        q = GeneratorSource(seed, activities=["walking"], layout=layout.name).orientations(t_us / 1e6)
+        frames[layout] = (q, bodies[layout].positions(q, False, dtype=np.float64))
+    rooting = Rooting()
+    got = {FULL: [], PAPER10: []}
+    rows = {FULL: 0, PAPER10: 1}
+    body_rows = [bodies[FULL], bodies[PAPER10]]
+    for start in range(0, n, 7):  # ticks of 7 frames per subject
+        for layout, (q, joints) in frames.items():
+            at = slice(start, min(start + 7, n))
+            owner = np.full(len(q[at]), rows[layout])
+            root, _ = rooting.place(owner, t_us[at], q[at], joints[at], layout, body_rows, commit=True)
+            got[layout].append(root)
+        live_at = slice(min(start + 7, n - 1), min(start + 8, n))
+        before = {k: v.root.copy() for k, v in rooting.trackers.items()}
+        rooting.place(np.array([0]), t_us[live_at] + 5_000, frames[FULL][0][live_at], frames[FULL][1][live_at], FULL,
+                      body_rows, commit=False)
+        assert all(np.array_equal(before[k], v.root) for k, v in rooting.trackers.items())
+    for layout, (q, joints) in frames.items():
+        names, points = foot_points(layout, heel_drops(layout, bodies[layout]), q, joints)
+        alone, _ = RootTracker(1, names).track(t_us / 1e6, points)
+        assert np.allclose(np.concatenate(got[layout]), alone, atol=1e-12)
+    walked = np.concatenate(got[FULL])
+    assert np.linalg.norm(walked[-1, [0, 2]] - walked[0, [0, 2]]) > 0.5  # the walk goes somewhere
