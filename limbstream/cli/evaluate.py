@@ -167,6 +167,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-len", type=_positive_int, default=MAX_LEN,
                         help=f"largest segment length, samples (default {MAX_LEN})")
     flags.add_names(parser)
+    flags.add_layout(parser, "default: the layout each source carries (a BVH file: paper10; an IMU recording: the "
+                             "smallest built-in holding its segments); a BVH file maps a joint to each of its "
+                             "segments, other sources leave out the segments it does not have")
     flags.add_sensor_model(parser)
     parser.add_argument("--calibration", type=_calibration, default=None, metavar="none|rest|rest,mounting",
                         help="with a sensor model: the calibration before the body error (default rest,mounting)")
@@ -183,7 +186,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     flags.add_heading_correction(parser, default="off")
     parser.add_argument("--dump", type=Path, metavar="DIR",
                         help="write each motion's compared orientations and joint positions into DIR/<motion>.npz: "
-                             "t, estimated and truth (frames, 10, 4), segment_names, source_t, positions and "
+                             "t, estimated and truth (frames, S, 4), segment_names, source_t, positions and "
                              "true_positions (frames, J, 3), position_joints (docs/evaluation.md, 'Dumps'); one row")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here")
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG")
@@ -231,9 +234,9 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Motion], list[RawRecording]]
     for path in args.paths:
         raw = raw_files(path)
         if raw:
-            recordings.extend(load_raw(p) for p in raw)
+            recordings.extend(load_raw(p, args.layout) for p in raw)
         else:
-            motions.extend(load(path, args.names))
+            motions.extend(load(path, args.names, layout=args.layout))
     return motions, recordings
 
 
@@ -248,9 +251,9 @@ def _streams(args: argparse.Namespace, sensors: calibration.SensorModel, motions
                              f"({', '.join(r.name for r in recordings)})")
         motions = raw_streams.looped(motions, args.loop_minutes)
     model = flags.imu_model(args)
-    streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate, args.vqf_precision)
+    streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate, args.vqf_precision, args.layout)
                if model is not None
-               else streams_of(motions, sensors))
+               else streams_of(motions, sensors, args.layout))
     if args.loop_minutes is not None:  # a looped clip's times are no longer its file's
         streams = [dataclasses.replace(s, source=None, source_offset_s=math.nan) for s in streams]
     for rec in recordings:
@@ -301,8 +304,8 @@ def _position_sources(motions: list[Motion], looped: bool) -> str:
     if len(own) < len(motions):
         who = "the other motions: no positions of their own" if own else "every motion: no positions of its own"
         why = " (looped)" if looped and any(m.positions for m in motions) else ""
-        parts.append(f"{who}{why}: the true orientations' joints on the same body, paper10's default (an adult of "
-                     "about 1.75 m)")
+        parts.append(f"{who}{why}: the true orientations' joints on the same body, its layout's default (an adult "
+                     "of about 1.75 m)")
     return "; ".join(parts)
 
 
