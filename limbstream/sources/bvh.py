@@ -1,11 +1,13 @@
-"""BVH motion capture files -> global segment orientations of the 10-IMU layout.
+"""BVH motion capture files -> global segment orientations of a body layout (``paper10``, the
+10-IMU body, by default; ``full``, with feet, hands, chest and head).
 
 Each joint's rotation channels are applied in the order the file lists them, as intrinsic
 rotations (``R = R_first R_second R_third``, the BVH convention); the global orientation of a
 joint is its parent's global orientation times its local one (forward kinematics, rotations
 only: offsets and positions do not change orientations). The global frame is the BVH world
 frame (Y up for the CMU clips). A joint -> segment map picks the joints that carry the
-10 IMUs (:mod:`.bvh_names`: the CMU, Mixamo and sided naming schemes, or ``--names``); the
+layout's segments (:mod:`.bvh_names`: the CMU, Mixamo and sided naming schemes, or ``--names``;
+a segment turns with the joint whose bone it is, :func:`.bvh_names.carriers`); the
 file's rest pose comes from its OFFSETs (:mod:`.bvh_rest`). Position channels may sit on any
 joint (some exporters write six on every one); only the pelvis's path is read from them.
 """
@@ -361,9 +363,10 @@ def load_bvh(
     -------
     Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame
     from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`), its wearer's body
-    from its OFFSETs (``body``, :func:`wearer`), the file's own joint positions (``positions``,
-    :class:`.bvh_positions.BvhPositions`; None if paper10's bones cannot be measured on its
-    skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint has a path
+    from its OFFSETs (``body``: :func:`wearer` on ``paper10``; on another layout the layout's
+    bones measured on the file, :meth:`.bvh_positions.BvhPositions.body`), the file's own joint
+    positions (``positions``, :class:`.bvh_positions.BvhPositions`; None if the layout's bones
+    cannot be measured on its skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint has a path
     (position channels on it or above it) and the map names the left thigh and shank, the
     pelvis's path (:func:`root_path`, linearly resampled with the orientations).
 
