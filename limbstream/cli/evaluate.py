@@ -22,6 +22,7 @@ from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
                                    format_joint_errors, format_joint_kinds, format_positions, format_table, frontier,
                                    streams_of, write_json)
+from limbstream.evaluation.body import layout_of
 from limbstream.evaluation.table import Progress
 from limbstream.kernel import fusion
 from limbstream.sources import Motion, MotionFileError, load
@@ -293,8 +294,9 @@ def _raw_notes(args: argparse.Namespace, recordings: list[RawRecording]) -> None
               "only)")
 
 
-def _position_sources(motions: list[Motion], looped: bool) -> str:
-    """Where the true joint positions of ``motions`` come from, and the bodies, as a sentence."""
+def _position_sources(motions: list[Motion], looped: bool, layout=None) -> str:
+    """Where the true joint positions of ``motions`` come from, and the bodies (on ``layout``,
+    None: each motion's own), as a sentence."""
     own = [] if looped else [m for m in motions if m.positions is not None]
     parts = []
     if own:
@@ -304,8 +306,9 @@ def _position_sources(motions: list[Motion], looped: bool) -> str:
     if len(own) < len(motions):
         who = "the other motions: no positions of their own" if own else "every motion: no positions of its own"
         why = " (looped)" if looped and any(m.positions for m in motions) else ""
-        parts.append(f"{who}{why}: the true orientations' joints on the same body, its layout's default (an adult "
-                     "of about 1.75 m)")
+        layouts = " / ".join(sorted({layout_of(m, layout).name for m in motions if all(m is not o for o in own)}))
+        parts.append(f"{who}{why}: the true orientations' joints on the same body, {layouts}'s default (an adult of "
+                     "about 1.75 m)")
     return "; ".join(parts)
 
 
@@ -389,7 +392,7 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
         print(f"\njoint error per joint, of the {what}{held}, against the truth")
         print(format_joint_kinds(rows))
         print(f"\njoint positions of the {what}{held}, the pelvis at the origin, against the truth's: "
-              f"{_position_sources(motions, args.loop_minutes is not None)}")
+              f"{_position_sources(motions, args.loop_minutes is not None, args.layout)}")
         print(format_positions(rows))
     if args.joint_angles:
         print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")

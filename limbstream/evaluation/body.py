@@ -2,6 +2,7 @@
 for what only a body has: heading correction by its joints, the joint error, and the dump that
 lets anyone recompute every figure.
 
+- :func:`layout_of`: the layout a motion's bodies are evaluated on (``eval --layout``, else its own).
 - :func:`bodies`: per motion, the estimated orientations (the calibrated reconstruction with a
   sensor model, else the reconstruction) and the true ones (the segments' with a sensor model,
   else the samples), (frames, S, 4) in the order of the motion's layout (``paper10``: SEGMENTS;
@@ -30,6 +31,7 @@ from limbstream import wire
 from limbstream.body import PAPER10, Layout as BodyLayout
 from limbstream.heading import HeadingCorrection
 from limbstream.heading.joints import Layout, joint_errors_deg, kind
+from limbstream.sources import Motion
 
 if TYPE_CHECKING:
     from limbstream.evaluation.positions import Positions
@@ -80,6 +82,17 @@ class Body:
             if name in self.layout.segment_index:
                 out[:, k] = q[:, self.layout.segment_index[name]]
         return out
+
+
+def layout_of(motion: Motion, layout: BodyLayout | None = None) -> BodyLayout:
+    """The layout a motion's bodies are evaluated on: ``layout`` if given, else the motion's own
+    (``Motion.layout``; ``paper10`` where no built-in layout holds its segments)."""
+    if layout is not None:
+        return layout
+    try:
+        return motion.layout
+    except ValueError:
+        return PAPER10
 
 
 def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[Body]:

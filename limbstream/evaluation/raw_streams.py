@@ -21,7 +21,8 @@ from limbstream import calibration, imu, quat, wire
 from limbstream.body import Layout
 from limbstream.evaluation.fusion import EarthTruth
 from limbstream.evaluation.positions import source_of
-from limbstream.evaluation.sweep import Stream, layout_of
+from limbstream.evaluation.body import layout_of
+from limbstream.evaluation.sweep import Stream
 from limbstream.imu.feed import script_samples
 from limbstream.kernel import fusion
 from limbstream.sources import Motion

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
-from limbstream.body import PAPER10, Layout
+from limbstream.body import Layout
 from limbstream.sources import Motion
 from limbstream.sources.bvh_positions import BvhPositions
 from limbstream.evaluation.fusion import FIGURES, EarthTruth, pooled_error
@@ -87,8 +87,8 @@ class Stream:
         up): the reference of its fusion and chain errors (BROAD's metric), None for others.
     source : the source file's own joint positions (``Motion.positions``), if it has them.
     source_offset_s : the source's time minus the stream's, s (NaN: unknown).
-    layout : the body layout of its motion (:func:`layout_of`), whose bodies it is put together
-        into (None: ``paper10``).
+    layout : the body layout of its motion (:func:`.body.layout_of`), whose bodies it is put
+        together into (None: ``paper10``).
     """
 
     t: np.ndarray
@@ -106,26 +106,15 @@ class Stream:
     layout: Layout | None = None
 
 
-def layout_of(motion: Motion, layout: Layout | None = None) -> Layout:
-    """The layout a motion's bodies are evaluated on: ``layout`` if given, else the motion's own
-    (``Motion.layout``; ``paper10`` where no built-in layout holds its segments)."""
-    if layout is not None:
-        return layout
-    try:
-        return motion.layout
-    except ValueError:
-        return PAPER10
-
-
 def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None,
                layout: Layout | None = None) -> list[Stream]:
     """Every segment stream of every motion (S streams per motion); with a sensor model that is
     on, each motion preceded by the calibration script and seen through its sensors (drawn per
-    motion). Their bodies are of ``layout`` (None: each motion's own, :func:`layout_of`)."""
+    motion). Their bodies are of ``layout`` (None: each motion's own, :func:`.body.layout_of`)."""
     out = []
     for i, motion in enumerate(motions):
         if sensors is not None and sensors.on:
-            out.extend(_sensor_streams(motion, sensors, i, layout_of(motion, layout)))
+            out.extend(_sensor_streams(motion, sensors, i, bodies_of.layout_of(motion, layout)))
             continue
         for s, segment in enumerate(motion.segments):
             out.append(
@@ -134,7 +123,7 @@ def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | Non
                     np.asarray(motion.q[:, s, :], np.float64),
                     f"{motion.name}/{segment}",
                     rest_pose=motion.rest_pose,
-                    layout=layout_of(motion, layout),
+                    layout=bodies_of.layout_of(motion, layout),
                     **positions_of.source_of(motion),
                 )
             )
