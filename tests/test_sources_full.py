@@ -127,7 +127,7 @@ def test_a_mixamo_rig_maps_onto_full(tmp_path):
     assert motion.segments == FULL.segment_names and motion.layout == FULL
     source = motion.positions
     assert source is not None
-    assert dict(source.segment_map) | {} == {
+    assert dict(source.segment_map) == {
         "hip": "mixamorig:Hips", "chest": "mixamorig:Spine2", "head": "mixamorig:Neck",
         "l_upperarm": "mixamorig:LeftArm", "l_lowerarm": "mixamorig:LeftForeArm", "l_hand": "mixamorig:LeftHand",
         "r_upperarm": "mixamorig:RightArm", "r_lowerarm": "mixamorig:RightForeArm", "r_hand": "mixamorig:RightHand",
@@ -244,7 +244,7 @@ def test_qmt_16_imus_on_full_keep_feet_hands_head_and_upper_back():
         rec = load_raw(path, FULL)
     body = rec.body(FULL)
     assert body.segments == FULL.segment_names
-    assert dict(zip(body.segments, body.sensors)) | {} == {
+    assert dict(zip(body.segments, body.sensors)) == {
         "hip": "hip", "chest": "upper_back", "head": "head", "l_upperarm": "upper_arm_left",
         "l_lowerarm": "forearm_left", "l_hand": "hand_left", "r_upperarm": "upper_arm_right",
         "r_lowerarm": "forearm_right", "r_hand": "hand_right", "l_thigh": "upper_leg_left", "l_shank": "lower_leg_left",

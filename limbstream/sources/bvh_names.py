@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from limbstream.sources import SEGMENTS, MotionFileError
+from limbstream.sources.bvh_rest import bone_end, zero_pose_positions
 
 if TYPE_CHECKING:
     from limbstream.body import Layout
@@ -159,8 +160,6 @@ def carrier(clip: BvhClip, joint: int) -> int:
     """The joint whose bone reaches the end of ``joint``'s bone (:func:`.bvh_rest.bone_end`): the
     end's parent, at ``joint``'s place (CMU's ``LeftFingerBase`` below ``LeftHand``), or ``joint``
     itself (no joint below it elsewhere)."""
-    from limbstream.sources.bvh_rest import bone_end, zero_pose_positions
-
     end = bone_end(clip, joint, zero_pose_positions(clip))
     return joint if end is None else int(clip.parents[end])
 
@@ -195,8 +194,6 @@ def carriers(clip: BvhClip, segment_map: Mapping[str, str]) -> dict[str, str]:
 def chest_joint(clip: BvhClip, neck: int, hip: int) -> int | None:
     """The spine joint whose bone reaches the place of the ``neck`` joint (the first of its
     ancestors elsewhere, below the ``hip`` joint); None if the neck hangs off the pelvis."""
-    from limbstream.sources.bvh_rest import zero_pose_positions
-
     at = zero_pose_positions(clip)
     j = int(clip.parents[neck])
     while j >= 0 and np.linalg.norm(at[j] - at[neck]) < 1e-9:
