@@ -272,3 +272,12 @@ def test_imu_recordings_keep_their_feet_and_paper10_leaves_them_out_with_a_note(
     [xsens] = load(xsens_dir, {"00B42279": "hip", "00B421EF": "r_foot", "00B421E6": "l_foot",
                                                  "00B4227D": "r_shank"}, layout="full")
     assert set(xsens.segments) == {"hip", "r_foot", "l_foot", "r_shank"}
+
+
+def test_eval_refuses_an_unknown_layout_in_one_line(cmu_bvh_dir, capsys):
+    """``--layout`` takes a built-in's name or a layout file; anything else is one line naming it."""
+    with pytest.raises(SystemExit) as caught:
+        cli.main(["eval", str(cmu_bvh_dir / "131_03.bvh"), "--layout", "suit99"])
+    assert caught.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--layout" in err and "'suit99'" in err and "paper10, full" in err
