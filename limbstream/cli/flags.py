@@ -295,6 +295,24 @@ def add_names(parser: argparse.ArgumentParser) -> None:
                              "Mixamo and Left/L/Right/R joint names)")
 
 
+def body_layout(text: str):
+    """The ``--layout`` layout (:func:`limbstream.body.layout`: a built-in's name or a
+    ``.toml``/``.json`` file), as an argparse type."""
+    from limbstream.body import layout
+
+    try:
+        return layout(text)
+    except (ValueError, OSError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_layout(parser: argparse.ArgumentParser, default_text: str) -> None:
+    """``--layout paper10|full|FILE``: the body layout a source is read onto (docs/body.md)."""
+    parser.add_argument("--layout", type=body_layout, default=None, metavar="paper10|full|FILE",
+                        help=f"the body layout (docs/body.md): paper10, full (feet, hands, chest, head) or a "
+                             f"layout file; {default_text}")
+
+
 def names_argv(mapping: dict[str, str] | None) -> list[str]:
     """The flags that give ``mapping`` to a child process (none for None)."""
     return [] if mapping is None else ["--names", ",".join(f"{sensor}={segment}" for sensor, segment in mapping.items())]

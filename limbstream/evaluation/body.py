@@ -2,15 +2,19 @@
 for what only a body has: heading correction by its joints, the joint error, and the dump that
 lets anyone recompute every figure.
 
+- :func:`layout_of`: the layout a motion's bodies are evaluated on (``eval --layout``, else its own).
 - :func:`bodies`: per motion, the estimated orientations (the calibrated reconstruction with a
   sensor model, else the reconstruction) and the true ones (the segments' with a sensor model,
-  else the samples), (frames, 10, 4) in SEGMENTS order, NaN where a segment has no data.
+  else the samples), (frames, S, 4) in the order of the motion's layout (``paper10``: SEGMENTS;
+  ``full``), NaN where a segment has no data.
 - :func:`correct_heading`: a calibrated body's headings held by its joints, as the aggregator
   holds them (:class:`limbstream.heading.HeadingCorrection`, run over the motion from the
   calibration on).
 - :func:`joint_figures`: the joint error (the angle between the estimated and the true relative
   orientation of each pair of adjacent segments, :func:`limbstream.heading.joints.joint_errors_deg`)
-  pooled over bodies, overall and per joint kind, with its first and last minute.
+  pooled over bodies, overall and per joint kind, with its first and last minute: the joints of
+  the contract's table (``wire.JOINT_TABLE``, between the segments ``paper10`` has), whichever
+  the layout.
 - :func:`dump`: one body as an npz file, its joint positions too (docs/evaluation.md, "Dumps").
 """
 from __future__ import annotations
@@ -24,8 +28,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from limbstream import wire
+from limbstream.body import PAPER10, Layout as BodyLayout
 from limbstream.heading import HeadingCorrection
 from limbstream.heading.joints import Layout, joint_errors_deg, kind
+from limbstream.sources import Motion
 
 if TYPE_CHECKING:
     from limbstream.evaluation.positions import Positions
@@ -46,12 +52,13 @@ class Body:
     ----------
     name : the motion's name.
     t : (m,) s, the frames' times (the motion after the calibration script with a sensor model).
-    estimated, truth : (m, 10, 4) SEGMENTS order, NaN rows where a segment has no data.
+    estimated, truth : (m, S, 4) in ``layout``'s segment order, NaN rows where a segment has no data.
     rest_pose : what identity means for the motion's orientations.
     streams : {segment index: the pool's stream index} of the body's segments.
     calibrated : whether ``estimated`` is a calibrated reconstruction (a sensor model).
     source_t : (m,) s, each frame's time in the source file (NaN: none).
     source : the source file's own joint positions, if it has them (a BVH file's).
+    layout : the body's layout (its segments, in their order; the joints its positions are of).
     """
 
     name: str
@@ -63,6 +70,29 @@ class Body:
     calibrated: bool
     source_t: np.ndarray
     source: BvhPositions | None = None
+    layout: BodyLayout = PAPER10
+
+    def in_segments(self, q: np.ndarray) -> np.ndarray:
+        """(m, 10, 4) orientations ``q`` (m, S, 4) of this body in SEGMENTS order (NaN where the
+        layout has no such segment): what the joint error and joint angles read."""
+        if self.layout.segment_names == wire.SEGMENTS:
+            return q
+        out = np.full((len(q), len(wire.SEGMENTS), 4), np.nan)
+        for k, name in enumerate(wire.SEGMENTS):
+            if name in self.layout.segment_index:
+                out[:, k] = q[:, self.layout.segment_index[name]]
+        return out
+
+
+def layout_of(motion: Motion, layout: BodyLayout | None = None) -> BodyLayout:
+    """The layout a motion's bodies are evaluated on: ``layout`` if given, else the motion's own
+    (``Motion.layout``; ``paper10`` where no built-in layout holds its segments)."""
+    if layout is not None:
+        return layout
+    try:
+        return motion.layout
+    except ValueError:
+        return PAPER10
 
 
 def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[Body]:
@@ -73,7 +103,8 @@ def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.nda
     out: dict[str, Body] = {}
     for j, s in enumerate(pool.streams):
         motion, _, segment = s.name.rpartition("/")
-        if segment not in wire.SEGMENTS:
+        layout = s.layout or PAPER10
+        if segment not in layout.segment_index:
             continue
         if j in calibrated:
             estimate, truth, _ = calibrated[j]
@@ -81,12 +112,12 @@ def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.nda
         else:
             estimate, truth, t = rec[pool.start[j]:pool.start[j + 1]], s.q, s.t
         if motion not in out:
-            empty = np.full((len(truth), len(wire.SEGMENTS), 4), np.nan)
+            empty = np.full((len(truth), len(layout.segments), 4), np.nan)
             t = np.asarray(t, np.float64)
             out[motion] = Body(motion, t, empty, empty.copy(), s.rest_pose, {}, j in calibrated, t + s.source_offset_s,
-                               s.source)
+                               s.source, layout)
         body = out[motion]
-        k = wire.SEGMENTS.index(segment)
+        k = body.layout.segment_index[segment]
         body.estimated[:, k], body.truth[:, k] = estimate, truth
         body.streams[k] = j
     return list(out.values())
@@ -97,8 +128,9 @@ def correct_heading(body: Body) -> None:
     turned about the vertical, each segment by its own correction, from the first frame on)."""
     if not body.calibrated or len(body.t) < 2:
         return
-    have = sorted(body.streams)
-    layout = Layout.of([wire.SEGMENTS[k] for k in have], body.rest_pose)
+    names = body.layout.segment_names
+    have = sorted(k for k in body.streams if names[k] in wire.SEGMENTS)  # the segments the joint table knows
+    layout = Layout.of([names[k] for k in have], body.rest_pose)
     fs = 1.0 / float(np.median(np.diff(body.t)))
     body.estimated[:, have] = HeadingCorrection.batch(body.estimated[:, have], layout, fs)
 
@@ -113,8 +145,9 @@ def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, d
     first: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
     last: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
     for body in bodies_:
-        err = joint_errors_deg(np.nan_to_num(body.estimated), np.nan_to_num(body.truth), LAYOUT)  # (m, J)
-        ok = (np.isfinite(body.estimated).all(axis=-1) & np.isfinite(body.truth).all(axis=-1))
+        estimated, truth = body.in_segments(body.estimated), body.in_segments(body.truth)
+        err = joint_errors_deg(np.nan_to_num(estimated), np.nan_to_num(truth), LAYOUT)  # (m, J)
+        ok = (np.isfinite(estimated).all(axis=-1) & np.isfinite(truth).all(axis=-1))
         both = ok[:, LAYOUT.parent] & ok[:, LAYOUT.child]
         since = body.t - body.t[0]
         for j, name in enumerate(LAYOUT.joints):
@@ -136,17 +169,19 @@ def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, d
 
 def dump(body: Body, folder: Path, heading: str, positions: Positions) -> Path:
     """Write ``body`` to ``folder/<motion>.npz`` (the name's characters other than letters,
-    digits, ``._-`` as ``_``): ``t`` (m,) s, ``estimated`` and ``truth`` (m, 10, 4) float64
-    scalar-first (NaN: no data), ``segment_names`` (10,), ``rest_pose``, ``heading_correction``
-    (``off`` or ``joints``), ``joints`` (J,) the joints' names and ``joint_parent``,
-    ``joint_child`` (J,) their segments' indices; from ``positions``
+    digits, ``._-`` as ``_``): ``t`` (m,) s, ``estimated`` and ``truth`` (m, S, 4) float64
+    scalar-first (NaN: no data), ``segment_names`` (S,) (the layout's, ``layout``), ``rest_pose``,
+    ``heading_correction`` (``off`` or ``joints``), ``joints`` (J,) the joints' names and
+    ``joint_parent``, ``joint_child`` (J,) their segments' indices; from ``positions``
     (:mod:`limbstream.evaluation.positions`): ``source_t`` (m,) s, ``positions`` and
     ``true_positions`` (m, P, 3) m, ``position_joints`` (P,), ``positions_from_file``,
     ``source_unit_m``. Returns the path."""
     path = Path(folder) / (re.sub(r"[^A-Za-z0-9._-]", "_", body.name) + ".npz")
-    np.savez(path, t=body.t, estimated=body.estimated, truth=body.truth, segment_names=np.array(wire.SEGMENTS),
+    joints = Layout.of(body.layout.segment_names, body.rest_pose)
+    np.savez(path, t=body.t, estimated=body.estimated, truth=body.truth,
+             segment_names=np.array(body.layout.segment_names), layout=np.array(body.layout.name),
              rest_pose=np.array(body.rest_pose), heading_correction=np.array(heading),
-             joints=np.array(LAYOUT.joints), joint_parent=LAYOUT.parent, joint_child=LAYOUT.child,
+             joints=np.array(joints.joints), joint_parent=joints.parent, joint_child=joints.child,
              source_t=body.source_t, positions=positions.estimated, true_positions=positions.truth,
              position_joints=np.array(positions.joints), positions_from_file=np.array(positions.from_file),
              source_unit_m=np.array(positions.unit_m))

@@ -87,7 +87,8 @@ JOINT_KIND_COLUMNS: tuple[Column, ...] = (
 POSITION_COLUMNS: tuple[Column, ...] = (
     _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
     Column("joint", "joint", "", "the joints of one kind, left and right together (neck base: the top of the "
-           "spine; head: the end of the neck segment)", ""),
+           "spine; head: paper10's end of the neck segment; full: spine, the waist; head_top, toes, "
+           "fingertips: the tips of the head, feet and hands)", ""),
     Column("mean", "mean", "cm", "mean distance between the estimated and the true joint, the pelvis at the origin",
            ".2f"),
     Column("p99", "p99", "cm", "its 99th percentile", ".2f"),
@@ -130,7 +131,7 @@ def format_positions(rows: Sequence[dict]) -> str:
     """The joint position error of the rows that have it per joint kind (``positions``:
     :func:`limbstream.evaluation.positions.position_figures`), one line per (row, kind), with the
     legend."""
-    lines = [r | {"joint": f"{name}s" if name not in ("neck_base", "head") else name} | figures
+    lines = [r | {"joint": f"{name}s" if name not in ("neck_base", "head", "spine", "head_top") else name} | figures
              for r in rows for name, figures in r.get("positions", {}).items()]
     return render(POSITION_COLUMNS, lines)
 

@@ -22,6 +22,7 @@ import numpy as np
 from limbstream import quat
 from limbstream.body import PAPER10, Body, Layout
 from limbstream.sources.bvh_body import CMU_UNIT_M, unit_of_leg
+from limbstream.sources.bvh_names import tip
 from limbstream.sources.bvh_rest import bone_end, zero_pose_positions
 
 if TYPE_CHECKING:
@@ -57,7 +58,7 @@ class BvhPositions:
         """(J,) for each of ``layout.joints`` the file's joint whose position it is: a segment's
         proximal joint is the joint that carries it; a distal joint no segment starts at is the
         first joint below the segment's at another place (``<joint>/End Site`` where there is
-        none). ValueError if the map lacks a segment of the layout."""
+        none), the tip of the chain for ``full``'s head (:func:`.bvh_names.tip`). ValueError if the map lacks a segment of the layout."""
         if ("joints", layout.name) not in self._cache:
             self._cache["joints", layout.name] = tuple(self._file_joints(layout))
         return self._cache["joints", layout.name]
@@ -126,7 +127,10 @@ class BvhPositions:
         found = {s.joint: self.segment_map[s.name] for s in layout.segments}
         at = zero_pose_positions(self.clip)
         for s in layout.segments:
-            if s.end not in found:
+            if s.end not in found and s.name in _TO_TIP:
+                last, site = tip(self.clip, index[self.segment_map[s.name]])
+                found[s.end] = self.clip.joints[last] + (_SITE if site else "")
+            elif s.end not in found:
                 own = self.segment_map[s.name]
                 end = bone_end(self.clip, index[own], at)
                 found[s.end] = self.clip.joints[end] if end is not None else own + _SITE
@@ -134,6 +138,9 @@ class BvhPositions:
 
 
 _SITE = "/End Site"
+_TO_TIP = ("head",)
+"""Segments whose bone ends at the tip of their joint's chain (``full``'s head: the neck's base
+to the top of the head), not at the first joint below."""
 
 
 def metres_per_unit(clip: BvhClip, segment_map: Mapping[str, str]) -> float:
