@@ -168,7 +168,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-len", type=_positive_int, default=MAX_LEN,
                         help=f"largest segment length, samples (default {MAX_LEN})")
     flags.add_names(parser)
-    flags.add_layout(parser, "default: the layout each source carries (a BVH file: paper10; an IMU recording: the "
+    flags.add_source_layout(parser, "default: the layout each source carries (a BVH file: paper10; an IMU recording: the "
                              "smallest built-in holding its segments); a BVH file maps a joint to each of its "
                              "segments, other sources leave out the segments it does not have")
     flags.add_sensor_model(parser)

@@ -306,8 +306,9 @@ def body_layout(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def add_layout(parser: argparse.ArgumentParser, default_text: str) -> None:
-    """``--layout paper10|full|FILE``: the body layout a source is read onto (docs/body.md)."""
+def add_source_layout(parser: argparse.ArgumentParser, default_text: str) -> None:
+    """``--layout paper10|full|FILE`` of a command that reads sources (``eval``): the body layout a
+    source is read onto (docs/body.md), a :class:`~limbstream.body.Layout` (None: not given)."""
     parser.add_argument("--layout", type=body_layout, default=None, metavar="paper10|full|FILE",
                         help=f"the body layout (docs/body.md): paper10, full (feet, hands, chest, head) or a "
                              f"layout file; {default_text}")
