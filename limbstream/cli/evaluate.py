@@ -20,8 +20,8 @@ from limbstream.wire import DEVICE_RATE_HZ as DEVICE_RATE
 from limbstream.calibration import CalibrationError
 from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
-                                   format_joint_errors, format_joint_kinds, format_positions, format_table, frontier,
-                                   streams_of, write_json)
+                                   format_joint_errors, format_joint_kinds, format_positions, format_table,
+                                   format_translation, frontier, streams_of, write_json)
 from limbstream.evaluation.body import layout_of
 from limbstream.evaluation.table import Progress
 from limbstream.kernel import fusion
@@ -394,6 +394,10 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
         print(f"\njoint positions of the {what}{held}, the pelvis at the origin, against the truth's: "
               f"{_position_sources(motions, args.loop_minutes is not None, args.layout)}")
         print(format_positions(rows))
+        if any(r.get("translation") for r in rows):
+            print(f"\nroot translation from the {what}'s feet (docs/evaluation.md, \"Root translation\"), against the "
+                  "file's root path")
+            print(format_translation(rows))
     if args.joint_angles:
         print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")
         print(format_joint_errors(rows))

@@ -96,6 +96,20 @@ POSITION_COLUMNS: tuple[Column, ...] = (
 )
 """The columns of the per-joint position table of ``limbstream eval``: one line per (row, joint kind)."""
 
+TRANSLATION_COLUMNS: tuple[Column, ...] = (
+    _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
+    Column("motion", "motion", "", "the motion (a file with a root path that travels 0.5 m or more)", ""),
+    Column("path_m", "path", "m", "the true root's horizontal path (over 0.1 s steps)", ".2f"),
+    Column("end_cm", "end", "cm", "horizontal root error at the end, the start aligned once (heading and offset, "
+           "first 0.5 s)", ".1f"),
+    Column("end_pct", "end", "% path", "the same as a share of the path", ".1f"),
+    Column("height_cm", "height", "cm", "mean root height error, each above its own floor", ".1f"),
+    Column("below_cm", "below", "cm", "deepest an estimated foot point went below the floor", ".1f"),
+    Column("skate_cmps", "skate", "cm/s", "estimated feet's horizontal speed while the true feet are planted", ".1f"),
+    Column("true_skate_cmps", "true skate", "cm/s", "the true feet's own over the same frames", ".1f"),
+)
+"""The columns of ``limbstream eval``'s root translation table: one line per (row, motion)."""
+
 
 def format_table(
     rows: Sequence[dict], algorithms: Sequence[str], targets: Sequence[float] | None = ICR_TARGETS,
@@ -134,6 +148,14 @@ def format_positions(rows: Sequence[dict]) -> str:
     lines = [r | {"joint": f"{name}s" if name not in ("neck_base", "head", "spine", "head_top") else name} | figures
              for r in rows for name, figures in r.get("positions", {}).items()]
     return render(POSITION_COLUMNS, lines)
+
+
+def format_translation(rows: Sequence[dict]) -> str:
+    """The root translation figures of the rows' motions that have a root path (``translation``:
+    :func:`limbstream.evaluation.translation.translation_of`), one line per (row, motion), with
+    the legend."""
+    lines = [r | figures for r in rows for figures in r.get("translation", [])]
+    return render(TRANSLATION_COLUMNS, lines)
 
 
 def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:

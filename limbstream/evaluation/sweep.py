@@ -16,6 +16,7 @@ from limbstream.sources.bvh_positions import BvhPositions
 from limbstream.evaluation.fusion import FIGURES, EarthTruth, pooled_error
 from limbstream.evaluation import body as bodies_of
 from limbstream.evaluation import positions as positions_of
+from limbstream.evaluation import translation
 from limbstream.evaluation.live_model import accepted, segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
@@ -62,7 +63,7 @@ KEYS: tuple[str, ...] = (
 MEASURES: tuple[str, ...] = KEYS[5:]
 """The measures of a row: degrees, ``pos_cm`` centimetres."""
 
-EXTRAS: tuple[str, ...] = ("joint_kinds", "joints", "positions")
+EXTRAS: tuple[str, ...] = ("joint_kinds", "joints", "positions", "translation")
 """A row's figures per joint (:func:`evaluate_threshold`), where scored."""
 
 
@@ -320,6 +321,7 @@ def evaluate_threshold(
     row["joint_aad"], row["joint_kinds"] = bodies_of.joint_figures(bodies)
     places = [positions_of.positions_of(b) for b in bodies]
     row["pos_cm"], row["positions"] = positions_of.position_figures(places)
+    row["translation"] = [f for b, p in zip(bodies, places) if (f := translation.translation_of(b, p)) is not None]
     if angles:
         row["joints"] = joints.pooled_errors([(b.in_segments(b.estimated), b.in_segments(b.truth), b.rest_pose)
                                               for b in bodies])

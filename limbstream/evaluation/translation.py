@@ -78,3 +78,56 @@ def translation_figures(t: np.ndarray, root: np.ndarray, feet: np.ndarray, true_
         below_cm=100 * max(0.0, -float(np.nanmin(feet[:, :, 1]))),
         skate_cmps=100 * float(speed[planted].mean()) if some else float("nan"),
         true_skate_cmps=100 * float(true_speed[planted].mean()) if some else float("nan"))
+
+
+MIN_PATH_M = 0.5
+"""A motion has a root trajectory to score when its true root travels at least this far, m."""
+
+
+def translation_of(body, positions) -> dict | None:
+    """The figures of one evaluated body (:class:`limbstream.evaluation.body.Body`) and its joint
+    positions (:class:`limbstream.evaluation.positions.Positions`), as a dict with the motion's
+    ``motion`` name, or None where there is nothing to score: no file with a root path (a BVH
+    file's), a root that travels less than :data:`MIN_PATH_M`, or less than 2 s of frames with
+    every joint. The estimated root: a :class:`~limbstream.body.translation.RootTracker` on the
+    estimated joints' feet; the true one: the file's root joint, its feet the same foot points of
+    the file's joints; the estimate's heading aligned by the pelvis' mean heading difference over
+    the first :data:`ALIGN_S` s."""
+    from limbstream.body.translation import RootTracker, foot_points, heel_drops
+    from limbstream.calibration import yaw_of
+
+    source, layout = body.source, body.layout
+    if source is None or not positions.from_file:
+        return None
+    ok = (np.isfinite(positions.estimated).all(axis=(1, 2)) & np.isfinite(positions.truth).all(axis=(1, 2))
+          & np.isfinite(body.estimated).all(axis=(1, 2)) & np.isfinite(body.truth).all(axis=(1, 2)))
+    if ok.sum() < 2 or body.t[ok][-1] - body.t[ok][0] < 2.0:
+        return None
+    t, est_q, true_q = body.t[ok], body.estimated[ok], body.truth[ok]
+    true_root = source.root_at(body.source_t[ok], layout)
+    if not np.isfinite(true_root).all():
+        return None
+    drops = heel_drops(layout, positions.dimensions)
+    names, est_pts = foot_points(layout, drops, est_q, positions.estimated[ok])
+    _, true_pts = foot_points(layout, drops, true_q, positions.truth[ok])
+    root, _ = RootTracker(1, names).track(t - t[0], est_pts)
+    hip = layout.segment_index[layout.root.name]
+    start = t - t[0] < ALIGN_S
+    turn = np.angle(np.mean(np.exp(1j * (yaw_of(true_q[start, hip]) - yaw_of(est_q[start, hip])))))
+    figures = translation_figures(t, root, root[:, None] + est_pts, true_root, true_root[:, None] + true_pts, float(turn))
+    if figures.path_m < MIN_PATH_M:
+        return None
+    return {"motion": body.name} | vars(figures)
+
+
+def pooled(per_motion: list[dict]) -> dict:
+    """The figures of several motions together: the median end error (% of path), the mean height
+    error and skating, the deepest a foot went below the floor, the motions scored."""
+    if not per_motion:
+        return {}
+    def mean(key: str) -> float:
+        values = np.array([m[key] for m in per_motion], np.float64)
+        return float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
+    return {"motions": len(per_motion), "end_pct": float(np.median([m["end_pct"] for m in per_motion])),
+            "height_cm": mean("height_cm"), "below_cm": max(m["below_cm"] for m in per_motion),
+            "skate_cmps": mean("skate_cmps"), "true_skate_cmps": mean("true_skate_cmps")}

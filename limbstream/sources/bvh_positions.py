@@ -84,12 +84,26 @@ class BvhPositions:
         """(m, J, 3) float64 the file's positions of ``layout.joints`` at file times ``t_s`` (m,)
         s, the root joint at the origin, metres, the file's world frame; linear between frames,
         NaN outside the file's frames (or where ``t_s`` is NaN)."""
-        frames = self._positions(layout)
+        return self._interpolate(self._positions(layout), t_s)
+
+    def root_at(self, t_s: np.ndarray, layout: Layout = PAPER10) -> np.ndarray:
+        """(m, 3) float64 the path of ``layout``'s root joint (its file joint) at file times ``t_s``
+        (m,) s, metres, the file's world frame (its own origin and floor), as :meth:`at`."""
+        if ("root", layout.name) not in self._cache:
+            from limbstream.sources.bvh import joint_positions
+
+            joint = self.joints(layout)[layout.joint_index[layout.root.joint]].removesuffix(_SITE)
+            j = self.clip.joints.index(joint)
+            self._cache["root", layout.name] = joint_positions(self.clip, [j])[0][:, j] * self.unit_m
+        return self._interpolate(self._cache["root", layout.name][:, None], t_s)[:, 0]
+
+    def _interpolate(self, frames: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+        """``frames`` (F, ...) at file times ``t_s`` (m,): linear between frames, NaN outside."""
         x = np.asarray(t_s, np.float64) / self.clip.frame_time
         inside = np.isfinite(x) & (x >= -1e-9) & (x <= len(frames) - 1 + 1e-9)
         x = np.clip(np.nan_to_num(x), 0.0, len(frames) - 1)
         k = np.minimum(np.floor(x).astype(int), max(len(frames) - 2, 0))
-        u = (x - k)[:, None, None]
+        u = (x - k).reshape(-1, *([1] * (frames.ndim - 1)))
         out = frames[k] * (1.0 - u) + frames[np.minimum(k + 1, len(frames) - 1)] * u
         out[~inside] = np.nan
         return out
