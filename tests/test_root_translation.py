@@ -174,11 +174,16 @@ def test_eval_scores_the_root_path_of_a_walk_read_onto_full(cmu_bvh_dir, tmp_pat
 
     out = tmp_path / "rows.json"
     code = cli.main(["eval", str(cmu_bvh_dir / "131_01.bvh"), "--algorithms", "fastsw", "--thresholds", "9e-4",
-                     "--max-len", "25", "--layout", "full", "--json", str(out)])
+                     "--max-len", "25", "--layout", "full", "--json", str(out), "--dump", str(tmp_path)])
     text = capsys.readouterr().out
     assert code == 0, text
     [row] = json.loads(out.read_text())
     [walk] = row["translation"]
+    dumped = np.load(tmp_path / "131_01.npz")
+    root, true_root = dumped["root"], dumped["true_root"]
+    assert root.shape == true_root.shape == (len(dumped["t"]), 3) and np.isfinite(root).all()
+    travelled = np.linalg.norm(root[-1, [0, 2]] - root[0, [0, 2]])
+    assert abs(travelled - np.linalg.norm(true_root[-1, [0, 2]] - true_root[0, [0, 2]])) < 0.2
     assert walk["motion"] == "131_01" and walk["path_m"] > 4.0
     assert walk["end_pct"] < 3.0 and walk["height_cm"] < 6.0 and walk["below_cm"] == 0.0
     assert "root translation from the reconstruction's feet" in text and "true skate" in text

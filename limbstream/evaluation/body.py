@@ -175,10 +175,15 @@ def dump(body: Body, folder: Path, heading: str, positions: Positions) -> Path:
     ``joint_parent``, ``joint_child`` (J,) their segments' indices; from ``positions``
     (:mod:`limbstream.evaluation.positions`): ``source_t`` (m,) s, ``positions`` and
     ``true_positions`` (m, P, 3) m, ``position_joints`` (P,), ``positions_from_file``,
-    ``source_unit_m``. Returns the path."""
+    ``source_unit_m``; ``root`` and ``true_root`` (m, 3) m, the estimated root tracked from the
+    estimated feet and the file's (:func:`limbstream.evaluation.translation.root_paths`; NaN where
+    there is none): world positions are ``positions + root[:, None]``. Returns the path."""
     path = Path(folder) / (re.sub(r"[^A-Za-z0-9._-]", "_", body.name) + ".npz")
     joints = Layout.of(body.layout.segment_names, body.rest_pose)
-    np.savez(path, t=body.t, estimated=body.estimated, truth=body.truth,
+    from limbstream.evaluation.translation import root_paths  # (it reads this module's bodies)
+    paths = root_paths(body, positions)
+    nowhere = np.full((len(body.t), 3), np.nan)
+    np.savez(path, root=nowhere if paths is None else paths.root, true_root=nowhere if paths is None else paths.true_root, t=body.t, estimated=body.estimated, truth=body.truth,
              segment_names=np.array(body.layout.segment_names), layout=np.array(body.layout.name),
              rest_pose=np.array(body.rest_pose), heading_correction=np.array(heading),
              joints=np.array(joints.joints), joint_parent=joints.parent, joint_child=joints.child,
