@@ -1,6 +1,7 @@
 /* limbstream dashboard page: polls the REST API for device stats and history, draws each
  * subject's skeleton from its WebSocket pose stream (live or exact frames, the page's toggle:
- * /ws/pose/<subject>?kind=live|exact). No build step; uPlot is vendored. */
+ * /ws/pose/<subject>?kind=live|exact), with the bones of the layout each frame names
+ * (GET /api/layouts, fetched once). No build step; uPlot is vendored. */
 "use strict";
 
 const MAX_FIGURES = 12;          // skeleton cards (one WebSocket each)
@@ -16,7 +17,7 @@ const $ = (id) => document.getElementById(id);
 const state = {
   devices: [],
   selected: null,
-  skeleton: null,
+  layouts: null,                // layout name -> {segments, joints, bones} (GET /api/layouts)
   figures: new Map(),           // subject -> Figure
   subjects: new Map(),          // subject -> its latest /api/subjects entry (frame error)
   charts: null,
@@ -404,9 +405,11 @@ class Figure {
   }
 
   draw() {
-    if (!this.dirty || !this.frame || !state.skeleton) return;
+    if (!this.dirty || !this.frame || !state.layouts) return;
     this.dirty = false;
     const f = this.frame;
+    const layout = state.layouts[f.layout];
+    if (!layout) { this.caption.textContent = `layout ${f.layout} unknown to this page`; return; }
     const ctx = this.canvas.getContext("2d");
     const W = this.canvas.width, H = this.canvas.height;
     ctx.clearRect(0, 0, W, H);
@@ -431,7 +434,7 @@ class Figure {
     const P = {};
     for (const [name, p] of Object.entries(f.joints)) P[name] = proj(p);
     const side = (n) => (n.startsWith("l_") ? COLORS.left : n.startsWith("r_") ? COLORS.right : COLORS.mid);
-    const bones = state.skeleton.bones
+    const bones = layout.bones
       .filter(([a, b]) => P[a] && P[b])
       .map(([a, b]) => [a, b, (P[a][2] + P[b][2]) / 2])
       .sort((u, v) => u[2] - v[2]);                 // far first
@@ -446,21 +449,29 @@ class Figure {
       ctx.stroke();
     }
     ctx.globalAlpha = 1;
+    const isHead = (name) => name === "head" || name === "head_top";   // paper10's / full's top of the head
     for (const [name, p] of Object.entries(P)) {
-      ctx.fillStyle = name === "head" ? COLORS.mid : "#0f1419";
+      ctx.fillStyle = isHead(name) ? COLORS.mid : "#0f1419";
       ctx.strokeStyle = side(name);
       ctx.lineWidth = 2.5;
       ctx.beginPath();
-      ctx.arc(p[0], p[1], name === "head" ? 14 : 5, 0, 2 * Math.PI);
+      ctx.arc(p[0], p[1], isHead(name) ? 14 : 5, 0, 2 * Math.PI);
       ctx.fill();
       ctx.stroke();
     }
     this.drawn += 1;
     this.canvas.dataset.frames = String(this.drawn);
     this.canvas.dataset.kind = f.kind;        // of the frame drawn last
+    this.canvas.dataset.layout = f.layout;    // and its layout, bones and joints drawn
+    this.canvas.dataset.bones = String(bones.length);
+    this.canvas.dataset.joints = String(Object.keys(P).length);
     this.card.classList.toggle("flag-missing", f.missing || f.gap);
     const flags = f.missing ? " · missing" : f.gap ? " · gap" : "";
-    this.caption.textContent = `${f.kind} #${f.seq}${flags}`;
+    const subject = state.subjects.get(this.subject);   // its layout and dimensions
+    const height = subject && subject.height_m ? ` · ${fmt(subject.height_m, 2)} m` : "";
+    this.caption.textContent = `${f.kind} #${f.seq} · ${f.layout}${height}${flags}`;
+    this.caption.title = subject && subject.bones_m
+      ? `bone lengths, m: ${Object.entries(subject.bones_m).map(([b, m]) => `${b} ${fmt(m, 3)}`).join(", ")}` : "";
   }
 }
 
@@ -474,7 +485,11 @@ async function refreshSubjects() {
   for (const s of withPose) {
     if (!state.figures.has(s.subject)) state.figures.set(s.subject, new Figure(s.subject, container));
   }
-  $("skeletons-empty").hidden = state.figures.size > 0;
+  // subjects whose frames this service cannot read (a layout file's): why, instead of a figure
+  const refused = subjects.filter((s) => !s.pose && s.pose_refused);
+  $("skeletons-refused").innerHTML = refused.map((s) =>
+    `<li data-subject="${esc(s.subject)}"><b>${esc(s.subject)}</b>: ${esc(s.pose_refused)}</li>`).join("");
+  $("skeletons-empty").hidden = state.figures.size > 0 || refused.length > 0;
 }
 
 async function refreshAggregators() {
@@ -666,7 +681,7 @@ async function start() {
   });
   initCharts();
   try { buildTunables(await api("/api/tunables")); } catch (_) { /* the form says so on submit */ }
-  try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* retried by refreshSubjects' figures */ }
+  try { state.layouts = await api("/api/layouts"); } catch (_) { /* retried below */ }
   await refreshDevices();
   await refreshSubjects();
   await refreshAggregators();
@@ -679,7 +694,7 @@ async function start() {
   refreshGateways();
   setInterval(refreshGateways, GATEWAYS_EVERY_MS);
   setInterval(async () => {
-    if (!state.skeleton) { try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* next time */ } }
+    if (!state.layouts) { try { state.layouts = await api("/api/layouts"); } catch (_) { /* next time */ } }
   }, 3000);
   requestAnimationFrame(animate);
 }
