@@ -1,6 +1,7 @@
 """`limbstream export` of a ``full`` subject: a recording of its frames (15 segments, 20 joints)
 exports to BVH in the layout's hierarchy (checked with the tests' own BVH reader), to CSV with the
-layout's columns and to npz that reads back as a ``full`` motion, which exports again."""
+layout's columns and to npz that reads back as a ``full`` motion, which exports again; the
+recording's skeletons draw the layout's bones."""
 from __future__ import annotations
 
 import csv
@@ -49,6 +50,7 @@ def write_full_recording(path, q: np.ndarray) -> None:
                              np.zeros(len(q), np.int64), q, BODY.positions(q), FULL)
     for k, payload in enumerate(frames.encode()):
         writer.add("pose", wire.pose_key("s01"), payload, (T0_US + 20_000 * k) * 1000)
+        writer.add_skeleton("s01", frames[k], (T0_US + 20_000 * k) * 1000)  # as the recorder does
     other = wire.PoseFrame(0, T0_US, wire.KIND_EXACT, 0, np.tile(np.float32([1, 0, 0, 0]), (10, 1)))
     writer.add("pose", wire.pose_key("s02"), wire.encode_pose(other), T0_US * 1000)
     writer.close()
@@ -142,3 +144,30 @@ def test_a_full_recording_exports_csv_and_npz_in_its_layout(tmp_path):
     rest = Body.default(FULL).positions(np.tile([1.0, 0, 0, 0], (15, 1)))  # a motion file without a body: the default's
     ankle = Body.default(FULL).positions(q)[:, FULL.joint_index["l_ankle"]] + [0.0, -rest[:, 1].min(), 0.0]
     assert np.abs(again["LeftFoot"] - ankle).max() < 1e-4
+
+
+def test_a_full_recordings_skeletons_draw_its_bones(tmp_path):
+    """The recorder's skeletons of full frames (foxglove.SceneUpdate, decoded from the schema the
+    file carries): a line per bone of the 19, the toes on the grid."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    from mcap.reader import make_reader
+
+    q = full_motion(5)
+    rec = tmp_path / "take.mcap"
+    write_full_recording(rec, q)
+    with open(rec, "rb") as f:
+        messages = list(make_reader(f).iter_messages(topics=["/s01/skeleton"]))
+    assert len(messages) == 5
+    schema = messages[0][0]
+    pool = descriptor_pool.DescriptorPool()
+    for file in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+        pool.Add(file)
+    update = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name)).FromString(messages[-1][2].data)
+    (entity,) = update.entities
+    line = entity.lines[0]
+    pairs = [(FULL.joints[a], FULL.joints[b]) for a, b in zip(line.indices[::2], line.indices[1::2])]
+    assert pairs == [(b.origin, b.joint) for b in FULL.bones] and len(pairs) == 19
+    points = np.array([[p.x, p.y, p.z] for p in line.points])
+    assert np.allclose(points, BODY.positions(q[-1]), atol=1e-6)
+    rest = BODY.positions(np.tile([1.0, 0, 0, 0], (15, 1)))
+    assert line.pose.position.z == pytest.approx(rest[FULL.joint_index["l_hip"], 1] - rest[:, 1].min(), abs=1e-5)
