@@ -171,3 +171,15 @@ def test_a_full_recordings_skeletons_draw_its_bones(tmp_path):
     assert np.allclose(points, BODY.positions(q[-1]), atol=1e-6)
     rest = BODY.positions(np.tile([1.0, 0, 0, 0], (15, 1)))
     assert line.pose.position.z == pytest.approx(rest[FULL.joint_index["l_hip"], 1] - rest[:, 1].min(), abs=1e-5)
+
+
+def test_opensim_files_of_a_full_take_are_refused_in_one_line(tmp_path):
+    """.mot and .sto hold paper10's joint angles and segments: a full take is refused with the
+    reason, never written with its segments taken for paper10's."""
+    rec = tmp_path / "take.mcap"
+    write_full_recording(rec, full_motion(20))
+    for suffix, what in (("mot", "joint angles"), ("sto", "anatomical frames")):
+        result = cli(str(rec), "--subject", "s01", "-o", str(tmp_path / f"s01.{suffix}"))
+        assert result.returncode != 0 and not (tmp_path / f"s01.{suffix}").exists(), result
+        last = result.stderr.strip().splitlines()[-1]
+        assert f"s01: no {what} of the full layout" in last and "Traceback" not in result.stderr, result.stderr

@@ -331,9 +331,18 @@ def write_npz(take: Take, path: Path) -> None:
                             seq=take.seq, flags=take.flags, filled=take.filled)
 
 
+def _paper10_only(take: Take, what: str) -> None:
+    """ExportError unless ``take`` is of ``paper10``: the joint angles and anatomical frames are
+    ``paper10``'s (``limbstream.joints``)."""
+    if take.layout != PAPER10:
+        raise ExportError(f"{take.name}: no {what} of the {take.layout.name} layout: .mot and .sto are written "
+                          f"for paper10 subjects (bvh, csv and npz take any layout)")
+
+
 def take_angles(take: Take) -> tuple[np.ndarray, np.ndarray]:
     """(F, A) joint angles (degrees, :data:`limbstream.joints.ANGLES`) and flags of ``take``;
-    ExportError saying why if its orientations are not anatomical."""
+    ExportError saying why if its orientations are not anatomical or not ``paper10``'s."""
+    _paper10_only(take, "joint angles")
     if not take.anatomical:
         raise ExportError(f"{take.name}: no joint angles: {take.basis}")
     return joints.joint_angles(take.q, take.present, take.skeleton.rest_pose)
@@ -370,6 +379,7 @@ def write_mot(take: Take, path: Path) -> None:
 
 def write_sto(take: Take, path: Path) -> None:
     """The segments' anatomical frames as OpenSense's orientation file (:func:`.opensim.sto_text`)."""
+    _paper10_only(take, "anatomical frames")
     if not take.anatomical:
         raise ExportError(f"{take.name}: no anatomical frames: {take.basis}")
     present = np.ones((len(take), len(wire.SEGMENTS)), bool) if take.present is None else take.present
