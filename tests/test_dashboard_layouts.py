@@ -103,6 +103,26 @@ def test_a_layout_files_frames_are_counted_and_the_subject_says_why(client, pub)
     assert client.get("/api/subjects/suitB").json()["pose_refused"] is None
 
 
+def test_watch_renders_a_full_frame_by_its_layouts_names():
+    """``limbstream watch``'s view of a full frame: its layout named, a rotation per segment of its
+    15 (the feet, hands, chest and head among them), its joints by their names (the top of the head
+    is ``head_top``), and the missing segments among its own."""
+    import dataclasses
+
+    from limbstream.cli.watch import render
+    frames = full_frames(1)
+    text = render("fullW", frames[0], 50.0)
+    head, rows, joints = text.splitlines()[0], text.splitlines()[2:5], text.splitlines()[-1]
+    assert head.startswith("fullW  exact #0") and head.endswith("frames/s  full"), head
+    cells = [c.split()[0] for row in rows for c in row.split("°") if c.strip()]
+    assert cells == list(FULL.segment_names), cells
+    top = frames.joints[0, FULL.joint_index["head_top"]]
+    assert f"head_top ({top[0]:+.2f},{top[1]:+.2f},{top[2]:+.2f})" in joints and "l_ankle" in joints, joints
+    missing = dataclasses.replace(frames[0], flags=wire.FRAME_MISSING)
+    devices = {s: True for s in FULL.segment_names if s not in ("l_foot", "chest")}
+    assert render("fullW", missing, 50.0, devices).splitlines()[0].endswith("MISSING (no device: chest, l_foot)")
+
+
 # ----------------------------------------------------------------------------- the page
 
 DRAWN = """([subject, frames]) => {
