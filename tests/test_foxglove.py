@@ -158,6 +158,8 @@ def test_stats_schema_follows_the_field_table():
     schema = fox.stats_schema()
     jsonschema.validate(msg, schema)
     assert set(schema["properties"]["devices"]["properties"]["hip"]["properties"]) == set(wire.STATS_FIELDS)
+    from limbstream.body import FULL  # every built-in layout's segments are named (full's feet, hands, ...)
+    assert set(schema["properties"]["devices"]["properties"]) == set(wire.SEGMENTS) | set(FULL.segment_names)
     msg["devices"]["hip"]["icr"] = "high"
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(msg, schema)

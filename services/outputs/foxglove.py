@@ -37,7 +37,7 @@ from foxglove.messages import (Color, FrameTransform, FrameTransforms, LinePrimi
                                Vector3)
 
 from limbstream import wire
-from limbstream.body import PAPER10, Layout
+from limbstream.body import LAYOUTS, PAPER10, Layout
 from limbstream.skeleton import Skeleton
 from limbstream.services.outputs.kinds import LiveFirst
 from limbstream.services.outputs.subscription import Item
@@ -160,7 +160,7 @@ def stats_schema() -> dict:
         "seq": {"type": "integer", "description": "stats message counter of the subject"},
         **props(wire.SUBJECT_FIELDS),
         "devices": {"type": "object", "additionalProperties": device,
-                    "properties": {s: device for s in wire.SEGMENTS}},
+                    "properties": {s: device for lay in LAYOUTS.values() for s in lay.segment_names}},
         "aggregator": {"type": "object", "properties": props(wire.AGGREGATOR_FIELDS)},
     }}
 
