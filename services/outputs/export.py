@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import joints, quat, wire
-from limbstream.body import Body
+from limbstream.body import PAPER10, Body, Layout, lengths_of
 from limbstream.calibration import START_STILL_S
 from limbstream.skeleton import Skeleton
 from limbstream.sources import Motion, MotionFileError, load, load_raw, raw
@@ -52,13 +52,13 @@ class Take:
     period_us : frame period, microseconds.
     t_us : (F,) int64 frame times, µs (device time since the Unix epoch for recordings; from the
         clip start for motion files).
-    q : (F, 10, 4) float64 global segment orientations, :data:`wire.SEGMENTS` order, scalar-first.
-    joints : (F, 15, 3) float32 joint positions, metres, :data:`wire.JOINTS` order, pelvis at the origin.
+    q : (F, S, 4) float64 global segment orientations, ``layout.segment_names`` order, scalar-first.
+    joints : (F, J, 3) float32 joint positions, metres, ``layout.joints`` order, pelvis at the origin.
     seq, flags : (F,) int frame counters and pose-frame flags (``FRAME_GAP``, ``FRAME_MISSING``).
     filled : (F,) bool, True where no frame was recorded and the previous one is repeated.
-    skeleton : the body whose rest pose the orientations refer to.
+    skeleton : the body whose rest pose the orientations refer to (its layout: :attr:`layout`).
     notes : what the export should tell its user (gaps, segments the source lacks).
-    present : (F, 10) bool, the segments with data in each frame (None: all).
+    present : (F, S) bool, the segments with data in each frame (None: all).
     basis : which calibration the orientations rest on (one line).
     anatomical : the orientations are anatomical (joint angles can be taken); False: ``basis``
         says why not.
@@ -81,27 +81,38 @@ class Take:
     def __len__(self) -> int:
         return len(self.t_us)
 
+    @property
+    def layout(self) -> Layout:
+        """The body layout of the take's segments and joints (its skeleton's; ``paper10`` for a
+        :class:`~limbstream.skeleton.Skeleton`)."""
+        return self.skeleton.body.layout if isinstance(self.skeleton, Sized) else PAPER10
+
 
 @dataclass(frozen=True)
 class Sized:
-    """A motion's own body (``Motion.body``: a BVH file's bones) drawn as a
-    :class:`~limbstream.skeleton.Skeleton` is, on ``rest_pose``."""
+    """A body of any layout (a motion's own, ``Motion.body``: a BVH file's bones; or one drawn
+    from a frame's joints) drawn as a :class:`~limbstream.skeleton.Skeleton` is, on ``rest_pose``."""
 
     body: Body
     rest_pose: str
 
     def positions(self, q: np.ndarray, tpose: np.ndarray | bool | None = None, dtype: type = np.float32) -> np.ndarray:
-        """(..., 15, 3) joint positions of orientations (..., 10, 4) (``Skeleton.positions``)."""
+        """(..., J, 3) joint positions of orientations (..., S, 4) (``Skeleton.positions``)."""
         return self.body.positions(q, self.rest_pose == "tpose" if tpose is None else tpose, dtype)
 
 
 # ----------------------------------------------------------------------------- sources
 
 
-def skeleton_of(frame: wire.PoseFrame, rest_pose: str | None = None) -> Skeleton:
-    """The body an aggregator used for ``frame``: bone lengths from its joint positions
-    (``Skeleton.of_joints``), rest pose from its flags (``rest_pose``: an override)."""
-    return Skeleton.of_joints(frame.joints, rest_pose or wire.frame_rest_pose(frame.flags))
+def skeleton_of(frame: wire.PoseFrame, rest_pose: str | None = None) -> Skeleton | Sized:
+    """The body an aggregator used for ``frame``, in the frame's layout: bone lengths from its
+    joint positions (``paper10``: ``Skeleton.of_joints``), rest pose from its flags (``rest_pose``:
+    an override)."""
+    pose = rest_pose or wire.frame_rest_pose(frame.flags)
+    layout = frame.layout or PAPER10
+    if layout == PAPER10:
+        return Skeleton.of_joints(frame.joints, pose)
+    return Sized(Body(layout, lengths_of(layout, frame.joints), pose), pose)
 
 
 def from_recording(recording: Recording, subject: str | None, rest_pose: str | None = None) -> Take:
@@ -131,6 +142,9 @@ def from_recording(recording: Recording, subject: str | None, rest_pose: str | N
         raise ExportError(f"--subject {subject}: no exact pose frames of it in {recording.path} "
                           f"(subjects: {', '.join(subjects) if subjects else 'none'})")
     mine = frames[subject]
+    layout = mine[max(mine)].layout  # the subject's layout now (its latest frame's)
+    other = [t for t, f in mine.items() if f.layout != layout]
+    mine = {t: f for t, f in mine.items() if f.layout == layout}
     times = np.array(sorted(mine), np.int64)
     period = int(np.median(np.diff(times))) if len(times) > 1 else int(1e6 / FS)
     if period <= 0:
@@ -148,6 +162,9 @@ def from_recording(recording: Recording, subject: str | None, rest_pose: str | N
     if filled.any():
         take.notes.append(f"{int(filled.sum())} of {len(grid)} frames were not recorded: each repeats the frame "
                           f"before (flag GAP; npz 'filled')")
+    if other:
+        take.notes.append(f"{len(other)} exact frames of {subject} in another layout than its latest ({layout.name}) "
+                          f"skipped")
     if bad:
         take.notes.append(f"{bad} undecodable pose frames skipped")
     if recording.truncated:
@@ -173,6 +190,10 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
         raise ExportError(f"--subject {subject}: no such clip in {path} "
                           f"(clips: {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}; or s01..s{len(names):02d})")
     basis, anatomical, segments, q_in = _segments_of(motion)
+    try:
+        layout = motion.layout if segments is motion.segments else PAPER10
+    except ValueError as exc:
+        raise ExportError(f"{path}: {exc}") from None
     t = motion.t
     have = [k for k in range(len(segments)) if np.isfinite(q_in[:, k]).all()]
     fs = rate or (motion.fs if len(t) > 1 else FS)
@@ -180,22 +201,27 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
         t, q_have = resample(t, q_in[:, have], fs)
         q_in = np.full((len(t), len(segments), 4), np.nan)
         q_in[:, have] = q_have
-    q = np.zeros((len(t), len(wire.SEGMENTS), 4))
+    index = layout.segment_index
+    q = np.zeros((len(t), len(layout.segments), 4))
     q[..., 0] = 1.0
-    present = np.zeros(len(wire.SEGMENTS), bool)
+    present = np.zeros(len(layout.segments), bool)
     lacking = []
-    for seg, parent in _SEGMENT_PARENT.items():  # parents first
-        i = wire.SEGMENTS.index(seg)
+    for bone in layout.bones:  # parents first
+        if bone.name != bone.segment:
+            continue  # an offset: placed by its segment's orientation
+        seg, i = bone.segment, index[bone.segment]
         k = segments.index(seg) if seg in segments else -1
         if k in have:
             q[:, i] = quat.normalize(q_in[:, k])
             present[i] = True
         else:
             lacking.append(seg)
+            parent = layout.segment(seg).parent
             if parent is not None:
-                q[:, i] = q[:, wire.SEGMENTS.index(parent)]
+                q[:, i] = q[:, index[parent]]
     pose = rest_pose or motion.rest_pose
-    skeleton: Skeleton | Sized = Skeleton(rest_pose=pose) if motion.body is None else Sized(motion.body, pose)
+    skeleton: Skeleton | Sized = (Sized(motion.body, pose) if motion.body is not None
+                                  else Skeleton(rest_pose=pose) if layout == PAPER10 else Sized(Body.default(layout), pose))
     n = len(t)
     take = Take(motion.name or path.stem, int(round(1e6 / fs)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
                 skeleton.positions(q), np.arange(n), np.full(n, wire.FRAME_MISSING if lacking else 0),
@@ -226,10 +252,6 @@ def _segments_of(motion: Motion) -> tuple[str, bool, tuple[str, ...], np.ndarray
 
 
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
-_SEGMENT_PARENT = {"hip": None, "neck": "hip", "l_thigh": "hip", "r_thigh": "hip", "l_upperarm": "hip",
-                   "r_upperarm": "hip", "l_shank": "l_thigh", "r_shank": "r_thigh", "l_lowerarm": "l_upperarm",
-                   "r_lowerarm": "r_upperarm"}
-"""Each segment's parent in the body, parents first."""
 
 
 def at_rate(take: Take, rate: float) -> Take:
@@ -276,11 +298,11 @@ def read_take(path: str | Path, subject: str | None, rest_pose: str | None = Non
 # ----------------------------------------------------------------------------- CSV and npz
 
 
-def csv_header() -> list[str]:
-    """Columns of the CSV export (docs/outputs.md)."""
+def csv_header(layout: Layout = PAPER10) -> list[str]:
+    """Columns of the CSV export of a take of ``layout`` (docs/outputs.md)."""
     return (["t_s", "t_us", "seq", "flags"]
-            + [f"{s}_{c}" for s in wire.SEGMENTS for c in ("qw", "qx", "qy", "qz")]
-            + [f"{j}_{c}" for j in wire.JOINTS for c in ("x", "y", "z")])
+            + [f"{s}_{c}" for s in layout.segment_names for c in ("qw", "qx", "qy", "qz")]
+            + [f"{j}_{c}" for j in layout.joints for c in ("x", "y", "z")])
 
 
 def write_csv(take: Take, path: Path) -> None:
@@ -289,7 +311,7 @@ def write_csv(take: Take, path: Path) -> None:
     t = take.t_us[keep]
     with open(path, "w", newline="") as f:
         out = csv.writer(f)
-        out.writerow(csv_header())
+        out.writerow(csv_header(take.layout))
         q = take.q[keep].reshape(len(t), -1)
         joints = take.joints[keep].reshape(len(t), -1)
         for k in range(len(t)):
@@ -298,18 +320,29 @@ def write_csv(take: Take, path: Path) -> None:
 
 
 def write_npz(take: Take, path: Path) -> None:
-    """``clip_<name>`` (F, 10, 4), ``fs``, ``segment_names``, ``rest_pose`` (what ``load_npz`` reads)
-    and the frame details: ``t_us``, ``joints``, ``seq``, ``flags``, ``filled``."""
+    """``clip_<name>`` (F, S, 4), ``fs``, ``segment_names`` (the take's layout's), ``rest_pose`` (what
+    ``load_npz`` reads) and the frame details: ``layout`` (its name), ``joint_names``, ``t_us``,
+    ``joints``, ``seq``, ``flags``, ``filled``."""
     with open(path, "wb") as f:
         np.savez_compressed(f, **{f"clip_{take.name}": take.q}, fs=np.float64(1e6 / take.period_us),
-                            segment_names=np.array(wire.SEGMENTS), rest_pose=np.array(take.skeleton.rest_pose),
+                            segment_names=np.array(take.layout.segment_names), layout=np.array(take.layout.name),
+                            joint_names=np.array(take.layout.joints), rest_pose=np.array(take.skeleton.rest_pose),
                             t_us=take.t_us, joints=take.joints,
                             seq=take.seq, flags=take.flags, filled=take.filled)
 
 
+def _paper10_only(take: Take, what: str) -> None:
+    """ExportError unless ``take`` is of ``paper10``: the joint angles and anatomical frames are
+    ``paper10``'s (``limbstream.joints``)."""
+    if take.layout != PAPER10:
+        raise ExportError(f"{take.name}: no {what} of the {take.layout.name} layout: .mot and .sto are written "
+                          f"for paper10 subjects (bvh, csv and npz take any layout)")
+
+
 def take_angles(take: Take) -> tuple[np.ndarray, np.ndarray]:
     """(F, A) joint angles (degrees, :data:`limbstream.joints.ANGLES`) and flags of ``take``;
-    ExportError saying why if its orientations are not anatomical."""
+    ExportError saying why if its orientations are not anatomical or not ``paper10``'s."""
+    _paper10_only(take, "joint angles")
     if not take.anatomical:
         raise ExportError(f"{take.name}: no joint angles: {take.basis}")
     return joints.joint_angles(take.q, take.present, take.skeleton.rest_pose)
@@ -346,6 +379,7 @@ def write_mot(take: Take, path: Path) -> None:
 
 def write_sto(take: Take, path: Path) -> None:
     """The segments' anatomical frames as OpenSense's orientation file (:func:`.opensim.sto_text`)."""
+    _paper10_only(take, "anatomical frames")
     if not take.anatomical:
         raise ExportError(f"{take.name}: no anatomical frames: {take.basis}")
     present = np.ones((len(take), len(wire.SEGMENTS)), bool) if take.present is None else take.present
