@@ -27,8 +27,9 @@ from .calibrate import (CALIBRATION_ANSWER_TIMEOUT_S, CALIBRATION_HOLD_S, CALIBR
 from .angles import (ANGLE_BASES, ANGLE_FLAGS, ANGLE_GIMBAL, ANGLE_MISSING, ANGLE_UNCALIBRATED, ANGLES_DTYPE, ANGLES_SIZE,
                      ANGLES_VERSION, BASIS, AngleBasis, AngleFrames, JointAngles, decode_angles, decode_angles_many,
                      encode_angles)
-from .body import (BONES, DEFAULT_REST_POSE, JOINT_ANGLES, JOINT_TABLE, JOINTS, ORIENTATIONS, REST_POSES, SEGMENTS, Joint,
-                   builtin_segments, check_rest_pose, decode_body, encode_body)
+from .body import (BONES, DEFAULT_REST_POSE, FULL_JOINT_TABLE, JOINT_ANGLES, JOINT_TABLE, JOINT_TABLES, JOINTS, ORIENTATIONS,
+                   REST_POSES, SEGMENTS, Joint, builtin_segments, check_rest_pose, decode_body, encode_body, joint_angles,
+                   joint_table, joints_among)
 from .config import (DEVICE_RATE_HZ, LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
                      DeviceStatus, FusionStatus, FUSION_MODES, LinkStatus, Tunable, decode_config, decode_status,
                      encode_config, encode_status)
