@@ -202,3 +202,43 @@ def test_true_angles_and_error_figures_of_a_full_layout_motion():
     assert figures["ankle_angle_l"]["n"] == len(motion.t)
     assert list(figures)[:len(wire.JOINT_ANGLES)] == list(wire.JOINT_ANGLES)  # paper10's first, then full's others
     assert set(figures) == set(names)
+
+
+def test_eval_scores_the_new_joints_of_a_full_layout_motion(tmp_path, capsys):
+    """``eval --joint-angles`` on a full-layout motion file (built from orientations): the joint
+    angle table lists the full layout's angles, the per-joint-kind table has ankles, wrists and
+    the lumbar spine, and the dump holds the body in the full layout's segment order."""
+    from limbstream import cli
+
+    motion = full_motion(n=500)
+    np.savez(tmp_path / "full.npz", clip_full=motion.q, fs=np.float64(50.0), segment_names=np.array(motion.segments),
+             rest_pose=np.array("standing"))
+    (tmp_path / "dump").mkdir()
+    assert cli.main(["eval", str(tmp_path / "full.npz"), "--algorithms", "fastsw", "--thresholds", "1e-3",
+                     "--joint-angles", "--dump", str(tmp_path / "dump")]) == 0
+    text = capsys.readouterr().out
+    kinds = [line.split()[3] for line in text.split("joint error per joint")[1].split("joint positions")[0].splitlines()
+             if line.startswith("fastsw ")]
+    assert kinds == ["knees", "elbows", "ankles", "wrists", "hips", "shoulders", "lumbar", "neck"], text
+    lines = {ln.split()[3]: ln.split()[4:] for ln in text.split("joint angles of the reconstruction")[1].splitlines()
+             if ln.startswith("fastsw ")}
+    assert list(lines) == list(wire.joint_angles("full")), text
+    for name in NEW:  # mean, p99, bias, frames, gimbal
+        assert 0.0 <= float(lines[name][0]) < 1.0 and int(lines[name][3]) == len(motion.t), (name, lines[name])
+    dump = np.load(tmp_path / "dump" / "full.npz")
+    assert tuple(dump["segment_names"]) == FULL.segment_names and dump["estimated"].shape == (500, 15, 4)
+    assert "lumbar" in set(dump["joints"]) and "wrist_r" in set(dump["joints"])
+
+
+def test_heading_correction_holds_the_new_joints_of_a_full_body():
+    """A full-layout motion through sensors whose headings drift: held by the joints (the ankles,
+    wrists and lumbar spine among them: their twist and range), the ankles' and the lumbar
+    spine's joint error falls and no kind's grows."""
+    from limbstream import evaluation
+
+    streams = evaluation.streams_of([full_motion(n=3000, seed=1)], calibration.SensorModel(90, 180, 0.1, seed=2))
+    off, on = (evaluation.evaluate(streams, ["fastsw"], [9e-4], 25, heading=h)[0] for h in (False, True))
+    assert set(on["joint_kinds"]) == {"knee", "elbow", "ankle", "wrist", "hip", "shoulder", "lumbar", "neck"}
+    mean = {k: (off["joint_kinds"][k]["mean"], on["joint_kinds"][k]["mean"]) for k in on["joint_kinds"]}
+    assert all(held <= free + 0.05 for free, held in mean.values()), mean
+    assert mean["ankle"][1] < mean["ankle"][0] - 0.1 and mean["lumbar"][1] < mean["lumbar"][0], mean

@@ -12,9 +12,9 @@ lets anyone recompute every figure.
   calibration on).
 - :func:`joint_figures`: the joint error (the angle between the estimated and the true relative
   orientation of each pair of adjacent segments, :func:`limbstream.heading.joints.joint_errors_deg`)
-  pooled over bodies, overall and per joint kind, with its first and last minute: the joints of
-  the contract's table (``wire.JOINT_TABLE``, between the segments ``paper10`` has), whichever
-  the layout.
+  pooled over bodies, overall and per joint kind, with its first and last minute: the joints
+  among the body's layout's segments (``wire.joints_among``: ``paper10``'s table, or ``full``'s
+  with its ankles, wrists and lumbar spine, the shoulders and neck from the chest).
 - :func:`dump`: one body as an npz file, its joint positions too (docs/evaluation.md, "Dumps").
 """
 from __future__ import annotations
@@ -37,11 +37,12 @@ if TYPE_CHECKING:
     from limbstream.evaluation.positions import Positions
     from limbstream.sources.bvh_positions import BvhPositions
 
-KINDS: tuple[str, ...] = ("knee", "elbow", "hip", "shoulder", "neck")
-"""The joint kinds of the per-joint table, in its order (each pools its left and right)."""
+KINDS: tuple[str, ...] = ("knee", "elbow", "ankle", "wrist", "hip", "shoulder", "lumbar", "neck")
+"""The joint kinds of the per-joint table, in its order (each pools its left and right; the
+ankles, wrists and lumbar spine where the bodies have feet, hands and a chest)."""
 
 LAYOUT = Layout.of(wire.SEGMENTS)
-"""The joints among the body's segments (relative orientations: the rest pose does not matter)."""
+"""The joints among ``paper10``'s segments (relative orientations: the rest pose does not matter)."""
 
 
 @dataclass
@@ -72,16 +73,10 @@ class Body:
     source: BvhPositions | None = None
     layout: BodyLayout = PAPER10
 
-    def in_segments(self, q: np.ndarray) -> np.ndarray:
-        """(m, 10, 4) orientations ``q`` (m, S, 4) of this body in SEGMENTS order (NaN where the
-        layout has no such segment): what the joint error and joint angles read."""
-        if self.layout.segment_names == wire.SEGMENTS:
-            return q
-        out = np.full((len(q), len(wire.SEGMENTS), 4), np.nan)
-        for k, name in enumerate(wire.SEGMENTS):
-            if name in self.layout.segment_index:
-                out[:, k] = q[:, self.layout.segment_index[name]]
-        return out
+    @property
+    def joints(self) -> Layout:
+        """The joints among the body's segments (its layout's joint table)."""
+        return LAYOUT if self.layout.segment_names == wire.SEGMENTS else Layout.of(self.layout.segment_names)
 
 
 def layout_of(motion: Motion, layout: BodyLayout | None = None) -> BodyLayout:
@@ -129,7 +124,7 @@ def correct_heading(body: Body) -> None:
     if not body.calibrated or len(body.t) < 2:
         return
     names = body.layout.segment_names
-    have = sorted(k for k in body.streams if names[k] in wire.SEGMENTS)  # the segments the joint table knows
+    have = sorted(body.streams)
     layout = Layout.of([names[k] for k in have], body.rest_pose)
     fs = 1.0 / float(np.median(np.diff(body.t)))
     body.estimated[:, have] = HeadingCorrection.batch(body.estimated[:, have], layout, fs)
@@ -145,12 +140,12 @@ def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, d
     first: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
     last: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
     for body in bodies_:
-        estimated, truth = body.in_segments(body.estimated), body.in_segments(body.truth)
-        err = joint_errors_deg(np.nan_to_num(estimated), np.nan_to_num(truth), LAYOUT)  # (m, J)
-        ok = (np.isfinite(estimated).all(axis=-1) & np.isfinite(truth).all(axis=-1))
-        both = ok[:, LAYOUT.parent] & ok[:, LAYOUT.child]
+        joints = body.joints
+        err = joint_errors_deg(np.nan_to_num(body.estimated), np.nan_to_num(body.truth), joints)  # (m, J)
+        ok = (np.isfinite(body.estimated).all(axis=-1) & np.isfinite(body.truth).all(axis=-1))
+        both = ok[:, joints.parent] & ok[:, joints.child]
         since = body.t - body.t[0]
-        for j, name in enumerate(LAYOUT.joints):
+        for j, name in enumerate(joints.joints):
             mine = both[:, j]
             errors[kind(name)].append(err[mine, j])
             first[kind(name)].append(err[mine & (since < minute_s), j])
@@ -179,7 +174,7 @@ def dump(body: Body, folder: Path, heading: str, positions: Positions) -> Path:
     estimated feet and the file's (:func:`limbstream.evaluation.translation.root_paths`; NaN where
     there is none): world positions are ``positions + root[:, None]``. Returns the path."""
     path = Path(folder) / (re.sub(r"[^A-Za-z0-9._-]", "_", body.name) + ".npz")
-    joints = Layout.of(body.layout.segment_names, body.rest_pose)
+    joints = body.joints
     from limbstream.evaluation.translation import root_paths  # (it reads this module's bodies)
     paths = root_paths(body, positions)
     nowhere = np.full((len(body.t), 3), np.nan)

@@ -72,7 +72,8 @@ JOINT_COLUMNS: tuple[Column, ...] = (
 
 JOINT_KIND_COLUMNS: tuple[Column, ...] = (
     _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
-    Column("joint", "joint", "", "the joints of one kind, left and right together (the neck: hip to neck)", ""),
+    Column("joint", "joint", "", "the joints of one kind, left and right together (the neck: hip to neck, or chest to head "
+           "where there is a chest; lumbar: hip to chest)", ""),
     Column("mean", "mean", "deg", "mean joint error: the angle between the estimated and the true relative "
            "orientation of the joint's two segments", ".2f"),
     Column("p99", "p99", "deg", "its 99th percentile", ".2f"),
@@ -136,7 +137,7 @@ def format_joint_errors(rows: Sequence[dict]) -> str:
 def format_joint_kinds(rows: Sequence[dict]) -> str:
     """The joint error of the rows that have it per joint kind (``joint_kinds``:
     :func:`limbstream.evaluation.body.joint_figures`), one line per (row, kind), with the legend."""
-    lines = [r | {"joint": f"{name}s" if name != "neck" else name} | figures
+    lines = [r | {"joint": f"{name}s" if name not in ("neck", "lumbar") else name} | figures
              for r in rows for name, figures in r.get("joint_kinds", {}).items()]
     return render(JOINT_KIND_COLUMNS, lines)
 

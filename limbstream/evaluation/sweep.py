@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
-from limbstream.body import Layout
+from limbstream.body import FULL, PAPER10, Layout
 from limbstream.sources import Motion
 from limbstream.sources.bvh_positions import BvhPositions
 from limbstream.evaluation.fusion import FIGURES, EarthTruth, pooled_error
@@ -323,8 +323,8 @@ def evaluate_threshold(
     row["pos_cm"], row["positions"] = positions_of.position_figures(places)
     row["translation"] = [f for b, p in zip(bodies, places) if (f := translation.translation_of(b, p)) is not None]
     if angles:
-        row["joints"] = joints.pooled_errors([(b.in_segments(b.estimated), b.in_segments(b.truth), b.rest_pose)
-                                              for b in bodies])
+        widest = FULL if any(b.layout == FULL for b in bodies) else PAPER10  # full's angles hold paper10's
+        row["joints"] = joints.pooled_errors([(b.estimated, b.truth, b.rest_pose, b.layout) for b in bodies], widest)
     if dump_to is not None:
         for b, place in zip(bodies, places):
             bodies_of.dump(b, dump_to, "joints" if heading else "off", place)
