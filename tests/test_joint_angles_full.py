@@ -242,3 +242,28 @@ def test_heading_correction_holds_the_new_joints_of_a_full_body():
     mean = {k: (off["joint_kinds"][k]["mean"], on["joint_kinds"][k]["mean"]) for k in on["joint_kinds"]}
     assert all(held <= free + 0.05 for free, held in mean.values()), mean
     assert mean["ankle"][1] < mean["ankle"][0] - 0.1 and mean["lumbar"][1] < mean["lumbar"][0], mean
+
+
+def test_mot_of_a_full_layout_motion_has_the_models_columns(tmp_path):
+    """The ``.mot`` of a full-layout motion: time and the full layout's angles under the model's
+    coordinate names, the values the joint angles'; without hands, no wrist columns."""
+    from support.export import storage_columns
+
+    from limbstream.services.outputs.opensim import mot_of
+
+    motion = full_motion(n=100)
+    (tmp_path / "full.mot").write_text(mot_of("full", motion.t, motion.q, "calibration: segments", "full"))
+    storage, columns = storage_columns(tmp_path / "full.mot")
+    assert list(columns) == ["time", *wire.joint_angles("full")]
+    assert storage.getSize() == 100 and storage.getColumnLabels().getSize() == 31
+    truth, _ = true_angles(motion)
+    for k, name in enumerate(wire.joint_angles("full")):
+        assert columns[name] == pytest.approx(truth[:, k], abs=1e-4), name
+    assert columns["time"] == pytest.approx(motion.t - motion.t[0], abs=1e-6)
+    present = np.ones(len(FULL.segments), bool)
+    present[[SEG["l_hand"], SEG["r_hand"]]] = False
+    (tmp_path / "no_hands.mot").write_text(mot_of("no hands", motion.t, motion.q, "c", FULL, present=present))
+    _, columns = storage_columns(tmp_path / "no_hands.mot")
+    assert list(columns) == ["time", *(a for a in wire.joint_angles("full") if not a.startswith("wrist"))]
+    with pytest.raises(ValueError, match="no joint has both"):  # the pelvis alone
+        mot_of("one", motion.t, motion.q, "c", "full", present=np.eye(len(FULL.segments), dtype=bool)[SEG["hip"]])
