@@ -173,13 +173,27 @@ def test_a_full_recordings_skeletons_draw_its_bones(tmp_path):
     assert line.pose.position.z == pytest.approx(rest[FULL.joint_index["l_hip"], 1] - rest[:, 1].min(), abs=1e-5)
 
 
-def test_opensim_files_of_a_full_take_are_refused_in_one_line(tmp_path):
-    """.mot and .sto hold paper10's joint angles and segments: a full take is refused with the
-    reason, never written with its segments taken for paper10's."""
+def test_opensim_files_of_a_full_take(tmp_path):
+    """.mot holds a full take's own joint angles (the full layout's, the model's names: its ankles,
+    wrists and lumbar spine too); .sto's OpenSense columns are paper10's: a full take is refused
+    with the reason, never written with its segments taken for paper10's."""
+    from support.export import storage_columns
+
+    from limbstream.joints import joint_angles
+
     rec = tmp_path / "take.mcap"
-    write_full_recording(rec, full_motion(20))
-    for suffix, what in (("mot", "joint angles"), ("sto", "anatomical frames")):
-        result = cli(str(rec), "--subject", "s01", "-o", str(tmp_path / f"s01.{suffix}"))
-        assert result.returncode != 0 and not (tmp_path / f"s01.{suffix}").exists(), result
-        last = result.stderr.strip().splitlines()[-1]
-        assert f"s01: no {what} of the full layout" in last and "Traceback" not in result.stderr, result.stderr
+    motion = full_motion(20)
+    write_full_recording(rec, motion)
+    result = cli(str(rec), "--subject", "s01", "-o", str(tmp_path / "s01.mot"))
+    assert result.returncode == 0, result.stderr
+    _, columns = storage_columns(tmp_path / "s01.mot")
+    names = wire.joint_angles("full")
+    assert list(columns)[1:] == list(names)
+    truth, _ = joint_angles(motion.astype(np.float32), layout="full")  # the frames' orientations, as recorded
+    assert len(columns["time"]) == len(motion)
+    for name in ("ankle_angle_r", "wrist_flex_l", "lumbar_extension", "arm_flex_r"):
+        assert np.allclose(columns[name], truth[:, names.index(name)], atol=1e-3), name
+    result = cli(str(rec), "--subject", "s01", "-o", str(tmp_path / "s01.sto"))
+    assert result.returncode != 0 and not (tmp_path / "s01.sto").exists(), result
+    last = result.stderr.strip().splitlines()[-1]
+    assert "s01: no anatomical frames of the full layout" in last and "Traceback" not in result.stderr, result.stderr

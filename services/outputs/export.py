@@ -332,20 +332,19 @@ def write_npz(take: Take, path: Path) -> None:
 
 
 def _paper10_only(take: Take, what: str) -> None:
-    """ExportError unless ``take`` is of ``paper10``: the joint angles and anatomical frames are
-    ``paper10``'s (``limbstream.joints``)."""
+    """ExportError unless ``take`` is of ``paper10``: the anatomical frames' OpenSense columns are
+    ``paper10``'s."""
     if take.layout != PAPER10:
         raise ExportError(f"{take.name}: no {what} of the {take.layout.name} layout: .mot and .sto are written "
-                          f"for paper10 subjects (bvh, csv and npz take any layout)")
+                          f"for paper10 subjects (bvh, csv, npz and .mot take any layout)")
 
 
 def take_angles(take: Take) -> tuple[np.ndarray, np.ndarray]:
-    """(F, A) joint angles (degrees, :data:`limbstream.joints.ANGLES`) and flags of ``take``;
-    ExportError saying why if its orientations are not anatomical or not ``paper10``'s."""
-    _paper10_only(take, "joint angles")
+    """(F, A) joint angles (degrees, its layout's: ``joints.angle_names(take.layout)``) and flags
+    of ``take``; ExportError saying why if its orientations are not anatomical."""
     if not take.anatomical:
         raise ExportError(f"{take.name}: no joint angles: {take.basis}")
-    return joints.joint_angles(take.q, take.present, take.skeleton.rest_pose)
+    return joints.joint_angles(take.q, take.present, take.skeleton.rest_pose, layout=take.layout)
 
 
 def _complete_rows(take: Take, valid: np.ndarray, what: str) -> np.ndarray:
@@ -368,12 +367,12 @@ def write_mot(take: Take, path: Path) -> None:
     if not len(columns):
         raise ExportError(f"{take.name}: no joint has both of its segments")
     rows = _complete_rows(take, valid[:, columns], "joint angle")
-    gimbal = [f"{joints.ANGLES[k]} {int(n)}" for k, n in zip(columns, (flags[rows][:, columns] & joints.GIMBAL != 0).sum(0))
-              if n]
+    names = joints.angle_names(take.layout)
+    gimbal = [f"{names[k]} {int(n)}" for k, n in zip(columns, (flags[rows][:, columns] & joints.GIMBAL != 0).sum(0)) if n]
     if gimbal:
         take.notes.append(f"frames near gimbal lock (ill-conditioned, docs/evaluation.md): {', '.join(gimbal)}")
     t = (take.t_us[rows] - take.t_us[0]) / 1e6
-    path.write_text(mot_text(take.name, t, angles[rows][:, columns], tuple(joints.ANGLES[k] for k in columns),
+    path.write_text(mot_text(take.name, t, angles[rows][:, columns], tuple(names[k] for k in columns),
                              f"calibration: {take.basis}"))
 
 
