@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from limbstream import calibration, quat, wire
 from limbstream.body import FULL, PAPER10, layout
-from limbstream.joints import TO_OPENSIM, angle_names, joint_angles, pooled_errors, true_angles
+from limbstream.joints import GIMBAL, TO_OPENSIM, angle_names, joint_angles, pooled_errors, true_angles
 from limbstream.sources import Motion
 
 SEG = FULL.segment_index
@@ -117,6 +117,26 @@ def test_each_new_angle_has_the_models_sign():
         others = [k for k, v in got.items() if k != name and abs(v[0]) > 1e-9]
         assert others == [], (name, others)
         assert not flags.any()
+
+
+def test_the_generators_full_body_gives_its_own_ankle_angles_back():
+    """The generator builds each foot from its shank turned by its own ankle flexion and subtalar
+    inversion (``generator_limbs``): the same angles come back exactly, through every activity; its
+    trunk (pelvis -> chest, another Euler order) bends the same way: flexion reads as negative
+    lumbar extension, within a degree."""
+    from limbstream.sources import generator
+
+    source = generator.GeneratorSource(seed=3, fs=50.0, layout="full")
+    t = np.arange(0.0, source.period_s, 0.02)
+    got, flags = full_angles(source.orientations(t))
+    truth = source.joint_angles(t)
+    for mine, theirs in (("ankle_angle_l", "ankle_flex_l"), ("ankle_angle_r", "ankle_flex_r"),
+                         ("subtalar_angle_l", "subtalar_l"), ("subtalar_angle_r", "subtalar_r")):
+        assert np.abs(got[mine] - truth[theirs]).max() < 1e-6, mine
+        assert np.ptp(truth[theirs]) > 20
+    assert np.abs(got["lumbar_extension"] + truth["trunk_flex"]).max() < 1.0 and np.ptp(truth["trunk_flex"]) > 10
+    assert np.abs(got["lumbar_rotation"] - truth["trunk_rot"]).max() < 1.0 and np.ptp(truth["trunk_rot"]) > 10
+    assert not (flags & ~np.uint8(GIMBAL)).any()
 
 
 def test_joints_measured_from_the_chest():
