@@ -287,3 +287,84 @@ def test_mot_of_a_full_layout_motion_has_the_models_columns(tmp_path):
     assert list(columns) == ["time", *(a for a in wire.joint_angles("full") if not a.startswith("wrist"))]
     with pytest.raises(ValueError, match="no joint has both"):  # the pelvis alone
         mot_of("one", motion.t, motion.q, "c", "full", present=np.eye(len(FULL.segments), dtype=bool)[SEG["hip"]])
+
+
+def test_a_full_layout_joint_angle_message_carries_its_layout():
+    """A full subject's message: version 2, layout code 1, its 30 angles (174 bytes), back with
+    the angles' names; a layout file's (code 255) needs the subject's layout to be read; a batch
+    decodes to one layout (another layout's payload is refused)."""
+    n = len(wire.joint_angles("full"))
+    got, flags = joint_angles(full_motion(n=4).q, layout="full")
+    frames = wire.AngleFrames(np.arange(4), np.arange(4) * 20_000, np.full(4, wire.KIND_LIVE),
+                              np.full(4, wire.BASIS["segments"]), np.full(4, np.nan), got, flags, FULL)
+    payloads = frames.encode()
+    assert [len(p) for p in payloads] == [24 + 5 * n] * 4 == [174] * 4
+    assert payloads[0][0] == wire.ANGLES_VERSION == 2 and payloads[0][3] == n and payloads[0][20] == 1
+    back = wire.decode_angles(payloads[2])
+    assert back.layout is FULL and back.names == wire.joint_angles("full")
+    assert np.allclose(back.angles, got[2], atol=1e-4) and np.array_equal(back.flags, flags[2])
+    js = back.to_json("s01")
+    assert js["layout"] == "full" and list(js["angles"]) == list(wire.joint_angles("full"))
+    paper10 = wire.AngleFrames(np.arange(1), np.zeros(1), np.full(1, 1), np.full(1, wire.BASIS["segments"]),
+                               np.full(1, np.nan), np.zeros((1, 19)), np.zeros((1, 19), np.uint8)).encode()
+    together, reasons = wire.decode_angles_many(payloads[:2] + paper10 + payloads[2:])
+    assert reasons == ["", "", "layout", "", ""] and len(together) == 4 and together.layout is FULL
+    with pytest.raises(ValueError, match="angles for a layout of 30"):
+        wire.AngleFrames(np.arange(1), np.zeros(1), np.full(1, 1), np.full(1, 3), np.full(1, np.nan),
+                         np.zeros((1, 19)), np.zeros((1, 19), np.uint8), FULL).encode()
+    suit = layout(f"{EXAMPLES}/suit17.toml")
+    (own,) = wire.AngleFrames(np.arange(1), np.zeros(1), np.full(1, 1), np.full(1, 3), np.full(1, np.nan),
+                              np.zeros((1, 30)), np.zeros((1, 30), np.uint8), suit).encode()
+    assert own[20] == wire.OTHER_LAYOUT
+    with pytest.raises(wire.WireError) as err:
+        wire.decode_angles(own)
+    assert err.value.reason == "layout"
+    assert wire.decode_angles(own, suit).layout is suit
+    for short in (b"\x02" * 19, b"short"):  # shorter than the fields every version begins with
+        with pytest.raises(wire.WireError) as err:
+            wire.decode_angles(short)
+        assert err.value.reason == "size"
+    from typing import get_args
+
+    from limbstream.services.dashboard.models import AngleName
+    assert set(get_args(AngleName)) == set(wire.joint_angles("full"))  # the REST angle filter knows full's angles
+
+
+def test_the_aggregators_joint_stage_publishes_each_subjects_layout():
+    """The joint stage told each subject's layout (``layout_of``): a ``paper10`` subject's message
+    and a ``full`` subject's from one tick's frames, each the joint angles of its own frame in its
+    own layout (a frame of layout L holds L's segments first)."""
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+    from limbstream.services.aggregator.angles import JointStage
+    from limbstream.services.aggregator.frames import FrameBatch
+
+    agg = Aggregator(None, AggregatorSettings())
+    for subject in ("s01", "s02"):
+        for segment in wire.SEGMENTS:
+            agg.on_alive(wire.alive_key(subject, segment), True)
+            status = wire.DeviceStatus(wire.device_id(subject, segment), wire.DeviceConfig(), 1, 0, 0,
+                                       orientations="segments")
+            agg.on_config(wire.config_key(subject, segment), wire.encode_status(status))
+    full_index = list(agg.fusion.subjects).index("s02")
+    stage = JointStage(agg.fusion, clock=lambda: 0.0, layout_of=lambda i: FULL if i == full_index else None)
+    motion = full_motion(n=3)
+    paper10_q = motion.q[:, [SEG["head" if s == "neck" else s] for s in wire.SEGMENTS]]
+    q = np.concatenate([np.concatenate([paper10_q, rest(3)[:, :5]], axis=1), motion.q])  # (6, 15, 4)
+    owner = np.array([1 - full_index] * 3 + [full_index] * 3)
+    frames = wire.PoseFrames(np.arange(6), np.arange(6) * 20_000, wire.KIND_LIVE, np.zeros(6, np.uint8), q,
+                             np.zeros((6, 20, 3)), FULL)
+    missing = np.zeros((6, 15), bool)
+    batch = FrameBatch(np.zeros(0, int), frames, owner, frames, missing, missing)
+    out = list(stage(batch))
+    assert len(out) == 6
+    for (key, kind, payload), row in zip(sorted(out, key=lambda m: wire.decode_angles(m[2]).seq), range(6)):
+        assert kind == wire.ANGLES
+        message = wire.decode_angles(payload)
+        subject = wire.parse_subject_key(key)[0]
+        if row < 3:
+            assert subject == ("s01" if full_index == 1 else "s02") and message.layout is None
+            want, _ = joint_angles(paper10_q[row].astype(np.float32))
+        else:
+            assert message.layout is FULL and len(message.angles) == 30
+            want, _ = joint_angles(motion.q[row - 3].astype(np.float32), layout="full")
+        assert np.allclose(message.angles, want, atol=1e-3), (row, message.angles - want)

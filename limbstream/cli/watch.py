@@ -85,7 +85,7 @@ def render_angles(angles: wire.JointAngles | None) -> str:
         return f"  joint angles: none, calibration {basis.name}: {basis.meaning}"
     facing = f", facing {angles.facing_deg:.1f}°" if math.isfinite(angles.facing_deg) else ""
     cells = []
-    for name, value, bits in zip(wire.JOINT_ANGLES, angles.angles.tolist(), angles.flags.tolist()):
+    for name, value, bits in zip(angles.names, angles.angles.tolist(), angles.flags.tolist()):
         text = "      -" if not math.isfinite(value) else f"{value:6.1f}°"
         cells.append(f"{name:>16s} {text}{'~' if bits & wire.ANGLE_GIMBAL else ' '}")
     lines = [f"  joint angles (deg; calibration {basis.name}{facing}; - no data, ~ near gimbal lock):"]

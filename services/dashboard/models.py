@@ -8,7 +8,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model
 from limbstream import wire
 
 PoseKind = Literal["auto", "live", "exact"]
-AngleName = Literal[wire.JOINT_ANGLES]  # type: ignore[valid-type]
+AngleName = Literal[tuple(dict.fromkeys(a for name in wire.JOINT_TABLES for a in wire.joint_angles(name)))]  # type: ignore[valid-type]
 
 
 def _described(f: wire.StatsField):
