@@ -321,7 +321,9 @@ def evaluate_threshold(
     row["joint_aad"], row["joint_kinds"] = bodies_of.joint_figures(bodies)
     places = [positions_of.positions_of(b) for b in bodies]
     row["pos_cm"], row["positions"] = positions_of.position_figures(places)
-    row["translation"] = [f for b, p in zip(bodies, places) if (f := translation.translation_of(b, p)) is not None]
+    moved = [f for b, p in zip(bodies, places) if (f := translation.translation_of(b, p)) is not None]
+    if moved:  # only motions with a root path that travels have figures
+        row["translation"] = moved
     if angles:
         widest = FULL if any(b.layout == FULL for b in bodies) else PAPER10  # full's angles hold paper10's
         row["joints"] = joints.pooled_errors([(b.estimated, b.truth, b.rest_pose, b.layout) for b in bodies], widest)
