@@ -271,11 +271,13 @@ def at_rate(take: Take, rate: float) -> Take:
 
 
 def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None,
-              names: Mapping[str, str] | None = None, rate: float | None = None) -> Take:
+              names: Mapping[str, str] | None = None, rate: float | None = None,
+              layout: str | Layout | None = None) -> Take:
     """A recording (``.mcap``), a raw sensor recording (``.mat``: fused as devices fuse it,
     :func:`limbstream.sources.raw.to_motion`) or a motion file (``names``: its sensors' or joints'
-    segments, :mod:`limbstream.sources.names`), as a :class:`Take` at its own rate or ``rate`` Hz;
-    ExportError naming the problem."""
+    segments, :mod:`limbstream.sources.names`; ``layout``: the body layout it is read onto,
+    :func:`limbstream.sources.load`; a recording's frames carry theirs), as a :class:`Take` at its
+    own rate or ``rate`` Hz; ExportError naming the problem."""
     path = Path(path)
     if rate is not None and not 0 < rate <= 10_000:
         raise ExportError(f"--rate must be in (0, 10000] Hz, got {rate:g}")
@@ -289,9 +291,9 @@ def read_take(path: str | Path, subject: str | None, rest_pose: str | None = Non
         if path.suffix.lower() == ".mat" or raw.raw_files(path):
             motions = [raw.to_motion(load_raw(p), names) for p in ([path] if path.is_file() else raw.raw_files(path))]
         else:
-            motions = load(path, names, fs=None)
+            motions = load(path, names, fs=None, layout=layout)
         return from_motion(motions, subject, path, rest_pose, rate)
-    except (RecordingError, MotionFileError) as exc:
+    except (RecordingError, MotionFileError, ValueError) as exc:
         raise ExportError(str(exc)) from None
 
 
