@@ -187,3 +187,39 @@ def test_eval_scores_the_root_path_of_a_walk_read_onto_full(cmu_bvh_dir, tmp_pat
     assert walk["motion"] == "131_01" and walk["path_m"] > 4.0
     assert walk["end_pct"] < 3.0 and walk["height_cm"] < 6.0 and walk["below_cm"] == 0.0
     assert "root translation from the reconstruction's feet" in text and "true skate" in text
+
+
+def test_exports_carry_the_root_path_of_a_recording(tmp_path):
+    """A recording whose frames carry a root walking forward (+Z) and sideways: its BVH root
+    channels are that path (read back by an independent reader), its .mot has OpenSim's
+    pelvis_tx (forward), pelvis_ty (up), pelvis_tz (right) in metres."""
+    from support.bvh import read_bvh_positions
+    from support.export import T0_US, storage_columns
+
+    from limbstream import wire
+    from limbstream.body import FULL, Body
+    from limbstream.services.outputs.export import export, read_take
+    from limbstream.services.outputs.recording import RecordingWriter
+    from limbstream.sources.generator import GeneratorSource
+
+    q = GeneratorSource(seed=3, layout="full").motion(3.0).q.astype(np.float32)
+    joints = Body.default(FULL).positions(q).astype(np.float32)
+    k = np.arange(len(q))
+    root = np.stack([0.2 * k / len(k), 0.95 + 0.01 * np.sin(k / 5.0), 1.4 * k / 50.0], axis=1).astype(np.float32)
+    path = tmp_path / "session.mcap"
+    writer = RecordingWriter(path)
+    for i in k:
+        t = T0_US + 20_000 * int(i)
+        frame = wire.PoseFrame(int(i), t, wire.KIND_EXACT, 0, q[i], joints[i], FULL, root[i], 0b0001)
+        writer.add("pose", wire.pose_key("s01"), wire.encode_pose(frame), t * 1000)
+    writer.close()
+    take = read_take(path, None)
+    assert take.root is not None and np.allclose(take.root, root, atol=1e-6)
+    export(take, "bvh", tmp_path / "walk.bvh")
+    positions = read_bvh_positions(tmp_path / "walk.bvh")
+    assert np.allclose(positions["Hips"], root, atol=1e-4)
+    export(take, "mot", tmp_path / "walk.mot")
+    _, columns = storage_columns(tmp_path / "walk.mot")
+    assert np.allclose(columns["pelvis_tx"], root[:, 2], atol=1e-4)   # forward: limbstream's +Z
+    assert np.allclose(columns["pelvis_ty"], root[:, 1], atol=1e-4)   # up
+    assert np.allclose(columns["pelvis_tz"], -root[:, 0], atol=1e-4)  # right: limbstream's -X

@@ -126,7 +126,8 @@ the entry."""
 
 def load_npz(path: str | Path) -> list[Motion]:
     """All clips of a ``cmu_10seg_50hz.npz``-style file (``clip_<name>`` arrays, ``fs``,
-    ``segment_names``, optional ``rest_pose``: a 0-d string, :data:`NPZ_REST_POSE` if absent)."""
+    ``segment_names``, optional ``rest_pose``: a 0-d string, :data:`NPZ_REST_POSE` if absent;
+    optional ``root_<name>`` (m, 3) m, a clip's root path: ``Motion.root``)."""
     path = Path(path)
     try:
         data = np.load(path, allow_pickle=False)
@@ -143,7 +144,11 @@ def load_npz(path: str | Path) -> list[Motion]:
         q = np.asarray(data[key], np.float64)
         if q.ndim != 3 or q.shape[1:] != (len(names), 4):
             raise MotionFileError(f"{path}: {key} has shape {q.shape}, expected (m, {len(names)}, 4)")
-        motions.append(Motion(np.arange(len(q)) / fs, q, names, key[len("clip_"):], rest_pose))
+        name = key[len("clip_"):]
+        root = np.asarray(data[f"root_{name}"], np.float64) if f"root_{name}" in data.files else None
+        if root is not None and root.shape != (len(q), 3):
+            raise MotionFileError(f"{path}: root_{name} has shape {root.shape}, expected ({len(q)}, 3)")
+        motions.append(Motion(np.arange(len(q)) / fs, q, names, name, rest_pose, root))
     return motions
 
 

@@ -97,6 +97,14 @@ class BvhPositions:
             self._cache["root", layout.name] = joint_positions(self.clip, [j])[0][:, j] * self.unit_m
         return self._interpolate(self._cache["root", layout.name][:, None], t_s)[:, 0]
 
+    def travels(self, layout: Layout = PAPER10) -> bool:
+        """Whether the file moves ``layout``'s root joint: a joint from it up to the file's root has
+        all three position channels (else :meth:`root_at` is its zero pose's place throughout)."""
+        from limbstream.sources.bvh import _moves
+
+        joint = self.joints(layout)[layout.joint_index[layout.root.joint]].removesuffix(_SITE)
+        return _moves(self.clip, self.clip.joints.index(joint))
+
     def _interpolate(self, frames: np.ndarray, t_s: np.ndarray) -> np.ndarray:
         """``frames`` (F, ...) at file times ``t_s`` (m,): linear between frames, NaN outside."""
         x = np.asarray(t_s, np.float64) / self.clip.frame_time
@@ -159,11 +167,15 @@ to the top of the head), not at the first joint below."""
 
 def metres_per_unit(clip: BvhClip, segment_map: Mapping[str, str]) -> float:
     """Metres per unit of ``clip`` (:func:`.bvh_body.unit_of_leg` of its left leg: the ``l_thigh``
-    joint to the ``l_shank`` joint to the end of its bone), CMU's where the map has no such leg."""
+    joint to the ``l_shank`` joint to the end of its bone, a joint below it or its End Site), CMU's
+    where the map has no such leg."""
     index = {name: j for j, name in enumerate(clip.joints)}
     at = zero_pose_positions(clip)
     thigh, shank = index.get(segment_map.get("l_thigh", "")), index.get(segment_map.get("l_shank", ""))
-    end = bone_end(clip, shank, at) if shank is not None else None
-    if thigh is None or end is None:
+    if thigh is None or shank is None:
         return CMU_UNIT_M
-    return unit_of_leg(float(np.linalg.norm(at[shank] - at[thigh]) + np.linalg.norm(at[end] - at[shank])), CMU_UNIT_M)
+    end = bone_end(clip, shank, at)
+    shin = (at[end] - at[shank] if end is not None else clip.end_offsets[shank])
+    if not np.isfinite(shin).all():
+        return CMU_UNIT_M
+    return unit_of_leg(float(np.linalg.norm(at[shank] - at[thigh]) + np.linalg.norm(shin)), CMU_UNIT_M)

@@ -120,7 +120,8 @@ def bvh_text(take: Take) -> str:
 
     write(children[None][0], 0)
     floor = min(float(p[1]) for p in rest)  # the lowest joint at rest: the ankles (paper10), the toes (full)
-    columns = [np.tile([0.0, -floor, 0.0], (len(take), 1))]  # root: feet on the floor at rest
+    # root: the take's path where it has one (its floor at 0), else the feet on the floor at rest
+    columns = [np.tile([0.0, -floor, 0.0], (len(take), 1)) if take.root is None else take.root]
     seg = layout.segment_index
 
     def carried(joint: BvhJoint | None) -> np.ndarray:

@@ -62,6 +62,8 @@ class Take:
     basis : which calibration the orientations rest on (one line).
     anatomical : the orientations are anatomical (joint angles can be taken); False: ``basis``
         says why not.
+    root : (F, 3) the root's (pelvis') path, metres, world frame, Y up, its floor at height 0 (a
+        recording's frames' root translation, a motion file's root path); None: not tracked.
     """
 
     name: str
@@ -77,6 +79,7 @@ class Take:
     present: np.ndarray | None = None
     basis: str = "the source's own segment orientations"
     anatomical: bool = True
+    root: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_us)
@@ -159,6 +162,8 @@ def from_recording(recording: Recording, subject: str | None, rest_pose: str | N
                 np.array([f.flags for f in chosen]) | np.where(filled, wire.FRAME_GAP, 0), filled,
                 skeleton_of(chosen[-1], rest_pose), basis="the aggregator's segments (its device calibrations)")
     take.present = ~((take.flags & wire.FRAME_MISSING != 0)[:, None] & (take.q == _IDENTITY).all(axis=-1))
+    root = np.stack([f.root for f in chosen]).astype(np.float64)
+    take.root = root if root.any() else None  # frames of an aggregator that tracks no root carry zeros
     if filled.any():
         take.notes.append(f"{int(filled.sum())} of {len(grid)} frames were not recorded: each repeats the frame "
                           f"before (flag GAP; npz 'filled')")
@@ -195,12 +200,22 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
     except ValueError as exc:
         raise ExportError(f"{path}: {exc}") from None
     t = motion.t
+    # the root's path: a BVH file's in its own metres (its positions', as the body it is drawn
+    # with) where the file moves it, else the motion's own (an npz clip's)
+    source = motion.positions
+    root = (motion.root if source is None else
+            source.root_at(t - t[0] + source.start_s, layout) if source.travels(layout) else None)
+    if root is not None and np.ptp(root, axis=0).max() < 1e-6:
+        root = None  # a root that stays put (position channels of a file that tracks none) is no path
     have = [k for k in range(len(segments)) if np.isfinite(q_in[:, k]).all()]
     fs = rate or (motion.fs if len(t) > 1 else FS)
     if len(t) > 1 and (rate is not None or np.ptp(np.diff(t)) > 1e-6 / fs):
+        t_in = t
         t, q_have = resample(t, q_in[:, have], fs)
         q_in = np.full((len(t), len(segments), 4), np.nan)
         q_in[:, have] = q_have
+        if root is not None:
+            root = np.stack([np.interp(t, t_in - t_in[0], root[:, k]) for k in range(3)], axis=1)
     index = layout.segment_index
     q = np.zeros((len(t), len(layout.segments), 4))
     q[..., 0] = 1.0
@@ -226,7 +241,7 @@ def from_motion(motions: list[Motion], subject: str | None, path: Path, rest_pos
     take = Take(motion.name or path.stem, int(round(1e6 / fs)), np.round((t - t[0]) * 1e6).astype(np.int64), q,
                 skeleton.positions(q), np.arange(n), np.full(n, wire.FRAME_MISSING if lacking else 0),
                 np.zeros(n, bool), skeleton, present=np.broadcast_to(present, (n, len(present))).copy(), basis=basis,
-                anatomical=anatomical)
+                anatomical=anatomical, root=None if root is None else np.asarray(root, np.float64))
     if lacking:
         take.notes.append(f"{path} has no {', '.join(lacking)}: each follows its parent segment (flag MISSING)")
     return take
@@ -267,7 +282,8 @@ def at_rate(take: Take, rate: float) -> Take:
     before = np.clip(np.searchsorted(take.t_us, t_us, side="right") - 1, 0, len(take) - 1)
     return Take(take.name, period, t_us, q, take.skeleton.positions(q), take.seq[before], take.flags[before],
                 take.filled[before], take.skeleton, list(take.notes),
-                None if take.present is None else take.present[before], take.basis, take.anatomical)
+                None if take.present is None else take.present[before], take.basis, take.anatomical,
+                None if take.root is None else np.stack([np.interp(t_out, t_in, take.root[:, k]) for k in range(3)], 1))
 
 
 def read_take(path: str | Path, subject: str | None, rest_pose: str | None = None,
@@ -323,14 +339,16 @@ def write_csv(take: Take, path: Path) -> None:
 
 def write_npz(take: Take, path: Path) -> None:
     """``clip_<name>`` (F, S, 4), ``fs``, ``segment_names`` (the take's layout's), ``rest_pose`` (what
-    ``load_npz`` reads) and the frame details: ``layout`` (its name), ``joint_names``, ``t_us``,
-    ``joints``, ``seq``, ``flags``, ``filled``."""
+    ``load_npz`` reads; ``root_<name>`` (F, 3) m, the root's path, where the take has one) and the
+    frame details: ``layout`` (its name), ``joint_names``, ``t_us``, ``joints``, ``seq``, ``flags``,
+    ``filled``."""
+    root = {} if take.root is None else {f"root_{take.name}": take.root}
     with open(path, "wb") as f:
         np.savez_compressed(f, **{f"clip_{take.name}": take.q}, fs=np.float64(1e6 / take.period_us),
                             segment_names=np.array(take.layout.segment_names), layout=np.array(take.layout.name),
                             joint_names=np.array(take.layout.joints), rest_pose=np.array(take.skeleton.rest_pose),
                             t_us=take.t_us, joints=take.joints,
-                            seq=take.seq, flags=take.flags, filled=take.filled)
+                            seq=take.seq, flags=take.flags, filled=take.filled, **root)
 
 
 def _paper10_only(take: Take, what: str) -> None:
@@ -360,6 +378,10 @@ def _complete_rows(take: Take, valid: np.ndarray, what: str) -> np.ndarray:
     return rows
 
 
+PELVIS_TRANSLATION = ("pelvis_tx", "pelvis_ty", "pelvis_tz")
+"""The Rajagopal model's pelvis translation coordinates: a take's root path in a .mot, metres."""
+
+
 def write_mot(take: Take, path: Path) -> None:
     """The joint angles the take has (columns without any valid frame left out) as an OpenSim
     motion file, time 0 at its first frame (:func:`.opensim.mot_text`)."""
@@ -374,8 +396,11 @@ def write_mot(take: Take, path: Path) -> None:
     if gimbal:
         take.notes.append(f"frames near gimbal lock (ill-conditioned, docs/evaluation.md): {', '.join(gimbal)}")
     t = (take.t_us[rows] - take.t_us[0]) / 1e6
-    path.write_text(mot_text(take.name, t, angles[rows][:, columns], tuple(names[k] for k in columns),
-                             f"calibration: {take.basis}"))
+    values, titles = angles[rows][:, columns], tuple(names[k] for k in columns)
+    if take.root is not None:  # OpenSim's pelvis translation: metres, X forward, Y up, Z right
+        x, y, z = take.root[rows].T
+        values, titles = np.column_stack([values, z, y, -x]), (*titles, *PELVIS_TRANSLATION)
+    path.write_text(mot_text(take.name, t, values, titles, f"calibration: {take.basis}"))
 
 
 def write_sto(take: Take, path: Path) -> None:
