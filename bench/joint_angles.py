@@ -71,7 +71,8 @@ def plot(t: np.ndarray, angles: np.ndarray, path: Path, title: str) -> None:
 
 def speed(subjects: int = 200, rate_hz: float = wire.DEVICE_RATE_HZ, repeats: int = 300) -> str:
     """The cost of :func:`limbstream.joints.joint_angles` for ``subjects`` subjects at once (one
-    frame each, as an aggregator's frame tick; float64, and float32 as the aggregator calls it), of
+    frame each, as an aggregator's frame tick; float64, and float32 as the aggregator calls it;
+    the ``full`` layout's too), of
     the aggregator's whole joint stage on such a tick (angles, flags, encoding, the messages), and
     of the functional calibration's running sums (one second of frames per call), as a table. CPU
     time of this process (less sensitive to other work on the machine than wall time)."""
@@ -87,12 +88,15 @@ def speed(subjects: int = 200, rate_hz: float = wire.DEVICE_RATE_HZ, repeats: in
             work()
         return (time.process_time() - start) / n
 
+    full = Rotation.random(subjects * 15, random_state=rng).as_quat()[:, [3, 0, 1, 2]].reshape(subjects, 15, 4)
     stage, batch = _joint_stage(q)
     stats = joints.HingeStats.empty((subjects,))
     second = np.broadcast_to(q[:, None], (subjects, round(rate_hz), 10, 4))
     rows = [("joint angles, one frame tick (float64)", cost(lambda: joints.joint_angles(q)), rate_hz),
             ("joint angles, one frame tick (float32, the aggregator's)",
              cost(lambda: joints.joint_angles(q.astype(np.float32))), rate_hz),
+            ("joint angles, one frame tick of the full layout (15 segments, 30 angles; float32)",
+             cost(lambda: joints.joint_angles(full.astype(np.float32), layout="full")), rate_hz),
             (f"the aggregator's joint stage, one frame tick (angles, flags, {subjects} messages encoded)",
              cost(lambda: list(stage(batch))), rate_hz),
             ("functional sums + facing, one second of frames", cost(lambda: (stats.add(second), stats.facing()), 10),

@@ -1,6 +1,7 @@
 /* limbstream dashboard page: polls the REST API for device stats and history, draws each
  * subject's skeleton from its WebSocket pose stream (live or exact frames, the page's toggle:
- * /ws/pose/<subject>?kind=live|exact). No build step; uPlot is vendored. */
+ * /ws/pose/<subject>?kind=live|exact), with the bones of the layout each frame names
+ * (GET /api/layouts, fetched once). No build step; uPlot is vendored. */
 "use strict";
 
 const MAX_FIGURES = 12;          // skeleton cards (one WebSocket each)
@@ -16,7 +17,7 @@ const $ = (id) => document.getElementById(id);
 const state = {
   devices: [],
   selected: null,
-  skeleton: null,
+  layouts: null,                // layout name -> {segments, joints, bones} (GET /api/layouts)
   figures: new Map(),           // subject -> Figure
   subjects: new Map(),          // subject -> its latest /api/subjects entry (frame error)
   charts: null,
@@ -331,152 +332,6 @@ async function refreshHistory() {
   state.charts.heading.setData([h.t, h.heading_offset_deg]);
 }
 
-// ------------------------------------------------------------------ skeletons
-
-class Figure {
-  constructor(subject, container) {
-    this.subject = subject;
-    this.frame = null;
-    this.dirty = false;
-    this.drawn = 0;
-    this.yaw = -0.6;
-    this.received = 0;
-    this.retry = 500;
-    const card = document.createElement("div");
-    card.className = "skeleton";
-    card.dataset.subject = subject;
-    card.innerHTML = `<canvas width="440" height="520"></canvas>` +
-      `<div class="cap"><b>${esc(subject)}</b><span>waiting…</span></div>`;
-    container.appendChild(card);
-    this.card = card;
-    this.canvas = card.querySelector("canvas");
-    this.caption = card.querySelector(".cap span");
-    this.canvas.dataset.frames = "0";
-    this.kind = state.kind;
-    this.bindDrag();
-    this.connect();
-  }
-
-  bindDrag() {
-    let x0 = null;
-    this.canvas.addEventListener("pointerdown", (e) => { x0 = e.clientX; this.canvas.setPointerCapture(e.pointerId); });
-    this.canvas.addEventListener("pointermove", (e) => {
-      if (x0 === null) return;
-      this.yaw += (e.clientX - x0) * 0.01;
-      x0 = e.clientX;
-      this.dirty = true;
-    });
-    this.canvas.addEventListener("pointerup", () => { x0 = null; });
-  }
-
-  connect() {
-    const proto = location.protocol === "https:" ? "wss" : "ws";
-    const ws = new WebSocket(`${proto}://${location.host}/ws/pose/${encodeURIComponent(this.subject)}` +
-                             `?kind=${this.kind}`);
-    this.ws = ws;
-    ws.onmessage = (ev) => {
-      if (ws !== this.ws) return;                // a stream of the kind before a switch
-      this.frame = JSON.parse(ev.data);
-      this.received += 1;
-      this.dirty = true;
-      this.retry = 500;
-    };
-    ws.onclose = () => {
-      if (this.closed || ws !== this.ws) return;
-      this.caption.textContent = "reconnecting…";
-      setTimeout(() => { if (ws === this.ws && !this.closed) this.connect(); }, this.retry);
-      this.retry = Math.min(this.retry * 2, 5000);
-    };
-  }
-
-  setKind(kind) {  // a new stream of the other kind; the figure holds its frame until one comes
-    if (kind === this.kind) return;
-    this.kind = kind;
-    const old = this.ws;
-    this.connect();
-    old.close();
-  }
-
-  close() {
-    this.closed = true;
-    this.ws.close();
-    this.card.remove();
-  }
-
-  draw() {
-    if (!this.dirty || !this.frame || !state.skeleton) return;
-    this.dirty = false;
-    const f = this.frame;
-    const ctx = this.canvas.getContext("2d");
-    const W = this.canvas.width, H = this.canvas.height;
-    ctx.clearRect(0, 0, W, H);
-    const scale = H / 2.05, cx = W / 2, cy = H * 0.45;
-    const c = Math.cos(this.yaw), s = Math.sin(this.yaw);
-    const proj = (p) => {
-      const x = p[0] * c + p[2] * s;
-      const z = -p[0] * s + p[2] * c;
-      const k = 1 / (1 - z * 0.12);               // gentle perspective
-      return [cx + x * scale * k, cy - p[1] * scale * k, z];
-    };
-    // floor: ellipse under the lowest joint
-    const ys = Object.values(f.joints).map((p) => p[1]);
-    const floor = Math.min(...ys);
-    ctx.strokeStyle = COLORS.grid;
-    ctx.lineWidth = 1;
-    for (let r = 0.25; r <= 0.75; r += 0.25) {
-      ctx.beginPath();
-      ctx.ellipse(cx, cy - floor * scale, r * scale, r * scale * 0.22, 0, 0, 2 * Math.PI);
-      ctx.stroke();
-    }
-    const P = {};
-    for (const [name, p] of Object.entries(f.joints)) P[name] = proj(p);
-    const side = (n) => (n.startsWith("l_") ? COLORS.left : n.startsWith("r_") ? COLORS.right : COLORS.mid);
-    const bones = state.skeleton.bones
-      .filter(([a, b]) => P[a] && P[b])
-      .map(([a, b]) => [a, b, (P[a][2] + P[b][2]) / 2])
-      .sort((u, v) => u[2] - v[2]);                 // far first
-    ctx.lineCap = "round";
-    for (const [a, b, z] of bones) {
-      ctx.globalAlpha = 0.55 + 0.45 * Math.max(0, Math.min(1, 0.5 + z));
-      ctx.strokeStyle = side(b);
-      ctx.lineWidth = 7;
-      ctx.beginPath();
-      ctx.moveTo(P[a][0], P[a][1]);
-      ctx.lineTo(P[b][0], P[b][1]);
-      ctx.stroke();
-    }
-    ctx.globalAlpha = 1;
-    for (const [name, p] of Object.entries(P)) {
-      ctx.fillStyle = name === "head" ? COLORS.mid : "#0f1419";
-      ctx.strokeStyle = side(name);
-      ctx.lineWidth = 2.5;
-      ctx.beginPath();
-      ctx.arc(p[0], p[1], name === "head" ? 14 : 5, 0, 2 * Math.PI);
-      ctx.fill();
-      ctx.stroke();
-    }
-    this.drawn += 1;
-    this.canvas.dataset.frames = String(this.drawn);
-    this.canvas.dataset.kind = f.kind;        // of the frame drawn last
-    this.card.classList.toggle("flag-missing", f.missing || f.gap);
-    const flags = f.missing ? " · missing" : f.gap ? " · gap" : "";
-    this.caption.textContent = `${f.kind} #${f.seq}${flags}`;
-  }
-}
-
-async function refreshSubjects() {
-  let subjects;
-  try { subjects = await api("/api/subjects"); } catch (_) { return; }
-  state.subjects = new Map(subjects.map((s) => [s.subject, s]));
-  renderExactLatency();
-  const container = $("skeletons");
-  const withPose = subjects.filter((s) => s.pose).slice(0, MAX_FIGURES);
-  for (const s of withPose) {
-    if (!state.figures.has(s.subject)) state.figures.set(s.subject, new Figure(s.subject, container));
-  }
-  $("skeletons-empty").hidden = state.figures.size > 0;
-}
-
 async function refreshAggregators() {
   let aggs;
   try { aggs = (await api("/api/aggregators")).filter((a) => !a.stale); } catch (_) { return; }
@@ -498,18 +353,6 @@ async function refreshParts() {  // restart counts when `limbstream up` runs the
   el.textContent = total ? parts.filter(([, p]) => p.restarts).map(([name, p]) => `${name} ${p.restarts}`).join(" · ") : "0";
   el.className = parts.some(([, p]) => p.state !== "running") ? "bad" : (total ? "warn" : "");
   el.dataset.restarts = total;
-}
-
-function animate() {
-  for (const fig of state.figures.values()) fig.draw();
-  requestAnimationFrame(animate);
-}
-
-function setKind(kind) {  // the toggle: frames every figure draws, remembered for the next visit
-  state.kind = kind;
-  localStorage.setItem(KIND_KEY, kind);
-  $("skeletons").dataset.kind = kind;
-  for (const fig of state.figures.values()) fig.setKind(kind);
 }
 
 // ------------------------------------------------------------------ control
@@ -596,55 +439,6 @@ async function calibrate() {
   }
 }
 
-// ------------------------------------------------------------------ trackers (gateways' sensors)
-
-const GATEWAYS_EVERY_MS = 2000;
-
-async function refreshGateways() {
-  if (document.activeElement && document.activeElement.closest("#trackers-body")) return;  // the user is choosing
-  let gateways;
-  try { gateways = await api("/api/gateways"); } catch (_) { return; }
-  const rows = [];
-  for (const g of gateways) {
-    for (const s of g.sensors) {
-      const name = `${s.tracker}/${s.sensor}`;
-      const choices = g.segments.map((seg) => `${g.subject}/${seg}`);
-      if (s.device && !choices.includes(s.device)) choices.unshift(s.device);
-      const options = [`<option value="">— none —</option>`].concat(choices.map((d) =>
-        `<option value="${esc(d)}"${d === s.device ? " selected" : ""}>${esc(d)}</option>`));
-      rows.push(`<tr class="sensor" data-gateway="${esc(g.gateway)}" data-tracker="${esc(s.tracker)}"
-          data-sensor="${s.sensor}" data-device="${esc(s.device || "")}" data-online="${s.online}">
-        <td>${esc(g.gateway)}</td><td>${esc(name)}</td><td>${s.online ? "online" : "offline"}</td>
-        <td class="num">${s.position ?? "–"}</td>
-        <td><select class="assign" aria-label="device of ${esc(name)}">${options.join("")}</select></td>
-        <td class="why">${esc(s.why || "")}</td></tr>`);
-    }
-  }
-  $("trackers-body").innerHTML = rows.length ? rows.join("")
-    : `<tr class="empty-row"><td colspan="6">${gateways.length ? "No sensor has reported yet." : "No gateway answered."}</td></tr>`;
-}
-
-async function assignSensor(select) {
-  const tr = select.closest("tr.sensor");
-  const name = `${tr.dataset.tracker}/${tr.dataset.sensor}`;
-  const [subject, segment] = select.value ? select.value.split("/") : [null, null];
-  const result = $("trk-result");
-  try {
-    await api(`/api/gateways/${encodeURIComponent(tr.dataset.gateway)}/assign`, {
-      method: "POST",
-      headers: { "Content-Type": "application/json", Authorization: `Bearer ${$("ctl-token").value.trim()}` },
-      body: JSON.stringify({ tracker: tr.dataset.tracker, sensor: Number(tr.dataset.sensor), subject, segment }),
-    });
-    result.className = "result ok";
-    result.textContent = `${name} -> ${select.value || "none"}`;
-  } catch (e) {
-    result.className = "result err";
-    result.textContent = `${name}: ${e.message}`;
-  }
-  select.blur();
-  await refreshGateways();
-}
-
 // ------------------------------------------------------------------ start
 
 async function start() {
@@ -666,7 +460,7 @@ async function start() {
   });
   initCharts();
   try { buildTunables(await api("/api/tunables")); } catch (_) { /* the form says so on submit */ }
-  try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* retried by refreshSubjects' figures */ }
+  try { state.layouts = await api("/api/layouts"); } catch (_) { /* retried below */ }
   await refreshDevices();
   await refreshSubjects();
   await refreshAggregators();
@@ -679,9 +473,9 @@ async function start() {
   refreshGateways();
   setInterval(refreshGateways, GATEWAYS_EVERY_MS);
   setInterval(async () => {
-    if (!state.skeleton) { try { state.skeleton = await api("/api/skeleton"); } catch (_) { /* next time */ } }
+    if (!state.layouts) { try { state.layouts = await api("/api/layouts"); } catch (_) { /* next time */ } }
   }, 3000);
   requestAnimationFrame(animate);
 }
 
-start();
+document.addEventListener("DOMContentLoaded", start);  // after figures.js and trackers.js

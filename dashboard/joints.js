@@ -1,6 +1,6 @@
 /* limbstream dashboard page, joint angles: a plot per subject of the chosen angles over the
  * last seconds, from GET /api/subjects/<s>/joints (the angles of its live frames; OpenSim's
- * names, degrees). Loaded after app.js, whose helpers ($, api, esc, fmt, COLORS, state) it uses. */
+ * names, degrees; the list of angles is the names the messages carry). Loaded after app.js, whose helpers ($, api, esc, fmt, COLORS, state) it uses. */
 "use strict";
 
 const JOINTS_EVERY_MS = 500;
@@ -9,7 +9,7 @@ const JOINTS_DEFAULT = ["hip_flexion_r", "hip_flexion_l", "knee_angle_r", "knee_
 const JOINT_SHADES = ["", [6, 4], [2, 3], [10, 3, 2, 3]];  // dashes of a side's 1st, 2nd, ... angle
 
 const joints = {
-  names: null,                                    // every angle, the contract's order (from the first answer)
+  names: [],                                      // every angle the subjects' messages carry, their order
   chosen: JSON.parse(localStorage.getItem(JOINTS_KEY) || "null") || JOINTS_DEFAULT,
   plots: new Map(),                               // subject -> JointPlot
 };
@@ -72,16 +72,16 @@ class JointPlot {
   }
 }
 
-function buildJointPicker(names) {  // one checkbox per angle, grouped by joint as the contract orders them
-  joints.names = names;
-  $("joints-pick").innerHTML = names.map((n) =>
+// One checkbox per angle the messages carry, grouped by joint as they order them; angles a later
+// subject's messages add (another layout's) join the list.
+function buildJointPicker(names) {
+  const added = names.filter((n) => !joints.names.includes(n));
+  if (!added.length) return;
+  joints.names = joints.names.concat(added);
+  $("joints-pick").innerHTML = joints.names.map((n) =>
     `<label><input type="checkbox" value="${esc(n)}"${joints.chosen.includes(n) ? " checked" : ""}> ${esc(n)}</label>`
   ).join("");
-  $("joints-pick").addEventListener("change", () => {
-    joints.chosen = [...document.querySelectorAll("#joints-pick input:checked")].map((i) => i.value);
-    localStorage.setItem(JOINTS_KEY, JSON.stringify(joints.chosen));
-    refreshJoints();
-  });
+  $("joints-pick").dataset.names = String(joints.names.length);
 }
 
 async function refreshJoints() {
@@ -93,7 +93,7 @@ async function refreshJoints() {
     try {
       body = await api(`/api/subjects/${encodeURIComponent(subject)}/joints?${query}`);
     } catch (_) { return; }  // none yet (404), or the service is away: the plot waits
-    if (!joints.names) buildJointPicker(Object.keys(body.latest.angles));
+    buildJointPicker(Object.keys(body.latest.angles));
     if (!joints.chosen.length) body = { ...body, names: [], angles: {} };
     let plot = joints.plots.get(subject);
     if (!plot) {
@@ -109,6 +109,11 @@ async function refreshJoints() {
 }
 
 function startJoints() {
+  $("joints-pick").addEventListener("change", () => {
+    joints.chosen = [...document.querySelectorAll("#joints-pick input:checked")].map((i) => i.value);
+    localStorage.setItem(JOINTS_KEY, JSON.stringify(joints.chosen));
+    refreshJoints();
+  });
   $("joints-window").addEventListener("change", refreshJoints);
   new ResizeObserver(() => {
     for (const plot of joints.plots.values()) {

@@ -59,17 +59,20 @@ START_STILL_S = 1.0
 
 MOUNTING_PITCH_DEG = {"hip": 30.0, "neck": 30.0, "l_thigh": 60.0, "r_thigh": 60.0, "l_shank": 30.0,
                       "r_shank": 30.0, "l_upperarm": 60.0, "r_upperarm": 60.0, "l_lowerarm": 90.0,
-                      "r_lowerarm": 90.0}
+                      "r_lowerarm": 90.0, "chest": 30.0, "head": 30.0, "l_hand": 90.0, "r_hand": 90.0,
+                      "l_foot": 30.0, "r_foot": 30.0}
 """The mounting pose: each segment turned forward from its rest orientation about the lateral
-axis by this much, degrees (a bow with bent knees and the arms raised forward; the pose must
-turn every segment about a horizontal axis, or its heading cannot be told)."""
+axis by this much, degrees (a bow with bent knees and the arms raised forward, the hands in line
+with the forearms, the heels raised; the pose must turn every segment about a horizontal axis, or
+its heading cannot be told: a foot flat on the floor in both poses would not say where its toes
+point)."""
 
 
-def absent_segments(present) -> list[str]:
-    """The body's segments (:data:`SEGMENTS`, in that order) not among ``present`` (segment
-    names): what the calibration of a partial body leaves out."""
+def absent_segments(present, segments=SEGMENTS) -> list[str]:
+    """The body's segments (``segments``, its layout's in order; default the 10-IMU layout's) not
+    among ``present`` (segment names): what the calibration of a partial body leaves out."""
     present = set(present)
-    return [s for s in SEGMENTS if s not in present]
+    return [s for s in segments if s not in present]
 
 
 class CalibrationError(ValueError):

@@ -17,6 +17,7 @@ import websockets
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from limbstream import wire, zconfig
+from limbstream.body import PAPER10
 from limbstream.cli import main
 from limbstream.skeleton import Skeleton
 from limbstream.sources import generator
@@ -135,14 +136,14 @@ def test_foxglove_serves_skeletons_and_stats(stack):
             assert t.parent_frame_id == "s01"
             r = t.rotation
             assert [r.w, r.x, r.y, r.z] == q[row, i].astype(np.float64).tolist()  # float32 carried exactly
-            origin = wire.JOINTS.index(fox.SEGMENT_ORIGIN[seg])
+            origin = wire.JOINTS.index(PAPER10.segment(seg).joint)
             assert [t.translation.x, t.translation.y, t.translation.z] == joints[row, origin].astype(np.float64).tolist()
     for log_time, msg in got["/s01/skeleton"]:
         (entity,) = msg.entities
         assert entity.id == "s01" and entity.frame_id == "s01"
         line = entity.lines[0]
         points = np.array([[p.x, p.y, p.z] for p in line.points])[list(line.indices)]  # indexed line list
-        want = joints[sent[log_time // 1000]][[wire.JOINTS.index(j) for pair in wire.BONES for j in pair]]
+        want = joints[sent[log_time // 1000]][[wire.JOINTS.index(j) for b in PAPER10.bones for j in (b.origin, b.joint)]]
         assert np.array_equal(points, want.astype(np.float64))
         assert len(entity.spheres) == len(wire.JOINTS)
     for _, msg in got["/s01/stats"]:
@@ -157,6 +158,8 @@ def test_stats_schema_follows_the_field_table():
     schema = fox.stats_schema()
     jsonschema.validate(msg, schema)
     assert set(schema["properties"]["devices"]["properties"]["hip"]["properties"]) == set(wire.STATS_FIELDS)
+    from limbstream.body import FULL  # every built-in layout's segments are named (full's feet, hands, ...)
+    assert set(schema["properties"]["devices"]["properties"]) == set(wire.SEGMENTS) | set(FULL.segment_names)
     msg["devices"]["hip"]["icr"] = "high"
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(msg, schema)
@@ -179,3 +182,47 @@ def test_bad_flags_are_one_line_errors(argv, flag, capsys):
     assert main(["foxglove", *argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"limbstream foxglove: error: {flag}"), err
+
+
+def decoded(message):
+    """A foxglove-sdk message as the app decodes it (protobuf, from the schema it carries)."""
+    schema = message.get_schema()
+    cls = decoder({"schema": base64.b64encode(schema.data).decode(), "schemaName": schema.name})
+    return cls.FromString(message.encode())
+
+
+def test_a_full_frame_is_drawn_with_its_layouts_segments_and_bones():
+    """A ``full`` frame: a transform per segment of the 15 (the feet at the ankles, the hands at
+    the wrists, the chest at the spine, the head at the neck base), a line per bone of its 19
+    (the feet to the toes, the hands to the fingertips), a sphere per joint of its 20; its pelvis
+    lifted to its hip's height at rest above the toes."""
+    from limbstream.body import FULL, Body
+    body = Body.from_height(FULL, 1.8)
+    q = np.tile(np.float32([1, 0, 0, 0]), (15, 1))
+    q[FULL.segment_index["l_foot"]] = [np.cos(0.2), np.sin(0.2), 0, 0]
+    frame = wire.PoseFrame(4, T0_US, wire.KIND_LIVE, 0, q, body.positions(q), FULL)
+    tf = {t.child_frame_id: t for t in decoded(fox.frame_transforms("s07", frame, 2)).transforms}
+    assert set(tf) == {"s07"} | {f"s07/{s}" for s in FULL.segment_names} and len(tf) == 16
+    at = {name: frame.joints[FULL.joint_index[joint]].astype(np.float64).tolist() for name, joint in (
+        ("l_foot", "l_ankle"), ("r_hand", "r_wrist"), ("chest", "spine"), ("head", "neck_base"), ("hip", "pelvis"))}
+    for seg, xyz in at.items():
+        t = tf[f"s07/{seg}"]
+        assert [t.translation.x, t.translation.y, t.translation.z] == xyz, seg
+    r = tf["s07/l_foot"].rotation
+    assert [r.w, r.x, r.y, r.z] == q[FULL.segment_index["l_foot"]].astype(np.float64).tolist()
+    rest = body.positions(np.tile([1.0, 0, 0, 0], (15, 1)))
+    lift = rest[FULL.joint_index["l_hip"], 1] - rest[FULL.joint_index["l_toe"], 1]  # the toes on the grid
+    assert tf["s07"].translation.z == pytest.approx(lift, abs=1e-5) and tf["s07"].translation.y == -2.0
+    assert fox.leg_m(frame) == pytest.approx(lift, abs=1e-5)
+
+    (entity,) = decoded(fox.scene_update("s07", frame)).entities
+    line = entity.lines[0]
+    assert len(line.indices) == 2 * 19 and len(line.points) == 20 and len(entity.spheres) == 20
+    pairs = [(FULL.joints[a], FULL.joints[b]) for a, b in zip(line.indices[::2], line.indices[1::2])]
+    assert pairs == [(b.origin, b.joint) for b in FULL.bones]
+    assert {("l_ankle", "l_toe"), ("r_ankle", "r_toe"), ("l_wrist", "l_fingertip"), ("r_wrist", "r_fingertip"),
+            ("pelvis", "spine"), ("spine", "neck_base"), ("neck_base", "head_top")} <= set(pairs)
+    paper = wire.PoseFrame(0, T0_US, wire.KIND_LIVE, 0, np.tile(np.float32([1, 0, 0, 0]), (10, 1)),
+                           Skeleton().positions(np.tile([1.0, 0, 0, 0], (10, 1))))
+    assert len(decoded(fox.scene_update("s08", paper)).entities[0].lines[0].indices) == 2 * len(wire.BONES)
+    assert fox.leg_m(paper) == pytest.approx(Skeleton().thigh + Skeleton().shank, abs=1e-6)

@@ -197,7 +197,7 @@ def test_joint_angle_decoder_bulk():
         result = decodes_or_wire_error(wire.decode_angles, payload)
         assert (result if isinstance(result, str) else "") == why  # one at a time as in a batch
         if isinstance(result, str):
-            assert result in {"size", "version", "value"}, result
+            assert result in {"size", "version", "layout", "value"}, result
         else:
             number = (result.flags & (wire.ANGLE_MISSING | wire.ANGLE_UNCALIBRATED)) == 0
             assert np.isfinite(result.angles[number]).all() and np.isnan(result.angles[~number]).all()

@@ -42,7 +42,7 @@ HUMAN_ROM = {
     "ankle_flex": (-50, 35),  # dorsiflexion positive; loaded (a lunge, a landing): about 35-45, unloaded 20
     "subtalar": (-15, 35),  # inversion positive
     "wrist_flex": (-70, 80),
-    "wrist_dev": (-30, 20),  # radial deviation positive
+    "wrist_dev": (-20, 30),  # ulnar deviation positive
 }
 
 

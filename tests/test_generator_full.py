@@ -135,8 +135,9 @@ def test_hands_follow_the_forearms_within_the_wrists_range():
     xyz = BODY.positions(q, dtype=np.float64)
     for side, lat in (("l", 1.0), ("r", -1.0)):
         v = quat.rotate(_relative(q, f"{side}_lowerarm", f"{side}_hand"), [0.0, -1.0, 0.0])  # the hand, forearm frame
-        flexion = np.degrees(np.arctan2(v[:, 2], -v[:, 1]))
-        deviation = np.degrees(np.arcsin(lat * v[:, 0]))
+        # the palm faces the thigh: flexion turns the hand medially (-X on the left), ulnar deviation back
+        flexion = np.degrees(np.arctan2(-lat * v[:, 0], -v[:, 1]))
+        deviation = np.degrees(np.arcsin(np.clip(-v[:, 2], -1.0, 1.0)))
         for name, measured in (("wrist_flex", flexion), ("wrist_dev", deviation)):
             lo, hi = JOINT_RANGES[f"{name}_{side}"]
             assert lo - 1 <= measured.min() and measured.max() <= hi + 1, (name, measured.min(), measured.max())

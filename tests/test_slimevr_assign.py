@@ -197,3 +197,27 @@ def test_a_full_set_is_placed_by_body_position_on_the_full_layout():
     finally:
         a.close()
         g.close()
+
+
+def test_the_gateway_command_takes_a_layout_and_announces_it():
+    """``gateway slimevr --layout full``: sensors feed the full layout's segments and the devices
+    announce its default body (so the aggregator knows the layout); with --height-m, a body of it
+    that tall; without --layout, paper10 and no body, as before."""
+    import argparse
+
+    from limbstream.body import FULL, PAPER10
+    from limbstream.cli import gateway_slimevr
+
+    def settings(*argv: str):
+        parser = argparse.ArgumentParser()
+        gateway_slimevr.add_arguments(parser)
+        args = parser.parse_args(["--subject", "s01", *argv])
+        gateway_slimevr.validate(args)
+        return gateway_slimevr.settings_from_args(args)
+
+    full = settings("--layout", "full")
+    assert full.layout == FULL and full.segments == FULL.segment_names and full.body.layout == FULL
+    tall = settings("--layout", "full", "--height-m", "1.9")
+    assert tall.body.layout == FULL and tall.body.height_m == 1.9
+    plain = settings()
+    assert plain.layout is None and plain.body is None and plain.segments == PAPER10.segment_names

@@ -473,20 +473,26 @@ def angle_frames(n: int, basis: str = "segments") -> wire.AngleFrames:
 
 
 def test_joint_angles_encode_as_the_documented_layout_and_come_back():
-    """Header <BBBBIqf (version, kind, basis, n_angles, seq, t_us, facing_deg), then the angles
-    (float32, JOINT_ANGLES order) and a flag byte each; decoded one by one or together, the same."""
+    """Header <BBBBIqfB3x (version 2, kind, basis, n_angles, seq, t_us, facing_deg, layout code),
+    then the angles (float32, JOINT_ANGLES order) and a flag byte each; decoded one by one or
+    together, the same. Version 1 (no layout byte) is still read."""
     frames = angle_frames(5, "functional")
     payloads = frames.encode()
-    header = struct.Struct("<BBBBIqf")
+    header = struct.Struct("<BBBBIqfB3x")
+    v1 = struct.Struct("<BBBBIqf")
     for i, payload in enumerate(payloads):
         expected = (header.pack(wire.ANGLES_VERSION, wire.KIND_LIVE, wire.BASIS["functional"], len(wire.JOINT_ANGLES),
-                                int(frames.seq[i]), int(frames.t_us[i]), 12.5)
+                                int(frames.seq[i]), int(frames.t_us[i]), 12.5, 0)
                     + frames.angles[i].astype("<f4").tobytes() + frames.flags[i].tobytes())
-        assert payload == expected == wire.encode_angles(frames[i]) and len(payload) == wire.ANGLES_SIZE == 115
-        back = wire.decode_angles(payload)
-        assert (back.seq, back.t_us, back.kind, back.facing_deg) == (frames.seq[i], frames.t_us[i], 1, 12.5)
-        assert np.array_equal(back.flags, frames.flags[i])
-        assert np.allclose(back.angles, frames.angles[i], equal_nan=True, atol=1e-4)
+        assert payload == expected == wire.encode_angles(frames[i]) and len(payload) == wire.ANGLES_SIZE == 119
+        old = v1.pack(1, wire.KIND_LIVE, wire.BASIS["functional"], len(wire.JOINT_ANGLES), int(frames.seq[i]),
+                      int(frames.t_us[i]), 12.5) + frames.angles[i].astype("<f4").tobytes() + frames.flags[i].tobytes()
+        assert len(old) == 115
+        for back in (wire.decode_angles(payload), wire.decode_angles(old)):
+            assert (back.seq, back.t_us, back.kind, back.facing_deg) == (frames.seq[i], frames.t_us[i], 1, 12.5)
+            assert np.array_equal(back.flags, frames.flags[i]) and back.layout is None
+            assert np.allclose(back.angles, frames.angles[i], equal_nan=True, atol=1e-4)
+            assert back.names == wire.JOINT_ANGLES
     together, refused = wire.decode_angles_many(payloads)
     assert refused == [""] * 5 and together.encode() == payloads
     js = wire.decode_angles(payloads[0]).to_json("s01")
@@ -510,8 +516,10 @@ def test_bad_joint_angle_messages_are_refused_with_a_reason():
         b[offset:offset + len(data)] = data
         return bytes(b)
     flag0, angle0 = at["flags"], at["angles"]
-    cases = [(bytes(good[:-1]), "size"), (bytes(good) + b"\0", "size"), (changed(good, 0, b"\2"), "version"),
-             (changed(good, at["n_angles"], b"\x14"), "version"), (changed(good, at["kind"], b"\2"), "value"),
+    cases = [(bytes(good[:-1]), "size"), (bytes(good) + b"\0", "size"), (changed(good, 0, b"\3"), "version"),
+             (changed(good, at["n_angles"], b"\x14"), "size"), (changed(good, at["kind"], b"\2"), "value"),
+             (changed(good, at["layout"], b"\1"), "layout"),                            # full's code, paper10's count
+             (changed(good, at["layout"], b"\7"), "layout"), (changed(good, at["layout"], b"\xff"), "layout"),
              (changed(good, at["basis"], bytes([len(wire.ANGLE_BASES)])), "value"),
              (changed(good, flag0, b"\x08"), "value"),                                   # an unknown flag bit
              (changed(good, angle0, struct.pack("<f", math.nan)), "value"),              # a valid angle without a number

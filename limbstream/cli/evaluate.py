@@ -20,8 +20,9 @@ from limbstream.wire import DEVICE_RATE_HZ as DEVICE_RATE
 from limbstream.calibration import CalibrationError
 from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
-                                   format_joint_errors, format_joint_kinds, format_positions, format_table, frontier,
-                                   streams_of, write_json)
+                                   format_joint_errors, format_joint_kinds, format_positions, format_table,
+                                   format_translation, frontier, streams_of, write_json)
+from limbstream.evaluation.body import layout_of
 from limbstream.evaluation.table import Progress
 from limbstream.kernel import fusion
 from limbstream.sources import Motion, MotionFileError, load
@@ -167,6 +168,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-len", type=_positive_int, default=MAX_LEN,
                         help=f"largest segment length, samples (default {MAX_LEN})")
     flags.add_names(parser)
+    flags.add_source_layout(parser, "default: the layout each source carries (a BVH file: paper10; an IMU recording: the "
+                             "smallest built-in holding its segments); a BVH file maps a joint to each of its "
+                             "segments, other sources leave out the segments it does not have")
     flags.add_sensor_model(parser)
     parser.add_argument("--calibration", type=_calibration, default=None, metavar="none|rest|rest,mounting",
                         help="with a sensor model: the calibration before the body error (default rest,mounting)")
@@ -183,7 +187,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     flags.add_heading_correction(parser, default="off")
     parser.add_argument("--dump", type=Path, metavar="DIR",
                         help="write each motion's compared orientations and joint positions into DIR/<motion>.npz: "
-                             "t, estimated and truth (frames, 10, 4), segment_names, source_t, positions and "
+                             "t, estimated and truth (frames, S, 4), segment_names, source_t, positions and "
                              "true_positions (frames, J, 3), position_joints (docs/evaluation.md, 'Dumps'); one row")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every (algorithm, threshold) row here")
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the two Fig. 4 panels into this PNG")
@@ -231,9 +235,9 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Motion], list[RawRecording]]
     for path in args.paths:
         raw = raw_files(path)
         if raw:
-            recordings.extend(load_raw(p) for p in raw)
+            recordings.extend(load_raw(p, args.layout) for p in raw)
         else:
-            motions.extend(load(path, args.names))
+            motions.extend(load(path, args.names, layout=args.layout))
     return motions, recordings
 
 
@@ -248,9 +252,9 @@ def _streams(args: argparse.Namespace, sensors: calibration.SensorModel, motions
                              f"({', '.join(r.name for r in recordings)})")
         motions = raw_streams.looped(motions, args.loop_minutes)
     model = flags.imu_model(args)
-    streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate, args.vqf_precision)
+    streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate, args.vqf_precision, args.layout)
                if model is not None
-               else streams_of(motions, sensors))
+               else streams_of(motions, sensors, args.layout))
     if args.loop_minutes is not None:  # a looped clip's times are no longer its file's
         streams = [dataclasses.replace(s, source=None, source_offset_s=math.nan) for s in streams]
     for rec in recordings:
@@ -290,8 +294,9 @@ def _raw_notes(args: argparse.Namespace, recordings: list[RawRecording]) -> None
               "only)")
 
 
-def _position_sources(motions: list[Motion], looped: bool) -> str:
-    """Where the true joint positions of ``motions`` come from, and the bodies, as a sentence."""
+def _position_sources(motions: list[Motion], looped: bool, layout=None) -> str:
+    """Where the true joint positions of ``motions`` come from, and the bodies (on ``layout``,
+    None: each motion's own), as a sentence."""
     own = [] if looped else [m for m in motions if m.positions is not None]
     parts = []
     if own:
@@ -301,7 +306,8 @@ def _position_sources(motions: list[Motion], looped: bool) -> str:
     if len(own) < len(motions):
         who = "the other motions: no positions of their own" if own else "every motion: no positions of its own"
         why = " (looped)" if looped and any(m.positions for m in motions) else ""
-        parts.append(f"{who}{why}: the true orientations' joints on the same body, paper10's default (an adult of "
+        layouts = " / ".join(sorted({layout_of(m, layout).name for m in motions if all(m is not o for o in own)}))
+        parts.append(f"{who}{why}: the true orientations' joints on the same body, {layouts}'s default (an adult of "
                      "about 1.75 m)")
     return "; ".join(parts)
 
@@ -386,8 +392,12 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
         print(f"\njoint error per joint, of the {what}{held}, against the truth")
         print(format_joint_kinds(rows))
         print(f"\njoint positions of the {what}{held}, the pelvis at the origin, against the truth's: "
-              f"{_position_sources(motions, args.loop_minutes is not None)}")
+              f"{_position_sources(motions, args.loop_minutes is not None, args.layout)}")
         print(format_positions(rows))
+        if any(r.get("translation") for r in rows):
+            print(f"\nroot translation from the {what}'s feet (docs/evaluation.md, \"Root translation\"), against the "
+                  "file's root path")
+            print(format_translation(rows))
     if args.joint_angles:
         print(f"\njoint angles of the {'calibrated ' if sensors.on else ''}reconstruction against the true angles")
         print(format_joint_errors(rows))

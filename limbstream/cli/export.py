@@ -31,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=None, metavar="HZ",
                         help="frame rate of the export, Hz (SLERP-resampled; default: the source's own)")
     flags.add_names(parser)
+    flags.add_source_layout(parser, "default: the layout the source carries (a BVH file: paper10; a recording: "
+                                    "its frames')")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     if fmt not in FORMATS:
         return flags.fail(PROG, f"--format: say {', '.join(FORMATS)} (OUT {args.output!r} does not tell)")
     try:
-        take = read_take(args.source, args.subject, args.rest_pose, args.names, args.rate)
+        take = read_take(args.source, args.subject, args.rest_pose, args.names, args.rate, args.layout)
         export(take, fmt, args.output)
     except ExportError as exc:
         return flags.fail(PROG, str(exc))

@@ -295,6 +295,25 @@ def add_names(parser: argparse.ArgumentParser) -> None:
                              "Mixamo and Left/L/Right/R joint names)")
 
 
+def body_layout(text: str):
+    """The ``--layout`` layout (:func:`limbstream.body.layout`: a built-in's name or a
+    ``.toml``/``.json`` file), as an argparse type."""
+    from limbstream.body import layout
+
+    try:
+        return layout(text)
+    except (ValueError, OSError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_source_layout(parser: argparse.ArgumentParser, default_text: str) -> None:
+    """``--layout paper10|full|FILE`` of a command that reads sources (``eval``): the body layout a
+    source is read onto (docs/body.md), a :class:`~limbstream.body.Layout` (None: not given)."""
+    parser.add_argument("--layout", type=body_layout, default=None, metavar="paper10|full|FILE",
+                        help=f"the body layout (docs/body.md): paper10, full (feet, hands, chest, head) or a "
+                             f"layout file; {default_text}")
+
+
 def names_argv(mapping: dict[str, str] | None) -> list[str]:
     """The flags that give ``mapping`` to a child process (none for None)."""
     return [] if mapping is None else ["--names", ",".join(f"{sensor}={segment}" for sensor, segment in mapping.items())]
@@ -302,15 +321,15 @@ def names_argv(mapping: dict[str, str] | None) -> list[str]:
 
 # ----------------------------------------------------------------------------- the body's layout
 
-def add_layout(parser: argparse.ArgumentParser) -> None:
+def add_layout(parser: argparse.ArgumentParser, help_text: str | None = None) -> None:
     """``--layout paper10|full|FILE``: the body the built-in generator moves, one device per
     segment, and the layout of the body the devices announce (``emulate``, ``up``; checked by
-    :func:`layout`)."""
+    :func:`layout`); ``help_text``: another command's use of it (a gateway's)."""
     parser.add_argument("--layout", default=None, metavar="paper10|full|FILE",
-                        help="the subjects' body layout (docs/body.md): the generator moves a device per segment of "
-                             "it, paper10 (10 segments, default), full (15: chest, head, hands and feet too) or a "
-                             ".toml/.json layout file of segments it moves; a motion file streams its own segments, "
-                             "which the layout must hold; --height-m and --body size a body of it")
+                        help=help_text or "the subjects' body layout (docs/body.md): the generator moves a device per "
+                             "segment of it, paper10 (10 segments, default), full (15: chest, head, hands and feet too) "
+                             "or a .toml/.json layout file of segments it moves; a motion file streams its own "
+                             "segments, which the layout must hold; --height-m and --body size a body of it")
 
 
 def layout(args: argparse.Namespace) -> Layout:

@@ -120,7 +120,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         parts.append((f"emulator{e + 1}" if args.emulators > 1 else "emulator", argv + connect))
     if args.slimevr is not None:
         argv = ["gateway", "slimevr", "--udp", args.slimevr, "--subject", args.slimevr_subject,
-                *flags.device_config(args).flags()]
+                *flags.device_config(args).flags(), *flags.layout_argv(args)]
         argv += (["--no-truth"] if args.no_truth else []) + ([] if args.sync else ["--no-sync"])
         if args.status_file is not None:  # run-time assignments kept beside the status file, as calibrations
             argv += ["--assignments-file", str(Path(args.status_file).with_name("slimevr-assignments.json"))]

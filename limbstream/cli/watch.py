@@ -30,42 +30,48 @@ from limbstream.services.outputs.subscription import Subscription, subscribe_pos
 
 KINDS: dict[str, int | None] = {**wire.FRAME_KINDS, wire.AUTO: None}
 """``--kind``: a frame kind, or ``auto`` (the pose stream API's rule: :func:`limbstream.wire.auto_kind`)."""
-SHOWN_JOINTS = ("head", "l_wrist", "r_wrist", "l_ankle", "r_ankle")
+SHOWN_JOINTS = ("head", "head_top", "l_wrist", "r_wrist", "l_ankle", "r_ankle")
+"""The joints shown, those of them the frame's layout has (``paper10``'s top of the head is
+``head``, ``full``'s ``head_top``)."""
 HINT_S = 3.0
 """Seconds without a frame of the subject after which ``watch`` names the subjects streaming (their
 stats come once a second)."""
 PROG = "limbstream watch"
 
 
-def why_missing(devices: dict[str, bool] | None) -> str:
-    """Which segments have no data and why, from the subject's devices ({segment: online}; None:
-    no stats yet)."""
+def why_missing(devices: dict[str, bool] | None, segments: tuple[str, ...] = SEGMENTS) -> str:
+    """Which of ``segments`` (the frame's layout's) have no data and why, from the subject's
+    devices ({segment: online}; None: no stats yet)."""
     if devices is None:
         return "(no stats yet)"
-    absent = [s for s in SEGMENTS if s not in devices]
-    offline = [s for s in SEGMENTS if devices.get(s) is False]
+    absent = [s for s in segments if s not in devices]
+    offline = [s for s in segments if devices.get(s) is False]
     parts = ([f"no device: {', '.join(absent)}"] if absent else []) + ([f"offline: {', '.join(offline)}"]
                                                                       if offline else [])
     return f"({'; '.join(parts)})" if parts else ""
 
 
 def render(subject: str, frame: wire.PoseFrame, rate_hz: float, devices: dict[str, bool] | None = None) -> str:
-    """A few lines describing ``frame``: header, segment rotation angles, key joint positions;
-    ``devices`` ({segment: online}, the subject's stats) say why a segment is missing."""
+    """A few lines describing ``frame``: header (with its layout's name), each of its layout's
+    segments' rotation angle, key joint positions; ``devices`` ({segment: online}, the subject's
+    stats) say why a segment is missing."""
+    layout = frame.layout
+    segments = tuple(layout.segment_names) if layout is not None else SEGMENTS
     marks = [name for bit, name in ((wire.FRAME_GAP, "GAP"), (wire.FRAME_MISSING, "MISSING"))
              if frame.flags & bit]
     if frame.flags & wire.FRAME_MISSING:
-        marks.append(why_missing(devices))
+        marks.append(why_missing(devices, segments))
     kind = wire.kind_name(frame.kind)
     stamp = time.strftime("%H:%M:%S", time.localtime(frame.t_us / 1e6)) + f".{frame.t_us // 1000 % 1000:03d}"
-    lines = [f"{subject}  {kind} #{frame.seq}  t={stamp}  {rate_hz:5.1f} frames/s  {' '.join(marks)}".rstrip()]
-    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(SEGMENTS), 1))
+    name = layout.name if layout is not None else "paper10"
+    lines = [f"{subject}  {kind} #{frame.seq}  t={stamp}  {rate_hz:5.1f} frames/s  {name}  {' '.join(marks)}".rstrip()]
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(segments), 1))
     angles = quat.angle_deg(frame.q.astype(float), identity)
-    cells = [f"{name:>11s} {a:6.1f}°" for name, a in zip(SEGMENTS, angles)]
+    cells = [f"{seg:>11s} {a:6.1f}°" for seg, a in zip(segments, angles)]
     lines += ["  rotation from rest:"] + ["  " + "  ".join(cells[i:i + 5]) for i in range(0, len(cells), 5)]
-    joints = dict(zip(wire.JOINTS, frame.joints.tolist()))
+    joints = dict(zip(layout.joints if layout is not None else wire.JOINTS, frame.joints.tolist()))
     lines.append("  joints (m, Y up): " + "  ".join(
-        f"{j} ({joints[j][0]:+.2f},{joints[j][1]:+.2f},{joints[j][2]:+.2f})" for j in SHOWN_JOINTS))
+        f"{j} ({joints[j][0]:+.2f},{joints[j][1]:+.2f},{joints[j][2]:+.2f})" for j in SHOWN_JOINTS if j in joints))
     return "\n".join(lines)
 
 
@@ -79,7 +85,7 @@ def render_angles(angles: wire.JointAngles | None) -> str:
         return f"  joint angles: none, calibration {basis.name}: {basis.meaning}"
     facing = f", facing {angles.facing_deg:.1f}°" if math.isfinite(angles.facing_deg) else ""
     cells = []
-    for name, value, bits in zip(wire.JOINT_ANGLES, angles.angles.tolist(), angles.flags.tolist()):
+    for name, value, bits in zip(angles.names, angles.angles.tolist(), angles.flags.tolist()):
         text = "      -" if not math.isfinite(value) else f"{value:6.1f}°"
         cells.append(f"{name:>16s} {text}{'~' if bits & wire.ANGLE_GIMBAL else ' '}")
     lines = [f"  joint angles (deg; calibration {basis.name}{facing}; - no data, ~ near gimbal lock):"]

@@ -2,15 +2,19 @@
 for what only a body has: heading correction by its joints, the joint error, and the dump that
 lets anyone recompute every figure.
 
+- :func:`layout_of`: the layout a motion's bodies are evaluated on (``eval --layout``, else its own).
 - :func:`bodies`: per motion, the estimated orientations (the calibrated reconstruction with a
   sensor model, else the reconstruction) and the true ones (the segments' with a sensor model,
-  else the samples), (frames, 10, 4) in SEGMENTS order, NaN where a segment has no data.
+  else the samples), (frames, S, 4) in the order of the motion's layout (``paper10``: SEGMENTS;
+  ``full``), NaN where a segment has no data.
 - :func:`correct_heading`: a calibrated body's headings held by its joints, as the aggregator
   holds them (:class:`limbstream.heading.HeadingCorrection`, run over the motion from the
   calibration on).
 - :func:`joint_figures`: the joint error (the angle between the estimated and the true relative
   orientation of each pair of adjacent segments, :func:`limbstream.heading.joints.joint_errors_deg`)
-  pooled over bodies, overall and per joint kind, with its first and last minute.
+  pooled over bodies, overall and per joint kind, with its first and last minute: the joints
+  among the body's layout's segments (``wire.joints_among``: ``paper10``'s table, or ``full``'s
+  with its ankles, wrists and lumbar spine, the shoulders and neck from the chest).
 - :func:`dump`: one body as an npz file, its joint positions too (docs/evaluation.md, "Dumps").
 """
 from __future__ import annotations
@@ -24,18 +28,21 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from limbstream import wire
+from limbstream.body import PAPER10, Layout as BodyLayout
 from limbstream.heading import HeadingCorrection
 from limbstream.heading.joints import Layout, joint_errors_deg, kind
+from limbstream.sources import Motion
 
 if TYPE_CHECKING:
     from limbstream.evaluation.positions import Positions
     from limbstream.sources.bvh_positions import BvhPositions
 
-KINDS: tuple[str, ...] = ("knee", "elbow", "hip", "shoulder", "neck")
-"""The joint kinds of the per-joint table, in its order (each pools its left and right)."""
+KINDS: tuple[str, ...] = ("knee", "elbow", "ankle", "wrist", "hip", "shoulder", "lumbar", "neck")
+"""The joint kinds of the per-joint table, in its order (each pools its left and right; the
+ankles, wrists and lumbar spine where the bodies have feet, hands and a chest)."""
 
 LAYOUT = Layout.of(wire.SEGMENTS)
-"""The joints among the body's segments (relative orientations: the rest pose does not matter)."""
+"""The joints among ``paper10``'s segments (relative orientations: the rest pose does not matter)."""
 
 
 @dataclass
@@ -46,12 +53,13 @@ class Body:
     ----------
     name : the motion's name.
     t : (m,) s, the frames' times (the motion after the calibration script with a sensor model).
-    estimated, truth : (m, 10, 4) SEGMENTS order, NaN rows where a segment has no data.
+    estimated, truth : (m, S, 4) in ``layout``'s segment order, NaN rows where a segment has no data.
     rest_pose : what identity means for the motion's orientations.
     streams : {segment index: the pool's stream index} of the body's segments.
     calibrated : whether ``estimated`` is a calibrated reconstruction (a sensor model).
     source_t : (m,) s, each frame's time in the source file (NaN: none).
     source : the source file's own joint positions, if it has them (a BVH file's).
+    layout : the body's layout (its segments, in their order; the joints its positions are of).
     """
 
     name: str
@@ -63,6 +71,23 @@ class Body:
     calibrated: bool
     source_t: np.ndarray
     source: BvhPositions | None = None
+    layout: BodyLayout = PAPER10
+
+    @property
+    def joints(self) -> Layout:
+        """The joints among the body's segments (its layout's joint table)."""
+        return LAYOUT if self.layout.segment_names == wire.SEGMENTS else Layout.of(self.layout.segment_names)
+
+
+def layout_of(motion: Motion, layout: BodyLayout | None = None) -> BodyLayout:
+    """The layout a motion's bodies are evaluated on: ``layout`` if given, else the motion's own
+    (``Motion.layout``; ``paper10`` where no built-in layout holds its segments)."""
+    if layout is not None:
+        return layout
+    try:
+        return motion.layout
+    except ValueError:
+        return PAPER10
 
 
 def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[Body]:
@@ -73,7 +98,8 @@ def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.nda
     out: dict[str, Body] = {}
     for j, s in enumerate(pool.streams):
         motion, _, segment = s.name.rpartition("/")
-        if segment not in wire.SEGMENTS:
+        layout = s.layout or PAPER10
+        if segment not in layout.segment_index:
             continue
         if j in calibrated:
             estimate, truth, _ = calibrated[j]
@@ -81,12 +107,12 @@ def bodies(pool, rec: np.ndarray, calibrated: dict[int, tuple[np.ndarray, np.nda
         else:
             estimate, truth, t = rec[pool.start[j]:pool.start[j + 1]], s.q, s.t
         if motion not in out:
-            empty = np.full((len(truth), len(wire.SEGMENTS), 4), np.nan)
+            empty = np.full((len(truth), len(layout.segments), 4), np.nan)
             t = np.asarray(t, np.float64)
             out[motion] = Body(motion, t, empty, empty.copy(), s.rest_pose, {}, j in calibrated, t + s.source_offset_s,
-                               s.source)
+                               s.source, layout)
         body = out[motion]
-        k = wire.SEGMENTS.index(segment)
+        k = body.layout.segment_index[segment]
         body.estimated[:, k], body.truth[:, k] = estimate, truth
         body.streams[k] = j
     return list(out.values())
@@ -97,8 +123,9 @@ def correct_heading(body: Body) -> None:
     turned about the vertical, each segment by its own correction, from the first frame on)."""
     if not body.calibrated or len(body.t) < 2:
         return
+    names = body.layout.segment_names
     have = sorted(body.streams)
-    layout = Layout.of([wire.SEGMENTS[k] for k in have], body.rest_pose)
+    layout = Layout.of([names[k] for k in have], body.rest_pose)
     fs = 1.0 / float(np.median(np.diff(body.t)))
     body.estimated[:, have] = HeadingCorrection.batch(body.estimated[:, have], layout, fs)
 
@@ -113,11 +140,12 @@ def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, d
     first: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
     last: dict[str, list[np.ndarray]] = {k: [] for k in KINDS}
     for body in bodies_:
-        err = joint_errors_deg(np.nan_to_num(body.estimated), np.nan_to_num(body.truth), LAYOUT)  # (m, J)
+        joints = body.joints
+        err = joint_errors_deg(np.nan_to_num(body.estimated), np.nan_to_num(body.truth), joints)  # (m, J)
         ok = (np.isfinite(body.estimated).all(axis=-1) & np.isfinite(body.truth).all(axis=-1))
-        both = ok[:, LAYOUT.parent] & ok[:, LAYOUT.child]
+        both = ok[:, joints.parent] & ok[:, joints.child]
         since = body.t - body.t[0]
-        for j, name in enumerate(LAYOUT.joints):
+        for j, name in enumerate(joints.joints):
             mine = both[:, j]
             errors[kind(name)].append(err[mine, j])
             first[kind(name)].append(err[mine & (since < minute_s), j])
@@ -136,17 +164,24 @@ def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, d
 
 def dump(body: Body, folder: Path, heading: str, positions: Positions) -> Path:
     """Write ``body`` to ``folder/<motion>.npz`` (the name's characters other than letters,
-    digits, ``._-`` as ``_``): ``t`` (m,) s, ``estimated`` and ``truth`` (m, 10, 4) float64
-    scalar-first (NaN: no data), ``segment_names`` (10,), ``rest_pose``, ``heading_correction``
-    (``off`` or ``joints``), ``joints`` (J,) the joints' names and ``joint_parent``,
-    ``joint_child`` (J,) their segments' indices; from ``positions``
+    digits, ``._-`` as ``_``): ``t`` (m,) s, ``estimated`` and ``truth`` (m, S, 4) float64
+    scalar-first (NaN: no data), ``segment_names`` (S,) (the layout's, ``layout``), ``rest_pose``,
+    ``heading_correction`` (``off`` or ``joints``), ``joints`` (J,) the joints' names and
+    ``joint_parent``, ``joint_child`` (J,) their segments' indices; from ``positions``
     (:mod:`limbstream.evaluation.positions`): ``source_t`` (m,) s, ``positions`` and
     ``true_positions`` (m, P, 3) m, ``position_joints`` (P,), ``positions_from_file``,
-    ``source_unit_m``. Returns the path."""
+    ``source_unit_m``; ``root`` and ``true_root`` (m, 3) m, the estimated root tracked from the
+    estimated feet and the file's (:func:`limbstream.evaluation.translation.root_paths`; NaN where
+    there is none): world positions are ``positions + root[:, None]``. Returns the path."""
     path = Path(folder) / (re.sub(r"[^A-Za-z0-9._-]", "_", body.name) + ".npz")
-    np.savez(path, t=body.t, estimated=body.estimated, truth=body.truth, segment_names=np.array(wire.SEGMENTS),
+    joints = body.joints
+    from limbstream.evaluation.translation import root_paths  # (it reads this module's bodies)
+    paths = root_paths(body, positions)
+    nowhere = np.full((len(body.t), 3), np.nan)
+    np.savez(path, root=nowhere if paths is None else paths.root, true_root=nowhere if paths is None else paths.true_root, t=body.t, estimated=body.estimated, truth=body.truth,
+             segment_names=np.array(body.layout.segment_names), layout=np.array(body.layout.name),
              rest_pose=np.array(body.rest_pose), heading_correction=np.array(heading),
-             joints=np.array(LAYOUT.joints), joint_parent=LAYOUT.parent, joint_child=LAYOUT.child,
+             joints=np.array(joints.joints), joint_parent=joints.parent, joint_child=joints.child,
              source_t=body.source_t, positions=positions.estimated, true_positions=positions.truth,
              position_joints=np.array(positions.joints), positions_from_file=np.array(positions.from_file),
              source_unit_m=np.array(positions.unit_m))

@@ -18,8 +18,10 @@ import math
 import numpy as np
 
 from limbstream import calibration, imu, quat, wire
+from limbstream.body import Layout
 from limbstream.evaluation.fusion import EarthTruth
 from limbstream.evaluation.positions import source_of
+from limbstream.evaluation.body import layout_of
 from limbstream.evaluation.sweep import Stream
 from limbstream.imu.feed import script_samples
 from limbstream.kernel import fusion
@@ -54,11 +56,11 @@ def recording_streams(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: flo
 
 
 def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, model: imu.ImuModel,
-                     rate_hz: float = imu.DEFAULT_RATE_HZ, vqf_precision: str = fusion.DEFAULT_VQF_PRECISION
-                     ) -> list[Stream]:
+                     rate_hz: float = imu.DEFAULT_RATE_HZ, vqf_precision: str = fusion.DEFAULT_VQF_PRECISION,
+                     layout: Layout | None = None) -> list[Stream]:
     """Every motion's segment streams as devices with raw sensors of ``model`` at ``rate_hz``
     (mountings and filter headings of ``sensors``, drawn per motion; VQF in ``vqf_precision``) send
-    them, after the calibration script."""
+    them, after the calibration script; their bodies of ``layout`` (None: each motion's own)."""
     out = []
     for index, motion in enumerate(motions):
         devices = imu.ImuDevices(len(motion.segments), model, rate_hz, sensors, stream=index)
@@ -78,7 +80,7 @@ def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, mo
                               mounting=_window(t, calibration.REST_S + calibration.MOVE_S,
                                                calibration.REST_S + calibration.MOVE_S + calibration.MOUNTING_S),
                               pose=pose[s], motion_from=int(np.searchsorted(t, script_s - 1e-9)),
-                              rest_pose=motion.rest_pose, **source_of(motion, script_s),
+                              rest_pose=motion.rest_pose, layout=layout_of(motion, layout), **source_of(motion, script_s),
                               earth=EarthTruth(rec.truth[idx, s], rec.movement[idx], align_heading=True)))
     return out
 

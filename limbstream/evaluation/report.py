@@ -72,7 +72,8 @@ JOINT_COLUMNS: tuple[Column, ...] = (
 
 JOINT_KIND_COLUMNS: tuple[Column, ...] = (
     _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
-    Column("joint", "joint", "", "the joints of one kind, left and right together (the neck: hip to neck)", ""),
+    Column("joint", "joint", "", "the joints of one kind, left and right together (the neck: hip to neck, or chest to head "
+           "where there is a chest; lumbar: hip to chest)", ""),
     Column("mean", "mean", "deg", "mean joint error: the angle between the estimated and the true relative "
            "orientation of the joint's two segments", ".2f"),
     Column("p99", "p99", "deg", "its 99th percentile", ".2f"),
@@ -87,13 +88,28 @@ JOINT_KIND_COLUMNS: tuple[Column, ...] = (
 POSITION_COLUMNS: tuple[Column, ...] = (
     _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
     Column("joint", "joint", "", "the joints of one kind, left and right together (neck base: the top of the "
-           "spine; head: the end of the neck segment)", ""),
+           "spine; head: paper10's end of the neck segment; full: spine, the waist; head_top, toes, "
+           "fingertips: the tips of the head, feet and hands)", ""),
     Column("mean", "mean", "cm", "mean distance between the estimated and the true joint, the pelvis at the origin",
            ".2f"),
     Column("p99", "p99", "cm", "its 99th percentile", ".2f"),
     Column("n", "samples", "", "joint samples scored (the segments placing the joint present in both)", "d"),
 )
 """The columns of the per-joint position table of ``limbstream eval``: one line per (row, joint kind)."""
+
+TRANSLATION_COLUMNS: tuple[Column, ...] = (
+    _ROW["algorithm"], _ROW["live_bound_deg"], _ROW["threshold"],
+    Column("motion", "motion", "", "the motion (a file with a root path that travels 0.5 m or more)", ""),
+    Column("path_m", "path", "m", "the true root's horizontal path (over 0.1 s steps)", ".2f"),
+    Column("end_cm", "end", "cm", "horizontal root error at the end, the start aligned once (heading and offset, "
+           "first 0.5 s)", ".1f"),
+    Column("end_pct", "end", "% path", "the same as a share of the path", ".1f"),
+    Column("height_cm", "height", "cm", "mean root height error, each above its own floor", ".1f"),
+    Column("below_cm", "below", "cm", "deepest an estimated foot point went below the floor", ".1f"),
+    Column("skate_cmps", "skate", "cm/s", "estimated feet's horizontal speed while the true feet are planted", ".1f"),
+    Column("true_skate_cmps", "true skate", "cm/s", "the true feet's own over the same frames", ".1f"),
+)
+"""The columns of ``limbstream eval``'s root translation table: one line per (row, motion)."""
 
 
 def format_table(
@@ -121,7 +137,7 @@ def format_joint_errors(rows: Sequence[dict]) -> str:
 def format_joint_kinds(rows: Sequence[dict]) -> str:
     """The joint error of the rows that have it per joint kind (``joint_kinds``:
     :func:`limbstream.evaluation.body.joint_figures`), one line per (row, kind), with the legend."""
-    lines = [r | {"joint": f"{name}s" if name != "neck" else name} | figures
+    lines = [r | {"joint": f"{name}s" if name not in ("neck", "lumbar") else name} | figures
              for r in rows for name, figures in r.get("joint_kinds", {}).items()]
     return render(JOINT_KIND_COLUMNS, lines)
 
@@ -130,9 +146,17 @@ def format_positions(rows: Sequence[dict]) -> str:
     """The joint position error of the rows that have it per joint kind (``positions``:
     :func:`limbstream.evaluation.positions.position_figures`), one line per (row, kind), with the
     legend."""
-    lines = [r | {"joint": f"{name}s" if name not in ("neck_base", "head") else name} | figures
+    lines = [r | {"joint": f"{name}s" if name not in ("neck_base", "head", "spine", "head_top") else name} | figures
              for r in rows for name, figures in r.get("positions", {}).items()]
     return render(POSITION_COLUMNS, lines)
+
+
+def format_translation(rows: Sequence[dict]) -> str:
+    """The root translation figures of the rows' motions that have a root path (``translation``:
+    :func:`limbstream.evaluation.translation.translation_of`), one line per (row, motion), with
+    the legend."""
+    lines = [r | figures for r in rows for figures in r.get("translation", [])]
+    return render(TRANSLATION_COLUMNS, lines)
 
 
 def frontier(rows: Sequence[dict], bound: float | None, tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:

@@ -10,11 +10,13 @@ from pathlib import Path
 import numpy as np
 
 from limbstream import calibration, joints, kernel, quat, wire
+from limbstream.body import FULL, PAPER10, Layout
 from limbstream.sources import Motion
 from limbstream.sources.bvh_positions import BvhPositions
 from limbstream.evaluation.fusion import FIGURES, EarthTruth, pooled_error
 from limbstream.evaluation import body as bodies_of
 from limbstream.evaluation import positions as positions_of
+from limbstream.evaluation import translation
 from limbstream.evaluation.live_model import accepted, segment_live
 
 THRESHOLDS: np.ndarray = np.concatenate([[0.0], np.logspace(-6.0, 3.0, 205)])
@@ -61,7 +63,7 @@ KEYS: tuple[str, ...] = (
 MEASURES: tuple[str, ...] = KEYS[5:]
 """The measures of a row: degrees, ``pos_cm`` centimetres."""
 
-EXTRAS: tuple[str, ...] = ("joint_kinds", "joints", "positions")
+EXTRAS: tuple[str, ...] = ("joint_kinds", "joints", "positions", "translation")
 """A row's figures per joint (:func:`evaluate_threshold`), where scored."""
 
 
@@ -86,6 +88,8 @@ class Stream:
         up): the reference of its fusion and chain errors (BROAD's metric), None for others.
     source : the source file's own joint positions (``Motion.positions``), if it has them.
     source_offset_s : the source's time minus the stream's, s (NaN: unknown).
+    layout : the body layout of its motion (:func:`.body.layout_of`), whose bodies it is put
+        together into (None: ``paper10``).
     """
 
     t: np.ndarray
@@ -100,16 +104,18 @@ class Stream:
     earth: EarthTruth | None = None
     source: BvhPositions | None = None
     source_offset_s: float = 0.0
+    layout: Layout | None = None
 
 
-def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None) -> list[Stream]:
+def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None,
+               layout: Layout | None = None) -> list[Stream]:
     """Every segment stream of every motion (S streams per motion); with a sensor model that is
     on, each motion preceded by the calibration script and seen through its sensors (drawn per
-    motion)."""
+    motion). Their bodies are of ``layout`` (None: each motion's own, :func:`.body.layout_of`)."""
     out = []
     for i, motion in enumerate(motions):
         if sensors is not None and sensors.on:
-            out.extend(_sensor_streams(motion, sensors, i))
+            out.extend(_sensor_streams(motion, sensors, i, bodies_of.layout_of(motion, layout)))
             continue
         for s, segment in enumerate(motion.segments):
             out.append(
@@ -118,13 +124,14 @@ def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | Non
                     np.asarray(motion.q[:, s, :], np.float64),
                     f"{motion.name}/{segment}",
                     rest_pose=motion.rest_pose,
+                    layout=bodies_of.layout_of(motion, layout),
                     **positions_of.source_of(motion),
                 )
             )
     return out
 
 
-def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int) -> list[Stream]:
+def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int, layout: Layout) -> list[Stream]:
     """A motion's streams as its sensors report them, after the calibration script."""
     t = np.asarray(motion.t, np.float64)
     fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else wire.DEVICE_RATE_HZ
@@ -134,7 +141,8 @@ def _sensor_streams(motion: Motion, sensors: calibration.SensorModel, index: int
     draws = sensors.draw(len(motion.segments), stream=index)
     pose = calibration.mounting_pose(motion.segments)
     return [Stream(t, draws.report(s, t - t[0], q[:, s]), f"{motion.name}/{segment}", truth=q[:, s], rest=rest,
-                   mounting=mounting, pose=pose[s], motion_from=start, rest_pose=motion.rest_pose, **positions_of.source_of(motion))
+                   mounting=mounting, pose=pose[s], motion_from=start, rest_pose=motion.rest_pose, layout=layout,
+                   **positions_of.source_of(motion))
             for s, segment in enumerate(motion.segments)]
 
 
@@ -313,8 +321,12 @@ def evaluate_threshold(
     row["joint_aad"], row["joint_kinds"] = bodies_of.joint_figures(bodies)
     places = [positions_of.positions_of(b) for b in bodies]
     row["pos_cm"], row["positions"] = positions_of.position_figures(places)
+    moved = [f for b, p in zip(bodies, places) if (f := translation.translation_of(b, p)) is not None]
+    if moved:  # only motions with a root path that travels have figures
+        row["translation"] = moved
     if angles:
-        row["joints"] = joints.pooled_errors([(b.estimated, b.truth, b.rest_pose) for b in bodies])
+        widest = FULL if any(b.layout == FULL for b in bodies) else PAPER10  # full's angles hold paper10's
+        row["joints"] = joints.pooled_errors([(b.estimated, b.truth, b.rest_pose, b.layout) for b in bodies], widest)
     if dump_to is not None:
         for b, place in zip(bodies, places):
             bodies_of.dump(b, dump_to, "joints" if heading else "off", place)

@@ -78,3 +78,83 @@ def translation_figures(t: np.ndarray, root: np.ndarray, feet: np.ndarray, true_
         below_cm=100 * max(0.0, -float(np.nanmin(feet[:, :, 1]))),
         skate_cmps=100 * float(speed[planted].mean()) if some else float("nan"),
         true_skate_cmps=100 * float(true_speed[planted].mean()) if some else float("nan"))
+
+
+MIN_PATH_M = 0.5
+"""A motion has a root trajectory to score when its true root travels at least this far, m."""
+
+
+@dataclass(frozen=True)
+class RootPaths:
+    """An evaluated body's root paths, on its frames (m,): ``root`` the estimate's (m, 3) m, its
+    world (floor at 0), NaN on frames left out; ``true_root`` the file's (m, 3) m, its world;
+    ``feet``, ``true_feet`` (m, C, 3) the same foot points of both (world); ``heading_rad`` the
+    pelvis' mean heading difference, truth less estimate, over the first :data:`ALIGN_S` s."""
+
+    root: np.ndarray
+    true_root: np.ndarray
+    feet: np.ndarray
+    true_feet: np.ndarray
+    heading_rad: float
+
+
+def root_paths(body, positions) -> RootPaths | None:
+    """The root paths of one evaluated body (:class:`limbstream.evaluation.body.Body`) and its joint
+    positions (:class:`limbstream.evaluation.positions.Positions`), or None where there is no file
+    root path (a BVH file's) or less than 2 s of frames with every joint. The estimated root: a
+    :class:`~limbstream.body.translation.RootTracker` on the estimated joints' feet, over the frames
+    that have every joint; the true one: the file's root joint, its feet the same foot points of
+    the file's joints."""
+    from limbstream.body.translation import RootTracker, foot_points, heel_drops
+    from limbstream.calibration import yaw_of
+
+    source, layout = body.source, body.layout
+    if source is None or not positions.from_file:
+        return None
+    ok = (np.isfinite(positions.estimated).all(axis=(1, 2)) & np.isfinite(positions.truth).all(axis=(1, 2))
+          & np.isfinite(body.estimated).all(axis=(1, 2)) & np.isfinite(body.truth).all(axis=(1, 2)))
+    if ok.sum() < 2 or body.t[ok][-1] - body.t[ok][0] < 2.0:
+        return None
+    t, est_q, true_q = body.t[ok], body.estimated[ok], body.truth[ok]
+    true_root = source.root_at(body.source_t, layout)
+    if not np.isfinite(true_root[ok]).all():
+        return None
+    drops = heel_drops(layout, positions.dimensions)
+    names, est_pts = foot_points(layout, drops, est_q, positions.estimated[ok])
+    _, true_pts = foot_points(layout, drops, true_q, positions.truth[ok])
+    root = np.full((len(body.t), 3), np.nan)
+    root[ok], _ = RootTracker(1, names).track(t - t[0], est_pts)
+    feet, true_feet = np.full((len(body.t), len(names), 3), np.nan), np.full((len(body.t), len(names), 3), np.nan)
+    feet[ok], true_feet[ok] = root[ok][:, None] + est_pts, true_root[ok][:, None] + true_pts
+    hip = layout.segment_index[layout.root.name]
+    start = t - t[0] < ALIGN_S
+    turn = float(np.angle(np.mean(np.exp(1j * (yaw_of(true_q[start, hip]) - yaw_of(est_q[start, hip]))))))
+    return RootPaths(root, true_root, feet, true_feet, turn)
+
+
+def translation_of(body, positions) -> dict | None:
+    """The figures of one evaluated body and its positions (:func:`root_paths`), as a dict with the
+    motion's ``motion`` name, or None where there is nothing to score: no root paths, or a true
+    root that travels less than :data:`MIN_PATH_M`."""
+    paths = root_paths(body, positions)
+    if paths is None:
+        return None
+    ok = np.isfinite(paths.root).all(axis=1)
+    figures = translation_figures(body.t[ok], paths.root[ok], paths.feet[ok], paths.true_root[ok],
+                                  paths.true_feet[ok], paths.heading_rad)
+    if figures.path_m < MIN_PATH_M:
+        return None
+    return {"motion": body.name} | vars(figures)
+
+
+def pooled(per_motion: list[dict]) -> dict:
+    """The figures of several motions together: the median end error (% of path), the mean height
+    error and skating, the deepest a foot went below the floor, the motions scored."""
+    if not per_motion:
+        return {}
+    def mean(key: str) -> float:
+        values = np.array([m[key] for m in per_motion], np.float64)
+        return float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
+    return {"motions": len(per_motion), "end_pct": float(np.median([m["end_pct"] for m in per_motion])),
+            "height_cm": mean("height_cm"), "below_cm": max(m["below_cm"] for m in per_motion),
+            "skate_cmps": mean("skate_cmps"), "true_skate_cmps": mean("true_skate_cmps")}

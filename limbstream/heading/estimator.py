@@ -46,8 +46,10 @@ class Settings:
       across it (``knee_spread_deg``, ``elbow_spread_deg``), the time over which the hinge measure's
       errors are alike (``hinge_corr_s``), the axis learner's memory and trust thresholds
       (``axis_*``).
-    - Ball joints: per kind, the prior of the mean twist and the twist's spread about it
-      (``twist_deg``: (kind, mean sd, spread)), the time over which it stays alike
+    - Ball joints (hips, shoulders, the neck; where a body has them the lumbar spine, the ankles
+      and the wrists, which report two angles and are held by their twist and range): per kind,
+      the prior of the mean twist and the twist's spread about it (``twist_deg``: (kind, mean
+      sd, spread)), the time over which it stays alike
       (``twist_corr_s``), the gate in standard deviations beyond which a twist is left out
       (``twist_gate``); the range of motion's (:mod:`.rom`) measure, memory and share out of range
       that asks for a turn (``rom_*``).
@@ -72,7 +74,8 @@ class Settings:
     axis_min_amount: float = 3.0
     axis_min_share: float = 0.8
     twist_deg: tuple[tuple[str, float, float], ...] = (("hip", 10.0, 10.0), ("shoulder", 30.0, 30.0),
-                                                       ("neck", 10.0, 15.0))
+                                                       ("neck", 10.0, 15.0), ("lumbar", 10.0, 15.0),
+                                                       ("ankle", 10.0, 10.0), ("wrist", 20.0, 30.0))
     twist_corr_s: float = 1.0
     twist_gate: float = 4.0
     rom_sd_deg: float = 3.0

@@ -1,7 +1,8 @@
 """The joints between a subject's segments, their relative orientations and the joint angle error.
 
-A joint joins a parent segment to a child (:data:`limbstream.joints.JOINT_TABLE`: the hip is the
-root, and the shoulders and the neck hang from it as the spine has no sensor).
+A joint joins a parent segment to a child (``wire.joints_among``: in the 10-segment body,
+:data:`limbstream.joints.JOINT_TABLE`, the hip is the root, and the shoulders and the neck hang
+from it as the spine has no sensor; with a chest, the ``full`` layout's joints).
 Its relative orientation is ``R = q_parent^-1 * q_child`` (child frame -> parent frame): it is
 what a joint angle is made of, and it does not depend on which way the whole body faces. A
 heading error ``e`` of the child relative to its parent (a turn about the world's vertical)
@@ -14,8 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from limbstream import quat, skeleton, wire
-from limbstream.joints.convention import JOINT_TABLE, Joint
+from limbstream import quat, wire
+from limbstream.body import LAYOUTS
+from limbstream.joints.convention import JOINT_TABLE, Joint, from_tpose  # noqa: F401  (JOINT_TABLE: the docs')
 
 UP = np.array([0.0, 1.0, 0.0])
 """The world's vertical (the skeleton's Y)."""
@@ -25,21 +27,27 @@ HINGE, BALL = "hinge", "3-DoF"
 shoulder, neck: bounded by its range of motion only)."""
 
 
+_BUILTIN = {s.name: (s, q) for layout in LAYOUTS.values() for s, q in zip(layout.segments, from_tpose(layout))}
+"""Every built-in layout's segments by name, with their T-pose -> standing turns (a name means
+the same segment in each)."""
+
+
 def is_hinge(joint: Joint) -> bool:
-    """A joint of :data:`limbstream.joints.JOINT_TABLE` is a hinge if it reports one angle."""
+    """A joint is a hinge if it reports one angle (knees, elbows)."""
     return joint.angles[1] is None and joint.angles[2] is None
 
 
 def kind(name: str) -> str:
-    """A joint's kind, its name without the side: ``hip``, ``knee``, ``shoulder``, ``elbow``,
-    ``neck``."""
+    """A joint's kind, its name without the side: ``hip``, ``knee``, ``ankle``, ``shoulder``,
+    ``elbow``, ``wrist``, ``lumbar``, ``neck``."""
     return name.split("_")[0]
 
 
 @dataclass(frozen=True)
 class Layout:
-    """The joints among ``segments`` (those whose parent and child are both there), in
-    :data:`limbstream.joints.JOINT_TABLE` order, and the arrays that index them.
+    """The joints among ``segments`` (``wire.joints_among``: those whose parent and child are both
+    there; the 10-segment body's in :data:`limbstream.joints.JOINT_TABLE` order), and the arrays
+    that index them.
 
     Attributes
     ----------
@@ -59,10 +67,11 @@ class Layout:
 
     @staticmethod
     def of(segments, rest_pose: str = wire.DEFAULT_REST_POSE) -> Layout:
-        """The layout of ``segments`` (names; unknown ones take part in no joint)."""
+        """The layout of ``segments`` (names of the built-in layouts' segments; unknown ones take
+        part in no joint)."""
         segments = tuple(segments)
         index = {name: i for i, name in enumerate(segments)}
-        joints = [j for j in JOINT_TABLE if j.parent in index and j.child in index]
+        joints = wire.joints_among(segments)
         return Layout(segments, tuple(j.name for j in joints),
                       np.array([index[j.parent] for j in joints], int),
                       np.array([index[j.child] for j in joints], int),
@@ -71,15 +80,18 @@ class Layout:
 
     def to_standing(self) -> tuple[np.ndarray, np.ndarray]:
         """(J, 4) twice: ``a``, ``b`` such that ``a * R * b`` is a relative orientation ``R``
-        referred to the standing rest pose (T-pose arms lowered; identities for standing data)."""
-        offsets = quat.conjugate(skeleton.rest_offsets("standing")) if self.rest_pose == "tpose" else \
-            np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))
-        per_segment = np.array([offsets[wire.SEGMENTS.index(s)] for s in self.segments]).reshape(-1, 4)
+        referred to the standing rest pose (T-pose arms and hands lowered; identities for
+        standing data)."""
+        identity = np.array([1.0, 0.0, 0.0, 0.0])
+        tpose = self.rest_pose == "tpose"
+        per_segment = np.array([_BUILTIN[s][1] if tpose and s in _BUILTIN else identity
+                                for s in self.segments]).reshape(-1, 4)
         return quat.conjugate(per_segment[self.parent]), per_segment[self.child]
 
     def bone_axes(self) -> np.ndarray:
-        """(J, 3) each joint's child bone direction in the child's frame."""
-        return np.array([skeleton.bone_axis(self.segments[c], self.rest_pose) for c in self.child])
+        """(J, 3) each joint's child bone direction in the child's frame (its rest direction)."""
+        return np.array([_BUILTIN[self.segments[c]][0].directions[self.rest_pose] for c in self.child],
+                        np.float64).reshape(-1, 3)
 
     def classes(self) -> dict[str, np.ndarray]:
         """Joint class name -> (J,) bool mask (only the classes present)."""

@@ -29,12 +29,22 @@ MARGIN_DEG = 10.0
 LIMITS_DEG: dict[str, tuple[tuple[float, float], tuple[float, float], tuple[float, float]]] = {
     "hip": ((-140.0, 40.0), (-50.0, 60.0), (-60.0, 60.0)),
     "neck": ((-70.0, 90.0), (-60.0, 60.0), (-110.0, 110.0)),
+    "lumbar": ((-40.0, 90.0), (-40.0, 40.0), (-50.0, 50.0)),
+    "ankle": ((-30.0, 55.0), (-35.0, 25.0), (-30.0, 30.0)),
+    "wrist": ((-25.0, 40.0), (-85.0, 75.0), (-80.0, 80.0)),
 }
 """Joint kind -> (X, Z, Y) angle limits, degrees, left side (X: turning the bone backwards is
 positive, so flexion is negative for a leg and positive for the neck). Wide: a rest pose is not
 always anatomically neutral (BVH skeletons stand with their legs apart), and the range is a
 guard against large heading errors, not a fine measure. The shoulders have none: with the trunk
-unmeasured, an upper arm can take nearly any orientation relative to the pelvis."""
+unmeasured, an upper arm can take nearly any orientation relative to the pelvis.
+
+Where a body has them (the ``full`` layout): the lumbar spine (chest on pelvis: flexion, X
+positive, to 90, extension 40, bending 40, twist 50 each way); the ankle (foot on shank: X
+positive is plantarflexion, to 55, dorsiflexion 30; Z, about the foot's long axis, eversion to
+25 and inversion to 35; the foot turned in or out 30); the wrist (hand on forearm, the palm
+against the thigh at rest: X positive the ulnar deviation, to 40, radial 25; Z extension to 75
+and flexion to 85; Y, the twist the forearm's sensor leaves to the hand, 80 each way)."""
 
 TRIALS_DEG = np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 5.0, -5.0, 7.0, -7.0, 10.0, -10.0, 14.0, -14.0,
                        20.0, -20.0, 28.0, -28.0, 40.0, -40.0, 56.0, -56.0, 80.0, -80.0, 110.0, -110.0])

@@ -10,11 +10,11 @@ module              what it holds
 ==================  ===========================================================
 """
 from limbstream.joints.convention import (ANGLES, GIMBAL, GIMBAL_DEG, JOINT_TABLE, MISSING, TO_OPENSIM, UNCALIBRATED,
-                                          Joint, anatomical, euler_zxy, joint_angles, standing)
+                                          Joint, anatomical, angle_names, euler_zxy, from_tpose, joint_angles, standing)
 from limbstream.joints.functional import HINGES, Facing, HingeStats, face, functional_calibration, rotation_vector
 from limbstream.joints.scoring import FIGURES, angle_errors, in_layout, pooled_errors, true_angles
 
 __all__ = ["ANGLES", "FIGURES", "GIMBAL", "GIMBAL_DEG", "HINGES", "JOINT_TABLE", "MISSING", "TO_OPENSIM", "UNCALIBRATED",
-           "Facing", "HingeStats", "Joint", "anatomical", "angle_errors", "euler_zxy", "face",
+           "Facing", "HingeStats", "Joint", "anatomical", "angle_errors", "angle_names", "from_tpose", "euler_zxy", "face",
            "functional_calibration", "in_layout", "joint_angles", "pooled_errors", "rotation_vector", "standing",
            "true_angles"]

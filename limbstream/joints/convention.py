@@ -34,6 +34,29 @@ neck are measured from the pelvis, as the model's arm angles would be with its l
 The hinges' small axis tilts in the model (knee 4 degrees, elbow 13) are left out: knee and elbow
 flexion turn about the rest pose's lateral axis.
 
+Layouts. Each layout has its joints (``wire.joint_table``): the ``full`` layout's chest, head,
+hands and feet add
+
+- ``back`` (pelvis -> chest): lumbar_extension +Z, lumbar_bending +X, lumbar_rotation +Y (trunk
+  flexion is negative extension); the shoulders (``acromial``) and the neck are then measured
+  from the chest, as the model measures the arm against its torso.
+- ``ankle_r/l`` (shank -> foot): ankle_angle about +Z (the model's talocrural axis
+  (-0.105, -0.174, 0.979), its tilt left out; dorsiflexion positive, both sides), then
+  ``subtalar_angle`` as the middle Z-X-Y angle, about the floating axis along the foot (+X on
+  the right, -X on the left: inversion positive, the model's sign). The model's subtalar axis
+  is oblique ((0.787, 0.605, -0.121) in the calcaneus: about 42 degrees up from the sole), so
+  this angle is the inversion part of the foot's turn, not exactly the model's subtalar
+  coordinate; the third angle (the foot turned in or out about the vertical) is not reported.
+  The foot's rest, flat on the floor, is the model's zero.
+- ``radius_hand_r/l`` (lower arm -> hand): wrist_flex about +Z, wrist_dev about +X on the right
+  (-X on the left), in the model's forearm frame, whose zero holds the palm forward. The rest
+  pose holds the palms against the thighs (thumbs forward: a T-pose's palms-down hands brought
+  down to the sides), a quarter turn of pronation from the model's zero, so the joint's frames
+  are the rest frames turned by that quarter turn about the forearm (``Joint.frame``: +Y on the
+  right, -Y on the left): flexion (towards the palm) and ulnar deviation positive. Pronation
+  is not observable between the lower arm and the hand segments as modelled (the hand turns
+  with the radius, the lower-arm segment with both): the third angle is not reported.
+
 Gimbal lock. Z-X-Y angles lock where the middle angle (ad/abduction) reaches +-90 degrees: the
 first and third angles then turn about the same axis and only their sum is defined. Within
 :data:`GIMBAL_DEG` of it they are flagged :data:`GIMBAL` (finite but ill-conditioned: an
@@ -46,12 +69,15 @@ Flags per angle: :data:`MISSING` (a segment of the joint has no data: angle NaN)
 """
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from limbstream import quat, wire
-from limbstream.skeleton import rest_offsets
+from limbstream.body import LAYOUTS, Layout
+from limbstream.body import layout as load_layout
 from limbstream.wire import JOINT_TABLE, Joint  # noqa: F401  (re-exported: the joints, the contract's table)
 
 MISSING, GIMBAL, UNCALIBRATED = wire.ANGLE_MISSING, wire.ANGLE_GIMBAL, wire.ANGLE_UNCALIBRATED
@@ -64,52 +90,111 @@ TO_OPENSIM = np.array([math.sqrt(0.5), 0.0, math.sqrt(0.5), 0.0])
 """limbstream's axes to OpenSim's, a turn of 90 degrees about Y: (x, y, z) -> (z, y, -x)."""
 
 ANGLES: tuple[str, ...] = wire.JOINT_ANGLES
-"""The joint angles, in this order in every angle vector (degrees)."""
+"""The joint angles of the 10-segment body (``paper10``), in this order in its angle vectors
+(degrees); another layout's: ``wire.joint_angles(layout)``."""
 
-_SEG = {name: i for i, name in enumerate(wire.SEGMENTS)}
-_PARENT = np.array([_SEG[j.parent] for j in JOINT_TABLE])
-_CHILD = np.array([_SEG[j.child] for j in JOINT_TABLE])
-_AT = [(j, i, s) for j, joint in enumerate(JOINT_TABLE) for i, (a, s) in enumerate(zip(joint.angles, joint.signs))
-       if a is not None]
-_JOINT_OF = np.array([j for j, _, _ in _AT])
-"""(A,) the joint of each angle."""
-_COMPONENT = np.array([i for _, i, _ in _AT])
-"""(A,) which Z-X-Y angle (0, 1, 2) each angle is."""
-_TAKE = 3 * _JOINT_OF + _COMPONENT
-"""(A,) each angle's place in a (J, 3) array of the joints' Z-X-Y angles, flattened."""
-_DEG = np.degrees(np.array([s for _, _, s in _AT]))
-"""(A,) radians to degrees, times each angle's sign."""
-_ENDS = np.concatenate([_PARENT, _CHILD])
-_SIDE_ANGLE = _COMPONENT != 1
-"""(A,) the first or third angle of its joint (those gimbal lock makes ill-conditioned)."""
-_STANDING_FROM_TPOSE = quat.conjugate(rest_offsets("standing"))
 _LOCK_SIN = math.sin(math.radians(GIMBAL_DEG))
 
 
-def anatomical(q: np.ndarray, rest_pose: str = wire.DEFAULT_REST_POSE) -> np.ndarray:
+def from_tpose(layout: Layout) -> np.ndarray:
+    """(S, 4) per segment of ``layout`` the turn that refers a T-pose orientation to the standing
+    rest pose (``q_standing = q_tpose * from_tpose``): the conjugate of the shortest turn taking
+    its bone's T-pose direction to its standing one (the arms and hands lowered by 90 degrees
+    about the forward axis; identity where both are the same)."""
+    out = np.tile([1.0, 0.0, 0.0, 0.0], (len(layout.segments), 1))
+    for k, segment in enumerate(layout.segments):
+        a, b = (np.array(segment.directions[pose]) for pose in ("tpose", "standing"))
+        axis = np.cross(a, b)
+        if np.linalg.norm(axis) > 1e-12:
+            half = 0.5 * math.atan2(float(np.linalg.norm(axis)), float(a @ b))
+            sin_half = math.cos(0.5 * math.pi - half)  # (a quarter turn: exactly cos, as skeleton.rest_offsets has it)
+            out[k] = quat.conjugate(np.concatenate([[math.cos(half)], sin_half * axis / np.linalg.norm(axis)]))
+    return out
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What :func:`joint_angles` needs of a layout: its segments, its joints and angles, and the
+    arrays that index them."""
+
+    segments: tuple[str, ...]
+    table: tuple[Joint, ...]
+    angles: tuple[str, ...]
+    parent: np.ndarray        # (J,) segment index of each joint's parent
+    child: np.ndarray         # (J,) ... and child
+    joint_of: np.ndarray      # (A,) the joint of each angle
+    take: np.ndarray          # (A,) each angle's place in a (J, 3) array of the joints' Z-X-Y angles, flattened
+    deg: np.ndarray           # (A,) radians to degrees, times each angle's sign
+    side_angle: np.ndarray    # (A,) the first or third angle of its joint (those gimbal lock makes ill-conditioned)
+    frames: np.ndarray | None  # (J, 4) the joints' model frames (None: all identity)
+    from_tpose: np.ndarray    # (S, 4) T-pose -> standing per segment
+
+    @property
+    def ends(self) -> np.ndarray:
+        return np.concatenate([self.parent, self.child])
+
+
+@functools.lru_cache(maxsize=16)
+def _plan_of(layout: Layout) -> _Plan:
+    table = wire.joint_table(layout)
+    seg = layout.segment_index
+    at = [(j, i, s) for j, joint in enumerate(table) for i, (a, s) in enumerate(zip(joint.angles, joint.signs))
+          if a is not None]
+    joint_of = np.array([j for j, _, _ in at], int)
+    component = np.array([i for _, i, _ in at], int)
+    frames = np.array([j.frame for j in table], np.float64).reshape(-1, 4)
+    identity = bool((frames == [1.0, 0.0, 0.0, 0.0]).all())
+    return _Plan(layout.segment_names, table, tuple(a for j in table for a in j.angles if a is not None),
+                 np.array([seg[j.parent] for j in table], int), np.array([seg[j.child] for j in table], int),
+                 joint_of, 3 * joint_of + component, np.degrees(np.array([s for _, _, s in at])), component != 1,
+                 None if identity else frames, from_tpose(layout))
+
+
+def plan(layout: str | Layout = "paper10") -> _Plan:
+    """The plan of a layout: a built-in's name, a layout file's path or a
+    :class:`limbstream.body.Layout` (ValueError naming the choices for an unknown one)."""
+    if isinstance(layout, str):
+        layout = LAYOUTS[layout] if layout in LAYOUTS else _loaded(layout)
+    return _plan_of(layout)
+
+
+@functools.lru_cache(maxsize=16)
+def _loaded(path: str) -> Layout:
+    return load_layout(path)
+
+
+def angle_names(layout: str | Layout = "paper10") -> tuple[str, ...]:
+    """(A,) the joint angles of ``layout`` in the order of its angle vectors (``paper10``'s:
+    :data:`ANGLES`)."""
+    return plan(layout).angles
+
+
+def anatomical(q: np.ndarray, rest_pose: str = wire.DEFAULT_REST_POSE, layout: str | Layout = "paper10") -> np.ndarray:
     """Anatomical segment frames in OpenSim's axes.
 
     Parameters
     ----------
-    q : (..., 10, 4) calibrated segment orientations, :data:`wire.SEGMENTS` order, scalar-first
-        (any nonzero norm; non-finite rows stay non-finite).
+    q : (..., S, 4) calibrated segment orientations in the layout's segment order (``paper10``:
+        :data:`wire.SEGMENTS`), scalar-first (any nonzero norm; non-finite rows stay non-finite).
     rest_pose : what identity means for ``q`` (``wire.REST_POSES``).
+    layout : the layout of ``q`` (a built-in's name, a layout file or a Layout).
 
     Returns
     -------
-    (..., 10, 4) float64 unit quaternions, ground <- segment, in OpenSim's axes (X forward of
+    (..., S, 4) float64 unit quaternions, ground <- segment, in OpenSim's axes (X forward of
     the rest pose, Y up, Z right); identity in the standing rest pose.
     """
     q = np.asarray(q, np.float64)
-    q = standing(q / np.linalg.norm(q, axis=-1, keepdims=True), rest_pose)
+    q = standing(q / np.linalg.norm(q, axis=-1, keepdims=True), rest_pose, layout)
     return quat.multiply(quat.multiply(TO_OPENSIM, q), quat.conjugate(TO_OPENSIM))
 
 
-def standing(q: np.ndarray, rest_pose: str) -> np.ndarray:
-    """(..., 10, 4) segment orientations ``q`` referred to the standing rest pose (T-pose data:
-    the arms' frames lowered by 90 degrees about the forward axis; standing data unchanged)."""
+def standing(q: np.ndarray, rest_pose: str, layout: str | Layout = "paper10") -> np.ndarray:
+    """(..., S, 4) segment orientations ``q`` of ``layout`` referred to the standing rest pose
+    (T-pose data: the arms' and hands' frames lowered by 90 degrees about the forward axis,
+    :func:`from_tpose`; standing data unchanged)."""
     if wire.check_rest_pose(rest_pose) == "tpose":
-        return quat.multiply(q, _STANDING_FROM_TPOSE)
+        return quat.multiply(q, plan(layout).from_tpose)
     return np.asarray(q, np.float64)
 
 
@@ -146,46 +231,51 @@ def _euler_zxy(w: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tu
 
 
 def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: str = wire.DEFAULT_REST_POSE,
-                 calibrated: np.ndarray | bool = True) -> tuple[np.ndarray, np.ndarray]:
+                 calibrated: np.ndarray | bool = True, layout: str | Layout = "paper10") -> tuple[np.ndarray, np.ndarray]:
     """The joint angles of calibrated segment orientations, vectorised over frames and subjects.
 
     Parameters
     ----------
-    q : (..., 10, 4) segment orientations, :data:`wire.SEGMENTS` order (anatomical once
-        calibrated: identity in the rest pose, the rest pose's forward resolved); float32 is
-        worked in float32 (a pose frame's precision: about 1e-5 degrees away from lock), any
-        other type in float64.
-    present : (10,) or (..., 10) bool, the segments that have data (None: every finite one).
+    q : (..., S, 4) segment orientations in the layout's segment order (``paper10``:
+        :data:`wire.SEGMENTS`; anatomical once calibrated: identity in the rest pose, the rest
+        pose's forward resolved); float32 is worked in float32 (a pose frame's precision: about
+        1e-5 degrees away from lock), any other type in float64.
+    present : (S,) or (..., S) bool, the segments that have data (None: every finite one).
     rest_pose : what identity means for ``q``.
     calibrated : bool or (...) bool per leading index (e.g. per subject): False gives no angles
         (NaN, flag UNCALIBRATED).
+    layout : the layout of ``q``: a built-in's name, a layout file or a
+        :class:`limbstream.body.Layout`; its joints are ``wire.joint_table(layout)``'s.
 
     Returns
     -------
-    angles : (..., A) float64 degrees, :data:`ANGLES` order; NaN where flagged MISSING or
-        UNCALIBRATED.
+    angles : (..., A) float64 degrees, in the layout's angle order (:func:`angle_names`;
+        ``paper10``: :data:`ANGLES`); NaN where flagged MISSING or UNCALIBRATED.
     flags : (..., A) uint8, :data:`MISSING` | :data:`GIMBAL` | :data:`UNCALIBRATED` bits.
     """
+    p = plan(layout)
     q = np.asarray(q)
     q = q if q.dtype == np.float32 else q.astype(np.float64)
     if wire.check_rest_pose(rest_pose) == "tpose":
-        q = quat.multiply(q, _STANDING_FROM_TPOSE).astype(q.dtype)
-    j = len(JOINT_TABLE)
-    ends = np.take(q, _ENDS, axis=-2).reshape(*q.shape[:-2], 2, j, 4)  # the joints' parents, then children
+        q = quat.multiply(q, p.from_tpose).astype(q.dtype)
+    j = len(p.table)
+    ends = np.take(q, p.ends, axis=-2).reshape(*q.shape[:-2], 2, j, 4)  # the joints' parents, then children
     (pw, cw), (px, cx), (py, cy), (pz, cz) = np.ascontiguousarray(np.moveaxis(ends, (-1, -3), (0, 1)))  # fast to work on
     with np.errstate(invalid="ignore", over="ignore"):  # a segment without data: its joints are flagged below
         # conj(parent) * child, in OpenSim's axes: (w, x, y, z) -> (w, z, y, -x) (conjugated by TO_OPENSIM)
-        a, b, c, near_lock, norm2 = _euler_zxy(pw * cw + px * cx + py * cy + pz * cz,
-                                               pw * cz - pz * cw - px * cy + py * cx,
-                                               pw * cy - py * cw + px * cz - pz * cx,
-                                               px * cw - pw * cx + py * cz - pz * cy)
+        relative = (pw * cw + px * cx + py * cy + pz * cz, pw * cz - pz * cw - px * cy + py * cx,
+                    pw * cy - py * cw + px * cz - pz * cx, px * cw - pw * cx + py * cz - pz * cy)
+        if p.frames is not None:  # in the joints' model frames: conj(F) * r * F
+            r = quat.multiply(quat.multiply(quat.conjugate(p.frames), np.stack(relative, axis=-1)), p.frames)
+            relative = tuple(np.moveaxis(r.astype(pw.dtype), -1, 0))
+        a, b, c, near_lock, norm2 = _euler_zxy(*relative)
     joint_missing = ~(np.isfinite(norm2) & (norm2 > 0))  # (..., J): a segment non-finite or zero
     if present is not None:
         present = np.asarray(present, bool)
-        joint_missing |= ~(np.take(present, _PARENT, axis=-1) & np.take(present, _CHILD, axis=-1))
-    angles = np.take(np.stack([a, b, c], axis=-1).reshape(*a.shape[:-1], 3 * j), _TAKE, axis=-1) * _DEG
-    flags = (np.take(near_lock, _JOINT_OF, axis=-1) & _SIDE_ANGLE).astype(np.uint8) * np.uint8(GIMBAL)
-    no_number = np.take(joint_missing, _JOINT_OF, axis=-1)
+        joint_missing |= ~(np.take(present, p.parent, axis=-1) & np.take(present, p.child, axis=-1))
+    angles = np.take(np.stack([a, b, c], axis=-1).reshape(*a.shape[:-1], 3 * j), p.take, axis=-1) * p.deg
+    flags = (np.take(near_lock, p.joint_of, axis=-1) & p.side_angle).astype(np.uint8) * np.uint8(GIMBAL)
+    no_number = np.take(joint_missing, p.joint_of, axis=-1)
     flags |= no_number.astype(np.uint8) * np.uint8(MISSING)
     uncalibrated = ~np.asarray(calibrated, bool)
     if uncalibrated.any():

@@ -7,8 +7,9 @@ built-in synthetic full-body motion (the default of demos and tests). Raw sensor
 """
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -125,7 +126,8 @@ the entry."""
 
 def load_npz(path: str | Path) -> list[Motion]:
     """All clips of a ``cmu_10seg_50hz.npz``-style file (``clip_<name>`` arrays, ``fs``,
-    ``segment_names``, optional ``rest_pose``: a 0-d string, :data:`NPZ_REST_POSE` if absent)."""
+    ``segment_names``, optional ``rest_pose``: a 0-d string, :data:`NPZ_REST_POSE` if absent;
+    optional ``root_<name>`` (m, 3) m, a clip's root path: ``Motion.root``)."""
     path = Path(path)
     try:
         data = np.load(path, allow_pickle=False)
@@ -142,13 +144,33 @@ def load_npz(path: str | Path) -> list[Motion]:
         q = np.asarray(data[key], np.float64)
         if q.ndim != 3 or q.shape[1:] != (len(names), 4):
             raise MotionFileError(f"{path}: {key} has shape {q.shape}, expected (m, {len(names)}, 4)")
-        motions.append(Motion(np.arange(len(q)) / fs, q, names, key[len("clip_"):], rest_pose))
+        name = key[len("clip_"):]
+        root = np.asarray(data[f"root_{name}"], np.float64) if f"root_{name}" in data.files else None
+        if root is not None and root.shape != (len(q), 3):
+            raise MotionFileError(f"{path}: root_{name} has shape {root.shape}, expected ({len(q)}, 3)")
+        motions.append(Motion(np.arange(len(q)) / fs, q, names, name, rest_pose, root))
     return motions
 
 
+def on_layout(motion: Motion, layout: Layout) -> Motion:
+    """``motion`` with only the segments ``layout`` has (in the motion's order); a one-line warning
+    names those it leaves out."""
+    off = [s for s in motion.segments if s not in layout.segment_index]
+    if not off:
+        return motion
+    keep = [k for k, s in enumerate(motion.segments) if s in layout.segment_index]
+    if not keep:
+        raise MotionFileError(f"{motion.name}: none of its segments ({', '.join(motion.segments)}) is one of layout "
+                              f"{layout.name}'s ({', '.join(layout.segment_names)})")
+    warnings.warn(f"{motion.name}: {', '.join(off)}: no segment of layout {layout.name}, left out", stacklevel=2)
+    return replace(motion, q=motion.q[:, keep], segments=tuple(motion.segments[k] for k in keep))
+
+
 def load(path: str | Path, names: Mapping[str, str] | None = None,
-         fs: float | None = wire.DEVICE_RATE_HZ) -> list[Motion]:
-    """Load every motion in a file or folder.
+         fs: float | None = wire.DEVICE_RATE_HZ, layout: str | Layout | None = None) -> list[Motion]:
+    """Load every motion in a file or folder, onto ``layout`` (a built-in's name, a layout file or
+    a :class:`~limbstream.body.Layout`; None: BVH files onto ``paper10``, other sources with every
+    segment they have).
 
     - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at ``fs`` Hz (None: the file's
       own frames; :mod:`.bvh`; ``names``
@@ -158,32 +180,41 @@ def load(path: str | Path, names: Mapping[str, str] | None = None,
       orientations (see :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`).
     - Any other folder: every ``.npz`` and ``.bvh`` in it, in name order.
 
+    With a ``layout``, a BVH file maps a joint to each of its segments (:func:`.bvh.load_bvh`), and
+    the segments of other sources it does not have are left out (:func:`on_layout`).
+
     Raises
     ------
     MotionFileError naming the file and what is wrong (also: an IMU recording in which no sensor
     maps to a body segment, and ``names`` for a source whose segments are named already).
     """
+    from limbstream.body import layout as layout_named
     from limbstream.sources import bvh, imu_files
 
     path = Path(path)
     if not path.exists():
         raise MotionFileError(f"{path}: no such file or folder")
+    try:
+        shape = layout_named(layout) if isinstance(layout, (str, Path)) else layout
+    except (ValueError, OSError) as exc:
+        raise MotionFileError(f"{path}: {exc}") from None
     suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()} if path.is_dir() else {path.suffix.lower()}
     if suffixes & {".csv", ".txt"}:
-        return [imu_files.load_imu(path, names)]
+        motion = imu_files.load_imu(path, names)
+        return [motion if shape is None else on_layout(motion, shape)]
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".npz", ".bvh"))
         if not files:
             raise MotionFileError(f"{path}: folder holds no .npz, .bvh, .csv or .txt motion files")
-        return [m for f in files for m in load(f, names if f.suffix.lower() == ".bvh" else None, fs)]
+        return [m for f in files for m in load(f, names if f.suffix.lower() == ".bvh" else None, fs, shape)]
     suffix = path.suffix.lower()
     if suffix == ".bvh":
-        return [bvh.load_bvh(path, fs, names=names)]
+        return [bvh.load_bvh(path, fs, names=names, layout=shape or "paper10")]
     if names is not None:
         raise MotionFileError(f"{path}: --names maps the sensors of IMU recordings (x-IMU3 .csv, Xsens .txt) "
                               "and the joints of BVH files; this source names its segments itself")
     if suffix == ".npz":
-        return load_npz(path)
+        return [m if shape is None else on_layout(m, shape) for m in load_npz(path)]
     if suffix == ".mat":
         raise MotionFileError(f"{path}: a raw sensor recording (angular rate, specific force), not orientations: "
                               "limbstream fuse, eval and export fuse it as devices do")
@@ -192,4 +223,5 @@ def load(path: str | Path, names: Mapping[str, str] | None = None,
 
 from limbstream.sources.raw import RawRecording, load_raw  # noqa: E402  (needs MotionFileError above)
 
-__all__ = ["ORIENTATIONS", "SEGMENTS", "Motion", "MotionFileError", "RawRecording", "is_number", "load", "load_npz", "load_raw"]
+__all__ = ["ORIENTATIONS", "SEGMENTS", "Motion", "MotionFileError", "RawRecording", "is_number", "load", "load_npz", "load_raw",
+           "on_layout"]

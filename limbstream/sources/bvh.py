@@ -1,11 +1,13 @@
-"""BVH motion capture files -> global segment orientations of the 10-IMU layout.
+"""BVH motion capture files -> global segment orientations of a body layout (``paper10``, the
+10-IMU body, by default; ``full``, with feet, hands, chest and head).
 
 Each joint's rotation channels are applied in the order the file lists them, as intrinsic
 rotations (``R = R_first R_second R_third``, the BVH convention); the global orientation of a
 joint is its parent's global orientation times its local one (forward kinematics, rotations
 only: offsets and positions do not change orientations). The global frame is the BVH world
 frame (Y up for the CMU clips). A joint -> segment map picks the joints that carry the
-10 IMUs (:mod:`.bvh_names`: the CMU, Mixamo and sided naming schemes, or ``--names``); the
+layout's segments (:mod:`.bvh_names`: the CMU, Mixamo and sided naming schemes, or ``--names``;
+a segment turns with the joint whose bone it is, :func:`.bvh_names.carriers`); the
 file's rest pose comes from its OFFSETs (:mod:`.bvh_rest`). Position channels may sit on any
 joint (some exporters write six on every one); only the pelvis's path is read from them.
 """
@@ -21,7 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from limbstream import quat, wire
-from limbstream.body import Body
+from limbstream.body import Body, Layout, layout as layout_of
 from limbstream.sources import SEGMENTS, Motion, MotionFileError, bvh_body, bvh_names, bvh_rest, is_number
 from limbstream.sources.bvh_names import CMU_SEGMENT_MAPS, pick_segment_map  # noqa: F401  (re-exported)
 from limbstream.sources.bvh_positions import BvhPositions
@@ -338,6 +340,7 @@ def load_bvh(
     segment_map: Mapping[str, str] | None = None,
     drop_first: bool | None = None,
     names: Mapping[str, str] | None = None,
+    layout: str | Layout = "paper10",
 ) -> Motion:
     """Global segment orientations of a BVH clip, from its rest pose, optionally resampled.
 
@@ -348,31 +351,41 @@ def load_bvh(
         file's frames and rate.
     segment_map : segment name -> joint name, any segment names; default: from ``names``
         (joint -> segment, as ``--names`` gives it) or the naming schemes (:mod:`.bvh_names`),
-        the 10 segments in :data:`SEGMENTS` order.
+        the segments of ``layout`` in its order.
     drop_first : drop frame 0; None (default) drops it when :func:`is_synthetic_tpose` says so.
     names : joint -> segment (``--names``, :func:`limbstream.sources.names.parse`) for a file
         whose joint names no scheme fits; ignored with ``segment_map``.
+    layout : the body layout the file is read onto (a built-in's name, a layout file, or a
+        :class:`~limbstream.body.Layout`): ``paper10`` (default) or ``full`` (feet, hands, chest
+        and head too; :func:`.bvh_names.layout_map`).
 
     Returns
     -------
     Motion with t (m,) seconds from 0, q (m, S, 4) global orientations in the BVH world frame
     from the file's rest pose (``rest_pose``, :func:`.bvh_rest.rest_pose`), its wearer's body
-    from its OFFSETs (``body``, :func:`wearer`), the file's own joint positions (``positions``,
-    :class:`.bvh_positions.BvhPositions`; None if paper10's bones cannot be measured on its
-    skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint has a path
+    from its OFFSETs (``body``: :func:`wearer` on ``paper10``; on another layout the layout's
+    bones measured on the file, :meth:`.bvh_positions.BvhPositions.body`), the file's own joint
+    positions (``positions``, :class:`.bvh_positions.BvhPositions`; None if the layout's bones
+    cannot be measured on its skeleton: a bone of zero length or beyond 1.5 m) and, where the hip joint has a path
     (position channels on it or above it) and the map names the left thigh and shank, the
     pelvis's path (:func:`root_path`, linearly resampled with the orientations).
 
     Raises
     ------
-    MotionFileError naming the file and what is wrong (syntax, missing joints, no map fits).
+    MotionFileError naming the file and what is wrong (syntax, missing joints, no map fits, a
+    segment of ``layout`` without a joint).
     """
     clip = parse_bvh(path)
+    try:
+        shape = layout if isinstance(layout, Layout) else layout_of(layout)
+    except (ValueError, OSError) as exc:
+        raise MotionFileError.at(clip.path, None, str(exc)) from None
     if segment_map is None:
-        segment_map = bvh_names.segment_map(clip.path, clip.joints, names)
+        segment_map = bvh_names.layout_map(clip, names, shape)
     segments = tuple(segment_map)
-    rotations = global_rotations(clip, [segment_map[s] for s in segments])
-    q = np.stack([quat.from_rotation(rotations[segment_map[s]]) for s in segments], axis=1)
+    turns = bvh_names.carriers(clip, segment_map)
+    rotations = global_rotations(clip, [turns[s] for s in segments])
+    q = np.stack([quat.from_rotation(rotations[turns[s]]) for s in segments], axis=1)
     rest_pose, corrections = bvh_rest.rest_pose(clip, segment_map)
     for seg, c in corrections.items():
         k = segments.index(seg)
@@ -386,11 +399,11 @@ def load_bvh(
     t = np.arange(len(q)) * clip.frame_time
     own = BvhPositions(clip, dict(segment_map), corrections, rest_pose, first * clip.frame_time)
     try:
-        own.body()  # the layout's bones measured on the file (each within the body's bounds)
+        own.body(shape)  # the layout's bones measured on the file (each within the body's bounds)
         positions: BvhPositions | None = own
     except ValueError:
-        positions = None  # a skeleton paper10 cannot take: no positions of its own
-    body = wearer(clip, segment_map)
+        positions = None  # a skeleton the layout cannot take: no positions of its own
+    body = wearer(clip, segment_map) if shape.name == "paper10" else (positions.body(shape) if positions else None)
     if fs is None:
         return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root, positions=positions, body=body)
     t_out, q = resample(t, q, fs)

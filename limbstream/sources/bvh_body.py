@@ -11,6 +11,11 @@ pose's own axis, keep their lengths along it.
 
 BVH files do not say their unit. Of :data:`UNITS`, the one that makes the legs (thigh + shank)
 nearest the default adult's is taken: the CMU clips' 1/0.45 inch, Mixamo's centimetres, metres.
+
+On another layout (``full``) the wearer's body is every bone of the layout measured on the
+file's zero pose the same way, between the file's joints of its joints
+(:meth:`.bvh_positions.BvhPositions.body`: the feet to the toes, the hands to the fingertips, the
+head from the neck's base to the top of the head, the chest from the waist to the neck's base).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Which BVH joint carries each segment of the 10-IMU layout.
+"""Which BVH joint carries each segment of a layout (``paper10``, the 10-IMU body, by default).
 
 Tried in order, the first that names a joint for every segment wins:
 
@@ -11,6 +11,14 @@ Tried in order, the first that names a joint for every segment wins:
    two joints fit a segment the one nearer the root carries it (a floor root above the pelvis is
    no pelvis: its name fits none).
 
+``full``'s further segments (:func:`full_map`): the feet and hands by the same schemes (CMU's
+``LeftFoot``/``LeftAnkle`` and ``LeftHand``/``LeftWrist``; sided ``foot``, ``ankle``, ``hand``,
+``wrist``), the head by an unsided ``Head``, the chest by the spine: the joint whose bone
+reaches the neck joint's place (CMU's ``Spine`` below ``Spine1``/``Neck``, 131's ``Chest`` below
+``Chest2``/``lowerneck``, Mixamo's ``Spine2``). A foot or hand carries the orientation of the
+joint whose bone reaches its tip (:func:`carrier`: CMU's ``LeftFingerBase``, at the wrist, turns
+the hand's bone; ``LeftFoot`` the foot's, to ``LeftToeBase``).
+
 A file none of them fits is refused with its joints and how to map them: ``--names
 JOINT=SEGMENT,...`` (a list or a file of such lines, :mod:`limbstream.sources.names`).
 """
@@ -19,8 +27,16 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from limbstream.sources import SEGMENTS, MotionFileError
+from limbstream.sources.bvh_rest import bone_end, zero_pose_positions
+
+if TYPE_CHECKING:
+    from limbstream.body import Layout
+    from limbstream.sources.bvh import BvhClip
 
 CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
     # CMU BVH export of the ASF skeleton ("LeftShoulder" is the collar bone here).
@@ -38,14 +54,22 @@ CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
 }
 """Segment -> joint maps for the CMU naming schemes, in the order they are tried."""
 
+CMU_FULL_PARTS: dict[str, dict[str, str]] = {
+    "cmu": {"l_foot": "LeftFoot", "r_foot": "RightFoot", "l_hand": "LeftHand", "r_hand": "RightHand"},
+    "cmu_asf": {"l_foot": "LeftAnkle", "r_foot": "RightAnkle", "l_hand": "LeftWrist", "r_hand": "RightWrist"},
+}
+"""Each CMU scheme's joints of ``full``'s feet and hands (its head and chest: from the neck,
+:func:`_full_parts`)."""
+
 PARTS: dict[str, str] = {
     "upleg": "thigh", "upperleg": "thigh", "thigh": "thigh", "femur": "thigh",
     "leg": "shank", "lowerleg": "shank", "shank": "shank", "shin": "shank", "calf": "shank", "knee": "shank", "tibia": "shank",
     "arm": "upperarm", "upperarm": "upperarm", "humerus": "upperarm",
     "forearm": "lowerarm", "lowerarm": "lowerarm", "elbow": "lowerarm", "ulna": "lowerarm",
+    "foot": "foot", "ankle": "foot", "hand": "hand", "wrist": "hand",
 }
 """A sided joint's part (its name's words without the side, joined, lower case) -> segment part."""
-UNSIDED: dict[str, str] = {"hips": "hip", "pelvis": "hip", "hip": "hip", "neck": "neck"}
+UNSIDED: dict[str, str] = {"hips": "hip", "pelvis": "hip", "hip": "hip", "neck": "neck", "head": "head"}
 """An unsided joint's name (words joined, lower case) -> segment."""
 SIDES = {"l": "l", "left": "l", "r": "r", "right": "r"}
 
@@ -125,3 +149,103 @@ def segment_map(path: Path, joints: Sequence[str], names: Mapping[str, str] | No
         raise MotionFileError.at(path, None, f"no joint for segment {', '.join(missing)} (from {source}; joints: "
                                              f"{_listing(joints)}); map them with {FLAG}")
     return {s: chosen[s] for s in SEGMENTS}
+
+
+FULL_ONLY: tuple[str, ...] = ("chest", "head", "l_hand", "r_hand", "l_foot", "r_foot")
+"""``full``'s segments that ``paper10`` does not have."""
+_TIPS = ("l_hand", "r_hand", "l_foot", "r_foot")
+
+
+def carrier(clip: BvhClip, joint: int) -> int:
+    """The joint whose bone reaches the end of ``joint``'s bone (:func:`.bvh_rest.bone_end`): the
+    end's parent, at ``joint``'s place (CMU's ``LeftFingerBase`` below ``LeftHand``), or ``joint``
+    itself (no joint below it elsewhere)."""
+    end = bone_end(clip, joint, zero_pose_positions(clip))
+    return joint if end is None else int(clip.parents[end])
+
+
+def tip(clip: BvhClip, joint: int) -> tuple[int, bool]:
+    """The end of ``joint``'s chain (down its first children to the last joint) and whether it
+    is that joint's End Site (one away from it) rather than the joint itself."""
+    children: dict[int, list[int]] = {}
+    for j, parent in enumerate(clip.parents):
+        children.setdefault(int(parent), []).append(j)
+    while children.get(joint):
+        joint = children[joint][0]
+    end = clip.end_offsets[joint]
+    return joint, bool(np.all(np.isfinite(end)) and np.linalg.norm(end) > 1e-9)
+
+
+def carriers(clip: BvhClip, segment_map: Mapping[str, str]) -> dict[str, str]:
+    """Segment -> the joint whose rotation is its orientation: the joint carrying it, but for
+    ``full``'s hands and feet the joint whose bone reaches their end (:func:`carrier`) and for its
+    head the one whose bone reaches the top of the head (the tip of the neck's chain)."""
+    index = {name: j for j, name in enumerate(clip.joints)}
+    out = dict(segment_map)
+    for s in _TIPS:
+        if s in out:
+            out[s] = clip.joints[carrier(clip, index[out[s]])]
+    if "head" in out:
+        last, site = tip(clip, index[out["head"]])
+        out["head"] = clip.joints[last if site or last == index[out["head"]] else int(clip.parents[last])]
+    return out
+
+
+def chest_joint(clip: BvhClip, neck: int, hip: int) -> int | None:
+    """The spine joint whose bone reaches the place of the ``neck`` joint (the first of its
+    ancestors elsewhere, below the ``hip`` joint); None if the neck hangs off the pelvis."""
+    at = zero_pose_positions(clip)
+    j = int(clip.parents[neck])
+    while j >= 0 and np.linalg.norm(at[j] - at[neck]) < 1e-9:
+        j = int(clip.parents[j])
+    return None if j < 0 or j == hip else j
+
+
+def _full_parts(clip: BvhClip, base: Mapping[str, str]) -> dict[str, str]:
+    """``full``'s further segments (:data:`FULL_ONLY`) -> the joint at their proximal end by the
+    schemes (see the module), given the 10-segment map ``base``: the feet's and hands' joints,
+    the neck's for the head (its base), the chest's; those found only."""
+    joints = clip.joints
+    scheme = next((parts for name, parts in CMU_FULL_PARTS.items()
+                   if CMU_SEGMENT_MAPS[name]["hip"] == base.get("hip") and CMU_SEGMENT_MAPS[name]["neck"] == base.get("neck")
+                   and set(parts.values()) <= set(joints)), None)
+    found = dict(scheme) if scheme is not None else {s: j for s, j in by_parts(joints).items() if s in FULL_ONLY}
+    index = {name: j for j, name in enumerate(joints)}
+    neck = base.get("neck")
+    if neck is None and found.get("head") in index and clip.parents[index[found["head"]]] >= 0:
+        neck = joints[int(clip.parents[index[found["head"]]])]  # no neck joint: the head's parent
+    if neck is None:
+        found.pop("head", None)
+        return found
+    found["head"] = neck  # the head's bone: the neck's base to the top of the head
+    if base.get("hip") in index:
+        chest = chest_joint(clip, index[neck], index[base["hip"]])
+        if chest is not None:
+            found["chest"] = joints[chest]
+    return found
+
+
+def layout_map(clip: BvhClip, names: Mapping[str, str] | None, layout: Layout) -> dict[str, str]:
+    """Segment -> joint of every segment of ``layout``, in its order: ``paper10``'s by
+    :func:`segment_map`, ``full``'s further ones by :func:`_full_parts` (or ``names``, JOINT ->
+    SEGMENT); MotionFileError naming the segments without a joint and the file's joints."""
+    wanted = layout.segment_names
+    if set(wanted) <= set(SEGMENTS):
+        return {s: j for s, j in segment_map(clip.path, clip.joints, names).items() if s in wanted}
+    if names is not None:
+        unknown = [j for j in names if j not in clip.joints]
+        if unknown:
+            raise MotionFileError.at(clip.path, None, f"--names: no joint named {unknown[0]!r} "
+                                                      f"(joints: {_listing(clip.joints)})")
+        chosen = {seg: joint for joint, seg in names.items() if seg in wanted}
+        source = "--names"
+    else:
+        chosen = pick_segment_map(clip.joints) or by_parts(clip.joints)
+        chosen = {**chosen, **_full_parts(clip, chosen)}
+        source = "the joint names"
+    missing = [s for s in wanted if s not in chosen]
+    if missing:
+        raise MotionFileError.at(clip.path, None, f"no joint for segment {', '.join(missing)} of layout {layout.name} "
+                                                  f"(from {source}; joints: {_listing(clip.joints)}); map them with "
+                                                  f"{FLAG}, or use --layout paper10")
+    return {s: chosen[s] for s in wanted}

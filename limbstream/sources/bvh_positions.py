@@ -22,6 +22,7 @@ import numpy as np
 from limbstream import quat
 from limbstream.body import PAPER10, Body, Layout
 from limbstream.sources.bvh_body import CMU_UNIT_M, unit_of_leg
+from limbstream.sources.bvh_names import tip
 from limbstream.sources.bvh_rest import bone_end, zero_pose_positions
 
 if TYPE_CHECKING:
@@ -57,7 +58,7 @@ class BvhPositions:
         """(J,) for each of ``layout.joints`` the file's joint whose position it is: a segment's
         proximal joint is the joint that carries it; a distal joint no segment starts at is the
         first joint below the segment's at another place (``<joint>/End Site`` where there is
-        none). ValueError if the map lacks a segment of the layout."""
+        none), the tip of the chain for ``full``'s head (:func:`.bvh_names.tip`). ValueError if the map lacks a segment of the layout."""
         if ("joints", layout.name) not in self._cache:
             self._cache["joints", layout.name] = tuple(self._file_joints(layout))
         return self._cache["joints", layout.name]
@@ -83,12 +84,34 @@ class BvhPositions:
         """(m, J, 3) float64 the file's positions of ``layout.joints`` at file times ``t_s`` (m,)
         s, the root joint at the origin, metres, the file's world frame; linear between frames,
         NaN outside the file's frames (or where ``t_s`` is NaN)."""
-        frames = self._positions(layout)
+        return self._interpolate(self._positions(layout), t_s)
+
+    def root_at(self, t_s: np.ndarray, layout: Layout = PAPER10) -> np.ndarray:
+        """(m, 3) float64 the path of ``layout``'s root joint (its file joint) at file times ``t_s``
+        (m,) s, metres, the file's world frame (its own origin and floor), as :meth:`at`."""
+        if ("root", layout.name) not in self._cache:
+            from limbstream.sources.bvh import joint_positions
+
+            joint = self.joints(layout)[layout.joint_index[layout.root.joint]].removesuffix(_SITE)
+            j = self.clip.joints.index(joint)
+            self._cache["root", layout.name] = joint_positions(self.clip, [j])[0][:, j] * self.unit_m
+        return self._interpolate(self._cache["root", layout.name][:, None], t_s)[:, 0]
+
+    def travels(self, layout: Layout = PAPER10) -> bool:
+        """Whether the file moves ``layout``'s root joint: a joint from it up to the file's root has
+        all three position channels (else :meth:`root_at` is its zero pose's place throughout)."""
+        from limbstream.sources.bvh import _moves
+
+        joint = self.joints(layout)[layout.joint_index[layout.root.joint]].removesuffix(_SITE)
+        return _moves(self.clip, self.clip.joints.index(joint))
+
+    def _interpolate(self, frames: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+        """``frames`` (F, ...) at file times ``t_s`` (m,): linear between frames, NaN outside."""
         x = np.asarray(t_s, np.float64) / self.clip.frame_time
         inside = np.isfinite(x) & (x >= -1e-9) & (x <= len(frames) - 1 + 1e-9)
         x = np.clip(np.nan_to_num(x), 0.0, len(frames) - 1)
         k = np.minimum(np.floor(x).astype(int), max(len(frames) - 2, 0))
-        u = (x - k)[:, None, None]
+        u = (x - k).reshape(-1, *([1] * (frames.ndim - 1)))
         out = frames[k] * (1.0 - u) + frames[np.minimum(k + 1, len(frames) - 1)] * u
         out[~inside] = np.nan
         return out
@@ -126,7 +149,10 @@ class BvhPositions:
         found = {s.joint: self.segment_map[s.name] for s in layout.segments}
         at = zero_pose_positions(self.clip)
         for s in layout.segments:
-            if s.end not in found:
+            if s.end not in found and s.name in _TO_TIP:
+                last, site = tip(self.clip, index[self.segment_map[s.name]])
+                found[s.end] = self.clip.joints[last] + (_SITE if site else "")
+            elif s.end not in found:
                 own = self.segment_map[s.name]
                 end = bone_end(self.clip, index[own], at)
                 found[s.end] = self.clip.joints[end] if end is not None else own + _SITE
@@ -134,15 +160,22 @@ class BvhPositions:
 
 
 _SITE = "/End Site"
+_TO_TIP = ("head",)
+"""Segments whose bone ends at the tip of their joint's chain (``full``'s head: the neck's base
+to the top of the head), not at the first joint below."""
 
 
 def metres_per_unit(clip: BvhClip, segment_map: Mapping[str, str]) -> float:
     """Metres per unit of ``clip`` (:func:`.bvh_body.unit_of_leg` of its left leg: the ``l_thigh``
-    joint to the ``l_shank`` joint to the end of its bone), CMU's where the map has no such leg."""
+    joint to the ``l_shank`` joint to the end of its bone, a joint below it or its End Site), CMU's
+    where the map has no such leg."""
     index = {name: j for j, name in enumerate(clip.joints)}
     at = zero_pose_positions(clip)
     thigh, shank = index.get(segment_map.get("l_thigh", "")), index.get(segment_map.get("l_shank", ""))
-    end = bone_end(clip, shank, at) if shank is not None else None
-    if thigh is None or end is None:
+    if thigh is None or shank is None:
         return CMU_UNIT_M
-    return unit_of_leg(float(np.linalg.norm(at[shank] - at[thigh]) + np.linalg.norm(at[end] - at[shank])), CMU_UNIT_M)
+    end = bone_end(clip, shank, at)
+    shin = (at[end] - at[shank] if end is not None else clip.end_offsets[shank])
+    if not np.isfinite(shin).all():
+        return CMU_UNIT_M
+    return unit_of_leg(float(np.linalg.norm(at[shank] - at[thigh]) + np.linalg.norm(shin)), CMU_UNIT_M)

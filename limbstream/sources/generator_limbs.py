@@ -10,9 +10,11 @@ legs' sagittal geometry is taken planar (thigh and shank at their angles from th
 by the leg's sideways tilt), with Winter's proportions of body height (:mod:`limbstream.body`).
 
 Kinematics (same frames as the generator's): foot = shank x R_X(-ankle_flex) x R_Z(-lat subtalar),
-hand = lowerarm x R_X(-wrist_flex) x R_Z(lat wrist_dev), lat = +1 left, -1 right. At identity the
+hand = lowerarm x R_Z(-lat wrist_flex) x R_X(wrist_dev), lat = +1 left, -1 right. At identity the
 foot lies flat on the floor (its toe forward and down by the ankle height) and the hand hangs on
-from the forearm.
+from the forearm, its palm against the thigh (thumb forward: the standing rest pose's hand,
+limbstream.joints.convention): flexion turns it towards the palm (medially), ulnar deviation
+backwards, as the joint angles read them (``wrist_flex``, ``wrist_dev`` of the full layout).
 """
 from __future__ import annotations
 
@@ -27,12 +29,12 @@ RANGES: dict[str, tuple[float, float]] = {
     "ankle_flex_r": (-40, 30),
     "subtalar_r": (-15, 30),
     "wrist_flex_l": (-60, 70),
-    "wrist_dev_l": (-25, 15),
+    "wrist_dev_l": (-15, 25),
     "wrist_flex_r": (-60, 70),
-    "wrist_dev_r": (-25, 15),
+    "wrist_dev_r": (-15, 25),
 }
 """Ranges of the hands' and feet's joint angles, degrees: ankle dorsiflexion, subtalar inversion,
-wrist flexion and radial deviation positive. The ankle's dorsiflexion is a loaded foot's (a
+wrist flexion and ulnar deviation positive (the model's signs). The ankle's dorsiflexion is a loaded foot's (a
 lunge's or a landing's reaches 35-45; unloaded, 20): on the spot the stance foot stays flat under
 a shank leaning over it (terminal stance, running stance, landings)."""
 
@@ -41,7 +43,7 @@ AXES: list[tuple[str, float, np.ndarray]] = [
     (f"{joint}_{side}", sign, axis)
     for side, lat in (("l", 1.0), ("r", -1.0))
     for joint, sign, axis in (("ankle_flex", -1.0, _X), ("subtalar", -lat, _Z),
-                              ("wrist_flex", -1.0, _X), ("wrist_dev", lat, _Z))
+                              ("wrist_flex", -lat, _Z), ("wrist_dev", 1.0, _X))
 ]
 """(joint, sign, axis) of the elementary rotations of the feet and hands, as the generator's tree."""
 
@@ -64,7 +66,7 @@ class LimbSubject:
     def __init__(self, seed: int):
         rng = np.random.default_rng([int(seed), 0x11B6])
         self.wrist_flex = rng.uniform(2, 10)
-        self.wrist_dev = rng.uniform(-8, -2)  # relaxed hands rest slightly ulnar
+        self.wrist_dev = -rng.uniform(-8, -2)  # relaxed hands rest slightly ulnar (2-8 degrees)
         self.phase = rng.uniform(-0.05, 0.05)  # the hands' lag behind the forearms, cycles
         self.mounting = Rotation.random(len(SEGMENTS), random_state=rng).as_rotvec()  # of SEGMENTS, 5-15 deg
         self.mounting *= (rng.uniform(5, 15, len(SEGMENTS)) / np.degrees(np.linalg.norm(self.mounting, axis=1)))[:, None]
@@ -94,9 +96,10 @@ def still_feet(sway: np.ndarray, sway2: np.ndarray) -> dict[str, np.ndarray]:
     return {"ankle_flex": 1.5 * sway, "subtalar": 1.0 * sway2}
 
 
-def hands(p: LimbSubject, flex: np.ndarray, dev: np.ndarray) -> dict[str, np.ndarray]:
-    """Wrist angles: the subject's relaxed posture plus ``flex`` and ``dev`` (degrees)."""
-    return {"wrist_flex": p.wrist_flex + flex, "wrist_dev": p.wrist_dev + dev}
+def hands(p: LimbSubject, flex: np.ndarray, radial: np.ndarray) -> dict[str, np.ndarray]:
+    """Wrist angles: the subject's relaxed posture plus ``flex`` (degrees, towards the palm) and
+    ``radial`` deviation (degrees, towards the thumb: ulnar deviation less it)."""
+    return {"wrist_flex": p.wrist_flex + flex, "wrist_dev": p.wrist_dev - radial}
 
 
 def add(a: dict[str, np.ndarray], side: str, angles: dict[str, np.ndarray]) -> None:

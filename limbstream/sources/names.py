@@ -20,11 +20,17 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from limbstream.body import LAYOUTS
 from limbstream.wire.body import SEGMENTS
 
 EXTRA_SEGMENTS: tuple[str, ...] = ("l_foot", "r_foot")
 """Segments some recordings measure that the 10-IMU body does not draw (their devices run, and
 count in the statistics, but no pose-frame orientation is theirs)."""
+
+BODY_SEGMENTS: tuple[str, ...] = tuple(dict.fromkeys(SEGMENTS + tuple(s for lay in LAYOUTS.values()
+                                                                      for s in lay.segment_names)))
+"""Every segment a sensor or joint may be mapped to: the built-in layouts' (``paper10``'s, then
+``full``'s further ones: chest, head, hands, feet)."""
 
 XIO_PREFIXES: dict[str, str] = {
     "left_upper": "l_thigh",
@@ -58,8 +64,8 @@ def _entries(text: str, where: str) -> dict[str, str]:
         sensor, sep, segment = (part.strip() for part in entry.partition("="))
         if not sep or not sensor or not segment:
             raise ValueError(f"{where}: {entry!r} is not SENSOR=SEGMENT")
-        if segment not in SEGMENTS + EXTRA_SEGMENTS:
-            raise ValueError(f"{where}: {segment!r} is not a segment (one of {', '.join(SEGMENTS + EXTRA_SEGMENTS)})")
+        if segment not in BODY_SEGMENTS:
+            raise ValueError(f"{where}: {segment!r} is not a segment (one of {', '.join(BODY_SEGMENTS)})")
         if sensor in mapping:
             raise ValueError(f"{where}: sensor {sensor!r} is mapped twice")
         mapping[sensor] = segment
@@ -106,10 +112,9 @@ def name_sensors(stems: Sequence[str], names: Mapping[str, str] | None) -> list[
 
 
 def check_body(where: str, segments: Sequence[str], sensors: Sequence[str] | None = None) -> None:
-    """ValueError unless some of ``segments`` is one of the body's (:data:`SEGMENTS`,
-    :data:`EXTRA_SEGMENTS`); the sentence names the sensors found (``sensors``, default
-    ``segments``) and how to map them."""
-    if any(s in SEGMENTS + EXTRA_SEGMENTS for s in segments):
+    """ValueError unless some of ``segments`` is one of the body's (:data:`BODY_SEGMENTS`); the
+    sentence names the sensors found (``sensors``, default ``segments``) and how to map them."""
+    if any(s in BODY_SEGMENTS for s in segments):
         return
     found = ", ".join(sensors if sensors is not None else segments) or "none"
     raise ValueError(f"{where}: no sensor maps to a body segment (sensors found: {found}); map them with "

@@ -5,13 +5,20 @@ s and, per IMU named by body part, a struct with ``acc`` (n, 3) m/s^2 and ``gyr`
 (and ``quat``, an orientation estimate of an undocumented filter, not read). It has 16 IMUs, at
 100 Hz for 100 s, the first 4 s still; no reference orientations. Its body parts map onto the
 10-IMU body by :data:`QMT_SEGMENTS`; the others (:data:`QMT_OFF_BODY`) keep their names and are
-left out by :meth:`RawRecording.body`.
+left out by :meth:`RawRecording.body`. Onto another layout (``full``) each part takes the first
+of its :data:`QMT_PARTS` candidates the layout has and no other part took (:func:`segments_on`):
+``full`` keeps the feet, hands, head and the upper back (as its chest); the lower back, whose
+pelvis the hip IMU measures, is left out with a note.
 """
 from __future__ import annotations
 
+import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from limbstream.body import PAPER10, Layout
 
 from limbstream.sources import MotionFileError
 from limbstream.sources.raw import RawRecording, channel
@@ -30,10 +37,35 @@ QMT_OFF_BODY: tuple[str, ...] = ("foot_left", "foot_right", "hand_left", "hand_r
 """qmt body parts the 10-IMU body has no segment for (no feet or hands; its trunk follows the
 pelvis)."""
 
+QMT_PARTS: dict[str, tuple[str, ...]] = {
+    **{part: (segment,) for part, segment in QMT_SEGMENTS.items() if part != "head"},
+    "head": ("head", "neck"), "foot_left": ("l_foot",), "foot_right": ("r_foot",), "hand_left": ("l_hand",),
+    "hand_right": ("r_hand",), "upper_back": ("upper_back", "chest"), "lower_back": ("lower_back", "hip"),
+}
+"""qmt body part -> the segments it can stand for, in order of preference (a back sensor on the
+layout's own back segment, else on the trunk segment it moves with)."""
 
-def from_mat(path: Path, data: dict) -> RawRecording:
-    """The recording in the variables ``data`` of the file ``path``; MotionFileError naming a
-    missing or malformed channel."""
+
+def segments_on(sensors: Sequence[str], layout: Layout) -> tuple[str, ...]:
+    """Each sensor's segment in ``layout``: the first of its :data:`QMT_PARTS` candidates the layout
+    has that no sensor took before (the sensors' own candidates first, then the others'), else the
+    sensor's own name (off the body)."""
+    taken: dict[str, str] = {}
+    for rank in range(max(len(c) for c in QMT_PARTS.values())):
+        for name in sensors:
+            options = QMT_PARTS.get(name, ())
+            if name not in taken.values() and rank < len(options) and options[rank] in layout.segment_index \
+                    and options[rank] not in taken:
+                taken[options[rank]] = name
+    by_sensor = {name: segment for segment, name in taken.items()}
+    return tuple(by_sensor.get(name, name) for name in sensors)
+
+
+def from_mat(path: Path, data: dict, layout: Layout | None = None) -> RawRecording:
+    """The recording in the variables ``data`` of the file ``path``, its sensors on the segments of
+    ``layout`` (None: the 10-IMU body's, :data:`QMT_SEGMENTS`; else :func:`segments_on`, a note
+    naming the sensors it has no segment for); MotionFileError naming a missing or malformed
+    channel."""
     sensors = [name for name, value in data.items() if hasattr(value, "_fieldnames")]
     if not sensors:
         raise MotionFileError(f"{path}: no sensor structs (with acc and gyr) and no imu_gyr: "
@@ -51,6 +83,13 @@ def from_mat(path: Path, data: dict) -> RawRecording:
                 raise MotionFileError(f"{path}: sensor {name} has no {key} ({what})")
         gyr.append(channel(path, data[name].gyr, f"{name}.gyr", len(t)))
         acc.append(channel(path, data[name].acc, f"{name}.acc", len(t)))
-    segments = tuple(QMT_SEGMENTS.get(name, name) for name in sensors)
+    if layout is None or layout == PAPER10:
+        segments = tuple(QMT_SEGMENTS.get(name, name) for name in sensors)
+    else:
+        segments = segments_on(sensors, layout)
+        off = [name for name, segment in zip(sensors, segments) if segment not in layout.segment_index]
+        if off:
+            warnings.warn(f"{path}: {', '.join(off)}: no segment of layout {layout.name} for "
+                          f"{'them' if len(off) > 1 else 'it'}, left out", stacklevel=2)
     return RawRecording(t - t[0], np.stack(gyr, axis=1), np.stack(acc, axis=1), tuple(sensors), segments,
                         name=path.stem)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from limbstream.body import Layout
 from limbstream.sources import Motion, MotionFileError
 from limbstream.wire import SEGMENTS
 
@@ -95,10 +96,11 @@ class RawRecording:
         return replace(self, gyr=self.gyr[:, idx], acc=self.acc[:, idx], mag=pick(self.mag), truth=pick(self.truth),
                        sensors=tuple(self.sensors[i] for i in idx), segments=tuple(self.segments[i] for i in idx))
 
-    def body(self) -> RawRecording:
-        """The sensors on the 10-IMU body, in :data:`~limbstream.wire.SEGMENTS` order (those of the
-        segments it has)."""
-        return self.select([self.segments.index(s) for s in SEGMENTS if s in self.segments])
+    def body(self, layout: Layout | None = None) -> RawRecording:
+        """The sensors on the segments of ``layout`` (None: the 10-IMU body's), in its order (those
+        of the segments it has)."""
+        names = SEGMENTS if layout is None else layout.segment_names
+        return self.select([self.segments.index(s) for s in names if s in self.segments])
 
 
 def channel(path: Path, values, name: str, n: int | None = None) -> np.ndarray:
@@ -115,9 +117,10 @@ def channel(path: Path, values, name: str, n: int | None = None) -> np.ndarray:
     return array
 
 
-def load_raw(path: str | Path) -> RawRecording:
+def load_raw(path: str | Path, layout: Layout | None = None) -> RawRecording:
     """A raw recording from a file: a BROAD trial or a qmt-style full-body ``.mat`` (one struct
-    per sensor with ``acc`` and ``gyr``).
+    per sensor with ``acc`` and ``gyr``; its sensors on the segments of ``layout``, None: the
+    10-IMU body's, :func:`.qmt.from_mat`).
 
     Raises
     ------
@@ -133,7 +136,7 @@ def load_raw(path: str | Path) -> RawRecording:
     data = read_mat(path)
     if any(key.startswith("imu_") or key == "opt_quat" for key in data):
         return broad.from_mat(path, data)
-    return qmt.from_mat(path, data)
+    return qmt.from_mat(path, data, layout)
 
 
 def raw_files(path: str | Path) -> list[Path]:
@@ -177,7 +180,7 @@ def to_motion(rec: RawRecording, names: Mapping[str, str] | None = None) -> Moti
 
     named = list(rec.segments) if names is None else sensor_names.name_sensors(rec.sensors, names)
     segments = [seg or "" for seg in named]
-    keep = [k for k, seg in enumerate(segments) if seg in SEGMENTS + sensor_names.EXTRA_SEGMENTS]
+    keep = [k for k, seg in enumerate(segments) if seg in sensor_names.BODY_SEGMENTS]
     if not keep:
         raise MotionFileError(f"{rec.name}: no sensor maps to a body segment (sensors found: "
                               f"{', '.join(rec.sensors)}); map them with {sensor_names.FLAG}")

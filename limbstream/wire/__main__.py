@@ -3,7 +3,7 @@ joint-angle and drop reason tables of docs/protocol.md, printed as Markdown from
 (tests/test_wire.py checks the docs hold exactly these)."""
 from __future__ import annotations
 
-from . import ANGLE_BASES, FIELDS, JOINT_TABLE, POINT_DROPS, RAW_DROPS, STATS_NUMBERS, STATUS_DROPS, STATS_TEXTS, TUNABLES, UNCHARGED
+from . import ANGLE_BASES, FIELDS, FULL_JOINT_TABLE, JOINT_TABLE, POINT_DROPS, RAW_DROPS, STATS_NUMBERS, STATUS_DROPS, STATS_TEXTS, TUNABLES, UNCHARGED
 
 
 def fields_table(scope: str) -> str:
@@ -37,13 +37,19 @@ def tunables_table() -> str:
     return "\n".join(rows)
 
 
-def angles_table() -> str:
-    """Markdown table of the joint angles of a joint-angle message, in order: their joint and the
-    axis of its Z-X-Y split each turns about, with its sign (OpenSim's axes)."""
+def angles_table(table=JOINT_TABLE) -> str:
+    """Markdown table of the joint angles of a joint-angle message of a layout (its joint table),
+    in order: their joint and the axis of its Z-X-Y split each turns about, with its sign
+    (OpenSim's axes; a joint whose model frame is turned says so)."""
     rows = ["| index | angle | joint | parent -> child | about |", "|---:|---|---|---|---|"]
-    named = [(joint, axis, sign, angle) for joint in JOINT_TABLE
+    named = [(joint, axis, sign, angle) for joint in table
              for axis, sign, angle in zip("ZXY", joint.signs, joint.angles) if angle is not None]
-    rows += [f"| {k} | `{angle}` | `{joint.name}` | {joint.parent} -> {joint.child} | {'+' if sign > 0 else '-'}{axis} |"
+
+    def about(joint, axis: str, sign: float) -> str:
+        turned = "" if joint.frame == (1.0, 0.0, 0.0, 0.0) else \
+            f" of the forearm frame (turned {'+' if joint.frame[2] > 0 else '-'}90 deg about Y)"
+        return f"{'+' if sign > 0 else '-'}{axis}{turned}"
+    rows += [f"| {k} | `{angle}` | `{joint.name}` | {joint.parent} -> {joint.child} | {about(joint, axis, sign)} |"
              for k, (joint, axis, sign, angle) in enumerate(named)]
     return "\n".join(rows)
 
@@ -65,7 +71,8 @@ def tables() -> dict[str, str]:
     """Every generated table, by what it lists (its section of docs/protocol.md)."""
     return {"Per device": fields_table("device"), "Per subject": fields_table("subject"),
             "Per aggregator": fields_table("aggregator"), "Compact form": compact_table(), "Tunables": tunables_table(),
-            "Joint angles": angles_table(), "Calibration of the angles": bases_table(),
+            "Joint angles": angles_table(), "Joint angles of the full layout": angles_table(FULL_JOINT_TABLE),
+            "Calibration of the angles": bases_table(),
             "Segment points dropped": reasons_table(POINT_DROPS), "Truth-tap batches dropped": reasons_table(RAW_DROPS),
             "Body dimensions dropped": reasons_table(STATUS_DROPS),
             "Messages no device can be charged with": reasons_table(UNCHARGED, "message")}

@@ -76,6 +76,10 @@ class Joint:
     child: str
     angles: tuple[str | None, str | None, str | None]
     signs: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    frame: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    """The model's joint frame in both segments' anatomical frames, a scalar-first unit
+    quaternion in OpenSim's axes (identity: the model's frames are the rest pose's; the wrists'
+    are turned about the forearm, :mod:`limbstream.joints.convention`)."""
 
 
 JOINT_TABLE: tuple[Joint, ...] = (
@@ -92,8 +96,75 @@ JOINT_TABLE: tuple[Joint, ...] = (
 """The joints of the 10-segment body, in the order of their angles in :data:`JOINT_ANGLES`."""
 
 JOINT_ANGLES: tuple[str, ...] = tuple(a for j in JOINT_TABLE for a in j.angles if a is not None)
-"""The joint angles (OpenSim's Rajagopal model's names), in this order in every angle vector:
-joint-angle messages, ``limbstream.joints.ANGLES``, ``.mot`` files (degrees)."""
+"""The joint angles of the 10-segment body (OpenSim's Rajagopal model's names), in this order in
+its angle vectors: joint-angle messages, ``limbstream.joints.ANGLES``, ``.mot`` files (degrees).
+Other layouts: :func:`joint_angles`."""
+
+_H = 0.5 ** 0.5
+FULL_JOINT_TABLE: tuple[Joint, ...] = (
+    JOINT_TABLE[0], JOINT_TABLE[1],
+    Joint("ankle_r", "r_shank", "r_foot", ("ankle_angle_r", "subtalar_angle_r", None)),
+    JOINT_TABLE[2], JOINT_TABLE[3],
+    Joint("ankle_l", "l_shank", "l_foot", ("ankle_angle_l", "subtalar_angle_l", None), (1.0, -1.0, 1.0)),
+    Joint("lumbar", "hip", "chest", ("lumbar_extension", "lumbar_bending", "lumbar_rotation")),
+    Joint("shoulder_r", "chest", "r_upperarm", ("arm_flex_r", "arm_add_r", "arm_rot_r")),
+    JOINT_TABLE[5],
+    Joint("wrist_r", "r_lowerarm", "r_hand", ("wrist_flex_r", "wrist_dev_r", None), frame=(_H, 0.0, _H, 0.0)),
+    Joint("shoulder_l", "chest", "l_upperarm", ("arm_flex_l", "arm_add_l", "arm_rot_l"), (1.0, -1.0, -1.0)),
+    JOINT_TABLE[7],
+    Joint("wrist_l", "l_lowerarm", "l_hand", ("wrist_flex_l", "wrist_dev_l", None), (1.0, -1.0, 1.0),
+          frame=(_H, 0.0, -_H, 0.0)),
+    Joint("neck", "chest", "head", ("neck_extension", "neck_bending", "neck_rotation")),
+)
+"""The joints of the ``full`` layout (15 segments), in the order of its angles: the Rajagopal
+model's order (right leg, left leg, back, right arm, left arm), the neck last; hips, knees and
+elbows as the 10-segment body's, the shoulders and the neck measured from the chest."""
+
+JOINT_TABLES: dict[str, tuple[Joint, ...]] = {"paper10": JOINT_TABLE, "full": FULL_JOINT_TABLE}
+"""The joints of each built-in layout (``limbstream.body.LAYOUTS``) by its name."""
+
+
+def joints_among(segments, parent_of: dict[str, str | None] | None = None) -> tuple[Joint, ...]:
+    """The joints among ``segments`` (names), by the rule every layout follows: in
+    :data:`FULL_JOINT_TABLE` order, each joint of the built-in tables whose parent and child
+    segments are both there, the first that is (``full``'s before the 10-segment body's: a
+    shoulder is measured from the ``chest`` where there is one, else from the ``hip``); with
+    ``parent_of`` (segment -> its parent, a layout's tree) a joint's parent must also be an
+    ancestor of its child. ``full`` and ``paper10`` give their own tables back."""
+    have = set(segments)
+
+    def ancestor(parent: str, child: str) -> bool:
+        if parent_of is None:
+            return True
+        at = parent_of.get(child)
+        while at is not None and at != parent:
+            at = parent_of.get(at)
+        return at == parent
+
+    out = []
+    for joint in FULL_JOINT_TABLE:
+        variants = [joint] + [j for j in JOINT_TABLE if j.name == joint.name and j != joint]
+        out += [j for j in variants if j.parent in have and j.child in have and ancestor(j.parent, j.child)][:1]
+    return tuple(out)
+
+
+def joint_table(layout) -> tuple[Joint, ...]:
+    """The joints of a layout, in the order of its angles: a built-in layout's name (its table,
+    :data:`JOINT_TABLES`), a layout file's path, or a :class:`limbstream.body.Layout` (its
+    segments' joints by :func:`joints_among`, their parents from its tree). ValueError for an
+    unknown name (``limbstream.body.layout``'s)."""
+    if isinstance(layout, str) and layout in JOINT_TABLES:
+        return JOINT_TABLES[layout]
+    if not hasattr(layout, "segments"):
+        from limbstream.body import layout as load  # (the body package is built on this module)
+        layout = load(layout)
+    return joints_among([s.name for s in layout.segments], {s.name: s.parent for s in layout.segments})
+
+
+def joint_angles(layout) -> tuple[str, ...]:
+    """The joint angles of a layout (:func:`joint_table`'s joints), in this order in its angle
+    vectors (degrees): ``paper10``'s are :data:`JOINT_ANGLES`."""
+    return tuple(a for j in joint_table(layout) for a in j.angles if a is not None)
 
 
 def encode_body(body) -> dict:

@@ -45,6 +45,7 @@ CONTACTS: tuple[str, ...] = ("l_heel", "l_toe", "r_heel", "r_toe")
 (all clear: not known, or no foot planted)."""
 HEADER_SIZE = 32
 """Bytes before a version-2 frame's orientations."""
+_V1_HEADER_SIZE = 16  # the fields every version begins with
 
 _HEADER = [("version", "u1"), ("kind", "u1"), ("flags", "u1"), ("n_segments", "u1"), ("seq", "<u4"), ("t_us", "<i8")]
 
@@ -264,8 +265,8 @@ def _frame_layout(code: int, n_segments: int, n_joints: int, layout: Layout | No
 def decode_pose(payload: bytes, layout: Layout | None = None) -> PoseFrame:
     """Bytes -> PoseFrame, version 2 or 1; WireError with reason size, version or layout.
     ``layout``: the layout of frames whose layout byte is :data:`OTHER_LAYOUT` (a layout file's)."""
-    if len(payload) < 1:
-        raise WireError("size", "pose frame is empty")
+    if len(payload) < _V1_HEADER_SIZE:
+        raise WireError("size", f"pose frame has {len(payload)} bytes, shorter than any header")
     version = payload[0]
     if version == POSE_VERSION_V1:
         if len(payload) != POSE_DTYPE_V1.itemsize:

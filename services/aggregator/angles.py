@@ -16,11 +16,17 @@ has moved enough (``functional``); until then no angles (``no_facing``).
 
 A segment a frame lacks (no device, offline, no data yet: :attr:`.frames.FrameGroup.missing`)
 gives its joints no angles (flag MISSING); an angle near gimbal lock is flagged GIMBAL.
+
+Each subject's angles are those of its body layout (``wire.joint_angles(layout)``; its messages
+name the layout, version 2): a tick's frames come one group per layout
+(:class:`.frames.FrameGroup`, the layout's segments in its order), each group's angles in one pass. The facing from the
+hinges is found for ``paper10`` subjects (its knees' and elbows' segments); rest-calibrated
+devices of a subject of another layout give no angles (``no_facing``) until a mounting pose.
 """
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -57,10 +63,14 @@ class JointStage:
     fusion : the aggregator's devices, calibrations and subjects.
     live : take the live frames (the aggregator makes them), else the exact frames.
     clock : the time source of the refreshes (monotonic seconds).
+    layout_of : subject index -> its body layout (``limbstream.body.Layout``; None: ``paper10``);
+        None: every subject's is ``paper10``.
     """
 
-    def __init__(self, fusion: Fusion, live: bool = True, clock=time.monotonic):
-        self.fusion, self.live, self.clock = fusion, live, clock
+    def __init__(self, fusion: Fusion, live: bool = True, clock=time.monotonic,
+                 layout_of: Callable[[int], object | None] | None = None):
+        self.fusion, self.live, self.clock, self.layout_of = fusion, live, clock, layout_of
+        self.layouts: list = []                       # per subject: its layout (None: paper10)
         self.basis = np.zeros(0, np.int64)            # (S,) wire.ANGLE_BASES code
         self.level = np.zeros(0, np.int64)            # (S,) the level of its weakest online device
         self.rest_segments = np.zeros((0, len(wire.SEGMENTS)), bool)  # (S, 10) rest-calibrated segments
@@ -72,27 +82,40 @@ class JointStage:
         self._any_rest = False  # some subject has rest-calibrated segments
 
     def __call__(self, batch: FrameBatch) -> Iterable[tuple[str, str, bytes]]:
-        # paper10's subjects: the joints of other layouts get their angles with those layouts' joint tables
-        group = batch.group(wire.KIND_LIVE if self.live else wire.KIND_EXACT, PAPER10)
-        frames, owner, missing = group.frames, group.owner, group.missing
-        if not len(frames):
+        groups = [g for g in (batch.live if self.live else batch.exact) if len(g.owner)]  # one per layout
+        if not groups:
             return []
         now = self.clock()
         if len(self._keys) < len(self.fusion.subjects) or now >= self._next_refresh:
             self.refresh()
             self._next_refresh = now + REFRESH_S
-        q = frames.q.astype(np.float32)  # as the frames are published (and joint_angles is quicker)
-        if self._any_rest:
+        out: list[tuple[str, str, bytes]] = []
+        for g in groups:
+            layout = None if g.frames.layout == PAPER10 else g.frames.layout
+            out += self._angles(g.frames, g.owner, g.missing, np.arange(len(g.owner)), layout, now)
+        return out
+
+    def _angles(self, frames, owner: np.ndarray, missing: np.ndarray, rows: np.ndarray, layout,
+                now: float) -> list[tuple[str, str, bytes]]:
+        """The messages of the frames ``rows``, all of subjects of ``layout`` (None: paper10)."""
+        n = len(wire.SEGMENTS) if layout is None else len(layout.segments)
+        whole = len(rows) == len(owner)
+        q = (frames.q if whole else frames.q[rows])[:, :n].astype(np.float32)  # as published (and quicker)
+        owner, missing = (owner, missing) if whole else (owner[rows], missing[rows])
+        missing = missing[:, :n]
+        if self._any_rest and layout is None:
             facing = self.rest_segments[owner] & ~missing  # (F, 10) segments whose heading the facing undoes
             if facing.any():
                 q = self._faced(q, owner, facing, now)
-        tpose = (frames.flags & wire.FRAME_TPOSE) != 0
+        tpose = ((frames.flags if whole else frames.flags[rows]) & wire.FRAME_TPOSE) != 0
+        kind = "paper10" if layout is None else layout
         if tpose.any():
-            q = np.where(tpose[:, None, None], joints.standing(q, "tpose"), q)
+            q = np.where(tpose[:, None, None], joints.standing(q, "tpose", kind), q)
         basis = self.basis[owner]
-        angles, flags = joints.joint_angles(q, ~missing, "standing", _VALID[basis])
-        payloads = wire.AngleFrames(frames.seq, frames.t_us, np.full(len(frames), frames.kind), basis,
-                                    np.degrees(self.heading[owner]), angles, flags).encode()
+        angles, flags = joints.joint_angles(q, ~missing, "standing", _VALID[basis], kind)
+        seq, t_us = (frames.seq, frames.t_us) if whole else (frames.seq[rows], frames.t_us[rows])
+        payloads = wire.AngleFrames(seq, t_us, np.full(len(rows), frames.kind), basis, np.degrees(self.heading[owner]),
+                                    angles, flags, layout).encode()
         keys = self._keys
         return [(keys[i], wire.ANGLES, payload) for i, payload in zip(owner.tolist(), payloads)]
 
@@ -153,6 +176,10 @@ class JointStage:
                 self.heading[i] = np.nan
         self.basis = np.where(self.level != _REST, _BASIS_OF_LEVEL[self.level],
                               np.where(np.isfinite(self.heading), wire.BASIS["functional"], wire.BASIS["no_facing"]))
+        if self.layout_of is not None:
+            self.layouts = [self.layout_of(i) for i in range(len(self.basis))]
+            other = np.array([x is not None for x in self.layouts], bool)
+            self.basis = np.where(other & (self.level == _REST), wire.BASIS["no_facing"], self.basis)
 
     def _grow(self, n: int) -> None:
         """Room for ``n`` subjects (new ones: unknown, no sums, no facing)."""
@@ -167,4 +194,5 @@ class JointStage:
         self.hinges = joints.HingeStats(*(np.concatenate([getattr(self.hinges, k), getattr(new, k)])
                                           for k in ("n", "total", "scatter")))
         self._signature += [[] for _ in range(more)]
+        self.layouts += [None] * more
         self._keys += [wire.angles_key(name) for name in list(self.fusion.subjects)[len(self._keys):]]

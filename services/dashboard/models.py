@@ -8,7 +8,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model
 from limbstream import wire
 
 PoseKind = Literal["auto", "live", "exact"]
-AngleName = Literal[wire.JOINT_ANGLES]  # type: ignore[valid-type]
+AngleName = Literal[tuple(dict.fromkeys(a for name in wire.JOINT_TABLES for a in wire.joint_angles(name)))]  # type: ignore[valid-type]
 
 
 def _described(f: wire.StatsField):
@@ -54,6 +54,8 @@ class _SubjectSummary(BaseModel):
     bytes_per_s: float
     stats_age_s: float | None
     pose: PoseSummary | None
+    pose_refused: str | None = Field(None, description="why the subject's latest refused pose frame could not be "
+                                     "read (a layout file's frames: this service knows only the built-in layouts)")
     exact_latency_p50_ms: float | None = Field(
         None, description="median exact-frame latency: the time this service received each of the subject's last "
         "500 exact frames minus the frame's time (device time; same clock and --speed 1 assumed), ms")
@@ -67,8 +69,12 @@ Subject = _from_fields(
 SubjectDetail = create_model(
     "SubjectDetail", __base__=Subject, __doc__="One subject, as in the list, with its devices.",
     device_list=(list[DeviceStats], Field(description="the subject's devices, by id (as GET /api/devices)")),
-    missing_segments=(list[str], Field(description="the body's segments the subject has no device for "
+    missing_segments=(list[str], Field(description="the layout's segments the subject has no device for "
                                                    "(their orientations follow their parent's)")),
+    segments=(list[str], Field(description="the layout's segments, in the order of a frame's orientations")),
+    joints=(list[str], Field(description="the layout's joints, in the order of a frame's positions")),
+    bones=(list[Annotated[list[str], Field(min_length=2, max_length=2)]],
+           Field(description="the layout's bones: pairs of joints (proximal, distal) to draw a line between")),
 )
 
 
@@ -84,8 +90,11 @@ class Pose(BaseModel):
     missing: bool
     rest_pose: Literal[tuple(wire.REST_POSES)] = Field(  # type: ignore[valid-type]
         description="what identity segment orientations mean (the frame's TPOSE flag; docs/protocol.md 'Rest pose')")
-    segments: dict[str, list[float]]
-    joints: dict[str, list[float]]
+    layout: str = Field(description="the subject's body layout (docs/body.md): the names of segments and joints")
+    segments: dict[str, list[float]] = Field(description="segment orientations (w, x, y, z) by name, device order")
+    joints: dict[str, list[float]] = Field(description="joint positions, m, Y up, by name")
+    root: list[float] = Field(description="the root (pelvis) position, m, world frame (zeros: not tracked)")
+    contacts: list[str] = Field(description="the foot points planted on the floor")
     rx: float
 
 
@@ -122,6 +131,10 @@ class SubjectJoints(BaseModel):
 
 
 class Skeleton(BaseModel):
+    """How to draw a layout's frames (:func:`~.views.layout_view`)."""
+
+    layout: str = Field(description="the layout's name")
+    segments: list[str] = Field(description="segment names, in the order of a frame's orientations")
     joints: list[str] = Field(description="joint names, in the order of pose frames")
     bones: list[Annotated[list[str], Field(min_length=2, max_length=2)]] = Field(
         description="pairs of joints to draw a line between")

@@ -46,6 +46,7 @@ class LiveState:
         self.angles: dict[str, dict[int, deque[tuple[float, wire.JointAngles]]]] = {}  # (rx, angles) by kind
         self.stats_times: dict[str, float] = {}
         self.subject_stats: dict[str, dict] = {}  # the subject fields of each subject's latest stats
+        self.pose_refused: dict[str, str] = {}  # why a subject's latest pose frame was refused (its layout)
         self.exact_latency: dict[str, deque[float]] = {}  # ms, frame time -> received, last exact frames
         self.aggregators: dict[str, AggregatorEntry] = {}
         self.fanout = FanOut(ws_queue)
@@ -151,7 +152,10 @@ class LiveState:
             frame = wire.decode_pose(payload)
         except wire.WireError as exc:
             self.errors[f"pose_{exc.reason}"] += 1
+            if exc.reason == "layout" and (subject in self.pose_refused or len(self.pose_refused) < self.max_subjects):
+                self.pose_refused[subject] = str(exc)
             return
+        self.pose_refused.pop(subject, None)
         slots = self.poses.get(subject)
         if slots is None:
             if len(self.poses) >= self.max_subjects:

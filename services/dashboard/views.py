@@ -8,10 +8,17 @@ import time
 import numpy as np
 
 from limbstream import wire
-from limbstream.body import PAPER10, lengths_of
+from limbstream.body import LAYOUTS, PAPER10, Layout, lengths_of
 
 from .entries import HISTORY_FIELDS
 from .state import LiveState
+
+
+def layout_view(layout: Layout) -> dict:
+    """What a page needs to draw frames of ``layout``: its name, segments (device order), joints
+    (the order of a frame's positions) and bones as pairs of joint names (proximal, distal)."""
+    return {"layout": layout.name, "segments": list(layout.segment_names), "joints": list(layout.joints),
+            "bones": [[b.origin, b.joint] for b in layout.bones]}
 
 
 class Views:
@@ -52,19 +59,21 @@ class Views:
     def joint_angles(self, subject: str, seconds: float, kind: str = "auto",
                      names: list[str] | None = None) -> dict | None:
         """The subject's newest joint angles of ``kind`` (``auto``: :meth:`LiveState.angles_kind`)
-        and the column form of the last ``seconds`` of them, ``names`` only (None: all); None if
-        there are none."""
+        and the column form of the last ``seconds`` of them, ``names`` only (None: all), of the
+        names the messages carry (in their order); None if there are none."""
         code = self.live.angles_kind(subject) if kind == "auto" else wire.FRAME_KINDS[kind]
         rows = self.live.angles.get(subject, {}).get(code) if code is not None else None
         if not rows:
             return None
         rx, newest = rows[-1]
-        kept = [a for r, a in rows if r >= rx - seconds]
-        names = list(wire.JOINT_ANGLES) if names is None else [n for n in wire.JOINT_ANGLES if n in names]
-        columns = np.array([a.angles for a in kept], np.float64)[:, [wire.JOINT_ANGLES.index(n) for n in names]]
+        latest = newest.to_json(subject)
+        every = list(latest["angles"])  # the messages' own names, in their order
+        kept = [a for r, a in rows if r >= rx - seconds and len(a.angles) == len(every)]
+        names = every if names is None else [n for n in every if n in names]
+        columns = np.array([a.angles for a in kept], np.float64)[:, [every.index(n) for n in names]]
         values = np.round(columns, 3).T.tolist()
         return {"subject": subject, "kind": wire.kind_name(code), "names": names,
-                "latest": newest.to_json(subject) | {"rx": round(rx, 4)},
+                "latest": latest | {"rx": round(rx, 4)},
                 "t": [a.t_us / 1e6 for a in kept], "seq": [a.seq for a in kept],
                 "angles": {n: [None if math.isnan(v) else v for v in column] for n, column in zip(names, values)}}
 
@@ -83,8 +92,8 @@ class Views:
         return columns
 
     def subject_names(self) -> list[str]:
-        """Every subject with a device or a pose frame, sorted."""
-        return sorted({e.subject for e in self.live.devices.values()} | set(self.live.poses))
+        """Every subject with a device or a pose frame (or a refused one), sorted."""
+        return sorted({e.subject for e in self.live.devices.values()} | set(self.live.poses) | set(self.live.pose_refused))
 
     def subject_views(self) -> list[dict]:
         return [self.subject_view(name) for name in self.subject_names()]
@@ -109,13 +118,24 @@ class Views:
             **self.exact_latency_view(name),
             **self.live.subject_stats.get(name, {}),
         }
+        layout = self.subject_layout(name)
         if view.get("bones_m") is None and pose is not None:  # no body announced: the lengths its frames are drawn with
-            view |= {"layout": PAPER10.name, "height_m": None,
-                     "bones_m": {b: round(m, 5) for b, m in lengths_of(PAPER10, pose.frame.joints).items()}}
+            view |= {"height_m": None,
+                     "bones_m": {b: round(m, 5) for b, m in lengths_of(layout, pose.frame.joints).items()}}
+        view |= {"layout": layout.name, "pose_refused": self.live.pose_refused.get(name)}
         if with_devices:
             have = {v["segment"] for v in views}
-            view |= {"device_list": views, "missing_segments": [s for s in wire.SEGMENTS if s not in have]}
+            view |= {"device_list": views, "missing_segments": [s for s in layout.segment_names if s not in have],
+                     **layout_view(layout)}
         return view
+
+    def subject_layout(self, name: str) -> Layout:
+        """The subject's body layout: its latest frame's, else the one its devices announce
+        (a built-in's name in their status), else ``paper10``."""
+        pose = self.live.latest_pose(name)
+        if pose is not None and pose.frame.layout is not None:
+            return pose.frame.layout
+        return LAYOUTS.get(self.live.subject_stats.get(name, {}).get("layout") or "", PAPER10)
 
     def exact_latency_view(self, subject: str) -> dict:
         """``exact_latency_p50_ms``, ``exact_latency_p99_ms``: frame time -> received here, over

@@ -1,6 +1,6 @@
-"""BVH export: the body of :class:`limbstream.skeleton.Skeleton` with joints named as in the CMU
-clips (so BVH tools and limbstream's own loader, ``limbstream.sources.bvh``, map them to segments),
-offsets in metres (Y up, X to the subject's left) drawing the take's rest pose (the arms hanging
+"""BVH export: the take's body in its layout's hierarchy (:func:`bvh_joints`: ``paper10``'s is
+:data:`BVH_JOINTS`), joints named as in the CMU clips (so BVH tools and limbstream's own loader,
+``limbstream.sources.bvh``, map them to segments), offsets in metres (Y up, X to the subject's left) drawing the take's rest pose (the arms hanging
 for ``standing``, out along +-X for ``tpose``: the hierarchy's zero pose *is* the rest pose, so a
 reader that takes its rest pose from the OFFSETs, as limbstream's does, reads the orientations
 back unchanged), every joint's rotation channels in the order ``Zrotation Xrotation Yrotation``
@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from limbstream import quat, wire
+from limbstream import quat
+from limbstream.body import PAPER10, Layout
 
 if TYPE_CHECKING:
     from .export import Take
@@ -47,6 +48,42 @@ BVH_JOINTS: tuple[BvhJoint, ...] = (
 ``limbstream.sources.bvh.CMU_SEGMENT_MAPS['cmu']``). Spine carries no sensor: it turns with the hips."""
 ROTATION_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
 
+BVH_NAMES: dict[str, str] = {
+    "hip": "Hips", "chest": "Spine", "neck": "Neck", "head": "Neck",
+    "l_thigh": "LeftUpLeg", "l_shank": "LeftLeg", "l_foot": "LeftFoot",
+    "r_thigh": "RightUpLeg", "r_shank": "RightLeg", "r_foot": "RightFoot",
+    "l_upperarm": "LeftArm", "l_lowerarm": "LeftForeArm", "l_hand": "LeftHand",
+    "r_upperarm": "RightArm", "r_lowerarm": "RightForeArm", "r_hand": "RightHand",
+}
+"""The BVH joint carrying each built-in segment (the CMU clips' names; ``full``'s head segment,
+neck base to the top of the head, is the ``Neck`` joint as ``paper10``'s neck is); a layout file's
+other segments keep their own names."""
+
+
+def bvh_joints(layout: Layout) -> tuple[BvhJoint, ...]:
+    """The hierarchy of ``layout``, depth first (the file's order): ``paper10``'s :data:`BVH_JOINTS`; any other
+    layout one joint per segment at its proximal joint, a child of its parent segment's joint
+    (``full``: Hips -> Spine (the chest, at the spine joint) -> Neck (the head) with its End Site at
+    the top of the head; the arms off the Spine, the hands below the forearms, the feet below the
+    legs), a segment without children ending in an End Site at its distal joint."""
+    if layout == PAPER10:
+        return BVH_JOINTS
+    name = {s.name: BVH_NAMES.get(s.name, s.name) for s in layout.segments}
+    children: dict[str | None, list[str]] = {}
+    for s in layout.segments:
+        children.setdefault(s.parent, []).append(s.name)
+    out = []
+
+    def visit(segment: str) -> None:  # depth first: the order of the file's joints and channels
+        seg = layout.segment(segment)
+        out.append(BvhJoint(name[seg.name], None if seg.parent is None else name[seg.parent], seg.name, seg.joint,
+                            end=None if seg.name in children else seg.end))
+        for child in children.get(segment, []):
+            visit(child)
+
+    visit(layout.root.name)
+    return tuple(out)
+
 
 def _fmt(values) -> str:
     """Numbers with 6 decimals (no "-0.000000")."""
@@ -55,11 +92,13 @@ def _fmt(values) -> str:
 
 def bvh_text(take: Take) -> str:
     """The BVH file of ``take`` (see the module docstring)."""
-    rest = take.skeleton.positions(np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))).astype(np.float64)
-    at = {name: rest[i] for i, name in enumerate(wire.JOINTS)}
-    by_name = {j.name: j for j in BVH_JOINTS}
+    layout = take.layout
+    hierarchy = bvh_joints(layout)
+    rest = take.skeleton.positions(np.tile([1.0, 0.0, 0.0, 0.0], (len(layout.segments), 1))).astype(np.float64)
+    at = {name: rest[i] for i, name in enumerate(layout.joints)}
+    by_name = {j.name: j for j in hierarchy}
     children: dict[str | None, list[BvhJoint]] = {}
-    for j in BVH_JOINTS:
+    for j in hierarchy:
         children.setdefault(j.parent, []).append(j)
     lines = ["HIERARCHY"]
 
@@ -80,8 +119,10 @@ def bvh_text(take: Take) -> str:
         lines.append(f"{pad}}}")
 
     write(children[None][0], 0)
-    columns = [np.tile([0.0, -float(at["l_ankle"][1]), 0.0], (len(take), 1))]  # root: feet on the floor at rest
-    seg = {name: i for i, name in enumerate(wire.SEGMENTS)}
+    floor = min(float(p[1]) for p in rest)  # the lowest joint at rest: the ankles (paper10), the toes (full)
+    # root: the take's path where it has one (its floor at 0), else the feet on the floor at rest
+    columns = [np.tile([0.0, -floor, 0.0], (len(take), 1)) if take.root is None else take.root]
+    seg = layout.segment_index
 
     def carried(joint: BvhJoint | None) -> np.ndarray:
         """(F, 4) global orientation a joint carries (its segment's, or its parent's)."""
@@ -91,7 +132,7 @@ def bvh_text(take: Take) -> str:
             return carried(by_name.get(joint.parent))
         return take.q[:, seg[joint.segment]]
 
-    for joint in BVH_JOINTS:
+    for joint in hierarchy:
         local = quat.multiply(quat.conjugate(carried(by_name.get(joint.parent))), carried(joint))
         columns.append(quat.to_rotation(quat.normalize(local)).as_euler("ZXY", degrees=True))
     motion = np.concatenate(columns, axis=1)

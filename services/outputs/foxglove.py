@@ -7,23 +7,27 @@ Topics, per subject ``<s>`` (created when its first message comes):
 topic              schema                      content
 =================  ==========================  ==============================================
 ``/<s>/tf``        ``foxglove.FrameTransforms``  ``world -> <s>`` and ``<s> -> <s>/<segment>``
-                                               for the 10 segments (pose frames)
+                                               for each segment of the frame's layout
 ``/<s>/skeleton``  ``foxglove.SceneUpdate``      one entity ``<s>`` in frame ``<s>``: a line per
-                                               :data:`wire.BONES` pair, a sphere per joint
+                                               bone of the frame's layout, a sphere per joint
 ``/<s>/stats``     JSON (JSON Schema from        the stats message with ``devices`` keyed by
                    :data:`wire.FIELDS`)          segment: plot ``/s01/stats.devices.l_thigh.icr``
 =================  ==========================  ==============================================
 
 Frames: the subject frame ``<s>`` is limbstream's (Y up, X to the subject's left, pelvis at the
 origin); ``world -> <s>`` turns it Z up (Foxglove's and ROS's convention: limbstream's Z, X, Y
-become world X, Y, Z), lifts the pelvis to its leg length (thigh + shank, the frames' own: its
-subject's body) so the feet touch the grid,
+become world X, Y, Z), lifts the pelvis to its leg's height at rest (thigh + shank, and the foot's
+drop where the layout has feet; the frames' own lengths: its subject's body) so the feet touch the
+grid,
 and places the n-th subject seen (from 0) :data:`SPACING_M` to the right of the one before.
-``<s>/<segment>`` sits at the joint where the segment starts (``l_thigh`` at ``l_hip``) and has
+``<s>/<segment>`` sits at the joint where the segment starts (``l_thigh`` at ``l_hip``, ``l_foot``
+at ``l_ankle``) and has
 the pose frame's global segment orientation, unchanged. Frames shown: live ones first
 (:mod:`limbstream.services.outputs.kinds`). Messages are built only for topics a client subscribed to.
 """
 from __future__ import annotations
+
+from functools import lru_cache
 
 import foxglove
 import numpy as np
@@ -33,27 +37,29 @@ from foxglove.messages import (Color, FrameTransform, FrameTransforms, LinePrimi
                                Vector3)
 
 from limbstream import wire
+from limbstream.body import LAYOUTS, PAPER10, Layout
 from limbstream.skeleton import Skeleton
 from limbstream.services.outputs.kinds import LiveFirst
 from limbstream.services.outputs.subscription import Item
 
 SPACING_M = 1.0
 """Distance between neighbouring subjects in the world frame, metres."""
-SEGMENT_ORIGIN: dict[str, str] = {
-    "hip": "pelvis", "neck": "neck_base",
-    **{f"{s}_{seg}": f"{s}_{joint}" for s in "lr" for seg, joint in (
-        ("thigh", "hip"), ("shank", "knee"), ("upperarm", "shoulder"), ("lowerarm", "elbow"))},
-}
-"""The joint each segment's frame sits at."""
 _Y_UP_TO_Z_UP = (0.5, 0.5, 0.5, 0.5)  # (x, y, z, w): 120 deg about (1, 1, 1); x -> y, y -> z, z -> x
 _LEG_M = Skeleton().thigh + Skeleton().shank
-_J = {name: i for i, name in enumerate(wire.JOINTS)}
-_ORIGINS = [(i, seg, _J[SEGMENT_ORIGIN[seg]]) for i, seg in enumerate(wire.SEGMENTS)]
-_BONE_INDEX = [_J[j] for bone in wire.BONES for j in bone]  # line list: joint indices, two per bone
 _BONE_COLOR = Color(r=0.2, g=0.7, b=1.0, a=1.0)
 _JOINT_COLOR = Color(r=1.0, g=0.6, b=0.1, a=1.0)
 _JOINT_SIZE = Vector3(x=0.05, y=0.05, z=0.05)
 _IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+@lru_cache(maxsize=16)
+def drawing(layout: Layout) -> tuple[tuple[tuple[int, str, int], ...], tuple[int, ...]]:
+    """How frames of ``layout`` are drawn: per segment (its index, name, the index of the joint
+    its frame sits at: where it starts) and the line list of its bones (joint indices, two per
+    bone: proximal, distal)."""
+    j = layout.joint_index
+    origins = tuple((i, s.name, j[s.joint]) for i, s in enumerate(layout.segments))
+    return origins, tuple(j[name] for b in layout.bones for name in (b.origin, b.joint))
 
 
 def _stamp(t_us: int) -> Timestamp:
@@ -66,7 +72,7 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
     Parameters
     ----------
     subject : key chunk, the frame id.
-    frame : its pose frame (q (10, 4) scalar-first, joints (15, 3) m).
+    frame : its pose frame (q (S, 4) scalar-first, joints (J, 3) m, of its layout).
     slot : the subject's place in the row (0, 1, ...), :data:`SPACING_M` apart.
     """
     stamp = _stamp(frame.t_us)
@@ -74,7 +80,7 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
     out = [FrameTransform(timestamp=stamp, parent_frame_id="world", child_frame_id=subject,
                           translation=translation, rotation=rotation)]
     q, joints = frame.q.tolist(), frame.joints.tolist()
-    for i, seg, j in _ORIGINS:
+    for i, seg, j in drawing(frame.layout or PAPER10)[0]:
         (qw, qx, qy, qz), (px, py, pz) = q[i], joints[j]
         out.append(FrameTransform(timestamp=stamp, parent_frame_id=subject, child_frame_id=f"{subject}/{seg}",
                                   translation=Vector3(x=px, y=py, z=pz),
@@ -83,11 +89,20 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
 
 
 def leg_m(frame: wire.PoseFrame) -> float:
-    """The length of the frame's left leg, thigh + shank, m: its subject's (the frames are drawn
-    with its body), the height its pelvis is lifted to."""
-    j = frame.joints.astype(np.float64)
-    hip, knee, ankle = j[_J["l_hip"]], j[_J["l_knee"]], j[_J["l_ankle"]]
-    return float(np.linalg.norm(knee - hip) + np.linalg.norm(ankle - knee))
+    """The height of the frame's left hip joint above the floor at rest, m: the leg's bones from
+    the thigh down (thigh + shank, and a foot's drop), each bone's length (its subject's: the
+    frames are drawn with its body) times how far down it points at rest; the height its pelvis
+    is lifted to. A layout without ``l_thigh``: the default adult's thigh + shank."""
+    layout = frame.layout or PAPER10
+    if "l_thigh" not in layout.segment_index:
+        return _LEG_M
+    j, at = frame.joints.astype(np.float64), layout.joint_index
+    height, segment = 0.0, layout.segment("l_thigh")
+    while segment is not None:
+        down = max(0.0, -segment.directions[wire.DEFAULT_REST_POSE][1])
+        height += down * float(np.linalg.norm(j[at[segment.end]] - j[at[segment.joint]]))
+        segment = next((s for s in layout.segments if s.parent == segment.name), None)
+    return height
 
 
 def _placement(slot: int, leg: float = _LEG_M) -> tuple[Vector3, Quaternion]:
@@ -104,8 +119,8 @@ def placement(slot: int, leg: float = _LEG_M) -> Pose:
 
 
 def scene_update(subject: str, frame: wire.PoseFrame, placed: Pose | None = None) -> SceneUpdate:
-    """The skeleton of ``frame`` as one entity ``subject``: a line list of :data:`wire.BONES`
-    between the 15 joints (indexed) and, live, a sphere per joint.
+    """The skeleton of ``frame`` as one entity ``subject``: a line list of its layout's bones
+    between its joints (indexed: :func:`drawing`) and, live, a sphere per joint.
 
     Live (``placed`` None) the entity is in frame ``subject``, which ``/<s>/tf`` places. A
     recording has no transforms, so there (``placed``: :func:`placement`) the entity is in frame
@@ -115,7 +130,7 @@ def scene_update(subject: str, frame: wire.PoseFrame, placed: Pose | None = None
     joints = frame.joints.tolist()
     points = [Point3(x=x, y=y, z=z) for x, y, z in joints]
     lines = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.02, color=_BONE_COLOR,
-                          points=points, indices=_BONE_INDEX, **({} if placed is None else {"pose": placed}))
+                          points=points, indices=drawing(frame.layout or PAPER10)[1], **({} if placed is None else {"pose": placed}))
     if placed is None:
         spheres = [SpherePrimitive(pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY),
                                    size=_JOINT_SIZE, color=_JOINT_COLOR) for x, y, z in joints]
@@ -145,7 +160,7 @@ def stats_schema() -> dict:
         "seq": {"type": "integer", "description": "stats message counter of the subject"},
         **props(wire.SUBJECT_FIELDS),
         "devices": {"type": "object", "additionalProperties": device,
-                    "properties": {s: device for s in wire.SEGMENTS}},
+                    "properties": {s: device for lay in LAYOUTS.values() for s in lay.segment_names}},
         "aggregator": {"type": "object", "properties": props(wire.AGGREGATOR_FIELDS)},
     }}
 

@@ -4,9 +4,11 @@ orientation file (``.sto``), the inputs of OpenSim's tools and of OpenSense's IM
 
 ``.mot`` (an OpenSim Storage): a name line, ``version=1``, ``nRows``, ``nColumns`` (time
 included), ``inDegrees=yes``, a line saying which calibration the angles rest on, ``endheader``,
-then a tab-separated table: ``time`` and one column per joint angle the subject has
-(:data:`limbstream.joints.ANGLES`: the Rajagopal model's coordinate names), degrees; a frame
-without a valid angle (a segment without data) holds ``NaN``.
+then a tab-separated table: ``time`` and one column per joint angle the subject has, in its
+layout's order (``wire.joint_angles(layout)``: the Rajagopal model's coordinate names; the
+10-segment body's :data:`limbstream.joints.ANGLES`, the ``full`` layout's with its ankles,
+subtalar inversion, lumbar and wrist angles), degrees; a frame without a valid angle (a segment
+without data) holds ``NaN`` (:func:`mot_of` leaves such frames out).
 
 ``.sto`` (OpenSense's orientation table): ``DataRate``, ``DataType=Quaternion``, ``version=3``,
 ``OpenSimVersion``, ``endheader``, then ``time`` and one column per segment named after the body
@@ -20,15 +22,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from limbstream import wire
+from limbstream import joints, wire
+from limbstream.body import Layout
 
-IMU_NAMES: dict[str, str] = {"hip": "pelvis_imu", "neck": "torso_imu",
+IMU_NAMES: dict[str, str] = {"hip": "pelvis_imu", "neck": "torso_imu", "chest": "torso_imu",
                              "l_thigh": "femur_l_imu", "r_thigh": "femur_r_imu",
                              "l_shank": "tibia_l_imu", "r_shank": "tibia_r_imu",
+                             "l_foot": "calcn_l_imu", "r_foot": "calcn_r_imu",
                              "l_upperarm": "humerus_l_imu", "r_upperarm": "humerus_r_imu",
-                             "l_lowerarm": "ulna_l_imu", "r_lowerarm": "ulna_r_imu"}
+                             "l_lowerarm": "ulna_l_imu", "r_lowerarm": "ulna_r_imu",
+                             "l_hand": "hand_l_imu", "r_hand": "hand_r_imu", "head": "head_imu"}
 """Segment -> OpenSense IMU column (the Rajagopal model's body plus ``_imu``). The model has no
-neck: the neck's sensor stands in for the torso's (the 10-segment body has no trunk sensor)."""
+neck: in the 10-segment body (no trunk sensor) the neck's sensor stands in for the torso's; the
+``full`` layout's chest is the torso, its feet the calcanei. The model has no head body either
+(its torso carries the head): ``head_imu`` names the head's sensor for a model that has one."""
 OPENSIM_VERSION = "4.5"
 """The OpenSim version an orientation file says it is for (its format is OpenSense's since 4.1)."""
 
@@ -54,6 +61,34 @@ def mot_text(name: str, t: np.ndarray, angles: np.ndarray, columns: tuple[str, .
               "endheader", "\t".join(("time", *columns))]
     rows = ["\t".join([f"{t[k]:.6f}", *_number(angles[k], 4)]) for k in range(len(t))]
     return "\n".join(header + rows) + "\n"
+
+
+def mot_of(name: str, t: np.ndarray, q: np.ndarray, basis: str, layout: str | Layout = "paper10",
+           rest_pose: str = wire.DEFAULT_REST_POSE, present: np.ndarray | None = None) -> str:
+    """An OpenSim motion file of calibrated segment orientations: ``layout``'s joint angles
+    (``wire.joint_angles(layout)``, the model's coordinate names) that have a value in some
+    frame, over the frames in which all of them have one (OpenSim's readers take no NaN).
+
+    Parameters
+    ----------
+    name : the first header line; basis : the calibration line (:func:`mot_text`).
+    t : (F,) s; q : (F, S, 4) anatomical segment orientations in the layout's segment order.
+    layout : a built-in layout's name, a layout file or a Layout; rest_pose : what identity
+        means for ``q``; present : (S,) or (F, S) bool, the segments with data (None: the finite).
+
+    ValueError if no joint has both of its segments or no frame has every written angle.
+    """
+    angles, _ = joints.joint_angles(q, present, rest_pose, layout=layout)
+    names = joints.angle_names(layout)
+    valid = np.isfinite(angles)
+    columns = np.flatnonzero(valid.any(axis=0))
+    if not len(columns):
+        raise ValueError(f"{name}: no joint has both of its segments")
+    rows = valid[:, columns].all(axis=1)
+    if not rows.any():
+        raise ValueError(f"{name}: no frame has every joint angle written")
+    t = np.asarray(t, np.float64)[rows]
+    return mot_text(name, t - t[0], angles[rows][:, columns], tuple(names[k] for k in columns), basis)
 
 
 def sto_text(t: np.ndarray, q: np.ndarray, segments: tuple[str, ...], rate_hz: float) -> str:

@@ -4,8 +4,9 @@ Warudo, VNyan, VirtualMotionCapture ...).
 One OSC bundle per pose frame sent, to each subject's own ``host:port``:
 
 - ``/VMC/Ext/Root/Pos "root" px py pz qx qy qz qw``: the avatar root, at the origin, unrotated;
-- ``/VMC/Ext/Bone/Pos name px py pz qx qy qz qw`` for each bone of :data:`VMC_BONES`: the
-  bone's local position (m) and rotation relative to its parent bone, Unity frame;
+- ``/VMC/Ext/Bone/Pos name px py pz qx qy qz qw`` for each bone of the frame's layout's rig
+  (:func:`rig`; ``paper10``: :data:`VMC_BONES`; ``full`` drives Chest, Head, the hands and the feet
+  too): the bone's local position (m) and rotation relative to its parent bone, Unity frame;
 - ``/VMC/Ext/OK 1 3 0 tracking``: loaded, calibrated, normal mode, tracking 1 (0 when the frame
   lacks a segment's data);
 - ``/VMC/Ext/T t``: seconds of frame time since the subject's first frame sent.
@@ -35,12 +36,11 @@ from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from limbstream import quat, wire
+from limbstream.body import FULL, PAPER10, Body, Layout, lengths_of
 from limbstream.skeleton import Skeleton, joint_lengths, rest_offsets
 from limbstream.services.outputs.kinds import LiveFirst
 from limbstream.services.outputs.subscription import Subscription
 
-_SEG = {name: i for i, name in enumerate(wire.SEGMENTS)}
-_ROOT = len(wire.SEGMENTS)  # index of the identity row (the avatar root) in the global table
 _S = Skeleton()
 
 
@@ -92,21 +92,8 @@ LowerLeg, UpperArm, LowerArm) and those held at rest (Spine, Chest, Head, Left/R
 Shoulder, Hand). Not sent (receivers keep them at rest): UpperChest, toes, fingers, eyes, jaw."""
 
 
-def _driver(bone: VmcBone) -> int:
-    """Row of the global table that gives ``bone``'s global orientation: its segment's, or for a
-    bone held at rest its nearest measured ancestor's (the root row for none)."""
-    by_name = {b.name: b for b in VMC_BONES}
-    while not bone.segment:
-        if not bone.parent:
-            return _ROOT
-        bone = by_name[bone.parent]
-    return _SEG[bone.segment]
-
-
-_BY_NAME = {b.name: b for b in VMC_BONES}
-_CHILD_ROW = np.array([_driver(b) for b in VMC_BONES])
-_PARENT_ROW = np.array([_driver(_BY_NAME[b.parent]) if b.parent else _ROOT for b in VMC_BONES])
 _MIRROR_Q = np.array([1.0, 1.0, -1.0, -1.0])
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _MIRROR_P = np.array([-1.0, 1.0, 1.0])
 _PRODUCT = quat.multiply(np.eye(4)[:, None, :], np.eye(4)[None, :, :])
 """(4, 4, 4) structure constants: the Hamilton product a * b is sum_ij a_i b_j _PRODUCT[i, j]."""
@@ -114,42 +101,141 @@ _LOCAL = (_PRODUCT * quat.conjugate(np.ones(4))[:, None, None] * _MIRROR_Q).resh
 """mirror(conj(a) * b) as one (16, 4) matrix applied to the outer product of a and b."""
 
 
+HEAD_AT = 0.25
+"""``full``'s Head bone sits this fraction of the head segment above the neck base (the skull's
+base; the Neck bone, held, sits at the neck base)."""
+
+
+def _full_bones(body: Body) -> tuple[VmcBone, ...]:
+    """``full``'s bones, their offsets those of ``body`` in the T-pose: the trunk's, head's,
+    hands' and feet's segments drive Chest, Head, the hands and the feet; Spine (halfway up the
+    pelvis segment), Neck and the shoulders (at the neck base) are held."""
+    lay = body.layout
+    at = {j: p for j, p in zip(lay.joints, body.positions(np.tile(_IDENTITY, (len(lay.segments), 1)), True,
+                                                           np.float64))}
+    standing = body.positions(np.tile(_IDENTITY, (len(lay.segments), 1)), False, np.float64)
+    half = (at["spine"] - at["pelvis"]) / 2
+
+    def off(joint: str, parent: str) -> tuple[float, float, float]:
+        return tuple(float(v) for v in at[joint] - at[parent])  # type: ignore[return-value]
+
+    bones = [
+        VmcBone("Hips", "", "hip", (0.0, float(at["pelvis"][1] - standing[:, 1].min()), 0.0)),
+        VmcBone("Spine", "Hips", "", tuple(float(v) for v in half)),  # type: ignore[arg-type]
+        VmcBone("Chest", "Spine", "chest", tuple(float(v) for v in half)),  # type: ignore[arg-type]
+        VmcBone("Neck", "Chest", "", off("neck_base", "spine")),
+        VmcBone("Head", "Neck", "head", tuple(float(v) for v in HEAD_AT * (at["head_top"] - at["neck_base"]))),  # type: ignore[arg-type]
+    ]
+    for side, s in (("Left", "l"), ("Right", "r")):
+        bones += [
+            VmcBone(f"{side}UpperLeg", "Hips", f"{s}_thigh", off(f"{s}_hip", "pelvis")),
+            VmcBone(f"{side}LowerLeg", f"{side}UpperLeg", f"{s}_shank", off(f"{s}_knee", f"{s}_hip")),
+            VmcBone(f"{side}Foot", f"{side}LowerLeg", f"{s}_foot", off(f"{s}_ankle", f"{s}_knee")),
+            VmcBone(f"{side}Shoulder", "Chest", "", off("neck_base", "spine")),
+            VmcBone(f"{side}UpperArm", f"{side}Shoulder", f"{s}_upperarm", off(f"{s}_shoulder", "neck_base")),
+            VmcBone(f"{side}LowerArm", f"{side}UpperArm", f"{s}_lowerarm", off(f"{s}_elbow", f"{s}_shoulder")),
+            VmcBone(f"{side}Hand", f"{side}LowerArm", f"{s}_hand", off(f"{s}_wrist", f"{s}_elbow")),
+        ]
+    return tuple(bones)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The VMC bones of one layout and the rows of its global table (the layout's segments, then
+    the identity row ``root``) that give each bone's and its parent's global orientation."""
+
+    layout: Layout
+    bones: tuple[VmcBone, ...]
+    child_row: np.ndarray
+    parent_row: np.ndarray
+
+    @property
+    def root(self) -> int:
+        return len(self.layout.segments)
+
+
 @functools.cache
-def _right_factor(rest_pose: str) -> np.ndarray:
-    """(10, 4, 4): q @ m[s] = q * rest_offsets(rest_pose)[s]."""
-    return np.einsum("ijk,sj->sik", _PRODUCT, rest_offsets(rest_pose))
+def rig(layout: Layout) -> Rig:
+    """The rig frames of ``layout`` drive: ``paper10``'s :data:`VMC_BONES`, ``full``'s
+    (:func:`_full_bones`); ValueError for another layout."""
+    if layout == PAPER10:
+        bones = VMC_BONES
+    elif layout == FULL:
+        bones = _full_bones(Body.default(FULL))
+    else:
+        raise ValueError(f"VMC drives the layouts paper10 and full, not {layout.name}")
+    seg, root = layout.segment_index, len(layout.segments)
+    by_name = {b.name: b for b in bones}
+
+    def driver(bone: VmcBone) -> int:  # its segment's row, or its nearest measured ancestor's
+        while not bone.segment:
+            if not bone.parent:
+                return root
+            bone = by_name[bone.parent]
+        return seg[bone.segment]
+
+    return Rig(layout, bones, np.array([driver(b) for b in bones]),
+               np.array([driver(by_name[b.parent]) if b.parent else root for b in bones]))
 
 
-def local_rotations(q: np.ndarray, rest_pose: str = "standing") -> np.ndarray:
-    """Local bone rotations of :data:`VMC_BONES` in Unity's frame.
+def segment_rest_offsets(layout: Layout, rest_pose: str) -> np.ndarray:
+    """(S, 4) rotation from the T-pose to ``rest_pose`` per segment of ``layout``: for a segment
+    whose rest direction differs between them (the arms, the hands), the shortest turn from its
+    ``tpose`` direction to its ``rest_pose`` one; ``paper10``: :func:`limbstream.skeleton.rest_offsets`."""
+    if layout == PAPER10:
+        return rest_offsets(rest_pose)
+    wire.check_rest_pose(rest_pose)
+    out = np.tile(_IDENTITY, (len(layout.segments), 1))
+    for i, s in enumerate(layout.segments):
+        a, b = np.array(s.directions["tpose"]), np.array(s.directions[rest_pose])
+        if not np.allclose(a, b):
+            half = (a + b) / np.linalg.norm(a + b)  # the turn a -> b: (a . h, a x h)
+            out[i] = (float(a @ half), *np.cross(a, half))
+    return out
+
+
+@functools.cache
+def _right_factor(rest_pose: str, layout: Layout = PAPER10) -> np.ndarray:
+    """(S, 4, 4): q @ m[s] = q * segment_rest_offsets(layout, rest_pose)[s]."""
+    return np.einsum("ijk,sj->sik", _PRODUCT, segment_rest_offsets(layout, rest_pose))
+
+
+def local_rotations(q: np.ndarray, rest_pose: str = "standing", layout: Layout = PAPER10) -> np.ndarray:
+    """Local bone rotations of ``layout``'s rig (:func:`rig`) in Unity's frame.
 
     Parameters
     ----------
-    q : (..., 10, 4) global segment orientations, scalar-first, limbstream frame (pose frames' q).
-    rest_pose : the rest pose of ``q`` (:func:`rest_offsets`).
+    q : (..., S, 4) global segment orientations, scalar-first, limbstream frame (pose frames' q),
+        ``layout``'s segments.
+    rest_pose : the rest pose of ``q`` (:func:`segment_rest_offsets`).
+    layout : the frames' layout (``paper10``: :data:`VMC_BONES`).
 
     Returns
     -------
-    (..., B, 4) float64 scalar-first (w, x, y, z) in Unity's frame, B = len(VMC_BONES):
+    (..., B, 4) float64 scalar-first (w, x, y, z) in Unity's frame, B = len(rig(layout).bones):
     mirror(conj(g[parent]) * g[bone]) with g = normalize(q) * rest, held bones taking their nearest
     measured ancestor's g (identity for none). ValueError if a quaternion of ``q`` has zero norm
     or is not finite.
     """
+    r = rig(layout)
     q = np.asarray(q, np.float64)
     norm = np.sqrt(np.einsum("...i,...i->...", q, q))
     if not np.all((norm > 0) & np.isfinite(norm)):
         raise ValueError("q contains zero-norm or non-finite quaternions")
-    g = np.empty(q.shape[:-2] + (_ROOT + 1, 4))
-    g[..., :_ROOT, :] = np.einsum("...si,sik->...sk", q / norm[..., None], _right_factor(rest_pose))
-    g[..., _ROOT, :] = (1.0, 0.0, 0.0, 0.0)
-    a, b = g[..., _PARENT_ROW, :], g[..., _CHILD_ROW, :]
+    g = np.empty(q.shape[:-2] + (r.root + 1, 4))
+    g[..., :r.root, :] = np.einsum("...si,sik->...sk", q / norm[..., None], _right_factor(rest_pose, layout))
+    g[..., r.root, :] = (1.0, 0.0, 0.0, 0.0)
+    a, b = g[..., r.parent_row, :], g[..., r.child_row, :]
     return (a[..., :, None] * b[..., None, :]).reshape(a.shape[:-1] + (16,)) @ _LOCAL
 
 
-def rest_positions(skeleton: Skeleton | None = None) -> np.ndarray:
-    """(B, 3) local bone positions (m) in Unity's frame, :data:`VMC_BONES` order, of ``skeleton``
-    (None: the default one's)."""
-    bones = VMC_BONES if skeleton is None else _bones(skeleton)
+def rest_positions(skeleton: Skeleton | Body | None = None) -> np.ndarray:
+    """(B, 3) local bone positions (m) in Unity's frame, in the order of its rig's bones, of
+    ``skeleton`` (a ``paper10`` Skeleton, or a ``full`` Body; None: the default ``paper10`` one's)."""
+    if isinstance(skeleton, Body):
+        bones = _full_bones(skeleton)
+    else:
+        bones = VMC_BONES if skeleton is None else _bones(skeleton)
     return np.array([b.offset for b in bones]) * _MIRROR_P + 0.0  # + 0.0: no -0.0
 
 
@@ -170,9 +256,16 @@ class VmcEncoder:
         if rest_pose is not None:
             rest_offsets(rest_pose)  # ValueError on a bad name
         self.rest_pose = rest_pose
+        self.t0_us: int | None = None
+        self._build(PAPER10)
+
+    def _build(self, layout: Layout) -> None:
+        """The template of ``layout``'s rig, its bones at the default body's rest offsets."""
+        self.rig = rig(layout)
+        default = None if layout == PAPER10 else Body.default(layout)
         bundle = OscBundleBuilder(IMMEDIATELY)
         messages = [self._message("/VMC/Ext/Root/Pos", "root", [0.0] * 6 + [1.0])]
-        for bone, p in zip(VMC_BONES, rest_positions()):
+        for bone, p in zip(self.rig.bones, rest_positions(default)):
             messages.append(self._message("/VMC/Ext/Bone/Pos", bone.name, [*p, 0.0, 0.0, 0.0, 1.0]))
         ok = OscMessageBuilder("/VMC/Ext/OK")
         for v in (1, 3, 0, 1):
@@ -188,24 +281,30 @@ class VmcEncoder:
             raise RuntimeError("OSC bundle layout differs from the one assumed")
         words = np.frombuffer(self.buffer, ">f4")  # OSC aligns everything to 4 bytes
         self._floats, self._ints = words, np.frombuffer(self.buffer, ">i4")
-        bone_ends = np.array(ends[1:1 + len(VMC_BONES)]) // 4
+        bone_ends = np.array(ends[1:1 + len(self.rig.bones)]) // 4
         self._rot = bone_ends[:, None] - 4 + np.arange(4)  # qx qy qz qw: the last 4 words
         self._pos = bone_ends[:, None] - 7 + np.arange(3)  # x y z: the 3 words before them
-        self._lengths = joint_lengths(_S.positions(np.tile([1.0, 0.0, 0.0, 0.0], (_ROOT, 1))))  # the template's
+        self._lengths = self._lengths_of(layout, (_S if default is None else default).positions(
+            np.tile(_IDENTITY, (len(layout.segments), 1))))  # the template's
         self._sized_us = -SIZE_EVERY_US  # frame time the bones were last sized at (:meth:`_size`)
         self._tracking = ends[-2] // 4 - 1
         self._time = ends[-1] // 4 - 1
-        self.t0_us: int | None = None
+
+    @staticmethod
+    def _lengths_of(layout: Layout, joints: np.ndarray) -> np.ndarray:
+        return joint_lengths(joints) if layout == PAPER10 else np.array(list(lengths_of(layout, joints).values()))
 
     def _size(self, joints: np.ndarray) -> None:
         """The bones' positions of the subject's body, as its frames draw it (``joints``: a
         frame's positions), written when its lengths change (by more than 0.1 mm); once per
         :data:`SIZE_EVERY_US` of frame time (and when frame time goes back)."""
-        lengths = joint_lengths(joints)
+        layout = self.rig.layout
+        lengths = self._lengths_of(layout, joints)
         if np.all(np.abs(lengths - self._lengths) <= 1e-4) or not np.all((lengths > 0) & np.isfinite(lengths)):
             return
         self._lengths = lengths
-        self._floats[self._pos] = rest_positions(Skeleton.of_joints(joints))
+        body = Skeleton.of_joints(joints) if layout == PAPER10 else Body(layout, lengths_of(layout, joints))
+        self._floats[self._pos] = rest_positions(body)
 
     @staticmethod
     def _message(address: str, name: str | None, floats: list[float]):
@@ -217,10 +316,14 @@ class VmcEncoder:
         return m.build()
 
     def encode(self, frame: wire.PoseFrame, local: np.ndarray | None = None) -> bytes:
-        """The bundle of ``frame`` (about 1.6 kB); ``local``: its :func:`local_rotations` if
-        already computed. ValueError on a zero-norm quaternion."""
+        """The bundle of ``frame`` (about 1.6 kB for ``paper10``, its layout's rig's bones);
+        ``local``: its :func:`local_rotations` if already computed. ValueError on a zero-norm
+        quaternion or a layout without a rig."""
+        layout = frame.layout or PAPER10
+        if layout != self.rig.layout:
+            self._build(layout)  # (ValueError: a layout without a rig)
         if local is None:
-            local = local_rotations(frame.q, self.rest_pose or wire.frame_rest_pose(frame.flags))
+            local = local_rotations(frame.q, self.rest_pose or wire.frame_rest_pose(frame.flags), layout)
         if not 0 <= frame.t_us - self._sized_us < SIZE_EVERY_US:
             self._size(frame.joints)
             self._sized_us = frame.t_us
@@ -278,12 +381,12 @@ class VmcSender:
         todo = [(s, f) for s, f in items if s in self.encoders and self.kinds.wanted(s, f, now)]
         if not todo:
             return 0
-        rest = [self.rest_pose or wire.frame_rest_pose(f.flags) for _, f in todo]
+        rest = [(self.rest_pose or wire.frame_rest_pose(f.flags), f.layout or PAPER10) for _, f in todo]
         local: list = [None] * len(todo)
-        for pose in set(rest):  # one vectorised call per rest pose
-            rows = [i for i, r in enumerate(rest) if r == pose]
+        for pose, layout in set(rest):  # one vectorised call per rest pose and layout
+            rows = [i for i, r in enumerate(rest) if r == (pose, layout)]
             try:
-                for i, value in zip(rows, local_rotations(np.stack([todo[i][1].q for i in rows]), pose)):
+                for i, value in zip(rows, local_rotations(np.stack([todo[i][1].q for i in rows]), pose, layout)):
                     local[i] = value
             except ValueError:  # a bad frame among them: one by one, so only it is refused
                 pass

@@ -1,8 +1,9 @@
 """VRChat output: pose frames as VRChat's OSC trackers (OSC over UDP, VRChat listens on port 9000).
 
 Per pose frame sent, one OSC message (3 floats) per address, in this order:
-``/tracking/trackers/N/position`` and ``/tracking/trackers/N/rotation`` for each tracker of
-:data:`TRACKERS` (N = 1..8), then ``/tracking/trackers/head/position`` and ``/rotation``.
+``/tracking/trackers/N/position`` and ``/tracking/trackers/N/rotation`` for each tracker of the
+frame's layout (:func:`trackers`: ``paper10``'s :data:`TRACKERS`, ``full``'s :data:`FULL_TRACKERS`;
+N = 1..8), then ``/tracking/trackers/head/position`` and ``/rotation``.
 
 Convention (docs.vrchat.com "OSC Trackers", docs/outputs.md "VRChat"): world positions in metres
 and Euler angles in degrees, Unity's left-handed frame (Y up, X to the right, facing +Z), the
@@ -12,7 +13,8 @@ the mirror x -> -x, as in :mod:`limbstream.services.outputs.vmc`: a position (x,
 (-x, y, z), a quaternion (w, x, y, z) becomes (w, x, -y, -z) (:func:`quat.mirror_x`).
 
 Pose frames put the pelvis at the origin (no body translation yet): each frame's joints are
-lifted so that the lower ankle is on the floor (y = 0), the pelvis at standing height.
+lifted so that the lowest foot point (the lower ankle; with feet, the lower of the ankles and
+toes) is on the floor (y = 0), the pelvis at standing height.
 """
 from __future__ import annotations
 
@@ -20,16 +22,18 @@ import socket
 import threading
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from limbstream import quat, wire
+from limbstream.body import FULL, PAPER10, Layout
 from limbstream.services.outputs.kinds import LiveFirst
 from limbstream.services.outputs.subscription import Subscription
 from limbstream.services.outputs.vmc import parse_target
 
-__all__ = ["TRACKERS", "VrchatSender", "parse_target", "serve", "tracker_values"]
+__all__ = ["FULL_TRACKERS", "TRACKERS", "VrchatSender", "parse_target", "serve", "tracker_values", "trackers"]
 
 
 @dataclass(frozen=True)
@@ -61,19 +65,48 @@ TRACKERS: tuple[Tracker, ...] = (
 segment (``hip``: pelvis -> neck base), so the chest tracker sits two thirds of the way up it
 with its orientation."""
 
-_J = {name: i for i, name in enumerate(wire.JOINTS)}
-_S = {name: i for i, name in enumerate(wire.SEGMENTS)}
-_FEET = [_J["l_ankle"], _J["r_ankle"]]
-_SEG_ROWS = np.array([_S[t.segment] for t in TRACKERS])
-_MIX = np.zeros((len(TRACKERS), len(wire.JOINTS)))
-for _k, _t in enumerate(TRACKERS):
-    _MIX[_k, _J[_t.joint]] += 1.0 - _t.share
-    if _t.toward:
-        _MIX[_k, _J[_t.toward]] += _t.share
+FULL_TRACKERS: tuple[Tracker, ...] = (
+    Tracker("1", "hip", "pelvis", "hip"),
+    Tracker("2", "chest", "spine", "chest", toward="neck_base", share=1 / 2),
+    Tracker("3", "left foot", "l_ankle", "l_foot"),
+    Tracker("4", "right foot", "r_ankle", "r_foot"),
+    Tracker("5", "left knee", "l_knee", "l_thigh"),
+    Tracker("6", "right knee", "r_knee", "r_thigh"),
+    Tracker("7", "left elbow", "l_elbow", "l_upperarm"),
+    Tracker("8", "right elbow", "r_elbow", "r_upperarm"),
+    Tracker("head", "head", "head_top", "head"),
+)
+"""``full``'s trackers: the chest and the feet have segments of their own, so the chest tracker
+has the chest's orientation, halfway up it (spine joint to neck base), and each foot tracker, at
+the ankle (VRChat's foot target), the foot's orientation; the head tracker the head's."""
 _MIRROR_P = np.array([-1.0, 1.0, 1.0])
+_FOOT_POINTS = ("l_ankle", "r_ankle", "l_toe", "r_toe")
 ADDRESSES: tuple[str, ...] = tuple(f"/tracking/trackers/{t.address}/{what}"
                                    for t in TRACKERS for what in ("position", "rotation"))
-"""Every address sent, in the order sent per frame."""
+"""Every address sent, in the order sent per frame (the same for every layout)."""
+
+
+def trackers(layout: Layout) -> tuple[Tracker, ...]:
+    """The trackers of frames of ``layout``: ``full``'s :data:`FULL_TRACKERS`, ``paper10``'s
+    :data:`TRACKERS`; ValueError for another layout."""
+    if layout == FULL:
+        return FULL_TRACKERS
+    if layout == PAPER10:
+        return TRACKERS
+    raise ValueError(f"VRChat's trackers are placed on the layouts paper10 and full, not {layout.name}")
+
+
+@lru_cache(maxsize=8)
+def _table(layout: Layout) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """(T,) segment rows of the trackers' rotations, (T, J) weights of the joints placing them,
+    the rows of the foot points (the lowest goes on the floor)."""
+    chosen, j, s = trackers(layout), layout.joint_index, layout.segment_index
+    mix = np.zeros((len(chosen), len(layout.joints)))
+    for k, t in enumerate(chosen):
+        mix[k, j[t.joint]] += 1.0 - t.share
+        if t.toward:
+            mix[k, j[t.toward]] += t.share
+    return np.array([s[t.segment] for t in chosen]), mix, [j[p] for p in _FOOT_POINTS if p in j]
 
 
 def tracker_values(frame: wire.PoseFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -81,20 +114,23 @@ def tracker_values(frame: wire.PoseFrame) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    frame : a pose frame (q (10, 4) scalar-first, joints (15, 3) m, pelvis at the origin).
+    frame : a pose frame (q (S, 4) scalar-first, joints (J, 3) m, pelvis at the origin) of
+        ``paper10`` or ``full``.
 
     Returns
     -------
     positions (T, 3) metres and rotations (T, 3) Unity Euler angles in degrees (x, y, z), Unity's
-    frame, :data:`TRACKERS` order, the joints lifted so the lower ankle is at y = 0. ValueError on
-    a zero-norm or non-finite quaternion or non-finite joints.
+    frame, in the order of the layout's :func:`trackers`, the joints lifted so the lowest foot
+    point is at y = 0. ValueError on a zero-norm or non-finite quaternion, non-finite joints or a
+    layout without trackers.
     """
+    rows, mix, feet = _table(frame.layout or PAPER10)
     joints = np.asarray(frame.joints, np.float64)
     if not np.all(np.isfinite(joints)):
         raise ValueError("joints are not finite")
-    lifted = joints - np.array([0.0, joints[_FEET, 1].min(), 0.0])
-    positions = _MIX @ lifted * _MIRROR_P + 0.0  # + 0.0: no -0.0
-    rotations = quat.unity_euler_deg(quat.mirror_x(quat.normalize(frame.q)[_SEG_ROWS])) + 0.0
+    lifted = joints - np.array([0.0, joints[feet, 1].min(), 0.0])
+    positions = mix @ lifted * _MIRROR_P + 0.0  # + 0.0: no -0.0
+    rotations = quat.unity_euler_deg(quat.mirror_x(quat.normalize(frame.q)[rows])) + 0.0
     return positions, rotations
 
 

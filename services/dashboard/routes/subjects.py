@@ -2,16 +2,18 @@
 from __future__ import annotations
 
 import asyncio
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Request
 
 from limbstream import wire
+from limbstream.body import LAYOUTS, PAPER10
 
 from ..deps import LiveDep, SubjectPath, TokenDep, ViewsDep
 from ..entries import ANGLES_HISTORY_S
 from ..models import (AngleName, CalibrateRequest, CalibrateResult, Pose, PoseKind, Skeleton, Subject, SubjectDetail,
                       SubjectJoints)
+from ..views import layout_view
 from ..zenoh_io import ConfigError, query_calibrate
 
 router = APIRouter(prefix="/api", tags=["subjects"])
@@ -61,9 +63,17 @@ async def joint_angles(subject: SubjectPath, views: ViewsDep,
 
 
 @router.get("/skeleton", response_model=Skeleton)
-async def skeleton() -> dict:
-    """Joint names (order of pose frames) and the bones to draw between them."""
-    return {"joints": list(wire.JOINTS), "bones": [list(b) for b in wire.BONES]}
+async def skeleton(layout: Annotated[Literal[tuple(LAYOUTS)], Query(  # type: ignore[valid-type]
+        description="a built-in body layout (docs/body.md)")] = PAPER10.name) -> dict:
+    """A layout's segments and joints (the order of pose frames) and the bones to draw between them."""
+    return layout_view(LAYOUTS[layout])
+
+
+@router.get("/layouts", response_model=dict[str, Skeleton])
+async def layouts() -> dict:
+    """Every built-in layout by name, as ``/api/skeleton`` gives it: what a page needs to draw any
+    subject's frames (a frame's ``layout`` names its own)."""
+    return {name: layout_view(lay) for name, lay in LAYOUTS.items()}
 
 
 @router.post("/subjects/{subject}/calibrate", response_model=CalibrateResult, dependencies=[TokenDep],
