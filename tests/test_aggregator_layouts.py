@@ -155,7 +155,8 @@ def test_a_device_whose_status_names_another_layout_is_counted_and_the_subject_k
 
 def test_truth_scoring_compares_every_segment_and_joint_of_a_full_subject():
     """The chest's truth is 9 degrees off what its points say: 9/15 degrees per frame of the full
-    subject, 9 degrees on each shoulder (the chest is their parent) of its 8 joints."""
+    subject, 9 degrees on each of the 4 of its 14 joints that join the chest (the lumbar spine,
+    the shoulders, the neck)."""
     agg, _ = aggregator()
     for segment in FULL.segment_names:
         device(agg, "f01", segment, Body.default(FULL))
@@ -163,7 +164,7 @@ def test_truth_scoring_compares_every_segment_and_joint_of_a_full_subject():
         device(agg, "s01", segment)
     stream(agg, {"f01": FULL.segment_names, "s01": wire.SEGMENTS}, steps=21, truth=True)
     agg.advance(live=False, now=1.0)
-    for subject, frame_deg, joint_deg in (("f01", 9.0 / 15, 2 * 9.0 / 8), ("s01", 0.0, 0.0)):
+    for subject, frame_deg, joint_deg in (("f01", 9.0 / 15, 4 * 9.0 / 14), ("s01", 0.0, 0.0)):
         fields, devices = subject_stats(agg, subject)
         assert fields["frame_error_frames"] > 0 and fields["frame_aad_deg"] == pytest.approx(frame_deg, abs=1e-3)
         assert fields["joint_aad_deg"] == pytest.approx(joint_deg, abs=1e-3)
@@ -171,16 +172,14 @@ def test_truth_scoring_compares_every_segment_and_joint_of_a_full_subject():
                    for s, d in devices.items())
 
 
-def test_the_joints_of_a_layout_hang_the_shoulders_off_its_chest_and_keep_paper10s_own():
-    assert joint_table(PAPER10) is wire.JOINT_TABLE
+def test_the_joints_of_a_layout_are_its_joint_tables_the_shoulders_and_neck_off_a_chest():
+    assert joint_table(PAPER10) is wire.JOINT_TABLE and joint_table(FULL) == wire.joint_table("full")
     full = {j.name: (j.parent, j.child) for j in joint_table(FULL)}
-    assert full == {"hip_r": ("hip", "r_thigh"), "knee_r": ("r_thigh", "r_shank"), "hip_l": ("hip", "l_thigh"),
-                    "knee_l": ("l_thigh", "l_shank"), "shoulder_r": ("chest", "r_upperarm"),
-                    "elbow_r": ("r_upperarm", "r_lowerarm"), "shoulder_l": ("chest", "l_upperarm"),
-                    "elbow_l": ("l_upperarm", "l_lowerarm")}
+    assert full["shoulder_r"] == ("chest", "r_upperarm") and full["shoulder_l"] == ("chest", "l_upperarm")
+    assert full["neck"] == ("chest", "head") and full["lumbar"] == ("hip", "chest")
     lay = joints_of(FULL, rest_pose="tpose")
     before, after = lay.to_standing()
-    assert lay.segments == FULL.segment_names and before.shape == after.shape == (8, 4)
+    assert lay.segments == FULL.segment_names and before.shape == after.shape == (len(full), 4)
 
 
 def test_a_full_subject_calibrates_on_request_and_its_headings_are_corrected_by_its_joints():
@@ -203,6 +202,5 @@ def test_a_full_subject_calibrates_on_request_and_its_headings_are_corrected_by_
     assert after and all(np.abs(f.q[FULL.segment_index["chest"]] - [1, 0, 0, 0]).max() < 1e-5 for _, f in after)
     _, devices = subject_stats(agg, "f01")
     assert all(devices[s]["calibrated"] for s in legs_missing)
-    held = {s for s in legs_missing if devices[s]["heading_confidence"] > 0.5}  # held by a joint (the chest: shoulders)
-    assert held == {s for j in joint_table(FULL) for s in (j.parent, j.child)}
-    assert all(devices[s]["heading_confidence"] == 0.0 for s in ("head", "l_hand", "r_hand", "r_foot"))
+    held = {s for s in legs_missing if devices[s]["heading_confidence"] > 0.5}  # held by a joint (the chest: shoulders, ...)
+    assert held == set(legs_missing)  # (every segment present has a joint with one present: full's table)

@@ -153,6 +153,7 @@ def test_an_emulated_full_subject_streams_its_15_segments_drawn_with_the_body_it
     stack.emulator(1, 1.0, "--layout", "full")
     session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
     sub = session.declare_subscriber(wire.pose_key("s01"), zenoh.handlers.FifoChannel(1 << 14))
+    angles = session.declare_subscriber(wire.angles_key("s01"), zenoh.handlers.FifoChannel(1 << 14))
     watch = StatsWatch(stack.endpoint)
     frames: dict[int, list[bytes]] = {}
     try:
@@ -170,6 +171,8 @@ def test_an_emulated_full_subject_streams_its_15_segments_drawn_with_the_body_it
             for payload in frames[kind]:
                 f = wire.decode_pose(payload)
                 assert f.layout == FULL and np.abs(f.joints - body.positions(f.q.astype(np.float64))).max() < 1e-5
+        message = wire.decode_angles(wait_until(angles.try_recv, 20, "s01's joint angles").payload.to_bytes())
+        assert message.layout == FULL and len(message.angles) == len(wire.joint_angles("full"))
         wait_until(lambda: watch.poll() and watch.subjects.get("s01", {}).get("layout") == "full", 20,
                    "s01's layout in its stats", on_fail=stack.logs)
         devices = watch.poll()

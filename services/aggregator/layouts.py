@@ -14,13 +14,12 @@ The joints between a layout's segments, for the heading correction and the joint
 """
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from limbstream import quat, skeleton, wire
-from limbstream.body import PAPER10, Body, Layout, layout_for
+from limbstream import wire
+from limbstream.body import Body, Layout, layout_for
 from limbstream.heading import joints
 
 if TYPE_CHECKING:
@@ -31,36 +30,11 @@ if TYPE_CHECKING:
     from limbstream.services.aggregator.scoring import Scoring
     from limbstream.services.aggregator.track import DeviceTrack
 
-TRUNK_CHILDREN = ("l_upperarm", "r_upperarm", "neck")
-"""The segments paper10 hangs off its ``hip`` for want of a trunk sensor: off the ``chest`` where a
-layout has one."""
-
 
 def joint_table(layout: Layout) -> tuple[wire.Joint, ...]:
-    """The joints of ``layout``: paper10's own (``wire.JOINT_TABLE``); for another layout, those of
-    paper10's joints whose segments it has, the shoulders and the neck hanging off its ``chest``
-    where it has one."""
-    if layout == PAPER10:
-        return wire.JOINT_TABLE
-    names = set(layout.segment_names)
-    trunk = "chest" if "chest" in names else "hip"
-    table = (replace(j, parent=trunk) if j.parent == "hip" and j.child in TRUNK_CHILDREN else j
-             for j in wire.JOINT_TABLE)
-    return tuple(j for j in table if j.parent in names and j.child in names)
-
-
-class JointLayout(joints.Layout):
-    """:class:`limbstream.heading.joints.Layout` over any segment names: a segment paper10 lacks
-    (the chest, head, hands, feet) does not turn between the rest poses in any of
-    :func:`joint_table`'s joints."""
-
-    def to_standing(self) -> tuple[np.ndarray, np.ndarray]:
-        offsets = quat.conjugate(skeleton.rest_offsets("standing")) if self.rest_pose == "tpose" else \
-            np.tile([1.0, 0.0, 0.0, 0.0], (len(wire.SEGMENTS), 1))
-        identity = np.array([1.0, 0.0, 0.0, 0.0])
-        per_segment = np.array([offsets[wire.SEGMENTS.index(s)] if s in wire.SEGMENTS else identity
-                                for s in self.segments]).reshape(-1, 4)
-        return quat.conjugate(per_segment[self.parent]), per_segment[self.child]
+    """The joints of ``layout`` (``wire.joint_table``: paper10's ``wire.JOINT_TABLE``; ``full``'s
+    with its ankles, lumbar spine, wrists, and the shoulders and the neck off its ``chest``)."""
+    return wire.joint_table(layout.name if layout.name in wire.JOINT_TABLES else layout)
 
 
 def joints_of(layout: Layout, segments: tuple[str, ...] | list[str] | None = None,
@@ -70,9 +44,9 @@ def joints_of(layout: Layout, segments: tuple[str, ...] | list[str] | None = Non
     names = tuple(layout.segment_names if segments is None else segments)
     index = {name: i for i, name in enumerate(names)}
     table = [j for j in joint_table(layout) if j.parent in index and j.child in index]
-    return JointLayout(names, tuple(j.name for j in table), np.array([index[j.parent] for j in table], int),
-                       np.array([index[j.child] for j in table], int),
-                       np.array([joints.is_hinge(j) for j in table], bool), wire.check_rest_pose(rest_pose))
+    return joints.Layout(names, tuple(j.name for j in table), np.array([index[j.parent] for j in table], int),
+                         np.array([index[j.child] for j in table], int),
+                         np.array([joints.is_hinge(j) for j in table], bool), wire.check_rest_pose(rest_pose))
 
 
 def grown(layout: Layout, announced: bool, segments, segment: str) -> Layout | None:
