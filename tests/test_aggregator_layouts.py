@@ -204,3 +204,35 @@ def test_a_full_subject_calibrates_on_request_and_its_headings_are_corrected_by_
     assert all(devices[s]["calibrated"] for s in legs_missing)
     held = {s for s in legs_missing if devices[s]["heading_confidence"] > 0.5}  # held by a joint (the chest: shoulders, ...)
     assert held == set(legs_missing)  # (every segment present has a joint with one present: full's table)
+
+
+def test_frames_carry_the_root_translation_of_the_subjects_feet():
+    """Each subject's frames carry its root, tracked from its frames' feet (docs/body.md, "Root
+    translation"): a full subject walking (the generator's walk, every sample a point) moves over
+    the floor with a foot planted in every exact frame, its root at a standing pelvis' height; the
+    same body standing still stays where it stood; live frames carry a root near the exact ones'."""
+    from limbstream.sources.generator import GeneratorSource
+
+    agg, sent = aggregator()
+    n = 400  # 8 s at 50 Hz
+    for subject, activity in (("w01", "walking"), ("t01", "still")):
+        q = GeneratorSource(5, activities=[activity], layout="full").orientations(np.arange(n) / 50.0)
+        for segment in FULL.segment_names:
+            device(agg, subject, segment, Body.default(FULL))
+        for k in range(n):
+            for s, segment in enumerate(FULL.segment_names):
+                point = wire.SegmentPoint(1, k, k, T0 + k * 20_000, tuple(q[k, s]), omega=(0.0, 0.0, 0.0))
+                agg.on_point(wire.seg_key(subject, segment), wire.encode_point(point), 0.0)
+            if k % 10 == 9:
+                agg.advance(live=True, now=0.0)
+    walk = [f for _, f in frames_of(sent, "w01")]
+    still = [f for _, f in frames_of(sent, "t01")]
+    assert len(walk) > 300 and len(still) > 300
+    root = np.array([f.root for f in walk])
+    assert np.linalg.norm(root[-1, [0, 2]] - root[0, [0, 2]]) > 1.0  # it walked somewhere
+    assert np.all((0.8 < root[:, 1]) & (root[:, 1] < 1.05))  # a standing adult's pelvis height, m
+    assert all(f.contacts for f in walk)  # a foot on the floor in every frame of a walk
+    held = np.array([f.root for f in still])
+    assert np.linalg.norm(held[:, [0, 2]] - held[0, [0, 2]], axis=1).max() < 0.01
+    live = [f for _, f in frames_of(sent, "w01", wire.KIND_LIVE)]
+    assert live and np.linalg.norm(live[-1].root - root[-1]) < 0.2

@@ -149,12 +149,12 @@ def test_the_aggregator_stage_gives_each_subject_its_own_path():
         for layout, (q, joints) in frames.items():
             at = slice(start, min(start + 7, n))
             owner = np.full(len(q[at]), rows[layout])
-            root, _ = rooting.place(owner, t_us[at], q[at], joints[at], layout, body_rows, commit=True)
+            root, _ = rooting.place(owner, t_us[at], q[at], joints[at], layout, body_rows.__getitem__, commit=True)
             got[layout].append(root)
         live_at = slice(min(start + 7, n - 1), min(start + 8, n))
         before = {k: v.root.copy() for k, v in rooting.trackers.items()}
         rooting.place(np.array([0]), t_us[live_at] + 5_000, frames[FULL][0][live_at], frames[FULL][1][live_at], FULL,
-                      body_rows, commit=False)
+                      body_rows.__getitem__, commit=False)
         assert all(np.array_equal(before[k], v.root) for k, v in rooting.trackers.items())
     for layout, (q, joints) in frames.items():
         names, points = foot_points(layout, heel_drops(layout, bodies[layout]), q, joints)

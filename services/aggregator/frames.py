@@ -31,6 +31,7 @@ from limbstream.body import PAPER10, Body, Layout
 from limbstream.skeleton import Skeleton
 from limbstream.wire import SEGMENTS
 from limbstream.services.aggregator.devices import NO_TIME, DeviceTable
+from limbstream.services.aggregator.rooting import Rooting
 from limbstream.services.aggregator.store import PointStore
 from limbstream.services.aggregator.track import DeviceTrack
 
@@ -142,7 +143,8 @@ class FrameBuilder:
         self.layouts: list[Layout] = [PAPER10]  # the layouts of the subjects, by code
         self.layout_cols = [np.arange(len(SEGMENTS))]  # by code: the table's columns of its segments (S,)
         self.layout_code = np.zeros(0, np.int64)  # per subject
-        self._defaults: dict[Layout, Body] = {}  # the default body of each layout but paper10
+        self._defaults: dict[Layout, Body] = {}  # the default body of each layout
+        self.rooting = Rooting()  # each subject's root translation (docs/body.md, "Root translation")
         self.made = np.zeros(0, np.int64)     # exact frames per subject
         self.skipped = np.zeros(0, np.int64)  # frame times skipped per subject
 
@@ -279,6 +281,13 @@ class FrameBuilder:
         flags = np.where(lacking.any(axis=1), wire.FRAME_MISSING, 0) | self.rest_flag[index]
         return index, t_us, seq, flags, slots, at, has_points, (lacking | ~has_points) & mine
 
+    def _default(self, layout: Layout) -> Body:
+        """The default body of ``layout`` (drawn once)."""
+        default = self._defaults.get(layout)
+        if default is None:
+            default = self._defaults[layout] = Body.default(layout)
+        return default
+
     def positions(self, q: np.ndarray, owner: np.ndarray, layout: Layout) -> np.ndarray:
         """(F, J, 3) float32 joint positions of frames ``q`` (F, S, 4) of ``layout``'s subjects
         ``owner`` (F,): each subject's by its body (where it has none: paper10's by the skeleton,
@@ -293,10 +302,7 @@ class FrameBuilder:
                 return self.skeleton.positions(q, tpose)
             fallback = self.skeleton.positions
         else:
-            default = self._defaults.get(layout)
-            if default is None:
-                default = self._defaults[layout] = Body.default(layout)
-            fallback = default.positions
+            fallback = self._default(layout).positions
         joints = np.empty((len(owner), len(layout.joints), 3), np.float32)
         own = np.zeros(len(owner), bool)
         for body, subjects in by_body.values():
@@ -343,10 +349,17 @@ class FrameBuilder:
             joints = self.positions(mine, owner[rows], layout)
             e, k = rows < n, rows[rows >= n] - n
             r = rows[e]
+
+            def body_of(subject: int, layout: Layout = layout) -> Body:
+                return self.bodies[subject] or self._default(layout)
             if len(r):
+                root, contacts = self.rooting.place(e_owner[r], e_t[r], mine[e], joints[e], layout, body_of, True)
                 groups[0].append(FrameGroup(e_owner[r], wire.PoseFrames(e_seq[r], e_t[r], wire.KIND_EXACT, e_flags[r],
-                                                                        mine[e], joints[e], layout), e_missing[r][:, cols]))
+                                                                        mine[e], joints[e], layout, root, contacts),
+                                            e_missing[r][:, cols]))
             if len(k):
+                root, contacts = self.rooting.place(l_owner[k], l_t[k], mine[~e], joints[~e], layout, body_of, False)
                 groups[1].append(FrameGroup(l_owner[k], wire.PoseFrames(l_seq[k], l_t[k], wire.KIND_LIVE, l_flags[k],
-                                                                        mine[~e], joints[~e], layout), l_missing[k][:, cols]))
+                                                                        mine[~e], joints[~e], layout, root, contacts),
+                                            l_missing[k][:, cols]))
         return FrameBatch(e_owner, e_t, q[:n], e_missing, *groups)

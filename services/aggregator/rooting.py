@@ -8,7 +8,7 @@ streams all restarted, a calibration) starts over at the origin (:meth:`Rooting.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable
 
 import numpy as np
 
@@ -44,10 +44,10 @@ class Rooting:
                 tracker.reset(np.array([subject]))
 
     def place(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, joints: np.ndarray, layout: Layout,
-              bodies: Sequence[Body], commit: bool) -> tuple[np.ndarray, np.ndarray]:
+              body_of: Callable[[int], Body], commit: bool) -> tuple[np.ndarray, np.ndarray]:
         """The roots and contacts of frames of one layout: subject rows ``owner`` (F,) (each
         subject's frames oldest first), times ``t_us`` (F,) µs, orientations ``q`` (F, S, 4),
-        root-relative joints ``joints`` (F, J, 3) m; ``bodies[row]`` each subject's body.
+        root-relative joints ``joints`` (F, J, 3) m; ``body_of(row)`` each subject's body.
         ``commit``: the frames are final (exact) and move the trackers; else (live frames, one per
         subject) they only read them."""
         root, contacts = np.zeros((len(owner), 3)), np.zeros(len(owner), np.int64)
@@ -56,7 +56,7 @@ class Rooting:
         rows = np.unique(owner)
         drops = np.zeros((int(rows.max()) + 1, 2))
         for row in rows:
-            drops[row] = self._drops(layout, bodies[row])
+            drops[row] = self._drops(layout, body_of(row))
         names, points = foot_points(layout, drops[owner], q, joints)
         tracker = self._tracker(names, int(owner.max()) + 1)
         rank = _rank(owner)
