@@ -12,6 +12,7 @@ const COLORS = { left: "#5aa9ff", right: "#ff8a5b", mid: "#dce3ea", accent: "#3f
                  warn: "#f5c451", muted: "#8593a3", grid: "#26303b" };
 
 const KIND_KEY = "limbstream-pose-kind";  // localStorage: the figures' frame kind
+const FOLLOW_KEY = "limbstream-follow";   // localStorage: whether the figures' views follow them
 
 const $ = (id) => document.getElementById(id);
 const state = {
@@ -22,6 +23,7 @@ const state = {
   subjects: new Map(),          // subject -> its latest /api/subjects entry (frame error)
   charts: null,
   kind: localStorage.getItem(KIND_KEY) === "exact" ? "exact" : "live",   // frames the figures draw
+  follow: localStorage.getItem(FOLLOW_KEY) !== "off",   // views centred on their subject (else fixed)
 };
 
 // ------------------------------------------------------------------ helpers
@@ -454,6 +456,8 @@ async function start() {
     input.addEventListener("change", () => { if (input.checked) setKind(input.value); });
   }
   $("skeletons").dataset.kind = state.kind;
+  $("follow").checked = state.follow;
+  $("follow").addEventListener("change", (e) => setFollow(e.target.checked));
   $("devices-body").addEventListener("click", (e) => {
     const tr = e.target.closest("tr.device");
     if (tr) selectDevice(tr.dataset.device);

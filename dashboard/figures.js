@@ -6,6 +6,77 @@
 
 // ------------------------------------------------------------------ skeletons
 
+const TRAIL_S = 5;               // the root's trail on the floor, seconds of frame time
+const GRID_M = 0.5, GRID_REACH_M = 2;   // floor grid: spacing, and reach around the view's centre
+const PITCH = 0.3;               // the view looks down on the floor by this much (rad)
+
+// The root a frame is drawn at (x, y, z m, floor at 0): the frame's root where it carries one, else
+// the pelvis lifted so the lowest joint stands on the floor (frames of a body not tracked).
+function placeRoot(f) {
+  const root = f.root || [0, 0, 0];
+  if (root.some((v) => v !== 0) || (f.contacts || []).length) return root;
+  return [0, -Math.min(...Object.values(f.joints).map((p) => p[1])), 0];
+}
+
+// World point (m) -> [x px, y px, depth] on a W x H canvas: turned by yaw about the vertical through
+// the floor point view ([x, z] m), looked at from slightly above, with a gentle perspective.
+function projector(W, H, yaw, view) {
+  const scale = H / 2.3, cx = W / 2, ground = H * 0.86;
+  const c = Math.cos(yaw), s = Math.sin(yaw), cp = Math.cos(PITCH), sp = Math.sin(PITCH);
+  return (p) => {
+    const dx = p[0] - view[0], dz = p[2] - view[1];
+    const x = dx * c + dz * s;
+    const z = -dx * s + dz * c;
+    const depth = z * cp + p[1] * sp, up = p[1] * cp - z * sp;
+    const k = 1 / (1 - depth * 0.12);
+    return [cx + x * scale * k, ground - up * scale * k, depth];
+  };
+}
+
+function drawGrid(ctx, proj, view) {  // lines on the floor every GRID_M, fixed in the room
+  ctx.strokeStyle = COLORS.grid;
+  ctx.lineWidth = 1;
+  const line = (a, b) => {
+    const [p, q] = [proj(a), proj(b)];
+    ctx.beginPath();
+    ctx.moveTo(p[0], p[1]);
+    ctx.lineTo(q[0], q[1]);
+    ctx.stroke();
+  };
+  const [x0, z0] = view, r = GRID_REACH_M;
+  for (let x = Math.ceil((x0 - r) / GRID_M) * GRID_M; x <= x0 + r; x += GRID_M) line([x, 0, z0 - r], [x, 0, z0 + r]);
+  for (let z = Math.ceil((z0 - r) / GRID_M) * GRID_M; z <= z0 + r; z += GRID_M) line([x0 - r, 0, z], [x0 + r, 0, z]);
+}
+
+function drawTrail(ctx, proj, trail) {  // the root's ground positions, oldest first
+  if (trail.length < 2) return;
+  ctx.strokeStyle = COLORS.accent;
+  ctx.lineWidth = 2;
+  ctx.globalAlpha = 0.7;
+  ctx.beginPath();
+  trail.forEach(([, x, z], i) => { const p = proj([x, 0, z]); if (i) ctx.lineTo(p[0], p[1]); else ctx.moveTo(p[0], p[1]); });
+  ctx.stroke();
+  ctx.globalAlpha = 1;
+}
+
+// The planted foot points (wire.CONTACTS names) marked on the floor under their joints: a heel under
+// the ankle, a toe under the toe joint (the ankle where the layout has none). Returns the joints marked.
+function drawContacts(ctx, proj, world, contacts) {
+  const marked = [];
+  for (const name of contacts) {
+    const [side, point] = name.split("_");
+    const joint = point === "toe" && world[`${side}_toe`] ? `${side}_toe` : `${side}_ankle`;
+    if (!world[joint] || marked.includes(joint)) continue;
+    marked.push(joint);
+    const p = proj([world[joint][0], 0, world[joint][2]]);
+    ctx.fillStyle = COLORS.warn;
+    ctx.beginPath();
+    ctx.ellipse(p[0], p[1], 9, 4, 0, 0, 2 * Math.PI);
+    ctx.fill();
+  }
+  return marked;
+}
+
 class Figure {
   constructor(subject, container) {
     this.subject = subject;
@@ -13,6 +84,8 @@ class Figure {
     this.dirty = false;
     this.drawn = 0;
     this.yaw = -0.6;
+    this.trail = [];             // [t s, x m, z m] of the root, oldest first
+    this.view = null;            // [x, z] m: the floor point the view centres on
     this.received = 0;
     this.retry = 500;
     const card = document.createElement("div");
@@ -76,35 +149,32 @@ class Figure {
     this.card.remove();
   }
 
+  remember(t, root) {  // the root's ground positions of the last TRAIL_S seconds (frame time)
+    if (this.trail.length && t < this.trail[this.trail.length - 1][0]) this.trail = [];   // time went back: a new take
+    this.trail.push([t, root[0], root[2]]);
+    while (this.trail[0][0] < t - TRAIL_S) this.trail.shift();
+  }
+
   draw() {
     if (!this.dirty || !this.frame || !state.layouts) return;
     this.dirty = false;
     const f = this.frame;
     const layout = state.layouts[f.layout];
     if (!layout) { this.caption.textContent = `layout ${f.layout} unknown to this page`; return; }
+    const root = placeRoot(f);
+    this.remember(f.t, root);
+    if (state.follow || !this.view) this.view = [root[0], root[2]];
     const ctx = this.canvas.getContext("2d");
     const W = this.canvas.width, H = this.canvas.height;
     ctx.clearRect(0, 0, W, H);
-    const scale = H / 2.05, cx = W / 2, cy = H * 0.45;
-    const c = Math.cos(this.yaw), s = Math.sin(this.yaw);
-    const proj = (p) => {
-      const x = p[0] * c + p[2] * s;
-      const z = -p[0] * s + p[2] * c;
-      const k = 1 / (1 - z * 0.12);               // gentle perspective
-      return [cx + x * scale * k, cy - p[1] * scale * k, z];
-    };
-    // floor: ellipse under the lowest joint
-    const ys = Object.values(f.joints).map((p) => p[1]);
-    const floor = Math.min(...ys);
-    ctx.strokeStyle = COLORS.grid;
-    ctx.lineWidth = 1;
-    for (let r = 0.25; r <= 0.75; r += 0.25) {
-      ctx.beginPath();
-      ctx.ellipse(cx, cy - floor * scale, r * scale, r * scale * 0.22, 0, 0, 2 * Math.PI);
-      ctx.stroke();
-    }
+    const proj = projector(W, H, this.yaw, this.view);
+    drawGrid(ctx, proj, this.view);
+    drawTrail(ctx, proj, this.trail);
+    const world = {};
+    for (const [name, p] of Object.entries(f.joints)) world[name] = [p[0] + root[0], p[1] + root[1], p[2] + root[2]];
+    const planted = drawContacts(ctx, proj, world, f.contacts || []);
     const P = {};
-    for (const [name, p] of Object.entries(f.joints)) P[name] = proj(p);
+    for (const [name, p] of Object.entries(world)) P[name] = proj(p);
     const side = (n) => (n.startsWith("l_") ? COLORS.left : n.startsWith("r_") ? COLORS.right : COLORS.mid);
     const bones = layout.bones
       .filter(([a, b]) => P[a] && P[b])
@@ -137,6 +207,12 @@ class Figure {
     this.canvas.dataset.layout = f.layout;    // and its layout, bones and joints drawn
     this.canvas.dataset.bones = String(bones.length);
     this.canvas.dataset.joints = String(Object.keys(P).length);
+    this.canvas.dataset.root = (f.root || [0, 0, 0]).join(",");    // as the frame carries it (m)
+    this.canvas.dataset.contacts = (f.contacts || []).join(",");
+    this.canvas.dataset.planted = planted.join(",");              // the joints marked on the floor
+    this.canvas.dataset.trail = String(this.trail.length);
+    this.canvas.dataset.follow = String(state.follow);
+    this.canvas.dataset.view = this.view.map((v) => v.toFixed(3)).join(",");   // floor point at the centre (x,z m)
     this.card.classList.toggle("flag-missing", f.missing || f.gap);
     const flags = f.missing ? " · missing" : f.gap ? " · gap" : "";
     const subject = state.subjects.get(this.subject);   // its layout and dimensions
@@ -167,6 +243,13 @@ async function refreshSubjects() {
 function animate() {
   for (const fig of state.figures.values()) fig.draw();
   requestAnimationFrame(animate);
+}
+
+function setFollow(on) {  // the toggle: views keep their subject centred, or stay where they are
+  state.follow = on;
+  localStorage.setItem(FOLLOW_KEY, on ? "on" : "off");
+  $("skeletons").dataset.follow = String(on);
+  for (const fig of state.figures.values()) fig.dirty = true;
 }
 
 function setKind(kind) {  // the toggle: frames every figure draws, remembered for the next visit

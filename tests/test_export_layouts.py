@@ -173,6 +173,33 @@ def test_a_full_recordings_skeletons_draw_its_bones(tmp_path):
     assert line.pose.position.z == pytest.approx(rest[FULL.joint_index["l_hip"], 1] - rest[:, 1].min(), abs=1e-5)
 
 
+def test_a_recordings_skeletons_stand_at_each_frames_root(tmp_path):
+    """The recorder's skeletons of frames carrying a root: each at its frame's root, Z up (as
+    ``limbstream foxglove`` places them), walking with it."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    from mcap.reader import make_reader
+
+    q = full_motion(4)
+    root = np.stack([0.1 * np.arange(4), np.full(4, 0.95), -0.2 * np.arange(4)], axis=1)
+    frames = wire.PoseFrames(np.arange(4), T0_US + 20_000 * np.arange(4), wire.KIND_EXACT, np.zeros(4, np.int64), q,
+                             BODY.positions(q), FULL, root, np.full(4, 0b0101))
+    rec = tmp_path / "take.mcap"
+    writer = RecordingWriter(rec)
+    for k in range(4):
+        writer.add_skeleton("s01", frames[k], (T0_US + 20_000 * k) * 1000)
+    writer.close()
+    with open(rec, "rb") as f:
+        messages = list(make_reader(f).iter_messages(topics=["/s01/skeleton"]))
+    pool = descriptor_pool.DescriptorPool()
+    for file in descriptor_pb2.FileDescriptorSet.FromString(messages[0][0].data).file:
+        pool.Add(file)
+    cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(messages[0][0].name))
+    updates = [cls.FromString(m[2].data) for m in messages]
+    placed = [(u.entities[0].lines[0].pose.position.x, u.entities[0].lines[0].pose.position.y,
+               u.entities[0].lines[0].pose.position.z) for u in updates]
+    assert np.allclose(placed, root[:, [2, 0, 1]], atol=1e-6), placed
+
+
 def test_opensim_files_of_a_full_take(tmp_path):
     """.mot holds a full take's own joint angles (the full layout's, the model's names: its ankles,
     wrists and lumbar spine too); .sto's OpenSense columns are paper10's: a full take is refused

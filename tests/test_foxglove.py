@@ -226,3 +226,22 @@ def test_a_full_frame_is_drawn_with_its_layouts_segments_and_bones():
                            Skeleton().positions(np.tile([1.0, 0, 0, 0], (10, 1))))
     assert len(decoded(fox.scene_update("s08", paper)).entities[0].lines[0].indices) == 2 * len(wire.BONES)
     assert fox.leg_m(paper) == pytest.approx(Skeleton().thigh + Skeleton().shank, abs=1e-6)
+
+
+def test_a_frame_with_a_root_stands_at_it_in_the_world():
+    """A frame carrying a root: ``world -> <s>`` puts the pelvis at the root turned Z up (limbstream's
+    Z, X, Y as world X, Y, Z; the floor at 0), beside its slot; the same body without a root (zeros,
+    no contacts) keeps the lift by its legs; a root of zeros with a contact set is a root."""
+    import dataclasses
+    q = np.tile(np.float32([1, 0, 0, 0]), (10, 1))
+    still = wire.PoseFrame(4, T0_US, wire.KIND_LIVE, 0, q, Skeleton().positions(q.astype(np.float64)))
+    walked = dataclasses.replace(still, root=np.float32([0.4, 0.9, -1.2]), contacts=0b0011)
+    placed = decoded(fox.frame_transforms("s07", walked, 2)).transforms[0]
+    assert [placed.translation.x, placed.translation.y, placed.translation.z] == pytest.approx([-1.2, 0.4 - 2.0, 0.9])
+    lifted = decoded(fox.frame_transforms("s07", still, 2)).transforms[0]
+    assert [lifted.translation.x, lifted.translation.y, lifted.translation.z] == pytest.approx(
+        [0.0, -2.0, fox.leg_m(still)])
+    at_origin = decoded(fox.frame_transforms("s07", dataclasses.replace(still, contacts=0b0100), 0)).transforms[0]
+    assert [at_origin.translation.x, at_origin.translation.y, at_origin.translation.z] == [0.0, 0.0, 0.0]
+    pose = decoded(fox.placement(1, root=walked.root)).position
+    assert [pose.x, pose.y, pose.z] == pytest.approx([-1.2, 0.4 - 1.0, 0.9])

@@ -203,3 +203,33 @@ def test_missing_subject_is_an_error(stack):
     assert errors == ["limbstream vmc: error: --subject nobody: no pose frame in 0.5 s "
                       "(is it running? limbstream watch nobody --kind auto)"]
     assert not any("Traceback" in line for line in child.tail())
+
+
+def test_the_root_message_carries_the_frames_root():
+    """Frames carrying a root: ``/VMC/Ext/Root/Pos`` puts the avatar root under it in Unity's frame
+    (x mirrored), lowered by the Hips bone's rest height so the Hips stand at the root, unrotated;
+    a frame without a root (zeros, no contacts) keeps the root at the origin."""
+    import dataclasses
+
+    from limbstream.skeleton import Skeleton
+    q = np.tile(np.float32([1, 0, 0, 0]), (10, 1))
+    still = wire.PoseFrame(0, 1_700_000_000_000_000, wire.KIND_LIVE, 0, q, Skeleton().positions(q.astype(np.float64)))
+    roots = [(0.3, 0.88, -0.5), (0.35, 0.9, -0.45), (0.0, 0.0, 0.0)]
+    frames = [("s01", dataclasses.replace(still, seq=k, t_us=still.t_us + 20_000 * k, root=np.float32(r),
+                                          contacts=0b0001 if any(r) else 0)) for k, r in enumerate(roots)]
+    receiver = OscReceiver()
+    sender = vmc.VmcSender({"s01": ("127.0.0.1", receiver.port)})
+    try:
+        assert sender.send(frames) == 3
+        wait_until(lambda: receiver.count("/VMC/Ext/T") == 3, 10, "three bundles")
+        bundles = receiver.bundles("/VMC/Ext/T")
+    finally:
+        sender.close()
+        receiver.close()
+    hips = next(args for address, args in bundles[0] if address == "/VMC/Ext/Bone/Pos" and args[0] == "Hips")[2]
+    assert hips == pytest.approx(0.88, abs=1e-6)   # the default adult's Hips rest height
+    sent = [next(args for address, args in b if address == "/VMC/Ext/Root/Pos") for b in bundles]
+    for (x, y, z), args in zip(roots[:2], sent):
+        assert args[0] == "root" and args[1:4] == pytest.approx([-x, y - hips, z], abs=1e-6), args
+        assert args[4:] == [0, 0, 0, 1]
+    assert sent[2] == ["root", 0, 0, 0, 0, 0, 0, 1]

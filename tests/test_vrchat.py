@@ -223,3 +223,23 @@ def test_bad_flags_are_one_line_errors(argv, flag, capsys):
     code, err = _run(argv, capsys)
     assert code == 2
     assert err.count("\n") == 1 and err.startswith(f"limbstream vrchat: error: {flag}"), err
+
+
+def test_trackers_walk_with_the_frames_root():
+    """A frame carrying a root: each tracker at its joint plus the root (world position), mirrored
+    x -> -x; a root of zeros with a contact set is a root (the pelvis on the floor), and the same
+    frame without a root stands on its feet instead."""
+    import dataclasses
+    still = frame_of(IDENTITY)
+    stood, _ = vrchat.tracker_values(still)
+    joints = np.asarray(still.joints, np.float64)
+    root = np.array([0.7, 0.85, -1.5])
+    positions, rotations = vrchat.tracker_values(dataclasses.replace(still, root=np.float32(root), contacts=0b0011))
+    p = {name: positions[k] for name, k in NAMES.items()}
+    for name, joint in (("hip", "pelvis"), ("left knee", "l_knee"), ("right foot", "r_ankle"), ("head", "head")):
+        want = (joints[wire.JOINTS.index(joint)] + root) * [-1.0, 1.0, 1.0]
+        assert p[name] == pytest.approx(want, abs=1e-6), name
+    assert np.abs(rotations).max() == 0.0
+    on_floor, _ = vrchat.tracker_values(dataclasses.replace(still, contacts=0b0001))
+    assert on_floor[NAMES["hip"]] == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+    assert stood[NAMES["hip"], 1] == pytest.approx(0.88, abs=1e-5)

@@ -162,6 +162,12 @@ class PoseFrame:
         if self.joints is None:
             object.__setattr__(self, "joints", np.zeros((len(self.layout.joints), 3), np.float32))
 
+    @property
+    def has_root(self) -> bool:
+        """Whether the frame carries a root position (non-zero, or contacts set): else the body was
+        not tracked through the room (a frame before root tracking, a version-1 frame)."""
+        return bool(self.contacts) or bool(np.any(self.root))
+
     def to_json(self, subject: str) -> dict:
         """JSON-ready dict (the WebSocket / SSE / REST form)."""
         layout = self.layout

@@ -16,10 +16,12 @@ topic              schema                      content
 
 Frames: the subject frame ``<s>`` is limbstream's (Y up, X to the subject's left, pelvis at the
 origin); ``world -> <s>`` turns it Z up (Foxglove's and ROS's convention: limbstream's Z, X, Y
-become world X, Y, Z), lifts the pelvis to its leg's height at rest (thigh + shank, and the foot's
+become world X, Y, Z) and places the pelvis at the frame's root (the body moving through the room,
+the floor at 0, the grid's height) or, for a frame without a root (zeros, no contacts: not
+tracked, recorded before), lifts it to its leg's height at rest (thigh + shank, and the foot's
 drop where the layout has feet; the frames' own lengths: its subject's body) so the feet touch the
-grid,
-and places the n-th subject seen (from 0) :data:`SPACING_M` to the right of the one before.
+grid; the n-th subject seen (from 0) is :data:`SPACING_M` to the right of the one before (each
+subject's root starts where its tracking began).
 ``<s>/<segment>`` sits at the joint where the segment starts (``l_thigh`` at ``l_hip``, ``l_foot``
 at ``l_ankle``) and has
 the pose frame's global segment orientation, unchanged. Frames shown: live ones first
@@ -76,7 +78,7 @@ def frame_transforms(subject: str, frame: wire.PoseFrame, slot: int = 0) -> Fram
     slot : the subject's place in the row (0, 1, ...), :data:`SPACING_M` apart.
     """
     stamp = _stamp(frame.t_us)
-    translation, rotation = _placement(slot, leg_m(frame))
+    translation, rotation = _placement(slot, leg_m(frame), frame.root if frame.has_root else None)
     out = [FrameTransform(timestamp=stamp, parent_frame_id="world", child_frame_id=subject,
                           translation=translation, rotation=rotation)]
     q, joints = frame.q.tolist(), frame.joints.tolist()
@@ -105,16 +107,18 @@ def leg_m(frame: wire.PoseFrame) -> float:
     return height
 
 
-def _placement(slot: int, leg: float = _LEG_M) -> tuple[Vector3, Quaternion]:
+def _placement(slot: int, leg: float = _LEG_M, root: np.ndarray | None = None) -> tuple[Vector3, Quaternion]:
     x, y, z, w = _Y_UP_TO_Z_UP
-    return Vector3(x=0.0, y=-SPACING_M * slot, z=leg), Quaternion(x=x, y=y, z=z, w=w)
+    rx, ry, rz = (0.0, leg, 0.0) if root is None else (float(v) for v in root)
+    return Vector3(x=rz, y=rx - SPACING_M * slot, z=ry), Quaternion(x=x, y=y, z=z, w=w)
 
 
-def placement(slot: int, leg: float = _LEG_M) -> Pose:
+def placement(slot: int, leg: float = _LEG_M, root: np.ndarray | None = None) -> Pose:
     """Where the body frame of the ``slot``-th subject (from 0) sits in ``world``: turned Z up, the
-    pelvis lifted by its leg length (:func:`leg_m`; default the default adult's), :data:`SPACING_M`
-    to the right of the one before."""
-    position, orientation = _placement(slot, leg)
+    pelvis at ``root`` ((3,) m, limbstream's axes, floor at 0: a frame's root) or, without one,
+    lifted by its leg length (:func:`leg_m`; default the default adult's), :data:`SPACING_M` to the
+    right of the one before."""
+    position, orientation = _placement(slot, leg, root)
     return Pose(position=position, orientation=orientation)
 
 

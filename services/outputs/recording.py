@@ -136,7 +136,7 @@ class RecordingWriter:
             from limbstream.services.outputs import foxglove as fox
 
             self._fox = fox
-        self._skeletons: dict[str, tuple] = {}  # subject -> (channel, where its body is drawn)
+        self._skeletons: dict[str, tuple] = {}  # subject -> (channel, slot, where a frame without a root is drawn)
         self._prefixes: dict[str, bytes] = {}
         self._poses: dict[str, object] = {}  # subject -> where its skeleton is drawn
         self.counts: Counter = Counter()
@@ -155,16 +155,19 @@ class RecordingWriter:
         """``frame`` of ``subject`` as a foxglove.SceneUpdate on :func:`skeleton_topic`, built as
         ``limbstream foxglove`` builds it (``limbstream.services.outputs.foxglove.scene_update``), in frame
         ``world``, placed as that output places subjects: the n-th subject seen here (from 0) in
-        slot n."""
+        slot n, at each frame's root where it carries one."""
         if self._fox is None:
             return
         known = self._skeletons.get(subject)
         if known is None:
             from foxglove.channels import SceneUpdateChannel
 
+            slot = len(self._skeletons)
             known = self._skeletons[subject] = (SceneUpdateChannel(skeleton_topic(subject), context=self._context),
-                                                self._fox.placement(len(self._skeletons), self._fox.leg_m(frame)))
-        channel, where = known
+                                                slot, self._fox.placement(slot, self._fox.leg_m(frame)))
+        channel, slot, where = known
+        if frame.has_root:
+            where = self._fox.placement(slot, root=frame.root)
         channel.log(self._fox.scene_update(subject, frame, where), log_time=log_ns)
         self.counts["skeleton"] += 1
 

@@ -3,7 +3,10 @@ Warudo, VNyan, VirtualMotionCapture ...).
 
 One OSC bundle per pose frame sent, to each subject's own ``host:port``:
 
-- ``/VMC/Ext/Root/Pos "root" px py pz qx qy qz qw``: the avatar root, at the origin, unrotated;
+- ``/VMC/Ext/Root/Pos "root" px py pz qx qy qz qw``: the avatar root, unrotated, on the floor under
+  the frame's root (Unity frame; its height the root's less the Hips bone's rest height, so the
+  Hips stand at the root): the body walking through the room; at the origin for a frame without a
+  root (zeros, no contacts);
 - ``/VMC/Ext/Bone/Pos name px py pz qx qy qz qw`` for each bone of the frame's layout's rig
   (:func:`rig`; ``paper10``: :data:`VMC_BONES`; ``full`` drives Chest, Head, the hands and the feet
   too): the bone's local position (m) and rotation relative to its parent bone, Unity frame;
@@ -284,6 +287,7 @@ class VmcEncoder:
         bone_ends = np.array(ends[1:1 + len(self.rig.bones)]) // 4
         self._rot = bone_ends[:, None] - 4 + np.arange(4)  # qx qy qz qw: the last 4 words
         self._pos = bone_ends[:, None] - 7 + np.arange(3)  # x y z: the 3 words before them
+        self._root = ends[0] // 4 - 7 + np.arange(3)  # the root message's px py pz
         self._lengths = self._lengths_of(layout, (_S if default is None else default).positions(
             np.tile(_IDENTITY, (len(layout.segments), 1))))  # the template's
         self._sized_us = -SIZE_EVERY_US  # frame time the bones were last sized at (:meth:`_size`)
@@ -305,6 +309,14 @@ class VmcEncoder:
         self._lengths = lengths
         body = Skeleton.of_joints(joints) if layout == PAPER10 else Body(layout, lengths_of(layout, joints))
         self._floats[self._pos] = rest_positions(body)
+
+    def _root_position(self, frame: wire.PoseFrame) -> np.ndarray:
+        """(3,) m, Unity frame: where the avatar root goes for ``frame``'s root (x mirrored; the
+        Hips bone's rest height below it, so the Hips land at the root); zeros without a root."""
+        if not frame.has_root:
+            return np.zeros(3)
+        x, y, z = frame.root.astype(np.float64)
+        return np.array([-x, y - self._floats[self._pos[0, 1]], z])
 
     @staticmethod
     def _message(address: str, name: str | None, floats: list[float]):
@@ -328,6 +340,7 @@ class VmcEncoder:
             self._size(frame.joints)
             self._sized_us = frame.t_us
         self._floats[self._rot] = local[:, [1, 2, 3, 0]]
+        self._floats[self._root] = self._root_position(frame)
         self._ints[self._tracking] = 0 if frame.flags & wire.FRAME_MISSING else 1
         if self.t0_us is None:
             self.t0_us = frame.t_us

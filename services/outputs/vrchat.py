@@ -12,9 +12,10 @@ limbstream's frame (right-handed, Y up, X to the subject's left, facing +Z) beco
 the mirror x -> -x, as in :mod:`limbstream.services.outputs.vmc`: a position (x, y, z) becomes
 (-x, y, z), a quaternion (w, x, y, z) becomes (w, x, -y, -z) (:func:`quat.mirror_x`).
 
-Pose frames put the pelvis at the origin (no body translation yet): each frame's joints are
-lifted so that the lowest foot point (the lower ankle; with feet, the lower of the ankles and
-toes) is on the floor (y = 0), the pelvis at standing height.
+Positions are world positions: the frame's joints (pelvis at the origin) plus its root (the body
+walking through the room, the floor at y = 0). A frame without a root (zeros, no contacts: not
+tracked, recorded before) has its joints lifted instead so that the lowest foot point (the lower
+ankle; with feet, the lower of the ankles and toes) is on the floor, the pelvis at standing height.
 """
 from __future__ import annotations
 
@@ -114,22 +115,24 @@ def tracker_values(frame: wire.PoseFrame) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    frame : a pose frame (q (S, 4) scalar-first, joints (J, 3) m, pelvis at the origin) of
-        ``paper10`` or ``full``.
+    frame : a pose frame (q (S, 4) scalar-first, joints (J, 3) m, pelvis at the origin, root (3,)
+        m) of ``paper10`` or ``full``.
 
     Returns
     -------
     positions (T, 3) metres and rotations (T, 3) Unity Euler angles in degrees (x, y, z), Unity's
-    frame, in the order of the layout's :func:`trackers`, the joints lifted so the lowest foot
-    point is at y = 0. ValueError on a zero-norm or non-finite quaternion, non-finite joints or a
+    frame, in the order of the layout's :func:`trackers`: world positions (joints + root) or, for a
+    frame without a root, the joints lifted so the lowest foot point is at y = 0. ValueError on a zero-norm or non-finite quaternion, non-finite joints or a
     layout without trackers.
     """
     rows, mix, feet = _table(frame.layout or PAPER10)
     joints = np.asarray(frame.joints, np.float64)
     if not np.all(np.isfinite(joints)):
         raise ValueError("joints are not finite")
-    lifted = joints - np.array([0.0, joints[feet, 1].min(), 0.0])
-    positions = mix @ lifted * _MIRROR_P + 0.0  # + 0.0: no -0.0
+    root = np.asarray(frame.root, np.float64) if frame.has_root else np.array([0.0, -joints[feet, 1].min(), 0.0])
+    if not np.all(np.isfinite(root)):
+        raise ValueError("root is not finite")
+    positions = mix @ (joints + root) * _MIRROR_P + 0.0  # + 0.0: no -0.0
     rotations = quat.unity_euler_deg(quat.mirror_x(quat.normalize(frame.q)[rows])) + 0.0
     return positions, rotations
 
