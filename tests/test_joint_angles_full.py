@@ -336,11 +336,11 @@ def test_a_full_layout_joint_angle_message_carries_its_layout():
 
 def test_the_aggregators_joint_stage_publishes_each_subjects_layout():
     """The joint stage told each subject's layout (``layout_of``): a ``paper10`` subject's message
-    and a ``full`` subject's from one tick's frames, each the joint angles of its own frame in its
-    own layout (a frame of layout L holds L's segments first)."""
+    and a ``full`` subject's from one tick's frames (a group per layout), each the joint angles of
+    its own frame in its own layout."""
     from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
     from limbstream.services.aggregator.angles import JointStage
-    from limbstream.services.aggregator.frames import FrameBatch
+    from limbstream.services.aggregator.frames import FrameBatch, FrameGroup
 
     agg = Aggregator(None, AggregatorSettings())
     for subject in ("s01", "s02"):
@@ -353,12 +353,13 @@ def test_the_aggregators_joint_stage_publishes_each_subjects_layout():
     stage = JointStage(agg.fusion, clock=lambda: 0.0, layout_of=lambda i: FULL if i == full_index else None)
     motion = full_motion(n=3)
     paper10_q = motion.q[:, [SEG["head" if s == "neck" else s] for s in wire.SEGMENTS]]
-    q = np.concatenate([np.concatenate([paper10_q, rest(3)[:, :5]], axis=1), motion.q])  # (6, 15, 4)
-    owner = np.array([1 - full_index] * 3 + [full_index] * 3)
-    frames = wire.PoseFrames(np.arange(6), np.arange(6) * 20_000, wire.KIND_LIVE, np.zeros(6, np.uint8), q,
-                             np.zeros((6, 20, 3)), FULL)
-    missing = np.zeros((6, 15), bool)
-    batch = FrameBatch(np.zeros(0, int), frames, owner, frames, missing, missing)
+    paper = wire.PoseFrames(np.arange(3), np.arange(3) * 20_000, wire.KIND_LIVE, np.zeros(3, np.uint8), paper10_q,
+                            np.zeros((3, 15, 3)), PAPER10)
+    full = wire.PoseFrames(np.arange(3, 6), np.arange(3, 6) * 20_000, wire.KIND_LIVE, np.zeros(3, np.uint8), motion.q,
+                           np.zeros((3, 20, 3)), FULL)
+    live = [FrameGroup(np.full(3, 1 - full_index), paper, np.zeros((3, 10), bool)),
+            FrameGroup(np.full(3, full_index), full, np.zeros((3, 15), bool))]
+    batch = FrameBatch(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 10, 4)), np.zeros((0, 10), bool), [], live)
     out = list(stage(batch))
     assert len(out) == 6
     for (key, kind, payload), row in zip(sorted(out, key=lambda m: wire.decode_angles(m[2]).seq), range(6)):

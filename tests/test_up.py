@@ -529,7 +529,9 @@ def test_up_draws_the_lower_body_recording_as_a_person(stack, tmp_path, xio_dir)
                for line in up.output()), up.output()
     first = [f for f in frames if f.t_us - frames[0].t_us <= 30_000_000]
     joints = np.array([f.joints for f in first])
-    y = {name: joints[:, wire.JOINTS.index(name), 1] for name in wire.JOINTS}
+    at = first[0].layout.joint_index  # the recording's feet make it a full-layout subject
+    assert first[0].layout.name == "full" and all(f.layout == first[0].layout for f in first)
+    y = {name: joints[:, j, 1] for name, j in at.items()}
     upright = np.ones(len(first), bool)
     for side in "lr":
         upright &= (y[f"{side}_knee"] < y[f"{side}_hip"]) & (y[f"{side}_ankle"] < y[f"{side}_knee"])

@@ -195,7 +195,9 @@ def test_vrchat_process_on_the_live_stack(stack):
         hip_y = position(f, "hip")[1]
         feet_y = [position(f, "left foot")[1], position(f, "right foot")[1]]
         assert 0.8 <= hip_y <= 1.2
-        assert min(feet_y) == pytest.approx(0.0, abs=1e-6) and max(feet_y) < 0.5
+        # the aggregator's root translation stands the lowest heel on the floor: a foot tracker, at its
+        # ankle, is up to the ankle's height above it (paper10's default body: 0.068 m)
+        assert -1e-6 <= min(feet_y) <= 0.1 and max(feet_y) < 0.5
         for side in ("left", "right"):
             assert min(feet_y) < position(f, f"{side} knee")[1] < hip_y
         # handedness: in the pelvis's own frame (its Unity Euler angles undone), the left knee is
