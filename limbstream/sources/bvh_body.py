@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from limbstream.body import PAPER10, PAPER10_BONES, Body
+from limbstream.sources.bvh_names import tip
 from limbstream.sources.bvh_rest import bone_vector, zero_pose_positions
 
 if TYPE_CHECKING:
@@ -40,15 +41,10 @@ DEFAULT_LEG_M = float(PAPER10_BONES["l_thigh"]) + float(PAPER10_BONES["l_shank"]
 
 
 def _tip(clip: BvhClip, joint: int, at: np.ndarray) -> np.ndarray:
-    """(3,) the end of ``joint``'s chain in the zero pose: down its first children to the last,
-    then that joint's End Site if it has one."""
-    children: dict[int, list[int]] = {}
-    for j, parent in enumerate(clip.parents):
-        children.setdefault(int(parent), []).append(j)
-    while children.get(joint):
-        joint = children[joint][0]
-    end = clip.end_offsets[joint]
-    return at[joint] + (end if np.all(np.isfinite(end)) else 0.0)
+    """(3,) the end of ``joint``'s chain in the zero pose (:func:`.bvh_names.tip`: down its first
+    children to the last, then that joint's End Site if it has one)."""
+    last, site = tip(clip, joint)
+    return at[last] + (clip.end_offsets[last] if site else 0.0)
 
 
 def bone_vectors(clip: BvhClip, segment_map: Mapping[str, str]) -> dict[str, np.ndarray] | None:
