@@ -28,7 +28,8 @@ class Command:
                                      env=None if env is None else dict(env), start_new_session=True)
         self.lines: queue.Queue[str] = queue.Queue()
         self.seen: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
 
     def _read(self) -> None:
         for line in self.proc.stdout:
@@ -75,7 +76,10 @@ class Command:
         self.proc.wait()
 
     def rest(self) -> list[str]:
-        """Every line read so far."""
+        """Every line read so far; once the process has exited, every line it wrote (its output is
+        read to the end first: the last lines may still be on their way when it exits)."""
+        if self.proc.poll() is not None:
+            self.reader.join(10.0)
         while not self.lines.empty():
             self.seen.append(self.lines.get())
         return self.seen
