@@ -7,9 +7,9 @@ held (stairs and slopes are not modelled: a walk up a ramp stays on the first fl
 
 - **Planted**: the lowest foot point stands on the floor, and one planted point, the **anchor**, is
   fixed in the world: the root moves so that the anchor stays where it was put down (horizontally)
-  and the lowest foot point touches the floor (vertically). A point lower than the anchor by
-  :data:`SWITCH_M` becomes the anchor, put down where it is, so the root never jumps (heel to toe to
-  the other heel through a step).
+  and the lowest foot point touches the floor (vertically). A low point (within :data:`LOW_M` of the
+  lowest) whose motion fits the root's better by :data:`KEEP_MPS` becomes the anchor, put down where
+  it was a frame ago, so the root never jumps (heel to toe to the other heel through a step).
 - **Flight**: the root leaves the floor when its ballistic path from its last velocity would hold
   it higher than the legs can by more than :data:`TAKE_OFF_M` (a run's push-off, a jump). It then
   flies under gravity until its lowest foot point reaches the floor, and lands there.
@@ -29,8 +29,6 @@ from limbstream.wire.pose import CONTACTS
 
 GRAVITY = 9.81
 """m/s², along -Y."""
-SWITCH_M = 0.01
-"""A foot point this much lower than the anchor becomes the anchor, m."""
 TAKE_OFF_M = 0.02
 """The ballistic root higher than the planted one by this much: the body is in flight, m."""
 CONTACT_M = 0.02
@@ -145,9 +143,7 @@ class RootTracker:
         keep = np.clip(anchor, 0, None)
         # planted: the anchor holds the root horizontally, the lowest point vertically; where another
         # low point fits the root's motion better (a point holds the root still where it was going
-        # if its own velocity relative to the root, reversed, is the root's), it becomes the anchor,
-        # put down where it is now: the root does not jump
-        gain = np.where((dt > 0) & ~first, 1.0 - np.exp(-dt / VELOCITY_S), 0.0)
+        # if its own velocity relative to the root, reversed, is the root's), it becomes the anchor
         rel_v = (p - self.points[rows]) / np.maximum(dt, 1e-6)[:, None, None]
         miss = np.hypot(velocity[:, None, 0] + rel_v[:, :, 0], velocity[:, None, 2] + rel_v[:, :, 2])
         cost = np.where(p[:, :, 1] - low_y[:, None] < LOW_M, miss, np.inf)
@@ -170,6 +166,7 @@ class RootTracker:
             start[:, 1] = 0.0
             anchor_xyz[first] = start
         moved = (new_root - root) / np.maximum(dt, 1e-6)[:, None]
+        gain = np.where((dt > 0) & ~first, 1.0 - np.exp(-dt / VELOCITY_S), 0.0)
         new_velocity = np.where(still_flying[:, None], fly_v,
                                 np.where(first[:, None], 0.0, velocity + gain[:, None] * (moved - velocity)))
         height = new_root[:, 1:2] + p[:, :, 1]
