@@ -5,7 +5,7 @@ Each revision is checked out in a temporary worktree and installed (its C kernel
 virtual environment of its own that borrows this environment's dependencies; then, per
 revision, in turn: the soak (``bench/soak.py``, shortened), the aggregator core bench
 (``bench/pipeline.py core``; again with ``--no-joint-angles`` where the revision has joint angles,
-and what the angles add to its CPU) and the emulator bench (``bench/pipeline.py emulator``). Run it
+and what the angles add to its CPU, and with ``--layout full`` where it has the whole-body layout) and the emulator bench (``bench/pipeline.py emulator``). Run it
 before resolving any change that touches the device, router or aggregator path
 (docs/benchmarks.md, "Regression check").
 
@@ -102,6 +102,11 @@ def numbers(python: Path, cwd: Path, args) -> dict[str, float]:
         without = bare.get("CPU per second of stream", float("nan"))
         fig["core bench, 200 subjects: CPU per second of stream without joint angles"] = without
         fig["core bench, 200 subjects: CPU joint angles add, % of that"] = 100 * (with_angles / without - 1)
+    if "--layout" in (cwd / "bench/pipeline.py").read_text():  # revisions with the whole-body layout
+        full = table_row(run(python, cwd, "bench/pipeline.py", "core", "--subjects", "200", "--seconds",
+                             f"{args.seconds:g}", *rate, "--layout", "full"), "subjects", "200")
+        fig["core bench, 200 subjects, full layout (15 devices each): CPU per second of stream"] = \
+            full.get("CPU per second of stream", float("nan"))
     emu = table_row(run(python, cwd, "bench/pipeline.py", "emulator", "--devices", "2000", "--seconds",
                         f"{args.seconds:g}"), "devices", "2000")
     for name in ("late ticks", "emulator CPU", "its tick loop's thread", "router CPU"):
