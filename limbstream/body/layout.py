@@ -14,6 +14,7 @@ import math
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 from limbstream import wire
@@ -124,29 +125,33 @@ class Layout:
             raise ValueError(f"layout {self.name}: {len(self.joints)} joints, at most {MAX_JOINTS}")
 
     def __hash__(self) -> int:  # equal layouts share these (their segments hold dicts)
+        return self._hash
+
+    @cached_property
+    def _hash(self) -> int:  # (a frame builder looks layouts up per subject and frame: computed once)
         return hash((self.name, self.segment_names, self.joints))
 
-    @property
+    @cached_property
     def root(self) -> Segment:
         """The segment without a parent (its proximal joint is the origin)."""
         return next(s for s in self.segments if s.parent is None)
 
-    @property
+    @cached_property
     def segment_names(self) -> tuple[str, ...]:
         """(S,) segment names in device order."""
         return tuple(s.name for s in self.segments)
 
-    @property
+    @cached_property
     def segment_index(self) -> dict[str, int]:
         """Segment name -> its index in orientations (..., S, 4)."""
         return {s.name: i for i, s in enumerate(self.segments)}
 
-    @property
+    @cached_property
     def joint_index(self) -> dict[str, int]:
         """Joint name -> its index in positions (..., J, 3)."""
         return {j: i for i, j in enumerate(self.joints)}
 
-    @property
+    @cached_property
     def bone_names(self) -> tuple[str, ...]:
         """(B,) bone names, chain order (each segment's, then the offsets it branches off)."""
         return tuple(b.name for b in self.bones)
