@@ -84,9 +84,9 @@ def test_a_full_subjects_frames_by_its_layouts_names(client, pub):
 
 
 def test_a_layout_files_frames_are_counted_and_the_subject_says_why(client, pub):
-    """Frames of a layout file's layout (layout byte 255): the dashboard knows only the built-in
-    layouts (a device's status names a built-in one), so they are counted as undecodable
-    (``pose_layout``) and the subject's view says why; its first readable frame clears that."""
+    """Frames of a layout file's layout (layout byte 255) of a subject whose devices say no layout
+    (none answers here): counted as undecodable (``pose_layout``) and the subject's view says why;
+    its first readable frame clears that."""
     from support import ROOT
     suit = load_layout(ROOT / "examples" / "layouts" / "suit17.toml")
     q = np.tile([1.0, 0.0, 0.0, 0.0], (len(suit.segments), 1)).astype(np.float32)
