@@ -1,7 +1,7 @@
 """A subject of a layout file's layout end to end over a real Zenoh router (e2e, docs/protocol.md
 "Layout files on the wire"): its devices announce the layout whole in their status, the
 aggregator publishes its frames and joint angles with layout byte 255, and the dashboard,
-``limbstream watch``, a recording and its BVH export read them with the layout the devices announce; a status whose
+``limbstream watch``, a recording, its BVH export and its replay read them with the layout the devices announce; a status whose
 layout table is malformed is counted on its device while everything streams on."""
 from __future__ import annotations
 
@@ -55,6 +55,15 @@ def test_a_layout_files_subject_is_served_by_the_dashboard_and_its_recording_exp
     q = np.array([pose["segments"][s] for s in legs.segment_names])
     drawn = body.positions(q / np.linalg.norm(q, axis=1, keepdims=True))
     assert np.abs(np.array([pose["joints"][j] for j in legs.joints]) - drawn).max() < 1e-3  # (rounded to 0.1 mm)
+    def refused() -> float:  # pose frames the dashboard could not read: only those before the devices' answer
+        lines = [line for line in http_json(url + "/metrics")[1].splitlines()
+                 if line.startswith('limbstream_dashboard_errors_total{reason="pose_layout"}')]
+        return float(lines[0].split()[-1]) if lines else 0.0
+    before = refused()
+    seq = pose["seq"]
+    wait_until(lambda: http_json(url + "/api/subjects/s01/pose?kind=exact")[1]["seq"] >= seq + 50, 20,
+               "50 more exact frames", on_fail=stack.logs)
+    assert refused() == before < 50, before
     status, view = http_json(url + "/api/subjects/s01")
     assert status == 200 and view["layout"] == "legs7" and view["pose_refused"] is None
     assert view["segments"] == list(legs.segment_names) and view["joints"] == list(legs.joints)
@@ -93,6 +102,11 @@ def test_a_layout_files_subject_is_served_by_the_dashboard_and_its_recording_exp
     assert frames >= 100 and all(p.shape == (frames, 3) for p in positions.values())
     knee, ankle = (positions[j.name] for j in bvh_joints(legs) if j.segment in ("l_shank", "l_foot"))
     assert np.abs(np.linalg.norm(ankle - knee, axis=1) - body.lengths["l_shank"]).max() < 1e-3  # its bones, read back
+
+    # replayed, its devices announce the recorded layout again: the aggregator's frames are legs7's
+    stack.start("replay", "replay", str(rec), "--connect", stack.endpoint, "--subject-prefix", "r-", "--hold", "30")
+    wait_until(lambda: (r := http_json(url + "/api/subjects/r-s01/pose"))[0] == 200 and r[1]["layout"] == "legs7",
+               40, "the replayed subject's legs7 frames on the dashboard", on_fail=stack.logs)
 
 
 class RawBodies(FakeDevices):
