@@ -1,6 +1,7 @@
 /* limbstream dashboard page, skeletons: a figure per subject drawn from its WebSocket pose stream
  * (/ws/pose/<subject>?kind=live|exact, the page's toggle) with the bones of the layout each frame
- * names (state.layouts: GET /api/layouts). Loaded after app.js, whose helpers ($, api, esc, fmt,
+ * names (state.layouts: GET /api/layouts; a layout file's: the subject's, GET /api/subjects/<subject>).
+ * Loaded after app.js, whose helpers ($, api, esc, fmt,
  * COLORS, state) it uses. */
 "use strict";
 
@@ -155,11 +156,27 @@ class Figure {
     while (this.trail[0][0] < t - TRAIL_S) this.trail.shift();
   }
 
+  // A layout file's layout (not among GET /api/layouts' built-ins): the subject's own, as its
+  // devices announce it (GET /api/subjects/<subject>: its segments, joints and bones), kept by the
+  // figure (another subject's file may use the same name); asked at most once a second.
+  subjectLayout(name) {
+    if (this.own && this.own.layout === name) return this.own;
+    const now = performance.now();
+    if (this.asking || now - (this.asked || -Infinity) < 1000) return null;
+    this.asking = true;
+    this.asked = now;
+    api(`/api/subjects/${encodeURIComponent(this.subject)}`)
+      .then((s) => { if (s.layout === name && s.bones) this.own = s; })
+      .catch(() => { /* asked again on a later frame */ })
+      .finally(() => { this.asking = false; this.dirty = true; });
+    return null;
+  }
+
   draw() {
     if (!this.dirty || !this.frame || !state.layouts) return;
     this.dirty = false;
     const f = this.frame;
-    const layout = state.layouts[f.layout];
+    const layout = state.layouts[f.layout] || this.subjectLayout(f.layout);
     if (!layout) { this.caption.textContent = `layout ${f.layout} unknown to this page`; return; }
     const root = placeRoot(f);
     this.remember(f.t, root);

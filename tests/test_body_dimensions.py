@@ -12,7 +12,7 @@ import pytest
 from support import ROOT
 
 from limbstream import wire
-from limbstream.body import PAPER10, Body
+from limbstream.body import FULL, PAPER10, Body, load_layout
 
 STATUS = wire.DeviceStatus("s01/hip", wire.DeviceConfig(), 3, 100, 12)
 
@@ -63,6 +63,51 @@ def test_a_malformed_body_is_refused_with_the_bound_and_the_rest_of_the_status_r
     status = decoded(body)
     assert status.body is None and said in status.body_error and "\n" not in status.body_error
     assert status.config == STATUS.config and status.points == 12 and status.rest_pose == "standing"
+
+
+SUIT = load_layout(ROOT / "examples" / "layouts" / "suit17.toml")
+
+
+def suit_body(**change) -> dict:
+    """suit17's default body as a status carries it, its layout table changed by ``change``
+    (segment name -> {key: value}; a key's value None: the key left out)."""
+    data = json.loads(json.dumps(wire.encode_body(Body.default(SUIT))))
+    for name, keys in change.items():
+        row = next(r for r in data["layout"]["segments"] if r["name"] == name)
+        for key, value in keys.items():
+            row.pop(key) if value is None else row.__setitem__(key, value)
+    return data
+
+
+@pytest.mark.parametrize("layout", [SUIT, load_layout(ROOT / "examples" / "layouts" / "back16.json")],
+                         ids=["suit17", "back16"])
+def test_a_layout_files_body_carries_its_layout_whole_and_reads_back_equal(layout):
+    body = Body.from_height(layout, 1.62)
+    said = wire.encode_body(body)
+    assert said["layout"] == layout.to_dict()  # the table a layout file holds
+    status = wire.decode_status(wire.encode_status(STATUS.__class__(**{**STATUS.__dict__, "body": body})))
+    assert status.body_error is None and status.body.layout == layout and status.body.height_m == 1.62
+    assert wire.body_layout(layout.to_dict()) == layout and same_bones(status.body, body)
+    assert len(wire.encode_status(status)) < 4096  # (suit17's whole status: about 3.6 kB)
+    assert wire.encode_body(Body.default(FULL))["layout"] == "full"  # a built-in's travels as its name only
+
+
+@pytest.mark.parametrize("body, said", [
+    (suit_body(hip={"parent": "l_shank"}), "cycle of parents hip -> l_shank -> l_thigh -> hip"),
+    (suit_body(l_hand={"parent": "l_wrist"}), "segment 'l_hand' has a missing parent 'l_wrist'"),
+    (suit_body(r_hand={"name": "l_hand"}), "duplicate segment 'l_hand'"),
+    (suit_body(l_foot={"direction": [0, 0, 0]}), "direction must be finite and non-zero"),
+    (suit_body(l_foot={"wings": 2}), "unknown key 'wings'"),
+    (suit_body(l_foot={"joint": None}), "'joint' must be a name"),
+    (suit_body() | {"layout": {**suit_body()["layout"], "name": "full"}}, "a table named 'full', a built-in layout's"),
+    (suit_body() | {"layout": {**suit_body()["layout"], "pad": "x" * wire.MAX_LAYOUT_BYTES}},
+     f"at most {wire.MAX_LAYOUT_BYTES}"),
+    (suit_body() | {"layout": [1, 2]}, "body layout must be a built-in's name or a layout table"),
+    (suit_body() | {"bones": BONES}, "layout suit17 has no bone"),
+], ids=["cycle", "missing_parent", "duplicate", "zero_direction", "unknown_key", "no_joint", "builtin_name", "too_big",
+        "not_a_table", "other_bones"])
+def test_a_malformed_layout_table_is_refused_naming_it_and_the_rest_of_the_status_reads(body, said):
+    test_a_malformed_body_is_refused_with_the_bound_and_the_rest_of_the_status_reads(body, said)
 
 
 def limbstream(*argv: str) -> subprocess.CompletedProcess:
@@ -168,3 +213,19 @@ def test_vmc_sends_the_bone_offsets_of_each_subjects_body():
 def test_a_gateways_bad_dimensions_are_refused_in_one_line(argv, said):
     out = limbstream("gateway", *argv)
     assert out.returncode == 2 and out.stderr.count("\n") == 1 and said in out.stderr, out.stderr
+
+
+def test_a_slimevr_gateway_of_a_layout_file_announces_its_body_whole():
+    """``gateway slimevr --layout FILE``: its trackers announce the file's default body (its
+    layout whole on the wire), or the one ``--height-m`` gives."""
+    import argparse
+
+    from limbstream.cli import gateway_slimevr
+    parser = argparse.ArgumentParser()
+    gateway_slimevr.add_arguments(parser)
+    suit = str(ROOT / "examples" / "layouts" / "suit17.toml")
+    body = gateway_slimevr._body(parser.parse_args(["--layout", suit]))
+    assert body.layout == SUIT and wire.decode_body(wire.encode_body(body)).layout == SUIT
+    body = gateway_slimevr._body(parser.parse_args(["--layout", suit, "--height-m", "1.6"]))
+    assert body.layout == SUIT and body.height_m == 1.6
+    assert gateway_slimevr._body(parser.parse_args([])) is None

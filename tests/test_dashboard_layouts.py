@@ -1,12 +1,13 @@
 """The dashboard with subjects of different body layouts: a ``full`` subject's frames (published
 here as an aggregator publishes them) on REST, WebSocket and SSE by the layout's names, its
 subject view with the layout's segments, joints and bones, a layout file's frames refused with
-the reason, and the page drawing every bone of each subject's layout in headless Chromium (writes
+the reason where its devices say no layout, and the page drawing every bone of each subject's layout in headless Chromium (writes
 tests/artifacts/layouts.png for inspection)."""
 from __future__ import annotations
 
 import json
 import threading
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from support.dashboard import pose_frame, publish_until
 from support.stack import http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 from limbstream import quat, wire
-from limbstream.body import FULL, PAPER10, Body, load_layout
+from limbstream.body import FULL, PAPER10, Body, Layout, layout_from_dict, load_layout
 
 T0_US = 1_700_000_000_000_000
 
@@ -30,6 +31,11 @@ def full_frames(n: int, kind: int = wire.KIND_EXACT, first: int = 0) -> wire.Pos
     root = np.stack([np.zeros(n), np.full(n, 0.93), 0.02 * seq], axis=1)
     return wire.PoseFrames(seq, T0_US + seq * 20_000, kind, np.zeros(n, np.int64), q, body.positions(q), FULL,
                            root, np.full(n, 1))
+
+
+def layout_of(layout, name: str, segments) -> Layout:
+    """A layout file's layout: ``layout``'s ``segments`` (a part of it, by their rows), named ``name``."""
+    return layout_from_dict({"name": name, "segments": [r for r in layout.to_dict()["segments"] if r["name"] in segments]})
 
 
 def test_a_full_subjects_frames_by_its_layouts_names(client, pub):
@@ -84,9 +90,9 @@ def test_a_full_subjects_frames_by_its_layouts_names(client, pub):
 
 
 def test_a_layout_files_frames_are_counted_and_the_subject_says_why(client, pub):
-    """Frames of a layout file's layout (layout byte 255): the dashboard knows only the built-in
-    layouts (a device's status names a built-in one), so they are counted as undecodable
-    (``pose_layout``) and the subject's view says why; its first readable frame clears that."""
+    """Frames of a layout file's layout (layout byte 255) of a subject whose devices say no layout
+    (none answers here): counted as undecodable (``pose_layout``) and the subject's view says why;
+    its first readable frame clears that."""
     from support import ROOT
     suit = load_layout(ROOT / "examples" / "layouts" / "suit17.toml")
     q = np.tile([1.0, 0.0, 0.0, 0.0], (len(suit.segments), 1)).astype(np.float32)
@@ -148,9 +154,11 @@ INK_BELOW = """([subject, color, fromY]) => {
 
 @pytest.mark.browser
 def test_the_page_draws_each_subjects_layout(stack):  # noqa: F811
-    """A full subject and a paper10 subject on one page: each figure draws its own layout's bones
-    (19 lines for full's 15 segments, the hands and feet included; 14 for paper10) and every joint,
-    and its caption names the layout; the full figure has ink of a foot below the ankles."""
+    """A full subject, a paper10 subject and a subject of a layout file's layout on one page: each
+    figure draws its own layout's bones (19 lines for full's 15 segments, the hands and feet
+    included; 14 for paper10; the file's, which the page takes from the subject's view, as its
+    device announces it) and every joint, and its caption names the layout; the full figure has
+    ink of a foot below the ankles."""
     from test_dashboard_browser import ARTIFACTS, CHROMIUM_ARGS, playwright_api, require_chromium
 
     from limbstream import zconfig
@@ -159,12 +167,19 @@ def test_the_page_draws_each_subjects_layout(stack):  # noqa: F811
     url = stack.dashboard()
     session = zconfig.open_session(zconfig.ZenohSettings(connect=(stack.endpoint,)))
     stop = threading.Event()
+    legs = layout_of(FULL, "legs7", ("hip", "l_thigh", "l_shank", "l_foot", "r_thigh", "r_shank", "r_foot"))
+    status = wire.DeviceStatus("legsP/hip", wire.DeviceConfig(), 1, 0, 0, body=Body.default(legs))
+    key = wire.config_key("legsP", "hip")
+    device = session.declare_queryable(key, lambda query: query.reply(key, wire.encode_status(status)))
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(legs.segments), 1)).astype(np.float32)
+    legs_frame = wire.PoseFrame(0, T0_US, wire.KIND_LIVE, 0, identity, Body.default(legs).positions(identity), legs)
 
     def publish():
         seq = 0
         while not stop.is_set():
             session.put(wire.pose_key("fullP"), full_frames(1, wire.KIND_LIVE, seq).encode()[0])
             session.put(wire.pose_key("paperP"), wire.encode_pose(pose_frame(seq, wire.KIND_LIVE)))
+            session.put(wire.pose_key("legsP"), wire.encode_pose(replace(legs_frame, seq=seq, t_us=T0_US + 20_000 * seq)))
             seq += 1
             stop.wait(0.04)
 
@@ -185,6 +200,9 @@ def test_the_page_draws_each_subjects_layout(stack):  # noqa: F811
                 assert (full["layout"], full["bones"], full["joints"]) == ("full", len(FULL.bones), 20), full
                 assert (paper["layout"], paper["bones"], paper["joints"]) == ("paper10", len(wire.BONES), 15), paper
                 assert " · full" in full["caption"] and " · paper10" in paper["caption"], (full, paper)
+                mine = page.wait_for_function(DRAWN, arg=["legsP", 5], timeout=30_000).json_value()
+                assert (mine["layout"], mine["bones"], mine["joints"]) == ("legs7", len(legs.bones), len(legs.joints))
+                assert " · legs7" in mine["caption"], mine
                 colors = page.evaluate("[COLORS.left, COLORS.right]")
                 # the feet: the lowest tenth of the figure holds both sides' foot bones (toes below the ankles)
                 assert all(page.evaluate(INK_BELOW, ["fullP", c, 0.82]) > 30 for c in colors)
@@ -195,5 +213,6 @@ def test_the_page_draws_each_subjects_layout(stack):  # noqa: F811
     finally:
         stop.set()
         sender.join()
+        device.undeclare()
         session.close()
     assert not errors, errors

@@ -2,14 +2,15 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 import numpy as np
 import pytest
 
-from limbstream.body import FULL, PAPER10
+from limbstream.body import FULL, PAPER10, load_layout
 from limbstream.cli import emulate, flags
 from limbstream.device.feeds import FeedRows, GeneratorFeed, LoopFeed, resample
-from limbstream import kernel, quat
+from limbstream import kernel, quat, wire
 from limbstream.sources import SEGMENTS, Motion
 from limbstream.sources.generator import GeneratorSource
 
@@ -135,8 +136,6 @@ def test_subject_names_are_key_chunks():
 @pytest.mark.parametrize("argv, words", [
     (["--layout", "fullest"], "--layout: layout must be one of paper10, full or a .toml/.json file, got 'fullest'"),
     (["--layout", "examples/layouts/suit17.toml"], "layout suit17: the generator moves no segment 'l_clavicle'"),
-    (["--layout", "examples/layouts/suit17.toml", "--height-m", "1.7"],
-     "--height-m applies to the built-in layouts (paper10, full): devices announce no body of layout suit17"),
     (["--layout", "full", "--body", "examples/bodies/nope.toml"], "nope.toml"),
 ])
 def test_a_layout_the_generator_cannot_move_is_a_clear_error(argv, words):
@@ -155,6 +154,30 @@ def test_a_motion_files_segments_must_be_in_the_layout(tmp_path):
     args = parse("--source", str(path), "--layout", "paper10", "--height-m", "1.6", "--subjects", "1")
     [feed] = emulate.build_feeds(args).values()
     assert feed.segments == SEGMENTS and feed.body.layout is PAPER10 and feed.body.height_m == 1.6
+
+
+def test_a_layout_files_devices_announce_its_body_and_one_without_height_fractions_needs_body(tmp_path):
+    """A layout file's subjects announce its default body (its layout whole on the wire), or the
+    one ``--height-m``/``--body`` give; a file that sizes no bone by height is refused up front
+    unless ``--body`` gives its bones."""
+    rows = [r for r in FULL.to_dict()["segments"] if r["name"] in ("hip", "l_thigh", "l_shank")]
+    path = tmp_path / "leg3.json"
+    path.write_text(json.dumps({"name": "leg3", "segments": rows}))
+    [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", str(path))).values()
+    assert feed.body.layout == load_layout(path) and feed.body.height_m == 1.75
+    assert wire.encode_body(feed.body)["layout"] == load_layout(path).to_dict()
+    [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", str(path), "--height-m", "1.6")).values()
+    assert feed.body.layout == load_layout(path) and feed.body.height_m == 1.6
+    for row in rows:
+        row.pop("height_fraction")
+        row.get("offset", {}).pop("height_fraction", None)
+    path.write_text(json.dumps({"name": "leg3", "segments": rows}))
+    with pytest.raises(flags.FlagError, match="gives no height fraction for bone 'hip'.*give its bones with --body FILE"):
+        emulate.run(parse("--layout", str(path), "--duration", "0.1"))
+    bones = tmp_path / "me.toml"
+    bones.write_text("hip = 0.2\nl_hip = 0.1\nl_thigh = 0.4\nl_shank = 0.4\n")
+    [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", str(path), "--body", str(bones))).values()
+    assert feed.body.lengths == {"hip": 0.2, "l_hip": 0.1, "l_thigh": 0.4, "l_shank": 0.4}
 
 
 def test_generator_feeds_of_a_layout_and_the_body_they_announce():

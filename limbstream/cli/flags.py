@@ -384,16 +384,16 @@ def add_body(parser: argparse.ArgumentParser, whose: str = "") -> None:
 
 def bodies(args: argparse.Namespace) -> list[Body] | None:
     """The bodies of ``--height-m`` or ``--body`` (of the ``--layout``, paper10 by default), one per
-    value; None when neither is given. FlagError naming the flag, the value and the bound (or a
-    layout file's: a body travels with a built-in layout only, ``wire.decode_body``)."""
-    from limbstream.body import LAYOUTS, Body
+    value; None when neither is given. FlagError naming the flag, the value and the bound, or a
+    layout file that gives no height fraction for a bone when neither is given (its devices
+    announce its default body, :func:`default_body`)."""
+    from limbstream.body import Body
     height, files = getattr(args, "height_m", None), getattr(args, "body", None)
     if height is not None and files is not None:
         raise FlagError("--height-m and --body both give the subjects' dimensions: give one")
     lay = layout(args)
-    if (height is not None or files is not None) and LAYOUTS.get(lay.name) != lay:
-        raise FlagError(f"--{'height-m' if height is not None else 'body'} applies to the built-in layouts "
-                        f"({', '.join(LAYOUTS)}): devices announce no body of layout {lay.name}")
+    if height is None and files is None:
+        default_body(args)
     if height is not None:
         out = []
         for part in (p.strip() for p in height.split(",")):
@@ -412,6 +412,22 @@ def bodies(args: argparse.Namespace) -> list[Body] | None:
                 raise FlagError(f"--body {exc}") from None
         return out
     return None
+
+
+def default_body(args: argparse.Namespace) -> Body | None:
+    """The body devices of ``--layout`` announce when no ``--height-m`` or ``--body`` gives one:
+    none for paper10 (the default adult), else the layout's default body (``Body.default``), which
+    names the layout (a layout file's travels whole, ``wire.encode_body``). FlagError for a layout
+    file that gives no height fraction for a bone (then ``--body`` gives its bones)."""
+    from limbstream.body import PAPER10, Body
+    lay = layout(args)
+    if lay == PAPER10:
+        return None
+    try:
+        return Body.default(lay)
+    except ValueError as exc:
+        raise FlagError(f"--layout {getattr(args, 'layout', lay.name)}: {exc}: its devices announce a body of it, "
+                        f"give its bones with --body FILE") from None
 
 
 def one_body(args: argparse.Namespace) -> Body | None:

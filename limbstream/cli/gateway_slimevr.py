@@ -124,10 +124,10 @@ def settings_from_args(args: argparse.Namespace):
 
 def _body(args: argparse.Namespace):
     """The body the gateway's devices announce: ``--height-m``/``--body``'s, else with ``--layout``
-    of a built-in layout its default body (so its layout is announced), else none."""
-    from limbstream.body import LAYOUTS, Body
+    its default body (so its layout is announced: a layout file's whole), else none."""
+    from limbstream.body import Body
     given = flags.one_body(args)
-    if given is None and args.layout is not None and flags.layout(args) == LAYOUTS.get(flags.layout(args).name):
+    if given is None and args.layout is not None:
         return Body.default(flags.layout(args))
     return given
 

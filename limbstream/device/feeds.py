@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from limbstream import quat
-from limbstream.body import LAYOUTS, PAPER10, Body, Layout, builtin_layout
+from limbstream.body import PAPER10, Body, Layout, builtin_layout
 from limbstream.sources import Motion
 from limbstream.sources.generator import GeneratorSource
 
@@ -66,8 +66,8 @@ class GeneratorFeed:
     Chunk boundaries are staggered by seed, so many subjects in one process do not all
     generate their next chunk on the same tick. Its ``body`` (which its devices announce;
     ``limbstream emulate --height-m`` sets another): paper10's None (the default adult, drawn with
-    the aggregator's skeleton), another built-in layout's default body (it names the layout),
-    None for a layout file's.
+    the aggregator's skeleton), another layout's default body (it names the layout; a layout file's
+    travels whole), None for a layout file that gives no height fraction for a bone.
     """
 
     CHUNK_S = 10.0
@@ -78,7 +78,7 @@ class GeneratorFeed:
         self.source = GeneratorSource(seed=seed, fs=fs, noise_deg=noise_deg, layout=layout)
         self.segments = self.source.segments
         lay = builtin_layout(layout) if isinstance(layout, str) else layout
-        self.body: Body | None = None if lay.name == PAPER10.name or LAYOUTS.get(lay.name) != lay else Body.default(lay)
+        self.body: Body | None = None if lay == PAPER10 else _default_body(lay)
         self.chunk_len = int(round(self.CHUNK_S * fs))
         self.offset = (seed * 7919) % self.chunk_len
         self.length = None
@@ -99,6 +99,14 @@ class GeneratorFeed:
         """(S, 4) float32 orientations at sample k."""
         start, chunk = self.chunk_at(k)
         return chunk[k - start]
+
+
+def _default_body(layout: Layout) -> Body | None:
+    """``layout``'s default body (None: it gives no height fraction for a bone)."""
+    try:
+        return Body.default(layout)
+    except ValueError:
+        return None
 
 
 class FeedRows:

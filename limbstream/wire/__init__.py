@@ -27,9 +27,9 @@ from .calibrate import (CALIBRATION_ANSWER_TIMEOUT_S, CALIBRATION_HOLD_S, CALIBR
 from .angles import (ANGLE_BASES, ANGLE_FLAGS, ANGLE_GIMBAL, ANGLE_MISSING, ANGLE_UNCALIBRATED, ANGLES_DTYPE,
                      ANGLES_DTYPE_V1, ANGLES_HEADER_SIZE, ANGLES_SIZE, ANGLES_VERSION, ANGLES_VERSION_V1, BASIS, AngleBasis,
                      AngleFrames, JointAngles, angles_dtype, decode_angles, decode_angles_many, encode_angles)
-from .body import (BONES, DEFAULT_REST_POSE, FULL_JOINT_TABLE, JOINT_ANGLES, JOINT_TABLE, JOINT_TABLES, JOINTS, ORIENTATIONS,
-                   REST_POSES, SEGMENTS, Joint, builtin_segments, check_rest_pose, decode_body, encode_body, joint_angles,
-                   joint_table, joints_among)
+from .body import (BONES, DEFAULT_REST_POSE, FULL_JOINT_TABLE, JOINT_ANGLES, JOINT_TABLE, JOINT_TABLES, JOINTS,
+                   MAX_LAYOUT_BYTES, ORIENTATIONS, REST_POSES, SEGMENTS, Joint, body_layout, builtin_segments, check_rest_pose,
+                   decode_body, encode_body, joint_angles, joint_table, joints_among)
 from .config import (DEVICE_RATE_HZ, LIVE_BOUND_DEG, LIVE_MODE, MAX_LEN, THRESHOLD, TUNABLES, ClockStatus, DeviceConfig,
                      DeviceStatus, FusionStatus, FUSION_MODES, LinkStatus, Tunable, decode_config, decode_status,
                      encode_config, encode_status)

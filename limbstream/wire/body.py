@@ -3,6 +3,8 @@ frame and the bones a client draws between them, the joint angles of a joint-ang
 what a device's orientations are."""
 from __future__ import annotations
 
+import functools
+import json
 from dataclasses import dataclass
 
 SEGMENTS: tuple[str, ...] = (
@@ -167,28 +169,61 @@ def joint_angles(layout) -> tuple[str, ...]:
     return tuple(a for j in joint_table(layout) for a in j.angles if a is not None)
 
 
+MAX_LAYOUT_BYTES = 16_384
+"""The most a layout file's table may take in a status's ``"body"`` (its compact JSON, bytes): a
+layout of 64 joints (the C chain's limit) takes about 11 kB, ``examples/layouts/suit17.toml`` 2.8 kB."""
+
+
 def encode_body(body) -> dict:
     """A wearer's dimensions as a device status carries them (``"body"``, docs/protocol.md "Body
-    dimensions"): ``{"layout": name, "height_m": m or null, "bones": {bone: m, or [x, y, z] m in
-    the standing frame where it lies off its rest direction}}``. ``body``: a
-    :class:`limbstream.body.Body` of a built-in layout."""
+    dimensions"): ``{"layout": name or table, "height_m": m or null, "bones": {bone: m, or [x, y, z]
+    m in the standing frame where it lies off its rest direction}}``. ``body``: a
+    :class:`limbstream.body.Body`; a built-in layout travels as its name, another (a layout file's)
+    as its table (``Layout.to_dict``, the form a layout file holds)."""
+    from limbstream.body import LAYOUTS  # (the body package is built on this module)
     table = body.to_dict()
-    layout = table.pop("layout")
-    return {"layout": layout, "height_m": body.height_m, "bones": table}
+    table.pop("layout")
+    lay = body.layout
+    named = LAYOUTS.get(lay.name) == lay
+    return {"layout": lay.name if named else lay.to_dict(), "height_m": body.height_m, "bones": table}
+
+
+@functools.lru_cache(maxsize=64)
+def _layout_of_table(text: str):
+    """The layout of a status's layout table (its compact JSON text: each device says it again every
+    poll, so it is checked once)."""
+    from limbstream.body import LAYOUTS, layout_from_dict  # (the body package is built on this module)
+    lay = layout_from_dict(json.loads(text), "body layout")
+    if lay.name in LAYOUTS:
+        raise ValueError(f"body layout: a table named {lay.name!r}, a built-in layout's name (which travels alone)")
+    return lay
+
+
+def body_layout(value):
+    """The :class:`limbstream.body.Layout` of a status body's ``"layout"``: a built-in's name, or a
+    layout file's table (at most :data:`MAX_LAYOUT_BYTES`, checked as a layout file is: a cycle, a
+    missing parent, a duplicate segment, ... refused by name); ValueError naming the problem."""
+    from limbstream.body import builtin_layout  # (the body package is built on this module)
+    if isinstance(value, str):
+        return builtin_layout(value)
+    if not isinstance(value, dict):
+        raise ValueError(f"body layout must be a built-in's name or a layout table, got {str(value)[:80]!r}")
+    text = json.dumps(value, separators=(",", ":"), sort_keys=True)
+    if len(text) > MAX_LAYOUT_BYTES:
+        raise ValueError(f"body layout table of {len(text)} bytes, at most {MAX_LAYOUT_BYTES}")
+    return _layout_of_table(text)
 
 
 def decode_body(data):
     """The :class:`limbstream.body.Body` of a status's ``"body"`` entry (:func:`encode_body`);
-    ValueError naming the problem (not an object, an unknown key or layout, a bone missing, unknown
-    or out of bounds, a height out of bounds). The bounds and the checks are the body's own
-    (:mod:`limbstream.body.dimensions`)."""
-    from limbstream.body import Body, builtin_layout  # (the body package is built on this module)
+    ValueError naming the problem (not an object, an unknown key or layout, a bad layout table, a
+    bone missing, unknown or out of bounds, a height out of bounds). The bounds and the checks are
+    the body's own (:mod:`limbstream.body.dimensions`) and a layout file's
+    (:func:`limbstream.body.layout_from_dict`)."""
+    from limbstream.body import Body  # (the body package is built on this module)
     if not isinstance(data, dict) or set(data) - {"layout", "height_m", "bones"} or "bones" not in data:
         raise ValueError(f"body must be an object of layout, height_m and bones, got {str(data)[:80]!r}")
     bones = data["bones"]
     if not isinstance(bones, dict):
         raise ValueError(f"body bones must be an object of bone -> metres, got {str(bones)[:80]!r}")
-    layout = data.get("layout", "paper10")
-    if not isinstance(layout, str):
-        raise ValueError(f"body layout must be a name, got {layout!r}")
-    return Body(builtin_layout(layout), bones, height_m=data.get("height_m"))
+    return Body(body_layout(data.get("layout", "paper10")), bones, height_m=data.get("height_m"))

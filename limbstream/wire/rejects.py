@@ -48,9 +48,9 @@ RAW_DROPS: dict[str, str] = {
 
 STATUS_DROPS: dict[str, str] = {
     "status_body": "a device status whose `body` (its wearer's dimensions, \"Body dimensions\") is malformed: not "
-                   "an object of `layout`, `height_m` and `bones`, a layout that is not built in, a bone missing, "
-                   "unknown or not in (0, 1.5] m, a height outside [0.5, 2.5] m. The rest of the status is taken; "
-                   "the subject keeps the body it had",
+                   "an object of `layout`, `height_m` and `bones`, a layout that is neither built in nor a good "
+                   "layout table (\"Layout files on the wire\"), a bone missing, unknown or not in (0, 1.5] m, a "
+                   "height outside [0.5, 2.5] m. The rest of the status is taken; the subject keeps the body it had",
     "status_layout": "a device status whose `body` is of another layout than its subject's, the one its devices "
                      "named first (\"Body layouts in the aggregator\"). The rest of the status is taken; the subject "
                      "keeps its layout and body",

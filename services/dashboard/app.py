@@ -65,6 +65,7 @@ async def lifespan(app: FastAPI):
                 bridge.close()
                 return
             app.state.bridge = bridge
+            state.ask_layout = lambda subject: state.layouts.ask(bridge.session, subject)
 
     threading.Thread(target=connect, name="zenoh-connect", daemon=True).start()
     try:
@@ -73,6 +74,7 @@ async def lifespan(app: FastAPI):
         with lock:
             closing.set()
             bridge, app.state.bridge = app.state.bridge, None
+            state.ask_layout = None
         if bridge is not None:
             await asyncio.to_thread(bridge.close)
 

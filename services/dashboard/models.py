@@ -55,7 +55,8 @@ class _SubjectSummary(BaseModel):
     stats_age_s: float | None
     pose: PoseSummary | None
     pose_refused: str | None = Field(None, description="why the subject's latest refused pose frame could not be "
-                                     "read (a layout file's frames: this service knows only the built-in layouts)")
+                                     "read (a layout file's frames before its devices said their layout, or of "
+                                     "devices that say none)")
     exact_latency_p50_ms: float | None = Field(
         None, description="median exact-frame latency: the time this service received each of the subject's last "
         "500 exact frames minus the frame's time (device time; same clock and --speed 1 assumed), ms")

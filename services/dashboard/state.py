@@ -11,8 +11,10 @@ import asyncio
 import math
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 
 from limbstream import wire
+from limbstream.subject_layouts import SubjectLayouts
 
 from .entries import (AGGREGATOR_FIGURES, ANGLES_HISTORY_S, HISTORY_FIELDS, KINDS, LATENCY_FRAMES, MAX_AGGREGATORS,
                       MAX_BAD_KEY_REASONS, AggregatorEntry, DeviceEntry, PoseEntry)
@@ -47,6 +49,8 @@ class LiveState:
         self.stats_times: dict[str, float] = {}
         self.subject_stats: dict[str, dict] = {}  # the subject fields of each subject's latest stats
         self.pose_refused: dict[str, str] = {}  # why a subject's latest pose frame was refused (its layout)
+        self.layouts = SubjectLayouts(max_subjects)  # what a layout file's frames and angles are read with
+        self.ask_layout: Callable[[str], object] | None = None  # asks a subject's devices their layout (once connected)
         self.exact_latency: dict[str, deque[float]] = {}  # ms, frame time -> received, last exact frames
         self.aggregators: dict[str, AggregatorEntry] = {}
         self.fanout = FanOut(ws_queue)
@@ -149,11 +153,12 @@ class LiveState:
         self.received["pose"] += 1
         try:
             subject, _ = wire.parse_subject_key(key)
-            frame = wire.decode_pose(payload)
+            frame = self.layouts.decode_pose(subject, payload)
         except wire.WireError as exc:
             self.errors[f"pose_{exc.reason}"] += 1
             if exc.reason == "layout" and (subject in self.pose_refused or len(self.pose_refused) < self.max_subjects):
                 self.pose_refused[subject] = str(exc)
+                self._ask_layout(subject)
             return
         self.pose_refused.pop(subject, None)
         slots = self.poses.get(subject)
@@ -185,11 +190,19 @@ class LiveState:
                 self.errors["angles_key"] += 1
         frames, reasons = wire.decode_angles_many([payload for _, payload in kept])
         row = 0
-        for subject, (rx, _), reason in zip(subjects, kept, reasons):
-            if reason:
+        for subject, (rx, payload), reason in zip(subjects, kept, reasons):
+            if reason == "layout":  # another layout than the batch's, or a layout file's: read alone, with the subject's
+                try:
+                    angles = self.layouts.decode_angles(subject, payload)
+                except wire.WireError as exc:
+                    self.errors[f"angles_{exc.reason}"] += 1
+                    self._ask_layout(subject)
+                    continue
+            elif reason:
                 self.errors[f"angles_{reason}"] += 1
                 continue
-            angles, row = frames[row], row + 1
+            else:
+                angles, row = frames[row], row + 1
             kinds = self.angles.get(subject)
             if kinds is None:
                 if len(self.angles) >= self.max_subjects:
@@ -201,6 +214,11 @@ class LiveState:
             kept_rows.append((rx, angles))
             while kept_rows[0][0] < rx - ANGLES_HISTORY_S:
                 kept_rows.popleft()
+
+    def _ask_layout(self, subject: str) -> None:
+        """Ask ``subject``'s devices which layout they announce (a frame of a layout file's came)."""
+        if self.ask_layout is not None:
+            self.ask_layout(subject)
 
     def angles_kind(self, subject: str) -> int | None:
         """The kind of joint angles ``kind=auto`` gives: the pose frames' rule (live while they come

@@ -130,11 +130,15 @@ class Views:
         return view
 
     def subject_layout(self, name: str) -> Layout:
-        """The subject's body layout: its latest frame's, else the one its devices announce
-        (a built-in's name in their status), else ``paper10``."""
+        """The subject's body layout: its latest frame's, else the one its devices announce (their
+        status, asked for when a frame of a layout file's came), else the one its stats name (a
+        built-in's), else ``paper10``."""
         pose = self.live.latest_pose(name)
         if pose is not None and pose.frame.layout is not None:
             return pose.frame.layout
+        announced = self.live.layouts.layout_of(name)
+        if announced is not None:
+            return announced
         return LAYOUTS.get(self.live.subject_stats.get(name, {}).get("layout") or "", PAPER10)
 
     def exact_latency_view(self, subject: str) -> dict:

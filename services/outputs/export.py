@@ -27,6 +27,7 @@ from limbstream.calibration import START_STILL_S
 from limbstream.skeleton import Skeleton
 from limbstream.sources import Motion, MotionFileError, load, load_raw, raw
 from limbstream.sources.bvh import resample
+from limbstream.subject_layouts import SubjectLayouts
 
 from .bvh_writer import BVH_JOINTS, ROTATION_CHANNELS, BvhJoint, bvh_text  # noqa: F401  (re-exported)
 from .opensim import mot_text, segments_with_data, sto_text
@@ -120,16 +121,20 @@ def skeleton_of(frame: wire.PoseFrame, rest_pose: str | None = None) -> Skeleton
 
 def from_recording(recording: Recording, subject: str | None, rest_pose: str | None = None) -> Take:
     """The exact pose frames of ``subject`` in ``recording`` on their frame grid (the median step);
-    a grid point without a recorded frame repeats the frame before (``filled``).
+    a grid point without a recorded frame repeats the frame before (``filled``). A layout file's
+    frames are read with the layout its devices' recorded statuses announce.
 
     ExportError naming the subject and the subjects there are if it has no exact frames;
     ``subject`` None: the only subject."""
     frames: dict[str, dict[int, wire.PoseFrame]] = {}
     bad = 0
+    layouts = SubjectLayouts()  # a layout file's frames are read with the layout its devices' statuses announce
+    for entry in recording.entries(["config"]):
+        layouts.learn_reply(entry.key, entry.payload)
     for entry in recording.entries(["pose"]):
         try:
             name, _ = wire.parse_subject_key(entry.key)
-            frame = wire.decode_pose(entry.payload)
+            frame = layouts.decode_pose(name, entry.payload)
         except wire.WireError:
             bad += 1
             continue

@@ -4,7 +4,8 @@
 Segment points and truth batches come through the outputs' subscription (advanced subscribers
 with history: a recorder started after the devices still gets what their caches hold); pose
 frames, joint angles and stats too; device config statuses are asked for every ``config_poll_s``
-seconds and written when a device's settings or stream change. History can repeat a point already
+seconds and written when a device's settings or stream change (so a recording holds the layout a
+subject's devices announce, which a layout file's frames are read back with). History can repeat a point already
 received live: repeats are not written (``duplicates``). The recorder also counts what it can tell
 is missing from sequence numbers (``missing``): segment points per device stream, pose frames and
 joint angles per subject and kind, stats per subject.
@@ -161,11 +162,12 @@ class Recorder:
 
     def _on_status(self, key: str, payload: bytes) -> None:
         try:
-            wire.parse_device_key(key)
+            subject, _, _ = wire.parse_device_key(key)
             status = wire.decode_status(payload)
         except wire.WireError:
             self.subscription.errors["config_reply"] += 1
             return
+        self.subscription.layouts.learn(subject, status)  # a layout file's frames are read with it
         state = (status.config, status.stream)
         if self._configs.get(key) != state:
             self._configs[key] = state

@@ -32,6 +32,7 @@ import zenoh
 import zenoh.ext as zext
 
 from limbstream import wire, zconfig
+from limbstream.subject_layouts import SubjectLayouts
 
 KINDS: tuple[str, ...] = (wire.POSE, wire.STATS, wire.ANGLES, wire.SEG, wire.RAW)
 """What a subscription can carry: subject kinds (pose, stats, angles) and device kinds (seg, raw)."""
@@ -98,7 +99,10 @@ class Subscription:
     Attributes
     ----------
     errors : Counter of dropped messages by reason: ``<kind>_key`` (a key outside the grammar),
-        ``<kind>_<wire reason>`` (e.g. ``pose_size``, ``stats_json``, ``truth_size``).
+        ``<kind>_<wire reason>`` (e.g. ``pose_size``, ``stats_json``, ``truth_size``; ``pose_layout``:
+        a layout file's frame before its subject's devices said their layout, which it then asks).
+    layouts : each subject's layout as its devices announce it (:class:`SubjectLayouts`): pose
+        frames and joint angles of a layout file's layout are read with it.
     received : messages taken out of the channels so far (decoded or not).
     """
 
@@ -124,6 +128,7 @@ class Subscription:
         self._turn = 0  # which channel get() looks at first (each gets its turn)
         self._keys: dict[str, tuple[str, str | None]] = {}  # valid keys seen, parsed
         self._pending: collections.deque[Item] = collections.deque()  # the rest of a split truth message
+        self.layouts = SubjectLayouts()  # what a layout file's frames and angles are read with
         try:
             for kind in kinds:
                 self._subscribers.append((kind, self._declare(kind, history)))
@@ -170,8 +175,8 @@ class Subscription:
 
     def _item(self, kind: str, key: str, payload: bytes, received_ns: int) -> Item | None:
         """The message ``payload`` of ``kind`` on ``key`` decoded, or None (counted in ``errors``)."""
+        ids = self._keys.get(key)
         try:
-            ids = self._keys.get(key)
             if ids is None:
                 if kind in wire.SUBJECT_KINDS:
                     subject, got = wire.parse_subject_key(key)
@@ -184,10 +189,20 @@ class Subscription:
                 if len(self._keys) < _MAX_KEYS:
                     self._keys[key] = ids
             subject, segment = ids
-            return Item(kind, subject, segment, _DECODERS[kind](payload), key, payload, received_ns)
+            return Item(kind, subject, segment, self._value(kind, subject, payload), key, payload, received_ns)
         except wire.WireError as exc:
             self.errors[f"{kind}_{exc.reason}"] += 1
+            if exc.reason == "layout" and ids is not None:  # a layout file's: its devices say which
+                self.layouts.ask(self.session, ids[0])
             return None
+
+    def _value(self, kind: str, subject: str, payload: bytes) -> object:
+        """The message decoded (pose frames and joint angles with the subject's layout, :attr:`layouts`)."""
+        if kind == wire.POSE:
+            return self.layouts.decode_pose(subject, payload)
+        if kind == wire.ANGLES:
+            return self.layouts.decode_angles(subject, payload)
+        return _DECODERS[kind](payload)
 
     def get(self, timeout: float | None = None) -> Item | None:
         """The next decodable message, waiting at most ``timeout`` seconds (None: forever);
