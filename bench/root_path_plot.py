@@ -5,7 +5,8 @@ beside the file's own, seen from above (docs/body.md and docs/evaluation.md, "Ro
     python bench/root_path_plot.py 02_01 --out /tmp/walk.png --no-contacts
     python bench/root_path_plot.py 131_01 --perfect   # perfect sensors (eval's default)
 
-It runs ``limbstream eval`` on the clip (``../shared/data/cmu/<clip>.bvh``) with the sensors of
+It runs ``limbstream eval`` on the clips (``../shared/data/cmu``, together as docs/benchmarks.md
+does: the sensors are drawn per motion in turn) with the sensors of
 :data:`RAW` (raw ICM-42688-P readings fused on the device, calibrated, headings held by the joints;
 fastSW at 9e-4, ``max_len`` 25, ``--layout full``: the figures of docs/benchmarks.md), takes the
 dump's ``root``, ``true_root``, ``feet`` and ``contacts``, aligns the estimate's start as eval does
@@ -34,16 +35,18 @@ RAW = ("--imu", "raw", "--imu-model", "icm42688p", "--mounting-deg", "90", "--he
 ROW = ("--algorithms", "fastsw", "--thresholds", "9e-4", "--max-len", "25", "--layout", "full")
 
 
-def evaluate(clip: Path, perfect: bool, folder: Path) -> tuple[dict, dict]:
-    """Run ``limbstream eval`` on ``clip`` dumping into ``folder``: (its translation row, the dump)."""
+def evaluate(data: Path, clip: str, perfect: bool, folder: Path) -> tuple[dict, dict]:
+    """Run ``limbstream eval`` on the folder ``data`` dumping into ``folder``: (clip ``clip``'s
+    translation row, its dump). The whole folder, as docs/benchmarks.md runs it: each motion's
+    sensors are drawn in turn, so a clip evaluated alone has other sensors (other figures)."""
     rows = folder / "rows.json"
-    command = [sys.executable, "-m", "limbstream.cli", "eval", str(clip), *(() if perfect else RAW), *ROW,
+    command = [sys.executable, "-m", "limbstream.cli", "eval", str(data), *(() if perfect else RAW), *ROW,
                "--dump", str(folder), "--json", str(rows)]
     print("running:", " ".join(["limbstream", *command[3:]]), file=sys.stderr)
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     [row] = json.loads(rows.read_text())
-    [figures] = [m for m in row["translation"] if m["motion"] == clip.stem]
-    with np.load(folder / f"{clip.stem}.npz") as dump:
+    [figures] = [m for m in row["translation"] if m["motion"] == clip]
+    with np.load(folder / f"{clip}.npz") as dump:
         return figures, {k: dump[k] for k in ("t", "root", "true_root", "feet", "foot_points", "contacts",
                                               "root_heading_rad")}
 
@@ -91,14 +94,14 @@ def draw(clip: str, figures: dict, dump: dict, sensors: str, out: Path, contacts
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("clip", nargs="?", default="131_01", help="CMU clip name (default 131_01)")
-    ap.add_argument("--data", type=Path, default=DATA, help="folder of CMU .bvh clips")
+    ap.add_argument("--data", type=Path, default=DATA, help="folder of CMU .bvh clips (evaluated together)")
     ap.add_argument("--out", type=Path, help="PNG to write (default docs/img/root_path_<clip>.png)")
     ap.add_argument("--perfect", action="store_true", help="perfect sensors (default: make run's raw ones)")
     ap.add_argument("--no-contacts", action="store_true", help="do not mark where the feet were put down")
     args = ap.parse_args()
     out = args.out or ROOT / "docs" / "img" / f"root_path_{args.clip}.png"
     with tempfile.TemporaryDirectory() as tmp:
-        figures, dump = evaluate(args.data / f"{args.clip}.bvh", args.perfect, Path(tmp))
+        figures, dump = evaluate(args.data, args.clip, args.perfect, Path(tmp))
     sensors = "perfect sensors" if args.perfect else "raw ICM-42688-P sensors"
     draw(args.clip, figures, dump, sensors, out, not args.no_contacts)
     print(f"{args.clip} ({sensors}): path {figures['path_m']:.2f} m, end error {figures['end_cm']:.1f} cm "
