@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from limbstream.body.translation import GRAVITY, RootTracker
+from limbstream.body.translation import CONTACT_M, GRAVITY, RootTracker
+from limbstream.evaluation.translation import aligned
 from limbstream.wire import CONTACTS
 
 NAMES = ("l_heel", "l_toe", "r_heel", "r_toe")
@@ -187,6 +188,13 @@ def test_eval_scores_the_root_path_of_a_walk_read_onto_full(cmu_bvh_dir, tmp_pat
     assert walk["motion"] == "131_01" and walk["path_m"] > 4.0
     assert walk["end_pct"] < 3.0 and walk["height_cm"] < 6.0 and walk["below_cm"] == 0.0
     assert "root translation from the reconstruction's feet" in text and "true skate" in text
+    # the dump holds what the figures are computed from: aligned as eval aligns it, its end error is eval's
+    feet, names, contacts = dumped["feet"], [str(n) for n in dumped["foot_points"]], dumped["contacts"]
+    assert names == list(CONTACTS) and feet.shape == (len(root), 4, 3) and contacts.shape == (len(root),)
+    moved, _ = aligned(dumped["t"], root, feet, true_root, float(dumped["root_heading_rad"]))
+    assert abs(100 * np.linalg.norm(moved[-1, [0, 2]] - true_root[-1, [0, 2]]) - walk["end_cm"]) < 1e-6
+    touching = np.stack([(contacts >> i) & 1 for i in range(4)], axis=1).astype(bool)
+    assert 0.2 < touching.any(axis=1).mean() and (feet[:, :, 1][touching] <= CONTACT_M + 1e-9).all()
 
 
 def test_exports_carry_the_root_path_of_a_recording(tmp_path):

@@ -172,13 +172,22 @@ def dump(body: Body, folder: Path, heading: str, positions: Positions) -> Path:
     ``true_positions`` (m, P, 3) m, ``position_joints`` (P,), ``positions_from_file``,
     ``source_unit_m``; ``root`` and ``true_root`` (m, 3) m, the estimated root tracked from the
     estimated feet and the file's (:func:`limbstream.evaluation.translation.root_paths`; NaN where
-    there is none): world positions are ``positions + root[:, None]``. Returns the path."""
+    there is none): world positions are ``positions + root[:, None]``; ``feet`` (m, C, 3) m the
+    estimate's foot points in its world, ``foot_points`` (C,) their names, ``contacts`` (m,) its
+    contact bits (``wire.CONTACTS``), ``root_heading_rad`` () the turn about +Y from its world to
+    the truth's (:func:`limbstream.evaluation.translation.aligned`; C = 0 and NaN where there is no
+    root path). Returns the path."""
     path = Path(folder) / (re.sub(r"[^A-Za-z0-9._-]", "_", body.name) + ".npz")
     joints = body.joints
-    from limbstream.evaluation.translation import root_paths  # (it reads this module's bodies)
+    from limbstream.evaluation.translation import RootPaths, root_paths  # (it reads this module's bodies)
     paths = root_paths(body, positions)
-    nowhere = np.full((len(body.t), 3), np.nan)
-    np.savez(path, root=nowhere if paths is None else paths.root, true_root=nowhere if paths is None else paths.true_root, t=body.t, estimated=body.estimated, truth=body.truth,
+    if paths is None:
+        nowhere = np.full((len(body.t), 3), np.nan)
+        paths = RootPaths(nowhere, nowhere, np.zeros((len(body.t), 0, 3)), np.zeros((len(body.t), 0, 3)), (),
+                          np.zeros(len(body.t), np.int64), math.nan)
+    np.savez(path, root=paths.root, true_root=paths.true_root, feet=paths.feet, foot_points=np.array(paths.names, str),
+             contacts=paths.contacts, root_heading_rad=np.array(paths.heading_rad), t=body.t, estimated=body.estimated,
+             truth=body.truth,
              segment_names=np.array(body.layout.segment_names), layout=np.array(body.layout.name),
              rest_pose=np.array(body.rest_pose), heading_correction=np.array(heading),
              joints=np.array(joints.joints), joint_parent=joints.parent, joint_child=joints.child,

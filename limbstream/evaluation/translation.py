@@ -45,19 +45,26 @@ def _yaw(rad: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
+def aligned(t: np.ndarray, root: np.ndarray, feet: np.ndarray, true_root: np.ndarray,
+            heading_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """The estimated root (m, 3) and foot points (m, C, 3) in the truth's world, times ``t`` (m,)
+    s: turned about +Y by ``heading_rad`` and shifted horizontally by the mean offset from
+    ``true_root`` (m, 3) over the first :data:`ALIGN_S` s (metres)."""
+    turn = _yaw(heading_rad)
+    root = root @ turn.T
+    start = t - t[0] < ALIGN_S
+    offset = (true_root[start] - root[start]).mean(axis=0)
+    offset[1] = 0.0
+    return root + offset, feet @ turn.T + offset
+
+
 def translation_figures(t: np.ndarray, root: np.ndarray, feet: np.ndarray, true_root: np.ndarray,
                         true_feet: np.ndarray, heading_rad: float = 0.0) -> TranslationFigures:
     """The figures of one motion: times ``t`` (m,) s; the estimated root (m, 3) and foot points
     (m, C, 3), metres, its world (floor at 0, Y up); the true ones likewise in the truth's world
     (``true_feet``: the same C points). ``heading_rad``: the turn about +Y taking the estimate's
     world to the truth's."""
-    turn = _yaw(heading_rad)
-    root = root @ turn.T
-    feet = feet @ turn.T
-    start = t - t[0] < ALIGN_S
-    offset = (true_root[start] - root[start]).mean(axis=0)
-    offset[1] = 0.0
-    root, feet = root + offset, feet + offset
+    root, feet = aligned(t, root, feet, true_root, heading_rad)
     floor = float(np.nanmin(true_feet[:, :, 1]))
     true_root = true_root - [0.0, floor, 0.0]
     true_feet = true_feet - [0.0, floor, 0.0]
@@ -88,13 +95,17 @@ MIN_PATH_M = 0.5
 class RootPaths:
     """An evaluated body's root paths, on its frames (m,): ``root`` the estimate's (m, 3) m, its
     world (floor at 0), NaN on frames left out; ``true_root`` the file's (m, 3) m, its world;
-    ``feet``, ``true_feet`` (m, C, 3) the same foot points of both (world); ``heading_rad`` the
-    pelvis' mean heading difference, truth less estimate, over the first :data:`ALIGN_S` s."""
+    ``feet``, ``true_feet`` (m, C, 3) the same foot points of both (world), ``names`` (C,) theirs;
+    ``contacts`` (m,) the estimate's contact bits (``wire.CONTACTS``; 0 on frames left out);
+    ``heading_rad`` the pelvis' mean heading difference, truth less estimate, over the first
+    :data:`ALIGN_S` s."""
 
     root: np.ndarray
     true_root: np.ndarray
     feet: np.ndarray
     true_feet: np.ndarray
+    names: tuple[str, ...]
+    contacts: np.ndarray
     heading_rad: float
 
 
@@ -122,14 +133,14 @@ def root_paths(body, positions) -> RootPaths | None:
     drops = heel_drops(layout, positions.dimensions)
     names, est_pts = foot_points(layout, drops, est_q, positions.estimated[ok])
     _, true_pts = foot_points(layout, drops, true_q, positions.truth[ok])
-    root = np.full((len(body.t), 3), np.nan)
-    root[ok], _ = RootTracker(1, names).track(t - t[0], est_pts)
+    root, contacts = np.full((len(body.t), 3), np.nan), np.zeros(len(body.t), np.int64)
+    root[ok], contacts[ok] = RootTracker(1, names).track(t - t[0], est_pts)
     feet, true_feet = np.full((len(body.t), len(names), 3), np.nan), np.full((len(body.t), len(names), 3), np.nan)
     feet[ok], true_feet[ok] = root[ok][:, None] + est_pts, true_root[ok][:, None] + true_pts
     hip = layout.segment_index[layout.root.name]
     start = t - t[0] < ALIGN_S
     turn = float(np.angle(np.mean(np.exp(1j * (yaw_of(true_q[start, hip]) - yaw_of(est_q[start, hip]))))))
-    return RootPaths(root, true_root, feet, true_feet, turn)
+    return RootPaths(root, true_root, feet, true_feet, names, contacts, turn)
 
 
 def translation_of(body, positions) -> dict | None:
