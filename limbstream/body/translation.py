@@ -19,7 +19,8 @@ and held (stairs and slopes are not modelled: a walk up a ramp stays on the firs
 - **A foot missing** (its device offline: its points are not used): the root keeps the height it
   had with both feet, raised where the other foot would go through the floor, and stands on the
   other foot while that is down and still (within :data:`STILL_MPS`); while it is not, the missing
-  foot may be the one standing: the root goes on at its velocity. No take-off without both feet.
+  foot may be the one standing: the root goes on at its pace (:data:`PACE_S`). No take-off
+  without both feet.
 
 Standing still, the anchor does not move, so the root does not drift. Contacts (``CONTACTS`` of
 :mod:`limbstream.wire.pose`) are the foot points within :data:`CONTACT_M` of the floor while planted.
@@ -53,6 +54,9 @@ OFF_FEET_M = 0.05
 """A joint lower than the lowest foot point by more than this: the body is off its feet, m."""
 VELOCITY_S = 0.05
 """Time constant of the root velocity a flight starts with (smoothed over the last steps), s."""
+PACE_S = 1.0
+"""Time constant of the root's pace (its velocity over the last steps, both feet in view): where it
+goes on while a missing foot may be the one standing, s."""
 UNSEEN_MPS = 1e3
 """The world speed given a point that was not usable a frame ago (its motion unknown), m/s."""
 
@@ -127,7 +131,7 @@ class RootTracker:
 
     ``names``: the points (P,) of every frame, the foot points first (those in ``CONTACTS``; the
     others are other joints: :class:`BodyPoints`). State per row (N,): root position (3,) m,
-    velocity (3,) m/s, the anchor's index among the points and its world position (3,) (anchor
+    velocity (3,) m/s and pace (3,) m/s, the anchor's index among the points and its world position (3,) (anchor
     -1: in flight, -3: going on at its velocity), the newest frame time, s, the root's height
     with both feet, m, the last points (P, 3) and which of them were usable (P,).
     """
@@ -137,6 +141,7 @@ class RootTracker:
         self.feet = np.array([name in CONTACTS for name in names], bool)
         self.root = np.zeros((0, 3))
         self.velocity = np.zeros((0, 3))
+        self.pace = np.zeros((0, 3))
         self.anchor = np.zeros(0, np.int64)
         self.anchor_xyz = np.zeros((0, 3))
         self.t = np.zeros(0)
@@ -153,6 +158,7 @@ class RootTracker:
         if more > 0:
             self.root = np.vstack([self.root, np.zeros((more, 3))])
             self.velocity = np.vstack([self.velocity, np.zeros((more, 3))])
+            self.pace = np.vstack([self.pace, np.zeros((more, 3))])
             self.anchor = np.concatenate([self.anchor, np.full(more, _FIRST, np.int64)])
             self.anchor_xyz = np.vstack([self.anchor_xyz, np.zeros((more, 3))])
             self.t = np.concatenate([self.t, np.zeros(more)])
@@ -166,6 +172,7 @@ class RootTracker:
         self.anchor[rows] = _FIRST
         self.root[rows] = 0.0
         self.velocity[rows] = 0.0
+        self.pace[rows] = 0.0
 
     def step(self, rows: np.ndarray, t: np.ndarray, points: np.ndarray, commit: bool = True,
              usable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -231,8 +238,9 @@ class RootTracker:
         anchor_xyz = np.where(switch[:, None], put_xyz, anchor_xyz)
         now = anchor_xyz - p[idx, put]
         new_root[stands, 0], new_root[stands, 2] = now[stands, 0], now[stands, 2]
-        new_root[coast, 0] += velocity[coast, 0] * dt[coast]
-        new_root[coast, 2] += velocity[coast, 2] * dt[coast]
+        pace = self.pace[rows]
+        new_root[coast, 0] += pace[coast, 0] * dt[coast]
+        new_root[coast, 2] += pace[coast, 2] * dt[coast]
         new_root[first] = np.stack([np.zeros(first.sum()), -low_y[first], np.zeros(first.sum())], axis=1)
         new_anchor = np.where(still_flying, _FLIGHT, np.where(first, lowest, np.where(coast, _COAST, put)))
         if first.any():
@@ -243,6 +251,8 @@ class RootTracker:
         gain = np.where((dt > 0) & ~first, 1.0 - np.exp(-dt / VELOCITY_S), 0.0)
         new_velocity = np.where(still_flying[:, None], fly_v,
                                 np.where(first[:, None], 0.0, velocity + gain[:, None] * (moved - velocity)))
+        slow = np.where((dt > 0) & ~first & whole, 1.0 - np.exp(-dt / PACE_S), 0.0)
+        new_pace = np.where(first[:, None], 0.0, pace + slow[:, None] * (moved - pace))
         touching = (new_root[:, 1:2] + y <= CONTACT_M) & ~still_flying[:, None] & ~hold[:, None]
         bits = np.zeros(len(rows), np.int64)
         for c in np.flatnonzero(self.feet):
@@ -252,6 +262,7 @@ class RootTracker:
         if commit:
             ok, at = ~hold, rows[~hold]
             self.root[at], self.velocity[at], self.anchor[at] = new_root[ok], new_velocity[ok], new_anchor[ok]
+            self.pace[at] = new_pace[ok]
             self.anchor_xyz[at], self.t[at], self.points[at], self.seen[at] = anchor_xyz[ok], t[ok], p[ok], use[ok]
             self.height[at] = np.where(whole[ok] | first[ok], new_root[ok, 1], self.height[at])
             np.add.at(self.refused, rows[bad], 1)
