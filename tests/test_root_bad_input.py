@@ -53,7 +53,7 @@ def test_a_layout_without_feet_has_no_root_translation():
     rooting = Rooting()
     for layout in (PAPER10, no_feet):
         t_us, q, joints, body = walk(layout, 100)
-        root, contacts, flags = rooting.place(np.zeros(100, np.int64), t_us, q, joints, layout, lambda _: body, True)
+        root, contacts, flags = rooting.place(np.zeros(100, np.int64), t_us, q, joints, layout, lambda _, b=body: b, True)
         assert not root.any() and not contacts.any() and (flags == wire.FRAME_NO_ROOT).all()
     t_us, q, joints, body = walk(FULL, 100)
     root, contacts, flags = rooting.place(np.zeros(100, np.int64), t_us, q, joints, FULL, lambda _: body, True)

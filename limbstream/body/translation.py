@@ -123,7 +123,7 @@ class BodyPoints:
 
     def usable(self, missing: np.ndarray) -> np.ndarray:
         """(F, P) bool: the points of frames whose segments ``missing`` (F, S) bool lack none."""
-        return ~(np.asarray(missing, bool)[:, None, :] & self.segments[None]).any(axis=2)
+        return np.logical_not((np.asarray(missing, bool)[:, None, :] & self.segments[None]).any(axis=2))
 
 
 class RootTracker:
