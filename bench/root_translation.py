@@ -59,7 +59,7 @@ def figures(path: Path) -> dict[str, float]:
     """One clip's row (see the module)."""
     t, root, feet = file_feet(path)
     rel = feet - root[:, None]
-    est, bits = RootTracker(1, NAMES).track(t, rel)
+    est, bits, _ = RootTracker(1, NAMES).track(t, rel)
     f = translation_figures(t, est, est[:, None] + rel, root, feet)
     world_speed = np.linalg.norm(np.diff(feet[:, :, [0, 2]], axis=0), axis=2) / np.diff(t)[:, None]
     stillest = world_speed.argmin(axis=1)

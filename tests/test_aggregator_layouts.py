@@ -104,7 +104,7 @@ def test_a_full_subject_gets_15_segment_frames_drawn_with_its_body_beside_a_pape
         paper = frames_of(sent, "s01", kind)
         assert paper and all(len(p) == 372 for p, _ in paper)
         for _, f in paper:
-            assert f.layout == PAPER10 and f.flags == 0
+            assert f.layout == PAPER10 and f.flags == wire.FRAME_NO_ROOT and not f.has_root  # no feet: no root
             assert np.abs(f.joints - Skeleton().positions(f.q.astype(np.float64))).max() < 1e-6
     assert len(frames_of(sent, "f01")) == len(frames_of(sent, "s01")) == 51
     assert subject_stats(agg, "f01")[0]["layout"] == "full" and subject_stats(agg, "s01")[0]["layout"] == "paper10"

@@ -54,7 +54,7 @@ def test_frames_wait_for_the_slowest_device():
     agg.advance(live=False, now=0.1)
     frames = exact(sent)
     assert [f.t_us - T0 for f in frames] == list(range(0, 1_000_001, 20_000)), "no frame twice, none skipped"
-    assert [f.seq for f in frames] == list(range(51)) and all(f.flags == 0 for f in frames)
+    assert [f.seq for f in frames] == list(range(51)) and all(f.flags == wire.FRAME_NO_ROOT for f in frames)  # paper10: no feet
 
 
 def test_online_device_without_points_does_not_stall_its_subject():

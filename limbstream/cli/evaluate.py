@@ -394,6 +394,8 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
         print(f"\njoint positions of the {what}{held}, the pelvis at the origin, against the truth's: "
               f"{_position_sources(motions, args.loop_minutes is not None, args.layout)}")
         print(format_positions(rows))
+        if (note := flags.no_root_note({layout_of(m, args.layout) for m in motions})) is not None:
+            print(f"\n{note}")
         if any(r.get("translation") for r in rows):
             print(f"\nroot translation from the {what}'s feet (docs/evaluation.md, \"Root translation\"), against the "
                   "file's root path")

@@ -357,6 +357,17 @@ def check_source_layout(args: argparse.Namespace, segments: tuple[str, ...], sou
                         f"{', '.join(missing)}, not in the layout (a motion file's devices are its own segments)")
 
 
+def no_root_note(layouts) -> str | None:
+    """The one line saying root translation is off, where one of ``layouts`` has no feet to track
+    the root by (docs/body.md, "Root translation"); None where every one has them."""
+    from limbstream.body.translation import has_feet
+    footless = sorted({layout.name for layout in layouts if not has_feet(layout)})
+    if not footless:
+        return None
+    names = " and ".join(footless)
+    return f"root translation off: the {names} layout{'s have' if len(footless) > 1 else ' has'} no feet (--layout full has them)"
+
+
 def layout_argv(args: argparse.Namespace) -> list[str]:
     """The flags that give ``--layout`` to a child process (a file as an absolute path)."""
     value = getattr(args, "layout", None)

@@ -37,6 +37,7 @@ from limbstream.cli.emulate import (add_clock_arguments, add_source_arguments, c
                                     default_subjects)
 from limbstream.cli.gateway_slimevr import parse_address
 from limbstream import sources, wire, zconfig
+from limbstream.body import Layout, layout_for
 from limbstream.cli import flags
 from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
@@ -257,6 +258,16 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
     return [motions[clip_of(k, len(motions))[0]].segments for k in range(1, args.subjects + 1)]
 
 
+def subject_layouts(args: argparse.Namespace, devices: list[tuple[str, ...]]) -> list[Layout]:
+    """The subjects' layouts: ``--layout`` (the generator's default, ``paper10``, without it), else
+    the smallest built-in layout holding a motion file's segments (as the aggregator takes it)."""
+    if not devices:
+        return []
+    if args.source == "generator" or getattr(args, "layout", None) is not None:
+        return [flags.layout(args)]
+    return [layout_for(segments) for segments in devices]
+
+
 def typed_command() -> str:
     """How to type this interpreter's ``limbstream`` command in the shell ``up`` runs in, so that the
     banner's commands work as printed: ``limbstream`` when PATH finds this very one (e.g. in an
@@ -320,6 +331,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         if args.source != "generator":
             progress(f"loading {args.source}")
         devices = check(args)
+        if (note := flags.no_root_note(subject_layouts(args, devices))) is not None:
+            progress(note)
     except (ValueError, argparse.ArgumentTypeError) as exc:  # MotionFileError is a ValueError
         print(f"limbstream up: error: {exc}", file=sys.stderr)
         return 2

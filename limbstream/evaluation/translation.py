@@ -112,15 +112,16 @@ class RootPaths:
 def root_paths(body, positions) -> RootPaths | None:
     """The root paths of one evaluated body (:class:`limbstream.evaluation.body.Body`) and its joint
     positions (:class:`limbstream.evaluation.positions.Positions`), or None where there is no file
-    root path (a BVH file's) or less than 2 s of frames with every joint. The estimated root: a
-    :class:`~limbstream.body.translation.RootTracker` on the estimated joints' feet, over the frames
+    root path (a BVH file's), the layout has no feet, or less than 2 s of frames with every joint.
+    The estimated root: a :class:`~limbstream.body.translation.RootTracker` on the estimated joints'
+    body points (:class:`~limbstream.body.translation.BodyPoints`), over the frames
     that have every joint; the true one: the file's root joint, its feet the same foot points of
     the file's joints."""
-    from limbstream.body.translation import RootTracker, foot_points, heel_drops
+    from limbstream.body.translation import BodyPoints, RootTracker, has_feet, heel_drops
     from limbstream.calibration import yaw_of
 
     source, layout = body.source, body.layout
-    if source is None or not positions.from_file:
+    if source is None or not positions.from_file or not has_feet(layout):
         return None
     ok = (np.isfinite(positions.estimated).all(axis=(1, 2)) & np.isfinite(positions.truth).all(axis=(1, 2))
           & np.isfinite(body.estimated).all(axis=(1, 2)) & np.isfinite(body.truth).all(axis=(1, 2)))
@@ -131,11 +132,15 @@ def root_paths(body, positions) -> RootPaths | None:
     if not np.isfinite(true_root[ok]).all():
         return None
     drops = heel_drops(layout, positions.dimensions)
-    names, est_pts = foot_points(layout, drops, est_q, positions.estimated[ok])
-    _, true_pts = foot_points(layout, drops, true_q, positions.truth[ok])
+    points = BodyPoints(layout)
+    tracker = RootTracker(1, points.names)
+    names = tuple(n for n, foot in zip(points.names, tracker.feet) if foot)
+    est_pts = points.positions(drops, est_q, positions.estimated[ok])
+    true_pts = points.positions(drops, true_q, positions.truth[ok])[:, tracker.feet]
     root, contacts = np.full((len(body.t), 3), np.nan), np.zeros(len(body.t), np.int64)
-    root[ok], contacts[ok] = RootTracker(1, names).track(t - t[0], est_pts)
-    feet, true_feet = np.full((len(body.t), len(names), 3), np.nan), np.full((len(body.t), len(names), 3), np.nan)
+    root[ok], contacts[ok], _ = tracker.track(t - t[0], est_pts)
+    est_pts = est_pts[:, tracker.feet]
+    feet, true_feet = np.full((len(body.t), *est_pts.shape[1:]), np.nan), np.full((len(body.t), *est_pts.shape[1:]), np.nan)
     feet[ok], true_feet[ok] = root[ok][:, None] + est_pts, true_root[ok][:, None] + true_pts
     hip = layout.segment_index[layout.root.name]
     start = t - t[0] < ALIGN_S

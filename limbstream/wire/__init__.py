@@ -42,7 +42,8 @@ from .keys import (ALIVE, ANGLES, CALIBRATE, CONFIG, POSE, RAW, SEG, STATS, TRUT
                    split_device_id, stats_key, subject_key, subject_pattern, subject_selector, time_key, truth_key)
 from .point import (FLAG_FINAL, POINT_SIZE, POINT_SIZE_RATE, UNIT_TOLERANCE, VERSION, VERSION_RATE, PointColumns,
                     SegmentPoint, decode_point, decode_points, encode_point)
-from .pose import (AUTO, AUTO_LIVE_WINDOW_S, CONTACTS, FRAME_KINDS, FRAME_GAP, FRAME_MISSING, FRAME_TPOSE, KIND_EXACT, KIND_LIVE,
+from .pose import (AUTO, AUTO_LIVE_WINDOW_S, CONTACTS, FRAME_KINDS, FRAME_GAP, FRAME_MISSING, FRAME_NO_ROOT, FRAME_OFF_FEET, FRAME_TPOSE,
+                   KIND_EXACT, KIND_LIVE,
                    LAYOUT_CODES, OTHER_LAYOUT, POSE_DTYPE, POSE_DTYPE_V1, POSE_VERSION, POSE_VERSION_V1, PoseFrame, PoseFrames,
                    auto_kind, contact_names, decode_pose, encode_pose, frame_rest_pose, kind_name, layout_code, pose_dtype,
                    pose_stream, rest_pose_flag)

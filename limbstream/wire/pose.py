@@ -30,6 +30,10 @@ FRAME_MISSING = 0x02
 FRAME_TPOSE = 0x04
 """Pose frame flag: the orientations refer to the ``tpose`` rest pose (clear: ``standing``;
 wire.REST_POSES)."""
+FRAME_NO_ROOT = 0x08
+"""Pose frame flag: root translation off: the layout has no feet (the root stays at the origin)."""
+FRAME_OFF_FEET = 0x10
+"""Pose frame flag: no foot is the lowest point (a fall, a lie-down): the root follows the lowest joint."""
 
 POSE_VERSION = 2
 """The pose frame version published: a body layout's frames, with the root position and foot contacts."""
@@ -133,7 +137,8 @@ class PoseFrame:
     kind : int
         :data:`KIND_EXACT` (final, below the watermark) or :data:`KIND_LIVE` (at "now").
     flags : int
-        :data:`FRAME_GAP`, :data:`FRAME_MISSING`, :data:`FRAME_TPOSE`.
+        :data:`FRAME_GAP`, :data:`FRAME_MISSING`, :data:`FRAME_TPOSE`, :data:`FRAME_NO_ROOT`,
+        :data:`FRAME_OFF_FEET`.
     q : (S, 4) float32
         Segment orientations in ``layout.segment_names`` order.
     joints : (J, 3) float32
@@ -141,7 +146,8 @@ class PoseFrame:
     layout : limbstream.body.Layout
         The subject's body layout (None: ``paper10``).
     root : (3,) float32
-        The root (pelvis) position, metres, world frame, Y up (zeros: not tracked).
+        The root (pelvis) position, metres, world frame, Y up (zeros: not tracked; :data:`FRAME_NO_ROOT`:
+        the layout has no feet to track it by).
     contacts : int
         Planted foot points, bits of :data:`CONTACTS`.
     """
@@ -165,8 +171,9 @@ class PoseFrame:
     @property
     def has_root(self) -> bool:
         """Whether the frame carries a root position (non-zero, or contacts set): else the body was
-        not tracked through the room (a frame before root tracking, a version-1 frame)."""
-        return bool(self.contacts) or bool(np.any(self.root))
+        not tracked through the room (a layout without feet: :data:`FRAME_NO_ROOT`, a frame before
+        root tracking, a version-1 frame)."""
+        return not self.flags & FRAME_NO_ROOT and (bool(self.contacts) or bool(np.any(self.root)))
 
     def to_json(self, subject: str) -> dict:
         """JSON-ready dict (the WebSocket / SSE / REST form)."""
@@ -180,6 +187,8 @@ class PoseFrame:
             "gap": bool(self.flags & FRAME_GAP),
             "missing": bool(self.flags & FRAME_MISSING),
             "rest_pose": frame_rest_pose(self.flags),
+            "no_root": bool(self.flags & FRAME_NO_ROOT),
+            "off_feet": bool(self.flags & FRAME_OFF_FEET),
             "layout": layout.name,
             "segments": {s: [round(float(v), 6) for v in self.q[i]] for i, s in enumerate(layout.segment_names)},
             "joints": {j: [round(float(v), 4) for v in self.joints[i]] for i, j in enumerate(layout.joints)},

@@ -353,13 +353,15 @@ class FrameBuilder:
             def body_of(subject: int, layout: Layout = layout) -> Body:
                 return self.bodies[subject] or self._default(layout)
             if len(r):
-                root, contacts = self.rooting.place(e_owner[r], e_t[r], mine[e], joints[e], layout, body_of, True)
-                groups[0].append(FrameGroup(e_owner[r], wire.PoseFrames(e_seq[r], e_t[r], wire.KIND_EXACT, e_flags[r],
+                root, contacts, flags = self.rooting.place(e_owner[r], e_t[r], mine[e], joints[e], layout, body_of,
+                                                           True, e_missing[r][:, cols])
+                groups[0].append(FrameGroup(e_owner[r], wire.PoseFrames(e_seq[r], e_t[r], wire.KIND_EXACT, e_flags[r] | flags,
                                                                         mine[e], joints[e], layout, root, contacts),
                                             e_missing[r][:, cols]))
             if len(k):
-                root, contacts = self.rooting.place(l_owner[k], l_t[k], mine[~e], joints[~e], layout, body_of, False)
-                groups[1].append(FrameGroup(l_owner[k], wire.PoseFrames(l_seq[k], l_t[k], wire.KIND_LIVE, l_flags[k],
+                root, contacts, flags = self.rooting.place(l_owner[k], l_t[k], mine[~e], joints[~e], layout, body_of,
+                                                           False, l_missing[k][:, cols])
+                groups[1].append(FrameGroup(l_owner[k], wire.PoseFrames(l_seq[k], l_t[k], wire.KIND_LIVE, l_flags[k] | flags,
                                                                         mine[~e], joints[~e], layout, root, contacts),
                                             l_missing[k][:, cols]))
         return FrameBatch(e_owner, e_t, q[:n], e_missing, *groups)

@@ -1,10 +1,11 @@
 """Root translation of every subject's frames (docs/body.md, "Root translation").
 
 Each subject's exact frames, oldest first, move its root tracker (:class:`RootTracker`, one per
-layout's set of foot points, a row per subject); a live frame gets the root the tracker gives it
+layout's set of body points, a row per subject); a live frame gets the root the tracker gives it
 from the newest exact frame's state without moving it, so live and exact frames share one path
 and a live frame's guess never steers the final one. A subject that starts over (its devices'
-streams all restarted, a calibration) starts over at the origin (:meth:`Rooting.reset`).
+streams all restarted, a calibration) starts over at the origin (:meth:`Rooting.reset`). A
+layout without feet has no root translation: its frames keep the origin, flagged ``FRAME_NO_ROOT``.
 """
 from __future__ import annotations
 
@@ -12,15 +13,17 @@ from collections.abc import Callable
 
 import numpy as np
 
+from limbstream import wire
 from limbstream.body import Body, Layout
-from limbstream.body.translation import RootTracker, foot_points, heel_drops
+from limbstream.body.translation import BodyPoints, RootTracker, has_feet, heel_drops
 
 
 class Rooting:
-    """Root positions (F, 3) m and contact bits (F,) of frames, per subject row."""
+    """Root positions (F, 3) m, contact bits (F,) and flags (F,) of frames, per subject row."""
 
     def __init__(self) -> None:
         self.trackers: dict[tuple[str, ...], RootTracker] = {}
+        self.points: dict[Layout, BodyPoints] = {}
         self.drops: dict[tuple[Layout, int], tuple[Body, np.ndarray]] = {}  # (layout, id(body)) -> (body, its heel drops)
 
     def _drops(self, layout: Layout, body: Body) -> np.ndarray:
@@ -44,27 +47,37 @@ class Rooting:
                 tracker.reset(np.array([subject]))
 
     def place(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, joints: np.ndarray, layout: Layout,
-              body_of: Callable[[int], Body], commit: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The roots and contacts of frames of one layout: subject rows ``owner`` (F,) (each
-        subject's frames oldest first), times ``t_us`` (F,) µs, orientations ``q`` (F, S, 4),
-        root-relative joints ``joints`` (F, J, 3) m; ``body_of(row)`` each subject's body.
-        ``commit``: the frames are final (exact) and move the trackers; else (live frames, one per
-        subject) they only read them."""
+              body_of: Callable[[int], Body], commit: bool,
+              missing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The roots, contacts and flags (``FRAME_NO_ROOT``, ``FRAME_OFF_FEET``) of frames of one
+        layout: subject rows ``owner`` (F,) (each subject's frames oldest first), times ``t_us``
+        (F,) µs, orientations ``q`` (F, S, 4), root-relative joints ``joints`` (F, J, 3) m,
+        ``missing`` (F, S) bool the segments each frame lacks (held or identity: their points are
+        not used; None: none); ``body_of(row)`` each subject's body. ``commit``: the frames are
+        final (exact) and move the trackers; else (live frames, one per subject) they only read them."""
         root, contacts = np.zeros((len(owner), 3)), np.zeros(len(owner), np.int64)
+        flags = np.zeros(len(owner), np.int64)
         if not len(owner):
-            return root, contacts
+            return root, contacts, flags
+        if not has_feet(layout):
+            return root, contacts, flags | wire.FRAME_NO_ROOT
+        body_points = self.points.get(layout)
+        if body_points is None:
+            body_points = self.points[layout] = BodyPoints(layout)
         rows = np.unique(owner)
         drops = np.zeros((int(rows.max()) + 1, 2))
         for row in rows:
             drops[row] = self._drops(layout, body_of(row))
-        names, points = foot_points(layout, drops[owner], q, joints)
-        tracker = self._tracker(names, int(owner.max()) + 1)
+        points = body_points.positions(drops[owner], q, joints)
+        usable = None if missing is None else body_points.usable(missing)
+        tracker = self._tracker(body_points.names, int(owner.max()) + 1)
         rank = _rank(owner)
         t = t_us / 1e6
         for r in range(int(rank.max()) + 1):
             at = np.flatnonzero(rank == r)
-            root[at], contacts[at] = tracker.step(owner[at], t[at], points[at], commit=commit)
-        return root, contacts
+            root[at], contacts[at], flags[at] = tracker.step(owner[at], t[at], points[at], commit=commit,
+                                                             usable=None if usable is None else usable[at])
+        return root, contacts, flags
 
 
 def _rank(owner: np.ndarray) -> np.ndarray:
