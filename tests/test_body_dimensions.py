@@ -91,7 +91,7 @@ def test_bad_dimensions_on_the_command_line_are_refused_up_front_in_one_line(tmp
     (tmp_path / "short.toml").write_text("\n".join(line for line in lines if not line.startswith("neck")))
     (tmp_path / "broken.toml").write_text("hip = = 0.5")
     (tmp_path / "zero.json").write_text(json.dumps(BONES | {"l_shank": 0}))
-    out = limbstream(command, *(f.format(dir=tmp_path) for f in flags))
+    out = limbstream(command, "--layout", "paper10", *(f.format(dir=tmp_path) for f in flags))  # (BONES: paper10's)
     assert out.returncode == 2, (out.stdout, out.stderr)
     assert out.stderr.count("\n") == 1 and out.stderr.startswith(f"limbstream {command}: error: "), out.stderr
     assert said in out.stderr, out.stderr
