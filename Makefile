@@ -41,9 +41,10 @@ install: $(TEST_STAMP)
 # specific force, with its noise and offsets) strapped on at up to 90 deg, and fuses it on the device
 # (VQF 6D, no magnetometer: its heading drifts; docs/evaluation.md, 'Raw sensors'); up calibrates
 # every device from the script its stream starts with and holds the headings by the joints. The
-# subjects are whole bodies (--layout full: 15 devices each, chest, head, hands and feet too).
-# `make run RUN_FLAGS=` runs the paper's 10 segments with perfect sensors; other up flags go there too.
-RUN_FLAGS ?= --layout full --imu raw --imu-model icm42688p --mounting-deg 90 --heading-deg 180
+# subjects are whole bodies (up's default layout, full: 15 devices each, chest, head, hands and feet
+# too). `make run RUN_FLAGS=` runs perfect sensors, `make run RUN_FLAGS='--layout paper10'` the
+# paper's 10 segments with perfect sensors; other up flags go there too.
+RUN_FLAGS ?= --imu raw --imu-model icm42688p --mounting-deg 90 --heading-deg 180
 
 run: $(STAMP)
 	$(PYTHON) -m limbstream.cli up $(RUN_FLAGS)

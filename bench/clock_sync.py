@@ -93,7 +93,7 @@ def cost(args) -> int:
         for name, sync in (("A", True), ("B", False)):
             stacks[name]["emulator"] = launcher.start(
                 f"emulate{name}", "emulate", "--connect", stacks[name]["endpoint"], "--subjects",
-                str(args.devices // 10), "--no-truth",
+                str(args.devices // 10), "--no-truth", "--layout", "paper10",
                 *(["--sync-poll-s", f"{args.poll:g}", "-v"] if sync else ["--no-sync"]))
         procs = {(n, k): p for n, st in stacks.items() for k, p in st.items() if k != "endpoint" and p is not None}
         started, samples = time.monotonic(), []  # (window, cpu before, cpu after, wall0, wall1, span)
@@ -193,7 +193,8 @@ def hour_run(name: str, flags: list[str], args, workdir: Path) -> dict:
         time.sleep(1.0)
         start_us = anchor * 1e6 + args.speed * (time.time() - anchor) * 1e6
         emulator = launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(args.subjects),
-                                  "--source", args.source, "--duration", f"{args.hours * 3600:g}", *speed, *flags)
+                                  "--source", args.source, "--duration", f"{args.hours * 3600:g}", *speed, *flags,
+                                  *(["--layout", "paper10"] if args.source == "generator" else []))
         end_us = start_us + args.hours * 3600e6 - 5e6
         deadline = time.monotonic() + args.hours * 3600 / args.speed + 120
 
@@ -348,7 +349,7 @@ def outage(args) -> int:
         stats = session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(1 << 12))
         service = session.declare_querier(wire.time_key(), allowed_destination=zenoh.Locality.REMOTE)
         launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(args.subjects), "--no-truth",
-                       "--clock-offset-ms", "1000", "--clock-drift-ppm", "100", "--sync-holdover-s", "4")
+                       "--layout", "paper10", "--clock-offset-ms", "1000", "--clock-drift-ppm", "100", "--sync-holdover-s", "4")
         devices = 10 * args.subjects
         sync = SyncWatch(session, stats, devices)
         sync.wait(sync.every(sync.reported, True), 60, "the first sync")

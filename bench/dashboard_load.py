@@ -147,7 +147,8 @@ def main() -> int:
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         try:
             launcher.router(endpoint)
-            launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(args.subjects))
+            launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(args.subjects),
+                           "--layout", "paper10")
             launcher.start("aggregate", "aggregate", "--connect", endpoint)
             dashboard, url = launcher.dashboard(f"127.0.0.1:{free_port()}", endpoint)
             n = args.subjects * 10

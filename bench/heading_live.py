@@ -62,7 +62,7 @@ def run(minutes: int, heading: str, up_flags: list[str]) -> list[dict]:
     """Start ``limbstream up --subjects 1`` with ``up_flags``, read s01's stats for ``minutes``;
     returns a :func:`minute_row` per minute."""
     router = f"tcp/127.0.0.1:{free_port()}"
-    args = ["up", "--subjects", "1", "--router", router, "--no-dashboard", "--heading-correction", heading, *up_flags]
+    args = ["up", "--subjects", "1", "--layout", "paper10", "--router", router, "--no-dashboard", "--heading-correction", heading, *up_flags]
     print("running: limbstream", " ".join(args), file=sys.stderr)
     with tempfile.TemporaryDirectory() as tmp, Launcher(logdir=Path(tmp)) as launcher:
         up = launcher.start("up", *args)

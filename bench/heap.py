@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     loop.start()
     half = args.subjects // 2
     emulators = [launcher.start(f"emulator{i}", "emulate", "--connect", endpoint, "--subjects", str(n),
-                                "--first-subject", str(first), "--no-truth")
+                                "--first-subject", str(first), "--no-truth", "--layout", "paper10")
                  for i, (n, first) in enumerate(((args.subjects - half, 1), (half, args.subjects - half + 1))) if n]
     print(f"heap: {args.subjects} subjects, {args.seconds:g} s, trimming {'on' if args.trim else 'off'}\n")
     print("| t (s) | RSS (MiB) | heap in use (MiB) | heap free, kept (MiB) | mmapped (MiB) | trim (ms) | RSS after trim |")

@@ -50,7 +50,8 @@ def main() -> int:
         for i, bound in enumerate(bounds):
             launcher.start(f"emulator{i}", "emulate", "--connect", endpoint, "--subjects", "1",
                            "--first-subject", str(i + 1), "--speed", args.speed, "--threshold", args.threshold,
-                           "--max-len", args.max_len, "--live-bound-deg", str(bound), *source)
+                           "--max-len", args.max_len, "--live-bound-deg", str(bound), *source,
+                           *(["--layout", "paper10"] if args.source == "generator" else []))
         devices: dict[str, dict] = {}
 
         def done():

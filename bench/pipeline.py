@@ -67,7 +67,9 @@ def client(endpoint: str) -> zenoh.Session:
 
 
 def start_emulator_process(router: Router, subjects: int, *extra: str) -> Child:
-    return router.start("emulator", "emulate", "--connect", router.endpoint, "--subjects", str(subjects), *extra)
+    """``emulate`` of ``subjects`` generator subjects of the paper's 10 segments each."""
+    return router.start("emulator", "emulate", "--connect", router.endpoint, "--subjects", str(subjects),
+                        "--layout", "paper10", *extra)
 
 
 def cpu_now() -> float:

@@ -52,7 +52,7 @@ def run(model: str, args, workdir: Path) -> dict:
     """One ``up`` run; its figures."""
     workdir.mkdir(parents=True, exist_ok=True)
     router, http = free_port(), free_port()
-    argv = ["up", "--subjects", "1", "--imu", "raw", "--imu-model", model, "--mounting-deg", "90",
+    argv = ["up", "--subjects", "1", "--layout", "paper10", "--imu", "raw", "--imu-model", model, "--mounting-deg", "90",
             "--heading-deg", "180", "--speed", f"{args.speed:g}", "--router", f"tcp/127.0.0.1:{router}",
             "--http", f"127.0.0.1:{http}", "--status-file", str(workdir / "status.json")]
     print("limbstream " + " ".join(argv), flush=True)

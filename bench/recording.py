@@ -252,7 +252,8 @@ def bench_size(seconds: float, subjects: int, source: str) -> None:
         launcher.start("aggregate", "aggregate", "--connect", endpoint)
         rec = launcher.start("record", "record", str(path), "--connect", endpoint, "--duration", str(seconds))
         time.sleep(1.0)  # the recorder's session opens (its history query covers what it misses anyway)
-        launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(subjects), "--source", source)
+        launcher.start("emulate", "emulate", "--connect", endpoint, "--subjects", str(subjects), "--source", source,
+                       *(["--layout", "paper10"] if source == "generator" else []))
         wait_until(lambda: not rec.alive(), seconds + 60, "the recorder to finish", interval=0.5)
     by_kind: dict[str, list] = {k: [] for k in KINDS}
     for e in Recording(path).entries():

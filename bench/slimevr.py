@@ -115,7 +115,8 @@ class System:
         launcher.start("aggregator", "aggregate", "--connect", self.endpoint, "--live-rate", str(live_rate),
                        "--error-window", "600")
         self.gateway = launcher.start("gateway", "gateway", "slimevr", "--connect", self.endpoint,
-                                      "--udp", f"127.0.0.1:{self.port}", "--report-s", "2", *gateway_args)
+                                      "--udp", f"127.0.0.1:{self.port}", "--report-s", "2", "--layout", "paper10",
+                                      *gateway_args)
         self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(self.endpoint,)))
         self.stats = self.session.declare_subscriber(wire.subject_selector("stats"), zenoh.handlers.FifoChannel(8192))
         self.devices: dict[str, dict] = {}

@@ -177,7 +177,7 @@ def start(args: argparse.Namespace, endpoint: str) -> Run:
             extra = [] if args.truth else ["--no-truth"]
             run.emulators.append(launcher.start(f"emulator{i}", "emulate", "--connect", endpoint, "--subjects", str(n),
                                                 "--first-subject", str(first), "--rate", str(args.rate),
-                                                "--cache", str(args.cache), *extra))
+                                                "--cache", str(args.cache), "--layout", "paper10", *extra))
             first += n
     run.rss = {p.name: [] for p in launcher.children}
     print(f"soak: {args.devices} devices ({subjects} subjects, {len(run.emulators)} emulator processes), "

@@ -37,6 +37,8 @@ from limbstream.services.aggregator.settings import AggregatorSettings
 ROOT = Path(__file__).resolve().parent.parent
 RUN_FLAGS = ["--imu", "raw", "--imu-model", "icm42688p", "--mounting-deg", "90", "--heading-deg", "180"]
 """The Makefile's RUN_FLAGS (``make run``)."""
+LAYOUT = ["--layout", "paper10"]
+"""The 10-segment layout the census counts (``up``'s default is ``full``, 15 devices a subject)."""
 
 
 class Census:
@@ -87,7 +89,7 @@ def run(subjects: int, seconds: float, extra: list[str]) -> None:
     parser = argparse.ArgumentParser()
     up.add_arguments(parser)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = parser.parse_args([*RUN_FLAGS, "--subjects", str(subjects), "--router", endpoint, *extra])
+    args = parser.parse_args([*RUN_FLAGS, *LAYOUT, "--subjects", str(subjects), "--router", endpoint, *extra])
     census = Census()
     with Launcher(Path(tempfile.mkdtemp(prefix="limbstream-census-")), cwd=ROOT) as launcher:
         launcher.router(endpoint)
@@ -129,7 +131,7 @@ def run(subjects: int, seconds: float, extra: list[str]) -> None:
 
 
 def args_shown(extra: list[str]) -> list[str]:
-    return [*RUN_FLAGS, *extra]
+    return [*RUN_FLAGS, *LAYOUT, *extra]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -136,7 +136,7 @@ def test_bad_dimensions_on_the_command_line_are_refused_up_front_in_one_line(tmp
     (tmp_path / "short.toml").write_text("\n".join(line for line in lines if not line.startswith("neck")))
     (tmp_path / "broken.toml").write_text("hip = = 0.5")
     (tmp_path / "zero.json").write_text(json.dumps(BONES | {"l_shank": 0}))
-    out = limbstream(command, *(f.format(dir=tmp_path) for f in flags))
+    out = limbstream(command, "--layout", "paper10", *(f.format(dir=tmp_path) for f in flags))  # (BONES: paper10's)
     assert out.returncode == 2, (out.stdout, out.stderr)
     assert out.stderr.count("\n") == 1 and out.stderr.startswith(f"limbstream {command}: error: "), out.stderr
     assert said in out.stderr, out.stderr
@@ -217,7 +217,7 @@ def test_a_gateways_bad_dimensions_are_refused_in_one_line(argv, said):
 
 def test_a_slimevr_gateway_of_a_layout_file_announces_its_body_whole():
     """``gateway slimevr --layout FILE``: its trackers announce the file's default body (its
-    layout whole on the wire), or the one ``--height-m`` gives."""
+    layout whole on the wire), or the one ``--height-m`` gives; without ``--layout``, full's."""
     import argparse
 
     from limbstream.cli import gateway_slimevr
@@ -228,4 +228,4 @@ def test_a_slimevr_gateway_of_a_layout_file_announces_its_body_whole():
     assert body.layout == SUIT and wire.decode_body(wire.encode_body(body)).layout == SUIT
     body = gateway_slimevr._body(parser.parse_args(["--layout", suit, "--height-m", "1.6"]))
     assert body.layout == SUIT and body.height_m == 1.6
-    assert gateway_slimevr._body(parser.parse_args([])) is None
+    assert gateway_slimevr._body(parser.parse_args([])).layout.name == "full"  # (the default layout's)

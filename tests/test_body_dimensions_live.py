@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 from support import require_data
-from support.stack import StatsWatch, http_json, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
+from support.stack import PAPER10 as PAPER10_FLAGS, StatsWatch, http_json, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 from limbstream.body import PAPER10, Body
@@ -219,7 +219,7 @@ def test_slimevr_trackers_announce_their_wearers_height(stack):  # noqa: F811
     stack.aggregator()
     port = free_udp_port()
     stack.start("gateway", "gateway", "slimevr", "--connect", stack.endpoint, "--udp", f"127.0.0.1:{port}",
-                "--subject", "sv01", "--height-m", "1.6", "--no-sync")
+                "--subject", "sv01", "--height-m", "1.6", "--no-sync", *PAPER10_FLAGS)
     t = np.arange(500) / 50.0
     q = np.zeros((len(t), len(wire.SEGMENTS), 4))
     q[..., 0], q[..., 2] = np.cos(0.3 * np.sin(t))[:, None], np.sin(0.3 * np.sin(t))[:, None]  # turning about Y

@@ -31,7 +31,7 @@ import dockerfile
 import numpy as np
 import pytest
 import zenoh
-from support.stack import ROOT, Stack, free_port, http_json, wait_until
+from support.stack import PAPER10, ROOT, Stack, free_port, http_json, wait_until
 
 from limbstream import wire, zconfig
 
@@ -281,7 +281,8 @@ def test_installed_wheel_runs_up_from_another_directory(image, tmp_path):
     http = f"127.0.0.1:{free_port()}"
     url = f"http://{http}"
     try:
-        stack.start("up", "up", "--router", f"tcp/127.0.0.1:{stack.port}", "--http", http, "--subjects", "2")
+        stack.start("up", "up", "--router", f"tcp/127.0.0.1:{stack.port}", "--http", http, "--subjects", "2",
+                    *PAPER10)
 
         def streaming():
             status, subjects = http_json(url + "/api/subjects")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 from support.command import Command
-from support.stack import free_port, stack  # noqa: F401  (fixture)
+from support.stack import PAPER10, free_port, stack  # noqa: F401  (fixture)
 
 from limbstream import wire
 from limbstream.services.outputs.recording import RecordingWriter
@@ -36,7 +36,7 @@ CLIENTS = {
     "vrchat": (["vrchat", "--subject", "s01", "--to", "127.0.0.1:{port}"], "s01 -> 127.0.0.1"),
     "replay": (["replay", "{tmp}/take.mcap"], "replaying"),
     "aggregate": (["aggregate"], "aggregating subjects"),
-    "emulate": (["emulate", "--subjects", "1"], "emulating 10 devices"),
+    "emulate": (["emulate", "--subjects", "1", *PAPER10], "emulating 10 devices"),
     "clock": (["clock"], "serving time on"),
     "gateway slimevr": (["gateway", "slimevr", "--udp", "127.0.0.1:0"], "slimevr gateway slimevr on udp"),
     "gateway serial": (["gateway", "serial", "--port", "tcp:127.0.0.1:{port}", "--subject", "s01", "--segment", "hip"],

@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from support.stack import ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import PAPER10, ROOT, http_json, stack, wait_until  # noqa: F401  (stack is a fixture)
 
 pytestmark = pytest.mark.browser
 
@@ -331,7 +331,7 @@ def test_page_plots_each_subjects_joint_angles(stack):  # noqa: F811
     stack.router()
     stack.emulator(1)
     stack.start("emulate-s02", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--first-subject", "2",
-                "--mounting-deg", "90", "--heading-deg", "180")
+                *PAPER10, "--mounting-deg", "90", "--heading-deg", "180")
     stack.aggregator()
     url = stack.dashboard()
     wait_until(lambda: all(http_json(f"{url}/api/subjects/{s}/joints")[0] == 200 for s in ("s01", "s02")), 60,

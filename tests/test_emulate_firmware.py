@@ -16,7 +16,7 @@ import zenoh
 from limbstream import wire
 from support.firmware import require_tools
 from support.points import PointLog
-from support.stack import wait_until
+from support.stack import PAPER10, wait_until
 
 pytestmark = pytest.mark.qemu
 
@@ -136,7 +136,7 @@ def test_a_firmware_device_that_dies_comes_back_as_a_new_stream(stack, elf):
     alive = log.session.liveliness().declare_subscriber(wire.device_selector("alive"), zenoh.handlers.FifoChannel(256))
     try:
         child = stack.start("emulate", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--firmware",
-                            "--firmware-elf", str(elf), "--no-sync", "--no-truth", *LIVE_FLAGS)
+                            "--firmware-elf", str(elf), "--no-sync", "--no-truth", *PAPER10, *LIVE_FLAGS)
         wait_until(lambda: len(log.poll()) == 10, 60, "points of the 10 firmware devices", on_fail=stack.logs)
         qemus = qemu_children(child.pid)
         assert len(qemus) == 10, qemus

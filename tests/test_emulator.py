@@ -185,7 +185,9 @@ def test_generator_feeds_of_a_layout_and_the_body_they_announce():
     assert feed.segments == FULL.segment_names and feed.body.layout is FULL and feed.body.height_m == 1.75
     assert feed.sample(3).shape == (15, 4)
     [feed] = emulate.build_feeds(parse("--subjects", "1")).values()
-    assert feed.segments == SEGMENTS and feed.body is None  # paper10's default adult, as before
+    assert feed.segments == FULL.segment_names and feed.body.layout is FULL  # full: the default
+    [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", "paper10")).values()
+    assert feed.segments == SEGMENTS and feed.body is None  # paper10's default adult
     [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", "full", "--height-m", "1.9")).values()
     assert feed.body.layout is FULL and feed.body.height_m == 1.9
     [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", "full", "--imu", "raw")).values()

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import zenoh
 from support import require
-from support.stack import ROOT, StatsWatch, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import PAPER10, ROOT, StatsWatch, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import evaluation, quat, wire
 from limbstream.sources import load_npz
@@ -221,7 +221,7 @@ def test_cut_link_between_device_host_and_router(stack, netns):  # noqa: F811
     try:
         stack.aggregator()
         stack.start("emulate", "emulate", "--connect", f"tcp/{netns['host_ip']}:{port}", "--subjects", "1",
-                    prefix=("ip", "netns", "exec", netns["ns"]))
+                    *PAPER10, prefix=("ip", "netns", "exec", netns["ns"]))
         wait_until(lambda: len(watch.poll()) == 10 and all(d["online"] and d["points"] > 3
                                                           for d in watch.devices.values()),
                    60, "devices in the namespace online", on_fail=stack.logs)

@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 import pytest
-from support.stack import ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import PAPER10, ROOT, stack, wait_for_subscribers, wait_until  # noqa: F401  (stack is a fixture)
 
 from limbstream import wire, zconfig
 from limbstream.services.outputs.subscription import Subscription
@@ -33,7 +33,7 @@ def test_watch_prints_the_joint_angles_or_why_there_are_none(stack):  # noqa: F8
     wait_for_subscribers(stack.endpoint, [wire.seg_key("s01", "hip")], "the aggregator", on_fail=stack.logs)
     stack.emulator(1)
     stack.start("emulate-s02", "emulate", "--connect", stack.endpoint, "--subjects", "1", "--first-subject", "2",
-                "--mounting-deg", "90", "--heading-deg", "180")
+                *PAPER10, "--mounting-deg", "90", "--heading-deg", "180")
     newest: dict[str, wire.JointAngles] = {}
     with Subscription(zconfig.ZenohSettings(connect=(stack.endpoint,)), "*", (wire.ANGLES,)) as sub:
         def told() -> bool:  # each subject's calibration is known once its devices' statuses are in

@@ -14,7 +14,7 @@ import time
 
 import pytest
 import zenoh
-from support.stack import ROOT, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import PAPER10, ROOT, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 
@@ -65,7 +65,7 @@ def secure(stack, tmp_path):  # noqa: F811
 def test_device_may_publish_only_under_its_own_prefix(stack, secure):  # noqa: F811
     ep = secure["endpoint"]
     stack.start("aggregate", "aggregate", "--connect", ep, "--zenoh-config", secure["client_file"]("aggregator"))
-    stack.start("emulate", "emulate", "--connect", ep, "--subjects", "1",
+    stack.start("emulate", "emulate", "--connect", ep, "--subjects", "1", *PAPER10,
                 "--zenoh-config", secure["client_file"]("dev-s01"))
     ops = secure["session"]("ops")
     rogue = secure["session"]("dev-s01")

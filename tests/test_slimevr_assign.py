@@ -202,7 +202,7 @@ def test_a_full_set_is_placed_by_body_position_on_the_full_layout():
 def test_the_gateway_command_takes_a_layout_and_announces_it():
     """``gateway slimevr --layout full``: sensors feed the full layout's segments and the devices
     announce its default body (so the aggregator knows the layout); with --height-m, a body of it
-    that tall; without --layout, paper10 and no body, as before."""
+    that tall. full is the default; ``--layout paper10`` the paper's 10 segments, with its body."""
     import argparse
 
     from limbstream.body import FULL, PAPER10
@@ -220,4 +220,7 @@ def test_the_gateway_command_takes_a_layout_and_announces_it():
     tall = settings("--layout", "full", "--height-m", "1.9")
     assert tall.body.layout == FULL and tall.body.height_m == 1.9
     plain = settings()
-    assert plain.layout is None and plain.body is None and plain.segments == PAPER10.segment_names
+    assert plain.layout == FULL and plain.segments == FULL.segment_names and plain.body.layout == FULL
+    paper = settings("--layout", "paper10")
+    assert paper.segments == PAPER10.segment_names and paper.body.layout == PAPER10
+    assert settings("--height-m", "1.6").body.layout == FULL

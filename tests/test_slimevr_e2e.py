@@ -14,7 +14,7 @@ import pytest
 from limbstream import wire, zconfig
 from limbstream.launch import free_port
 from limbstream.device_emulator.slimevr_tracker import Fleet
-from support.stack import StatsWatch, stack, wait_until  # noqa: F401  (the fixture)
+from support.stack import PAPER10, StatsWatch, stack, wait_until  # noqa: F401  (the fixture)
 from support.slimevr import free_udp_port
 
 
@@ -37,7 +37,7 @@ def test_ten_trackers_reach_the_aggregator(stack):  # noqa: F811
     stack.aggregator()
     port = free_udp_port()
     stack.start("gateway", "gateway", "slimevr", "--connect", stack.endpoint, "--udp", f"127.0.0.1:{port}",
-                "--subject", "s01", "-v")
+                "--subject", "s01", *PAPER10, "-v")
     watch = StatsWatch(stack.endpoint)
     fleet = Fleet(("127.0.0.1", port), motion(50.0, 10.0), wire.SEGMENTS, 50.0)
     stop = threading.Event()

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from support.stack import StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
+from support.stack import PAPER10, StatsWatch, free_port, http_json, stack, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 from limbstream.cli import flags
@@ -51,15 +51,17 @@ def taken_port(port: int) -> socket.socket:
 
 
 class Up:
-    """A ``limbstream up`` process of the test's stack and its status file."""
+    """A ``limbstream up`` process of the test's stack and its status file; on the generator the
+    paper's 10 segments a subject (``--layout paper10``) unless ``extra`` gives a layout."""
 
     def __init__(self, stack, tmp_path: Path, *extra: str, http: str | None = None):  # noqa: F811
         self.status_file = tmp_path / "up-status.json"
         self.http = http or f"127.0.0.1:{free_port()}"
         self.url = f"http://{self.http}"
         dashboard = () if "--no-dashboard" in extra else ("--http", self.http)  # (--http needs the dashboard)
+        layout = () if "--layout" in extra or "--source" in extra else PAPER10
         self.child = stack.start("up", "up", "--router", stack.endpoint, *dashboard,
-                                 "--status-file", str(self.status_file), *extra)
+                                 "--status-file", str(self.status_file), *layout, *extra)
         self.logs = stack.logs
 
     def status(self) -> dict:
@@ -224,29 +226,33 @@ def test_up_banner_counts_the_devices_that_run_and_prints_client_commands(xio_di
     up_cli.add_arguments(parser)
     default = parser.parse_args([])
     assert default.router == "tcp/127.0.0.1:7448" and up_cli.client_commands(default)[0] == f"{command} watch s01"
-    assert up_cli.running(up_cli.check(default), default) == "2 subjects x 10 devices, source generator"
+    assert up_cli.running(up_cli.check(default), default) == "2 subjects x 15 devices (layout full), source generator"
 
 
 def test_up_streams_the_generator_in_the_layout_asked_for(xio_dir, tmp_path, monkeypatch):
-    """``up --layout full``: its emulators get the layout and the body flags; a recording's
-    segments must be in the layout."""
+    """``up --layout full``: its emulators get the layout and the body flags; full is the default,
+    ``--layout paper10`` the paper's 10 segments; a recording's segments must be in the layout."""
     from limbstream.body import FULL
     from limbstream.cli import up as up_cli
     parser = argparse.ArgumentParser()
     up_cli.add_arguments(parser)
     args = parser.parse_args(["--layout", "full", "--height-m", "1.8", "--no-sync"])
     assert up_cli.check(args) == [FULL.segment_names] * 2
-    assert up_cli.running(up_cli.check(args), args).startswith("2 subjects x 15 devices (hip, chest, head, ")
+    assert up_cli.running(up_cli.check(args), args) == "2 subjects x 15 devices (layout full), source generator"
     [emulate] = [argv for name, argv in up_cli.plan(args) if name == "emulator"]
     assert emulate[emulate.index("--layout") + 1] == "full" and emulate[emulate.index("--height-m") + 1] == "1.8"
     default = parser.parse_args(["--no-sync"])
-    assert "--layout" not in dict(up_cli.plan(default))["emulator"] and up_cli.check(default) == [wire.SEGMENTS] * 2
+    assert "--layout" not in dict(up_cli.plan(default))["emulator"] and up_cli.check(default) == [FULL.segment_names] * 2
+    paper = parser.parse_args(["--layout", "paper10", "--no-sync"])
+    assert up_cli.check(paper) == [wire.SEGMENTS] * 2 and "--layout paper10" in " ".join(dict(up_cli.plan(paper))["emulator"])
+    assert up_cli.running(up_cli.check(paper), paper) == "2 subjects x 10 devices (layout paper10), source generator"
     with pytest.raises(ValueError, match="--layout paper10: the source .* moves segments l_foot, r_foot, not in"):
         up_cli.check(parser.parse_args(["--source", str(xio_dir), "--layout", "paper10"]))
     assert up_cli.check(parser.parse_args(["--source", str(xio_dir), "--layout", "full"]))[0][0] == "l_foot"
     legs = {"name": "legs", "segments": [  # a layout file of segments the generator moves: passed on by its path
-        {"name": "hip", "joint": "pelvis", "end": "spine", "direction": [0, 1, 0]},
-        {"name": "r_thigh", "parent": "hip", "joint": "pelvis", "end": "r_knee", "direction": [0, -1, 0]}]}
+        {"name": "hip", "joint": "pelvis", "end": "spine", "direction": [0, 1, 0], "height_fraction": 0.1},
+        {"name": "r_thigh", "parent": "hip", "joint": "pelvis", "end": "r_knee", "direction": [0, -1, 0],
+         "height_fraction": 0.245}]}
     (tmp_path / "legs.json").write_text(json.dumps(legs))
     monkeypatch.chdir(tmp_path)
     args = parser.parse_args(["--layout", "legs.json", "--no-sync"])
@@ -273,7 +279,7 @@ def test_a_recording_is_one_subject_unless_more_are_asked_for(xsens_dir, monkeyp
     args = up_args("--source", str(xsens_dir), "--names", "opensense", "--subjects", "3")
     assert up_cli.running(up_cli.check(args), args).startswith("3 subjects x 7 devices (")
     args = up_args()
-    assert up_cli.running(up_cli.check(args), args) == "2 subjects x 10 devices, source generator"
+    assert up_cli.running(up_cli.check(args), args) == "2 subjects x 15 devices (layout full), source generator"
 
     def feeds(*argv: str) -> list[str]:
         parser = argparse.ArgumentParser()
@@ -544,7 +550,7 @@ def test_up_draws_the_lower_body_recording_as_a_person(stack, tmp_path, xio_dir)
 def test_up_removes_its_temporary_folder_with_what_the_parts_kept_there(stack, tmp_path):  # noqa: F811
     """Without --status-file, ``up`` keeps its status in a temporary folder, and with modelled
     sensors the aggregator keeps its calibrations beside it: on Ctrl-C the folder goes, whole."""
-    child = stack.start("up", "up", "--router", stack.endpoint, "--subjects", "1", "--no-dashboard",
+    child = stack.start("up", "up", "--router", stack.endpoint, "--subjects", "1", "--no-dashboard", *PAPER10,
                         "--mounting-deg", "90", "--heading-deg", "180", env={"TMPDIR": str(tmp_path)})
     wait_until(lambda: list(tmp_path.glob("limbstream-up-*/calibrations.json")), 90,
                "the aggregator to keep its calibrations in up's folder", on_fail=stack.logs)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from support.command import Command
-from support.stack import free_port
+from support.stack import PAPER10, free_port
 
 from limbstream import cli
 
@@ -30,10 +30,12 @@ def gone(pid: int) -> bool:
 
 
 def up(cwd: Path, *extra: str) -> tuple[Command, Path]:
-    """``limbstream up`` (the entry point) on free ports in ``cwd``; its status file."""
+    """``limbstream up`` (the entry point) on free ports in ``cwd`` (the generator on paper10's
+    10 segments unless ``extra`` gives a source); its status file."""
     status = cwd / "up-status.json"
+    layout = () if "--source" in extra else PAPER10
     argv = [str(SCRIPT), "up", "--subjects", "1", "--router", f"tcp/127.0.0.1:{free_port()}",
-            "--http", f"127.0.0.1:{free_port()}", "--status-file", str(status), *extra]
+            "--http", f"127.0.0.1:{free_port()}", "--status-file", str(status), *layout, *extra]
     return Command(" ".join(argv), cwd=cwd, shell=True), status
 
 

@@ -321,23 +321,34 @@ def names_argv(mapping: dict[str, str] | None) -> list[str]:
 
 # ----------------------------------------------------------------------------- the body's layout
 
+DEFAULT_LAYOUT = "full"
+"""The layout of ``--layout`` when not given (``emulate``, ``up``, ``gateway slimevr``): the whole
+body, 15 segments (``paper10``, the paper's 10, by ``--layout paper10``)."""
+
+
 def add_layout(parser: argparse.ArgumentParser, help_text: str | None = None) -> None:
     """``--layout paper10|full|FILE``: the body the built-in generator moves, one device per
     segment, and the layout of the body the devices announce (``emulate``, ``up``; checked by
     :func:`layout`); ``help_text``: another command's use of it (a gateway's)."""
     parser.add_argument("--layout", default=None, metavar="paper10|full|FILE",
                         help=help_text or "the subjects' body layout (docs/body.md): the generator moves a device per "
-                             "segment of it, paper10 (10 segments, default), full (15: chest, head, hands and feet too) "
-                             "or a .toml/.json layout file of segments it moves; a motion file streams its own "
-                             "segments, which the layout must hold; --height-m and --body size a body of it")
+                             f"segment of it, {DEFAULT_LAYOUT} (15 segments: pelvis, chest, head, arms, hands, legs "
+                             "and feet; default), paper10 (the paper's 10: no chest, hands or feet) or a .toml/.json "
+                             "layout file of segments it moves; a motion file streams its own segments, which the "
+                             "layout must hold (the body of its --height-m/--body: paper10's unless --layout says); "
+                             "--height-m and --body size a body of it")
 
 
 def layout(args: argparse.Namespace) -> Layout:
-    """The layout of ``--layout`` (``paper10`` when not given); FlagError naming a bad one."""
+    """The layout of ``--layout``; FlagError naming a bad one. Not given: :data:`DEFAULT_LAYOUT` for
+    a command that takes ``--layout`` and streams the generator or a gateway's trackers; ``paper10``
+    for a motion file's subjects (their devices are the file's own segments) and a command without
+    the flag (``gateway serial``)."""
     from limbstream import body
     value = getattr(args, "layout", None)
     if value is None:
-        return body.PAPER10
+        takes = hasattr(args, "layout") and getattr(args, "source", "generator") == "generator"
+        return body.LAYOUTS[DEFAULT_LAYOUT] if takes else body.PAPER10
     try:
         return body.layout(value)
     except (OSError, ValueError) as exc:
@@ -394,8 +405,8 @@ def add_body(parser: argparse.ArgumentParser, whose: str = "") -> None:
 
 
 def bodies(args: argparse.Namespace) -> list[Body] | None:
-    """The bodies of ``--height-m`` or ``--body`` (of the ``--layout``, paper10 by default), one per
-    value; None when neither is given. FlagError naming the flag, the value and the bound, or a
+    """The bodies of ``--height-m`` or ``--body`` (of the ``--layout``, :func:`layout`'s default), one
+    per value; None when neither is given. FlagError naming the flag, the value and the bound, or a
     layout file that gives no height fraction for a bone when neither is given (its devices
     announce its default body, :func:`default_body`)."""
     from limbstream.body import Body

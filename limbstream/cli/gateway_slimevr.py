@@ -86,9 +86,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--sync-wait-s", type=float, default=10.0,
                        help="at start, wait at most this long for the first time answers (default 10)")
     flags.add_layout(parser, "the wearer's body layout (docs/body.md): a sensor feeds the segment of it that its "
-                             "SlimeVR body position names (docs/protocol.md, \"SlimeVR gateway\"): paper10 (default), "
-                             "full (head, chest, hands and feet too) or a .toml/.json layout file; the devices "
-                             "announce it with the body of --height-m/--body, or its default body")
+                             "SlimeVR body position names (docs/protocol.md, \"SlimeVR gateway\"): full (default: "
+                             "pelvis, chest, head, arms, hands, legs and feet), paper10 (no chest, hands or feet) or a "
+                             ".toml/.json layout file; the devices announce it with the body of --height-m/--body, or "
+                             "its default body")
     flags.add_body(parser, "of the trackers' wearer (default: the default adult of about 1.75 m)")
     parser.add_argument("-v", "--verbose", action="store_true")
     flags.add_zenoh(parser)
@@ -119,17 +120,18 @@ def settings_from_args(args: argparse.Namespace):
                            timeout_s=args.timeout, max_devices=args.max_devices,
                            clock=ClockSettings(sync=args.sync, wait_s=max(args.sync_wait_s, 0.0)),
                            assignments_file=args.assignments_file, body=_body(args),
-                           layout=flags.layout(args) if args.layout is not None else None)
+                           layout=flags.layout(args))
 
 
 def _body(args: argparse.Namespace):
-    """The body the gateway's devices announce: ``--height-m``/``--body``'s, else with ``--layout``
-    its default body (so its layout is announced: a layout file's whole), else none."""
-    from limbstream.body import Body
+    """The body the gateway's devices announce: ``--height-m``/``--body``'s, else its ``--layout``'s
+    default body (``full`` by default; paper10's too, so its layout is announced; a layout file's
+    travels whole: :func:`flags.default_body`)."""
+    from limbstream.body import PAPER10, Body
     given = flags.one_body(args)
-    if given is None and args.layout is not None:
-        return Body.default(flags.layout(args))
-    return given
+    if given is not None:
+        return given
+    return Body.default(PAPER10) if flags.layout(args) == PAPER10 else flags.default_body(args)
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:

@@ -37,7 +37,7 @@ from limbstream.cli.emulate import (add_clock_arguments, add_source_arguments, c
                                     default_subjects)
 from limbstream.cli.gateway_slimevr import parse_address
 from limbstream import sources, wire, zconfig
-from limbstream.body import Layout, layout_for
+from limbstream.body import LAYOUTS, Layout, layout_for
 from limbstream.cli import flags
 from limbstream.launch import (ChildExited, CrashLoop, Launcher, PortTaken, RestartPolicy, Supervisor,
                                    split_endpoint)
@@ -259,7 +259,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
 
 
 def subject_layouts(args: argparse.Namespace, devices: list[tuple[str, ...]]) -> list[Layout]:
-    """The subjects' layouts: ``--layout`` (the generator's default, ``paper10``, without it), else
+    """The subjects' layouts: ``--layout`` (without it the generator's default, ``flags.DEFAULT_LAYOUT``), else
     the smallest built-in layout holding a motion file's segments (as the aggregator takes it)."""
     if not devices:
         return []
@@ -295,12 +295,13 @@ def client_commands(args: argparse.Namespace) -> list[str]:
 
 
 def running(devices: list[tuple[str, ...]], args: argparse.Namespace) -> str:
-    """What runs, for the banner: subjects, the devices that really run, source."""
+    """What runs, for the banner: subjects, the devices that really run (a built-in layout's by
+    its name, others by their segments), source."""
     subjects = f"{len(devices)} subject{'s' if len(devices) != 1 else ''}"
     if len(set(devices)) == 1:
         what = f"{subjects} x {len(devices[0])} devices"
-        if set(devices[0]) != set(wire.SEGMENTS):
-            what += f" ({', '.join(devices[0])})"
+        named = [name for name, layout in LAYOUTS.items() if set(devices[0]) == set(layout.segment_names)]
+        what += f" (layout {named[0]})" if named else f" ({', '.join(devices[0])})"
     else:
         what = f"{subjects}, {sum(len(d) for d in devices)} devices"
     if args.slimevr is not None:

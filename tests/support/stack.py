@@ -59,6 +59,11 @@ def http_json(url: str, timeout: float = 5.0, method: str = "GET", body=None, he
         return status, raw.decode(errors="replace")
 
 
+PAPER10 = ("--layout", "paper10")
+"""The flags of the paper's 10 segments a subject (``emulate``'s and ``up``'s default is ``full``, 15):
+what the tests stream unless they are about the layout."""
+
+
 class Stack(launch.Launcher):
     """Router, emulator(s), aggregator(s) and dashboard of one test, on free ports.
 
@@ -99,8 +104,11 @@ class Stack(launch.Launcher):
         return super().router(self.endpoint, *extra, timeout=timeout)
 
     def emulator(self, subjects: int = 2, speed: float = 1.0, *extra: str) -> Child:
+        """``emulate`` of ``subjects`` at ``speed``; on the generator ``--layout paper10`` unless ``extra``
+        gives a layout or a source (10 devices a subject keep the tests light; emulate's default is full)."""
+        given = any(a.split("=")[0] in ("--layout", "--source") for a in extra)
         return self.start("emulate", "emulate", "--connect", self.endpoint, "--subjects", str(subjects),
-                          "--speed", str(speed), *extra)
+                          "--speed", str(speed), *([] if given else PAPER10), *extra)
 
     def aggregator(self, *extra: str) -> Child:
         return self.start("aggregate", "aggregate", "--connect", self.endpoint, *extra)
