@@ -299,7 +299,7 @@ class HeadingCorrection:
         turn, asked = self.ranges.asked()
         information = asked * b.joined[-1][..., j] / np.radians(self.settings.rom_sd_deg) ** 2
         _add((b.absolute[0][-1], b.absolute[1][-1]), (Ellipsis, j), now + turn, information)
-        return out.all(axis=-1)
+        return np.all(out, axis=-1)
 
     def _rates(self, q: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T, B, S, 3) each segment's angular rate in its own frame, rad/s, from one tick to the
