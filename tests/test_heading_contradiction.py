@@ -114,8 +114,9 @@ def test_a_mislabelled_full_body_trips_too():
 
 def test_correct_cmu_clips_never_trip_it(cmu_npz):
     """Every CMU clip (labelled T-pose), looped for 60 s through drifting sensors, one subject
-    each in one estimator: no joint comes near the bound (subject 131's, whose arms hang in the
-    file, bend their elbows 60 deg off the plane across the forearm: still under the bound)."""
+    each in one estimator: no joint comes near the bound (subject 131's clips, whose arms hang at
+    rest though the file says T-pose, bend their elbows 60 deg off the plane across the forearm:
+    under the bound, 75 deg)."""
     clips = load(cmu_npz)
     truth = np.stack([looped([clip], 60.0).q for clip in clips], axis=1)
     q = np.stack([drifting(truth[:, b], seed=20 + b) for b in range(len(clips))], axis=1)
