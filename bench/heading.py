@@ -21,6 +21,11 @@ joint, :func:`limbstream.heading.joints.joint_errors_deg`) is averaged per minut
 (not the holds), per joint class:
 
     python bench/heading.py ../shared/data/cmu_10seg_50hz.npz [--minutes 10] [--bad-day] [--chain simulated]
+        [--sessions loop] [--kind hip] [--mislabel]
+
+``--mislabel`` reads each clip as a source whose rest pose is not what it says would give it
+(:func:`limbstream.heading.simulate.zero_pose_along_x`): the correction must see its joints'
+constraints contradicted and stop (stderr names the clips where it did) instead of following them.
 """
 from __future__ import annotations
 
@@ -34,8 +39,9 @@ import numpy as np
 from limbstream import calibration, imu, kernel, quat
 from limbstream.evaluation.fusion import reference_vqf
 from limbstream.heading import HeadingCorrection, Settings
-from limbstream.heading.joints import Layout, joint_errors_deg
-from limbstream.heading.simulate import DriftModel
+from limbstream.evaluation.body import KINDS
+from limbstream.heading.joints import Layout, joint_errors_deg, kind as joint_kind
+from limbstream.heading.simulate import DriftModel, zero_pose_along_x
 from limbstream.sources import Motion, load
 from limbstream.sources.loop import looped
 
@@ -60,8 +66,9 @@ class Session:
     start: int
 
 
-def sessions(clip: Motion, minutes: float, segments: tuple[str, ...] | None) -> tuple[dict[str, Session], Layout]:
-    """The ``loop`` and ``holds`` sessions of ``clip`` looped for ``minutes`` (only ``segments``)."""
+def sessions(clip: Motion, minutes: float, segments: tuple[str, ...] | None,
+             which: tuple[str, ...] = ("loop", "holds")) -> tuple[dict[str, Session], Layout]:
+    """The sessions ``which`` (``loop``, ``holds``) of ``clip`` looped for ``minutes`` (only ``segments``)."""
     names = clip.segments
     keep = [names.index(s) for s in (segments or names)]
     motion = looped([clip], minutes * 60).q[:, keep]
@@ -70,6 +77,8 @@ def sessions(clip: Motion, minutes: float, segments: tuple[str, ...] | None) -> 
     q, rest, mounting = calibration.with_script(motion, FS, names)
     start = len(q) - len(motion)
     out = {"loop": Session(q, np.arange(len(q)) >= start, rest, mounting, [], start)}
+    if "holds" not in which:
+        return out, layout
 
     identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(names), 1))
     n_move, n_hold = round(MOVE_S * FS), round(HOLD_S * FS)
@@ -180,21 +189,39 @@ def with_resets(s: Session, q_cal: np.ndarray, cals: list[calibration.Calibratio
     return out, refused
 
 
-def corrected(s: Session, q_cal: np.ndarray, layout: Layout, settings: Settings) -> np.ndarray:
-    """(n, S, 4) ``q_cal`` corrected by the heading estimator, run from the calibration on."""
+def corrected(s: Session, q_cal: np.ndarray, layout: Layout, settings: Settings,
+              name: str = "") -> np.ndarray:
+    """(n, S, 4) ``q_cal`` corrected by the heading estimator, run from the calibration on; where
+    it finds the joints' constraints contradicted and stops (:mod:`limbstream.heading.contradiction`),
+    a line to stderr says so (``name``: the clip and session)."""
     out = q_cal.copy()
     start = s.mounting.stop
-    out[start:] = HeadingCorrection.batch(q_cal[start:], layout, FS, settings)
+    out[start:], est = HeadingCorrection.run_over(q_cal[start:], layout, FS, settings)
+    if est.contradicted[0]:
+        shares = ", ".join(f"{j} {v:.2f}" for j, v in est.contradicted_joints(0).items())
+        print(f"({name}: constraints contradicted at {est.stopped_s[0]:.0f} s: {shares}; correction stopped)",
+              file=sys.stderr)
     return out
 
 
-def per_minute(s: Session, q_est: np.ndarray, truth: np.ndarray, layout: Layout) -> dict[str, np.ndarray]:
-    """Joint class -> (minutes,) mean joint angle error against ``truth`` over the scored
-    samples of each minute after the script, degrees."""
+def groups(layout: Layout, kind: str | None) -> dict[str, np.ndarray]:
+    """Joint group name -> (J,) mask: the joint classes (hinge, 3-DoF), or the joints of one kind."""
+    if kind is None:
+        return layout.classes()
+    mask = np.array([joint_kind(j) == kind for j in layout.joints])
+    if not mask.any():
+        raise SystemExit(f"no {kind} joint among {', '.join(layout.joints)}")
+    return {kind: mask}
+
+
+def per_minute(s: Session, q_est: np.ndarray, truth: np.ndarray, layout: Layout,
+               kind: str | None = None) -> dict[str, np.ndarray]:
+    """Joint group (:func:`groups`) -> (minutes,) mean joint angle error against ``truth`` over
+    the scored samples of each minute after the script, degrees."""
     err = joint_errors_deg(q_est[s.motion], truth[s.motion], layout)
     minute = ((np.flatnonzero(s.motion) - s.start) / FS // 60).astype(int)
     out = {}
-    for name, mask in layout.classes().items():
+    for name, mask in groups(layout, kind).items():
         e = err[:, mask].mean(axis=1)
         out[name] = np.bincount(minute, e) / np.maximum(np.bincount(minute), 1)
     return out
@@ -204,34 +231,51 @@ CASES = ("loop: no correction", "loop: heading correction", "holds: no correctio
          "holds: yaw resets, drift compensated", "holds: heading correction")
 
 
-def clip_rows(clip: Motion, minutes: float, body: str, chain: Chain, stream: int,
+@dataclass(frozen=True)
+class Plan:
+    """What to run: each clip looped for ``minutes``, the sensors of ``body``, the sessions
+    ``which``; the error of joint ``kind`` alone (None: per class); ``mislabel``: each clip read as
+    a BVH file whose zero pose has every bone along +X would be, labelled with its rest pose
+    (:func:`limbstream.heading.simulate.zero_pose_along_x`)."""
+
+    minutes: float = 10.0
+    body: str = "full"
+    which: tuple[str, ...] = ("loop", "holds")
+    kind: str | None = None
+    mislabel: bool = False
+
+
+def clip_rows(clip: Motion, plan: Plan, chain: Chain, stream: int,
               settings: Settings) -> tuple[dict[str, dict[str, np.ndarray]], Layout]:
-    """Case -> joint class -> (minutes,) mean joint angle error of one clip looped, its sensors
+    """Case -> joint group -> (minutes,) mean joint angle error of one clip looped, its sensors
     drawn from stream ``stream``."""
-    runs, layout = sessions(clip, minutes, BODIES[body])
+    if plan.mislabel:
+        clip = replace(clip, q=zero_pose_along_x(clip.q, clip.segments, clip.rest_pose))
+    runs, layout = sessions(clip, plan.minutes, BODIES[plan.body], plan.which)
     rows: dict[str, dict[str, np.ndarray]] = {}
     for name, s in runs.items():
         readings, truth = chain.readings(s, layout.segments, clip.rest_pose, stream)
         q_cal, cals = calibrated(s, readings, layout.segments)
-        rows[f"{name}: no correction"] = per_minute(s, q_cal, truth, layout)
+        rows[f"{name}: no correction"] = per_minute(s, q_cal, truth, layout, plan.kind)
         if s.holds:
             reset, refused = with_resets(s, q_cal, cals)
-            rows[f"{name}: yaw resets, drift compensated"] = per_minute(s, reset, truth, layout)
+            rows[f"{name}: yaw resets, drift compensated"] = per_minute(s, reset, truth, layout, plan.kind)
             if refused:
                 print(f"({clip.name}: {refused} of {len(s.holds) * len(layout.segments)} resets refused, not still)",
                       file=sys.stderr)
-        rows[f"{name}: heading correction"] = per_minute(s, corrected(s, q_cal, layout, settings), truth, layout)
+        rows[f"{name}: heading correction"] = per_minute(s, corrected(s, q_cal, layout, settings, f"{clip.name}, {name}"),
+                                                         truth, layout, plan.kind)
     return rows, layout
 
 
-def run(path: str, minutes: float, body: str, chain: Chain, settings: Settings, verbose: bool = False,
+def run(path: str, plan: Plan, chain: Chain, settings: Settings, verbose: bool = False,
         skip: tuple[str, ...] = ()) -> str:
     clips = [clip for clip in load(path) if clip.name not in skip]
     began = time.perf_counter()
     per_clip = []
     for clip in clips:
         stream = sum(ord(c) for c in clip.name)  # each clip its own sensors, whichever clips are run
-        rows, layout = clip_rows(clip, minutes, body, chain, stream, settings)
+        rows, layout = clip_rows(clip, plan, chain, stream, settings)
         per_clip.append(rows)
         if verbose:
             print(clip.name, {k: {c: np.round(v, 1).tolist() for c, v in r.items()} for k, r in rows.items()},
@@ -239,16 +283,19 @@ def run(path: str, minutes: float, body: str, chain: Chain, settings: Settings, 
     print(f"({len(clips)} clips in {time.perf_counter() - began:.0f} s)", file=sys.stderr)
     n_min = min(len(v) for rows in per_clip for r in rows.values() for v in r.values())
     skipped = f" (without {', '.join(skip)})" if skip else ""
-    lines = [f"{len(clips)} clips{skipped}, each looped for {minutes:g} min; {body} body ({len(layout.segments)} sensors); "
-             f"{chain.describe()} (each clip its own sensors); fastSW TH 9e-4, max_len 25, live bound 5. "
-             "Joint angle error (deg), mean of the clips, per minute:", ""]
-    for cls in layout.classes():
-        members = [j for j, h in zip(layout.joints, layout.hinge) if (cls == "hinge") == h]
-        lines += [f"**{cls} joints** ({', '.join(members)})", "",
+    labelled = "; read as a zero pose with every bone along +X labelled as their rest pose" if plan.mislabel else ""
+    lines = [f"{len(clips)} clips{skipped}{labelled}, each looped for {plan.minutes:g} min; {plan.body} body "
+             f"({len(layout.segments)} sensors); {chain.describe()} (each clip its own sensors); fastSW TH 9e-4, "
+             "max_len 25, live bound 5. Joint angle error (deg), mean of the clips, per minute:", ""]
+    for group, mask in groups(layout, plan.kind).items():
+        members = [j for j, m in zip(layout.joints, mask) if m]
+        title = f"{group} joints" if plan.kind is None else group
+        lines += [f"**{title}** ({', '.join(members)})", "",
                   "| case | " + " | ".join(str(m + 1) for m in range(n_min)) + " |", "|---|" + "---:|" * n_min]
         for name in CASES:
-            mean = np.mean([rows[name][cls][:n_min] for rows in per_clip], axis=0)
-            lines.append(f"| {name} | " + " | ".join(f"{v:.2f}" for v in mean) + " |")
+            if name in per_clip[0]:
+                mean = np.mean([rows[name][group][:n_min] for rows in per_clip], axis=0)
+                lines.append(f"| {name} | " + " | ".join(f"{v:.2f}" for v in mean) + " |")
         lines.append("")
     return "\n".join(lines)
 
@@ -267,10 +314,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--verbose", action="store_true", help="also each clip's rows (to stderr)")
     parser.add_argument("--skip", nargs="*", default=[], metavar="CLIP", help="clips to leave out, by name")
+    parser.add_argument("--sessions", choices=("both", "loop"), default="both",
+                        help="loop: the motion alone, without the holds session (default both)")
+    parser.add_argument("--kind", choices=KINDS, default=None,
+                        help="the error of one joint kind (left and right together; default: per joint class)")
+    parser.add_argument("--mislabel", action="store_true",
+                        help="each clip read as a BVH file whose zero pose has every bone along +X, labelled as its "
+                             "rest pose: the error the correction must notice and not follow")
+    parser.add_argument("--never-stop", action="store_true",
+                        help="the correction goes on however contradicted its joints (what stopping spares)")
     args = parser.parse_args(argv)
     chain = Chain(args.chain, args.imu_model, args.bad_day, DriftModel(bias_dps=args.bias_dps, seed=args.seed),
                   args.seed)
-    print(run(args.path, args.minutes, args.body, chain, Settings(), args.verbose, tuple(args.skip)))
+    plan = Plan(args.minutes, args.body, ("loop",) if args.sessions == "loop" else ("loop", "holds"), args.kind,
+                args.mislabel)
+    settings = Settings(contradiction_share=1.0) if args.never_stop else Settings()  # a share never beyond 1
+    print(run(args.path, plan, chain, settings, args.verbose, tuple(args.skip)))
     return 0
 
 

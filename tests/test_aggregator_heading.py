@@ -11,6 +11,7 @@ import pytest
 from limbstream import calibration, kernel, quat, wire
 from limbstream.heading import HeadingCorrection
 from limbstream.heading.joints import Layout, joint_errors_deg
+from limbstream.heading.simulate import zero_pose_along_x
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 from limbstream.sources.generator import generate
 from limbstream.wire import SEGMENTS
@@ -55,26 +56,30 @@ restarts; both wear the same sensors on the same motion, in one aggregator."""
 LOWER_BODY = SUBJECTS[1][1]
 
 
-def session(heading: bool, subjects=SUBJECTS, seconds: float = SECONDS):
+def session(heading: bool, subjects=SUBJECTS, seconds: float = SECONDS, mislabelled: tuple[str, ...] = ()):
     """Subjects of one motion, their sensors strapped at up to 90 deg with headings anywhere and
     drifting (up to DRIFT_DPS), the calibration script first; a subject's right shank restarts
     at its restart time (s; None: never) with a new stream that begins with the script again (its
     heading elsewhere), with heading correction ``heading`` or none; only a subject's segments
-    have a device. Returns the aggregator, each subject's exact frames as (t_us, q (10, 4)), its
+    have a device; the subjects ``mislabelled`` wear the motion as a source whose zero pose has
+    every bone along +X labelled as its rest pose gives it
+    (:func:`limbstream.heading.simulate.zero_pose_along_x`). Returns the aggregator, each subject's exact frames as (t_us, q (10, 4)), its
     stats each second (by subject name), and the truth (m, 10, 4) by tick."""
     motion = generate(seconds, FS, seed=21)
     q, _, _ = calibration.with_script(motion.q, FS)
+    wrong, _, _ = calibration.with_script(zero_pose_along_x(motion.q, motion.segments, motion.rest_pose), FS)
     m = len(q)
     sensors = calibration.SensorModel(90, 180, DRIFT_DPS, seed=5).draw(len(SEGMENTS))
     t = np.arange(m) / FS
     events: dict[int, list[tuple[str, str, bytes]]] = {}
     for name, segments, restart in subjects:
         k = round((restart or seconds) * FS)
+        worn = wrong if name in mislabelled else q
         for j, seg in enumerate(SEGMENTS):
             if seg not in segments:
                 continue
-            reading = sensors.report(j, t, q[:, j])
-            parts = [(0, reading, q[:, j], 1)]
+            reading = sensors.report(j, t, worn[:, j])
+            parts = [(0, reading, worn[:, j], 1)]
             if seg == RESTARTED and restart is not None:  # the restart: the script again, a new filter heading
                 again, _, _ = calibration.with_script(motion.q[k:, None, j], FS, (seg,))
                 later = calibration.SensorModel(90, 180, DRIFT_DPS, seed=9).draw(len(SEGMENTS))

@@ -20,7 +20,7 @@ from limbstream.wire import DEVICE_RATE_HZ as DEVICE_RATE
 from limbstream.calibration import CalibrationError
 from limbstream.cli import flags
 from limbstream.evaluation import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, MAX_LEN, PREDICTORS, THRESHOLDS, evaluate,
-                                   format_joint_errors, format_joint_kinds, format_positions, format_table,
+                                   format_heading_stopped, format_joint_errors, format_joint_kinds, format_positions, format_table,
                                    format_translation, frontier, streams_of, write_json)
 from limbstream.evaluation.body import layout_of
 from limbstream.evaluation.table import Progress
@@ -391,6 +391,8 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
         held = ", its headings held by the joints" if sensors.on and args.heading_correction == "joints" else ""
         print(f"\njoint error per joint, of the {what}{held}, against the truth")
         print(format_joint_kinds(rows))
+        for line in format_heading_stopped(rows):
+            print(line)
         print(f"\njoint positions of the {what}{held}, the pelvis at the origin, against the truth's: "
               f"{_position_sources(motions, args.loop_minutes is not None, args.layout)}")
         print(format_positions(rows))

@@ -43,12 +43,12 @@ a reference, as the BROAD benchmark scores it). Command line: ``limbstream eval`
 from __future__ import annotations
 
 from limbstream.evaluation.live_model import simulate_live
-from limbstream.evaluation.report import (format_joint_errors, format_joint_kinds, format_positions, format_table, format_translation, frontier,
+from limbstream.evaluation.report import (format_heading_stopped, format_joint_errors, format_joint_kinds, format_positions, format_table, format_translation, frontier,
                                           write_json)
 from limbstream.evaluation.sweep import (ALGORITHMS, CALIBRATIONS, ICR_TARGETS, KEYS, MAX_LEN, MEASURES, PREDICTORS, THRESHOLDS,
                                          Stream, at_icr, evaluate, evaluate_threshold, streams_of)
 from limbstream.evaluation.sweep import _Pool  # noqa: F401  (the tests' pooled streams)
 
 __all__ = ["ALGORITHMS", "CALIBRATIONS", "ICR_TARGETS", "KEYS", "MAX_LEN", "MEASURES", "PREDICTORS", "THRESHOLDS", "Stream",
-           "at_icr", "evaluate", "evaluate_threshold", "format_joint_errors", "format_joint_kinds", "format_positions", "format_table", "format_translation", "frontier", "simulate_live", "streams_of",
+           "at_icr", "evaluate", "evaluate_threshold", "format_heading_stopped", "format_joint_errors", "format_joint_kinds", "format_positions", "format_table", "format_translation", "frontier", "simulate_live", "streams_of",
            "write_json"]

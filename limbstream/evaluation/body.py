@@ -9,7 +9,7 @@ lets anyone recompute every figure.
   ``full``), NaN where a segment has no data.
 - :func:`correct_heading`: a calibrated body's headings held by its joints, as the aggregator
   holds them (:class:`limbstream.heading.HeadingCorrection`, run over the motion from the
-  calibration on).
+  calibration on), stopped where the motion contradicts the joints' constraints (``contradicted``).
 - :func:`joint_figures`: the joint error (the angle between the estimated and the true relative
   orientation of each pair of adjacent segments, :func:`limbstream.heading.joints.joint_errors_deg`)
   pooled over bodies, overall and per joint kind, with its first and last minute: the joints
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -60,6 +60,9 @@ class Body:
     source_t : (m,) s, each frame's time in the source file (NaN: none).
     source : the source file's own joint positions, if it has them (a BVH file's).
     layout : the body's layout (its segments, in their order; the joints its positions are of).
+    contradicted : the joints whose constraints its motion contradicts, each with its share of the
+        last minute, once the heading correction found so and stopped (at ``stopped_s``, s of
+        motion; :mod:`limbstream.heading.contradiction`); empty: not found, or not corrected.
     """
 
     name: str
@@ -72,6 +75,8 @@ class Body:
     source_t: np.ndarray
     source: BvhPositions | None = None
     layout: BodyLayout = PAPER10
+    contradicted: dict[str, float] = field(default_factory=dict)
+    stopped_s: float = math.nan
 
     @property
     def joints(self) -> Layout:
@@ -127,7 +132,8 @@ def correct_heading(body: Body) -> None:
     have = sorted(body.streams)
     layout = Layout.of([names[k] for k in have], body.rest_pose)
     fs = 1.0 / float(np.median(np.diff(body.t)))
-    body.estimated[:, have] = HeadingCorrection.batch(body.estimated[:, have], layout, fs)
+    body.estimated[:, have], est = HeadingCorrection.run_over(body.estimated[:, have], layout, fs)
+    body.contradicted, body.stopped_s = est.contradicted_joints(0), float(est.stopped_s[0])
 
 
 def joint_figures(bodies_: list[Body], minute_s: float = 60.0) -> tuple[float, dict[str, dict]]:

@@ -187,6 +187,19 @@ def _finite(value):
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
+def format_heading_stopped(rows: Sequence[dict]) -> list[str]:
+    """One line per motion of each row whose heading correction stopped, its joints contradicting
+    their constraints (``heading_stopped``: its rest pose is not what it says)."""
+    lines = []
+    for r in rows:
+        for s in r.get("heading_stopped", ()):
+            joints = ", ".join(f"{j} {v:.2f}" for j, v in s["joints"].items())
+            lines.append(f"heading correction stopped for {s['motion']} at {s['at_s']:.0f} s "
+                         f"({r['algorithm']} TH {r['threshold']:g}): its joints contradict their constraints ({joints}: "
+                         "share of the last minute); its rest pose is not what it says")
+    return lines
+
+
 def write_json(rows: Sequence[dict], path: str | Path) -> None:
     """All rows as a JSON list of objects with the :data:`KEYS` (and the ``EXTRAS``, ``joint_kinds``,
     ``joints``, ``positions``, where scored); NaN becomes null."""

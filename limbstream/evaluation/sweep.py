@@ -63,7 +63,7 @@ KEYS: tuple[str, ...] = (
 MEASURES: tuple[str, ...] = KEYS[5:]
 """The measures of a row: degrees, ``pos_cm`` centimetres."""
 
-EXTRAS: tuple[str, ...] = ("joint_kinds", "joints", "positions", "translation")
+EXTRAS: tuple[str, ...] = ("joint_kinds", "joints", "positions", "translation", "heading_stopped")
 """A row's figures per joint (:func:`evaluate_threshold`), where scored."""
 
 
@@ -319,6 +319,9 @@ def evaluate_threshold(
     body = (np.concatenate([quat.angle_deg(c[ok], t[ok]) for c, t, ok in calibrated.values()])
             if calibrated else np.zeros(0))
     row["joint_aad"], row["joint_kinds"] = bodies_of.joint_figures(bodies)
+    stopped = [{"motion": b.name, "at_s": b.stopped_s, "joints": b.contradicted} for b in bodies if b.contradicted]
+    if stopped:  # motions whose joints contradict their constraints: heading correction stopped
+        row["heading_stopped"] = stopped
     places = [positions_of.positions_of(b) for b in bodies]
     row["pos_cm"], row["positions"] = positions_of.position_figures(places)
     moved = [f for b, p in zip(bodies, places) if (f := translation.translation_of(b, p)) is not None]

@@ -17,6 +17,11 @@ on their own (:meth:`HeadingCorrection.take`: the aggregator's subjects finish t
 different times) or all subjects' together (:meth:`HeadingCorrection.update`).
 :meth:`HeadingCorrection.batch` runs the same blocks over a recording, so the offline form gives
 what the live one gives.
+
+A subject whose joints contradict their constraints (:mod:`.contradiction`: its source's rest pose
+is not what it says) is no longer corrected: its corrections drop to none and stay there
+(:attr:`HeadingCorrection.contradicted`, :meth:`HeadingCorrection.contradicted_joints`: its
+callers say so).
 """
 from __future__ import annotations
 
@@ -27,74 +32,11 @@ import numpy as np
 from limbstream import quat
 from limbstream.calibration import axis_angle, yaw
 from limbstream.heading import hinge, rom
+from limbstream.heading.contradiction import Contradictions, hinge_off
 from limbstream.heading.filter import ABSOLUTE, GATE as filter_gate, MEAN_REFERENCED, JointFilters, wrap
 from limbstream.heading.joints import Layout, kind, relative, twist, vertical_in
+from limbstream.heading.settings import DEFAULTS, Settings
 from limbstream.heading.still import Stillness, leaning_alike
-
-
-@dataclass(frozen=True)
-class Settings:
-    """The estimator's tunables (angles in degrees, rates in deg/s, times in s).
-
-    - ``update_s``: a filter step per this much of ticks.
-    - Filters (:mod:`.filter`): the start's standard deviations of a joint's offset
-      (``delta0_deg``: the calibration's), rate (``rate0_dps`` for ball joints,
-      ``hinge_rate0_dps`` for hinges) and a hinge's bias (``hinge_mean0_deg``; a ball joint's
-      mean twist: ``twist_deg``); their random walks per sqrt(s) (``delta_walk``, ``rate_walk``
-      in deg/s, ``mean_walk``).
-    - Hinges (:mod:`.hinge`): the spread of a knee's and an elbow's turns about the bone and
-      across it (``knee_spread_deg``, ``elbow_spread_deg``), the time over which the hinge measure's
-      errors are alike (``hinge_corr_s``), the axis learner's memory and trust thresholds
-      (``axis_*``).
-    - Ball joints (hips, shoulders, the neck; where a body has them the lumbar spine, the ankles
-      and the wrists, which report two angles and are held by their twist and range): per kind,
-      the prior of the mean twist and the twist's spread about it (``twist_deg``: (kind, mean
-      sd, spread)), the time over which it stays alike
-      (``twist_corr_s``), the gate in standard deviations beyond which a twist is left out
-      (``twist_gate``); the range of motion's (:mod:`.rom`) measure, memory and share out of range
-      that asks for a turn (``rom_*``).
-    - Stillness (:mod:`.still`): below ``still_dps`` for ``still_s``; the relaxed pose measured at
-      ``relaxed_sd_deg`` per second held, up to ``relaxed_pose_deg`` per still spell, within
-      ``relaxed_lean_deg`` of the rest pose's lean and ``relaxed_gate_deg`` of the expected twist.
-    - ``confidence_deg``: the offset's standard deviation at which a device's confidence is 1/2.
-    """
-
-    update_s: float = 0.2
-    delta0_deg: float = 1.0
-    rate0_dps: float = 0.05
-    hinge_rate0_dps: float = 0.1
-    hinge_mean0_deg: float = 3.0
-    delta_walk: float = 0.02
-    rate_walk: float = 5e-3
-    mean_walk: float = 0.05
-    knee_spread_deg: tuple[float, float] = (10.0, 3.0)
-    elbow_spread_deg: tuple[float, float] = (30.0, 5.0)
-    hinge_corr_s: float = 1.0
-    axis_memory_s: float = 120.0
-    axis_min_amount: float = 3.0
-    axis_min_share: float = 0.8
-    twist_deg: tuple[tuple[str, float, float], ...] = (("hip", 10.0, 10.0), ("shoulder", 30.0, 30.0),
-                                                       ("neck", 10.0, 15.0), ("lumbar", 10.0, 15.0),
-                                                       ("ankle", 10.0, 10.0), ("wrist", 20.0, 30.0))
-    twist_corr_s: float = 1.0
-    twist_gate: float = 4.0
-    rom_sd_deg: float = 3.0
-    rom_memory_s: float = 10.0
-    rom_min_share: float = 0.2
-    still_dps: float = 2.0
-    still_s: float = 1.0
-    relaxed_sd_deg: float = 1.0
-    relaxed_pose_deg: float = 2.0
-    relaxed_lean_deg: float = 5.0
-    relaxed_gate_deg: float = 25.0
-    confidence_deg: float = 5.0
-
-    def __post_init__(self):
-        for name in ("update_s", "delta0_deg", "rate0_dps", "hinge_rate0_dps", "hinge_mean0_deg", "hinge_corr_s",
-                     "axis_memory_s", "twist_corr_s", "twist_gate", "rom_sd_deg", "rom_memory_s", "still_s",
-                     "relaxed_sd_deg", "relaxed_pose_deg", "confidence_deg"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"Settings.{name} must be > 0, got {getattr(self, name)}")
 
 
 class HeadingCorrection:
@@ -108,7 +50,7 @@ class HeadingCorrection:
     settings : the tunables.
     """
 
-    def __init__(self, layout: Layout, subjects: int = 1, fs: float = 50.0, settings: Settings = Settings()):
+    def __init__(self, layout: Layout, subjects: int = 1, fs: float = 50.0, settings: Settings = DEFAULTS):
         self.layout, self.fs, self.settings = layout, fs, settings
         self.block = max(1, round(settings.update_s * fs))
         n_joints = len(layout.joints)
@@ -133,6 +75,8 @@ class HeadingCorrection:
         before, after = layout.to_standing()
         self.to_standing = before[self.balls], after[self.balls]
         self.ranges = rom.RangeCounts((subjects, len(self.balls)), settings.rom_memory_s, settings.rom_min_share)
+        self.contradictions = Contradictions((subjects, n_joints), settings.contradiction_memory_s,
+                                             settings.contradiction_min_s, settings.contradiction_share)
         n_segments = len(layout.segments)
         self.still = Stillness((subjects, n_segments), settings.still_dps)
         self.last = np.tile([1.0, 0.0, 0.0, 0.0], (subjects, n_segments, 1))
@@ -162,7 +106,10 @@ class HeadingCorrection:
         return [(self.filters, "x", 0), (self.filters, "p", 0), (self.axes, "sums", 1), (self.axes, "axis", 0),
                 (self.axes, "ready", 0), (self.axes, "error", 0), (self.ranges, "out", 0), (self.ranges, "seen", 0),
                 (self.still, "still_s", 0), (self, "last", 0), (self, "had", 0), (self, "locked", 0),
-                (self, "lock_ref", 0), (self, "lock_p", 0), (self, "was_still", 0), (self, "relaxed_left", 0)]
+                (self, "lock_ref", 0), (self, "lock_p", 0), (self, "was_still", 0), (self, "relaxed_left", 0),
+                (self.contradictions, "out", 0), (self.contradictions, "seen", 0),
+                (self.contradictions, "contradicted", 0), (self.contradictions, "stopped_s", 0),
+                (self.contradictions, "elapsed_s", 0), (self.contradictions, "which", 0)]
 
     def add_subjects(self, n: int) -> np.ndarray:
         """Room for ``n`` more subjects, learnt from nothing; returns their rows."""
@@ -294,7 +241,7 @@ class HeadingCorrection:
         rates, steady = self._rates(q, present)
         self._hinges(b)
         self._twists(b)
-        self._range(b)
+        ball_off = self._range(b)
         self._stillness(b, np.linalg.norm(rates, axis=-1), steady)
         free = ~self.locked
         self.filters.predict(len(q) * dt)
@@ -304,6 +251,20 @@ class HeadingCorrection:
         h = self.hinges
         held = axis_angle(b.g_parent[..., h, :], b.applied[..., h])
         self.axes.add(quat.multiply(held, r[..., h, :]), b.g_parent[..., h, :], b.joined[..., h], dt)
+        self._contradicted(b, ball_off, len(q) * dt)
+
+    def _contradicted(self, b: _Block, ball_off: np.ndarray, dt: float) -> None:
+        """Count one block's contradicted joints (:mod:`.contradiction`; ``ball_off`` (B, balls):
+        the ball joints out of range at every heading tried); the subjects found contradicted stay
+        at no correction."""
+        off = np.zeros(self.locked.shape, bool)
+        off[:, self.hinges] = hinge_off(self.axes.axis, self.bones, self.axes.ready, self.settings.hinge_off_deg)
+        off[:, self.balls] = ball_off
+        self.contradictions.add(off, b.joined[-1], dt)
+        if self.contradicted.any():
+            stopped = np.broadcast_to(self.contradicted[:, None], self.locked.shape)
+            self.filters.forget(stopped, keep_mean=False)
+            self.locked &= ~stopped
 
     def _hinges(self, b: _Block) -> None:
         """The hinge measure of every hinge (:mod:`.hinge`), where its axis is known."""
@@ -325,8 +286,9 @@ class HeadingCorrection:
         _add(b.referenced, (Ellipsis, j), measured,
              near * b.joined[..., j] * dt / (self.twist_var * self.settings.twist_corr_s))
 
-    def _range(self, b: _Block) -> None:
-        """Each ball joint's range of motion (:mod:`.rom`), counted at the block's last tick."""
+    def _range(self, b: _Block) -> np.ndarray:
+        """Each ball joint's range of motion (:mod:`.rom`), counted at the block's last tick;
+        returns (B, balls) whether each is out of range at every heading tried (and has one)."""
         j = self.balls
         g = b.g_parent[-1][..., j, :]
         now = b.applied[-1][..., j]
@@ -337,6 +299,7 @@ class HeadingCorrection:
         turn, asked = self.ranges.asked()
         information = asked * b.joined[-1][..., j] / np.radians(self.settings.rom_sd_deg) ** 2
         _add((b.absolute[0][-1], b.absolute[1][-1]), (Ellipsis, j), now + turn, information)
+        return np.all(out, axis=-1)
 
     def _rates(self, q: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T, B, S, 3) each segment's angular rate in its own frame, rad/s, from one tick to the
@@ -373,6 +336,21 @@ class HeadingCorrection:
         _add(b.absolute, (Ellipsis,), -b.turn, np.broadcast_to(spent / len(b.r), b.turn.shape))
 
     # -- state ----------------------------------------------------------------------------------
+
+    @property
+    def contradicted(self) -> np.ndarray:
+        """(subjects,) bool: found contradicted (:mod:`.contradiction`), no longer corrected."""
+        return self.contradictions.contradicted
+
+    @property
+    def stopped_s(self) -> np.ndarray:
+        """(subjects,) when each was found so, s of its ticks stepped (NaN: not)."""
+        return self.contradictions.stopped_s
+
+    def contradicted_joints(self, row: int) -> dict[str, float]:
+        """Joint -> share of the last minute contradicted, of subject ``row``'s joints beyond the
+        bound once it is :attr:`contradicted` (else empty)."""
+        return self.contradictions.joints(row, self.layout.joints)
 
     def joint_offsets(self, ahead: np.ndarray | int = 0, rows: np.ndarray | None = None) -> np.ndarray:
         """(subjects, joints) each joint's correction ``ahead`` ((subjects,) or one) ticks after
@@ -440,12 +418,19 @@ class HeadingCorrection:
     # -- offline --------------------------------------------------------------------------------
 
     @classmethod
-    def batch(cls, q: np.ndarray, layout: Layout, fs: float = 50.0, settings: Settings = Settings(),
+    def batch(cls, q: np.ndarray, layout: Layout, fs: float = 50.0, settings: Settings = DEFAULTS,
               row: int = 0, present: np.ndarray | None = None) -> np.ndarray:
         """(m, S, 4) a recording's calibrated orientations ``q`` (m, S, 4) at ``fs`` Hz,
         corrected as the live estimator would have, tick by tick, in subject row ``row`` (its
         first block staggered as that row's); ``present`` (m, S) bool: where the devices are
         (default: where ``q`` is a finite unit quaternion; the others are left as they are)."""
+        return cls.run_over(q, layout, fs, settings, row, present)[0]
+
+    @classmethod
+    def run_over(cls, q: np.ndarray, layout: Layout, fs: float = 50.0, settings: Settings = DEFAULTS,
+                 row: int = 0, present: np.ndarray | None = None) -> tuple[np.ndarray, HeadingCorrection]:
+        """:meth:`batch`'s corrected orientations, and the estimator as the recording left it
+        (one subject: whether it found its constraints contradicted, ...)."""
         q = np.asarray(q, np.float64)
         est = cls(layout, 1, fs, settings)
         unit = np.all(np.isfinite(q), axis=-1) & (np.abs(np.sum(q * q, axis=-1) - 1.0) < 1e-2)
@@ -461,7 +446,7 @@ class HeadingCorrection:
             out[k:k + len(block)][mine] = cls.apply(block[:, 0][mine], c[:, 0][mine])
             if len(block) == (first if k == 0 else est.block):
                 est.process(block, here)
-        return out
+        return out, est
 
 
 @dataclass

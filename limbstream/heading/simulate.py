@@ -16,6 +16,9 @@ that lies along the vertical. :class:`DriftModel` draws, per sensor:
 A sensor then reports ``yaw(h(t)) * tilt(t) * q`` for its segment's orientation ``q``, with
 ``h(t) = integral of b``: before the strap's mounting and the filter's arbitrary initial heading,
 which :mod:`limbstream.calibration` models and removes.
+
+:func:`zero_pose_along_x` makes the other error the correction must not take for drift: a source
+whose rest pose is not what it says (its segments' axes are not the anatomical ones).
 """
 from __future__ import annotations
 
@@ -25,7 +28,11 @@ import numpy as np
 from scipy.signal import lfilter
 
 from limbstream import quat
+from limbstream.body import LAYOUTS
 from limbstream.calibration import axis_angle, yaw
+from limbstream.sources.bvh_rest import shortest_arc
+
+X = np.array([1.0, 0.0, 0.0])
 
 
 @dataclass(frozen=True)
@@ -86,3 +93,15 @@ class DriftModel:
         angle = np.linalg.norm(tilt_vec, axis=-1)
         axis = tilt_vec / np.where(angle > 0, angle, 1.0)[..., None]
         return Drift(heading, bias, axis_angle(axis, angle))
+
+
+def zero_pose_along_x(q: np.ndarray, segments, rest_pose: str) -> np.ndarray:
+    """(..., S, 4) the orientations ``q`` (..., S, 4) of ``segments`` (names of the built-in
+    layouts' segments) as a BVH file whose zero pose has every bone along +X gives them, read as
+    if that zero pose were ``rest_pose``: each segment's ``q * c``, ``c`` the shortest arc that
+    turns +X onto its bone's true rest direction (its ``directions[rest_pose]``), so that ``q * c``
+    takes the file's bone (+X) where ``q`` takes the true one. A constant error per segment, the
+    same a mislabelled rest pose makes (an arm already along +X in a T-pose is left as it is)."""
+    directions = {s.name: s.directions[rest_pose] for layout in LAYOUTS.values() for s in layout.segments}
+    c = np.array([shortest_arc(X, np.asarray(directions[name], np.float64)) for name in segments])
+    return quat.multiply(np.asarray(q, np.float64), c)

@@ -161,6 +161,10 @@ FIELDS: tuple[StatsField, ...] = (
     StatsField("joint_aad_deg", float, "subject", "mean angle between the estimated and the true relative orientation "
                "of each pair of adjacent segments (the joints) in the exact frames compared for frame_aad_deg; which "
                "way the subject faces does not change it (the aggregator's error window, --error-window)", "deg"),
+    StatsField("heading_contradicted", dict, "subject", "the joints whose constraints the subject's motion "
+               "contradicts (a hinge bending about another axis, a joint out of range at any heading: its rest pose is "
+               "not what it says), each with its share of the last minute; its heading correction stopped (null: "
+               "not found, or no correction)"),
     StatsField("frame_error_frames", int, "subject", "exact frames compared with the truth so far"),
     StatsField("facing_deg", float, "subject", "the turn about the vertical from the calibrated frames to the truth's "
                "world, fitted from the first frames compared after the subject's calibration (0: none fitted)", "deg"),

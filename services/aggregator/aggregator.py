@@ -374,7 +374,8 @@ class Aggregator:
         return [{"frames": int(frames.made[sub.index]), "skipped_frames": int(frames.skipped[sub.index]),
                  "live_missed": int(frames.live_missed[sub.index]),
                  "watermark_us": None if view.watermark[sub.index] == NO_TIME else int(view.watermark[sub.index]),
-                 "frame_aad_deg": aad, "joint_aad_deg": joints, "frame_error_frames": compared, "facing_deg": facing}
+                 "frame_aad_deg": aad, "joint_aad_deg": joints, "frame_error_frames": compared, "facing_deg": facing,
+                 "heading_contradicted": self.fusion.heading.contradicted(sub.index, sub.name)}
                 | self.fusion.layouts.fields(sub) for sub, (aad, compared, facing, joints) in zip(subjects, scores)]
 
     def publish_stats(self, now: float, part: int = 0, parts: int = 1, wall: float | None = None) -> None:

@@ -21,8 +21,15 @@ made against the reconstruction so turned (:meth:`HeadingStage.turns`). The stor
 calibrated: the estimator gets its input back exactly (the turn was put on after SLERP, so taking
 it off gives the calibrated reconstruction), and a calibration made later reads the points it
 always read.
+
+A subject whose joints contradict their constraints (its source's rest pose is not what it says;
+:mod:`limbstream.heading.contradiction`) is no longer corrected: its estimator drops its devices'
+corrections to none; its stats say which joints (``heading_contradicted``,
+:meth:`HeadingStage.contradicted`) and the log says so once.
 """
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 
@@ -31,6 +38,8 @@ from limbstream.body import PAPER10, Layout
 from limbstream.calibration import yaw
 from limbstream.heading import HeadingCorrection
 from limbstream.services.aggregator.layouts import joints_of
+
+log = logging.getLogger("limbstream.aggregator")
 
 class HeadingStage:
     """The heading corrections of an aggregator's devices (by slot) and subjects (by index); an
@@ -54,6 +63,7 @@ class HeadingStage:
         self.slope = np.zeros(0)             # by slot: dc/dt, rad/s
         self.t_ref = np.zeros(0, np.int64)   # by slot: us
         self.taken = np.zeros(0, np.int64)   # by subject: exact frames learnt from
+        self.told: set[int] = set()          # subjects whose contradicted constraints the log has said
 
     @property
     def active(self) -> bool:
@@ -163,6 +173,22 @@ class HeadingStage:
                                         slots.shape)[have]
 
     # ------------------------------------------------------------------ figures
+
+    def contradicted(self, subject: int, name: str) -> dict[str, float] | None:
+        """The subject's ``heading_contradicted`` stats field: joint -> its share of the last
+        minute contradicted, once its estimator found its constraints contradicted and stopped
+        correcting it; None while it has not. The first time, a log line names the subject
+        (``name``) and those joints."""
+        where = self.place[subject]
+        if where is None or not self.estimators[where[0]].contradicted[where[1]]:
+            return None
+        joints = self.estimators[where[0]].contradicted_joints(where[1])
+        if subject not in self.told:
+            self.told.add(subject)
+            log.warning("subject %s: its joints contradict their constraints (%s: share of the last minute): its "
+                        "rest pose is not what it says; its heading is no longer corrected", name,
+                        ", ".join(f"{j} {v:.2f}" for j, v in joints.items()))
+        return joints
 
     def figures(self, slots: np.ndarray, owner: np.ndarray, segments: list[str]) -> dict[str, np.ndarray]:
         """The heading fields of the stats entries of devices ``slots`` (k,) of subjects ``owner``
