@@ -167,13 +167,6 @@ class RootTracker:
             self.seen = np.concatenate([self.seen, np.zeros((more, len(self.names)), bool)])
             self.refused = np.concatenate([self.refused, np.zeros(more, np.int64)])
 
-    def reset(self, rows: np.ndarray) -> None:
-        """Rows start over at their next frame (the root back at the origin)."""
-        self.anchor[rows] = _FIRST
-        self.root[rows] = 0.0
-        self.velocity[rows] = 0.0
-        self.pace[rows] = 0.0
-
     def step(self, rows: np.ndarray, t: np.ndarray, points: np.ndarray, commit: bool = True,
              usable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One frame of each of ``rows`` (n,) distinct: times ``t`` (n,) s, points ``points``

@@ -3,8 +3,8 @@
 Each subject's exact frames, oldest first, move its root tracker (:class:`RootTracker`, one per
 layout's set of body points, a row per subject); a live frame gets the root the tracker gives it
 from the newest exact frame's state without moving it, so live and exact frames share one path
-and a live frame's guess never steers the final one. A subject that starts over (its devices'
-streams all restarted, a calibration) starts over at the origin (:meth:`Rooting.reset`). A
+and a live frame's guess never steers the final one. A subject's root carries on through its
+devices' restarts and calibrations (its frames do: the anchor holds it where it was). A
 layout without feet has no root translation: its frames keep the origin, flagged ``FRAME_NO_ROOT``.
 """
 from __future__ import annotations
@@ -39,12 +39,6 @@ class Rooting:
             tracker = self.trackers[names] = RootTracker(0, names)
         tracker.grow(rows)
         return tracker
-
-    def reset(self, subject: int) -> None:
-        """Subject row ``subject`` starts over at the origin at its next frame."""
-        for tracker in self.trackers.values():
-            if subject < len(tracker.t):
-                tracker.reset(np.array([subject]))
 
     def place(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, joints: np.ndarray, layout: Layout,
               body_of: Callable[[int], Body], commit: bool,
