@@ -250,7 +250,9 @@ def compare_frames(key: str, old: list[bytes], new: list[bytes]) -> None:
             continue
         fa, fb = wire.decode_pose(a), wire.decode_pose(b)
         where = f"{key} frame {i} (kind {fa.kind}, seq {fa.seq})"
-        assert (fa.seq, fa.t_us, fa.kind, fa.flags) == (fb.seq, fb.t_us, fb.kind, fb.flags), where
+        # (NO_ROOT came after the plain aggregator: every paper10 frame carries it now)
+        assert fb.flags & wire.FRAME_NO_ROOT and not fa.flags & wire.FRAME_NO_ROOT, where
+        assert (fa.seq, fa.t_us, fa.kind, fa.flags) == (fb.seq, fb.t_us, fb.kind, fb.flags & ~wire.FRAME_NO_ROOT), where
         assert np.abs(fa.q - fb.q).max() <= 1e-6, (where, fa.q, fb.q)
         assert np.abs(fa.joints - fb.joints).max() <= 1e-6, (where, fa.joints, fb.joints)
 

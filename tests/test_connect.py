@@ -109,3 +109,19 @@ def test_the_dashboard_says_it_still_waits_for_its_router_and_stops_on_ctrl_c():
     code, ended = cmd.exit_code(10.0)
     assert ended - sent <= STOP_S and code in (0, 130), (ended - sent, code, cmd.rest())
     assert "Traceback" not in "\n".join(cmd.rest()), cmd.rest()
+
+
+def test_ctrl_c_stops_a_command_that_came_with_sigint_ignored():
+    """A command a shell started in the background inherits SIGINT ignored (Python then leaves it
+    so): it still stops on SIGINT, within STOP_S, saying so."""
+    import shlex
+
+    from limbstream.launch import LIMBSTREAM
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    watch = shlex.join([*LIMBSTREAM, "watch", "s01", "--connect", endpoint])
+    cmd = Command(f"sh -c {shlex.quote(f'trap {chr(39) * 2} INT; exec {watch}')}", shell=True)
+    cmd.wait_line(f"connecting to {endpoint}")
+    sent = cmd.interrupt()
+    code, ended = cmd.exit_code(10.0)
+    assert code == 130 and ended - sent <= STOP_S, (code, ended - sent, cmd.rest())
+    assert cmd.rest()[-1] == "limbstream watch: stopped", cmd.rest()

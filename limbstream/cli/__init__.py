@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("limbstream.cli.up", "run the whole live system on this machine"),
@@ -59,6 +61,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.parse_args(argv)  # prints usage / error and exits
         return 2
     name = argv[0]
+    # Ctrl-C raises KeyboardInterrupt even where SIGINT came ignored (a job a shell started in the
+    # background: Python then leaves it ignored, and the command would not stop on it)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return _run(name, argv[1:])
     except KeyboardInterrupt:
