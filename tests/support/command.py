@@ -15,6 +15,13 @@ from limbstream.launch import LIMBSTREAM
 from support import ROOT
 
 
+def _sigint_as_a_terminal_has_it() -> None:
+    """In the child before exec: SIGINT at its default, whatever this process had (a run started
+    as a shell's background job has it ignored, and a child inherits that: pytest, make and
+    other non-limbstream commands a test interrupts would then go on)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Command:
     """``argv`` (a ``limbstream`` command's arguments, or with ``shell`` a line for ``sh -c``,
     ``prefix`` before it, e.g. ``ip netns exec NS``) started in ``cwd`` in a process group of its
@@ -25,7 +32,8 @@ class Command:
         command = ["sh", "-c", f"exec {argv}"] if shell else [*LIMBSTREAM, *argv]
         self.proc = subprocess.Popen([*prefix, *command], cwd=cwd, stdin=subprocess.DEVNULL,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     env=None if env is None else dict(env), start_new_session=True)
+                                     env=None if env is None else dict(env), start_new_session=True,
+                                     preexec_fn=_sigint_as_a_terminal_has_it)
         self.lines: queue.Queue[str] = queue.Queue()
         self.seen: list[str] = []
         self.reader = threading.Thread(target=self._read, daemon=True)
