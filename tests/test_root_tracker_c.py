@@ -4,6 +4,7 @@ reference (RootTracker.step, taken rank by rank as the aggregator took it): the 
 with every kind of frame the tracker knows, and on real clips' feet."""
 from __future__ import annotations
 
+import ctypes
 import sys
 from pathlib import Path
 
@@ -176,3 +177,9 @@ def test_frames_refuse_rows_out_of_range_and_too_many_points():
         tracker.frames(np.array([2]), np.zeros(1), np.zeros((1, 4, 3)))
     with pytest.raises(ValueError, match="at most 128 points"):
         RootTracker(1, tuple(f"j{i}" for i in range(129))).frames(np.array([0]), np.zeros(1), np.zeros((1, 129, 3)))
+
+
+def test_the_root_structs_have_the_c_sizes():
+    """LswRootState and LswRootConst (lsw_abi.h 13, 14) as the binding copies them."""
+    from limbstream.kernel._lib import RootConst, RootState, _lib
+    assert [_lib.lsw_abi_size(k) for k in (13, 14)] == [ctypes.sizeof(RootState), ctypes.sizeof(RootConst)]
