@@ -8,6 +8,7 @@
 #include "lsw_fuse.h"
 #include "lsw_grid.h"
 #include "lsw_imu.h"
+#include "lsw_root.h"
 #include "lsw_slimevr.h"
 
 size_t lsw_abi_size(int which)
@@ -26,6 +27,8 @@ size_t lsw_abi_size(int which)
     case LSW_ABI_RAW_SAMPLE: return sizeof(LswRawSample);
     case LSW_ABI_IMU_SETTINGS: return sizeof(LswImuSettings);
     case LSW_ABI_FUSE_ROWS: return sizeof(LswFuseRows);
+    case LSW_ABI_ROOT_STATE: return sizeof(LswRootState);
+    case LSW_ABI_ROOT_CONST: return sizeof(LswRootConst);
     default: return 0;
     }
 }

@@ -23,6 +23,8 @@ typedef enum {
     LSW_ABI_RAW_SAMPLE = 10,   /**< LswRawSample */
     LSW_ABI_IMU_SETTINGS = 11, /**< LswImuSettings */
     LSW_ABI_FUSE_ROWS = 12,    /**< LswFuseRows */
+    LSW_ABI_ROOT_STATE = 13,   /**< LswRootState */
+    LSW_ABI_ROOT_CONST = 14,   /**< LswRootConst */
 } LswAbiStruct;
 
 /** sizeof the struct ``which``; 0 for an unknown one. */

@@ -35,6 +35,8 @@ import numpy as np
 from limbstream import quat
 from limbstream.body.dimensions import Body
 from limbstream.body.layout import Layout
+from limbstream.kernel._lib import RootConst
+from limbstream.kernel.root import STATE, root_frames
 from limbstream.wire.pose import CONTACTS, FRAME_OFF_FEET
 
 GRAVITY = 9.81
@@ -62,6 +64,9 @@ UNSEEN_MPS = 1e3
 
 _FEET = {"l": ("l_ankle", "l_foot", "l_toe"), "r": ("r_ankle", "r_foot", "r_toe")}
 _FIRST, _FLIGHT, _COAST = -2, -1, -3  # anchor codes: no frame yet, in flight, going on at its velocity
+_CONST = RootConst(GRAVITY, TAKE_OFF_M, CONTACT_M, LOW_M, KEEP_MPS, VELOCITY_S, PACE_S, STILL_MPS, UNSEEN_MPS,
+                   OFF_FEET_M, _FIRST, _FLIGHT, _COAST, FRAME_OFF_FEET)
+"""The constants as the C tracker takes them (firmware_c/host/lsw_root.h)."""
 
 
 def has_feet(layout: Layout) -> bool:
@@ -139,6 +144,7 @@ class RootTracker:
     def __init__(self, rows: int = 0, names: tuple[str, ...] = ()):
         self.names = names
         self.feet = np.array([name in CONTACTS for name in names], bool)
+        self.contact_bit = np.array([CONTACTS.index(name) if name in CONTACTS else 0 for name in names], np.int64)
         self.root = np.zeros((0, 3))
         self.velocity = np.zeros((0, 3))
         self.pace = np.zeros((0, 3))
@@ -173,7 +179,11 @@ class RootTracker:
         (n, P, 3) m root-relative, ``usable`` (n, P) bool the points to go on (None: all; a
         missing segment's are not). Returns the root positions (n, 3) m, contact bits (n,)
         (``CONTACTS``) and flags (n,) (``FRAME_OFF_FEET``). ``commit`` False: what the frames
-        would get, the state left as it was (a live frame ahead of the final ones)."""
+        would get, the state left as it was (a live frame ahead of the final ones).
+
+        The reference in numpy: :meth:`frames` runs the same steps in C
+        (``firmware_c/host/lsw_root.c``), frame by frame, and is what the aggregator uses;
+        tests/test_root_tracker_c.py holds them equal."""
         rows = np.asarray(rows, np.int64)
         t = np.asarray(t, np.float64)
         raw = np.asarray(points, np.float64)
@@ -261,16 +271,22 @@ class RootTracker:
             np.add.at(self.refused, rows[bad], 1)
         return new_root, bits, flags
 
+    def frames(self, owner: np.ndarray, t: np.ndarray, points: np.ndarray, usable: np.ndarray | None = None,
+               commit: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`step` in C for frames of rows ``owner`` (F,) in the order given (each row's
+        oldest first), one call: each frame against its row's state as the frames before it left
+        it (``commit``; else, live frames, one per row, the state left as it was). Times ``t``
+        (F,) s, points ``points`` (F, P, 3) m, ``usable`` (F, P) bool (None: all). Returns the
+        roots (F, 3) m, contact bits (F,) and flags (F,)."""
+        points = np.asarray(points, np.float64)
+        use = np.ones(points.shape[:2], bool) if usable is None else usable
+        state = {name: getattr(self, name) for name, _, _ in STATE}
+        return root_frames(state, _CONST, self.feet, self.contact_bit, owner, t, points, use, commit)
+
     def track(self, t: np.ndarray, points: np.ndarray, row: int = 0,
               usable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The root positions (F, 3) m, contact bits (F,) and flags (F,) of one row's frames, times
         ``t`` (F,) s, points ``points`` (F, P, 3), ``usable`` (F, P) (None: all) (an offline
         motion: one row, its frames in turn)."""
         self.grow(row + 1)
-        root, bits, flags = np.zeros((len(t), 3)), np.zeros(len(t), np.int64), np.zeros(len(t), np.int64)
-        rows = np.array([row])
-        for k in range(len(t)):
-            use = None if usable is None else usable[k:k + 1]
-            r, b, f = self.step(rows, t[k:k + 1], points[k:k + 1], usable=use)
-            root[k], bits[k], flags[k] = r[0], b[0], f[0]
-        return root, bits, flags
+        return self.frames(np.full(len(t), row, np.int64), t, points, usable)

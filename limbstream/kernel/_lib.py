@@ -208,6 +208,23 @@ class FuseRows(ctypes.Structure):
                 ("cap", ctypes.c_int64)]
 
 
+class RootState(ctypes.Structure):
+    """LswRootState (lsw_root.h): pointers to a root tracker's state arrays, and its point count."""
+
+    _fields_ = [(name, ctypes.c_void_p) for name in ("root", "velocity", "pace", "anchor", "anchor_xyz", "t",
+                                                     "height", "points", "seen", "refused")] + [
+        ("n_points", ctypes.c_int64)]
+
+
+class RootConst(ctypes.Structure):
+    """LswRootConst (lsw_root.h): a root tracker's constants (limbstream.body.translation)."""
+
+    _fields_ = [(name, ctypes.c_double) for name in ("gravity", "take_off_m", "contact_m", "low_m", "keep_mps",
+                                                     "velocity_s", "pace_s", "still_mps", "unseen_mps",
+                                                     "off_feet_m")] + [
+        (name, ctypes.c_int64) for name in ("first", "flight", "coast", "off_feet_flag")]
+
+
 _imu_calls: tuple[tuple[str, list[Any], Any], ...] = (
         ("lsw_imu_state_size", [], _sz),
         ("lsw_imu_init", [_vp, ctypes.POINTER(ImuSettings)], None),
@@ -234,7 +251,7 @@ def _check_abi() -> None:
     _lib.lsw_abi_size.argtypes = [ctypes.c_int]
     _lib.lsw_abi_size.restype = ctypes.c_size_t
     for which, struct in enumerate((Settings, Point, BatchOut, BankWire, _Sync, GridSettings, GridDevice, SvrTracker,
-                                    SvrRoute, SvrSlow, RawSample, ImuSettings, FuseRows)):
+                                    SvrRoute, SvrSlow, RawSample, ImuSettings, FuseRows, RootState, RootConst)):
         size = _lib.lsw_abi_size(which)
         if size != ctypes.sizeof(struct):
             raise ImportError(f"limbstream C kernels: {struct.__name__} is {size} bytes in C, "

@@ -65,21 +65,5 @@ class Rooting:
         points = body_points.positions(drops[owner], q, joints)
         usable = None if missing is None else body_points.usable(missing)
         tracker = self._tracker(body_points.names, int(owner.max()) + 1)
-        rank = _rank(owner)
-        t = t_us / 1e6
-        for r in range(int(rank.max()) + 1):
-            at = np.flatnonzero(rank == r)
-            root[at], contacts[at], flags[at] = tracker.step(owner[at], t[at], points[at], commit=commit,
-                                                             usable=None if usable is None else usable[at])
-        return root, contacts, flags
+        return tracker.frames(owner, t_us / 1e6, points, usable, commit)
 
-
-def _rank(owner: np.ndarray) -> np.ndarray:
-    """(F,) each frame's place among its subject's frames, in the order given (0 for the first)."""
-    order = np.argsort(owner, kind="stable")
-    sorted_owner = owner[order]
-    starts = np.r_[0, np.flatnonzero(np.diff(sorted_owner)) + 1]
-    counts = np.diff(np.r_[starts, len(owner)])
-    rank = np.empty(len(owner), np.int64)
-    rank[order] = np.arange(len(owner)) - np.repeat(starts, counts)
-    return rank
