@@ -58,10 +58,9 @@ class Rooting:
         body_points = self.points.get(layout)
         if body_points is None:
             body_points = self.points[layout] = BodyPoints(layout)
-        rows = np.unique(owner)
-        drops = np.zeros((int(rows.max()) + 1, 2))
-        for row in rows:
-            drops[row] = self._drops(layout, body_of(row))
+        rows = np.unique(owner).tolist()
+        drops = np.zeros((rows[-1] + 1, 2))
+        drops[rows] = [self._drops(layout, body_of(row)) for row in rows]  # (one table write, not one a row)
         points = body_points.positions(drops[owner], q, joints)
         usable = None if missing is None else body_points.usable(missing)
         tracker = self._tracker(body_points.names, int(owner.max()) + 1)
