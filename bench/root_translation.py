@@ -11,7 +11,10 @@ Columns (limbstream.evaluation.translation): the clip's length and horizontal pa
 root's path over 0.1 s steps); the horizontal root error at the end (cm, and % of the path) after
 aligning the start once (the mean horizontal offset over the first 0.5 s; the feet come in world
 axes, so no heading to align); the mean root height error (cm, the floor at the file's lowest
-foot point); the estimated foot points' horizontal speed while the file's are planted, and the
+foot point over the clip) and beside it the same over the feet (the file's floor at its lowest
+foot point frame by frame); where the file's feet stand: its lowest foot point's height over the
+clip's lowest, median and 90th percentile over the frames where it is still (changing slower than
+0.1 m/s), cm; the estimated foot points' horizontal speed while the file's are planted, and the
 file's own over the same frames (cm/s); the share of frames in flight; the oracle's end error.
 """
 from __future__ import annotations
@@ -22,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream.body.translation import RootTracker
-from limbstream.evaluation.translation import translation_figures
+from limbstream.evaluation.translation import PLANTED_MPS, translation_figures
 from limbstream.sources.bvh import global_rotations, joint_positions, parse_bvh
 from limbstream.sources.bvh_body import CMU_UNIT_M
 
@@ -65,8 +68,12 @@ def figures(path: Path) -> dict[str, float]:
     stillest = world_speed.argmin(axis=1)
     steps = np.diff(rel, axis=0)[:, :, [0, 2]]
     oracle = -steps[np.arange(len(stillest)), stillest].sum(axis=0)
+    lowest = feet[:, :, 1].min(axis=1)  # (the floor at the clip's lowest foot point: 0)
+    still = np.r_[True, np.abs(np.diff(lowest)) / np.diff(t) < PLANTED_MPS]
     return {"s": float(t[-1]), "path_m": f.path_m, "end_cm": f.end_cm, "end_pct": f.end_pct,
-            "height_cm": f.height_cm, "skate": f.skate_cmps, "true_skate": f.true_skate_cmps,
+            "height_cm": f.height_cm, "height_feet_cm": f.height_feet_cm,
+            "stand_cm": 100 * float(np.median(lowest[still])), "stand_p90_cm": 100 * float(np.percentile(lowest[still], 90)),
+            "skate": f.skate_cmps, "true_skate": f.true_skate_cmps,
             "flight": float(np.mean(bits == 0)),
             "oracle_cm": 100 * float(np.linalg.norm(oracle - (root[-1, [0, 2]] - root[0, [0, 2]])))}
 
@@ -77,13 +84,15 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DATA, help="folder of CMU .bvh clips")
     args = ap.parse_args()
     paths = [args.data / f"{c}.bvh" for c in args.clips] or sorted(args.data.glob("*.bvh"))
-    print("| clip | s | path, m | end error, cm | % of path | height error, cm | skating, cm/s (truth's) | in flight | "
+    print("| clip | s | path, m | end error, cm | % of path | height error, cm | over the feet, cm | "
+          "file's feet stand, cm (p90) | skating, cm/s (truth's) | in flight | "
           "oracle end, cm |")
-    print("|---|---:|---:|---:|---:|---:|---|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---|---|---:|---:|")
     for path in paths:
         r = figures(path)
         print(f"| {path.stem} | {r['s']:.1f} | {r['path_m']:.2f} | {r['end_cm']:.1f} | {r['end_pct']:.1f} | "
-              f"{r['height_cm']:.1f} | {r['skate']:.1f} ({r['true_skate']:.1f}) | {r['flight']:.2f} | "
+              f"{r['height_cm']:.1f} | {r['height_feet_cm']:.1f} | {r['stand_cm']:.1f} ({r['stand_p90_cm']:.1f}) | "
+              f"{r['skate']:.1f} ({r['true_skate']:.1f}) | {r['flight']:.2f} | "
               f"{r['oracle_cm']:.1f} |")
 
 

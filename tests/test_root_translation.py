@@ -126,6 +126,23 @@ def test_translation_figures_align_the_start_once_and_measure_the_rest():
     assert 0.9 * sliding < f.skate_cmps <= sliding + 1e-9 and f.true_skate_cmps < 1e-9
 
 
+def test_the_height_over_the_feet_is_scored_beside_the_height_over_the_lowest_point():
+    """A file whose floor is not level (its walk steps 5 cm up halfway, its world raised there) and
+    an estimate on a flat floor, its root always at the truth's height over its feet: the height
+    error over the file's lowest point counts the step (5 cm on half the frames), the height over
+    the feet does not."""
+    from limbstream.evaluation.translation import translation_figures
+
+    points, truth = gait(int(10 * FS))
+    t = np.arange(len(truth)) / FS
+    raised = truth + np.where(t >= 5.0, 0.05, 0.0)[:, None] * [0.0, 1.0, 0.0]
+    f = translation_figures(t, truth, truth[:, None] + points, raised, raised[:, None] + points)
+    assert abs(f.height_cm - 2.5) < 0.05 and f.height_feet_cm < 1e-9
+    sunk = truth - [0.0, 0.02, 0.0]
+    f = translation_figures(t, sunk, sunk[:, None] + points, raised, raised[:, None] + points)
+    assert abs(f.height_feet_cm - 2.0) < 1e-9
+
+
 def test_the_aggregator_stage_gives_each_subject_its_own_path():
     """services.aggregator.rooting: frames of two full subjects walking interleaved in ticks of
     several frames each give every subject the path its frames alone give it, and a live frame
@@ -186,6 +203,7 @@ def test_eval_scores_the_root_path_of_a_walk_read_onto_full(cmu_bvh_dir, tmp_pat
     assert abs(travelled - np.linalg.norm(true_root[-1, [0, 2]] - true_root[0, [0, 2]])) < 0.2
     assert walk["motion"] == "131_01" and walk["path_m"] > 4.0
     assert walk["end_pct"] < 3.0 and walk["height_cm"] < 6.0 and walk["below_cm"] == 0.0
+    assert walk["height_feet_cm"] < 3.0  # the root over the file's feet frame by frame (0.2 measured)
     assert "root translation from the reconstruction's feet" in text and "true skate" in text
     # the dump holds what the figures are computed from: aligned as eval aligns it, its end error is eval's
     feet, names, contacts = dumped["feet"], [str(n) for n in dumped["foot_points"]], dumped["contacts"]

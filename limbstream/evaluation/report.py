@@ -104,7 +104,10 @@ TRANSLATION_COLUMNS: tuple[Column, ...] = (
     Column("end_cm", "end", "cm", "horizontal root error at the end, the start aligned once (heading and offset, "
            "first 0.5 s)", ".1f"),
     Column("end_pct", "end", "% path", "the same as a share of the path", ".1f"),
-    Column("height_cm", "height", "cm", "mean root height error, each above its own floor", ".1f"),
+    Column("height_cm", "height", "cm", "mean root height error, each above its own floor (the truth's: its feet's "
+           "lowest point over the motion)", ".1f"),
+    Column("height_feet_cm", "height/feet", "cm", "the same, the truth's floor at its lowest foot point frame by frame "
+           "(the root's height over its feet)", ".1f"),
     Column("below_cm", "below", "cm", "deepest an estimated foot point went below the floor", ".1f"),
     Column("skate_cmps", "skate", "cm/s", "estimated feet's horizontal speed while the true feet are planted", ".1f"),
     Column("true_skate_cmps", "true skate", "cm/s", "the true feet's own over the same frames", ".1f"),

@@ -6,7 +6,10 @@ Both paths are first aligned once, on the first :data:`ALIGN_S` seconds: the est
 turned about the vertical by the heading the caller measured (``heading_rad``, e.g. the pelvis'
 mean heading difference over that window) and shifted horizontally by the mean offset there. The
 floor of each is its own: height 0 for the estimate (the tracker's floor), the true feet's lowest
-point for the truth.
+point over the whole motion for the truth (``height_cm``); and, beside it, the truth's lowest foot
+point frame by frame (``height_feet_cm``, the root's height over its feet, as the tracker stands
+its lowest point on its floor): a file's planted feet do not all stand at one height (its floor
+is not level, a foot's lowest point is not always its sole), which a flat floor cannot follow.
 """
 from __future__ import annotations
 
@@ -26,7 +29,9 @@ PLANTED_MPS = 0.1
 class TranslationFigures:
     """One motion's figures: ``path_m`` the true root's horizontal path (m, over 0.1 s steps);
     ``end_cm`` the horizontal root error at the end (cm) and ``end_pct`` it as a percentage of the
-    path; ``height_cm`` the mean absolute root height error (cm); ``below_cm`` how far an estimated
+    path; ``height_cm`` the mean absolute root height error (cm), the truth's floor at its feet's
+    lowest point over the motion, and ``height_feet_cm`` the same with the truth's floor at its
+    lowest foot point frame by frame (in a flight too); ``below_cm`` how far an estimated
     foot point went below the floor at most (cm, 0 if never); ``skate_cmps`` the estimated foot
     points' mean horizontal speed while the true ones are planted and ``true_skate_cmps`` the
     truth's own over the same frames (cm/s)."""
@@ -35,6 +40,7 @@ class TranslationFigures:
     end_cm: float
     end_pct: float
     height_cm: float
+    height_feet_cm: float
     below_cm: float
     skate_cmps: float
     true_skate_cmps: float
@@ -65,6 +71,7 @@ def translation_figures(t: np.ndarray, root: np.ndarray, feet: np.ndarray, true_
     (``true_feet``: the same C points). ``heading_rad``: the turn about +Y taking the estimate's
     world to the truth's."""
     root, feet = aligned(t, root, feet, true_root, heading_rad)
+    under = np.nanmin(true_feet[:, :, 1], axis=1)
     floor = float(np.nanmin(true_feet[:, :, 1]))
     true_root = true_root - [0.0, floor, 0.0]
     true_feet = true_feet - [0.0, floor, 0.0]
@@ -82,6 +89,7 @@ def translation_figures(t: np.ndarray, root: np.ndarray, feet: np.ndarray, true_
     return TranslationFigures(
         path_m=path, end_cm=100 * end, end_pct=100 * end / path if path > 0 else float("nan"),
         height_cm=100 * float(np.abs(root[:, 1] - true_root[:, 1]).mean()),
+        height_feet_cm=100 * float(np.abs(root[:, 1] - (true_root[:, 1] + floor - under)).mean()),
         below_cm=100 * max(0.0, -float(np.nanmin(feet[:, :, 1]))),
         skate_cmps=100 * float(speed[planted].mean()) if some else float("nan"),
         true_skate_cmps=100 * float(true_speed[planted].mean()) if some else float("nan"))
@@ -165,12 +173,12 @@ def translation_of(body, positions) -> dict | None:
 
 def pooled(per_motion: list[dict]) -> dict:
     """The figures of several motions together: the median end error (% of path), the mean height
-    error and skating, the deepest a foot went below the floor, the motions scored."""
+    errors and skating, the deepest a foot went below the floor, the motions scored."""
     if not per_motion:
         return {}
     def mean(key: str) -> float:
         values = np.array([m[key] for m in per_motion], np.float64)
         return float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
     return {"motions": len(per_motion), "end_pct": float(np.median([m["end_pct"] for m in per_motion])),
-            "height_cm": mean("height_cm"), "below_cm": max(m["below_cm"] for m in per_motion),
+            "height_cm": mean("height_cm"), "height_feet_cm": mean("height_feet_cm"), "below_cm": max(m["below_cm"] for m in per_motion),
             "skate_cmps": mean("skate_cmps"), "true_skate_cmps": mean("true_skate_cmps")}
