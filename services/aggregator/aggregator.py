@@ -102,7 +102,7 @@ class Aggregator:
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
                 self.session, wire.device_selector(wire.SEG, pattern), zenoh.handlers.FifoChannel(1 << 16),
-                history=zext.HistoryConfig(detect_late_publishers=True, max_samples=s.history),
+                history=zext.HistoryConfig(max_samples=s.history),
                 recovery=zext.RecoveryConfig(heartbeat=True),
                 subscriber_detection=True,
             )
@@ -112,7 +112,7 @@ class Aggregator:
                                    (wire.subject_selector(wire.TRUTH, pattern), self._truth_subs)):  # like points
                 subs.append(zext.declare_advanced_subscriber(
                     self.session, selector, zenoh.handlers.FifoChannel(1 << 14),
-                    history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
+                    history=zext.HistoryConfig(max_samples=64),
                     recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
             self._calibrate_qs.append(self.session.declare_queryable(
                 wire.subject_selector(wire.CALIBRATE, pattern), zenoh.handlers.FifoChannel(256)))
