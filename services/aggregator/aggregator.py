@@ -4,7 +4,8 @@ per-device statistics.
 
 Zenoh delivers into bounded FIFO channels (its callbacks never run our code); one loop
 drains them, advances the frames of every subject, and publishes. Segment points come
-through an advanced subscriber (history for late joining, recovery of missed points); a tick's
+through an advanced subscriber (history for late joining, recovery of missed points; a device
+back online is asked for what it sent meanwhile: ``HistoryQueries.resume``); a tick's
 points are decoded together and taken in as one batch.
 """
 from __future__ import annotations
