@@ -4,7 +4,8 @@ per-device statistics.
 
 Zenoh delivers into bounded FIFO channels (its callbacks never run our code); one loop
 drains them, advances the frames of every subject, and publishes. Segment points come
-through an advanced subscriber (history for late joining, recovery of missed points); a tick's
+through an advanced subscriber (history for late joining, recovery of missed points; a device
+back online is asked for what it sent meanwhile: ``HistoryQueries.resume``); a tick's
 points are decoded together and taken in as one batch.
 """
 from __future__ import annotations
@@ -102,7 +103,7 @@ class Aggregator:
         for pattern in s.subjects:
             sub = zext.declare_advanced_subscriber(
                 self.session, wire.device_selector(wire.SEG, pattern), zenoh.handlers.FifoChannel(1 << 16),
-                history=zext.HistoryConfig(detect_late_publishers=True, max_samples=s.history),
+                history=zext.HistoryConfig(max_samples=s.history),
                 recovery=zext.RecoveryConfig(heartbeat=True),
                 subscriber_detection=True,
             )
@@ -112,7 +113,7 @@ class Aggregator:
                                    (wire.subject_selector(wire.TRUTH, pattern), self._truth_subs)):  # like points
                 subs.append(zext.declare_advanced_subscriber(
                     self.session, selector, zenoh.handlers.FifoChannel(1 << 14),
-                    history=zext.HistoryConfig(detect_late_publishers=True, max_samples=64),
+                    history=zext.HistoryConfig(max_samples=64),
                     recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True))
             self._calibrate_qs.append(self.session.declare_queryable(
                 wire.subject_selector(wire.CALIBRATE, pattern), zenoh.handlers.FifoChannel(256)))

@@ -8,6 +8,12 @@ missing of the ``depth`` points before the newest one received (Zenoh's sequence
 when Zenoh's history came), and the query's end, an event, settles the stream
 (tests/test_history.py; docs/protocol.md).
 
+A device whose liveliness token comes back (its link or the router was down) is asked for the
+points after the newest one received (:meth:`resume`): what it sent meanwhile and no later point
+revealed, e.g. before a pause. Zenoh's own late-publisher detection would do the same, but costs
+its receive threads work per sample that grows with the publishers present (docs/benchmarks.md,
+"Late-publisher detection").
+
 Points Zenoh reports missed are asked of the device's cache again the same way (:meth:`refill`):
 Zenoh's own recovery query ends with no reply when the device's link is cut meanwhile, and it
 never asks again, although the cache (512 points) still holds them. The aggregator asks for the
@@ -48,6 +54,11 @@ class Refill:
     due: float = 0.0      # arrival clock of the next query, s
     replies: object = None  # the query under way, or None
     got: set = field(default_factory=set)  # sequence numbers answered and taken in
+    resume: bool = False  # the points after the newest received, however many (none may be missing)
+
+    def wanted(self) -> bool:
+        """Whether the gap may still be filled: points are missing (a resume: nothing answered yet)."""
+        return not self.got if self.resume else len(self.got) <= self.last - self.first
 
 
 class HistoryQueries:
@@ -67,6 +78,7 @@ class HistoryQueries:
         self._refills: list[Refill] = []
         self._reported: dict[str, list[float | int]] = {}  # source -> [first report's clock, points missed]
         self._recovered: collections.Counter = collections.Counter()  # source -> points its refills brought
+        self.newest: dict[str, zenoh.Sample] = {}  # point key -> the Zenoh sample of its newest point taken in
 
     def taken(self, track: DeviceTrack, sample: zenoh.Sample | None) -> None:
         """A point of ``track`` was taken in (``sample``: the Zenoh sample that carried it, whose
@@ -135,6 +147,16 @@ class HistoryQueries:
             self._refills.append(Refill(track, track.generation, str(info.source_id),
                                         info.source_sn - points, info.source_sn - 1, due=now))
 
+    def resume(self, track: DeviceTrack) -> None:
+        """The device of ``track`` is back online: ask its cache for the points after the newest
+        one received (at most the aggregator's ``history``; the query is asked again, up to
+        REFILL_TRIES times, until the device answers)."""
+        sample = self.newest.get(wire.seg_key(track.subject, track.segment))
+        info = sample.source_info if sample is not None else None
+        if info is not None and info.source_id is not None and info.source_sn is not None:
+            self._refills.append(Refill(track, track.generation, str(info.source_id), info.source_sn + 1,
+                                        info.source_sn + self.depth, resume=True))
+
     def missed(self, source: str, points: int, now: float) -> None:
         """Zenoh reports ``points`` points of publisher ``source`` missed (counted by :meth:`settle`)."""
         reported = self._reported.setdefault(source, [now, 0])
@@ -152,7 +174,7 @@ class HistoryQueries:
                     target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE, timeout=HISTORY_WAIT_S)
             if r.replies is not None:
                 taken += self._refill_replies(r, now)
-            if r.track.generation == r.generation and len(r.got) <= r.last - r.first and (
+            if r.track.generation == r.generation and r.wanted() and (
                     r.replies is not None or r.tries < REFILL_TRIES):
                 still.append(r)
         self._refills = still
@@ -167,7 +189,7 @@ class HistoryQueries:
                 if (info is not None and str(info.source_id) == r.source and r.first <= info.source_sn <= r.last
                         and info.source_sn not in r.got and r.track.generation == r.generation):
                     payload = reply.ok.payload.to_bytes()
-                    if self._take(r.track, payload, now):
+                    if self._take(r.track, payload, now, r.resume):
                         r.got.add(info.source_sn)
                         self._recovered[r.source] += 1
                         taken += 1
@@ -175,11 +197,15 @@ class HistoryQueries:
             r.replies, r.due = None, now + REFILL_RETRY_S
         return taken
 
-    def _take(self, track: DeviceTrack, payload: bytes, now: float) -> bool:
+    def _take(self, track: DeviceTrack, payload: bytes, now: float, newer: bool = False) -> bool:
+        """A point of a refill taken in; ``newer``: only if it is after the newest received (a
+        resume's answer may repeat points that came live meanwhile: not counted as duplicates)."""
         try:
             point = wire.decode_point(payload)
         except wire.WireError as exc:
             track.dropped[exc.reason] += 1
+            return False
+        if newer and track.next_seq is not None and point.seq < track.next_seq:
             return False
         return point.stream == track.stream and self.fusion.add_point(track, point, len(payload), now)
 

@@ -87,6 +87,8 @@ class Intake:
         history = self.history
         taken = gapped = None
         if history is not None:
+            if samples:
+                history.newest.update(zip(keys, samples))
             def taken(track, i):
                 history.taken(track, samples[i] if samples else None)
 
@@ -144,6 +146,8 @@ class Intake:
         ids = self._parse_key(key, "alive")
         if ids is not None and (track := self._device(ids, "alive", None)) is not None:
             self.fusion.set_online(track, online)
+            if online and self.history is not None:
+                self.history.resume(track)
 
     def on_config(self, key: str, payload: bytes) -> None:
         """A device's config reply (its status): the settings it runs."""
