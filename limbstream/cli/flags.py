@@ -49,8 +49,9 @@ def given(args: argparse.Namespace, dest: str) -> bool:
 
 def check_shared(args: argparse.Namespace) -> None:
     """The flags of this module that a command has, checked right after parsing, before it starts
-    anything: the Zenoh endpoints, ``--connect-timeout``, ``--zenoh-config`` and the raw sensors'
-    flags given without ``--imu raw``. FlagError naming the first problem."""
+    anything: the Zenoh endpoints, ``--connect-timeout``, ``--zenoh-config``, the raw sensors'
+    flags given without ``--imu raw`` and the segments of ``--names`` (:func:`check_names`).
+    FlagError naming the first problem."""
     if hasattr(args, "connect"):
         timeout = getattr(args, "connect_timeout", None)
         if timeout is not None and not timeout >= 0:
@@ -64,6 +65,8 @@ def check_shared(args: argparse.Namespace) -> None:
         for dest, flag in (("imu_model", "--imu-model"), ("imu_rate", "--imu-rate")):
             if given(args, dest):
                 raise FlagError(f"{flag} applies to raw sensors only: add --imu raw")
+    if getattr(args, "names", None) is not None:
+        check_names(args)
 
 
 def parse_http(value: str, allow_zero: bool = True) -> tuple[str, int]:
@@ -312,6 +315,17 @@ def add_source_layout(parser: argparse.ArgumentParser, default_text: str) -> Non
     parser.add_argument("--layout", type=body_layout, default=None, metavar="paper10|full|FILE",
                         help=f"the body layout (docs/body.md): paper10, full (feet, hands, chest, head) or a "
                              f"layout file; {default_text}")
+
+
+def check_names(args: argparse.Namespace) -> None:
+    """``--names``' segments are the layout's in effect: ``--layout``'s (a layout file's own too),
+    or a built-in layout's where it is not given (the subjects' layouts are then built-ins); FlagError
+    naming the first segment the layout lacks and its segments."""
+    chosen = getattr(args, "layout", None)
+    try:
+        names.check_segments(args.names, layout(args) if isinstance(chosen, str) else chosen)
+    except ValueError as exc:
+        raise FlagError(str(exc)) from None
 
 
 def names_argv(mapping: dict[str, str] | None) -> list[str]:
