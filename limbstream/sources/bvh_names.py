@@ -57,11 +57,15 @@ CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
 """Segment -> joint maps for the CMU naming schemes, in the order they are tried."""
 
 CMU_FULL_PARTS: dict[str, dict[str, str]] = {
-    "cmu": {"l_foot": "LeftFoot", "r_foot": "RightFoot", "l_hand": "LeftHand", "r_hand": "RightHand"},
-    "cmu_asf": {"l_foot": "LeftAnkle", "r_foot": "RightAnkle", "l_hand": "LeftWrist", "r_hand": "RightWrist"},
+    "cmu": {"l_foot": "LeftFoot", "r_foot": "RightFoot", "l_hand": "LeftHand", "r_hand": "RightHand",
+            "lower_back": "LowerBack", "thorax": "Spine1"},
+    "cmu_asf": {"l_foot": "LeftAnkle", "r_foot": "RightAnkle", "l_hand": "LeftWrist", "r_hand": "RightWrist",
+                "lower_back": "lowerback", "thorax": "Chest2"},
 }
 """Each CMU scheme's joints of ``full``'s feet and hands (its head and chest: from the neck,
-:func:`_full_parts`)."""
+:func:`_full_parts`) and of a layout file's spine below and above the chest (``lower_back``:
+the joint at the pelvis that turns the spine; ``thorax``: the one at the neck's base that turns
+the neck and collar bones; examples/layouts/spine17.json)."""
 
 PARTS: dict[str, str] = {
     "upleg": "thigh", "upperleg": "thigh", "thigh": "thigh", "femur": "thigh",
