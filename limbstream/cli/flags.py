@@ -294,8 +294,9 @@ def add_names(parser: argparse.ArgumentParser) -> None:
                         help="which segment each sensor of an IMU recording (or joint of a BVH file) measures: "
                              f"a named mapping ({', '.join(names.NAMED)}), a file of SENSOR=SEGMENT lines, or a "
                              "list (SENSOR: a file name without extension, e.g. an Xsens serial number, or a BVH "
-                             "joint; default: x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh; BVH: the CMU, "
-                             "Mixamo and Left/L/Right/R joint names)")
+                             "joint; SEGMENT: a segment of --layout, a layout file's own too, else of a built-in "
+                             "layout; default: x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh; BVH: the CMU, "
+                             "Mixamo and Left/L/Right/R joint names, under the joints a mapping names)")
 
 
 def body_layout(text: str):
