@@ -12,9 +12,10 @@ import sys
 import numpy as np
 import pytest
 from support import ROOT, require_data
+from support.stack import stack, wait_until  # noqa: F401  (stack is a fixture)
 
-from limbstream import quat
-from limbstream.body import layout
+from limbstream import quat, wire
+from limbstream.body import Body, layout
 from limbstream.cli import up as up_cli
 from limbstream.sources import load
 
@@ -131,7 +132,8 @@ def test_export_of_a_raw_recording_names_the_sensors_it_leaves_out(tmp_path):
 
 def test_up_takes_a_recording_named_onto_a_layout_files_segments(xsens_dir, tmp_path):
     """``up --source <xsens> --layout legs.json --names ...``: each subject's devices are the
-    layout file's segments the sensors are named to; a segment it lacks is refused by name."""
+    layout file's segments the sensors are named to (a BVH file's: every segment of the layout);
+    a segment it lacks is refused by name."""
     legs = legs_layout(tmp_path / "legs.json", {"pelvis": "pelvis", "thigh_l": "femur_l", "shank_l": "tibia_l",
                                                 "thigh_r": "femur_r", "shank_r": "tibia_r"})
     parser = argparse.ArgumentParser()
@@ -140,6 +142,36 @@ def test_up_takes_a_recording_named_onto_a_layout_files_segments(xsens_dir, tmp_
     args = parser.parse_args(["--source", str(xsens_dir), "--layout", legs, "--names", mapping, "--no-sync"])
     [devices] = up_cli.check(args)
     assert set(devices) == {"pelvis", "femur_r", "tibia_r", "femur_l", "tibia_l"}
+    bvh = parser.parse_args(["--source", str(require_data("cmu/131_01.bvh")), "--layout", BACK16,
+                             "--names", "Chest2=upper_back", "--no-sync"])  # a BVH file is read onto the layout
+    assert up_cli.check(bvh) == [layout(BACK16).segment_names]
     result = limbstream("up", "--source", str(xsens_dir), "--layout", legs, "--names", "00B42279=hip")
     assert "limbstream up: error: --names: 'hip' is not a segment of layout legs5" in result.stderr, result.stderr
     assert result.returncode == 2
+
+
+def test_emulate_streams_a_bvh_file_on_a_layout_files_segments_named_by_names(stack, cmu_bvh_dir):  # noqa: F811
+    """``emulate --source 131_01.bvh --layout back16.json --names Chest2=upper_back`` on a real
+    router: a device per segment of back16 (the BVH file read onto it, not onto paper10) publishes
+    its points, and announces a body of back16 (its default: back16's pelvis bone ends on CMU's
+    pelvis, a bone of length 0 in the file)."""
+    from test_emulate_layout import Heard
+
+    back16 = layout(BACK16)
+    stack.router()
+    heard = Heard(stack.endpoint)
+    try:
+        stack.emulator(1, 1.0, "--source", str(cmu_bvh_dir / "131_01.bvh"), "--layout", str(ROOT / BACK16),
+                       "--names", "Chest2=upper_back")
+        want = {("s01", segment) for segment in back16.segment_names}
+
+        def all_heard() -> bool:
+            with heard.lock:
+                return heard.points >= want
+        wait_until(all_heard, 60, "points of back16's 16 segments", on_fail=stack.logs)
+        assert {segment for _, segment in heard.points} == set(back16.segment_names)
+        status = wait_until(lambda: heard.status("s01", "upper_back"), 30, "upper_back's status")
+        body = wire.decode_body(status["body"])
+        assert body.layout == back16 and body.lengths == Body.default(back16).lengths
+    finally:
+        heard.close()

@@ -349,8 +349,9 @@ def add_layout(parser: argparse.ArgumentParser, help_text: str | None = None) ->
                         help=help_text or "the subjects' body layout (docs/body.md): the generator moves a device per "
                              f"segment of it, {DEFAULT_LAYOUT} (15 segments: pelvis, chest, head, arms, hands, legs "
                              "and feet; default), paper10 (the paper's 10: no chest, hands or feet) or a .toml/.json "
-                             "layout file of segments it moves; a motion file streams its own segments, which the "
-                             "layout must hold (the body of its --height-m/--body: paper10's unless --layout says); "
+                             "layout file of segments it moves; a BVH file is read onto it (without it: paper10); "
+                             "another motion file streams its own segments, which the layout must hold (the body of "
+                             "its --height-m/--body: paper10's unless --layout says); "
                              "--height-m and --body size a body of it")
 
 
@@ -368,6 +369,21 @@ def layout(args: argparse.Namespace) -> Layout:
         return body.layout(value)
     except (OSError, ValueError) as exc:
         raise FlagError(f"--layout {exc}" if str(exc).startswith(str(value)) else f"--layout: {exc}") from None
+
+
+def source_layout(args: argparse.Namespace) -> Layout | None:
+    """The layout ``up`` and ``emulate`` read a motion file ``--source`` onto: ``--layout``'s when
+    given and the source is BVH files (a ``.bvh`` file, or a folder whose motion files are all
+    ``.bvh``): a joint maps to each of its segments (``--names`` over the naming schemes), which the
+    devices stream. None for other sources, which stream their own segments (the layout must hold
+    them, :func:`check_source_layout`), and without ``--layout``."""
+    if getattr(args, "layout", None) is None:
+        return None
+    path = Path(args.source)
+    kinds = (".npz", ".bvh", ".csv", ".txt")
+    files = [path] if path.is_file() else sorted(p for p in path.iterdir() if p.suffix.lower() in kinds) \
+        if path.is_dir() else []
+    return layout(args) if files and all(f.suffix.lower() == ".bvh" for f in files) else None
 
 
 def check_source_layout(args: argparse.Namespace, segments: tuple[str, ...], source: str) -> None:
