@@ -374,16 +374,13 @@ def layout(args: argparse.Namespace) -> Layout:
 def source_layout(args: argparse.Namespace) -> Layout | None:
     """The layout ``up`` and ``emulate`` read a motion file ``--source`` onto: ``--layout``'s when
     given and the source is BVH files (a ``.bvh`` file, or a folder whose motion files are all
-    ``.bvh``): a joint maps to each of its segments (``--names`` over the naming schemes), which the
-    devices stream. None for other sources, which stream their own segments (the layout must hold
-    them, :func:`check_source_layout`), and without ``--layout``."""
+    ``.bvh``): a joint maps to each of its segments, which the devices stream. None for other
+    sources, which stream their own segments (:func:`check_source_layout`), and without it."""
     if getattr(args, "layout", None) is None:
         return None
     path = Path(args.source)
-    kinds = (".npz", ".bvh", ".csv", ".txt")
-    files = [path] if path.is_file() else sorted(p for p in path.iterdir() if p.suffix.lower() in kinds) \
-        if path.is_dir() else []
-    return layout(args) if files and all(f.suffix.lower() == ".bvh" for f in files) else None
+    kinds = {p.suffix.lower() for p in (path.iterdir() if path.is_dir() else [path])} & {".npz", ".bvh", ".csv", ".txt"}
+    return layout(args) if kinds == {".bvh"} else None
 
 
 def check_source_layout(args: argparse.Namespace, segments: tuple[str, ...], source: str) -> None:
