@@ -162,7 +162,7 @@ function renderTable() {
       const n = state.devices.filter((x) => x.subject === subject);
       const s = state.subjects.get(subject);
       rows.push(`<tr class="subject-row" data-subject="${esc(subject)}"><td colspan="14">${esc(subject)} · ` +
-        `${n.filter((x) => x.online).length}/${n.length} online${subjectErrors(s)}</td></tr>`);
+        `${n.filter((x) => x.online).length}/${n.length} online${subjectErrors(s)}${headingStopped(s)}</td></tr>`);
     }
     const dot = d.stale ? (d.alive ? "on" : "stale") : (d.online ? "on" : "off");
     const stateText = d.online ? "online" : (d.stale && !d.alive ? "no data" : "offline");
@@ -206,6 +206,19 @@ function subjectErrors(s) {  // the subject's frame error and joint error agains
   const joint = s && known(s.joint_aad_deg)
     ? ` · <span class="joint-err" data-value="${s.joint_aad_deg}" title="joint error: mean angle between the estimated and the true relative orientation of each pair of adjacent segments (knees, elbows, hips, shoulders, neck): posture, whichever way the subject faces (60 s)">joint error ${fmt(s.joint_aad_deg)}°</span>` : "";
   return frame + joint;
+}
+
+function headingStopped(s) {  // a subject whose heading correction stopped: the joints its rest pose contradicts
+  const shares = s && s.heading_contradicted ? Object.entries(s.heading_contradicted) : [];
+  if (!shares.length) return "";
+  const joints = shares.map(([j]) => j).join(", ");
+  const verb = shares.length > 1 ? "contradict their" : "contradicts its";
+  const tip = "its rest pose is not what it says: these joints bend about another axis than a hinge's, or lie out of " +
+    "range at any heading; share of the last minute's samples: " +
+    shares.map(([j, v]) => `${j} ${Math.round(100 * v)}%`).join(", ") + ". Without correction the headings drift as " +
+    "the sensors do (docs/evaluation.md, 'Heading without resets')";
+  return ` · <span class="heading-stopped warn" title="${esc(tip)}">heading correction stopped: ${esc(joints)} ${verb} ` +
+    "rest pose</span>";
 }
 
 function headingCell(d) {  // heading correction: offset applied now · confidence; rate in the tip

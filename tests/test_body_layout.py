@@ -272,6 +272,9 @@ def test_the_example_layouts_load():
     back = load_layout(EXAMPLES / "back16.json")
     assert back.name == "back16" and len(back.segments) == 16 and back.joints[:3] == ("pelvis", "lumbar", "thorax")
     assert [s.parent for s in back.segments[:3]] == [None, "hip", "lower_back"]
+    spine = load_layout(EXAMPLES / "spine17.json")  # CMU's spine: the lower back and the thorax off the pelvis and neck
+    assert spine.name == "spine17" and len(spine.segments) == 17 and len(spine.joints) == 20
+    assert spine.segment("lower_back").joint == "pelvis" and spine.segment("head").parent == "thorax"
 
 
 @pytest.mark.parametrize("lay", [PAPER10, FULL], ids=["paper10", "full"])

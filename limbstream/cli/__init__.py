@@ -10,11 +10,13 @@ Modules are imported only when their command runs (nothing opens a session at im
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import signal
 import sys
 import threading
+import warnings
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("limbstream.cli.up", "run the whole live system on this machine"),
@@ -88,6 +90,25 @@ def console() -> None:
     os._exit(code)
 
 
+@contextlib.contextmanager
+def notes_as_lines(prog: str):
+    """While it lasts, a source's notes (:class:`limbstream.sources.SourceNote`) print as one line
+    on stderr, ``PROG: note: ...`` (other warnings as Python shows them)."""
+    from limbstream.sources import SourceNote
+
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, SourceNote):
+                print(f"{prog}: note: {message}", file=sys.stderr, flush=True)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        yield
+
+
 def _run(name: str, argv: list[str]) -> int:
     from limbstream import zconfig
     from limbstream.cli import flags
@@ -96,8 +117,9 @@ def _run(name: str, argv: list[str]) -> int:
     module.add_arguments(sub)
     args = sub.parse_args(argv)
     try:
-        flags.check_shared(args)
-        return int(module.run(args) or 0)
+        with notes_as_lines(f"limbstream {name}"):
+            flags.check_shared(args)
+            return int(module.run(args) or 0)
     except flags.FlagError as exc:
         return flags.fail(f"limbstream {name}", str(exc))
     except zconfig.ConnectError as exc:

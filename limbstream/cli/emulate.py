@@ -3,6 +3,7 @@ process (the part: :mod:`limbstream.device_emulator.main`)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import threading
@@ -70,8 +71,13 @@ def raw_feeds(args: argparse.Namespace, names: list[str]) -> dict[str, RawFeed]:
 
 
 def source_motions(args: argparse.Namespace) -> list:
-    """The clips of a motion file ``--source``; FlagError when ``--layout`` is not theirs."""
-    motions = load(args.source, args.names)
+    """The clips of a motion file ``--source`` (BVH files read onto ``--layout``,
+    :func:`flags.source_layout`, with the layout's default body where the file cannot measure its
+    bones); FlagError when ``--layout`` is not theirs."""
+    shape = flags.source_layout(args)
+    motions = load(args.source, args.names, layout=shape)
+    if shape is not None:
+        motions = [m if m.body is not None else dataclasses.replace(m, body=flags.default_body(args)) for m in motions]
     for motion in motions:
         flags.check_source_layout(args, motion.segments, args.source)
     return motions

@@ -49,8 +49,9 @@ def given(args: argparse.Namespace, dest: str) -> bool:
 
 def check_shared(args: argparse.Namespace) -> None:
     """The flags of this module that a command has, checked right after parsing, before it starts
-    anything: the Zenoh endpoints, ``--connect-timeout``, ``--zenoh-config`` and the raw sensors'
-    flags given without ``--imu raw``. FlagError naming the first problem."""
+    anything: the Zenoh endpoints, ``--connect-timeout``, ``--zenoh-config``, the raw sensors'
+    flags given without ``--imu raw`` and the segments of ``--names`` (:func:`check_names`).
+    FlagError naming the first problem."""
     if hasattr(args, "connect"):
         timeout = getattr(args, "connect_timeout", None)
         if timeout is not None and not timeout >= 0:
@@ -64,6 +65,8 @@ def check_shared(args: argparse.Namespace) -> None:
         for dest, flag in (("imu_model", "--imu-model"), ("imu_rate", "--imu-rate")):
             if given(args, dest):
                 raise FlagError(f"{flag} applies to raw sensors only: add --imu raw")
+    if getattr(args, "names", None) is not None:
+        check_names(args)
 
 
 def parse_http(value: str, allow_zero: bool = True) -> tuple[str, int]:
@@ -291,8 +294,9 @@ def add_names(parser: argparse.ArgumentParser) -> None:
                         help="which segment each sensor of an IMU recording (or joint of a BVH file) measures: "
                              f"a named mapping ({', '.join(names.NAMED)}), a file of SENSOR=SEGMENT lines, or a "
                              "list (SENSOR: a file name without extension, e.g. an Xsens serial number, or a BVH "
-                             "joint; default: x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh; BVH: the CMU, "
-                             "Mixamo and Left/L/Right/R joint names)")
+                             "joint; SEGMENT: a segment of --layout, a layout file's own too, else of a built-in "
+                             "layout; default: x-IMU3 file names, e.g. Left_Upper.csv -> l_thigh; BVH: the CMU, "
+                             "Mixamo and Left/L/Right/R joint names, under the joints a mapping names)")
 
 
 def body_layout(text: str):
@@ -312,6 +316,17 @@ def add_source_layout(parser: argparse.ArgumentParser, default_text: str) -> Non
     parser.add_argument("--layout", type=body_layout, default=None, metavar="paper10|full|FILE",
                         help=f"the body layout (docs/body.md): paper10, full (feet, hands, chest, head) or a "
                              f"layout file; {default_text}")
+
+
+def check_names(args: argparse.Namespace) -> None:
+    """``--names``' segments are the layout's in effect: ``--layout``'s (a layout file's own too),
+    or a built-in layout's where it is not given (the subjects' layouts are then built-ins); FlagError
+    naming the first segment the layout lacks and its segments."""
+    chosen = getattr(args, "layout", None)
+    try:
+        names.check_segments(args.names, layout(args) if isinstance(chosen, str) else chosen)
+    except ValueError as exc:
+        raise FlagError(str(exc)) from None
 
 
 def names_argv(mapping: dict[str, str] | None) -> list[str]:
@@ -334,8 +349,9 @@ def add_layout(parser: argparse.ArgumentParser, help_text: str | None = None) ->
                         help=help_text or "the subjects' body layout (docs/body.md): the generator moves a device per "
                              f"segment of it, {DEFAULT_LAYOUT} (15 segments: pelvis, chest, head, arms, hands, legs "
                              "and feet; default), paper10 (the paper's 10: no chest, hands or feet) or a .toml/.json "
-                             "layout file of segments it moves; a motion file streams its own segments, which the "
-                             "layout must hold (the body of its --height-m/--body: paper10's unless --layout says); "
+                             "layout file of segments it moves; a BVH file is read onto it (without it: paper10); "
+                             "another motion file streams its own segments, which the layout must hold (the body of "
+                             "its --height-m/--body: paper10's unless --layout says); "
                              "--height-m and --body size a body of it")
 
 
@@ -353,6 +369,18 @@ def layout(args: argparse.Namespace) -> Layout:
         return body.layout(value)
     except (OSError, ValueError) as exc:
         raise FlagError(f"--layout {exc}" if str(exc).startswith(str(value)) else f"--layout: {exc}") from None
+
+
+def source_layout(args: argparse.Namespace) -> Layout | None:
+    """The layout ``up`` and ``emulate`` read a motion file ``--source`` onto: ``--layout``'s when
+    given and the source is BVH files (a ``.bvh`` file, or a folder whose motion files are all
+    ``.bvh``): a joint maps to each of its segments, which the devices stream. None for other
+    sources, which stream their own segments (:func:`check_source_layout`), and without it."""
+    if getattr(args, "layout", None) is None:
+        return None
+    path = Path(args.source)
+    kinds = {p.suffix.lower() for p in (path.iterdir() if path.is_dir() else [path])} & {".npz", ".bvh", ".csv", ".txt"}
+    return layout(args) if kinds == {".bvh"} else None
 
 
 def check_source_layout(args: argparse.Namespace, segments: tuple[str, ...], source: str) -> None:

@@ -252,7 +252,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, ...]]:
         if args.names is not None:
             raise ValueError("--names maps the sensors of an IMU recording; the generator has none")
         return [flags.layout(args).segment_names] * args.subjects
-    motions = sources.load(args.source, args.names)
+    motions = sources.load(args.source, args.names, layout=flags.source_layout(args))
     for motion in motions:
         flags.check_source_layout(args, motion.segments, args.source)
     return [motions[clip_of(k, len(motions))[0]].segments for k in range(1, args.subjects + 1)]

@@ -22,6 +22,7 @@ from typing import Protocol
 import numpy as np
 
 from limbstream import calibration, quat
+from limbstream.body import PAPER10, Body
 from limbstream.imu.devices import ImuDevices
 from limbstream.imu.kinematics import Readings, SmoothMotion, readings, to_earth
 from limbstream.skeleton import Skeleton
@@ -103,6 +104,7 @@ class ReadingFeed:
         else:
             self._source = _ClipSamples(source, loop=not once, script=script)
         self.segments, self.rest_pose = self._source.segments, self._source.rest_pose
+        self.body = None if isinstance(source, GeneratorSource) else _layout_body(source)
         self.script_s = self._source.script_s
         span = self._source.span_s
         self.length = None if span is None else int(math.floor(span * self.rate + 1e-9)) + 1
@@ -133,13 +135,28 @@ class ReadingFeed:
             start = math.floor(c * self._chunk_len / self.rate * fs) - math.ceil(MARGIN_S * fs)
             count = math.ceil(self._chunk_len / self.rate * fs) + 2 * math.ceil(MARGIN_S * fs) + 2
             q, root = self._source.samples(start, count)
-            motion = Motion((start + np.arange(count)) / fs, q, self.segments, rest_pose=self.rest_pose, root=root)
+            motion = Motion((start + np.arange(count)) / fs, q, self.segments, rest_pose=self.rest_pose, root=root,
+                            body=self.body)
             k = c * self._chunk_len + np.arange(self._chunk_len)
             if self.length is not None:
                 k = k[k < self.length]
             self._chunks = {key: value for key, value in self._chunks.items() if key == c - 1}
             self._chunks[c] = readings(SmoothMotion(motion), k / self.rate, self.rate, self.skeleton)
         return self._chunks[c]
+
+
+def _layout_body(motion: Motion) -> Body | None:
+    """The body the sensors of ``motion`` are placed on (:func:`.kinematics.readings`): none for
+    ``paper10`` (the :class:`Skeleton`'s) or a motion without a body of its own; else its layout's
+    default body, as for a motion of a built-in layout without one (a layout file's segments name
+    no built-in layout, so its body carries it), or its own where the layout gives no height
+    fractions."""
+    if motion.body is None or motion.body.layout == PAPER10:
+        return None
+    try:
+        return Body.default(motion.body.layout)
+    except ValueError:
+        return motion.body
 
 
 class _Samples(Protocol):

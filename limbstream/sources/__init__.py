@@ -33,6 +33,11 @@ class MotionFileError(ValueError):
         return cls(f"{where}: {what}")
 
 
+class SourceNote(UserWarning):
+    """A note on a source as it is read (segments or sensors left out, rows dropped, a recording
+    left uncalibrated); ``limbstream`` prints it as one line, ``limbstream COMMAND: note: ...``."""
+
+
 def is_number(text: str) -> bool:
     """True if ``text`` parses as a float."""
     try:
@@ -162,7 +167,8 @@ def on_layout(motion: Motion, layout: Layout) -> Motion:
     if not keep:
         raise MotionFileError(f"{motion.name}: none of its segments ({', '.join(motion.segments)}) is one of layout "
                               f"{layout.name}'s ({', '.join(layout.segment_names)})")
-    warnings.warn(f"{motion.name}: {', '.join(off)}: no segment of layout {layout.name}, left out", stacklevel=2)
+    warnings.warn(f"{motion.name}: {', '.join(off)}: no segment of layout {layout.name}, left out", SourceNote,
+                  stacklevel=2)
     return replace(motion, q=motion.q[:, keep], segments=tuple(motion.segments[k] for k in keep))
 
 
@@ -174,10 +180,11 @@ def load(path: str | Path, names: Mapping[str, str] | None = None,
 
     - ``.npz``: every clip (:func:`load_npz`); ``.bvh``: one clip at ``fs`` Hz (None: the file's
       own frames; :mod:`.bvh`; ``names``
-      maps its joints to segments, JOINT -> SEGMENT, where no naming scheme fits them).
+      maps its joints to segments of the layout, JOINT -> SEGMENT, over the naming schemes).
     - An x-IMU3 ``.csv`` or Xsens ``.txt`` file (one segment, its own samples), or a folder of
       either (one segment per sensor, aligned on a common time base): one Motion of segment
-      orientations (see :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`).
+      orientations (see :mod:`.imu_files`); ``names`` maps its sensors to segments (:mod:`.names`:
+      segments of ``layout`` where one is given).
     - Any other folder: every ``.npz`` and ``.bvh`` in it, in name order.
 
     With a ``layout``, a BVH file maps a joint to each of its segments (:func:`.bvh.load_bvh`), and
@@ -189,7 +196,7 @@ def load(path: str | Path, names: Mapping[str, str] | None = None,
     maps to a body segment, and ``names`` for a source whose segments are named already).
     """
     from limbstream.body import layout as layout_named
-    from limbstream.sources import bvh, imu_files
+    from limbstream.sources import bvh, imu_files, names as sensor_names
 
     path = Path(path)
     if not path.exists():
@@ -200,6 +207,11 @@ def load(path: str | Path, names: Mapping[str, str] | None = None,
         raise MotionFileError(f"{path}: {exc}") from None
     suffixes = {p.suffix.lower() for p in path.iterdir() if p.is_file()} if path.is_dir() else {path.suffix.lower()}
     if suffixes & {".csv", ".txt"}:
+        try:
+            if shape is not None:
+                sensor_names.check_segments(names, shape)
+        except ValueError as exc:
+            raise MotionFileError(f"{path}: {exc}") from None
         motion = imu_files.load_imu(path, names)
         return [motion if shape is None else on_layout(motion, shape)]
     if path.is_dir():
@@ -223,5 +235,5 @@ def load(path: str | Path, names: Mapping[str, str] | None = None,
 
 from limbstream.sources.raw import RawRecording, load_raw  # noqa: E402  (needs MotionFileError above)
 
-__all__ = ["ORIENTATIONS", "SEGMENTS", "Motion", "MotionFileError", "RawRecording", "is_number", "load", "load_npz", "load_raw",
-           "on_layout"]
+__all__ = ["ORIENTATIONS", "SEGMENTS", "Motion", "MotionFileError", "RawRecording", "SourceNote", "is_number", "load",
+           "load_npz", "load_raw", "on_layout"]

@@ -20,7 +20,9 @@ joint whose bone reaches its tip (:func:`carrier`: CMU's ``LeftFingerBase``, at 
 the hand's bone; ``LeftFoot`` the foot's, to ``LeftToeBase``).
 
 A file none of them fits is refused with its joints and how to map them: ``--names
-JOINT=SEGMENT,...`` (a list or a file of such lines, :mod:`limbstream.sources.names`).
+JOINT=SEGMENT,...`` (a list or a file of such lines, :mod:`limbstream.sources.names`). A mapping
+names any segments of the layout (a layout file's own: ``lowerback=lower_back``), over what the
+schemes find: the segments it does not name keep the schemes' joints.
 """
 from __future__ import annotations
 
@@ -55,11 +57,15 @@ CMU_SEGMENT_MAPS: dict[str, dict[str, str]] = {
 """Segment -> joint maps for the CMU naming schemes, in the order they are tried."""
 
 CMU_FULL_PARTS: dict[str, dict[str, str]] = {
-    "cmu": {"l_foot": "LeftFoot", "r_foot": "RightFoot", "l_hand": "LeftHand", "r_hand": "RightHand"},
-    "cmu_asf": {"l_foot": "LeftAnkle", "r_foot": "RightAnkle", "l_hand": "LeftWrist", "r_hand": "RightWrist"},
+    "cmu": {"l_foot": "LeftFoot", "r_foot": "RightFoot", "l_hand": "LeftHand", "r_hand": "RightHand",
+            "lower_back": "LowerBack", "thorax": "Spine1"},
+    "cmu_asf": {"l_foot": "LeftAnkle", "r_foot": "RightAnkle", "l_hand": "LeftWrist", "r_hand": "RightWrist",
+                "lower_back": "lowerback", "thorax": "Chest2"},
 }
 """Each CMU scheme's joints of ``full``'s feet and hands (its head and chest: from the neck,
-:func:`_full_parts`)."""
+:func:`_full_parts`) and of a layout file's spine below and above the chest (``lower_back``:
+the joint at the pelvis that turns the spine; ``thorax``: the one at the neck's base that turns
+the neck and collar bones; examples/layouts/spine17.json)."""
 
 PARTS: dict[str, str] = {
     "upleg": "thigh", "upperleg": "thigh", "thigh": "thigh", "femur": "thigh",
@@ -123,17 +129,30 @@ def _listing(joints: Sequence[str]) -> str:
     return ", ".join(joints)
 
 
+def _named(path: Path, joints: Sequence[str], names: Mapping[str, str], layout: Layout | None) -> dict[str, str]:
+    """Segment -> joint of ``names`` (JOINT -> SEGMENT); MotionFileError naming a joint the file
+    lacks (with its joints) or a segment ``layout`` (None: ``paper10``) lacks (with its segments)."""
+    from limbstream.body import PAPER10
+    from limbstream.sources.names import check_segments
+
+    unknown = [j for j in names if j not in joints]
+    if unknown:
+        raise MotionFileError.at(path, None, f"--names: no joint named {unknown[0]!r} (joints: {_listing(joints)})")
+    try:
+        check_segments(names, layout or PAPER10)
+    except ValueError as exc:
+        raise MotionFileError.at(path, None, str(exc)) from None
+    return {seg: joint for joint, seg in names.items()}
+
+
 def segment_map(path: Path, joints: Sequence[str], names: Mapping[str, str] | None) -> dict[str, str]:
     """Segment -> joint of a file's ``joints``, from ``names`` (JOINT -> SEGMENT, as ``--names``
-    gives it) or the schemes; MotionFileError naming the file's joints and how to map them
-    (a scheme or mapping that leaves a segment without a joint names the segment)."""
+    gives it) over the schemes' (the segments it does not name), or the schemes alone;
+    MotionFileError naming the file's joints and how to map them (a scheme or mapping that leaves
+    a segment without a joint names the segment)."""
     if names is not None:
-        unknown = [j for j in names if j not in joints]
-        if unknown:
-            raise MotionFileError.at(path, None, f"--names: no joint named {unknown[0]!r} "
-                                                 f"(joints: {_listing(joints)})")
-        chosen = {seg: joint for joint, seg in names.items() if seg in SEGMENTS}
-        source = "--names"
+        chosen = {**(pick_segment_map(joints) or by_parts(joints)), **_named(path, joints, names, None)}
+        source = "--names and the joint names"
     else:
         chosen = pick_segment_map(joints)
         if chosen:
@@ -227,22 +246,20 @@ def _full_parts(clip: BvhClip, base: Mapping[str, str]) -> dict[str, str]:
 
 def layout_map(clip: BvhClip, names: Mapping[str, str] | None, layout: Layout) -> dict[str, str]:
     """Segment -> joint of every segment of ``layout``, in its order: ``paper10``'s by
-    :func:`segment_map`, ``full``'s further ones by :func:`_full_parts` (or ``names``, JOINT ->
-    SEGMENT); MotionFileError naming the segments without a joint and the file's joints."""
+    :func:`segment_map`, ``full``'s further ones by :func:`_full_parts`, ``names`` (JOINT ->
+    SEGMENT, any segment of ``layout``: a layout file's own too) over both; MotionFileError naming
+    the segments without a joint and the file's joints, or a segment of ``names`` the layout lacks."""
     wanted = layout.segment_names
     if set(wanted) <= set(SEGMENTS):
+        if names is not None:
+            _named(clip.path, clip.joints, names, layout)
         return {s: j for s, j in segment_map(clip.path, clip.joints, names).items() if s in wanted}
+    chosen = pick_segment_map(clip.joints) or by_parts(clip.joints)
+    chosen = {**chosen, **_full_parts(clip, chosen)}
+    source = "the joint names"
     if names is not None:
-        unknown = [j for j in names if j not in clip.joints]
-        if unknown:
-            raise MotionFileError.at(clip.path, None, f"--names: no joint named {unknown[0]!r} "
-                                                      f"(joints: {_listing(clip.joints)})")
-        chosen = {seg: joint for joint, seg in names.items() if seg in wanted}
-        source = "--names"
-    else:
-        chosen = pick_segment_map(clip.joints) or by_parts(clip.joints)
-        chosen = {**chosen, **_full_parts(clip, chosen)}
-        source = "the joint names"
+        chosen.update(_named(clip.path, clip.joints, names, layout))
+        source = "--names and the joint names"
     missing = [s for s in wanted if s not in chosen]
     if missing:
         raise MotionFileError.at(clip.path, None, f"no joint for segment {', '.join(missing)} of layout {layout.name} "

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from limbstream import calibration, quat
-from limbstream.sources import Motion, MotionFileError, is_number, names as sensor_names
+from limbstream.sources import Motion, MotionFileError, SourceNote, is_number, names as sensor_names
 
 XIO_HEADER = ("Timestamp (us)", "W", "X", "Y", "Z")
 
@@ -104,7 +104,7 @@ def _keep_increasing(t: np.ndarray) -> np.ndarray:
 
 def _warn_dropped(path: Path, dropped: int, why: str) -> None:
     if dropped:
-        warnings.warn(f"{path}: dropped {dropped} rows ({why})", stacklevel=3)
+        warnings.warn(f"{path}: dropped {dropped} rows ({why})", SourceNote, stacklevel=3)
 
 
 def read_xio_csv(path: str | Path) -> SensorStream:
@@ -293,7 +293,9 @@ def load_imu(path: str | Path, names: Mapping[str, str] | None = None) -> Motion
     Parameters
     ----------
     path : the file or folder.
-    names : sensor -> segment (:func:`.names.parse`); the sensors it does not name are left out.
+    names : sensor -> segment (:func:`.names.parse`, its segments of the layout in effect, checked
+        by the caller: :func:`.names.check_segments`); the sensors it does not name are left out
+        (a one-line note names them).
         None: x-IMU3 files by their prefixes, others by their stems (:func:`.names.default_name`).
 
     Raises
@@ -309,9 +311,13 @@ def load_imu(path: str | Path, names: Mapping[str, str] | None = None) -> Motion
         streams = [read_xio_csv(path) if xio else read_xsens_txt(path)]
     segments = sensor_names.name_sensors([s.path.stem for s in streams], names)
     try:
-        sensor_names.check_body(str(path), [s for s in segments if s], [s.path.stem for s in streams])
+        sensor_names.check_body(str(path), [s for s in segments if s], [s.path.stem for s in streams],
+                                sensor_names.BODY_SEGMENTS if names is None else tuple(names.values()))
     except ValueError as exc:
         raise MotionFileError(str(exc)) from None
+    unnamed = [s.path.stem for s, seg in zip(streams, segments) if not seg]
+    if unnamed:
+        warnings.warn(f"{path.name}: {', '.join(unnamed)}: not named by --names, left out", SourceNote, stacklevel=2)
     streams = [replace(s, name=seg) for s, seg in zip(streams, segments) if seg]
     if path.is_file():  # one sensor: its own samples, as recorded
         (one,) = streams
@@ -336,6 +342,6 @@ def to_body(motion: Motion) -> Motion:
         q, orientations = calibration.calibrate_start(q, motion.fs, motion.segments), "rest"
     except calibration.CalibrationError as exc:
         warnings.warn(f"{motion.name}: not calibrated, the sensors do not start in a still rest pose ({exc})",
-                      stacklevel=2)
+                      SourceNote, stacklevel=2)
         orientations = "sensors"
     return replace(motion, q=quat.continuous(q), rest_pose="standing", orientations=orientations)

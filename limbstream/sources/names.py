@@ -14,13 +14,17 @@ scheme fits them.
 ``SENSOR`` is a file's name without its extension; a name that ends in ``_SENSOR`` matches too
 (Xsens' ``MT_012005D6_009-001_00B4227C``). With a mapping, the sensors it does not name are
 left out; without one, a file is named by :data:`XIO_PREFIXES` or keeps its own name.
+
+:func:`parse` checks the syntax only: a ``SEGMENT`` is any segment of the layout in effect (a
+layout file's own too), which the command knows once its ``--layout`` is read
+(:func:`check_segments`; without one, a built-in layout's, :data:`BODY_SEGMENTS`).
 """
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from limbstream.body import LAYOUTS
+from limbstream.body import LAYOUTS, Layout
 from limbstream.wire.body import SEGMENTS
 
 EXTRA_SEGMENTS: tuple[str, ...] = ("l_foot", "r_foot")
@@ -29,8 +33,8 @@ count in the statistics, but no pose-frame orientation is theirs)."""
 
 BODY_SEGMENTS: tuple[str, ...] = tuple(dict.fromkeys(SEGMENTS + tuple(s for lay in LAYOUTS.values()
                                                                       for s in lay.segment_names)))
-"""Every segment a sensor or joint may be mapped to: the built-in layouts' (``paper10``'s, then
-``full``'s further ones: chest, head, hands, feet)."""
+"""The built-in layouts' segments (``paper10``'s, then ``full``'s further ones: chest, head, hands,
+feet): those a sensor or joint may be mapped to where no layout is given."""
 
 XIO_PREFIXES: dict[str, str] = {
     "left_upper": "l_thigh",
@@ -64,8 +68,6 @@ def _entries(text: str, where: str) -> dict[str, str]:
         sensor, sep, segment = (part.strip() for part in entry.partition("="))
         if not sep or not sensor or not segment:
             raise ValueError(f"{where}: {entry!r} is not SENSOR=SEGMENT")
-        if segment not in BODY_SEGMENTS:
-            raise ValueError(f"{where}: {segment!r} is not a segment (one of {', '.join(BODY_SEGMENTS)})")
         if sensor in mapping:
             raise ValueError(f"{where}: sensor {sensor!r} is mapped twice")
         mapping[sensor] = segment
@@ -76,7 +78,8 @@ def _entries(text: str, where: str) -> dict[str, str]:
 
 def parse(text: str) -> dict[str, str]:
     """The mapping ``text`` gives (a name of :data:`NAMED`, a list, or a file, see the module);
-    ValueError naming the problem."""
+    ValueError naming the problem. Its segments are checked against a layout by
+    :func:`check_segments`."""
     text = text.strip()
     if "=" in text:
         return _entries(text, "--names")
@@ -90,6 +93,18 @@ def parse(text: str) -> dict[str, str]:
         return _entries(path.read_text(), str(path))
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"--names {path}: cannot read ({exc})") from None
+
+
+def check_segments(mapping: Mapping[str, str] | None, layout: Layout | None) -> None:
+    """ValueError (one line: the first segment of ``mapping`` that ``layout`` lacks and the layout's
+    segments) unless every segment ``mapping`` maps to is one of ``layout`` (None: of a built-in
+    layout, :data:`BODY_SEGMENTS`)."""
+    allowed = BODY_SEGMENTS if layout is None else layout.segment_names
+    bad = next((segment for segment in (mapping or {}).values() if segment not in allowed), None)
+    if bad is not None:
+        whose = ("of a built-in layout (a layout file's with --layout FILE); theirs" if layout is None
+                 else f"of layout {layout.name}; its segments")
+        raise ValueError(f"--names: {bad!r} is not a segment {whose}: {', '.join(allowed)}")
 
 
 def _matches(sensor: str, stem: str) -> bool:
@@ -111,10 +126,12 @@ def name_sensors(stems: Sequence[str], names: Mapping[str, str] | None) -> list[
     return [next((seg for sensor, seg in names.items() if _matches(sensor, stem)), None) for stem in stems]
 
 
-def check_body(where: str, segments: Sequence[str], sensors: Sequence[str] | None = None) -> None:
-    """ValueError unless some of ``segments`` is one of the body's (:data:`BODY_SEGMENTS`); the
-    sentence names the sensors found (``sensors``, default ``segments``) and how to map them."""
-    if any(s in BODY_SEGMENTS for s in segments):
+def check_body(where: str, segments: Sequence[str], sensors: Sequence[str] | None = None,
+               known: Sequence[str] = BODY_SEGMENTS) -> None:
+    """ValueError unless some of ``segments`` is one of ``known`` (default :data:`BODY_SEGMENTS`; a
+    mapping's own segments where one is given); the sentence names the sensors found (``sensors``,
+    default ``segments``) and how to map them."""
+    if any(s in known for s in segments):
         return
     found = ", ".join(sensors if sensors is not None else segments) or "none"
     raise ValueError(f"{where}: no sensor maps to a body segment (sensors found: {found}); map them with "

@@ -8,11 +8,11 @@ s and, per IMU named by body part, a struct with ``acc`` (n, 3) m/s^2 and ``gyr`
 left out by :meth:`RawRecording.body`. Onto another layout (``full``) each part takes the first
 of its :data:`QMT_PARTS` candidates the layout has and no other part took (:func:`segments_on`):
 ``full`` keeps the feet, hands, head and the upper back (as its chest); the lower back, whose
-pelvis the hip IMU measures, is left out with a note.
+pelvis the hip IMU measures, has none (the body's sensors, :meth:`RawRecording.body` and
+:func:`.raw.to_motion`, leave it out with a note).
 """
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -63,8 +63,8 @@ def segments_on(sensors: Sequence[str], layout: Layout) -> tuple[str, ...]:
 
 def from_mat(path: Path, data: dict, layout: Layout | None = None) -> RawRecording:
     """The recording in the variables ``data`` of the file ``path``, its sensors on the segments of
-    ``layout`` (None: the 10-IMU body's, :data:`QMT_SEGMENTS`; else :func:`segments_on`, a note
-    naming the sensors it has no segment for); MotionFileError naming a missing or malformed
+    ``layout`` (None: the 10-IMU body's, :data:`QMT_SEGMENTS`; else :func:`segments_on`; a sensor
+    it has no segment for keeps its own name); MotionFileError naming a missing or malformed
     channel."""
     sensors = [name for name, value in data.items() if hasattr(value, "_fieldnames")]
     if not sensors:
@@ -87,9 +87,5 @@ def from_mat(path: Path, data: dict, layout: Layout | None = None) -> RawRecordi
         segments = tuple(QMT_SEGMENTS.get(name, name) for name in sensors)
     else:
         segments = segments_on(sensors, layout)
-        off = [name for name, segment in zip(sensors, segments) if segment not in layout.segment_index]
-        if off:
-            warnings.warn(f"{path}: {', '.join(off)}: no segment of layout {layout.name} for "
-                          f"{'them' if len(off) > 1 else 'it'}, left out", stacklevel=2)
     return RawRecording(t - t[0], np.stack(gyr, axis=1), np.stack(acc, axis=1), tuple(sensors), segments,
                         name=path.stem)

@@ -10,6 +10,7 @@ estimate is compared in (:mod:`limbstream.evaluation.fusion`).
 """
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from limbstream.body import Layout
-from limbstream.sources import Motion, MotionFileError
+from limbstream.sources import Motion, MotionFileError, SourceNote
 from limbstream.wire import SEGMENTS
 
 CHANNELS: dict[str, str] = {
@@ -98,9 +99,20 @@ class RawRecording:
 
     def body(self, layout: Layout | None = None) -> RawRecording:
         """The sensors on the segments of ``layout`` (None: the 10-IMU body's), in its order (those
-        of the segments it has)."""
+        of the segments it has); a one-line warning names the sensors left out."""
         names = SEGMENTS if layout is None else layout.segment_names
+        left_out(self.name, [(s, g) for s, g in zip(self.sensors, self.segments) if g not in names],
+                 f"layout {'paper10' if layout is None else layout.name}")
         return self.select([self.segments.index(s) for s in names if s in self.segments])
+
+
+def left_out(name: str, sensors: list[tuple[str, str]], whose: str) -> None:
+    """One warning line naming the ``sensors`` (sensor, its segment: empty or its own name where it
+    has none) of recording ``name`` left out for having no segment of ``whose`` (``layout full``);
+    none if there are none."""
+    if sensors:
+        listed = ", ".join(s if not g or g == s else f"{s} ({g})" for s, g in sensors)
+        warnings.warn(f"{name}: {listed}: no segment of {whose}, left out", SourceNote, stacklevel=3)
 
 
 def channel(path: Path, values, name: str, n: int | None = None) -> np.ndarray:
@@ -171,19 +183,24 @@ def fuse(rec: RawRecording, mag: bool = False, rest_th_gyr_dps: float | None = N
     return out
 
 
-def to_motion(rec: RawRecording, names: Mapping[str, str] | None = None) -> Motion:
-    """The body's segment orientations of a raw recording: its sensors on body segments (``names``:
-    sensor -> segment, :mod:`.names`, overrides the file's own), fused as devices fuse them
-    (:func:`fuse`, 6D), then turned Y up and calibrated from the still start as IMU recordings are
-    (:func:`.imu_files.to_body`); MotionFileError if no sensor is on the body."""
+def to_motion(rec: RawRecording, names: Mapping[str, str] | None = None, layout: Layout | None = None) -> Motion:
+    """The body's segment orientations of a raw recording: its sensors on the segments of ``layout``
+    (None: a built-in layout's, :data:`.names.BODY_SEGMENTS`; ``names``: sensor -> segment,
+    :mod:`.names`, overrides the file's own), fused as devices fuse them (:func:`fuse`, 6D), then
+    turned Y up and calibrated from the still start as IMU recordings are
+    (:func:`.imu_files.to_body`); a one-line warning names the sensors left out (on no segment of
+    the layout, or not named by ``names``); MotionFileError if no sensor is on the body."""
     from limbstream.sources import imu_files, names as sensor_names
 
     named = list(rec.segments) if names is None else sensor_names.name_sensors(rec.sensors, names)
     segments = [seg or "" for seg in named]
-    keep = [k for k, seg in enumerate(segments) if seg in sensor_names.BODY_SEGMENTS]
+    allowed = sensor_names.BODY_SEGMENTS if layout is None else layout.segment_names
+    keep = [k for k, seg in enumerate(segments) if seg in allowed]
     if not keep:
         raise MotionFileError(f"{rec.name}: no sensor maps to a body segment (sensors found: "
                               f"{', '.join(rec.sensors)}); map them with {sensor_names.FLAG}")
+    left_out(rec.name, [(s, g) for s, g in zip(rec.sensors, segments) if g not in allowed],
+             "a built-in layout" if layout is None else f"layout {layout.name}")
     body = rec.select(keep)
     motion = Motion(body.t, fuse(body), tuple(segments[k] for k in keep), rec.name, orientations="sensors")
     return imu_files.to_body(motion)

@@ -23,6 +23,7 @@ import numpy as np
 
 from limbstream import joints, quat, wire
 from limbstream.body import PAPER10, Body, Layout, lengths_of
+from limbstream.body import layout as body_layout
 from limbstream.calibration import START_STILL_S
 from limbstream.skeleton import Skeleton
 from limbstream.sources import Motion, MotionFileError, load, load_raw, raw
@@ -310,7 +311,9 @@ def read_take(path: str | Path, subject: str | None, rest_pose: str | None = Non
             take = from_recording(Recording(path), subject, rest_pose)
             return take if rate is None else at_rate(take, rate)
         if path.suffix.lower() == ".mat" or raw.raw_files(path):
-            motions = [raw.to_motion(load_raw(p), names) for p in ([path] if path.is_file() else raw.raw_files(path))]
+            shape = body_layout(layout) if isinstance(layout, str | Path) else layout
+            motions = [raw.to_motion(load_raw(p, shape), names, shape)
+                       for p in ([path] if path.is_file() else raw.raw_files(path))]
         else:
             motions = load(path, names, fs=None, layout=layout)
         return from_motion(motions, subject, path, rest_pose, rate)
