@@ -184,3 +184,36 @@ def test_an_aggregator_gets_the_points_sent_while_the_router_was_down_before_a_p
         host.close()
         session.close()
         agg_session.close()
+
+
+def test_a_subscription_gets_the_points_sent_while_the_router_was_down_before_a_pause(router):
+    """The same through :class:`Subscription` (``limbstream record``, ``watch``): points 10-12
+    reach it after the restart, each once, in order."""
+    from limbstream.services.outputs.subscription import Subscription
+
+    launcher, endpoint, proc = router
+    points = [wire.encode_point(wire.SegmentPoint(1, seq, 3 * seq, 60_000 * seq, (1.0, 0.0, 0.0, 0.0), 0))
+              for seq in range(13)]
+    session, host, d = device_host(endpoint)
+    host.online(d)
+    got: list[bytes] = []
+
+    def take(sub):
+        return lambda: got.extend(item.payload for item in sub.drain()) or got
+    with Subscription(zconfig.ZenohSettings(connect=(endpoint,)), "s01", ("seg",)) as sub:
+        try:
+            for p in points[:10]:
+                host.publish(d, p)
+            wait_until(lambda: len(take(sub)()) == 10, 10, "points 0-9")
+            proc.signal(signal.SIGKILL)
+            proc.popen.wait()
+            wait_until(lambda: not port_open("127.0.0.1", int(endpoint.rsplit(":", 1)[1])), 5, "the router to be gone")
+            for p in points[10:]:
+                host.publish(d, p)
+            time.sleep(2 * HEARTBEAT_S)  # its one heartbeat goes out while the router is down
+            launcher.router(endpoint)
+            wait_until(lambda: len(take(sub)()) >= 13 and not sub.resuming, 20, "points 10-12 after the restart")
+            assert take(sub)() == points
+        finally:
+            host.close()
+            session.close()

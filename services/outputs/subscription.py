@@ -9,6 +9,10 @@ decoders; undecodable messages are counted by reason in :attr:`Subscription.erro
 
 Segment points and truth batches come through advanced subscribers with history, like the
 aggregator's, so a consumer that starts after the devices still gets what their caches hold.
+Segment points are subscribed without Zenoh's late-publisher detection (its cost per sample grows
+with the devices present: docs/benchmarks.md, "Late-publisher detection"); as the aggregator does,
+a device whose liveliness token comes back is asked for the points after the newest received
+(what it sent while its link or the router was down), and a point received twice is given once.
 Truth batches come on a device's ``raw`` key or, several devices' at once, on its subject's
 ``truth`` key: a ``raw`` subscription takes both, and gives a subject message's batches as the
 ``raw`` items they stand for (each with its device's ``raw`` key and its own batch's bytes).
@@ -79,6 +83,10 @@ class Item(NamedTuple):
 
 
 _MAX_KEYS = 100_000  # parsed keys kept (keys invented by a faulty client cannot grow it further)
+_ALIVE = "alive"  # the channel of the devices' liveliness tokens (segment point subscriptions)
+_RESUME = "resume"  # the channel of a query for what a device back online sent meanwhile (segment points)
+RESUME_WAIT_S = 5.0
+"""How long a device back online has to answer the query for what it sent meanwhile, s."""
 POLL_S = 0.002
 """How often :meth:`Subscription.get` looks at empty channels, seconds."""
 
@@ -129,11 +137,16 @@ class Subscription:
         self._keys: dict[str, tuple[str, str | None]] = {}  # valid keys seen, parsed
         self._pending: collections.deque[Item] = collections.deque()  # the rest of a split truth message
         self.layouts = SubjectLayouts()  # what a layout file's frames and angles are read with
+        self.history = history
+        self._newest: dict[str, list] = {}  # point key -> [Zenoh source, newest sequence number, those skipped]
         try:
             for kind in kinds:
                 self._subscribers.append((kind, self._declare(kind, history)))
                 if kind == wire.RAW:  # a subject's truth message: its devices' batches, split into raw items
                     self._subscribers.append((wire.TRUTH, self._declare(wire.TRUTH, history)))
+            if wire.SEG in kinds:  # devices back online: asked for what they sent meanwhile
+                self._subscribers.append((_ALIVE, self.session.liveliness().declare_subscriber(
+                    wire.device_selector(wire.ALIVE, subjects), zenoh.handlers.FifoChannel(1 << 14))))
         except BaseException:
             self.close()
             raise
@@ -147,10 +160,69 @@ class Subscription:
                 recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
         if kind in wire.SUBJECT_KINDS:
             return self.session.declare_subscriber(wire.subject_selector(kind, self.subjects), channel)
+        history_config = (zext.HistoryConfig(max_samples=history) if kind == wire.SEG
+                          else zext.HistoryConfig(detect_late_publishers=True, max_samples=64))
         return zext.declare_advanced_subscriber(
-            self.session, wire.device_selector(kind, self.subjects), channel,
-            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=history if kind == "seg" else 64),
+            self.session, wire.device_selector(kind, self.subjects), channel, history=history_config,
             recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
+
+    def _resume(self, sample: zenoh.Sample) -> None:
+        """A device's liveliness token came (back): ask its cache for the points after the newest
+        received; the answers come in as the resume channel's samples."""
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        try:
+            subject, segment, _ = wire.parse_device_key(str(sample.key_expr))
+        except wire.WireError:
+            return
+        newest = self._newest.get(wire.seg_key(subject, segment))
+        if newest is not None:
+            selector = wire.history_selector(subject, segment, self.history, (newest[1] + 1, newest[1] + self.history))
+            self._subscribers.append((_RESUME, self.session.get(
+                selector, zenoh.handlers.FifoChannel(max(1024, self.history)), accept_replies=zenoh.ReplyKeyExpr.ANY,
+                target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE, timeout=RESUME_WAIT_S)))
+
+    def _seen(self, key: str, sample: zenoh.Sample) -> bool:
+        """Whether the point ``sample`` carries was received before: its Zenoh source sequence
+        number is not after the newest of its key's source, and not one skipped (a gap that a
+        resume's or Zenoh's recovery may still fill)."""
+        info = sample.source_info
+        if info is None or info.source_id is None or info.source_sn is None:
+            return False
+        source, sn = str(info.source_id), info.source_sn
+        state = self._newest.get(key)
+        if state is None or state[0] != source:
+            if len(self._newest) < _MAX_KEYS or state is not None:
+                self._newest[key] = [source, sn, set()]
+            return False
+        newest, holes = state[1], state[2]
+        if sn <= newest:
+            if sn in holes:
+                holes.discard(sn)
+                return False
+            return True
+        if sn > newest + 1:  # a gap: at most the cache's worth of it can still come
+            holes.update(range(max(newest + 1, sn - self.history), sn))
+            holes.difference_update([h for h in holes if h < sn - self.history])
+        state[1] = sn
+        return False
+
+    @property
+    def resuming(self) -> bool:
+        """Whether a query for what a device back online sent meanwhile is still open."""
+        return any(kind == _RESUME for kind, _ in self._subscribers)
+
+    def _take(self, sub, kind: str) -> zenoh.Sample | None:
+        """The next sample waiting in ``sub`` (a resume query's reply unwrapped; one that ended
+        is dropped from the channels), or None."""
+        try:
+            sample = sub.try_recv()
+        except zenoh.ZError:  # a resume query, complete
+            self._subscribers = [(k, s) for k, s in self._subscribers if s is not sub]
+            return None
+        if sample is None or not isinstance(sample, zenoh.Reply):
+            return sample
+        return sample.ok  # (an error reply: None, like an empty channel)
 
     # ------------------------------------------------------------------ consumer side
 
@@ -170,8 +242,15 @@ class Subscription:
     def _decode(self, kind: str, sample: zenoh.Sample, received_ns: int) -> Item | None:
         if kind == wire.TRUTH:
             return self._split_truth(sample, received_ns)
+        if kind == _ALIVE:
+            self._resume(sample)
+            return None
+        kind = wire.SEG if kind == _RESUME else kind
+        key = str(sample.key_expr)
+        if kind == wire.SEG and self._seen(key, sample):
+            return None
         self.received += 1
-        return self._item(kind, str(sample.key_expr), sample.payload.to_bytes(), received_ns)
+        return self._item(kind, key, sample.payload.to_bytes(), received_ns)
 
     def _item(self, kind: str, key: str, payload: bytes, received_ns: int) -> Item | None:
         """The message ``payload`` of ``kind`` on ``key`` decoded, or None (counted in ``errors``)."""
@@ -208,15 +287,16 @@ class Subscription:
         """The next decodable message, waiting at most ``timeout`` seconds (None: forever);
         None if none came in time. The channels take turns."""
         deadline = None if timeout is None else time.monotonic() + timeout
-        n = len(self._subscribers)
         while True:
             if self._pending:
                 return self._pending.popleft()
+            subscribers = list(self._subscribers)  # (a resume query's channel may come or go)
+            n = len(subscribers)
             for k in range(n):
-                kind, sub = self._subscribers[(self._turn + k) % n]
-                while (sample := sub.try_recv()) is not None:
+                kind, sub = subscribers[(self._turn + k) % n]
+                while (sample := self._take(sub, kind)) is not None:
                     if (item := self._decode(kind, sample, time.time_ns())) is not None:
-                        self._turn = (self._turn + k + 1) % n
+                        self._turn = (self._turn + k + 1) % max(1, len(self._subscribers))
                         return item
             left = None if deadline is None else deadline - time.monotonic()
             if left is not None and left <= 0:
@@ -228,8 +308,8 @@ class Subscription:
         items: list[Item] = list(self._pending)
         self._pending.clear()
         taken, now = 0, time.time_ns()
-        for kind, sub in self._subscribers:
-            while taken < limit and (sample := sub.try_recv()) is not None:
+        for kind, sub in list(self._subscribers):
+            while taken < limit and (sample := self._take(sub, kind)) is not None:
                 taken += 1
                 if (item := self._decode(kind, sample, now)) is not None:
                     items.append(item)
@@ -239,9 +319,10 @@ class Subscription:
 
     def close(self) -> None:
         """Undeclare the subscribers (and close the session if this subscription opened it)."""
-        for _, sub in self._subscribers:
+        for kind, sub in self._subscribers:
             try:
-                sub.undeclare()
+                if kind != _RESUME:
+                    sub.undeclare()
             except zenoh.ZError:
                 pass
         self._subscribers.clear()
