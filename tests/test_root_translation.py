@@ -4,6 +4,7 @@ flies and lands on the floor, and frames ahead of the final ones leave the state
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from limbstream.body.translation import CONTACT_M, GRAVITY, RootTracker
 from limbstream.evaluation.translation import aligned
@@ -248,3 +249,19 @@ def test_exports_carry_the_root_path_of_a_recording(tmp_path):
     assert np.allclose(columns["pelvis_tx"], root[:, 2], atol=1e-4)   # forward: limbstream's +Z
     assert np.allclose(columns["pelvis_ty"], root[:, 1], atol=1e-4)   # up
     assert np.allclose(columns["pelvis_tz"], -root[:, 0], atol=1e-4)  # right: limbstream's -X
+
+
+@pytest.mark.parametrize("fs", [50.0, 100.0, 200.0])
+def test_a_jump_flies_at_every_frame_rate(fs):
+    """The push-off of the jump above, framed at ``fs``: the take-off is a rate (the ballistic root
+    rising away from the legs), not a height gained in one frame, which a faster frame rate never
+    reaches (at 200 Hz the same jump stood on its tucked feet throughout)."""
+    t = np.arange(int(3 * fs)) / fs
+    points = standing(len(t), np.random.default_rng(2), 0.0)
+    extend = np.where((t >= 1.0) & (t < 1.1), 1.5 * (t - 1.0), np.where(t >= 1.1, 0.15, 0.0))
+    tuck = np.where(t < 1.4, 0.1 * np.clip((t - 1.1) / 0.05, 0.0, 1.0), 0.0)  # the legs tuck over 0.05 s
+    points[:, :, 1] = -0.8 - extend[:, None] + tuck[:, None]
+    root, bits, _ = RootTracker(1, NAMES).track(t, points)
+    flying = bits == 0
+    assert flying[(t > 1.15) & (t < 1.3)].all() and not flying[t < 1.0].any() and not flying[t > 2.0].any()
+    assert root[:, 1].max() > 0.95 + 0.03

@@ -121,7 +121,7 @@ static void frame(const LswRootState *s, const LswRootConst *k, const uint8_t *f
     fly_v[1] -= k->gravity * f.dt;
     flying = anchor == k->flight;
     lands = flying && (fly[1] + f.low_y <= 0.0);
-    takes_off = anchor >= 0 && f.whole && (fly[1] + f.low_y > k->take_off_m) && (fly_v[1] > 0.0);
+    takes_off = anchor >= 0 && f.whole && (fly[1] + f.low_y > k->take_off_mps * f.dt) && (fly_v[1] > 0.0);
     still_flying = ((flying && !lands) || takes_off) && !f.hold;
     planted = !still_flying && !f.first && !f.hold;
     memcpy(new_root, still_flying ? fly : root, sizeof new_root);

@@ -37,7 +37,7 @@ typedef struct {
 
 /** The tracker's constants (limbstream.body.translation: defined there, passed in). */
 typedef struct {
-    double gravity, take_off_m, contact_m, low_m, keep_mps, velocity_s, pace_s, still_mps, unseen_mps,
+    double gravity, take_off_mps, contact_m, low_m, keep_mps, velocity_s, pace_s, still_mps, unseen_mps,
         off_feet_m;
     int64_t first, flight, coast; /**< anchor codes: no frame yet, in flight, going on at its pace */
     int64_t off_feet_flag;        /**< FRAME_OFF_FEET */

@@ -14,7 +14,8 @@ and held (stairs and slopes are not modelled: a walk up a ramp stays on the firs
   becomes the anchor, put down where it was a frame ago, so the root never jumps (heel to toe to
   the other heel through a step).
 - **Flight**: the root leaves the floor when its ballistic path from its last velocity would hold
-  it higher than the legs can by more than :data:`TAKE_OFF_M` (a run's push-off, a jump). It then
+  it higher than the legs can, by more than :data:`TAKE_OFF_MPS` times the frame time (a run's
+  push-off, a jump). It then
   flies under gravity until its lowest point reaches the floor, and lands there.
 - **A foot missing** (its device offline: its points are not used): the root keeps the height it
   had with both feet, raised where the other foot would go through the floor, and stands on the
@@ -41,8 +42,9 @@ from limbstream.wire.pose import CONTACTS, FRAME_OFF_FEET
 
 GRAVITY = 9.81
 """m/s², along -Y."""
-TAKE_OFF_M = 0.02
-"""The ballistic root higher than the planted one by this much: the body is in flight, m."""
+TAKE_OFF_MPS = 1.0
+"""The ballistic root rising away from where the legs hold it faster than this: the body is in
+flight, m/s (2 cm in a 50 Hz frame; a rate, so that a jump flies at any frame rate)."""
 CONTACT_M = 0.02
 """A foot point this close to the floor while planted is in contact, m."""
 LOW_M = 0.03
@@ -64,7 +66,7 @@ UNSEEN_MPS = 1e3
 
 _FEET = {"l": ("l_ankle", "l_foot", "l_toe"), "r": ("r_ankle", "r_foot", "r_toe")}
 _FIRST, _FLIGHT, _COAST = -2, -1, -3  # anchor codes: no frame yet, in flight, going on at its velocity
-_CONST = RootConst(GRAVITY, TAKE_OFF_M, CONTACT_M, LOW_M, KEEP_MPS, VELOCITY_S, PACE_S, STILL_MPS, UNSEEN_MPS,
+_CONST = RootConst(GRAVITY, TAKE_OFF_MPS, CONTACT_M, LOW_M, KEEP_MPS, VELOCITY_S, PACE_S, STILL_MPS, UNSEEN_MPS,
                    OFF_FEET_M, _FIRST, _FLIGHT, _COAST, FRAME_OFF_FEET)
 """The constants as the C tracker takes them (firmware_c/host/lsw_root.h)."""
 
@@ -210,7 +212,7 @@ class RootTracker:
         # a flight lands where its lowest point reaches the floor; a planted body takes off when the
         # ballistic root is higher than the legs hold it
         lands = flying & (fly[:, 1] + low_y <= 0.0)
-        takes_off = (anchor >= 0) & whole & (fly[:, 1] + low_y > TAKE_OFF_M) & (fly_v[:, 1] > 0.0)
+        takes_off = (anchor >= 0) & whole & (fly[:, 1] + low_y > TAKE_OFF_MPS * dt) & (fly_v[:, 1] > 0.0)
         still_flying = ((flying & ~lands) | takes_off) & ~hold
         planted = ~still_flying & ~first & ~hold
         new_root = root.copy()

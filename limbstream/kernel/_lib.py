@@ -219,7 +219,7 @@ class RootState(ctypes.Structure):
 class RootConst(ctypes.Structure):
     """LswRootConst (lsw_root.h): a root tracker's constants (limbstream.body.translation)."""
 
-    _fields_ = [(name, ctypes.c_double) for name in ("gravity", "take_off_m", "contact_m", "low_m", "keep_mps",
+    _fields_ = [(name, ctypes.c_double) for name in ("gravity", "take_off_mps", "contact_m", "low_m", "keep_mps",
                                                      "velocity_s", "pace_s", "still_mps", "unseen_mps",
                                                      "off_feet_m")] + [
         (name, ctypes.c_int64) for name in ("first", "flight", "coast", "off_feet_flag")]
