@@ -121,10 +121,10 @@ class BodyPoints:
         :func:`heel_drops`. A heel is below its ankle by its drop, turned by the foot; a toe is
         the foot's toe joint."""
         drops = np.broadcast_to(np.asarray(drops, np.float64), (len(q), 2))
-        points = np.asarray(joints)[:, self._take].astype(np.float64)
+        points = np.take(joints, self._take, axis=1).astype(np.float64)
         down = np.zeros((len(q), len(self._heels), 3))
-        down[:, :, 1] = -drops[:, self._heel_side]
-        points[:, self._heels] += quat.rotate(np.asarray(q)[:, self._heel_feet], down)
+        down[:, :, 1] = -np.take(drops, self._heel_side, axis=1)
+        points[:, self._heels] += quat.rotate(np.take(q, self._heel_feet, axis=1), down)
         return points
 
     def usable(self, missing: np.ndarray) -> np.ndarray:
