@@ -12,6 +12,7 @@ before resolving any change that touches the device, router or aggregator path
     python bench/regress.py --base edac059            # HEAD vs edac059, about 12 minutes
     python bench/regress.py --base main --head HEAD --soak-minutes 1 --devices 1000
     python bench/regress.py --base 8a3b1d4 --live-rate 10   # live frames as older tables ran them
+    python bench/regress.py --base main --layouts 3   # only the core bench's cost per device, paper10 vs full
 
 Both the soak and the core bench run with live frames at ``--live-rate`` (default 50 Hz, as
 ``make run`` runs the aggregator), on both revisions where their benches have the flag.
@@ -114,6 +115,40 @@ def numbers(python: Path, cwd: Path, args) -> dict[str, float]:
     return fig
 
 
+LAYOUTS = ("paper10", "full")
+"""The layouts whose cost per device ``--layouts`` compares (10 and 15 devices a subject)."""
+
+
+def layout_costs(pythons: dict[str, Path], dirs: dict[str, Path], args) -> None:
+    """``--layouts N``: the core bench (200 subjects) on each of :data:`LAYOUTS`, base then head, N
+    rounds back to back; prints each run's CPU per device (us of CPU per second of stream per
+    device), ``full`` / ``paper10`` per device in each round, and the medians."""
+    import statistics
+    rate = ("--live-rate", f"{args.live_rate:g}")
+    per: dict[tuple[str, str], list[float]] = {}
+    print("\n| round | revision | layout | devices | CPU per second of stream | us per device-second |\n"
+          "|---:|---|---|---:|---:|---:|")
+    for k in range(args.layouts):
+        for rev in (args.base, args.head):
+            for layout in LAYOUTS:
+                row = table_row(run(pythons[rev], dirs[rev], "bench/pipeline.py", "core", "--subjects", "200",
+                                    "--seconds", f"{args.seconds:g}", *rate, "--layout", layout), "subjects", "200")
+                cpu, devices = row.get("CPU per second of stream", float("nan")), row.get("devices", float("nan"))
+                per.setdefault((rev, layout), []).append(1e4 * cpu / devices)
+                print(f"| {k + 1} | {rev} | {layout} | {devices:.0f} | {cpu:.1f} % | {per[rev, layout][-1]:.1f} |",
+                      flush=True)
+    print(f"\n| revision | {' | '.join(f'{x} us per device-second (median)' for x in LAYOUTS)} | "
+          f"{LAYOUTS[1]} / {LAYOUTS[0]} per device, each round | median |\n|---|---:|---:|---|---:|")
+    for rev in (args.base, args.head):
+        ratios = [f / p for p, f in zip(per[rev, LAYOUTS[0]], per[rev, LAYOUTS[1]])]
+        print(f"| {rev} | {' | '.join(f'{statistics.median(per[rev, x]):.1f}' for x in LAYOUTS)} | "
+              f"{', '.join(f'{r:.2f}' for r in ratios)} | **{statistics.median(ratios):.2f}** |")
+    for layout in LAYOUTS:
+        ratios = [h / b for b, h in zip(per[args.base, layout], per[args.head, layout])]
+        print(f"\n{layout}: {args.head} / {args.base} per device, each round "
+              f"{', '.join(f'{r:.2f}' for r in ratios)}, median {statistics.median(ratios):.2f}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", required=True, help="baseline revision (e.g. a tag, edac059, main)")
@@ -124,11 +159,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--live-rate", type=float, default=50.0,
                         help="the aggregator's live frame rate in the soak and the core bench, Hz (default 50, "
                              "make run's; revisions whose core bench lacks the flag ran it at 10)")
+    parser.add_argument("--layouts", type=int, default=0, metavar="N",
+                        help="instead of the checks above: the core bench's cost per device on paper10 and full, "
+                             "both revisions, N rounds back to back")
     args = parser.parse_args(argv)
     results = {}
     with tempfile.TemporaryDirectory(prefix="limbstream-regress-") as tmp:
         try:
             pythons = {rev: install(rev, Path(tmp) / name) for rev, name in ((args.base, "base"), (args.head, "head"))}
+            if args.layouts:
+                layout_costs(pythons, {args.base: Path(tmp) / "base", args.head: Path(tmp) / "head"}, args)
+                return 0
             for rev, name in ((args.base, "base"), (args.head, "head")):
                 print(f"running {rev} ...", flush=True)
                 results[rev] = numbers(pythons[rev], Path(tmp) / name, args)

@@ -53,10 +53,10 @@ def test_a_layout_without_feet_has_no_root_translation():
     rooting = Rooting()
     for layout in (PAPER10, no_feet):
         t_us, q, joints, body = walk(layout, 100)
-        root, contacts, flags = rooting.place(np.zeros(100, np.int64), t_us, q, joints, layout, lambda _, b=body: b, True)
+        root, contacts, flags = rooting.place(np.zeros(100, np.int64), t_us, q, joints, layout, [body], 0, True)
         assert not root.any() and not contacts.any() and (flags == wire.FRAME_NO_ROOT).all()
     t_us, q, joints, body = walk(FULL, 100)
-    root, contacts, flags = rooting.place(np.zeros(100, np.int64), t_us, q, joints, FULL, lambda _: body, True)
+    root, contacts, flags = rooting.place(np.zeros(100, np.int64), t_us, q, joints, FULL, [body], 0, True)
     assert root[:, 1].min() > 0.8 and contacts.all() and not flags.any()
     frame = wire.PoseFrames(np.arange(1), t_us[:1], wire.KIND_EXACT, np.array([wire.FRAME_NO_ROOT]), q[:1].astype(np.float32),
                             joints[:1].astype(np.float32), FULL, np.array([[0.0, 0.9, 0.0]]))[0]
@@ -200,7 +200,7 @@ def test_a_bad_frame_never_reaches_the_root(bad):
 
     t_us, q, joints, body = walk(FULL, 60)
     rooting = Rooting()
-    rooting.place(np.zeros(50, np.int64), t_us[:50], q[:50], joints[:50], FULL, lambda _: body, True)
+    rooting.place(np.zeros(50, np.int64), t_us[:50], q[:50], joints[:50], FULL, [body], 0, True)
     [tracker] = rooting.trackers.values()
     before = state(tracker)
     q_bad, joints_bad, t_bad = q[50:51].copy(), joints[50:51].copy(), t_us[50:51].copy()
@@ -208,11 +208,11 @@ def test_a_bad_frame_never_reaches_the_root(bad):
         joints_bad[0, FULL.joint_index["r_ankle"]] = np.nan
     else:
         t_bad[0] = t_us[49] if bad == "same time" else t_us[10]
-    root, contacts, _ = rooting.place(np.zeros(1, np.int64), t_bad, q_bad, joints_bad, FULL, lambda _: body, True)
+    root, contacts, _ = rooting.place(np.zeros(1, np.int64), t_bad, q_bad, joints_bad, FULL, [body], 0, True)
     assert np.array_equal(root, before[0]) and not contacts.any()
     assert all(np.array_equal(a, b) for a, b in zip(state(tracker), before))
     if bad == "nan":
         q_bad[0, FULL.segment_index["l_foot"]] = np.nan
         joints_bad = joints[50:51]
-        root, _, _ = rooting.place(np.zeros(1, np.int64), t_bad, q_bad, joints_bad, FULL, lambda _: body, True)
+        root, _, _ = rooting.place(np.zeros(1, np.int64), t_bad, q_bad, joints_bad, FULL, [body], 0, True)
         assert np.array_equal(root, before[0]) and tracker.refused[0] == 2

@@ -151,6 +151,32 @@ def test_interleaved_rows_match_the_numpy_step(seed):
     assert (np.concatenate(flags) & FRAME_OFF_FEET).any() and (ref.refused > 0).all()
 
 
+def test_final_and_live_frames_in_one_call_give_what_two_calls_give():
+    """A tick's frames of several rows in one call, commit per frame (the aggregator's exact frames,
+    several a row, then one live frame a row): the roots, bits and flags of a call with the final
+    frames and then one with the live frames, and the same state (moved by the final frames only)."""
+    rng = np.random.default_rng(11)
+    rows, n, per = 4, 200, 5
+    motions = [motion(row % 4, n, rng) for row in range(rows)]
+    usable = [usable_of(n, rng) for _ in range(rows)]
+    one, two = RootTracker(rows, POINTS), RootTracker(rows, POINTS)
+    for start in range(0, n - per, per):
+        owner = np.repeat(np.arange(rows), per)  # each row's frames oldest first
+        k = np.tile(np.arange(start, start + per), rows)
+        live_k = np.full(rows, start + per)
+        t = np.concatenate([[motions[r][0][i] for r, i in zip(owner, k)], [motions[r][0][i] for r, i in enumerate(live_k)]])
+        points = np.stack([motions[r][1][i] for r, i in zip(owner, k)] + [motions[r][1][i] for r, i in enumerate(live_k)])
+        use = np.stack([usable[r][i] for r, i in zip(owner, k)] + [usable[r][i] for r, i in enumerate(live_k)])
+        final = np.arange(len(t)) < len(owner)
+        got = one.frames(np.concatenate([owner, np.arange(rows)]), t, points, use, final)
+        want = [two.frames(owner, t[final], points[final], use[final], True),
+                two.frames(np.arange(rows), t[~final], points[~final], use[~final], False)]
+        for g, w_final, w_live in zip(got, *want):
+            assert np.array_equal(g, np.concatenate([w_final, w_live]))
+        assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(state(one), state(two)))
+    assert (one.refused > 0).any() and (one.anchor >= 0).any()
+
+
 @pytest.mark.parametrize("clip", ["131_01", "05_06"])
 def test_a_real_clips_feet_match_the_numpy_step(cmu_bvh_dir, clip):
     """A clip's heels and toes (bench/root_translation.py), three rows of it interleaved: whole,

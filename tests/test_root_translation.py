@@ -166,13 +166,13 @@ def test_the_aggregator_stage_gives_each_subject_its_own_path():
         for row, (q, joints) in enumerate(frames):
             at = slice(start, min(start + 7, n))
             owner = np.full(len(q[at]), row)
-            root, _, flags = rooting.place(owner, t_us[at], q[at], joints[at], FULL, bodies.__getitem__, commit=True)
+            root, _, flags = rooting.place(owner, t_us[at], q[at], joints[at], FULL, bodies, owner, commit=True)
             got[row].append(root)
             assert not flags.any()
         live_at = slice(min(start + 7, n - 1), min(start + 8, n))
         before = {k: v.root.copy() for k, v in rooting.trackers.items()}
         rooting.place(np.array([0]), t_us[live_at] + 5_000, frames[0][0][live_at], frames[0][1][live_at], FULL,
-                      bodies.__getitem__, commit=False)
+                      bodies, 0, commit=False)
         assert all(np.array_equal(before[k], v.root) for k, v in rooting.trackers.items())
     points = BodyPoints(FULL)
     for row, (q, joints) in enumerate(frames):

@@ -84,10 +84,15 @@ static int64_t choose(const LswRootState *s, const LswRootConst *k, int64_t r, c
     double cost[LSW_ROOT_MAX_POINTS];
     int64_t best, keep;
     for (int64_t j = 0; j < np_; ++j) {
-        const double rel_x = (f->p[j * 3] - last[j * 3]) / span, rel_z = (f->p[j * 3 + 2] - last[j * 3 + 2]) / span;
-        const double miss = seen[j] ? hypot(velocity[0] + rel_x, velocity[2] + rel_z) : k->unseen_mps;
-        const int down = (root_y + f->y[j] < k->low_m) && (f->whole || miss < k->still_mps);
-        cost[j] = down ? miss : INFINITY;
+        double rel_x, rel_z, miss;
+        if (!(root_y + f->y[j] < k->low_m)) { /* not down, whatever its motion (most points: only it is asked) */
+            cost[j] = INFINITY;
+            continue;
+        }
+        rel_x = (f->p[j * 3] - last[j * 3]) / span;
+        rel_z = (f->p[j * 3 + 2] - last[j * 3 + 2]) / span;
+        miss = seen[j] ? hypot(velocity[0] + rel_x, velocity[2] + rel_z) : k->unseen_mps;
+        cost[j] = (f->whole || miss < k->still_mps) ? miss : INFINITY;
     }
     best = argmin(cost, np_);
     keep = anchor > 0 ? anchor : 0;
@@ -201,12 +206,12 @@ static void frame(const LswRootState *s, const LswRootConst *k, const uint8_t *f
 
 void lsw_root_frames(const LswRootState *state, const LswRootConst *k, const uint8_t *feet,
                      const int64_t *contact_bit, size_t n_frames, const int64_t *owner, const double *t,
-                     const double *points, const uint8_t *usable, int commit, double *root_out,
+                     const double *points, const uint8_t *usable, const uint8_t *commit, double *root_out,
                      int64_t *bits_out, int64_t *flags_out)
 {
     const size_t np_ = (size_t)state->n_points;
     for (size_t i = 0; i < n_frames; ++i) {
-        frame(state, k, feet, contact_bit, owner[i], t[i], points + i * np_ * 3, usable + i * np_, commit,
+        frame(state, k, feet, contact_bit, owner[i], t[i], points + i * np_ * 3, usable + i * np_, commit[i] != 0,
               root_out + i * 3, bits_out + i, flags_out + i);
     }
 }

@@ -4,7 +4,8 @@
  * translation"). Host library only.
  *
  * N rows (bodies) of P points each. Every frame belongs to a row and is taken against that row's
- * state as the frames before it left it (commit) or as it was at the call (no commit). Every value
+ * state as the committed frames before it left it; a committed frame (an exact one) moves it, an
+ * uncommitted one (a live frame) only reads it. Every value
  * is computed in double as the numpy step computes it, operation for operation
  * (tests/test_root_tracker_c.py checks them against each other).
  */
@@ -47,12 +48,13 @@ typedef struct {
  * Track F frames in the order given: frame f of row owner[f] at time t[f] (s) with points
  * points[f] (P x 3, m, root-relative), usable[f] (P: 0 not to go on). feet (P): the foot points;
  * contact_bit (P): each foot point's bit in the contact bits. Writes each frame's root (F x 3, m),
- * contact bits (F) and flags (F). commit: the state moves (each frame against its row's state as
- * the frames before it left it, refused frames counted); else it is left as it was.
+ * contact bits (F) and flags (F). commit (F): a frame whose commit is nonzero moves its row's state
+ * (refused frames counted), one whose commit is 0 reads it and leaves it as it was; each frame is
+ * taken against its row's state as the committed frames before it left it.
  */
 void lsw_root_frames(const LswRootState *state, const LswRootConst *k, const uint8_t *feet,
                      const int64_t *contact_bit, size_t n_frames, const int64_t *owner, const double *t,
-                     const double *points, const uint8_t *usable, int commit, double *root_out,
+                     const double *points, const uint8_t *usable, const uint8_t *commit, double *root_out,
                      int64_t *bits_out, int64_t *flags_out);
 
 #ifdef __cplusplus

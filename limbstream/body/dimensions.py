@@ -90,6 +90,10 @@ class Body:
     @property
     def lengths(self) -> dict[str, float]:
         """Bone name -> length, m."""
+        return dict(self._lengths)
+
+    @cached_property
+    def _lengths(self) -> dict[str, float]:  # (every stats message of a subject with a body gives them: once)
         standing = self.vectors[wire.DEFAULT_REST_POSE]
         return {name: float(np.linalg.norm(v)) for name, v in zip(self.layout.bone_names, standing)}
 

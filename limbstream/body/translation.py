@@ -37,7 +37,7 @@ from limbstream import quat
 from limbstream.body.dimensions import Body
 from limbstream.body.layout import Layout
 from limbstream.kernel._lib import RootConst
-from limbstream.kernel.root import STATE, root_frames
+from limbstream.kernel.root import STATE, BoundState, bind_state, root_frames
 from limbstream.wire.pose import CONTACTS, FRAME_OFF_FEET
 
 GRAVITY = 9.81
@@ -105,7 +105,12 @@ class BodyPoints:
         foot_joints = {j for names in _FEET.values() for j in names}
         self.others = [j for j, name in enumerate(layout.joints) if name not in foot_joints]
         self.names: tuple[str, ...] = tuple(f[0] for f in feet) + tuple(layout.joints[j] for j in self.others)
-        self._feet = [(at[joint], seg[foot], toe is not None) for _, (joint, foot, toe), _ in feet]
+        take = [at[joint] for _, (joint, _, _), _ in feet] + self.others
+        self._take = np.array(take, np.intp)  # (P,) the joint each point starts from (a heel: its ankle)
+        heels = [c for c, (_, (_, _, toe), _) in enumerate(feet) if toe is None]
+        self._heels = np.array(heels, np.intp)  # (H,) the heel points, below their ankles
+        self._heel_feet = np.array([seg[feet[c][1][1]] for c in heels], np.intp)  # (H,) their feet's segments
+        self._heel_side = np.array([0 if CONTACTS.index(feet[c][0]) < 2 else 1 for c in heels], np.intp)  # (H,) drop column
         deps = [f[2] for f in feet] + [chains[layout.joints[j]] for j in self.others]
         self.segments = np.zeros((len(deps), len(layout.segments)), bool)
         """(P, S) the segments each point hangs on."""
@@ -118,14 +123,10 @@ class BodyPoints:
         :func:`heel_drops`. A heel is below its ankle by its drop, turned by the foot; a toe is
         the foot's toe joint."""
         drops = np.broadcast_to(np.asarray(drops, np.float64), (len(q), 2))
-        points = np.empty((len(q), len(self.names), 3))
-        for c, (joint, foot, is_toe) in enumerate(self._feet):
-            points[:, c] = joints[:, joint]
-            if not is_toe:
-                down = np.zeros((len(q), 3))
-                down[:, 1] = -drops[:, 0 if CONTACTS.index(self.names[c]) < 2 else 1]
-                points[:, c] += quat.rotate(q[:, foot], down)
-        points[:, len(self._feet):] = joints[:, self.others]
+        points = np.take(joints, self._take, axis=1).astype(np.float64)
+        down = np.zeros((len(q), len(self._heels), 3))
+        down[:, :, 1] = -np.take(drops, self._heel_side, axis=1)
+        points[:, self._heels] += quat.rotate(np.take(q, self._heel_feet, axis=1), down)
         return points
 
     def usable(self, missing: np.ndarray) -> np.ndarray:
@@ -158,6 +159,7 @@ class RootTracker:
         self.seen = np.zeros((0, len(names)), bool)
         self.refused = np.zeros(0, np.int64)
         """Frames refused per row: a non-finite point or time, a time not after the row's last."""
+        self._bound: BoundState | None = None  # the state as the C tracker takes it (bound again when replaced)
         self.grow(rows)
 
     def grow(self, rows: int) -> None:
@@ -274,16 +276,25 @@ class RootTracker:
         return new_root, bits, flags
 
     def frames(self, owner: np.ndarray, t: np.ndarray, points: np.ndarray, usable: np.ndarray | None = None,
-               commit: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               commit: bool | np.ndarray = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`step` in C for frames of rows ``owner`` (F,) in the order given (each row's
-        oldest first), one call: each frame against its row's state as the frames before it left
-        it (``commit``; else, live frames, one per row, the state left as it was). Times ``t``
-        (F,) s, points ``points`` (F, P, 3) m, ``usable`` (F, P) bool (None: all). Returns the
-        roots (F, 3) m, contact bits (F,) and flags (F,)."""
+        oldest first), one call: each frame against its row's state as the committed frames before
+        it left it. ``commit``: (F,) bool or one bool for all, the frames that move the state
+        (final ones); the others (live frames) only read it. Times ``t`` (F,) s, points ``points``
+        (F, P, 3) m, ``usable`` (F, P) bool (None: all). Returns the roots (F, 3) m, contact bits
+        (F,) and flags (F,)."""
         points = np.asarray(points, np.float64)
         use = np.ones(points.shape[:2], bool) if usable is None else usable
-        state = {name: getattr(self, name) for name, _, _ in STATE}
-        return root_frames(state, _CONST, self.feet, self.contact_bit, owner, t, points, use, commit)
+        return root_frames(self._state(), _CONST, owner, t, points, use, commit)
+
+    def _state(self) -> BoundState:
+        """The state arrays bound for the C tracker (once, and again after an array was replaced)."""
+        arrays = [getattr(self, name) for name, _, _ in STATE]
+        bound = self._bound
+        if bound is None or any(a is not b for a, b in zip(arrays, bound.arrays)):
+            bound = self._bound = bind_state(dict(zip([name for name, _, _ in STATE], arrays)), self.feet,
+                                             self.contact_bit)
+        return bound
 
     def track(self, t: np.ndarray, points: np.ndarray, row: int = 0,
               usable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

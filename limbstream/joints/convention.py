@@ -128,6 +128,7 @@ class _Plan:
     side_angle: np.ndarray    # (A,) the first or third angle of its joint (those gimbal lock makes ill-conditioned)
     frames: np.ndarray | None  # (J, 4) the joints' model frames (None: all identity)
     from_tpose: np.ndarray    # (S, 4) T-pose -> standing per segment
+    framed: np.ndarray        # (K,) the joints whose model frame is not identity
 
     @property
     def ends(self) -> np.ndarray:
@@ -143,11 +144,11 @@ def _plan_of(layout: Layout) -> _Plan:
     joint_of = np.array([j for j, _, _ in at], int)
     component = np.array([i for _, i, _ in at], int)
     frames = np.array([j.frame for j in table], np.float64).reshape(-1, 4)
-    identity = bool((frames == [1.0, 0.0, 0.0, 0.0]).all())
+    framed = np.flatnonzero((frames != [1.0, 0.0, 0.0, 0.0]).any(axis=1))
     return _Plan(layout.segment_names, table, tuple(a for j in table for a in j.angles if a is not None),
                  np.array([seg[j.parent] for j in table], int), np.array([seg[j.child] for j in table], int),
                  joint_of, 3 * joint_of + component, np.degrees(np.array([s for _, _, s in at])), component != 1,
-                 None if identity else frames, from_tpose(layout))
+                 frames if len(framed) else None, from_tpose(layout), framed)
 
 
 def plan(layout: str | Layout = "paper10") -> _Plan:
@@ -230,6 +231,19 @@ def _euler_zxy(w: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tu
     return a, np.arctan2(2.0 * (y * z + w * x), cos_b), c, cos_b < _LOCK_SIN * n, n
 
 
+def _in_frames(r: list[np.ndarray], frames: np.ndarray) -> tuple[np.ndarray, ...]:
+    """conj(F) * r * F of relative rotations ``r`` (components w, x, y, z, each (..., K)) in the
+    joints' model frames ``frames`` (K, 4): ``quat.multiply``'s products, operation for operation
+    in float64, without stacking the components; returned in ``r``'s type."""
+    aw, ax, ay, az = quat.conjugate(frames).T
+    bw, bx, by, bz = (np.asarray(c, np.float64) for c in r)
+    mw, mx, my, mz = (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                      aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+    fw, fx, fy, fz = np.asarray(frames, np.float64).T
+    return tuple(c.astype(r[0].dtype) for c in (mw * fw - mx * fx - my * fy - mz * fz, mw * fx + mx * fw + my * fz - mz * fy,
+                                               mw * fy - mx * fz + my * fw + mz * fx, mw * fz + mx * fy - my * fx + mz * fw))
+
+
 def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: str = wire.DEFAULT_REST_POSE,
                  calibrated: np.ndarray | bool = True, layout: str | Layout = "paper10") -> tuple[np.ndarray, np.ndarray]:
     """The joint angles of calibrated segment orientations, vectorised over frames and subjects.
@@ -265,9 +279,9 @@ def joint_angles(q: np.ndarray, present: np.ndarray | None = None, rest_pose: st
         # conj(parent) * child, in OpenSim's axes: (w, x, y, z) -> (w, z, y, -x) (conjugated by TO_OPENSIM)
         relative = (pw * cw + px * cx + py * cy + pz * cz, pw * cz - pz * cw - px * cy + py * cx,
                     pw * cy - py * cw + px * cz - pz * cx, px * cw - pw * cx + py * cz - pz * cy)
-        if p.frames is not None:  # in the joints' model frames: conj(F) * r * F
-            r = quat.multiply(quat.multiply(quat.conjugate(p.frames), np.stack(relative, axis=-1)), p.frames)
-            relative = tuple(np.moveaxis(r.astype(pw.dtype), -1, 0))
+        if p.frames is not None:  # in the joints' model frames (those not identity: a few)
+            for c, turned in zip(relative, _in_frames([c[..., p.framed] for c in relative], p.frames[p.framed])):
+                c[..., p.framed] = turned
         a, b, c, near_lock, norm2 = _euler_zxy(*relative)
     joint_missing = ~(np.isfinite(norm2) & (norm2 > 0))  # (..., J): a segment non-finite or zero
     if present is not None:

@@ -139,7 +139,8 @@ class FrameBuilder:
         self.live_missed = np.zeros(0, np.int64)     # live frame deadlines missed (counted by the loop)
         self._live_clock = math.nan                  # the clock of the last live plan, s
         self.rest_flag = np.zeros(0, np.uint8)
-        self.bodies: list[Body | None] = []  # per subject: the body its devices announce (None: ``skeleton``)
+        self.body_code = np.zeros(0, np.int64)  # per subject: the body its devices announce, in ``bodies`` (-1: none)
+        self.bodies: list[Body] = []  # the bodies announced, each once (subjects of one body share it)
         self.layouts: list[Layout] = [PAPER10]  # the layouts of the subjects, by code
         self.layout_cols = [np.arange(len(SEGMENTS))]  # by code: the table's columns of its segments (S,)
         self.layout_code = np.zeros(0, np.int64)  # per subject
@@ -153,7 +154,7 @@ class FrameBuilder:
                             ("live_t", NO_TIME), ("live_offset", math.nan), ("live_missed", 0)):
             setattr(self, name, np.append(getattr(self, name), value))
         self.rest_flag = np.append(self.rest_flag, np.uint8(rest_flag))
-        self.bodies.append(None)
+        self.body_code = np.append(self.body_code, -1)
         self.layout_code = np.append(self.layout_code, 0)
 
     def set_layout(self, subject: int, layout: Layout, cols: np.ndarray) -> None:
@@ -162,6 +163,18 @@ class FrameBuilder:
             self.layouts.append(layout)
             self.layout_cols.append(cols)
         self.layout_code[subject] = self.layouts.index(layout)
+
+    def set_body(self, subject: int, body: Body | None) -> None:
+        """The subject's frames are drawn with ``body`` from now on (None: ``skeleton`` for paper10,
+        another layout's default body)."""
+        if body is None:
+            self.body_code[subject] = -1
+            return
+        code = next((i for i, b in enumerate(self.bodies) if b is body), None)
+        if code is None:
+            code = len(self.bodies)
+            self.bodies.append(body)
+        self.body_code[subject] = code
 
     def start(self, subjects: list, view: DeviceView, table: DeviceTable, store: PointStore, clock: float) -> None:
         """Fix the first frame of the subjects that can start: where every device they have is
@@ -288,28 +301,27 @@ class FrameBuilder:
             default = self._defaults[layout] = Body.default(layout)
         return default
 
+    def drawn_with(self, owner: np.ndarray, layout: Layout) -> tuple[list[Body], np.ndarray]:
+        """The bodies frames of ``layout``'s subjects ``owner`` (F,) are drawn with: a list and
+        each frame's index in it (F,) (a subject without a body: the layout's default, the list's
+        last)."""
+        codes = self.body_code[owner]
+        return [*self.bodies, self._default(layout)], np.where(codes >= 0, codes, len(self.bodies))
+
     def positions(self, q: np.ndarray, owner: np.ndarray, layout: Layout) -> np.ndarray:
         """(F, J, 3) float32 joint positions of frames ``q`` (F, S, 4) of ``layout``'s subjects
         ``owner`` (F,): each subject's by its body (where it has none: paper10's by the skeleton,
         another layout's by its default body), in its rest pose."""
         tpose = self.rest_flag[owner] != 0
-        by_body: dict[int, tuple[Body, list[int]]] = {}  # the subjects drawn with each body (shared: equal bodies are one)
-        for i in np.unique(owner).tolist():
-            if (body := self.bodies[i]) is not None:
-                by_body.setdefault(id(body), (body, []))[1].append(i)
-        if layout == PAPER10:
-            if not by_body:
-                return self.skeleton.positions(q, tpose)
-            fallback = self.skeleton.positions
-        else:
-            fallback = self._default(layout).positions
+        codes = self.body_code[owner]
+        fallback = self.skeleton.positions if layout == PAPER10 else self._default(layout).positions
+        drawn = np.unique(codes).tolist()  # the bodies drawn with (-1: the fallback), a few
+        if len(drawn) == 1:
+            return (fallback if drawn[0] < 0 else self.bodies[drawn[0]].positions)(q, tpose)
         joints = np.empty((len(owner), len(layout.joints), 3), np.float32)
-        own = np.zeros(len(owner), bool)
-        for body, subjects in by_body.values():
-            rows = np.isin(owner, subjects)
-            joints[rows] = body.positions(q[rows], tpose[rows])
-            own |= rows
-        joints[~own] = fallback(q[~own], tpose[~own])
+        for code in drawn:
+            rows = np.flatnonzero(codes == code)
+            joints[rows] = (fallback if code < 0 else self.bodies[code].positions)(q[rows], tpose[rows])
         return joints
 
     def build(self, store: PointStore, table: DeviceTable, exact: tuple[np.ndarray, ...],
@@ -349,19 +361,17 @@ class FrameBuilder:
             joints = self.positions(mine, owner[rows], layout)
             e, k = rows < n, rows[rows >= n] - n
             r = rows[e]
-
-            def body_of(subject: int, layout: Layout = layout) -> Body:
-                return self.bodies[subject] or self._default(layout)
+            missing = np.concatenate([e_missing[r], l_missing[k]])[:, cols]
+            bodies, which = self.drawn_with(owner[rows], layout)
+            # one call for the layout's exact frames (they move the roots) and then its live ones
+            root, contacts, flags = self.rooting.place(owner[rows], np.concatenate([e_t[r], l_t[k]]), mine, joints, layout,
+                                                       bodies, which, e, missing)
             if len(r):
-                root, contacts, flags = self.rooting.place(e_owner[r], e_t[r], mine[e], joints[e], layout, body_of,
-                                                           True, e_missing[r][:, cols])
-                groups[0].append(FrameGroup(e_owner[r], wire.PoseFrames(e_seq[r], e_t[r], wire.KIND_EXACT, e_flags[r] | flags,
-                                                                        mine[e], joints[e], layout, root, contacts),
-                                            e_missing[r][:, cols]))
+                groups[0].append(FrameGroup(e_owner[r], wire.PoseFrames(e_seq[r], e_t[r], wire.KIND_EXACT, e_flags[r] | flags[e],
+                                                                        mine[e], joints[e], layout, root[e], contacts[e]),
+                                            missing[e]))
             if len(k):
-                root, contacts, flags = self.rooting.place(l_owner[k], l_t[k], mine[~e], joints[~e], layout, body_of,
-                                                           False, l_missing[k][:, cols])
-                groups[1].append(FrameGroup(l_owner[k], wire.PoseFrames(l_seq[k], l_t[k], wire.KIND_LIVE, l_flags[k] | flags,
-                                                                        mine[~e], joints[~e], layout, root, contacts),
-                                            l_missing[k][:, cols]))
+                groups[1].append(FrameGroup(l_owner[k], wire.PoseFrames(l_seq[k], l_t[k], wire.KIND_LIVE, l_flags[k] | flags[~e],
+                                                                        mine[~e], joints[~e], layout, root[~e], contacts[~e]),
+                                            missing[~e]))
         return FrameBatch(e_owner, e_t, q[:n], e_missing, *groups)

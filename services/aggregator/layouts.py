@@ -88,7 +88,8 @@ class SubjectLayouts:
         self.heading.set_layout(sub.index, layout, cols)
         self.scoring.set_layout(sub.index, layout, self.table.columns)
         if sub.body is not None and sub.body.layout != layout:
-            sub.body = self.frames.bodies[sub.index] = None
+            sub.body = None
+            self.frames.set_body(sub.index, None)
 
     def add_device(self, sub: Subject, track: DeviceTrack) -> None:
         """A new device of ``sub`` (in its ``tracks``): placed if its segment fits (:func:`grown`)."""
@@ -113,7 +114,8 @@ class SubjectLayouts:
             self.set_layout(sub, body.layout)
         if not same_body(sub.body, body):  # (each device says it again every poll: the chain is built once per body)
             key = (body.layout.name, body.height_m, *(body.vectors[pose].tobytes() for pose in sorted(body.vectors)))
-            sub.body = self.frames.bodies[sub.index] = self._bodies.setdefault(key, body)
+            sub.body = self._bodies.setdefault(key, body)
+            self.frames.set_body(sub.index, sub.body)
 
     @staticmethod
     def fields(sub: Subject) -> dict:

@@ -9,7 +9,7 @@ layout without feet has no root translation: its frames keep the origin, flagged
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -41,14 +41,16 @@ class Rooting:
         return tracker
 
     def place(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, joints: np.ndarray, layout: Layout,
-              body_of: Callable[[int], Body], commit: bool,
+              bodies: Sequence[Body], which: np.ndarray | int, commit: bool | np.ndarray,
               missing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The roots, contacts and flags (``FRAME_NO_ROOT``, ``FRAME_OFF_FEET``) of frames of one
-        layout: subject rows ``owner`` (F,) (each subject's frames oldest first), times ``t_us``
-        (F,) µs, orientations ``q`` (F, S, 4), root-relative joints ``joints`` (F, J, 3) m,
-        ``missing`` (F, S) bool the segments each frame lacks (held or identity: their points are
-        not used; None: none); ``body_of(row)`` each subject's body. ``commit``: the frames are
-        final (exact) and move the trackers; else (live frames, one per subject) they only read them."""
+        layout, taken in the order given: subject rows ``owner`` (F,) (each subject's frames oldest
+        first), times ``t_us`` (F,) µs, orientations ``q`` (F, S, 4), root-relative joints
+        ``joints`` (F, J, 3) m, drawn with the bodies ``bodies[which]`` (``which`` (F,) or one
+        index for all), ``missing`` (F, S) bool the segments each frame lacks (held or identity:
+        their points are not used; None: none). ``commit`` (F,) bool or one bool for all: the
+        frames that are final (exact) and move the trackers; the others (live frames, one per
+        subject after its exact ones) only read them."""
         root, contacts = np.zeros((len(owner), 3)), np.zeros(len(owner), np.int64)
         flags = np.zeros(len(owner), np.int64)
         if not len(owner):
@@ -58,11 +60,11 @@ class Rooting:
         body_points = self.points.get(layout)
         if body_points is None:
             body_points = self.points[layout] = BodyPoints(layout)
-        rows = np.unique(owner).tolist()
-        drops = np.zeros((rows[-1] + 1, 2))
-        drops[rows] = [self._drops(layout, body_of(row)) for row in rows]  # (one table write, not one a row)
-        points = body_points.positions(drops[owner], q, joints)
-        usable = None if missing is None else body_points.usable(missing)
+        which = np.broadcast_to(which, owner.shape)
+        used = np.unique(which).tolist()  # (the bodies these frames are drawn with: a few)
+        drops = np.zeros((used[-1] + 1, 2))
+        drops[used] = [self._drops(layout, bodies[i]) for i in used]
+        points = body_points.positions(drops[which], q, joints)
+        usable = None if missing is None or not missing.any() else body_points.usable(missing)
         tracker = self._tracker(body_points.names, int(owner.max()) + 1)
         return tracker.frames(owner, t_us / 1e6, points, usable, commit)
-
