@@ -181,6 +181,9 @@ FIELDS: tuple[StatsField, ...] = (
     _aggregator("ticks", int, "loop ticks (one per 20 ms)", metric="limbstream_aggregator_ticks", counter=True),
     _aggregator("late", int, "ticks that started more than one period late",
                 metric="limbstream_aggregator_late_ticks", counter=True),
+    _aggregator("late_own", int, "of the late ticks, those late by the loop's own work: they would have been "
+                "late had every tick taken only its CPU time and the loop never waited for a core (what load on "
+                "the machine does not change)"),
     _aggregator("points", int, "segment points taken in"),
     _aggregator("raw_batches", int, "truth-tap batches taken in"),
     _aggregator("frames", int, "exact frames published, all subjects"),
