@@ -156,7 +156,7 @@ FIELDS: tuple[StatsField, ...] = (
                "live period after the deadline, no live frame for it"),
     StatsField("watermark_us", int, "subject", "exact frames are final up to this device time", "us"),
     StatsField("frame_aad_deg", float, "subject", "mean angle between each exact frame's segments and the truth at "
-               "the frame's reference instant (alignment-aware error; the segments a frame has, not those it holds as MISSING; truth tap with reference times; the aggregator's error window, --error-window)",
+               "the frame's reference instant (alignment-aware error; the segments a frame has, not those it holds as MISSING nor those inside a span of their device's lost points (GAP); truth tap with reference times; the aggregator's error window, --error-window)",
                "deg"),
     StatsField("joint_aad_deg", float, "subject", "mean angle between the estimated and the true relative orientation "
                "of each pair of adjacent segments (the joints) in the exact frames compared for frame_aad_deg; which "
