@@ -10,9 +10,16 @@ segment points, and frames.
     python bench/soak.py --devices 200 --minutes 1 --check   # CI size; exit 1 if a target fails
 
 Targets (``--check``): RSS growth after warm-up < 10 % per process (median of the last third
-of the samples against the first third: a trend, not one sample's peak), late ticks < 1 %,
-dropped 0, gaps 0, missed 0, no backlog growth (the last third's max backlog at most twice
-the first third's, plus a small floor).
+of the samples against the first third: a trend, not one sample's peak), late ticks by the
+loop's own work < 1 % (emulators and aggregator), dropped 0, gaps 0, missed 0, no backlog
+growth (the last third's max backlog at most twice the first third's, plus a small floor).
+
+Late ticks are printed two ways (limbstream.pacing): on the wall clock, as a deployment sees
+them, and by the loop's own work (its ticks' CPU time against their period). The target is the
+second: on a machine with more runnable threads than cores every process waits for a core now
+and then, and a loop that does nothing but tick is late then too, so the wall-clock figure there
+measures the machine; the work a tick costs does not change with it. What waiting for a core
+must not do is lose anything or let the backlog grow: those targets hold either way.
 """
 from __future__ import annotations
 
@@ -107,10 +114,10 @@ class StatsReader:
         self.session.close()
 
 
-def parse_emulator(text: str) -> tuple[int, float]:
-    """(ticks, late %) from an emulator's final line."""
-    m = re.search(r"emulator: (\d+) ticks, ([\d.]+) % late", text)
-    return (int(m.group(1)), float(m.group(2))) if m else (0, float("nan"))
+def parse_emulator(text: str) -> tuple[int, float, float]:
+    """(ticks, late %, late by its own work %) from an emulator's final line."""
+    m = re.search(r"emulator: (\d+) ticks, ([\d.]+) % late \(([\d.]+) % by its own work\)", text)
+    return (int(m.group(1)), float(m.group(2)), float(m.group(3))) if m else (0, float("nan"), float("nan"))
 
 
 def arguments(argv: list[str] | None) -> argparse.Namespace:
@@ -210,7 +217,7 @@ def watch(run: Run, reader: StatsReader, duration: float, warmup: float, samples
         if at >= warmup and run.at_warmup is None:  # loss counters at the end of the warm-up
             run.at_warmup = (sum(d["gaps"] or 0 for d in reader.devices.values()),
                              reader.aggregator.get("missed", 0), reader.aggregator.get("late", 0),
-                             reader.aggregator.get("ticks", 0))
+                             reader.aggregator.get("late_own", 0), reader.aggregator.get("ticks", 0))
         online = sum(1 for d in reader.devices.values() if d["online"])
         print(f"  t={run.times[-1]:6.0f} s  devices online {online:5d}  RSS MiB "
               + " ".join(f"{p.name} {run.rss[p.name][-1]:.0f}" for p in procs)
@@ -238,9 +245,10 @@ def rss_rows(run: Run, base: int) -> list[tuple]:
 def results(run: Run, reader: StatsReader, base: int, duration: float) -> dict:
     """The run's measures (the table printed and kept in the JSON file)."""
     em_ticks = [parse_emulator(p.log.read_text(errors="replace")) for p in run.emulators]
-    em_samples = sum(t * n * SEGMENTS_PER_SUBJECT for (t, _), n in zip(em_ticks, [n for n in run.share if n]))
+    em_samples = sum(t * n * SEGMENTS_PER_SUBJECT for (t, _, _), n in zip(em_ticks, [n for n in run.share if n]))
+    em_all = max(sum(t for t, _, _ in em_ticks), 1)
     agg, devices = reader.aggregator, reader.devices
-    gaps0, missed0, late0, ticks0 = run.at_warmup or (0, 0, 0, 0)
+    gaps0, missed0, late0, own0, ticks0 = run.at_warmup or (0, 0, 0, 0, 0)
     points = sum(d["points"] or 0 for d in devices.values())
     gaps = sum(d["gaps"] or 0 for d in devices.values())
     third = max(1, (len(run.backlog) - base) // 3)
@@ -249,10 +257,14 @@ def results(run: Run, reader: StatsReader, base: int, duration: float) -> dict:
         "segment points received": points,
         "samples taken (emulator ticks x devices)": em_samples,
         "ICR": points / em_samples if em_samples else float("nan"),
-        "emulator late ticks %": sum(t * late / 100 for t, late in em_ticks) / max(sum(t for t, _ in em_ticks), 1) * 100,
+        "emulator late ticks %": sum(t * late for t, late, _ in em_ticks) / em_all,
+        "emulator late ticks by own work %": sum(t * own for t, _, own in em_ticks) / em_all,
         "aggregator late ticks %": 100.0 * agg.get("late", 0) / max(agg.get("ticks", 1), 1),
         "aggregator late ticks % after warm-up":
             100.0 * (agg.get("late", 0) - late0) / max(agg.get("ticks", 0) - ticks0, 1),
+        "aggregator late ticks by own work %": 100.0 * agg.get("late_own", 0) / max(agg.get("ticks", 1), 1),
+        "aggregator late ticks by own work % after warm-up":
+            100.0 * (agg.get("late_own", 0) - own0) / max(agg.get("ticks", 0) - ticks0, 1),
         "aggregator busy % of wall time (main loop)": 100.0 * agg.get("busy_s", 0.0) / duration,
         "aggregator longest tick after warm-up (ms)": max(run.tick_ms[base + 1:] or [float("nan")]),
         "aggregator max backlog (msgs/tick), first / last third":
@@ -273,7 +285,8 @@ def verdict(rows: list[tuple], measures: dict, run: Run, base: int, devices: int
     failures = [f"{name} RSS grew {g:.1f} %" for name, _, _, g, _ in rows if not g < 10.0]
     failures += [f"{k} = {measures[k]}" for k in ("dropped (all reasons)", "gaps (lost seq numbers)",
                                                   "missed (zenoh miss detection)") if measures[k]]
-    failures += [f"late ticks {measures[k]:.2f} %" for k in ("emulator late ticks %", "aggregator late ticks %")
+    failures += [f"{k} = {measures[k]:.2f}" for k in ("emulator late ticks by own work %",
+                                                      "aggregator late ticks by own work %")
                  if not measures[k] < 1.0]
     third = max(1, (len(run.backlog) - base) // 3)
     early, late = max(run.backlog[base:base + third] or [0]), max(run.backlog[-third:] or [0])

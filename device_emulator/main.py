@@ -48,8 +48,9 @@ def run(feeds: dict, settings: EmulatorSettings, zenoh: zconfig.ZenohSettings,
                   + ("" if emulator.sync.service_present() else " (no time service reachable)"), flush=True)
         ticks = emulator.run(stop, duration)
         emulator.undeclare()
-    late = 100.0 * ticks.late / max(ticks.ticks, 1)
-    print(f"emulator: {ticks.ticks} ticks, {late:.2f} % late, busy {ticks.busy_s:.1f} s", flush=True)
+    late, own = (100.0 * n / max(ticks.ticks, 1) for n in (ticks.late, ticks.late_own))
+    print(f"emulator: {ticks.ticks} ticks, {late:.2f} % late ({own:.2f} % by its own work), busy {ticks.busy_s:.1f} s",
+          flush=True)
     if emulator.sync is not None:
         print(f"emulator: {emulator.sync.summary()}", flush=True)
     return 0

@@ -5,6 +5,14 @@ Tick k is due at ``start + k * period``. The loop waits for it (or does what its
 between ticks), runs it, and counts a tick that began more than one period after it was due as
 late. A loop that fell behind runs its ticks back to back until it has caught up: it never skips
 one. Times are seconds.
+
+A tick is late for one of two reasons: the loop's own work (its ticks cost more than their
+period) or its process waiting for a core (a machine with more runnable threads than cores).
+``late`` counts both, as a deployment sees them; ``late_own`` counts the first alone: the ticks
+that would have begun more than a period late had every tick taken only its CPU time (the loop
+thread's) and the thread never waited for a core. Load on the machine leaves it unchanged, so it
+is the figure that tells whether the loop's work fits its period. Time a tick spends blocked
+(a lock, a congested publisher) is in ``late`` only.
 """
 from __future__ import annotations
 
@@ -21,6 +29,7 @@ class LoopStats:
 
     ticks: int = 0
     late: int = 0                    # ticks that began more than one period late
+    late_own: int = 0                # ticks late by the loop's own work (CPU time), not by waiting for a core
     busy_s: float = 0.0              # time spent working (not waiting for the next tick), s
     load: float = 0.0                # share of the last round spent working (0..1; >= 1: cannot keep up)
     max_tick_ms: float = 0.0         # longest tick's work, ms
@@ -58,16 +67,17 @@ class PacedLoop:
     clock : the clock ticks are due on and ``now`` is read from (``time.perf_counter``).
     work_clock : the clock a tick's work is measured with (default ``clock``; ``time.thread_time``
         counts the loop thread's CPU only).
-
+    cpu_clock : the loop thread's CPU time, the clock of ``late_own`` (``time.thread_time``).
     stats : where the ticks of every :meth:`run` are counted (default: a new :class:`LoopStats`).
     """
 
     def __init__(self, period_s: float, clock: Callable[[], float] = time.perf_counter,
-                 work_clock: Callable[[], float] | None = None, stats: LoopStats | None = None):
+                 work_clock: Callable[[], float] | None = None, cpu_clock: Callable[[], float] = time.thread_time,
+                 stats: LoopStats | None = None):
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
         self.period_s, self.clock = float(period_s), clock
-        self.work_clock = work_clock or clock
+        self.work_clock, self.cpu_clock = work_clock or clock, cpu_clock
         self.stats = LoopStats() if stats is None else stats
 
     def run(self, stop: threading.Event, tick: Callable[[int, float], bool | None], ticks: int | None = None,
@@ -81,6 +91,7 @@ class PacedLoop:
         """
         start = self.clock() if start is None else start
         k = 0
+        own_free = start  # when the loop would be free had every tick taken only its CPU time
         while not stop.is_set() and (ticks is None or k < ticks):
             deadline = start + k * self.period_s
             now = self.clock()
@@ -90,11 +101,14 @@ class PacedLoop:
                 else:
                     between(deadline)
                 continue
+            own_start = max(deadline, own_free)
             if now - deadline > self.period_s:
                 self.stats.late += 1
-            began = self.work_clock()
+                self.stats.late_own += int(own_start - deadline > self.period_s)
+            began, cpu = self.work_clock(), self.cpu_clock()
             more = tick(k, now)
             self.stats.record(self.work_clock() - began)
+            own_free = own_start + self.cpu_clock() - cpu
             k += 1
             if more is False:
                 break

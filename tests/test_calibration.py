@@ -454,3 +454,43 @@ def test_the_frame_error_scores_only_the_segments_a_frame_has():
     assert complete["frame_error_frames"] >= 400 and joined_late["frame_error_frames"] >= 400, (complete, joined_late)
     assert joined_late["frame_aad_deg"] == pytest.approx(complete["frame_aad_deg"], abs=0.01), (
         joined_late["frame_aad_deg"], complete["frame_aad_deg"])
+
+
+def test_the_frame_error_leaves_out_the_segments_inside_a_span_of_lost_points():
+    """Three devices' points are lost for 1.5 s mid-motion (a link the lease cut while the
+    machine was saturated). The point after the loss makes the frames across it final at once,
+    before the devices' caches can give the lost points again: published with GAP, those
+    segments SLERPed across 1.5 s of motion. That is the loss, which the stats count as gaps, not
+    the reconstruction's error: the frame error compares only the segments outside the loss, so it
+    stays the reconstruction's, as without it."""
+    from limbstream import wire
+    from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
+
+    def run(lost: tuple[str, ...]) -> tuple[dict, int]:
+        agg = Aggregator(None, AggregatorSettings())
+        flags = []
+        agg._publish = lambda subject, payload: flags.append(wire.decode_pose(payload).flags)
+        t, q, *_ = scripted(12.0)
+        t0, step = 1_700_000_000_000_000, 5
+        span = range(round(5.0 * FS), round(6.5 * FS))
+        t_us = t0 + np.round(t * 1e6).astype(np.int64)
+        for segment in SEGMENTS:
+            agg.on_alive(wire.alive_key("s01", segment), True)
+        for j, k in enumerate(range(0, len(t), step)):
+            for s, segment in enumerate(SEGMENTS):
+                if not (segment in lost and k in span):
+                    point = wire.encode_point(wire.SegmentPoint(1, j, k, int(t_us[k]), tuple(q[k, s])))
+                    agg.on_point(wire.seg_key("s01", segment), point, k / FS)
+                rows = slice(k, min(k + step, len(t)))
+                batch = wire.RawBatch(1, k, t_us[rows], q[rows, s].astype(np.float32), t_us[rows])
+                agg.on_raw(wire.raw_key("s01", segment), wire.encode_raw(batch), k / FS)
+            agg.advance(live=False, now=k / FS)
+        return agg.subject_stats("s01", len(t) / FS), sum(bool(f & wire.FRAME_GAP) for f in flags)
+
+    whole, no_gap = run(())
+    lossy, gap_frames = run(("l_thigh", "r_upperarm", "l_lowerarm"))
+    assert no_gap == 0 and gap_frames >= 70, (no_gap, gap_frames)  # the 1.5 s across the loss: GAP
+    assert sum(d["gaps"] for d in lossy["devices"]) >= 3 * 14, lossy["devices"]
+    assert lossy["frame_error_frames"] == whole["frame_error_frames"] >= 500, (lossy, whole)
+    assert lossy["frame_aad_deg"] == pytest.approx(whole["frame_aad_deg"], abs=0.01), (
+        lossy["frame_aad_deg"], whole["frame_aad_deg"])

@@ -156,7 +156,7 @@ FIELDS: tuple[StatsField, ...] = (
                "live period after the deadline, no live frame for it"),
     StatsField("watermark_us", int, "subject", "exact frames are final up to this device time", "us"),
     StatsField("frame_aad_deg", float, "subject", "mean angle between each exact frame's segments and the truth at "
-               "the frame's reference instant (alignment-aware error; the segments a frame has, not those it holds as MISSING; truth tap with reference times; the aggregator's error window, --error-window)",
+               "the frame's reference instant (alignment-aware error; the segments a frame has, not those it holds as MISSING nor those inside a span of their device's lost points (GAP); truth tap with reference times; the aggregator's error window, --error-window)",
                "deg"),
     StatsField("joint_aad_deg", float, "subject", "mean angle between the estimated and the true relative orientation "
                "of each pair of adjacent segments (the joints) in the exact frames compared for frame_aad_deg; which "
@@ -181,6 +181,9 @@ FIELDS: tuple[StatsField, ...] = (
     _aggregator("ticks", int, "loop ticks (one per 20 ms)", metric="limbstream_aggregator_ticks", counter=True),
     _aggregator("late", int, "ticks that started more than one period late",
                 metric="limbstream_aggregator_late_ticks", counter=True),
+    _aggregator("late_own", int, "of the late ticks, those late by the loop's own work: they would have been "
+                "late had every tick taken only its CPU time and the loop never waited for a core (what load on "
+                "the machine does not change)"),
     _aggregator("points", int, "segment points taken in"),
     _aggregator("raw_batches", int, "truth-tap batches taken in"),
     _aggregator("frames", int, "exact frames published, all subjects"),

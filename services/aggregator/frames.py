@@ -215,9 +215,10 @@ class FrameBuilder:
         return owner, t_us, seq
 
     def exact_flags(self, owner: np.ndarray, t_us: np.ndarray, view: DeviceView, table: DeviceTable,
-                    store: PointStore, gappy: set[DeviceTrack]) -> tuple[np.ndarray, np.ndarray]:
-        """(E,) flags of exact frames (subject ``owner``, time ``t_us``) and (E, C) the segments
-        of their layouts they lack: MISSING where a segment has no device, is held beyond a stale device's last
+                    store: PointStore, gappy: set[DeviceTrack]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(E,) flags of exact frames (subject ``owner``, time ``t_us``), (E, C) the segments
+        of their layouts they lack and (E, C) the segments inside a span of their device's lost
+        points: MISSING where a segment has no device, is held beyond a stale device's last
         point or lies before its first point;
         GAP inside a span whose points were lost (``gappy``: the devices with such spans; one whose
         spans all end before its subject's frames is taken out: no frame to come is in them); the
@@ -229,7 +230,7 @@ class FrameBuilder:
         before = valid & (store.n[rows] > 0) & (store.t[rows, 0] > t_us[:, None])
         lacking = ((view.stale[owner] & beyond) | before | ~valid) & table.in_layout[owner]
         missing = lacking.any(axis=1)
-        gap = np.zeros(len(owner), bool)
+        gap = np.zeros(slots.shape, bool)
         tracks = list(gappy)
         subject = table.owner[np.array([t.slot for t in tracks], np.int64)]
         start, end = np.searchsorted(owner, subject), np.searchsorted(owner, subject, side="right")
@@ -239,8 +240,9 @@ class FrameBuilder:
             if not track.gap_spans or track.gap_spans[-1][1] <= t_us[a]:  # spans end in time order (or all filled)
                 gappy.discard(track)
             else:
-                gap[a:b] |= track.in_gap(t_us[a:b])
-        return np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | self.rest_flag[owner], lacking
+                gap[a:b] |= (slots[a:b] == track.slot) & track.in_gap(t_us[a:b])[:, None]
+        return (np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap.any(axis=1), wire.FRAME_GAP, 0)
+                | self.rest_flag[owner], lacking, gap)
 
     def miss_live(self, deadlines: int) -> None:
         """``deadlines`` live frame deadlines passed without a frame (the loop was late): counted

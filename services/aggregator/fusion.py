@@ -397,14 +397,14 @@ class Fusion:
         subjects = list(self.subjects.values())
         self.frames.start(subjects, view, self.table, self.store, self.clock)
         owner, t_us, seq = self.frames.plan_exact(view.watermark)
-        flags, lacking = self.frames.exact_flags(owner, t_us, view, self.table, self.store, self._gappy)
+        flags, lacking, lost = self.frames.exact_flags(owner, t_us, view, self.table, self.store, self._gappy)
         planned = self.frames.plan_live(view, self.table, self.store, self.clock if now is None else now) if live else None
         heading = self.heading if self.heading.active else None
         batch = self.frames.build(self.store, self.table, (owner, t_us, seq, flags, lacking), planned,
                                   None if heading is None else heading.correct)
         if heading is not None:
             heading.take_frames(owner, t_us, batch.exact_q, self.table.seg_slots, view.stale, self.frames.rest_flag)
-        self.scoring.score_later(owner, t_us, batch.exact_q, self.table.seg_slots[owner], lacking)
+        self.scoring.score_later(owner, t_us, batch.exact_q, self.table.seg_slots[owner], lacking | lost)
         self.scoring.evaluate_frames(self.table.seg_slots)
         if planned is not None and wall is not None:
             index, l_t, _, _, l_slots, _, has_points, _ = planned

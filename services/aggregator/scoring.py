@@ -14,7 +14,9 @@ kept apart from frame building (:mod:`.frames`), which never reads the truth.
   the truth of every device has passed ``t``: the subject's ``frame_aad_deg``. Device clocks
   that disagree show up here and nowhere else. A segment the frame lacks (held at a point, or
   before its device's first: flagged MISSING, e.g. a late-joined stream whose history is still
-  on its way) is not compared: its hold is not the reconstruction's error.
+  on its way) is not compared: its hold is not the reconstruction's error. Nor is a segment
+  inside a span of its device's lost points (the frame flagged GAP: built before the device's
+  cache gave them again, SLERP across the span): that error is the loss, which ``gaps`` counts.
 - Joints: the same frames, joint by joint: the angle between the estimated and the true relative
   orientation of each pair of adjacent segments compared (:mod:`limbstream.heading.joints`), the
   subject's ``joint_aad_deg``. It does not depend on which way the subject faces (nor on a
@@ -156,8 +158,8 @@ class Scoring:
     def score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, slots: np.ndarray,
                     lacking: np.ndarray) -> None:
         """Exact frames just built ((F,) subject index, (F,) time us, (F, C, 4) quaternions over the
-        table's segment columns, (F, C) device slots, (F, C) the segments each lacks: held or missing, flagged MISSING, never
-        scored): those with a device that has reference times wait to be compared
+        table's segment columns, (F, C) device slots, (F, C) the segments each lacks: held or missing, flagged MISSING, or
+        inside a span of lost points, flagged GAP; never scored): those with a device that has reference times wait to be compared
         (:meth:`evaluate_frames`)."""
         with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
         if with_truth.any():

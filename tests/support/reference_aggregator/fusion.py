@@ -294,17 +294,17 @@ class Fusion(Scoring, Calibrating):
         before = valid & (self.store.n[rows] > 0) & (self.store.t[rows, 0] > t_us[:, None])
         lacking = (stale[owner] & beyond) | before | ~valid
         missing = lacking.any(axis=1)
-        gap = np.zeros(total, bool)
+        gap = np.zeros(slots.shape, bool)  # segments inside a span of their device's lost points
         for track in self._gappy:
             mine = owner == self.owner[track.slot]
             if mine.any():
-                gap[mine] |= track.in_gap(t_us[mine])
+                gap[mine] |= (slots[mine] == track.slot) & np.array(track.in_gap(t_us[mine]), bool)[:, None]
         rest = self.rest_flag[owner]
-        flags = np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap, wire.FRAME_GAP, 0) | rest
+        flags = np.where(missing, wire.FRAME_MISSING, 0) | np.where(gap.any(axis=1), wire.FRAME_GAP, 0) | rest
         per_subject = np.bincount(owner, minlength=len(subjects))
         for i in np.flatnonzero(per_subject):
             subjects[i].frames += int(per_subject[i])
-        self._score_later(owner, t_us, q, lacking)
+        self._score_later(owner, t_us, q, lacking | gap)
         return [subjects[i] for i in owner], wire.PoseFrames(seq, t_us, wire.KIND_EXACT, flags, q,
                                                              self.skeleton.positions(q, rest != 0))
 

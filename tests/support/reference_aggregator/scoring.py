@@ -97,7 +97,7 @@ class Scoring:
 
     def _score_later(self, owner: np.ndarray, t_us: np.ndarray, q: np.ndarray, lacking: np.ndarray) -> None:
         """Exact frames just built ((F,) subject index, (F,) time us, (F, 10, 4) quaternions, (F, 10)
-        the segments each lacks): those with a device that has reference times wait to be compared
+        the segments each lacks or has inside a span of lost points: not scored): those with a device that has reference times wait to be compared
         (:meth:`evaluate_frames`)."""
         slots = self.seg_slots[owner]
         with_truth = (self.reference.n[np.maximum(slots, 0)] > 0).any(axis=1)
