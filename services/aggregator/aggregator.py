@@ -69,7 +69,9 @@ class Aggregator:
         self._pose_pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (subject, zconfig.QOS kind)
         self._config_replies: list = []
         self.history = None if session is None else HistoryQueries(session, self.fusion, settings.history)
-        self.intake = Intake(self.fusion, self.loop, settings.max_devices, self._ask_status, self.history)
+        self._declared: list[zenoh.KeyExpr] = []  # the keys devices' messages come on, declared to Zenoh
+        self.intake = Intake(self.fusion, self.loop, settings.max_devices, self._ask_status, self.history,
+                             self._declare_key)
         self.bad_keys = self.intake.bad_keys
         self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
         if settings.joint_angles:
@@ -132,6 +134,9 @@ class Aggregator:
                       self._stats_qs):
             for entity in group:
                 entity.undeclare()
+        for key in self._declared:
+            self.session.undeclare(key)
+        self._declared = []
         if self._time_service is not None:
             self._time_service.undeclare()
             self._time_querier.undeclare()
@@ -166,6 +171,14 @@ class Aggregator:
     def on_truth(self, key: str, payload: bytes, now: float) -> None:
         """One subject truth-tap message (a drain of one)."""
         self.intake.take_truth([key], [payload], now)
+
+    def _declare_key(self, key: str) -> None:
+        """Declare ``key`` (a device's or a subject's, its first message just taken in) to Zenoh:
+        a message on a key the session has not declared is routed by matching it against every
+        key expression the session knows, each time (Zenoh's ``Resource::get_matches``: half of a
+        core at 2,000 devices); on a declared one, from the routes Zenoh keeps for it."""
+        if self.session is not None:
+            self._declared.append(self.session.declare_keyexpr(key))
 
     def on_alive(self, key: str, online: bool) -> None:
         """A device's liveliness token appeared or vanished."""

@@ -30,12 +30,16 @@ class Intake:
     max_devices : most devices tracked; messages of further devices are counted and dropped.
     ask_status : asks a device (subject, segment) for its status when it is first seen.
     history : the history queries of late-joined streams (None: none are made).
+    declare : called with each key a device's (or a subject's truth) messages come on, once: the
+        aggregator declares it to Zenoh, so that Zenoh routes the messages on it from a cache
+        (docs/benchmarks.md, "Keys declared").
     """
 
     def __init__(self, fusion: Fusion, counters, max_devices: int, ask_status: Callable[[str, str], None],
-                 history: HistoryQueries | None):
+                 history: HistoryQueries | None, declare: Callable[[str], None] = lambda key: None):
         self.fusion, self.counters, self.max_devices = fusion, counters, max_devices
-        self.ask_status, self.history = ask_status, history
+        self.ask_status, self.history, self.declare = ask_status, history, declare
+        self._truth_keys: set[str] = set()  # subject truth keys seen (declared)
         self.bad_keys: collections.Counter = collections.Counter()  # messages no device could be charged with
         self._seg_tracks: dict[str, DeviceTrack] = {}  # by segment point key, once a point came
         self._raw_tracks: dict[str, DeviceTrack] = {}  # by truth-tap key, once a batch came
@@ -116,6 +120,9 @@ class Intake:
             except wire.WireError as exc:
                 self.bad_keys["key" if exc.reason == "key" else wire.truth_reason(exc.reason)] += 1
                 continue
+            if key not in self._truth_keys and len(self._truth_keys) < self.max_devices:
+                self._truth_keys.add(key)
+                self.declare(key)
             for device_key, batch in batches:
                 keys_in.append(device_key)
                 payloads_in.append(batch)
@@ -136,6 +143,7 @@ class Intake:
                 if track is None or reason is not None:
                     continue
                 known[key] = track
+                self.declare(key)
             elif reason is not None:
                 track.dropped[wire.device_reason(kind, reason)] += 1
                 continue
