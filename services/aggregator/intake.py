@@ -91,8 +91,9 @@ class Intake:
         history = self.history
         taken = gapped = None
         if history is not None:
-            if samples:
-                history.newest.update(zip(keys, samples))
+            if samples:  # (only devices tracked: a key invented by a faulty client is not kept)
+                history.newest.update((keys[i], samples[i]) for _, i in items)
+
             def taken(track, i):
                 history.taken(track, samples[i] if samples else None)
 
