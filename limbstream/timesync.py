@@ -24,7 +24,8 @@ MAX_DRIFT = 2e-3
 """Largest drift a fit may report (2000 ppm); beyond it is treated as noise (clipped)."""
 JUMP_FLOOR_US = 1000.0
 """An answer is held back as a possible service jump when its offset is further from the fit
-than half its round-trip excess plus max(4 x jitter, this)."""
+than the two could be apart, whatever the path's asymmetry (half its round trip and half the
+window's shortest one), plus max(4 x jitter, this)."""
 JUMP_CONFIRM = 3
 """Held-back answers that must agree before the device follows a service jump."""
 SANE_US = 10e6
@@ -70,13 +71,17 @@ class SyncEstimator:
             residual = theta - self.predict(x)
             if abs(residual) > SANE_US:
                 return "future" if residual > 0 else "past"
-            allowed = (delay - min(self.delay)) / 2.0 + max(4.0 * self.jitter, JUMP_FLOOR_US)
-            if abs(residual) > allowed:
+            # an exchange's offset is off by at most half its round trip (all of it on one side),
+            # the line by about half the best one's: only answers further off than both allow
+            # are a jump (half the round-trip excess alone, as NTP's filter weighs answers, holds
+            # back the answers the jitter happens to skew, and three of them "agree")
+            slack = max(4.0 * self.jitter, JUMP_FLOOR_US)
+            if abs(residual) > (delay + min(self.delay)) / 2.0 + slack:
                 self.held.append((x, theta, delay))
                 if len(self.held) < JUMP_CONFIRM:
                     return "held"
                 shifted = [th - self.b * (hx - x) for hx, th, _ in self.held]
-                if max(shifted) - min(shifted) > max(4.0 * self.jitter, JUMP_FLOOR_US):
+                if max(shifted) - min(shifted) > max(d for _, _, d in self.held) + slack:
                     self.held = self.held[1:]
                     return "held"
                 for window in (self.x, self.theta, self.delay):
