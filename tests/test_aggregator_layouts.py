@@ -12,6 +12,8 @@ import json
 import numpy as np
 import pytest
 
+from support.devices import pose_of
+
 from limbstream import quat, wire
 from limbstream.body import FULL, PAPER10, Body
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
@@ -21,12 +23,6 @@ from limbstream.skeleton import Skeleton
 T0 = 1_700_000_000_000_000
 STEP_US = 100_000  # one segment point every 100 ms
 F32 = 2e-6
-
-
-def pose_of(segment: str) -> np.ndarray:
-    """(4,) a constant orientation of its own for each segment name."""
-    k = sum(map(ord, segment)) % 17
-    return quat.normalize(np.array([np.cos(0.05 * k + 0.1), 0.3, 0.2 * np.sin(k), 0.1 * np.cos(k)]))
 
 
 def aggregator() -> tuple[Aggregator, list[tuple[str, bytes]]]:

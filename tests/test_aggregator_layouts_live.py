@@ -5,19 +5,16 @@ device whose segment ``full`` lacks, and one whose status names another layout, 
 themselves while the rest streams."""
 from __future__ import annotations
 
-import json
-import threading
-import time
 
 import numpy as np
 import pytest
 import zenoh
+from support.devices import FakeDevices, pose_of
 from support.stack import StatsWatch, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
 from limbstream.body import FULL, PAPER10, Body
 from limbstream.skeleton import Skeleton
-from test_aggregator_layouts import pose_of
 
 pytestmark = pytest.mark.e2e
 
@@ -26,55 +23,6 @@ def drawn_with(payload: bytes, body: Body) -> bool:
     """The pose frame's joints are ``body``'s at its orientations (float32)."""
     f = wire.decode_pose(payload)
     return bool(np.abs(f.joints - body.positions(f.q.astype(np.float64))).max() < 1e-5)
-
-
-class FakeDevices:
-    """Devices in the test's own session (:meth:`add`): each a status queryable (announcing its
-    body), a liveliness token and segment points of its segment's constant orientation at 50 Hz,
-    each stream numbered from 0 when its device is added."""
-
-    def __init__(self, endpoint: str):
-        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.stop, self.lock = threading.Event(), threading.Lock()
-        self.devices: list[tuple[str, str, zenoh.Publisher, list[int]]] = []  # subject, segment, publisher, [sent]
-        self.entities: list = []
-        self.start = int(time.time() * 1e6)
-        self.thread = threading.Thread(target=self.run, daemon=True)
-        self.thread.start()
-
-    def add(self, subject: str, bodies: dict[str, Body]) -> None:
-        for segment, body in bodies.items():
-            sent = [0]
-            pub = self.session.declare_publisher(wire.seg_key(subject, segment))
-            self.entities.append(self.session.declare_queryable(wire.config_key(subject, segment),
-                                                                self._answerer(subject, segment, body, sent)))
-            self.entities.append(self.session.liveliness().declare_token(wire.alive_key(subject, segment)))
-            with self.lock:
-                self.devices.append((subject, segment, pub, sent))
-
-    @staticmethod
-    def _answerer(subject: str, segment: str, body: Body, sent: list[int]):
-        def answer(query: zenoh.Query) -> None:
-            status = wire.DeviceStatus(f"{subject}/{segment}", wire.DeviceConfig(), 7, sent[0], sent[0])
-            query.reply(query.key_expr, json.dumps(status.as_dict() | {"body": wire.encode_body(body)}).encode())
-        return answer
-
-    def run(self) -> None:
-        tick = 0
-        while not self.stop.wait(0.02):
-            tick += 1
-            with self.lock:
-                devices = list(self.devices)
-            for _, segment, pub, sent in devices:
-                n = sent[0]
-                point = wire.SegmentPoint(7, n, n, self.start + 20_000 * tick, tuple(pose_of(segment)), omega=(0.0, 0.0, 0.0))
-                pub.put(wire.encode_point(point))
-                sent[0] = n + 1
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join()
-        self.session.close()
 
 
 def test_a_full_subject_streams_512_byte_frames_beside_a_paper10_subject_and_devices_off_its_layout_are_counted(stack):  # noqa: F811

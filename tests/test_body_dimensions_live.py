@@ -4,15 +4,13 @@ frames with it, the dashboard shows it; a malformed body on the wire is counted 
 dropped while everything streams on."""
 from __future__ import annotations
 
-import json
 import signal
 import threading
-import time
 
 import numpy as np
 import pytest
-import zenoh
 from support import require_data
+from support.devices import RawBodies
 from support.stack import PAPER10 as PAPER10_FLAGS, StatsWatch, http_json, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
 
 from limbstream import wire, zconfig
@@ -89,37 +87,6 @@ def test_a_subject_without_dimensions_is_the_default_adult_on_the_dashboard(stac
     assert detail["bones_m"] == pytest.approx(default.lengths, abs=1e-5)
 
 
-class FakeDevice:
-    """One device of subject ``x01`` run by the test: segment points at 50 Hz (identity, a new
-    index each) and a status whose ``body`` is ``body`` (any JSON)."""
-
-    def __init__(self, endpoint: str, body):
-        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
-        self.body, self.stop, self.sent = body, threading.Event(), 0
-        self.pub = self.session.declare_publisher(wire.seg_key("x01", "hip"))
-        self.token = self.session.liveliness().declare_token(wire.alive_key("x01", "hip"))
-        self.queryable = self.session.declare_queryable(wire.config_key("x01", "hip"), self.answer)
-        self.thread = threading.Thread(target=self.run, daemon=True)
-        self.thread.start()
-
-    def answer(self, query: zenoh.Query) -> None:
-        status = wire.DeviceStatus("x01/hip", wire.DeviceConfig(), 7, self.sent, self.sent).as_dict()
-        query.reply(query.key_expr, json.dumps(status | {"body": self.body}).encode())
-
-    def run(self) -> None:
-        start = int(time.time() * 1e6)
-        while not self.stop.wait(0.02):
-            point = wire.SegmentPoint(7, self.sent, self.sent, start + 20_000 * self.sent, (1.0, 0.0, 0.0, 0.0),
-                                      omega=(0.0, 0.0, 0.0))
-            self.pub.put(wire.encode_point(point))
-            self.sent += 1
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join()
-        self.session.close()
-
-
 DEFAULT_BONES = {k: v for k, v in Body.default(PAPER10).to_dict().items() if k != "layout"}
 
 
@@ -131,13 +98,17 @@ def test_a_malformed_body_on_the_wire_is_counted_on_its_device_and_dropped_the_r
     stack.aggregator()
     wait_for_subscribers(stack.endpoint, [wire.seg_key("s01", "hip")], "the aggregator", on_fail=stack.logs)
     stack.emulator(1, 1.0, "--height-m", "1.9")
-    fake = FakeDevice(stack.endpoint, body)
+    fake = RawBodies(stack.endpoint)
+    fake.add("x01", {"hip": body})
     watch = StatsWatch(stack.endpoint)
     try:
+        seen: dict = {}
+
         def counted():
-            entry = watch.poll().get("x01/hip")
+            seen["x01/hip"] = entry = watch.poll().get("x01/hip")
             return entry if entry and (entry.get("dropped_by_reason") or {}).get("status_body") else None
-        entry = wait_until(counted, 30, "the malformed body counted on x01/hip", on_fail=stack.logs)
+        entry = wait_until(counted, 30, "the malformed body counted on x01/hip",
+                           on_fail=lambda: f"x01/hip's stats: {seen.get('x01/hip')}\n{stack.logs()}")
         assert set(entry["dropped_by_reason"]) == {"status_body"}
         assert watch.subjects["x01"].get("bones_m") is None  # none announced: the aggregator's own skeleton
         tall = Body.from_height(PAPER10, 1.9)

@@ -10,12 +10,11 @@ import signal
 
 import numpy as np
 import pytest
-import zenoh
 from support.bvh import read_bvh_positions
 from support.command import Command
 from support.export import cli
+from support.devices import RawBodies
 from support.stack import StatsWatch, http_json, stack, wait_for_subscribers, wait_until  # noqa: F401  (fixture)
-from test_aggregator_layouts_live import FakeDevices
 
 from limbstream import wire
 from limbstream.body import FULL, Body, load_layout
@@ -107,17 +106,6 @@ def test_a_layout_files_subject_is_served_by_the_dashboard_and_its_recording_exp
     stack.start("replay", "replay", str(rec), "--connect", stack.endpoint, "--subject-prefix", "r-", "--hold", "30")
     wait_until(lambda: (r := http_json(url + "/api/subjects/r-s01/pose"))[0] == 200 and r[1]["layout"] == "legs7",
                40, "the replayed subject's legs7 frames on the dashboard", on_fail=stack.logs)
-
-
-class RawBodies(FakeDevices):
-    """Fake devices whose status carries ``"body"`` as given (any JSON)."""
-
-    @staticmethod
-    def _answerer(subject: str, segment: str, body, sent: list[int]):
-        def answer(query: zenoh.Query) -> None:
-            status = wire.DeviceStatus(f"{subject}/{segment}", wire.DeviceConfig(), 7, sent[0], sent[0])
-            query.reply(query.key_expr, json.dumps(status.as_dict() | {"body": body}).encode())
-        return answer
 
 
 def test_a_malformed_layout_table_in_a_status_is_counted_and_the_subject_streams_on(stack, tmp_path):  # noqa: F811
