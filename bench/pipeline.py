@@ -270,7 +270,7 @@ def bench_aggregator_core(subject_counts: list[int], seconds: float, live_rate: 
             n_points += len(points)
             if heading and k == 1:  # the streams began: every device as if calibrated now
                 for track in agg.fusion.tracks:
-                    agg.fusion.heading.reset(agg.subjects[track.subject].index, track.segment, track.slot, True, True)
+                    agg.fusion.heading.reset(agg.subjects[track.subject].index, track.segment, track.slot, True, 0.0)
             agg.advance(k % every == 0, prune=k % 25 == 0, now=now)  # live frames every ``every`` ticks
             if k % (50 // STATS_BATCHES) == 0:  # one round a second, in batches as the loop sends it
                 agg.publish_stats(now, k // (50 // STATS_BATCHES) % STATS_BATCHES, STATS_BATCHES)

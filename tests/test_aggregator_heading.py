@@ -232,3 +232,42 @@ def test_a_lower_body_alone_is_corrected(runs):
         else:
             assert all(o is None for o in offsets)
     assert figures[True] < 0.85 * figures[False], figures
+
+
+@pytest.mark.parametrize("saved", [True, False], ids=["kept", "not kept"])
+def test_a_calibration_kept_from_before_keeps_its_joints_headings_known_as_its_age_allows(tmp_path, saved):
+    """An aggregator restarted with its calibration file, its subject's frames already learnt
+    from when the right shank's stream comes: the shank's calibration comes back, and so does what
+    it tells of its joint's heading, widened by the heading's drift since it was made
+    (``delta0_deg`` and ``rate0_dps`` per second; 30 s ago: 1.8 deg), not half a turn either way
+    (learning the knee from nothing turned the leg by up to 9 deg in the live test of this,
+    tests/test_calibration.py). A shank whose calibration was not kept has its knee anywhere."""
+    import json
+    import time
+
+    from limbstream.heading.settings import Settings
+
+    made = {"stream": 1, "made_at": time.time() - 30.0} | calibration.Calibration(("rest",), np.array([1.0, 0, 0, 0]),
+                                                                                 0.0).as_dict()
+    kept = [s for s in SEGMENTS if saved or s != RESTARTED]
+    path = tmp_path / "calibrations.json"
+    path.write_text(json.dumps({f"s01/{s}": made for s in kept}))
+    agg = Aggregator(None, AggregatorSettings(calibrate_on_start=True, calibration_file=str(path)))
+    agg._publish = lambda subject, payload: None
+    still = wire.encode_point(wire.SegmentPoint(1, 0, 0, T0, (1.0, 0.0, 0.0, 0.0)))
+    first = [s for s in SEGMENTS if s != RESTARTED]
+    for seg in SEGMENTS:
+        agg.on_alive(wire.alive_key("s01", seg), True)
+    for tick in range(100):
+        point = wire.encode_point(wire.SegmentPoint(1, tick, tick, T0 + tick * STEP_US, (1.0, 0.0, 0.0, 0.0)))
+        agg.take_points([wire.seg_key("s01", s) for s in first], [point] * len(first), tick / FS)
+        agg.advance(True, tick % 25 == 0, tick / FS)
+    where = agg.fusion.heading.place[agg.subjects["s01"].index]
+    assert where is not None, "no frame learnt from yet"
+    agg.take_points([wire.seg_key("s01", RESTARTED)], [still], 100 / FS)
+    devices = {d["segment"]: d for d in agg.subject_stats("s01", 100 / FS)["devices"]}
+    assert devices[RESTARTED]["calibrated"] is saved
+    est = agg.fusion.heading.estimators[where[0]]
+    sd = dict(zip(est.layout.joints, np.degrees(est.filters.delta_sd()[where[1]])))
+    known = np.hypot(Settings().delta0_deg, 30.0 * Settings().rate0_dps)  # (+ the test's seconds: 0.05 deg each)
+    assert sd["knee_r"] == pytest.approx(known if saved else 180.0, abs=0.1), sd

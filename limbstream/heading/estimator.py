@@ -202,14 +202,15 @@ class HeadingCorrection:
             full[(slice(None),) * axis + (rows,)] = getattr(owner, name)
             setattr(owner, name, full)
 
-    def restart(self, subject: int, segment: int, calibrated: bool = False) -> None:
+    def restart(self, subject: int, segment: int, calibrated_s_ago: float | None = None) -> None:
         """Device ``segment`` of ``subject`` restarted: its joints are learnt afresh, their
-        corrections start from none; its heading is anywhere (or, ``calibrated``, known as at a
-        calibration: :attr:`Settings.delta0_deg`). Its ticks taken since the last step are
-        left out."""
+        corrections start from none; its heading is anywhere (None), or known as at a calibration
+        made ``calibrated_s_ago`` seconds ago: :attr:`Settings.delta0_deg`, widened by the
+        heading's drift since (:attr:`Settings.rate0_dps` per second). Its ticks taken since the
+        last step are left out."""
         mask = np.zeros(self.locked.shape, bool)
         mask[subject] = (self.layout.parent == segment) | (self.layout.child == segment)
-        self.filters.forget(mask, delta_sd=np.radians(self.settings.delta0_deg) if calibrated else np.pi)
+        self.filters.forget(mask, delta_sd=self.settings.heading_sd(calibrated_s_ago))
         self.ranges.forget(mask[:, self.balls])
         self.locked &= ~mask
         self.was_still &= ~mask

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class Settings:
@@ -68,6 +70,14 @@ class Settings:
     contradiction_memory_s: float = 60.0
     contradiction_min_s: float = 30.0
     contradiction_share: float = 0.5
+
+    def heading_sd(self, calibrated_s_ago: float | None) -> float:
+        """A joint's heading offset's standard deviation, rad, at a restart: as at a calibration
+        made ``calibrated_s_ago`` seconds ago (``delta0_deg`` and the drift since at
+        ``rate0_dps``), or half a turn either way (None: not calibrated)."""
+        if calibrated_s_ago is None:
+            return float(np.pi)
+        return float(min(np.pi, np.radians(np.hypot(self.delta0_deg, self.rate0_dps * max(0.0, calibrated_s_ago)))))
 
     def __post_init__(self):
         for name in ("update_s", "delta0_deg", "rate0_dps", "hinge_rate0_dps", "hinge_mean0_deg", "hinge_corr_s",

@@ -14,6 +14,7 @@ is stored stays what it learns from (:mod:`.heading`).
 """
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -141,7 +142,7 @@ class Fusion:
         slot = track.slot
         self.store.reset(slot)
         self.scoring.reset(slot)
-        self.heading.reset(self.subjects[track.subject].index, track.segment, slot, False, False)
+        self.heading.reset(self.subjects[track.subject].index, track.segment, slot, False, None)
         if self.calibrating.new_stream(track):  # a calibration of this very stream, kept from before
             self._calibrations_changed([track], made_now=False)
         self._unsettled.add(track)
@@ -439,10 +440,12 @@ class Fusion:
         heading corrections start again (:mod:`.heading`); a subject whose devices are all
         calibrated has its facing fitted again (:mod:`.scoring`); the view changes with the
         stored points."""
+        wall = time.time()
         for track in tracks:
             sub = self.subjects[track.subject]
-            self.heading.reset(sub.index, track.segment, track.slot, track.slot in self.calibrating.calibrations,
-                               made_now)
+            made_at = self.calibrating.calibrated_at.get(track.slot)
+            age = 0.0 if made_now else None if made_at is None else wall - made_at
+            self.heading.reset(sub.index, track.segment, track.slot, track.slot in self.calibrating.calibrations, age)
             if all(t.slot in self.calibrating.calibrations for t in sub.tracks.values()):
                 self.scoring.refit_facing(sub.index)
         self._view = None

@@ -87,17 +87,18 @@ class HeadingStage:
         for name, value in (("on", False), ("offset", 0.0), ("slope", 0.0), ("t_ref", 0)):
             setattr(self, name, np.append(getattr(self, name), value))
 
-    def reset(self, subject: int, segment: str, slot: int, on: bool, known: bool) -> None:
+    def reset(self, subject: int, segment: str, slot: int, on: bool, calibrated_s_ago: float | None) -> None:
         """Device ``slot`` (``segment`` of subject ``subject``) got a new calibration or stream:
         corrected from now on if ``on`` (and the stage is), starting from none; its joints are
-        learnt afresh, its heading known as at a calibration if ``known`` (one just made), else
-        anywhere (a stream restarted, a calibration kept from before)."""
+        learnt afresh, its heading known as at a calibration made ``calibrated_s_ago`` seconds
+        ago (0: just made; more: one kept from before, the heading's drift since widening what
+        is known), or anywhere (None: a stream restarted)."""
         self.on[slot] = on and self.enabled
         self.offset[slot] = self.slope[slot] = 0.0
         where = self.place[subject]
         index = None if where is None else self.layouts[where[0][0]][0].segment_index
         if where is not None and segment in index:  # type: ignore[operator]
-            self.estimators[where[0]].restart(where[1], index[segment], calibrated=known)  # type: ignore[index]
+            self.estimators[where[0]].restart(where[1], index[segment], calibrated_s_ago)  # type: ignore[index]
 
     # ------------------------------------------------------------------ applying
 
