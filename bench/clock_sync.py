@@ -22,12 +22,21 @@ ctypes call's array argument costs unless its address is taken once) for scale.
     python bench/clock_sync.py hour                   # 1 hour at --speed 20 (about 3.5 min per setup)
     python bench/clock_sync.py stamp                  # a few seconds
     python bench/clock_sync.py outage                 # 10 outages, about 3 minutes
+    python bench/clock_sync.py jitter                 # 3 x 400 simulated devices, about a minute
 
 ``outage``: router, aggregator, one emulator (``--subjects`` subjects, clocks +-1 s / +-100 ppm,
 holdover 4 s) and a time service; the service is stopped until every device reports itself
 unsynced, then a new service process is started: the table gives, per outage, when the new
 process's queryable was reachable and when every device reported itself synced again (from the
 aggregator's 1 Hz stats, so to within a second), both from the new process's launch.
+
+``jitter``: no network: ``--devices`` devices' sync (:class:`limbstream.device.sync.SyncClient`'s
+estimator, poll schedule and bounded-slew stamps, exchanges handed in) on a path delayed
+``--delay-ms`` +- ``--jitter-ms`` each way (uniform), clocks off by up to +-2 s drifting up to
++-100 ppm, for ``--seconds``; per seed: answers held back as possible service jumps, jumps
+followed (the service never jumps here: each one is false), and each device's stamp error p99
+from ``--from-s`` on (what tests/test_clock_live.py measures live, on ten devices). Against
+another revision's estimator: ``PYTHONPATH=<its checkout> python bench/clock_sync.py jitter``.
 """
 from __future__ import annotations
 
@@ -376,6 +385,54 @@ def outage(args) -> int:
     return 0
 
 
+def jitter(args) -> int:
+    from limbstream.device.clocks import ClockSettings, DeviceClocks, TimeBase
+    from limbstream.device.sync import SyncClient
+    from limbstream.timesync import SyncEstimator
+
+    class Counted(SyncEstimator):
+        outcomes: collections.Counter = collections.Counter()  # every device's, by outcome
+
+        def add(self, *exchange) -> str:
+            outcome = super().add(*exchange)
+            self.outcomes[outcome] += 1
+            return outcome
+
+    t0 = 1_800_000_000_000_000
+    print(f"| seed | devices | answers | held back | jumps (all false) | stamp error p99 from {args.from_s:g} s: median "
+          f"| worst | devices over 5 ms |\n|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for seed in args.seeds:
+        rng = np.random.default_rng(seed)
+        n = args.devices
+        settings = ClockSettings()
+        clocks = DeviceClocks(n, settings, 20_000.0, TimeBase(1.0, t0))
+        client = SyncClient(None, clocks, settings, [f"s/d{i}" for i in range(n)])
+        offset, drift = rng.uniform(-2e6, 2e6, n), rng.uniform(-100e-6, 100e-6, n)
+        counts = Counted.outcomes = collections.Counter()
+        client.est = [Counted() for _ in range(n)]
+        due = np.zeros(n)  # each device's next exchange, true seconds
+        errors: list[np.ndarray] = []
+        for k in range(round(args.seconds * 50)):
+            t = k / 50.0
+            for slot in np.flatnonzero(due <= t).tolist():
+                up, down = args.delay_ms + args.jitter_ms * rng.uniform(-1, 1, 2)
+                sent = t0 + due[slot] * 1e6
+                t2 = sent + up * 1e3
+                back = t2 + 50 + down * 1e3
+                t1 = round(sent + offset[slot] + drift[slot] * (sent - t0))
+                t4 = round(back + offset[slot] + drift[slot] * (back - t0))
+                answer = wire.encode_time_answer(wire.TimeAnswer(1, t1, round(t2), round(t2) + 50))
+                due[slot] = (back - t0) / 1e6 + client._apply(slot, 1, t1, t4, answer)
+            true = t0 + t * 1e6
+            stamps = client.stamp(np.arange(n), true + offset + drift * (true - t0))
+            if t >= args.from_s:
+                errors.append(np.abs(stamps - true))
+        p99 = np.percentile(np.array(errors), 99, axis=0)
+        print(f"| {seed} | {n} | {sum(counts.values()):,} | {counts['held']} | {counts['jump']} | "
+              f"{np.median(p99):.0f} us | {p99.max():.0f} us | {int(np.sum(p99 > 5000))} |")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="what", required=True)
@@ -401,8 +458,15 @@ def main(argv: list[str] | None = None) -> int:
     o = sub.add_parser("outage", help="time from a time service's return to every device synced")
     o.add_argument("--outages", type=int, default=10, help="outages (default 10)")
     o.add_argument("--subjects", type=int, default=1, help="subjects of the emulator (default 1)")
+    j = sub.add_parser("jitter", help="simulated devices' sync on a jittery path (no network)")
+    j.add_argument("--devices", type=int, default=400, help="devices (default 400)")
+    j.add_argument("--seconds", type=float, default=80.0, help="simulated seconds (default 80)")
+    j.add_argument("--from-s", type=float, default=60.0, help="stamp errors from this second on (default 60)")
+    j.add_argument("--delay-ms", type=float, default=10.0, help="one-way delay, ms (default 10)")
+    j.add_argument("--jitter-ms", type=float, default=5.0, help="... plus uniform +- this, ms (default 5)")
+    j.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3], help="seeds (default 1 2 3)")
     args = parser.parse_args(argv)
-    return {"cost": cost, "hour": hour, "stamp": stamp, "outage": outage}[args.what](args)
+    return {"cost": cost, "hour": hour, "stamp": stamp, "outage": outage, "jitter": jitter}[args.what](args)
 
 
 if __name__ == "__main__":

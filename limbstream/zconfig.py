@@ -80,6 +80,16 @@ def publisher_options(kind: str) -> dict:
         raise ValueError(f"message kind must be one of {tuple(QOS)}, got {kind!r}") from None
 
 
+def ask_caches(session: zenoh.Session, selector: str, depth: int, timeout: float):
+    """Ask every publisher cache that matches ``selector`` (a :func:`wire.history_selector`) for
+    what it holds: every answer of every cache (target ALL, no consolidation, replies on any key
+    accepted) into a channel with room for ``depth`` points (at least 1,024); the query ends
+    after ``timeout`` seconds. Returns the replies' channel (the aggregator's history and refill
+    queries, a subscription's resume)."""
+    return session.get(selector, zenoh.handlers.FifoChannel(max(1024, depth)), accept_replies=zenoh.ReplyKeyExpr.ANY,
+                       target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout)
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """Where and how a process joins the Zenoh network.

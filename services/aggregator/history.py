@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from limbstream import wire
+from limbstream import wire, zconfig
 from limbstream.services.aggregator.fusion import Fusion
 from limbstream.services.aggregator.track import HISTORY_WAIT_S, DeviceTrack
 
@@ -101,9 +101,7 @@ class HistoryQueries:
                 self.fusion.history_done(track)
                 continue
             selector = wire.history_selector(track.subject, track.segment, self.depth, span)
-            replies = self.session.get(selector, zenoh.handlers.FifoChannel(max(1024, self.depth)),
-                                       accept_replies=zenoh.ReplyKeyExpr.ANY, target=zenoh.QueryTarget.ALL,
-                                       consolidation=zenoh.ConsolidationMode.NONE, timeout=HISTORY_WAIT_S)
+            replies = zconfig.ask_caches(self.session, selector, self.depth, HISTORY_WAIT_S)
             self._replies.append((track, track.generation, replies))
         self._due.clear()
 
@@ -168,10 +166,9 @@ class HistoryQueries:
         for r in self._refills:
             if r.replies is None and now >= r.due and r.track.generation == r.generation:
                 r.tries += 1
-                r.replies = self.session.get(
-                    wire.history_selector(r.track.subject, r.track.segment, self.depth, (r.first, r.last)),
-                    zenoh.handlers.FifoChannel(max(1024, self.depth)), accept_replies=zenoh.ReplyKeyExpr.ANY,
-                    target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE, timeout=HISTORY_WAIT_S)
+                r.replies = zconfig.ask_caches(
+                    self.session, wire.history_selector(r.track.subject, r.track.segment, self.depth, (r.first, r.last)),
+                    self.depth, HISTORY_WAIT_S)
             if r.replies is not None:
                 taken += self._refill_replies(r, now)
             if r.track.generation == r.generation and r.wanted() and (

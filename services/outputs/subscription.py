@@ -178,9 +178,7 @@ class Subscription:
         newest = self._newest.get(wire.seg_key(subject, segment))
         if newest is not None:
             selector = wire.history_selector(subject, segment, self.history, (newest[1] + 1, newest[1] + self.history))
-            self._subscribers.append((_RESUME, self.session.get(
-                selector, zenoh.handlers.FifoChannel(max(1024, self.history)), accept_replies=zenoh.ReplyKeyExpr.ANY,
-                target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE, timeout=RESUME_WAIT_S)))
+            self._subscribers.append((_RESUME, zconfig.ask_caches(self.session, selector, self.history, RESUME_WAIT_S)))
 
     def _seen(self, key: str, sample: zenoh.Sample) -> bool:
         """Whether the point ``sample`` carries was received before: its Zenoh source sequence
