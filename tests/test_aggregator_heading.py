@@ -5,12 +5,16 @@ show each correction, its rate and confidence; a device that restarts rejoins wi
 learnt afresh, never the stale one; ``off`` leaves the frames as calibrated."""
 from __future__ import annotations
 
+import json
+import time
+
 import numpy as np
 import pytest
 
 from limbstream import calibration, kernel, quat, wire
 from limbstream.heading import HeadingCorrection
 from limbstream.heading.joints import Layout, joint_errors_deg
+from limbstream.heading.settings import Settings
 from limbstream.heading.simulate import zero_pose_along_x
 from limbstream.services.aggregator.aggregator import Aggregator, AggregatorSettings
 from limbstream.sources.generator import generate
@@ -242,11 +246,6 @@ def test_a_calibration_kept_from_before_keeps_its_joints_headings_known_as_its_a
     (``delta0_deg`` and ``rate0_dps`` per second; 30 s ago: 1.8 deg), not half a turn either way
     (learning the knee from nothing turned the leg by up to 9 deg in the live test of this,
     tests/test_calibration.py). A shank whose calibration was not kept has its knee anywhere."""
-    import json
-    import time
-
-    from limbstream.heading.settings import Settings
-
     made = {"stream": 1, "made_at": time.time() - 30.0} | calibration.Calibration(("rest",), np.array([1.0, 0, 0, 0]),
                                                                                  0.0).as_dict()
     kept = [s for s in SEGMENTS if saved or s != RESTARTED]

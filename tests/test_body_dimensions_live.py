@@ -102,13 +102,11 @@ def test_a_malformed_body_on_the_wire_is_counted_on_its_device_and_dropped_the_r
     fake.add("x01", {"hip": body})
     watch = StatsWatch(stack.endpoint)
     try:
-        seen: dict = {}
-
         def counted():
-            seen["x01/hip"] = entry = watch.poll().get("x01/hip")
+            entry = watch.poll().get("x01/hip")
             return entry if entry and (entry.get("dropped_by_reason") or {}).get("status_body") else None
         entry = wait_until(counted, 30, "the malformed body counted on x01/hip",
-                           on_fail=lambda: f"x01/hip's stats: {seen.get('x01/hip')}\n{stack.logs()}")
+                           on_fail=lambda: f"x01/hip's stats: {watch.devices.get('x01/hip')}\n{stack.logs()}")
         assert set(entry["dropped_by_reason"]) == {"status_body"}
         assert watch.subjects["x01"].get("bones_m") is None  # none announced: the aggregator's own skeleton
         tall = Body.from_height(PAPER10, 1.9)
