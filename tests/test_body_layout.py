@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 from support import ROOT
 
 from limbstream import quat, wire
-from limbstream.body import (FULL, PAPER10, WINTER_HEIGHTS, WINTER_LENGTHS, Body, layout, layout_from_dict,
+from limbstream.body import (FULL, PAPER10, WINTER_HEIGHTS, WINTER_LENGTHS, Bend, Body, layout, layout_from_dict,
                              load_layout, rest_heights)
 from limbstream.skeleton import Skeleton
 from limbstream.sources import load_npz
@@ -353,7 +354,81 @@ BAD_LAYOUTS = [
     ('name = "l_shank"', 'name = "l_hip"', r"bone name 'l_hip' used twice \(an offset is named by its joint\)"),
     ('name = "hip"\njoint = "pelvis"', 'name = "hip"\njoint = "pelvis"\noffset = { from = "pelvis", direction = [1, 0, 0] }',
      r"the root segment 'hip' takes no offset \(its joint is the origin\)"),
+    ('end = "l_ankle"\n', 'end = "l_ankle"\nbend = { toward = "hip", share = 0.5 }\n',
+     r"segment 'l_shank' bends toward 'hip', not its parent or a child \(l_thigh\)"),
+    ('end = "l_knee"\n', 'end = "l_knee"\nbend = { toward = "l_shank", share = 1 }\n',
+     r"segment 'l_thigh' bend: share must be in \(0, 1\), got 1"),
+    ('end = "l_knee"\n', 'end = "l_knee"\nbend = { toward = "l_shank", share = "half" }\n',
+     r"segment 'l_thigh' bend: share must be in \(0, 1\), got 'half'"),
+    ('end = "l_knee"\n', 'end = "l_knee"\nbend = { toward = "l_shank", by = 0.5 }\n',
+     r"segment 'l_thigh' bend: unknown key 'by'"),
+    ('end = "l_knee"\n', 'end = "l_knee"\nbend = "l_shank"\n', r"segment 'l_thigh': 'bend' must be a table"),
 ]
+BENT_SMALL = SMALL.replace('end = "neck_base"\n', 'end = "neck_base"\nbend = { toward = "l_thigh", share = 0.5 }\n')
+
+
+def test_a_bend_turns_its_bone_part_of_the_way_toward_its_neighbour():
+    """full's lumbar spine: the pelvis's bone (to the chest's joint) turns halfway from the pelvis
+    to the chest, and everything above it follows; the legs, off the pelvis, do not."""
+    assert [(b.name, b.bend) for b in FULL.bones if b.bend] == [("hip", Bend("chest", 0.5))]
+    body = Body.default(FULL)
+    q = identity(FULL)
+    q[FULL.segment_index["chest"]] = quat.from_rotation(Rotation.from_rotvec([0.8, 0.0, 0.0]))
+    rest, bent = at(body, identity(FULL)), at(body, q)
+    lumbar = quat.rotate(quat.from_rotation(Rotation.from_rotvec([0.4, 0.0, 0.0])), rest["spine"])
+    assert bent["spine"] == pytest.approx(lumbar, abs=1e-12)
+    chest = quat.rotate(q[FULL.segment_index["chest"]], rest["neck_base"] - rest["spine"])
+    assert bent["neck_base"] == pytest.approx(lumbar + chest, abs=1e-12)
+    for joint in ("l_hip", "l_knee", "l_toe", "r_ankle"):
+        assert bent[joint] == pytest.approx(rest[joint], abs=1e-12)
+    rigid = FULL.part("rigid", FULL.segment_names)  # (a part with every segment keeps the bend)
+    assert rigid.segment("hip").bend == FULL.segment("hip").bend
+    straight = layout_from_dict({**FULL.to_dict(), "segments": [{k: v for k, v in row.items() if k != "bend"}
+                                                                for row in FULL.to_dict()["segments"]]})
+    assert at(Body.default(straight), q)["spine"] == pytest.approx(rest["spine"], abs=1e-12)
+
+
+@settings(deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_the_c_chain_bends_as_quat_slerp_and_rotate_do(seed):
+    """The chain's bent bone (in C) against the same forward kinematics spelled out with
+    limbstream.quat, bone by bone, in both rest poses: equal to 1e-12 m."""
+    rng = np.random.default_rng(seed)
+    body = Body.from_height(FULL, 1.6 + 0.3 * rng.random())
+    q = quat.normalize(rng.normal(size=(7, len(FULL.segments), 4)))
+    tpose = rng.random(7) < 0.5
+    s, j = FULL.segment_index, FULL.joint_index
+    want = np.zeros((7, len(FULL.joints), 3))
+    for k, bone in enumerate(FULL.bones):
+        turn = q[:, s[bone.segment]]
+        if bone.bend is not None:
+            turn = quat.slerp(turn, q[:, s[bone.bend.toward]], bone.bend.share)
+        vec = np.where(tpose[:, None], body.vectors["tpose"][k], body.vectors["standing"][k])
+        start = 0.0 if bone.origin == FULL.root.joint else want[:, j[bone.origin]]
+        want[:, j[bone.joint]] = start + quat.rotate(turn, vec)
+    assert np.abs(body.positions(q, tpose, np.float64) - want).max() < 1e-12
+
+
+def test_a_layout_part_drops_a_bend_toward_a_segment_it_leaves_out():
+    legs = FULL.part("legs", ("hip", "l_thigh", "l_shank", "l_foot"))
+    assert legs.segment_names == ("hip", "l_thigh", "l_shank", "l_foot") and legs.segment("hip").bend is None
+    assert layout_from_dict(legs.to_dict()) == legs
+
+
+def test_a_bend_in_a_layout_file_loads_and_round_trips():
+    """The small layout's pelvis bone bends toward the thigh, which starts off the pelvis (its
+    proximal joint); starting the thigh off the bent bone's end is refused."""
+    lay = layout_from_dict(tomllib.loads(BENT_SMALL))
+    assert lay.bones[0].bend == Bend("l_thigh", 0.5) and lay.bones[0].turned_by == ("hip", "l_thigh")
+    assert layout_from_dict(lay.to_dict()) == lay
+    body = Body(lay, {"hip": 0.5, "l_hip": 0.1, "l_thigh": 0.4, "l_shank": 0.4})
+    q = identity(lay)
+    q[1] = quat.from_rotation(Rotation.from_rotvec([0.0, 0.0, 1.0]))
+    assert at(body, q)["neck_base"] == pytest.approx(quat.rotate(quat.slerp(IDENTITY, q[1], 0.5), [0.0, 0.5, 0.0]))
+    off_end = BENT_SMALL.replace('from = "pelvis"', 'from = "neck_base"')
+    with pytest.raises(ValueError, match=r"segment 'hip' bends, so no child may start off its distal joint "
+                                         r"'neck_base'; 'l_thigh' does \(start it at 'neck_base' or off 'pelvis'\)"):
+        layout_from_dict(tomllib.loads(off_end))
 
 
 @pytest.mark.parametrize("suffix", [".toml", ".json"])

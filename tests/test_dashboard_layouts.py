@@ -35,7 +35,7 @@ def full_frames(n: int, kind: int = wire.KIND_EXACT, first: int = 0) -> wire.Pos
 
 def layout_of(layout, name: str, segments) -> Layout:
     """A layout file's layout: ``layout``'s ``segments`` (a part of it, by their rows), named ``name``."""
-    return layout_from_dict({"name": name, "segments": [r for r in layout.to_dict()["segments"] if r["name"] in segments]})
+    return layout_from_dict(layout.part(name, segments).to_dict())
 
 
 def test_a_full_subjects_frames_by_its_layouts_names(client, pub):

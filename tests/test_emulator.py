@@ -160,7 +160,7 @@ def test_a_layout_files_devices_announce_its_body_and_one_without_height_fractio
     """A layout file's subjects announce its default body (its layout whole on the wire), or the
     one ``--height-m``/``--body`` give; a file that sizes no bone by height is refused up front
     unless ``--body`` gives its bones."""
-    rows = [r for r in FULL.to_dict()["segments"] if r["name"] in ("hip", "l_thigh", "l_shank")]
+    rows = FULL.part("leg3", ("hip", "l_thigh", "l_shank")).to_dict()["segments"]
     path = tmp_path / "leg3.json"
     path.write_text(json.dumps({"name": "leg3", "segments": rows}))
     [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", str(path))).values()

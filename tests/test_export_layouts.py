@@ -20,13 +20,14 @@ from limbstream.services.outputs.recording import RecordingWriter
 from limbstream.sources import load
 
 FULL_HIERARCHY = [
-    ("Hips", None), ("Spine", "Hips"), ("Neck", "Spine"), ("LeftArm", "Spine"), ("LeftForeArm", "LeftArm"),
+    ("Hips", None), ("LowerBack", "Hips"), ("Spine", "LowerBack"), ("Neck", "Spine"), ("LeftArm", "Spine"), ("LeftForeArm", "LeftArm"),
     ("LeftHand", "LeftForeArm"), ("RightArm", "Spine"), ("RightForeArm", "RightArm"), ("RightHand", "RightForeArm"),
     ("LeftUpLeg", "Hips"), ("LeftLeg", "LeftUpLeg"), ("LeftFoot", "LeftLeg"), ("RightUpLeg", "Hips"),
     ("RightLeg", "RightUpLeg"), ("RightFoot", "RightLeg")]
-"""full's BVH hierarchy, in the file's order: pelvis -> spine -> neck (the head, its End Site the
-top of the head); the arms off the chest (Spine), the hands; the feet, their End Sites the toes."""
-AT = {"Hips": "pelvis", "Spine": "spine", "Neck": "neck_base", "LeftArm": "l_shoulder", "LeftForeArm": "l_elbow",
+"""full's BVH hierarchy, in the file's order: pelvis -> its bent bone, the lumbar spine (LowerBack,
+at the pelvis) -> spine -> neck (the head, its End Site the top of the head); the arms off the
+chest (Spine), the hands; the legs off the pelvis, the feet, their End Sites the toes."""
+AT = {"Hips": "pelvis", "LowerBack": "pelvis", "Spine": "spine", "Neck": "neck_base", "LeftArm": "l_shoulder", "LeftForeArm": "l_elbow",
       "LeftHand": "l_wrist", "RightArm": "r_shoulder", "RightForeArm": "r_elbow", "RightHand": "r_wrist",
       "LeftUpLeg": "l_hip", "LeftLeg": "l_knee", "LeftFoot": "l_ankle", "RightUpLeg": "r_hip", "RightLeg": "r_knee",
       "RightFoot": "r_ankle"}
@@ -81,7 +82,7 @@ def test_a_full_recording_exports_its_layouts_bvh_hierarchy(tmp_path):
     assert names == [name for name, _ in FULL_HIERARCHY]
     channels = [line.split()[1:] for line in text.splitlines() if line.strip().startswith("CHANNELS")]
     assert channels[0] == ["6", "Xposition", "Yposition", "Zposition", *ROTATION_CHANNELS]
-    assert all(c == ["3", *ROTATION_CHANNELS] for c in channels[1:]) and len(channels) == 15
+    assert all(c == ["3", *ROTATION_CHANNELS] for c in channels[1:]) and len(channels) == 16
     rest = BODY.positions(np.tile([1.0, 0, 0, 0], (15, 1))).astype(np.float64)
     at = dict(zip(FULL.joints, rest))
     offsets = [np.array(line.split()[1:], float) for line in text.splitlines() if line.strip().startswith("OFFSET")]
@@ -94,7 +95,7 @@ def test_a_full_recording_exports_its_layouts_bvh_hierarchy(tmp_path):
         expected.append(at[AT[name]] - at[parent_at[name]])
         if name in ends:
             expected.append(at[ends[name]] - at[AT[name]])
-    assert len(offsets) == len(expected) == 20
+    assert len(offsets) == len(expected) == 21
     assert np.allclose(offsets, expected, atol=2e-6)
     lines = [line.split() for line in text.split("MOTION")[0].splitlines()]
     end_of = {lines[i - 6][1]: np.array(line[1:], float) for i, line in enumerate(lines)

@@ -28,9 +28,8 @@ LEGS = ("hip", "l_thigh", "l_shank", "l_foot", "r_thigh", "r_shank", "r_foot")
 
 def legs_file(tmp_path):
     """A layout file of the lower body (7 segments the generator moves; no built-in layout is it)."""
-    rows = [row for row in FULL.to_dict()["segments"] if row["name"] in LEGS]
     path = tmp_path / "legs7.json"
-    path.write_text(json.dumps({"name": "legs7", "segments": rows}))
+    path.write_text(json.dumps(FULL.part("legs7", LEGS).to_dict()))
     return path
 
 

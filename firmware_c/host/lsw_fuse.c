@@ -161,8 +161,9 @@ static void rotate(const double *q, const double *v, double *y)
 }
 
 void lsw_fuse_chain(size_t count, const double *q, uint32_t segments, const uint8_t *alt, uint32_t bones,
-                    const int32_t *segment, const int32_t *joint, const int32_t *parent, const double *vec,
-                    const double *alt_vec, uint32_t joints, float *out, double *out64)
+                    const int32_t *segment, const int32_t *joint, const int32_t *parent, const int32_t *toward,
+                    const double *share, const double *vec, const double *alt_vec, uint32_t joints, float *out,
+                    double *out64)
 {
     double at[LSW_FUSE_MAX_JOINTS][3];
     size_t i;
@@ -177,8 +178,13 @@ void lsw_fuse_chain(size_t count, const double *q, uint32_t segments, const uint
             at[j][0] = at[j][1] = at[j][2] = 0.0;
         }
         for (b = 0; b < bones; b++) {
-            double turned[3];
-            rotate(body + 4 * segment[b], v + 3 * b, turned);
+            double turned[3], bent[4];
+            const double *by = body + 4 * segment[b];
+            if (toward != NULL && toward[b] >= 0) {
+                lsw_quat_slerp(by, body + 4 * toward[b], share[b], bent);
+                by = bent;
+            }
+            rotate(by, v + 3 * b, turned);
             for (j = 0; j < 3; j++) {
                 at[joint[b]][j] = parent[b] < 0 ? turned[j] : at[parent[b]][j] + turned[j];
             }

@@ -67,13 +67,16 @@ void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t win
  * whose segment orientations are q[i] (segments x 4 doubles, unit norm). Bone b places joint
  * joint[b] at its parent joint parent[b] (-1: the origin) plus bone vector vec[b] (3 doubles;
  * alt_vec[b] where alt[i] is 1) turned by segment segment[b]'s orientation
- * (limbstream.quat.rotate); bones come parents first, and joints no bone places stay at the
- * origin. Sums in double, stored as float (limbstream.skeleton.Skeleton.positions), or as double
- * into out64 when it is not NULL (then out is not written).
+ * (limbstream.quat.rotate), or, where toward is not NULL and toward[b] >= 0 (a bent bone), by
+ * the SLERP from it toward segment toward[b]'s by share[b] (limbstream.quat.slerp); bones come
+ * parents first, and joints no bone places stay at the origin. Sums in double, stored as float
+ * (limbstream.skeleton.Skeleton.positions), or as double into out64 when it is not NULL (then
+ * out is not written).
  */
 void lsw_fuse_chain(size_t count, const double *q, uint32_t segments, const uint8_t *alt, uint32_t bones,
-                    const int32_t *segment, const int32_t *joint, const int32_t *parent, const double *vec,
-                    const double *alt_vec, uint32_t joints, float *out, double *out64);
+                    const int32_t *segment, const int32_t *joint, const int32_t *parent, const int32_t *toward,
+                    const double *share, const double *vec, const double *alt_vec, uint32_t joints, float *out,
+                    double *out64);
 
 #ifdef __cplusplus
 }

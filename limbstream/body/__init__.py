@@ -18,7 +18,7 @@ from limbstream.body.builtin import (DEFAULT_HEIGHT_M, FULL, LAYOUTS, PAPER10, P
 from limbstream.body.dimensions import (HEIGHT_BOUNDS_M, MAX_BONE_M, Body, check_height, check_length, lengths_of,
                                         rest_heights)
 from limbstream.body.files import layout_from_dict, load_layout, read_table
-from limbstream.body.layout import Bone, Layout, Offset, Segment, offset, segment
+from limbstream.body.layout import Bend, Bone, Layout, Offset, Segment, bend, offset, segment
 
 
 def layout(name_or_path: str | Path) -> Layout:
@@ -44,6 +44,6 @@ def layout_for(segments) -> Layout:
 
 
 __all__ = ["DEFAULT_HEIGHT_M", "FULL", "HEIGHT_BOUNDS_M", "LAYOUTS", "MAX_BONE_M", "PAPER10", "PAPER10_BONES",
-           "WINTER_HEIGHTS", "WINTER_LENGTHS", "Body", "Bone", "Layout", "Offset", "Segment", "builtin_layout",
-           "check_height", "check_length", "layout", "layout_for", "lengths_of", "layout_from_dict", "load_layout", "offset", "read_table",
+           "WINTER_HEIGHTS", "WINTER_LENGTHS", "Bend", "Body", "Bone", "Layout", "Offset", "Segment", "builtin_layout",
+           "bend", "check_height", "check_length", "layout", "layout_for", "lengths_of", "layout_from_dict", "load_layout", "offset", "read_table",
            "rest_heights", "segment"]

@@ -10,7 +10,7 @@ import math
 from types import MappingProxyType
 
 from limbstream import wire
-from limbstream.body.layout import Layout, Segment, offset, segment
+from limbstream.body.layout import Bend, Layout, Segment, offset, segment
 
 WINTER_LENGTHS = MappingProxyType({
     "shoulder_width": 0.259, "hip_width": 0.191, "upper_arm": 0.186, "forearm": 0.146, "hand": 0.108,
@@ -71,12 +71,21 @@ def _paper10() -> Layout:
     return Layout("paper10", tuple(rows[name] for name in wire.SEGMENTS), wire.JOINTS)
 
 
+LUMBAR_BEND = 0.5
+"""How far ``full``'s pelvis bone, the lumbar spine from the pelvis to the chest's joint, turns
+toward the chest (:class:`~limbstream.body.layout.Bend`): it bends over five vertebrae between the
+two sensors, as Xsens MVN's lumbar segments are interpolated between its pelvis and sternum
+sensors; halfway is the middle of that bend."""
+
+
 def _full() -> Layout:
     """15 segments: pelvis (``hip``, as in paper10), chest, head; per side upper arm, lower arm,
-    hand, thigh, shank, foot. 20 joints, the tips included (head top, fingertips, toes)."""
+    hand, thigh, shank, foot. 20 joints, the tips included (head top, fingertips, toes). The
+    pelvis's bone bends toward the chest (:data:`LUMBAR_BEND`)."""
     h = WINTER_HEIGHTS
     toe_forward = math.sqrt(WINTER_LENGTHS["foot"] ** 2 - h["ankle"] ** 2)  # the toe tip on the floor
-    rows = [segment("hip", None, "pelvis", "spine", UP, h["elbow"] - h["hip"]),  # the waist at elbow height
+    rows = [segment("hip", None, "pelvis", "spine", UP, h["elbow"] - h["hip"],  # the waist at elbow height
+                    bend=Bend("chest", LUMBAR_BEND)),
             segment("chest", "hip", "spine", "neck_base", UP, h["shoulder"] - h["elbow"]),
             segment("head", "chest", "neck_base", "head_top", UP, WINTER_LENGTHS["shoulder_to_head_top"])]
     for s, lateral in SIDES:

@@ -99,7 +99,8 @@ class Body:
 
     def positions(self, q: np.ndarray, tpose: np.ndarray | bool = False, dtype: type = np.float32) -> np.ndarray:
         """Joint positions, the root joint at the origin: each joint its bone's origin joint plus
-        the bone turned by its segment's orientation (in C: :class:`reconstruct.Chain`).
+        the bone turned by its segment's orientation, or by the SLERP toward its neighbour's where
+        it bends (:class:`~limbstream.body.layout.Bend`) (in C: :class:`reconstruct.Chain`).
 
         Parameters
         ----------
@@ -125,7 +126,9 @@ class Body:
         bones = self.layout.bones
         return reconstruct.Chain([s[b.segment] for b in bones], [j[b.joint] for b in bones],
                                  [-1 if b.origin == root else j[b.origin] for b in bones],
-                                 self.vectors["standing"], self.vectors["tpose"], len(self.layout.joints))
+                                 self.vectors["standing"], self.vectors["tpose"], len(self.layout.joints),
+                                 [-1 if b.bend is None else s[b.bend.toward] for b in bones],
+                                 [0.0 if b.bend is None else b.bend.share for b in bones])
 
     def to_dict(self) -> dict[str, Any]:
         """``layout`` and the bones (lengths where a bone lies along its rest direction, else

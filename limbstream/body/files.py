@@ -8,10 +8,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from limbstream.body.layout import Layout, offset, segment
+from limbstream.body.layout import Layout, bend, offset, segment
 
-SEGMENT_KEYS = frozenset({"name", "parent", "joint", "end", "direction", "height_fraction", "offset"})
+SEGMENT_KEYS = frozenset({"name", "parent", "joint", "end", "direction", "height_fraction", "offset", "bend"})
 OFFSET_KEYS = frozenset({"from", "direction", "height_fraction"})
+BEND_KEYS = frozenset({"toward", "share"})
 
 
 def read_table(path: str | Path) -> dict[str, Any]:
@@ -53,7 +54,8 @@ def layout_from_dict(data: Mapping[str, Any], where: str = "layout") -> Layout:
     """A :class:`Layout` from a file's table: ``name``, an optional ``joints`` order and
     ``segments``, a list of tables (``name``, ``parent`` (left out: the root), ``joint``, ``end``,
     ``direction``: a 3-vector or ``{standing = [...], tpose = [...]}``, optional
-    ``height_fraction`` and ``offset = {from, direction, height_fraction}``)."""
+    ``height_fraction``, ``offset = {from, direction, height_fraction}`` and ``bend = {toward,
+    share}``)."""
     _unknown(data, frozenset({"name", "joints", "segments"}), where)
     name = _text(data, "name", where)
     rows = data.get("segments")
@@ -70,9 +72,15 @@ def layout_from_dict(data: Mapping[str, Any], where: str = "layout") -> Layout:
             _unknown(at, OFFSET_KEYS, f"{what} offset")
             at = offset(_text(at, "from", f"{what} offset"), at.get("direction"), at.get("height_fraction"),
                         f"{what} offset")
+        bent = row.get("bend")
+        if bent is not None:
+            if not isinstance(bent, Mapping):
+                raise ValueError(f"{what}: 'bend' must be a table")
+            _unknown(bent, BEND_KEYS, f"{what} bend")
+            bent = bend(bent.get("toward"), bent.get("share"), f"{what} bend")
         segments.append(segment(_text(row, "name", what), _text(row, "parent", what, required=False),
                                 _text(row, "joint", what), _text(row, "end", what), row.get("direction"),
-                                row.get("height_fraction"), at))
+                                row.get("height_fraction"), at, bent))
     joints = data.get("joints", ())
     if not isinstance(joints, list | tuple) or not all(isinstance(j, str) for j in joints):
         raise ValueError(f"layout {name}: 'joints' must be a list of names")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
@@ -71,11 +71,23 @@ class Offset:
 
 
 @dataclass(frozen=True)
+class Bend:
+    """A segment's bone that bends with a neighbour: it turns by the SLERP from its segment's
+    orientation toward segment ``toward``'s (its parent or a child) by ``share`` in (0, 1), as a
+    spine between two sensors bends over its vertebrae (the lumbar spine between pelvis and chest,
+    the neck between chest and head): its far joint lies where that bend puts it."""
+
+    toward: str
+    share: float
+
+
+@dataclass(frozen=True)
 class Segment:
     """One segment, one device: its bone runs from ``joint`` (proximal) to ``end`` (distal) along
     ``directions[rest_pose]`` (unit, its own frame). ``parent``: the segment it hangs off (None:
     the root, whose ``joint`` is the origin). ``offset``: where ``joint`` sits when it is not a
-    joint of the parent. ``height_fraction``: the bone's length as a fraction of body height."""
+    joint of the parent. ``height_fraction``: the bone's length as a fraction of body height.
+    ``bend``: its bone bends with a neighbour (None: it turns with the segment alone)."""
 
     name: str
     parent: str | None
@@ -84,13 +96,15 @@ class Segment:
     directions: Mapping[str, Vec]
     height_fraction: float | None = None
     offset: Offset | None = None
+    bend: Bend | None = None
 
 
 @dataclass(frozen=True)
 class Bone:
     """A vector of the chain: it places ``joint`` at joint ``origin`` plus its rest vector turned
-    by ``segment``'s orientation (the root joint is the origin of the body). A segment's own bone
-    is named by the segment, an offset by the joint it places."""
+    by ``segment``'s orientation (the root joint is the origin of the body), or bent toward a
+    neighbour's (``bend``: a segment's own bone only). A segment's own bone is named by the
+    segment, an offset by the joint it places."""
 
     name: str
     joint: str
@@ -98,6 +112,12 @@ class Bone:
     segment: str
     directions: Mapping[str, Vec]
     height_fraction: float | None
+    bend: Bend | None = None
+
+    @property
+    def turned_by(self) -> tuple[str, ...]:
+        """The segments whose orientations turn this bone: its own, and the one it bends toward."""
+        return (self.segment,) if self.bend is None else (self.segment, self.bend.toward)
 
 
 @dataclass(frozen=True)
@@ -163,6 +183,14 @@ class Layout:
                 return s
         raise ValueError(f"layout {self.name} has no segment {name!r}")
 
+    def part(self, name: str, segments: Sequence[str]) -> Layout:
+        """A layout called ``name`` of these of its ``segments`` (in its order; a bend toward a segment
+        left out is dropped): a lower body of ``full``, say. ValueError as any layout's."""
+        keep = [s for s in self.segments if s.name in segments]
+        names = {s.name for s in keep}
+        keep = [s if s.bend is None or s.bend.toward in names else replace(s, bend=None) for s in keep]
+        return Layout(name, tuple(keep))
+
     def to_dict(self) -> dict[str, Any]:
         """The layout as a file's table (:func:`limbstream.body.files.layout_from_dict` reads it back)."""
         def direction(d: Mapping[str, Vec]) -> Any:
@@ -178,6 +206,8 @@ class Layout:
                 row["offset"] = {"from": s.offset.origin, "direction": list(s.offset.direction)}
                 if s.offset.height_fraction is not None:
                     row["offset"]["height_fraction"] = s.offset.height_fraction
+            if s.bend is not None:
+                row["bend"] = {"toward": s.bend.toward, "share": s.bend.share}
             rows.append(row)
         return {"name": self.name, "joints": list(self.joints), "segments": rows}
 
@@ -228,13 +258,30 @@ def _bones(name: str, segments: Sequence[Segment]) -> tuple[Bone, ...]:
         if s.end in placer:
             raise ValueError(f"layout {name}: joint {s.end!r} placed twice ({placer[s.end]} and segment {s.name!r})")
         placer[s.end] = f"segment {s.name!r}"
-        bones.append(Bone(s.name, s.end, s.joint, s.name, s.directions, s.height_fraction))
+        _check_bend(name, s, by_name, children)
+        bones.append(Bone(s.name, s.end, s.joint, s.name, s.directions, s.height_fraction, s.bend))
         queue += children.get(s.name, [])
     names = [b.name for b in bones]
     for b in bones:
         if names.count(b.name) > 1:
             raise ValueError(f"layout {name}: bone name {b.name!r} used twice (an offset is named by its joint)")
     return tuple(bones)
+
+
+def _check_bend(name: str, s: Segment, by_name: Mapping[str, Segment], children: Mapping[str | None, list[Segment]]) -> None:
+    """A bend goes toward the segment's parent or a child, by a share in (0, 1); the segment's
+    children start at its distal joint or off its proximal one (a joint off the bent bone's end
+    would turn with neither: a BVH hierarchy cannot draw it)."""
+    if s.bend is None:
+        return
+    neighbours = [*([s.parent] if s.parent else []), *(c.name for c in children.get(s.name, []))]
+    if s.bend.toward not in neighbours:
+        raise ValueError(f"layout {name}: segment {s.name!r} bends toward {s.bend.toward!r}, not its parent or "
+                         f"a child ({', '.join(neighbours) or 'none'})")
+    off_end = [c.name for c in children.get(s.name, []) if c.offset is not None and c.offset.origin == s.end]
+    if off_end:
+        raise ValueError(f"layout {name}: segment {s.name!r} bends, so no child may start off its distal joint "
+                         f"{s.end!r}; {off_end[0]!r} does (start it at {s.end!r} or off {s.joint!r})")
 
 
 def _place_start(name: str, s: Segment, parent: Segment, placer: dict[str, str], bones: list[Bone]) -> None:
@@ -269,11 +316,21 @@ def _check_order(name: str, order: Sequence[str], placed: Sequence[str]) -> None
 
 
 def segment(name: str, parent: str | None, joint: str, end: str, direction: Any, height_fraction: float | None = None,
-            offset: Offset | None = None) -> Segment:
+            offset: Offset | None = None, bend: Bend | None = None) -> Segment:
     """A :class:`Segment` with its direction checked and made unit (a 3-vector or a mapping per
     rest pose, as :func:`rest_directions` takes)."""
     what = f"segment {name!r}"
-    return Segment(name, parent, joint, end, rest_directions(direction, what), _fraction(height_fraction, what), offset)
+    return Segment(name, parent, joint, end, rest_directions(direction, what), _fraction(height_fraction, what), offset,
+                   bend)
+
+
+def bend(toward: Any, share: Any, what: str = "bend") -> Bend:
+    """A :class:`Bend` with its share checked: a number in (0, 1)."""
+    if not isinstance(toward, str) or not toward:
+        raise ValueError(f"{what}: 'toward' must be a segment's name, got {toward!r}")
+    if isinstance(share, bool) or not isinstance(share, int | float) or not 0 < share < 1:
+        raise ValueError(f"{what}: share must be in (0, 1), got {share!r}")
+    return Bend(toward, float(share))
 
 
 def offset(origin: str, direction: Any, height_fraction: float | None = None, what: str = "offset") -> Offset:

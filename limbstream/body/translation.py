@@ -95,7 +95,7 @@ class BodyPoints:
         at, seg = layout.joint_index, layout.segment_index
         chains: dict[str, set[int]] = {layout.root.joint: set()}
         for bone in layout.bones:  # parents first
-            chains[bone.joint] = chains[bone.origin] | {seg[bone.segment]}
+            chains[bone.joint] = chains[bone.origin] | {seg[name] for name in bone.turned_by}
         feet: list[tuple[str, tuple[str, str, str | None], set[int]]] = []
         for side, (ankle, foot, toe) in _FEET.items():
             feet.append((f"{side}_heel", (ankle, foot, None), chains[ankle] | {seg[foot]}))

@@ -60,7 +60,7 @@ def chains(layout: Layout = LAYOUT) -> np.ndarray:
     out = np.zeros((len(layout.joints), len(layout.segments)), bool)
     for bone in layout.bones:  # parents first: the origin's chain is known
         out[j[bone.joint]] = out[j[bone.origin]]
-        out[j[bone.joint], s[bone.segment]] = True
+        out[j[bone.joint], [s[seg] for seg in bone.turned_by]] = True
     return out
 
 

@@ -92,7 +92,7 @@ def ring_append(ring: np.ndarray, seen: np.ndarray, total: np.ndarray, rows: np.
 
 
 _lib.lsw_fuse_chain.argtypes = [ctypes.c_size_t, _vp, ctypes.c_uint32, _vp, ctypes.c_uint32, _vp, _vp, _vp, _vp, _vp,
-                                ctypes.c_uint32, _vp, _vp]
+                                _vp, _vp, ctypes.c_uint32, _vp, _vp]
 _lib.lsw_fuse_chain.restype = None
 MAX_JOINTS = 64
 """LSW_FUSE_MAX_JOINTS (lsw_fuse.h)."""
@@ -100,22 +100,28 @@ MAX_JOINTS = 64
 
 class Chain:
     """A kinematic chain: bone ``b`` places joint ``joint[b]`` at its parent joint ``parent[b]``
-    (-1: the origin) plus its bone vector turned by segment ``segment[b]``'s orientation; bones
-    come parents first.
+    (-1: the origin) plus its bone vector turned by segment ``segment[b]``'s orientation, or by
+    the SLERP from it toward segment ``toward[b]``'s by ``share[b]`` where ``toward[b] >= 0`` (a
+    bent bone); bones come parents first.
 
     Parameters
     ----------
     segment, joint, parent : (B,) ints.
     vec, alt_vec : (B, 3) bone vectors in their segments' frames, and the alternative ones.
     joints : joints of a body (those no bone places stay at the origin).
+    toward, share : (B,) int and float, or None: no bone bends.
     """
 
-    def __init__(self, segment, joint, parent, vec: np.ndarray, alt_vec: np.ndarray, joints: int):
+    def __init__(self, segment, joint, parent, vec: np.ndarray, alt_vec: np.ndarray, joints: int,
+                 toward=None, share=None):
         if not 0 < joints <= MAX_JOINTS:
             raise ValueError(f"joints must be 1..{MAX_JOINTS}, got {joints}")
         self.segment, self.joint, self.parent = (np.ascontiguousarray(a, np.int32) for a in (segment, joint, parent))
         self.vec, self.alt_vec = (np.ascontiguousarray(a, np.float64).reshape(-1, 3) for a in (vec, alt_vec))
         self.joints = joints
+        bends = toward is not None and bool(np.any(np.asarray(toward) >= 0))
+        self.toward = np.ascontiguousarray(toward, np.int32) if bends else None
+        self.share = np.ascontiguousarray(share, np.float64) if bends else None
 
     def positions(self, q: np.ndarray, alt: np.ndarray | bool, dtype: type = np.float32) -> np.ndarray:
         """(..., joints, 3) joint positions (``dtype``: float32 or float64; summed in float64
@@ -130,6 +136,7 @@ class Chain:
         out = np.empty((*bodies, self.joints, 3), np.float64 if wide else np.float32)
         _lib.lsw_fuse_chain(alt.size, q.ctypes.data, q.shape[-2], alt.ctypes.data, len(self.segment),
                             self.segment.ctypes.data, self.joint.ctypes.data, self.parent.ctypes.data,
-                            self.vec.ctypes.data, self.alt_vec.ctypes.data, self.joints,
+                            None if self.toward is None else self.toward.ctypes.data,
+                            None if self.share is None else self.share.ctypes.data, self.vec.ctypes.data, self.alt_vec.ctypes.data, self.joints,
                             None if wide else out.ctypes.data, out.ctypes.data if wide else None)
         return out

@@ -22,13 +22,17 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class BvhJoint:
     """A BVH joint: its name, parent, the segment whose orientation it carries (None: it follows
-    its parent), the pose-frame joint it sits at, and the joint its End Site marks (if any)."""
+    its parent), the pose-frame joint it sits at, the joint its End Site marks (if any) and, for
+    a segment's bent bone (:class:`limbstream.body.Bend`), the segment it turns ``share`` of the
+    way toward (it carries their SLERP)."""
 
     name: str
     parent: str | None
     segment: str | None
     at: str
     end: str | None = None
+    toward: str | None = None
+    share: float = 0.0
 
 
 BVH_JOINTS: tuple[BvhJoint, ...] = (
@@ -58,30 +62,47 @@ BVH_NAMES: dict[str, str] = {
 """The BVH joint carrying each built-in segment (the CMU clips' names; ``full``'s head segment,
 neck base to the top of the head, is the ``Neck`` joint as ``paper10``'s neck is); a layout file's
 other segments keep their own names."""
+BEND_NAMES: dict[str, str] = {"hip": "LowerBack"}
+"""The BVH joint carrying a built-in segment's bent bone (the CMU clips' name for ``full``'s
+lumbar spine); a layout file's other bent segments: their joint's name and ``Bend``."""
 
 
 def bvh_joints(layout: Layout) -> tuple[BvhJoint, ...]:
     """The hierarchy of ``layout``, depth first (the file's order): ``paper10``'s :data:`BVH_JOINTS`; any other
     layout one joint per segment at its proximal joint, a child of its parent segment's joint
-    (``full``: Hips -> Spine (the chest, at the spine joint) -> Neck (the head) with its End Site at
-    the top of the head; the arms off the Spine, the hands below the forearms, the feet below the
-    legs), a segment without children ending in an End Site at its distal joint."""
+    (``full``: Hips -> LowerBack (its bent bone) -> Spine (the chest, at the spine joint) -> Neck (the head) with
+    its End Site at the top of the head; the arms off the Spine, the hands below the forearms, the legs off the
+    Hips, the feet below them), a segment without children ending in an End Site at its distal joint. A
+    segment whose bone bends has a second joint at the same place carrying the bend (:data:`BEND_NAMES`): the
+    segments starting at its distal joint hang off it, those at an offset off the segment's own."""
     if layout == PAPER10:
         return BVH_JOINTS
     name = {s.name: BVH_NAMES.get(s.name, s.name) for s in layout.segments}
     children: dict[str | None, list[str]] = {}
     for s in layout.segments:
         children.setdefault(s.parent, []).append(s.name)
-    out = []
+    joints: list[BvhJoint] = []
+    for seg in layout.segments:
+        parent = None if seg.parent is None else layout.segment(seg.parent)
+        hangs_off = None if parent is None else name[parent.name]
+        if parent is not None and parent.bend is not None and seg.offset is None:
+            hangs_off = BEND_NAMES.get(parent.name, f"{name[parent.name]}Bend")
+        end = None if seg.name in children else seg.end
+        joints.append(BvhJoint(name[seg.name], hangs_off, seg.name, seg.joint, end=None if seg.bend else end))
+        if seg.bend is not None:
+            joints.append(BvhJoint(BEND_NAMES.get(seg.name, f"{name[seg.name]}Bend"), name[seg.name], seg.name,
+                                   seg.joint, end=end, toward=seg.bend.toward, share=seg.bend.share))
+    under: dict[str | None, list[BvhJoint]] = {}
+    for j in joints:
+        under.setdefault(j.parent, []).append(j)
+    out: list[BvhJoint] = []
 
-    def visit(segment: str) -> None:  # depth first: the order of the file's joints and channels
-        seg = layout.segment(segment)
-        out.append(BvhJoint(name[seg.name], None if seg.parent is None else name[seg.parent], seg.name, seg.joint,
-                            end=None if seg.name in children else seg.end))
-        for child in children.get(segment, []):
+    def visit(joint: BvhJoint) -> None:  # depth first: the order of the file's joints and channels
+        out.append(joint)
+        for child in under.get(joint.name, []):
             visit(child)
 
-    visit(layout.root.name)
+    visit(under[None][0])
     return tuple(out)
 
 
@@ -130,6 +151,8 @@ def bvh_text(take: Take) -> str:
             return np.tile([1.0, 0.0, 0.0, 0.0], (len(take), 1))
         if joint.segment is None:
             return carried(by_name.get(joint.parent))
+        if joint.toward is not None:
+            return quat.slerp(take.q[:, seg[joint.segment]], take.q[:, seg[joint.toward]], joint.share)
         return take.q[:, seg[joint.segment]]
 
     for joint in hierarchy:
