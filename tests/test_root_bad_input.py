@@ -42,11 +42,7 @@ def state(tracker: RootTracker) -> list[np.ndarray]:
 def test_a_layout_without_feet_has_no_root_translation():
     """paper10, and a layout file's lower body without feet: frames at the origin without contacts,
     flagged NO_ROOT (no feet taken flat below the ankles); a full body is tracked as before."""
-    legs = FULL.to_dict()
-    legs["name"] = "legs"
-    legs["segments"] = [s for s in legs["segments"] if s["name"] in ("hip", "l_thigh", "l_shank", "r_thigh", "r_shank")]
-    legs.pop("joints")
-    no_feet = layout_from_dict(legs)
+    no_feet = layout_from_dict(FULL.part("legs", ("hip", "l_thigh", "l_shank", "r_thigh", "r_shank")).to_dict())
     assert not has_feet(PAPER10) and not has_feet(no_feet) and has_feet(FULL)
     with pytest.raises(ValueError, match="layout paper10 has no feet"):
         BodyPoints(PAPER10)

@@ -36,6 +36,9 @@ SHOWN_JOINTS = ("head", "head_top", "l_wrist", "r_wrist", "l_ankle", "r_ankle")
 HINT_S = 3.0
 """Seconds without a frame of the subject after which ``watch`` names the subjects streaming (their
 stats come once a second)."""
+ASK_STATS_S = 0.3
+"""How long ``watch`` waits for the aggregator's answer when it asks which subjects have stats, s
+(it answers within a tick)."""
 PROG = "limbstream watch"
 
 
@@ -156,9 +159,24 @@ class _Newest:
         return self.frames[-1], None
 
 
+def subjects_with_stats(session, timeout_s: float = ASK_STATS_S) -> set[str]:
+    """The subjects whose newest stats message the aggregator holds (its stats queryable's answer
+    to ``limbstream/*/stats``; docs/protocol.md, "Stats"): every subject streaming, whether or not
+    its stats came while ``watch`` listened. Empty without an answer within ``timeout_s``."""
+    subjects = set()
+    for reply in session.get(wire.subject_selector(wire.STATS), timeout=timeout_s):
+        if reply.ok is not None:
+            try:
+                subjects.add(wire.parse_subject_key(str(reply.ok.key_expr))[0])
+            except wire.WireError:
+                continue  # (not a stats key: not an aggregator's answer)
+    return subjects
+
+
 def no_frames(args: argparse.Namespace, seconds: float, streaming: set[str]) -> str:
     """What ``watch`` says when no frame of the subject came for ``seconds``: which subjects do
-    stream (their stats came), so that a typo shows."""
+    stream (their stats came, or the aggregator holds stats of them: :func:`subjects_with_stats`),
+    so that a typo shows."""
     what = f"{PROG}: no {args.kind} frame of {args.subject} for {seconds:g} s; "
     if args.subject in streaming:
         return what + f"its stats come, its {args.kind} frames do not (is its aggregator running? try --kind auto)"
@@ -193,9 +211,11 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             if frame is None:
                 if args.timeout and now - last_seen > args.timeout:
+                    streaming |= subjects_with_stats(sub.session)  # (a stats round may not have come yet)
                     print(no_frames(args, args.timeout, streaming), file=sys.stderr)
                     return 1
                 if not hinted and not newest.count and now - last_seen >= HINT_S:
+                    streaming |= subjects_with_stats(sub.session)
                     print(no_frames(args, HINT_S, streaming) + "; still waiting (Ctrl-C stops)", file=sys.stderr,
                           flush=True)
                     hinted = True
