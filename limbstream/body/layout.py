@@ -258,7 +258,7 @@ def _bones(name: str, segments: Sequence[Segment]) -> tuple[Bone, ...]:
         if s.end in placer:
             raise ValueError(f"layout {name}: joint {s.end!r} placed twice ({placer[s.end]} and segment {s.name!r})")
         placer[s.end] = f"segment {s.name!r}"
-        _check_bend(name, s, by_name, children)
+        _check_bend(name, s, children)
         bones.append(Bone(s.name, s.end, s.joint, s.name, s.directions, s.height_fraction, s.bend))
         queue += children.get(s.name, [])
     names = [b.name for b in bones]
@@ -268,7 +268,7 @@ def _bones(name: str, segments: Sequence[Segment]) -> tuple[Bone, ...]:
     return tuple(bones)
 
 
-def _check_bend(name: str, s: Segment, by_name: Mapping[str, Segment], children: Mapping[str | None, list[Segment]]) -> None:
+def _check_bend(name: str, s: Segment, children: Mapping[str | None, list[Segment]]) -> None:
     """A bend goes toward the segment's parent or a child, by a share in (0, 1); the segment's
     children start at its distal joint or off its proximal one (a joint off the bent bone's end
     would turn with neither: a BVH hierarchy cannot draw it)."""
