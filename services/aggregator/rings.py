@@ -42,27 +42,36 @@ class ErrorRings:
 
     def summary(self, rows: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:
         """(mean, max, *quantiles) over each row's window, each (rows,), NaN for empty rows; a
-        quantile ``p`` (0..1) is the lower order statistic. One sort of the rows that hold values
-        gives all of them; empty rows (truth tap or live frames off) cost nothing."""
+        quantile ``p`` (0..1) is the lower order statistic, the mean summed in float64. Full
+        windows (every row in the long run) share their order statistics' ranks: one partition of
+        them all (linear in the window); windows not yet full are sorted, only their values.
+        Empty rows (truth tap or live frames off) cost nothing."""
         n = np.minimum(self.count[rows], self.window)
         out = np.full((2 + len(quantiles), len(rows)), np.nan)
-        held = np.flatnonzero(n > 0)
-        if len(held):
-            k, r = n[held], np.arange(len(held))
-            width = int(k.max())  # windows not yet full: only their values are sorted
-            v = self.values[rows[held], :width]
+        full = np.flatnonzero(n == self.window)
+        if len(full):
+            v = self.values[rows[full]]
+            out[0, full] = v.sum(axis=1, dtype=np.float64) / self.window
+            out[1, full] = v.max(axis=1)
+            end = self.window
+            for rank in sorted({int(np.floor(p * (self.window - 1))) for p in quantiles}, reverse=True):
+                v[:, :end].partition(rank, axis=1)  # one rank at a time, each below the last (NumPy's
+                end = rank                          # partition at several ranks is slower than a sort)
+            for i, p in enumerate(quantiles):
+                out[2 + i, full] = v[:, int(np.floor(p * (self.window - 1)))]
+        part = np.flatnonzero((n > 0) & (n < self.window))
+        if len(part):
+            k, r = n[part], np.arange(len(part))
+            width = int(k.max())
+            v = self.values[rows[part], :width]
             unused = np.arange(width) >= k[:, None]
             v[unused] = np.nan  # sorts last
             v.sort(axis=1)
-            out[1, held] = v[r, k - 1]
+            out[1, part] = v[r, k - 1]
             for i, p in enumerate(quantiles):
-                out[2 + i, held] = v[r, np.floor(p * (k - 1)).astype(np.int64)]
-            # the mean: the sorted values, then zeros, summed over the window's length (float32,
-            # in the order NumPy's pairwise sum takes them)
-            whole = np.zeros((len(held), self.window), np.float32)
-            whole[:, :width] = v
-            whole[:, :width][unused] = 0.0
-            out[0, held] = whole.sum(axis=1) / k
+                out[2 + i, part] = v[r, np.floor(p * (k - 1)).astype(np.int64)]
+            v[unused] = 0.0
+            out[0, part] = v.sum(axis=1, dtype=np.float64) / k
         return tuple(out)
 
 

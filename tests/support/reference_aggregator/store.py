@@ -293,7 +293,7 @@ class ErrorRings:
             v = self.values[slots[rows]]
             v[np.arange(self.window) >= k[:, None]] = np.nan  # unused: sorts last
             v.sort(axis=1)
-            out[0, rows] = np.nansum(v, axis=1) / k
+            out[0, rows] = np.nansum(v, axis=1, dtype=np.float64) / k  # (float64: the mean as the aggregator sums it)
             out[1, rows] = v[r, k - 1]
             for i, p in enumerate(quantiles):
                 out[2 + i, rows] = v[r, np.floor(p * (k - 1)).astype(np.int64)]
