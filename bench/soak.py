@@ -8,6 +8,7 @@ segment points, and frames.
 
     python bench/soak.py                         # 2,000 devices, 10 minutes
     python bench/soak.py --devices 200 --minutes 1 --check   # CI size; exit 1 if a target fails
+    python bench/soak.py --live-rate 50 --hear-frames        # with a subscriber to every frame, as the dashboard
 
 Targets (``--check``): RSS growth after warm-up < 10 % per process (median of the last third
 of the samples against the first third: a trend, not one sample's peak), late ticks by the
@@ -114,6 +115,24 @@ class StatsReader:
         self.session.close()
 
 
+class FramesHeard:
+    """A subscriber to every subject's pose frames and joint angles (what the dashboard hears),
+    counting them: with it the aggregator encodes and sends them all; without it (the default)
+    it makes them and sends none (docs/protocol.md, "Pose frame")."""
+
+    def __init__(self, endpoint: str):
+        self.session = zconfig.open_session(zconfig.ZenohSettings(connect=(endpoint,)))
+        self.counts = {wire.POSE: 0, wire.ANGLES: 0}
+        self.subs = [self.session.declare_subscriber(wire.subject_selector(kind), lambda _, k=kind: self._count(k))
+                     for kind in self.counts]
+
+    def _count(self, kind: str) -> None:
+        self.counts[kind] += 1  # (a Zenoh thread: a count, nothing more)
+
+    def close(self) -> None:
+        self.session.close()
+
+
 def parse_emulator(text: str) -> tuple[int, float, float]:
     """(ticks, late %, late by its own work %) from an emulator's final line."""
     m = re.search(r"emulator: (\d+) ticks, ([\d.]+) % late \(([\d.]+) % by its own work\)", text)
@@ -140,6 +159,9 @@ def arguments(argv: list[str] | None) -> argparse.Namespace:
                         help="warm-up, s, before the RSS baseline (default: 30 %% of the run, at most "
                              "180 s: the recovery caches fill first)")
     parser.add_argument("--samples", type=int, default=11, help="RSS samples over the run (default 11)")
+    parser.add_argument("--hear-frames", action="store_true",
+                        help="subscribe to every subject's pose frames and joint angles, as the dashboard does "
+                             "(default: none; the aggregator sends no frame nobody hears)")
     parser.add_argument("--check", action="store_true", help="exit 1 if a target is missed")
     parser.add_argument("--json", default="", help="also write the results to this JSON file")
     args = parser.parse_args(argv)
@@ -304,6 +326,7 @@ def main(argv: list[str] | None = None) -> int:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     run = start(args, endpoint)
     reader = StatsReader(endpoint)
+    heard = FramesHeard(endpoint) if args.hear_frames else None
     try:
         watch(run, reader, duration, warmup, args.samples)
     finally:
@@ -312,6 +335,8 @@ def main(argv: list[str] | None = None) -> int:
         reader.poll()
         run.launcher.stop(GRACE_S)
         reader.close()
+        if heard is not None:
+            heard.close()
 
     base = next(i for i, t in enumerate(run.times) if t >= warmup - 1e-6)
     rows = rss_rows(run, base)
@@ -325,6 +350,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {name} | {ref:.0f} | {max(series[base:]):.0f} | {growth:+.1f} % | {peak:+.1f} % | "
               f"{run.cpu[name]:.0f} | " + " ".join(f"{v:.0f}" for v in series) + " |")
     measures = results(run, reader, base, duration)
+    measures["pose frames and joint angles heard (--hear-frames)"] = (
+        "not subscribed" if heard is None else f"{heard.counts[wire.POSE]} / {heard.counts[wire.ANGLES]}")
+    measures["pose frames made, not sent (unheard)"] = reader.aggregator.get("unheard", 0)
     print("\n| measure | value |")
     print("|---|---|")
     for k, v in measures.items():

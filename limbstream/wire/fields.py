@@ -150,7 +150,7 @@ FIELDS: tuple[StatsField, ...] = (
     _device("raw_faults", dict, "bad raw samples the device counted, by kind (invalid, time_back, gap, saturated, "
             "gyr_stuck; docs/kernel.md)"),
     # ---- per subject
-    StatsField("frames", int, "subject", "exact frames published"),
+    StatsField("frames", int, "subject", "exact frames made (sent while a subscriber matches the subject's pose key)"),
     StatsField("skipped_frames", int, "subject", "frame times skipped (no data could make them)"),
     StatsField("live_missed", int, "subject", "live frame deadlines missed: the aggregator's loop came more than half a "
                "live period after the deadline, no live frame for it"),
@@ -186,7 +186,9 @@ FIELDS: tuple[StatsField, ...] = (
                 "the machine does not change)"),
     _aggregator("points", int, "segment points taken in"),
     _aggregator("raw_batches", int, "truth-tap batches taken in"),
-    _aggregator("frames", int, "exact frames published, all subjects"),
+    _aggregator("frames", int, "exact frames made, all subjects"),
+    _aggregator("unheard", int, "pose frames (exact and live) made but not sent, as no subscriber matched their "
+                "subject's pose key at the time (docs/protocol.md, \"Pose frame\")"),
     _aggregator("missed", int, "segment points Zenoh reported missed that the device's cache did not give when the aggregator asked again either",
                 metric="limbstream_aggregator_missed_points", counter=True),
     _aggregator("max_backlog", int, "most messages waiting at one tick since start"),

@@ -239,6 +239,12 @@ class PoseFrames:
                          self.q[i].astype(np.float32), self.joints[i].astype(np.float32), self.layout,
                          self.root[i].astype(np.float32), int(self.contacts[i]))
 
+    def rows(self, index: np.ndarray) -> PoseFrames:
+        """The frames ``index`` (K,) of these, in that order."""
+        assert self.root is not None and self.contacts is not None
+        return PoseFrames(self.seq[index], self.t_us[index], self.kind, self.flags[index], self.q[index],
+                          self.joints[index], self.layout, self.root[index], self.contacts[index])
+
     def encode(self) -> list[bytes]:
         """One payload per frame, as :func:`encode_pose` (built in one pass)."""
         layout = self.layout

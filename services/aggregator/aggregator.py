@@ -17,6 +17,7 @@ import socket
 import threading
 import time
 
+import numpy as np
 import zenoh
 import zenoh.ext as zext
 
@@ -47,6 +48,11 @@ devices at once."""
 ALIVE_WAIT_S = 5.0
 """How long opening waits, at most, for the router's answer of the liveliness tokens present, s."""
 
+MATCH_WAIT_S = 2.0
+"""Frames on a key whose publisher was declared less than this ago are sent whether or not a
+subscriber is known to match: the router tells a new publisher of its subscribers within
+milliseconds, but a restarted aggregator's first frames (its devices' history) go out at once."""
+
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
 
@@ -66,6 +72,10 @@ class Aggregator:
         self._calibrating: list = []  # (query, CalibrationRequest) under way
         self._calibrate_qs: list = []
         self._pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (key expression, zconfig.QOS kind)
+        self._matching: list = []  # a matching listener per publisher of frames, kept while it is
+        self._heard: set[str] = set()  # the frame keys some subscriber matches now (set by those listeners)
+        self._asking: dict[str, float] = {}  # per frame key: until when it is sent unheard (MATCH_WAIT_S), monotonic s
+        self._pose_keys: list[str] = []  # each subject's pose key, in the order of ``subjects``
         self._pose_pubs: dict[tuple[str, str], zenoh.Publisher] = {}  # by (subject, zconfig.QOS kind)
         self._config_replies: list = []
         self.history = None if session is None else HistoryQueries(session, self.fusion, settings.history)
@@ -75,7 +85,7 @@ class Aggregator:
         self.bad_keys = self.intake.bad_keys
         self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
         if settings.joint_angles:
-            self.frame_stages.append(JointStage(self.fusion, live=settings.live_rate > 0))
+            self.frame_stages.append(JointStage(self.fusion, live=settings.live_rate > 0, heard=self.heard))
         self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
         self._truth_subs: list = []  # subjects' truth taps (per-device ones: _raw_subs)
@@ -140,6 +150,9 @@ class Aggregator:
         if self._time_service is not None:
             self._time_service.undeclare()
             self._time_querier.undeclare()
+        for listener in self._matching:
+            listener.undeclare()
+        self._matching = []
         for pub in self._pubs.values():
             pub.undeclare()
 
@@ -297,11 +310,27 @@ class Aggregator:
 
     def _publish(self, subject: str, payload: bytes) -> None:
         """An encoded pose frame of ``subject``: exact and live frames share the key, not the QoS."""
-        kind = "pose_live" if payload[_POSE_KIND_BYTE] == wire.KIND_LIVE else "pose_exact"
+        self._pose_publisher(subject, "pose_live" if payload[_POSE_KIND_BYTE] == wire.KIND_LIVE else "pose_exact").put(payload)
+
+    def _pose_publisher(self, subject: str, kind: str) -> zenoh.Publisher:
+        """The publisher of ``subject``'s pose frames of ``kind`` (``pose_exact``, ``pose_live``),
+        declared on first use (with a matching listener: :meth:`heard`)."""
         pub = self._pose_pubs.get((subject, kind))
         if pub is None:
-            pub = self._pose_pubs[subject, kind] = self._publisher(wire.pose_key(subject), kind)
-        pub.put(payload)
+            pub = self._pose_pubs[subject, kind] = self._publisher(wire.pose_key(subject), kind, listen=True)
+        return pub
+
+    def heard(self, key: str, kind: str) -> bool:
+        """Whether a subscriber matches the frames' ``key`` now (its publisher of ``kind`` declared
+        with a matching listener on first ask), or may: within MATCH_WAIT_S of that, before the
+        router's answer is sure to be in; always, without a session. Frames no subscriber matches
+        are made (roots, scores and facing go on) but not encoded or sent (docs/protocol.md,
+        "Pose frame")."""
+        if self.session is None or key in self._heard:
+            return True
+        if (key, kind) not in self._pubs:
+            self._publisher(key, kind, listen=True)
+        return time.monotonic() < self._asking[key]
 
     def _put(self, key: str, kind: str, payload: bytes) -> None:
         """A frame stage's message (no session: an aggregator fed by hand, whose caller takes
@@ -312,11 +341,18 @@ class Aggregator:
     def _publish_stats(self, subject: str, payload: bytes) -> None:
         self._publisher(wire.stats_key(subject), "stats").put(payload)
 
-    def _publisher(self, key: str, kind: str) -> zenoh.Publisher:
-        """The publisher of ``key`` for messages of ``kind`` (zconfig.QOS), declared on first use."""
+    def _publisher(self, key: str, kind: str, listen: bool = False) -> zenoh.Publisher:
+        """The publisher of ``key`` for messages of ``kind`` (zconfig.QOS), declared on first use;
+        ``listen``: with a matching listener that keeps ``key`` in ``_heard`` while a subscriber
+        matches it (called on a Zenoh thread, at once if one does: a set's add and discard only)."""
         pub = self._pubs.get((key, kind))
         if pub is None:
             pub = self._pubs[key, kind] = self.session.declare_publisher(key, **zconfig.publisher_options(kind))
+            if listen:
+                heard = self._heard
+                self._asking.setdefault(key, time.monotonic() + MATCH_WAIT_S)
+                self._matching.append(pub.declare_matching_listener(
+                    lambda status: heard.add(key) if status.matching else heard.discard(key)))
         return pub
 
     def advance(self, live: bool, prune: bool = True, now: float | None = None, wall: float | None = None) -> int:
@@ -339,8 +375,19 @@ class Aggregator:
             for key, kind, payload in stage(batch):
                 self._put(key, kind, payload)
         names = list(self.subjects)
+        keys = self._pose_keys
+        keys += [wire.pose_key(name) for name in names[len(keys):]]
         for group in batch.exact + batch.live:  # one batch per layout and kind
-            for i, payload in zip(group.owner.tolist(), group.frames.encode()):
+            kind = "pose_live" if group.frames.kind == wire.KIND_LIVE else "pose_exact"
+            owners = group.owner.tolist()
+            heard = [self.heard(keys[i], kind) for i in owners]
+            if not all(heard):
+                rows = np.flatnonzero(heard)
+                self.loop.unheard += len(owners) - len(rows)
+                owners, frames = [owners[r] for r in rows], group.frames.rows(rows)
+            else:
+                frames = group.frames
+            for i, payload in zip(owners, frames.encode()):
                 self._publish(names[i], payload)
 
     def serve_calibrations(self) -> None:

@@ -59,6 +59,7 @@ class AggregatorCounters:
     points: int = 0
     raw_batches: int = 0
     frames: int = 0
+    unheard: int = 0         # pose frames made but not sent: no subscriber matched
     missed: int = 0          # reported by Zenoh's miss detection (not recoverable)
     max_backlog: int = 0     # most messages drained in one tick
     recent_backlog: int = 0  # most messages drained in one tick since the last stats message
