@@ -4,16 +4,13 @@
 (docs/protocol.md, "Live frames")."""
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
 import pytest
-from support.stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import aggregator_in_thread, stack, wait_until  # noqa: F401  (stack is a fixture)
 
-from limbstream import wire, zconfig
-from limbstream.services.aggregator.aggregator import Aggregator
-from limbstream.services.aggregator.settings import AggregatorSettings
+from limbstream import wire
 from limbstream.services.outputs.subscription import Subscription
 
 pytestmark = pytest.mark.e2e
@@ -23,18 +20,9 @@ STALLS = 3
 
 
 def test_live_frames_keep_time_order_and_missed_deadlines_are_counted(stack):  # noqa: F811
-    stack.router()
-    settings = zconfig.ZenohSettings(connect=(stack.endpoint,))
-    session = zconfig.open_session(settings)
-    agg = Aggregator(session, AggregatorSettings(subjects=("s01",)))
-    agg.open()
-    stop = threading.Event()
-    loop = threading.Thread(target=agg.run, args=(stop,), daemon=True)
     frames: list[wire.PoseFrame] = []
     stats: list[dict] = []
-    try:
-        loop.start()
-        wait_for_subscribers(stack.endpoint, [wire.seg_key("s01", "hip")], "the aggregator", on_fail=stack.logs)
+    with aggregator_in_thread(stack) as (agg, settings):
         stack.emulator(1)
         with Subscription(settings, "s01", ("pose", "stats")) as sub:
             def take() -> None:
@@ -51,11 +39,6 @@ def test_live_frames_keep_time_order_and_missed_deadlines_are_counted(stack):  #
                 wait_until(lambda n=want: take() or len(frames) >= n, 30, "25 more live frames", on_fail=stack.logs)
             counted = len(stats)
             wait_until(lambda: take() or len(stats) > counted, 10, "a stats message after the stalls")
-    finally:
-        stop.set()
-        loop.join(10)
-        agg.close()
-        session.close()
     seq = np.array([f.seq for f in frames], np.int64)
     t = np.array([f.t_us for f in frames], np.int64)
     assert (np.diff(seq) == 1).all(), "seq goes up by one per frame (none lost on loopback)"

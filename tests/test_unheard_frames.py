@@ -4,34 +4,21 @@ its pose frames and joint angles from then on, every frame in turn, and none is 
 while it listens; once it leaves, they are counted again (docs/protocol.md, "Pose frame")."""
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
-from support.stack import stack, wait_for_subscribers, wait_until  # noqa: F401  (stack is a fixture)
+from support.stack import aggregator_in_thread, stack, wait_until  # noqa: F401  (stack is a fixture)
 
-from limbstream import wire, zconfig
-from limbstream.services.aggregator.aggregator import Aggregator
-from limbstream.services.aggregator.settings import AggregatorSettings
+from limbstream import wire
 from limbstream.services.outputs.subscription import Subscription
 
 pytestmark = pytest.mark.e2e
 
 
 def test_frames_are_sent_only_while_a_subscriber_hears_them(stack):  # noqa: F811
-    stack.router()
-    settings = zconfig.ZenohSettings(connect=(stack.endpoint,))
-    session = zconfig.open_session(settings)
-    agg = Aggregator(session, AggregatorSettings(subjects=("s01",)))
-    agg.open()
-    stop = threading.Event()
-    loop = threading.Thread(target=agg.run, args=(stop,), daemon=True)
     live: list[wire.PoseFrame] = []
     angles: list = []
     stats: list[dict] = []
-    try:
-        loop.start()
-        wait_for_subscribers(stack.endpoint, [wire.seg_key("s01", "hip")], "the aggregator", on_fail=stack.logs)
+    with aggregator_in_thread(stack) as (agg, settings):
         stack.emulator(1)
         wait_until(lambda: agg.loop.unheard >= 100, 60, "100 frames of s01 made with no subscriber", on_fail=stack.logs)
         assert agg.loop.frames > 0
@@ -55,8 +42,3 @@ def test_frames_are_sent_only_while_a_subscriber_hears_them(stack):  # noqa: F81
         assert seq[0] > 0, "seq counts the frames made before anyone listened"
         after = agg.loop.unheard
         wait_until(lambda: agg.loop.unheard > after + 50, 30, "frames counted unheard again once the client left")
-    finally:
-        stop.set()
-        loop.join(10)
-        agg.close()
-        session.close()

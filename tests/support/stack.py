@@ -19,7 +19,9 @@ SIGKILL after a grace period (no orphans).
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import threading
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -177,3 +179,29 @@ def watch(stack):  # noqa: F811 - the fixture above
     w = StatsWatch(stack.endpoint)
     yield w
     w.close()
+
+
+@contextlib.contextmanager
+def aggregator_in_thread(stack: Stack, subjects: tuple[str, ...] = ("s01",)):
+    """Start ``stack``'s router and an aggregator of ``subjects`` running in a thread of this
+    process (its loop reachable: its lock, its counters), connected to it; yields (the aggregator,
+    the Zenoh settings of a client of that router) once it subscribes. Stopped and closed after."""
+    from limbstream.services.aggregator.aggregator import Aggregator
+    from limbstream.services.aggregator.settings import AggregatorSettings
+
+    stack.router()
+    settings = zconfig.ZenohSettings(connect=(stack.endpoint,))
+    session = zconfig.open_session(settings)
+    agg = Aggregator(session, AggregatorSettings(subjects=subjects))
+    agg.open()
+    stop = threading.Event()
+    loop = threading.Thread(target=agg.run, args=(stop,), daemon=True)
+    try:
+        loop.start()
+        wait_for_subscribers(stack.endpoint, [wire.seg_key(subjects[0], "hip")], "the aggregator", on_fail=stack.logs)
+        yield agg, settings
+    finally:
+        stop.set()
+        loop.join(10)
+        agg.close()
+        session.close()
