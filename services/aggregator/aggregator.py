@@ -53,6 +53,8 @@ MATCH_WAIT_S = 2.0
 subscriber is known to match: the router tells a new publisher of its subscribers within
 milliseconds, but a restarted aggregator's first frames (its devices' history) go out at once."""
 
+_HEARD_KINDS = frozenset({"pose_exact", "pose_live", wire.ANGLES})
+"""The kinds (zconfig.QOS) of messages sent only while a subscriber hears them (:meth:`Aggregator.heard`)."""
 _POSE_KIND_BYTE = wire.POSE_DTYPE.fields["kind"][1]  # offset of a pose frame's kind in its payload
 
 
@@ -317,7 +319,7 @@ class Aggregator:
         declared on first use (with a matching listener: :meth:`heard`)."""
         pub = self._pose_pubs.get((subject, kind))
         if pub is None:
-            pub = self._pose_pubs[subject, kind] = self._publisher(wire.pose_key(subject), kind, listen=True)
+            pub = self._pose_pubs[subject, kind] = self._publisher(wire.pose_key(subject), kind)
         return pub
 
     def heard(self, key: str, kind: str) -> bool:
@@ -328,8 +330,7 @@ class Aggregator:
         "Pose frame")."""
         if self.session is None or key in self._heard:
             return True
-        if (key, kind) not in self._pubs:
-            self._publisher(key, kind, listen=True)
+        self._publisher(key, kind)
         return time.monotonic() < self._asking[key]
 
     def _put(self, key: str, kind: str, payload: bytes) -> None:
@@ -341,14 +342,15 @@ class Aggregator:
     def _publish_stats(self, subject: str, payload: bytes) -> None:
         self._publisher(wire.stats_key(subject), "stats").put(payload)
 
-    def _publisher(self, key: str, kind: str, listen: bool = False) -> zenoh.Publisher:
+    def _publisher(self, key: str, kind: str) -> zenoh.Publisher:
         """The publisher of ``key`` for messages of ``kind`` (zconfig.QOS), declared on first use;
-        ``listen``: with a matching listener that keeps ``key`` in ``_heard`` while a subscriber
-        matches it (called on a Zenoh thread, at once if one does: a set's add and discard only)."""
+        one of frames (_HEARD_KINDS) with a matching listener that keeps ``key`` in ``_heard`` while
+        a subscriber matches it (called on a Zenoh thread, at once if one does: a set's add and
+        discard only)."""
         pub = self._pubs.get((key, kind))
         if pub is None:
             pub = self._pubs[key, kind] = self.session.declare_publisher(key, **zconfig.publisher_options(kind))
-            if listen:
+            if kind in _HEARD_KINDS:
                 heard = self._heard
                 self._asking.setdefault(key, time.monotonic() + MATCH_WAIT_S)
                 self._matching.append(pub.declare_matching_listener(
