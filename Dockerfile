@@ -16,7 +16,7 @@ COPY pyproject.toml setup.py README.md LICENSE ./
 COPY firmware_c/include firmware_c/include
 COPY firmware_c/src firmware_c/src
 COPY firmware_c/host firmware_c/host
-COPY firmware_c/tools/vqf_cpp.py firmware_c/tools/vqf_cpp.py
+COPY firmware_c/vqf firmware_c/vqf
 COPY limbstream limbstream
 COPY device_emulator device_emulator
 COPY services services

@@ -13,7 +13,7 @@ PYTHON ?= .venv/bin/python
 VENV := .venv/bin/python
 endif
 PYTEST_ARGS ?=
-SOURCES := pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/src/*.hpp firmware_c/include/*.h firmware_c/host/*)
+SOURCES := pyproject.toml setup.py $(wildcard firmware_c/src/*.c firmware_c/src/*.cpp firmware_c/src/*.h firmware_c/src/*.hpp firmware_c/include/*.h firmware_c/host/* firmware_c/vqf/*)
 # Each stamp is newer than the sources once its install is done; the test install holds the run
 # install, so it renews both stamps (make run after make test installs nothing).
 STAMP := build/.installed

@@ -14,27 +14,24 @@ into a static library (build_clib, with C++ flags) that setuptools links into th
 the elementary functions it calls from firmware_c/src/lsw_math.hpp (not libm: the firmware runs
 the same source).
 """
-import sys
 from glob import glob
-from pathlib import Path
 
 from setuptools import Extension, find_packages, setup
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "firmware_c" / "tools"))
-from vqf_cpp import vqf_cpp_dir  # noqa: E402  (firmware_c/tools: shared with the M4 build)
 
 KERNEL_CFLAGS = ["-std=c99", "-O3", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra"]
 VQF_CXXFLAGS = ["-std=c++17", "-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-exceptions", "-fno-rtti",
                 "-Wall"]
 """The M4 build's (firmware_c/Makefile VQF_CXXFLAGS): no FMA, no asserts. The host library holds VQF in
 both precisions (LSW_VQF_BOTH), chosen per device at run time; the firmware one."""
-VQF_DIR = vqf_cpp_dir()
+VQF_DIR = "firmware_c/vqf"
+"""VQF's C++ source, from the `vqf` package (docs/kernel.md, "VQF on the device")."""
 VQF_LIBRARY = ("lsw_vqf", {
     "sources": ["firmware_c/src/lsw_vqf.cpp"],  # includes VQF_DIR/vqf.cpp
     "include_dirs": ["firmware_c/include", VQF_DIR],
     "macros": [("VQF_SINGLE_PRECISION", None), ("NDEBUG", None), ("LSW_VQF_BOTH", "1")],
     "cflags": VQF_CXXFLAGS,
-    "obj_deps": {"": sorted(glob("firmware_c/include/*.h")) + ["firmware_c/src/lsw_math.hpp"] + [str(Path(VQF_DIR) / name) for name in ("vqf.cpp", "vqf.hpp")]},
+    "obj_deps": {"": sorted(glob("firmware_c/include/*.h")) + ["firmware_c/src/lsw_ff.hpp", "firmware_c/src/lsw_math.hpp"] + [f"{VQF_DIR}/{name}" for name in ("vqf.cpp", "vqf.hpp")]},
 })
 
 PARTS = ("services", "device_emulator", "dashboard")

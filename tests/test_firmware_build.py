@@ -1,6 +1,7 @@
-"""The firmware's build takes VQF's C++ from the Python it is given (``PYTHON``: the one that runs
-limbstream), not from whatever ``python3`` is first on PATH or a ``.venv`` beside the sources; a
-Python that cannot import ``vqf`` stops it with one clear sentence."""
+"""The firmware's build runs tools in the Python it is given (``PYTHON``: the one that runs
+limbstream), not whatever ``python3`` is first on PATH or a ``.venv`` beside the sources; a Python
+that cannot import NumPy stops it with one clear sentence. VQF's C++ is in firmware_c/vqf: no
+installed package provides source."""
 from __future__ import annotations
 
 import os
@@ -19,7 +20,7 @@ pytestmark = pytest.mark.qemu
 @pytest.fixture
 def checkout(tmp_path):
     """firmware_c and the wire contract it reads, in a folder with no .venv, and a PATH whose
-    python3 cannot import vqf (a system Python, or a venv not activated)."""
+    python3 has no site-packages (a system Python, or a venv not activated)."""
     require_tools("arm-none-eabi-gcc", "arm-none-eabi-g++", "make")
     shutil.copytree(FIRMWARE, tmp_path / "firmware_c", ignore=shutil.ignore_patterns("build*"))
     (tmp_path / "limbstream" / "wire").mkdir(parents=True)
@@ -27,7 +28,7 @@ def checkout(tmp_path):
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     fake = bin_dir / "python3"
-    fake.write_text(f"#!/bin/sh\nexec {sys.executable} -I -S \"$@\"\n")  # no site-packages: no vqf
+    fake.write_text(f"#!/bin/sh\nexec {sys.executable} -I -S \"$@\"\n")  # no site-packages
     fake.chmod(0o755)
     env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
     return tmp_path / "firmware_c", env
@@ -45,9 +46,9 @@ def test_the_build_uses_the_python_it_is_given(checkout):
     assert (folder / "build" / "device.elf").exists()
 
 
-def test_a_python_without_vqf_is_named(checkout):
+def test_a_python_without_numpy_is_named(checkout):
     folder, env = checkout
     done = make_device(folder, env)
     assert done.returncode != 0
-    assert "python3 cannot import vqf (VQF's C++ sources): give PYTHON=the Python that runs limbstream" in done.stderr
-    assert "No rule to make target" not in done.stderr
+    assert "python3 cannot import numpy (tools/vectors.py): give PYTHON=the Python that runs limbstream" in done.stderr
+    assert "Traceback" not in done.stderr

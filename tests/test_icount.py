@@ -26,10 +26,11 @@ FASTSW_LIVE_MAX_INSTRUCTIONS = 176
 DEVICE_MAX_INSTRUCTIONS = 7704
 """Reached maximum of the device firmware per SAMPLE frame, live mode (link decode, fastSW,
 the point's encoding with its float64 body rate, framing)."""
-VQF_MAX_INSTRUCTIONS = 19768
-"""Reached maximum of VQF 6D per raw sample (updateGyr + updateAcc, VQF's own double-precision
-filter states in libgcc's soft-float; the firmware's default precision, fastsw_config.h)."""
-IMU_MAX_INSTRUCTIONS = 80011
+VQF_MAX_INSTRUCTIONS = 2838
+"""Reached maximum of VQF 6D per raw sample (updateGyr + updateAcc) in the firmware's default
+precision (fastsw_config.h), single: float filter states, the accelerometer low-pass filter's in
+float-float (the aim: 3,000)."""
+IMU_MAX_INSTRUCTIONS = 12416
 """Reached maximum of the raw-sample pipeline per device sample (200 Hz raw, 50 Hz device: the four
 VQF updates since the last device sample, the checks, fastSW live)."""
 LIVE_BRANCHES = ("live_first", "live_normal", "live_close", "live_ssr_break", "live_max_len_break",

@@ -25,15 +25,16 @@
 #endif
 
 /*
- * VQF's precision (src/lsw_vqf.cpp, lsw_vqf.h): 1, double (VQF's own: its low-pass filter states,
- * their coefficients and its 3x3 inverse in double, soft-float on a Cortex-M4), or 0, single (those
- * in float too: a tenth of the instructions, but up to 0.21 deg more error against optical truth
- * on BROAD: docs/kernel.md, "VQF's precision"). The firmware is built with this one only
+ * VQF's precision (src/lsw_vqf.cpp, lsw_vqf.h): 0, single, the default (its low-pass filter states,
+ * their coefficients and its 3x3 inverse in float, but the accelerometer low-pass filter's in
+ * float-float: a seventh of double's instructions on a Cortex-M4, within 0.01 deg of double's error
+ * against optical truth on every BROAD trial: docs/kernel.md, "VQF's precision"), or 1, double
+ * (VQF's own: those in double, soft-float on a Cortex-M4). The firmware is built with this one only
  * (firmware_c/Makefile VQF_PRECISION); the host library with both (LSW_VQF_BOTH 1, setup.py),
  * chosen per device at run time (LswImuSettings.vqf_precision), this one by default.
  */
 #ifndef LSW_VQF_DEFAULT_DOUBLE
-#define LSW_VQF_DEFAULT_DOUBLE 1
+#define LSW_VQF_DEFAULT_DOUBLE 0
 #endif
 #ifndef LSW_VQF_BOTH
 #define LSW_VQF_BOTH 0

@@ -3,11 +3,11 @@
  *
  * D. Laidig, T. Seel, "VQF: Highly Accurate IMU Orientation Estimation with Bias Estimation and
  * Magnetic Disturbance Rejection", Information Fusion 91, 2023. Its C++ (class VQF, MIT licence)
- * comes from the `vqf` Python package's own sources, compiled unchanged with
- * -DVQF_SINGLE_PRECISION (floats in and out) and -ffp-contract=off on the host and on the
- * Cortex-M4 alike, in one or both of two precisions (LSW_VQF_SINGLE: VQF's low-pass filter states,
- * their coefficients and its 3x3 inverse in float too; LSW_VQF_DOUBLE: those in double, as VQF's
- * authors built it). The host library holds both, the firmware one (fastsw_config.h). The
+ * is the `vqf` Python package's own source with its filters' precision made a type (firmware_c/vqf),
+ * compiled with -DVQF_SINGLE_PRECISION (floats in and out) and -ffp-contract=off on the host and on
+ * the Cortex-M4 alike, in one or both of two precisions (LSW_VQF_SINGLE: VQF's low-pass filter
+ * states, their coefficients and its 3x3 inverse in float too, the accelerometer low-pass filter's
+ * in float-float; LSW_VQF_DOUBLE: those in double, as VQF's authors built it). The host library holds both, the firmware one (fastsw_config.h). The
  * elementary functions VQF calls are src/lsw_math.hpp's on every target: the same bits.
  *
  * The filter lives in caller-owned storage (LswVqf): VQF holds its parameters, coefficients and
@@ -27,7 +27,7 @@ extern "C" {
 #define LSW_VQF_STORAGE 856u
 
 /** VQF's precisions (lsw_vqf_init). */
-#define LSW_VQF_SINGLE 0u /**< filter states, coefficients and 3x3 inverse in float */
+#define LSW_VQF_SINGLE 0u /**< filter states, coefficients and 3x3 inverse in float (acc low-pass: float-float) */
 #define LSW_VQF_DOUBLE 1u /**< those in double (VQF's own), the rest float */
 
 /** Caller-owned storage of one filter. Private. */

@@ -1,12 +1,13 @@
 /*
  * lsw_vqf.cpp - the C API of lsw_vqf.h over VQF's own C++ class.
  *
- * VQF's source (vqf.cpp and vqf.hpp from the `vqf` package, unchanged) is compiled inside this
- * file, once per precision it is built in (fastsw_config.h: LSW_VQF_BOTH, LSW_VQF_DEFAULT_DOUBLE),
- * each in a namespace of its own:
- *   lsw_vqf_single  VQF with its low-pass filter states, their coefficients and its 3x3 inverse in
- *                   float (`double` defined as `float` around VQF's code only): no soft-float double
- *                   arithmetic per raw sample on a Cortex-M4;
+ * VQF's source (firmware_c/vqf: vqf.cpp and vqf.hpp of the `vqf` package, with the precision of its
+ * filters made a type; its README says what changed) is compiled inside this file, once per
+ * precision it is built in (fastsw_config.h: LSW_VQF_BOTH, LSW_VQF_DEFAULT_DOUBLE), each in a
+ * namespace of its own:
+ *   lsw_vqf_single  VQF's low-pass filter states, their coefficients and its 3x3 inverse in float,
+ *                   but for the accelerometer low-pass filter's, in float-float (lsw_ff.hpp): no
+ *                   soft-float double arithmetic per raw sample on a Cortex-M4;
  *   lsw_vqf_double  VQF as its authors built it (those in double, the rest float).
  * In both, VQF's `std::` names are lsw_math_std's (lsw_math.hpp): sin, cos, tan, exp, asin, acos
  * and atan2 from the same source on every target, so the host library and the firmware compute
@@ -23,6 +24,7 @@
 #include <new>
 
 #include "fastsw_config.h"
+#include "lsw_ff.hpp"
 #include "lsw_math.hpp"
 
 #ifndef VQF_SINGLE_PRECISION
@@ -35,11 +37,12 @@
 #if LSW_VQF_HAS_SINGLE
 namespace lsw_vqf_single {
 namespace std = ::lsw_math_std;
-/* every standard header VQF includes is in above, so only VQF's own code sees this */
-#define double float
+#define VQF_FILTER_REAL float
+#define VQF_ACC_LP_REAL lsw_ff
 #undef VQF_HPP
 #include "vqf.cpp"
-#undef double
+#undef VQF_FILTER_REAL
+#undef VQF_ACC_LP_REAL
 static_assert(sizeof(VQF) <= LSW_VQF_STORAGE, "LSW_VQF_STORAGE is too small for VQF");
 static_assert(alignof(VQF) <= alignof(LswVqf), "LswVqf is not aligned for VQF");
 } /* namespace lsw_vqf_single */

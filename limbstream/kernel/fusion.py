@@ -36,9 +36,10 @@ REST_TH_ACC: float = round(float(_DEFAULTS.rest_th_acc), 6)
 """The device's VQF rest threshold on the specific force, m/s^2 (VQF's own)."""
 VQF_PRECISIONS: tuple[str, ...] = ("single", "double")
 """VQF's precisions (lsw_vqf.h): its low-pass filter states, their coefficients and its 3x3 inverse in
-float (single) or in double (VQF's own); the host library holds both, the firmware one."""
+float, the accelerometer low-pass filter's in float-float (single), or all in double (VQF's own); the
+host library holds both, the firmware one."""
 DEFAULT_VQF_PRECISION: str = VQF_PRECISIONS[int(_DEFAULTS.vqf_precision)]
-"""The firmware's precision (LSW_VQF_DEFAULT_DOUBLE, fastsw_config.h): double."""
+"""The firmware's precision (LSW_VQF_DEFAULT_DOUBLE, fastsw_config.h): single."""
 VQF_REST_TH_GYR_DPS = 2.0
 """VQF's own default rest threshold on the angular rate, deg/s (``VQFParams.restThGyr``)."""
 
