@@ -5,7 +5,8 @@
 
 BROAD's error: the angle of estimate * truth^-1 (earth frame), RMS over the movement phases where
 the markers were seen. Prints one row per trial, the largest difference, and the host cost of
-:func:`limbstream.kernel.fusion.fuse` and of :class:`limbstream.kernel.ImuBank` per raw sample.
+:func:`limbstream.kernel.fusion.fuse` and of :class:`limbstream.kernel.ImuBank` per raw sample, with VQF
+in each precision (the kernel's rows: the firmware's precision).
 """
 from __future__ import annotations
 
@@ -48,21 +49,35 @@ def accuracy(data: Path) -> None:
 
 
 def speed(data: Path) -> None:
+    """Host cost per raw sample of fusion.fuse (one device) and ImuBank.update_raw (2,000 devices),
+    VQF in each precision, in turns (best of five rounds each)."""
     d = scipy.io.loadmat(sorted((data / "broad").glob("*.mat"))[0], squeeze_me=True)
     g, a = d["imu_gyr"], d["imu_acc"]
     rate = float(d["sampling_rate"])
-    best = min(_timed(lambda: fusion.fuse(g, a, rate_hz=rate)) for _ in range(5))
-    print(f"fuse (6D), one device: {best / len(g) * 1e9:.0f} ns per raw sample")
     count, steps = 2000, 50
-    bank = fusion.ImuBank(count, rate_hz=200.0, threshold=9e-4, max_len=25, live_bound_deg=5.0)
     rows = np.arange(steps * count) % len(g)
     gyr, acc = g[rows].reshape(steps, count, 3), a[rows].reshape(steps, count, 3)
     ticks = np.zeros(count, np.int64)
-    start = time.perf_counter()
-    for s in range(steps):
-        bank.update_raw(ticks + s * 5000, gyr[s], acc[s])
-    spent = time.perf_counter() - start
-    print(f"ImuBank.update_raw, {count} devices: {spent / (steps * count) * 1e9:.0f} ns per device and raw sample")
+
+    def bank_run(precision: str) -> float:
+        bank = fusion.ImuBank(count, rate_hz=200.0, threshold=9e-4, max_len=25, live_bound_deg=5.0,
+                              vqf_precision=precision)
+        start = time.perf_counter()
+        for s in range(steps):
+            bank.update_raw(ticks + s * 5000, gyr[s], acc[s])
+        return time.perf_counter() - start
+
+    fuse_best = {p: float("inf") for p in fusion.VQF_PRECISIONS}
+    bank_best = dict(fuse_best)
+    for _ in range(5):
+        for p in fusion.VQF_PRECISIONS:
+            fuse_best[p] = min(fuse_best[p], _timed(lambda: fusion.fuse(g, a, rate_hz=rate, vqf_precision=p)))
+            bank_best[p] = min(bank_best[p], bank_run(p))
+    print("\n| host, ns per raw sample | " + " | ".join(fusion.VQF_PRECISIONS) + " |")
+    print("|---|" + "---:|" * len(fusion.VQF_PRECISIONS))
+    print("| fuse (6D), one device | " + " | ".join(f"{fuse_best[p] / len(g) * 1e9:.0f}" for p in fusion.VQF_PRECISIONS) + " |")
+    print(f"| ImuBank.update_raw, {count} devices | "
+          + " | ".join(f"{bank_best[p] / (steps * count) * 1e9:.0f}" for p in fusion.VQF_PRECISIONS) + " |")
 
 
 def _timed(call) -> float:

@@ -44,6 +44,25 @@ def test_broad_9d_equals_online_vqf(name):
     assert np.isfinite(ours).all() and np.allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-5)
 
 
+@pytest.mark.parametrize("name", ["04_undisturbed_slow_rotation_with_breaks_A.mat",
+                                  "08_undisturbed_fast_rotation_with_breaks_A.mat"])
+def test_single_precision_errs_as_double_does(name):
+    """The firmware's precision, single, against double on the two trials where a float state of
+    the accelerometer's low-pass filter lost 0.05 and 0.21 deg (9D): within 0.05 deg of double's
+    total error, 9D and 6D (heading aligned at the start), and its own inclination as close."""
+    from limbstream.evaluation.fusion import fusion_error
+
+    assert fusion.DEFAULT_VQF_PRECISION == "single"
+    d = load_broad(require_data(f"broad/{name}"))
+    t = np.arange(len(d["imu_gyr"])) / d["rate"]
+    for mag in (d["imu_mag"], None):
+        single, double = (fusion_error(fusion.fuse(d["imu_gyr"], d["imu_acc"], mag, rate_hz=d["rate"], vqf_precision=p),
+                                       d["opt_quat"], t, d["movement"], align_heading=mag is None)
+                          for p in ("single", "double"))
+        assert abs(single.total_deg - double.total_deg) <= 0.05, (name, mag is not None, single, double)
+        assert abs(single.inclination_deg - double.inclination_deg) <= 0.01, (name, mag is not None, single, double)
+
+
 def test_filter_settings_and_start_heading_are_vqfs():
     """The rest threshold and start heading reach VQF as its own parameter and state would: the
     kernel's 6D orientation follows online VQF given restThGyr and its gyroscope quaternion."""
