@@ -71,7 +71,7 @@ def speed(data: Path) -> None:
     bank_best = dict(fuse_best)
     for _ in range(5):
         for p in fusion.VQF_PRECISIONS:
-            fuse_best[p] = min(fuse_best[p], _timed(lambda: fusion.fuse(g, a, rate_hz=rate, vqf_precision=p)))
+            fuse_best[p] = min(fuse_best[p], _timed(lambda p=p: fusion.fuse(g, a, rate_hz=rate, vqf_precision=p)))
             bank_best[p] = min(bank_best[p], bank_run(p))
     print("\n| host, ns per raw sample | " + " | ".join(fusion.VQF_PRECISIONS) + " |")
     print("|---|" + "---:|" * len(fusion.VQF_PRECISIONS))
