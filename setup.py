@@ -8,8 +8,8 @@ The library has no Python API of its own: limbstream.kernel loads it with ctypes
 The compile flags are the ones the Cortex-M4 build uses for its arithmetic
 (-ffp-contract=off), so both targets compute the same segment points.
 
-VQF, the orientation filter, is C++ from the `vqf` package (a build requirement, pinned in
-pyproject.toml): its vqf.cpp, as it ships, compiled inside the C wrapper firmware_c/src/lsw_vqf.cpp
+VQF, the orientation filter, is C++ from the `vqf` package, kept in firmware_c/vqf with its
+filters' precision made a type (its README): its vqf.cpp, compiled inside the C wrapper firmware_c/src/lsw_vqf.cpp
 into a static library (build_clib, with C++ flags) that setuptools links into the extension, with
 the elementary functions it calls from firmware_c/src/lsw_math.hpp (not libm: the firmware runs
 the same source).
