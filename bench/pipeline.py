@@ -84,7 +84,8 @@ SINK = """
 import sys, time, zenoh
 from limbstream import wire, zconfig
 s = zconfig.open_session(zconfig.ZenohSettings(connect=(sys.argv[1],)))
-subs = [s.declare_subscriber(k, zenoh.handlers.FifoChannel(1 << 16)) for k in (wire.device_selector("seg"), wire.device_selector("raw"))]
+subs = [s.declare_subscriber(k, zenoh.handlers.FifoChannel(1 << 16))
+        for k in (wire.device_selector("seg"), wire.device_selector("raw"), wire.subject_selector(wire.TRUTH))]
 print("ready", flush=True)
 while True:
     got = 0
@@ -97,7 +98,8 @@ while True:
 
 
 def start_sink(router: Router) -> Child:
-    """A subscriber process that takes every segment point and truth batch (so the router routes them)."""
+    """A subscriber process that takes every segment point and truth message, per device or per
+    subject (so the router routes them)."""
     sink = router.start("sink", router.endpoint, command=(sys.executable, "-c", SINK))
     wait_until(lambda: "ready" in sink.tail(), 30, "the sink to subscribe")
     return sink
@@ -117,7 +119,9 @@ def bench_emulator(counts: list[int], seconds: float, truth: bool, bounds: list[
             session = client(router.endpoint)
             feeds = {name: GeneratorFeed(i + 1, 50.0) for i, name in enumerate(subject_names(n // 10))}
             config = wire.DeviceConfig(threshold=threshold, live_bound_deg=bound).validate()
-            emulator = Emulator(session, feeds, EmulatorSettings(HostSettings(truth=truth, config=config)))
+            # the truth tap as `emulate` sends it: one message per subject and batch
+            emulator = Emulator(session, feeds, EmulatorSettings(HostSettings(truth=truth, truth_by_subject=True,
+                                                                              config=config)))
             emulator.declare()
             stop = threading.Event()
             timer = threading.Timer(seconds, stop.set)
