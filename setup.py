@@ -9,15 +9,14 @@ The compile flags are the ones the Cortex-M4 build uses for its arithmetic
 (-ffp-contract=off), so both targets compute the same segment points.
 
 VQF, the orientation filter, is C++ from the `vqf` package, kept in firmware_c/vqf with its
-filters' precision made a type (its README): its vqf.cpp, compiled inside the C wrapper firmware_c/src/lsw_vqf.cpp
-into a static library (build_clib, with C++ flags) that setuptools links into the extension, with
-the elementary functions it calls from firmware_c/src/lsw_math.hpp (not libm: the firmware runs
-the same source).
+filters' precision made a type (its README): its vqf.cpp, compiled inside the C wrapper
+firmware_c/src/lsw_vqf.cpp into a static library (build_clib, with C++ flags) that setuptools
+links into the extension, with the elementary functions it calls from firmware_c/src/lsw_math.hpp
+(not libm: the firmware runs the same source).
 """
 from glob import glob
 
 from setuptools import Extension, find_packages, setup
-
 
 KERNEL_CFLAGS = ["-std=c99", "-O3", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra"]
 VQF_CXXFLAGS = ["-std=c++17", "-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-exceptions", "-fno-rtti",
@@ -25,7 +24,7 @@ VQF_CXXFLAGS = ["-std=c++17", "-O3", "-ffp-contract=off", "-fno-math-errno", "-f
 """The M4 build's (firmware_c/Makefile VQF_CXXFLAGS): no FMA, no asserts. The host library holds VQF in
 both precisions (LSW_VQF_BOTH), chosen per device at run time; the firmware one."""
 VQF_DIR = "firmware_c/vqf"
-"""VQF's C++ source, from the `vqf` package (docs/kernel.md, "VQF on the device")."""
+"""VQF's C++ source, from the `vqf` package (docs/kernel.md, "Where VQF comes from")."""
 VQF_LIBRARY = ("lsw_vqf", {
     "sources": ["firmware_c/src/lsw_vqf.cpp"],  # includes VQF_DIR/vqf.cpp
     "include_dirs": ["firmware_c/include", VQF_DIR],

@@ -7,8 +7,9 @@
  * compiled with -DVQF_SINGLE_PRECISION (floats in and out) and -ffp-contract=off on the host and on
  * the Cortex-M4 alike, in one or both of two precisions (LSW_VQF_SINGLE: VQF's low-pass filter
  * states, their coefficients and its 3x3 inverse in float too, the accelerometer low-pass filter's
- * in float-float; LSW_VQF_DOUBLE: those in double, as VQF's authors built it). The host library holds both, the firmware one (fastsw_config.h). The
- * elementary functions VQF calls are src/lsw_math.hpp's on every target: the same bits.
+ * in float-float; LSW_VQF_DOUBLE: those in double, as VQF's authors built it). The host library
+ * holds both, the firmware one (fastsw_config.h). The elementary functions VQF calls are
+ * src/lsw_math.hpp's on every target: the same bits.
  *
  * The filter lives in caller-owned storage (LswVqf): VQF holds its parameters, coefficients and
  * state as plain members and allocates nothing, so it is constructed in place there.

@@ -6,8 +6,9 @@
  *
  * The operations are the classic error-free transformations (Dekker 1971; Shewchuk 1997): every
  * step is an IEEE operation correctly rounded on every target, or an exact product error however
- * it is found (two_prod_err), so the host library and the firmware compute the same bits. Addition is the "sloppy" one: its error is below about 2^-44
- * of the larger operand, not of the result, which is what a filter's state needs.
+ * it is found (two_prod_err), so the host library and the firmware compute the same bits.
+ * Addition is the "sloppy" one: its error is below about 2^-44 of the larger operand, not of the
+ * result, which is what a filter's state needs. Only the operations VQF's filter code uses.
  */
 #ifndef LSW_FF_HPP
 #define LSW_FF_HPP
@@ -20,11 +21,10 @@ struct lsw_ff {
     lsw_ff() = default;
     constexpr lsw_ff(float h, float l) : hi(h), lo(l) {}
     constexpr lsw_ff(float x) : hi(x), lo(0.0f) {} /* implicit: mixed arithmetic widens floats */
-    constexpr lsw_ff(int x) : hi(static_cast<float>(x)), lo(0.0f) {}
+    constexpr lsw_ff(int x) : hi(static_cast<float>(x)), lo(0.0f) {} /* VQF's literals: C(0), C(1) */
     explicit lsw_ff(double x) : hi(static_cast<float>(x)), lo(static_cast<float>(x - static_cast<double>(hi))) {}
     /* the float nearest to hi + lo: hi, as every operation below leaves it */
     explicit operator float() const { return hi; }
-    explicit operator double() const { return static_cast<double>(hi) + static_cast<double>(lo); }
 };
 
 namespace lsw_ff_ops {
@@ -87,7 +87,6 @@ static inline lsw_ff operator*(lsw_ff a, float b)
 }
 
 static inline lsw_ff operator*(float a, lsw_ff b) { return b * a; }
-static inline lsw_ff operator*(int a, lsw_ff b) { return b * static_cast<float>(a); }
 
 static inline lsw_ff operator/(lsw_ff a, lsw_ff b)
 {
