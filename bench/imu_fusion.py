@@ -58,18 +58,9 @@ def run(clips: list, model: str, rate: float, sensors: SensorModel, params: dict
         for s, segment in enumerate(rec.segments):
             e = fusion_error(estimate[:, s], rec.truth[:, s], rec.t, rec.movement, align_heading=True)
             rows.append({"clip": motion.name, "segment": segment, "n": e.samples, "incl": e.inclination_deg,
-                         "heading": e.heading_deg, "drift": e.heading_drift_dpm, "saturated": saturated(part, rec.gyr[:, s], rec.acc[:, s])})
+                         "heading": e.heading_deg, "drift": e.heading_drift_dpm,
+                         "saturated": int(part.at_full_scale(rec.gyr[:, s], rec.acc[:, s]).sum())})
     return rows
-
-
-def saturated(part: imu.ImuModel, gyr: np.ndarray, acc: np.ndarray) -> int:
-    """Samples with a reading at the part's full scale."""
-    hits = np.zeros(len(gyr), bool)
-    for values, full in ((gyr, part.gyro_range_dps and np.radians(part.gyro_range_dps)),
-                         (acc, part.accel_range_g and part.accel_range_g * imu.GRAVITY)):
-        if full:
-            hits |= (np.abs(values) >= full * (1 - 2.0 ** (1 - part.bits))).any(axis=1)
-    return int(hits.sum())
 
 
 def cells(rows: list[dict], heading: bool = False) -> str:

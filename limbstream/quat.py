@@ -120,6 +120,21 @@ def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def about_axes(angle: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(j, n, 4) float64 the rotations by ``angle`` (j, n) rad about coordinate axes ``axis`` (j,)
+    (0: X, 1: Y, 2: Z): scipy's ``Rotation.from_rotvec`` of ``angle`` times the unit axis, bit for
+    bit (its half-angle scale, with its series below 1e-3 rad), at a third of its cost."""
+    angle = np.asarray(angle, np.float64)
+    size = np.abs(angle)  # the rotation vector's norm: sqrt(a * a) is |a| exactly
+    small = size <= 1e-3
+    size2 = size * size
+    scale = np.where(small, 0.5 - size2 / 48 + size2 * size2 / 3840, np.sin(size / 2) / np.where(small, 1.0, size))
+    out = np.zeros(angle.shape + (4,))
+    out[..., 0] = np.cos(size / 2)
+    out[np.arange(len(angle)), :, 1 + np.asarray(axis)] = angle * scale
+    return out
+
+
 def left_matrix(a: np.ndarray) -> np.ndarray:
     """The (4, 4) float64 matrix L of the left product by quaternion ``a``: ``multiply(a, b)`` is
     ``L @ b`` (``b @ L.T`` for (..., 4) ``b``), one matrix product when ``a`` is fixed."""

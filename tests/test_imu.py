@@ -169,6 +169,12 @@ def test_ideal_part_adds_nothing_and_a_real_part_its_datasheet():
     # a reading beyond the full scale saturates at it
     g, a = icm.read(np.zeros(1, int), np.zeros(1, int), np.array([[100.0, 0, 0]]), np.array([[0, 0, -1e3]]))
     assert g[0, 0] == pytest.approx(np.radians(2000.0) * 32767 / 32768) and a[0, 2] == pytest.approx(-16 * G)
+    # and is found at it: a clipped rate or force, not a reading one count inside the scale
+    inside = np.radians(2000.0) * 32765 / 32768
+    gyr = np.vstack([g, [[0.0, -inside, 0.0]], [[0.0, 0.0, 0.0]]])
+    acc = np.vstack([[[0.0, G, 0.0]], [[0.0, G, 0.0]], a])
+    assert part.at_full_scale(gyr, acc).tolist() == [True, False, True]
+    assert not imu.model("ideal").at_full_scale(gyr * 100, acc * 100).any()
 
 
 def test_a_device_reads_the_same_one_tick_at_a_time_as_in_a_whole_recording():

@@ -185,3 +185,15 @@ def test_left_matrix_is_the_left_product():
     a = quat.normalize(rng.normal(size=4))
     b = quat.normalize(rng.normal(size=(50, 4)))
     np.testing.assert_allclose(b @ quat.left_matrix(a).T, quat.multiply(a, b), atol=1e-15)
+
+
+def test_about_axes_is_scipys_rotation_vector_bit_for_bit():
+    rng = np.random.default_rng(4)
+    angle = np.concatenate([rng.uniform(-np.pi, np.pi, (6, 200)), rng.uniform(-2e-3, 2e-3, (6, 60)),
+                            np.zeros((6, 2)), np.full((6, 2), 1e-3), np.full((6, 2), -1e-3)], axis=1)
+    axis = np.array([0, 1, 2, 2, 0, 1])
+    q = quat.about_axes(angle, axis)
+    assert q.shape == angle.shape + (4,)
+    rotvec = angle[..., None] * np.eye(3)[axis][:, None, :]
+    want = quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(q.shape)
+    assert np.array_equal(q, want)  # the generator's orientations stay those of its reference

@@ -332,3 +332,17 @@ def test_raw_sensors_on_a_layout_file(cmu_bvh_dir, tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     [row] = json.loads(out.read_text())
     assert 0 < row["pos_cm"] < 3.0 and {"spine", "neck_base"} <= set(row["positions"])
+
+
+def test_eval_names_the_sensors_a_motion_drives_beyond_their_range(cmu_bvh_dir, capsys):
+    """The dance spins its right leg faster than a +-2,000 deg/s gyroscope reads (a capture glitch
+    in the twist, docs/evaluation.md "Raw sensors"): ``eval --imu raw`` says which streams were
+    clipped and how often; a walk read by ideal sensors clips nothing."""
+    raw = ["--imu", "raw", "--algorithms", "fastsw", "--thresholds", "9e-4", "--layout", "full"]
+    assert cli.main(["eval", str(cmu_bvh_dir / "05_06.bvh"), *raw, "--imu-model", "icm42688p"]) == 0
+    [line] = [line for line in capsys.readouterr().out.splitlines() if line.startswith("clipped: ")]
+    shares = dict(part.rsplit(" ", 2)[:2] for part in line.removeprefix("clipped: ").split(" of their")[0].split(", "))
+    assert {"05_06/r_shank", "05_06/r_thigh", "05_06/r_foot"} <= set(shares), line
+    assert all(0 < float(v) < 20 for v in shares.values()), line
+    assert cli.main(["eval", str(cmu_bvh_dir / "131_01.bvh"), *raw, "--imu-model", "ideal"]) == 0
+    assert "clipped" not in capsys.readouterr().out

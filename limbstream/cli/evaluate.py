@@ -360,6 +360,16 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _full_scale_line(streams: list) -> str | None:
+    """The streams whose part read at its full scale (clipped), worst first, or None if none did."""
+    clipped = sorted((s for s in streams if s.full_scale > 0), key=lambda s: -s.full_scale)
+    if not clipped:
+        return None
+    return ("clipped: " + ", ".join(f"{s.name} {100 * s.full_scale:.2f} %" for s in clipped)
+            + " of their raw samples at the part's full scale (the motion goes beyond its range: their "
+              "inclination can be off for seconds after; docs/evaluation.md, \"Raw sensors\")")
+
+
 def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, streams: list, n_samples: int,
             algorithms: list[str],
             bounds: list[float], thresholds: np.ndarray, sensors: calibration.SensorModel, poses: tuple[str, ...],
@@ -377,6 +387,8 @@ def _report(args: argparse.Namespace, motions: list[Motion], recordings: int, st
               f"{fusion.REST_TH_GYR_DPS:g} deg/s); mounting <= {sensors.mounting_deg:g} deg, filter heading "
               f"+-{sensors.heading_deg:g} deg, seed {sensors.seed}; calibration {','.join(poses) or 'none'}"
               + (f"; each clip looped for {args.loop_minutes:g} min" if args.loop_minutes else ""))
+        if (line := _full_scale_line(streams)) is not None:
+            print(line)
     elif sensors.on:
         print(f"sensors: mounting <= {sensors.mounting_deg:g} deg, heading +-{sensors.heading_deg:g} deg, yaw drift "
               f"+-{sensors.yaw_drift_dps:g} deg/s, seed {sensors.seed}; calibration {','.join(poses) or 'none'}; "

@@ -81,7 +81,8 @@ def emulated_streams(motions: list[Motion], sensors: calibration.SensorModel, mo
                                                calibration.REST_S + calibration.MOVE_S + calibration.MOUNTING_S),
                               pose=pose[s], motion_from=int(np.searchsorted(t, script_s - 1e-9)),
                               rest_pose=motion.rest_pose, layout=layout_of(motion, layout), **source_of(motion, script_s),
-                              earth=EarthTruth(rec.truth[idx, s], rec.movement[idx], align_heading=True)))
+                              earth=EarthTruth(rec.truth[idx, s], rec.movement[idx], align_heading=True),
+                              full_scale=float(model.at_full_scale(rec.gyr[:, s], rec.acc[:, s]).mean())))
     return out
 
 

@@ -90,6 +90,8 @@ class Stream:
     source_offset_s : the source's time minus the stream's, s (NaN: unknown).
     layout : the body layout of its motion (:func:`.body.layout_of`), whose bodies it is put
         together into (None: ``paper10``).
+    full_scale : an emulated raw sensor's share of raw samples read at its part's full scale
+        (clipped: :meth:`limbstream.imu.ImuModel.at_full_scale`), 0 for others.
     """
 
     t: np.ndarray
@@ -105,6 +107,7 @@ class Stream:
     source: BvhPositions | None = None
     source_offset_s: float = 0.0
     layout: Layout | None = None
+    full_scale: float = 0.0
 
 
 def streams_of(motions: Iterable[Motion], sensors: calibration.SensorModel | None = None,

@@ -35,6 +35,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
+from limbstream.imu.kinematics import GRAVITY
+
 WARMUP_C = 10.0
 """Temperature rise of a strapped sensor from switch-on to steady state, degC (room to skin)."""
 WARMUP_TAU_S = 300.0
@@ -68,6 +72,17 @@ class ImuModel:
     accel_offset_mg: float = 0.0
     gyro_tempco_dps_c: float = 0.0
     accel_tempco_mg_c: float = 0.0
+
+    def at_full_scale(self, gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
+        """(n,) bool: the samples with a reading at the part's full scale (within its last count),
+        of angular rates ``gyr`` (n, 3) rad/s and specific forces ``acc`` (n, 3) m/s^2. Such a
+        sample is clipped: the motion may have gone beyond it. All False for an unlimited part."""
+        hits = np.zeros(len(gyr), bool)
+        for values, full in ((gyr, self.gyro_range_dps and np.radians(self.gyro_range_dps)),
+                             (acc, self.accel_range_g and self.accel_range_g * GRAVITY)):
+            if full:
+                hits |= (np.abs(values) >= full * (1 - 2.0 ** (1 - self.bits))).any(axis=1)
+        return hits
 
 
 MODELS: dict[str, ImuModel] = {

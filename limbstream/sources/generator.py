@@ -87,6 +87,14 @@ def _schedule(
     return out
 
 
+def _axis_index(axis: np.ndarray) -> int:
+    """0, 1 or 2: which coordinate axis the unit vector ``axis`` is (ValueError for another vector)."""
+    for i, unit in enumerate(np.eye(3)):
+        if np.array_equal(axis, unit):
+            return i
+    raise ValueError(f"{axis} is no coordinate axis")
+
+
 # The elementary rotations of the kinematic tree: (joint, sign, axis), the rotation by sign * the
 # joint's angle about the axis. Each segment's orientation is its parent's times its own factors,
 # left to right (orientations()).
@@ -106,28 +114,28 @@ _TREE_AXES: list[tuple[str, float, np.ndarray]] = [
 ]
 _TREE_JOINTS = [joint for joint, _, _ in _TREE_AXES]
 _TREE_SIGNS = np.array([sign for _, sign, _ in _TREE_AXES])[:, None]
-_TREE_AXIS = np.stack([axis for _, _, axis in _TREE_AXES])[:, None, :]
+_TREE_AXIS = np.array([_axis_index(axis) for _, _, axis in _TREE_AXES])
 
 
 def _elementary_all(a: dict[str, np.ndarray], heading: float) -> dict[str, np.ndarray]:
     """{joint: (n, 4)} the rotations of :data:`_TREE_AXES` by the angles ``a`` (degrees, |angle|
-    < 180; the pelvis yaw plus the heading), continuous in the angle; one scipy call for all."""
+    < 180; the pelvis yaw plus the heading), continuous in the angle."""
     angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
     angle[0] = heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
     return dict(zip(_TREE_JOINTS, _rotations(angle, _TREE_AXIS)))
 
 
 def _rotations(angle: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """(j, n, 4) the rotations by ``angle`` (j, n) degrees about ``axis`` (j, 1, 3), one scipy call."""
-    rotvec = np.radians(angle)[:, :, None] * axis
-    return quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(len(angle), -1, 4)
+    """(j, n, 4) the rotations by ``angle`` (j, n) degrees about coordinate axes ``axis`` (j,) (0: X,
+    1: Y, 2: Z)."""
+    return quat.about_axes(np.radians(angle), axis)
 
 
 def _limb_rotations(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{joint: (n, 4)} the rotations of the feet and hands (:data:`.generator_limbs.AXES`)."""
     angle = np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES])
     return dict(zip([joint for joint, _, _ in limbs.AXES],
-                    _rotations(angle, np.stack([axis for _, _, axis in limbs.AXES])[:, None, :])))
+                    _rotations(angle, np.array([_axis_index(axis) for _, _, axis in limbs.AXES]))))
 
 
 def _chains(parent: np.ndarray, e: dict[str, np.ndarray], *steps: list[str]) -> np.ndarray:
