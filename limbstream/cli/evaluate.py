@@ -250,16 +250,42 @@ def _streams(args: argparse.Namespace, sensors: calibration.SensorModel, motions
         if recordings:
             raise ValueError("--loop-minutes loops motion clips, not raw recordings "
                              f"({', '.join(r.name for r in recordings)})")
-        motions = raw_streams.looped(motions, args.loop_minutes)
+        motions, turning = _looped(motions, args.loop_minutes, args.layout)
     model = flags.imu_model(args)
     streams = (raw_streams.emulated_streams(motions, sensors, model, args.imu_rate, args.vqf_precision, args.layout)
                if model is not None
                else streams_of(motions, sensors, args.layout))
-    if args.loop_minutes is not None:  # a looped clip's times are no longer its file's
-        streams = [dataclasses.replace(s, source=None, source_offset_s=math.nan) for s in streams]
+    if args.loop_minutes is not None:  # a clip looped about a fixed root: its times are no longer its file's
+        streams = [dataclasses.replace(s, source=None, source_offset_s=math.nan)
+                   if s.name.rsplit("/", 1)[0] in turning else s for s in streams]
     for rec in recordings:
         streams += raw_streams.recording_streams(rec, args.mag, vqf_precision=args.vqf_precision)
     return streams
+
+
+def walks_on(motion: Motion) -> bool:
+    """Whether ``--loop-minutes`` loops ``motion`` with its root travelling on (a BVH clip with its
+    file's positions and root path: :mod:`limbstream.sources.bvh_loop`), not about a fixed root."""
+    return motion.positions is not None and motion.root is not None
+
+
+def _looped(motions: list[Motion], minutes: float, layout) -> tuple[list[Motion], set[str]]:
+    """Each motion looped for ``minutes``: the BVH clips that :func:`walks_on` on their own cycle,
+    the others about a fixed root (:func:`raw_streams.looped`); and the names of the latter."""
+    from limbstream.evaluation import raw_streams
+    from limbstream.sources.bvh_loop import looped_motion
+
+    out, turning = [], set()
+    for m in motions:
+        if walks_on(m):
+            looped, loop = looped_motion(m, minutes * 60.0, layout or "paper10")
+            _note(f"{looped.name}: the file's frames {loop.i}..{loop.j} ({(loop.j - loop.i) * loop.clip.frame_time:.2f} s) looped, its "
+                  f"root walking on; the pose steps by {100 * loop.mismatch_m:.1f} cm (mean joint) at each seam")
+        else:
+            [looped] = raw_streams.looped([m], minutes)
+            turning.add(looped.name)
+        out.append(looped)
+    return out, turning
 
 
 def _notes(args: argparse.Namespace, sensors: calibration.SensorModel, motions: list[Motion], n_samples: int) -> None:
@@ -297,7 +323,7 @@ def _raw_notes(args: argparse.Namespace, recordings: list[RawRecording]) -> None
 def _position_sources(motions: list[Motion], looped: bool, layout=None) -> str:
     """Where the true joint positions of ``motions`` come from, and the bodies (on ``layout``,
     None: each motion's own), as a sentence."""
-    own = [] if looped else [m for m in motions if m.positions is not None]
+    own = [m for m in motions if m.positions is not None and (not looped or walks_on(m))]
     parts = []
     if own:
         units = sorted({f"{m.positions.unit_m:.6g}" for m in own if m.positions is not None})

@@ -375,7 +375,14 @@ def load_bvh(
     MotionFileError naming the file and what is wrong (syntax, missing joints, no map fits, a
     segment of ``layout`` without a joint).
     """
-    clip = parse_bvh(path)
+    return motion_of_clip(parse_bvh(path), fs, segment_map, drop_first, names, layout)
+
+
+def motion_of_clip(clip: BvhClip, fs: float | None = wire.DEVICE_RATE_HZ, segment_map: Mapping[str, str] | None = None,
+                   drop_first: bool | None = None, names: Mapping[str, str] | None = None,
+                   layout: str | Layout = "paper10", name: str | None = None) -> Motion:
+    """:func:`load_bvh` of a parsed clip, the Motion named ``name`` (None: the file's stem)."""
+    name = clip.path.stem if name is None else name
     try:
         shape = layout if isinstance(layout, Layout) else layout_of(layout)
     except (ValueError, OSError) as exc:
@@ -405,11 +412,11 @@ def load_bvh(
         positions = None  # a skeleton the layout cannot take: no positions of its own
     body = wearer(clip, segment_map) if shape.name == "paper10" else (positions.body(shape) if positions else None)
     if fs is None:
-        return Motion(t, quat.continuous(q), segments, clip.path.stem, rest_pose, root, positions=positions, body=body)
+        return Motion(t, quat.continuous(q), segments, name, rest_pose, root, positions=positions, body=body)
     t_out, q = resample(t, q, fs)
     if root is not None:
         root = np.stack([np.interp(t_out, t, axis) for axis in root.T], axis=1)
-    return Motion(t_out, q, segments, clip.path.stem, rest_pose, root, positions=positions, body=body)
+    return Motion(t_out, q, segments, name, rest_pose, root, positions=positions, body=body)
 
 
 def wearer(clip: BvhClip, segment_map: Mapping[str, str]) -> Body | None:
