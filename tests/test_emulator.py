@@ -192,3 +192,19 @@ def test_generator_feeds_of_a_layout_and_the_body_they_announce():
     assert feed.body.layout is FULL and feed.body.height_m == 1.9
     [feed] = emulate.build_feeds(parse("--subjects", "1", "--layout", "full", "--imu", "raw")).values()
     assert feed.segments == FULL.segment_names
+
+
+def test_a_bvh_walk_plays_looped_on_its_own_cycle_and_once_as_it_is(cmu_bvh_dir):
+    """``emulate --source 02_01.bvh``: the walk is looped on its own cycle, each pass turned and
+    carried on (limbstream.sources.bvh_loop), so the devices' orientations have no seam where it
+    loops; ``--once`` plays the file as it is."""
+    clip = str(cmu_bvh_dir / "02_01.bvh")
+    [feed] = emulate.build_feeds(parse("--source", clip, "--layout", "full", "--subjects", "1")).values()
+    motion = feed.motion
+    assert motion.name == "loop(02_01)" and abs(motion.t[-1] - emulate.LIVE_LOOP_S) < 0.1
+    steps = quat.angle_deg(motion.q[1:], motion.q[:-1]).max(axis=0)  # (S,) largest turn between samples
+    [plain] = emulate.build_feeds(parse("--source", clip, "--layout", "full", "--subjects", "1", "--once")).values()
+    assert plain.motion.name == "02_01" and plain.motion.t[-1] < 3.0
+    own = quat.angle_deg(plain.motion.q[1:], plain.motion.q[:-1]).max(axis=0)
+    wrap = quat.angle_deg(plain.motion.q[0], plain.motion.q[-1])  # a clip played again from its start
+    assert (steps <= np.maximum(own, 20.0)).all() and steps.max() < wrap.max() / 4, (steps, own, wrap)

@@ -19,6 +19,7 @@ from limbstream.device.feeds import GeneratorFeed, LoopFeed
 from limbstream.device.readings import RawFeed
 from limbstream.device_emulator.main import subject_names
 from limbstream.sources import MotionFileError, load
+from limbstream.sources.bvh_loop import looped_motion, walks_on
 from limbstream.sources.generator import GeneratorSource
 
 PROG = "limbstream emulate"
@@ -73,9 +74,12 @@ def raw_feeds(args: argparse.Namespace, names: list[str]) -> dict[str, RawFeed]:
 def source_motions(args: argparse.Namespace) -> list:
     """The clips of a motion file ``--source`` (BVH files read onto ``--layout``,
     :func:`flags.source_layout`, with the layout's default body where the file cannot measure its
-    bones); FlagError when ``--layout`` is not theirs."""
+    bones; one with a root path looped on its own cycle for :data:`LIVE_LOOP_S`, its root walking on,
+    unless ``--once``); FlagError when ``--layout`` is not theirs."""
     shape = flags.source_layout(args)
     motions = load(args.source, args.names, layout=shape)
+    if not args.once:  # a walk walks on: a BVH clip with a root path looped on its own cycle
+        motions = [looped_motion(m, LIVE_LOOP_S, shape or "paper10")[0] if walks_on(m) else m for m in motions]
     if shape is not None:
         motions = [m if m.body is not None else dataclasses.replace(m, body=flags.default_body(args)) for m in motions]
     for motion in motions:
@@ -83,6 +87,9 @@ def source_motions(args: argparse.Namespace) -> list:
     return motions
 
 
+LIVE_LOOP_S = 120.0
+"""How long a BVH clip with a root path plays looped on its own cycle (:mod:`limbstream.sources.bvh_loop`:
+each pass turned and carried on, so a walk walks on without a seam) before it starts again, s."""
 START_STEP = (5 ** 0.5 - 1) / 2
 """How far into a clip each further subject that shares it starts, as a fraction of the clip
 (the golden ratio's: the starts of any number of subjects stay apart)."""

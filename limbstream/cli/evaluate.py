@@ -26,6 +26,7 @@ from limbstream.evaluation.body import layout_of
 from limbstream.evaluation.table import Progress
 from limbstream.kernel import fusion
 from limbstream.sources import Motion, MotionFileError, load
+from limbstream.sources.bvh_loop import looped_motion, walks_on
 from limbstream.sources.raw import RawRecording, load_raw, raw_files
 
 
@@ -263,17 +264,10 @@ def _streams(args: argparse.Namespace, sensors: calibration.SensorModel, motions
     return streams
 
 
-def walks_on(motion: Motion) -> bool:
-    """Whether ``--loop-minutes`` loops ``motion`` with its root travelling on (a BVH clip with its
-    file's positions and root path: :mod:`limbstream.sources.bvh_loop`), not about a fixed root."""
-    return motion.positions is not None and motion.root is not None
-
-
 def _looped(motions: list[Motion], minutes: float, layout) -> tuple[list[Motion], set[str]]:
     """Each motion looped for ``minutes``: the BVH clips that :func:`walks_on` on their own cycle,
     the others about a fixed root (:func:`raw_streams.looped`); and the names of the latter."""
     from limbstream.evaluation import raw_streams
-    from limbstream.sources.bvh_loop import looped_motion
 
     out, turning = [], set()
     for m in motions:

@@ -143,6 +143,12 @@ def looped_clip(clip: BvhClip, seconds: float, first: int = 0, unit_m: float = 1
     return LoopedClip(dataclasses.replace(clip, motion=motion), i, j, mismatch * unit_m)
 
 
+def walks_on(motion: Motion) -> bool:
+    """Whether ``motion`` can be looped with its root walking on: a BVH clip read with its file's
+    positions and a root path."""
+    return motion.positions is not None and motion.root is not None
+
+
 def looped_motion(motion: Motion, seconds: float, layout) -> tuple[Motion, LoopedClip]:
     """A BVH motion (read with its file's positions: ``motion.positions``) looped for ``seconds``
     of motion with its root travelling on, read again as the file was onto ``layout``; named
