@@ -56,7 +56,7 @@ def test_a_clip_without_a_root_path_or_too_short_is_refused(cmu_bvh_dir):
     clip = parse_bvh(cmu_bvh_dir / "02_01.bvh")
     still = dataclasses.replace(clip, channels=(tuple(c for c in clip.channels[0] if c.endswith("rotation")),)
                                 + clip.channels[1:], motion=clip.motion[:, 3:])
-    with pytest.raises(ValueError, match="no path to loop on"):
+    with pytest.raises(ValueError, match="no joint carries a path to loop on"):
         looped_clip(still, 10.0)
     with pytest.raises(ValueError, match="too short"):
         looped_clip(dataclasses.replace(clip, motion=clip.motion[:100]), 10.0)
@@ -86,3 +86,16 @@ def test_a_long_clip_is_searched_coarsely_then_frame_by_frame(cmu_bvh_dir, monke
     monkeypatch.setattr(bvh_loop, "SEARCH_FRAMES", 120)  # every 9th frame, then refined
     coarse = bvh_loop.loop_frames(clip, 0, 4.0)
     assert coarse[:2] == exact[:2] and coarse[1] - coarse[0] >= round(4.0 / clip.frame_time)
+
+
+def test_a_path_under_a_static_root_is_looped_there(cmu_bvh_dir, tmp_path):
+    """An exporter's static root above the pelvis (no channels): the pelvis carries the path and is
+    what the loop moves on; the root stays where it is."""
+    path = tmp_path / "floor.bvh"
+    path.write_text(write_bvh(parse_bvh(cmu_bvh_dir / "02_01.bvh"), floor_root="Floor"))
+    clip = parse_bvh(path)
+    assert clip.joints[:2] == ("Floor", "Hips") and bvh_loop.moving_root(clip) == 1
+    (tmp_path / "loop.bvh").write_text(write_bvh(looped_clip(clip, 12.0).clip))
+    looped = read_bvh_positions(tmp_path / "loop.bvh")
+    assert np.all(looped["Floor"] == 0.0)
+    assert np.linalg.norm(looped["Hips"][-1, [0, 2]] - looped["Hips"][0, [0, 2]]) > 8.0

@@ -1,17 +1,18 @@
 """A BVH clip looped on its own cycle, its root travelling on: long walks from short clips.
 
-The loop is the stretch between two frames ``i < j`` where the body is in the same pose: its
-joints where they are relative to the root, in the root's heading frame, and how fast they move
-there (:func:`loop_frames`), at least half the clip apart (and :data:`LOOP_MIN_S`): a loop of what
-the clip does, not of a still moment in it. The looped clip plays the file's
-frames up to ``j``, then ``i`` .. ``j - 1`` over and over; each pass is turned about the vertical
-by the heading the passes before it gained and moved to where they brought the root, so the root
-walks on (a straight walk goes on straight, a circle goes round) and the file's joint positions,
-its forward kinematics, follow; its height is ramped along the pass so that it starts where the
-last pass ended and ends where it began (the file's floor, which drifts by a few centimetres over a
-clip, comes back to one height every pass). Only the root joint's channels change. At each seam the pose
-steps by the two frames' mismatch (:attr:`LoopedClip.mismatch_m`), a capture glitch's size on a
-walk.
+- **The loop** is the stretch between two frames ``i < j`` where the body is in the same pose
+  (:func:`loop_frames`): its joints relative to the root in the root's heading frame, how fast
+  they move there, the root's height and velocity. The frames are at least half the clip apart
+  (and :data:`LOOP_MIN_S`): a loop of what the clip does, not of a still moment in it.
+- **The looped clip** plays the file's frames up to ``j``, then ``i`` .. ``j - 1`` over and over.
+  Each pass is turned about the vertical by the heading the passes before it gained, and moved to
+  where they brought the root: a straight walk goes on straight, a circle goes round.
+- **Its height** is ramped along each pass, so that a pass starts where the last one ended and
+  ends where it began: the file's floor, which drifts by a few centimetres over a clip, comes back
+  to one height every pass.
+- Only the moving root joint's channels change, so the file's joint positions (its forward
+  kinematics) follow. At each seam the pose steps by the two frames' mismatch
+  (:attr:`LoopedClip.mismatch_m`), the size of a capture glitch on a walk.
 """
 from __future__ import annotations
 
@@ -46,13 +47,32 @@ class LoopedClip:
     mismatch_m: float
 
 
+def moving_root(clip: BvhClip) -> int | None:
+    """The joint that carries the clip's path: the first (the topmost) whose three position channels
+    change over the clip, every joint above it still and unturned (channels constant, rotations
+    0: an exporter's floor root); None if there is none."""
+    for j, names in enumerate(clip.channels):
+        start = clip.channel_start(j)
+        if all(a in names for a in _POSITION) and np.ptp(clip.motion[:, [start + names.index(a) for a in _POSITION]]) > 0:
+            k = int(clip.parents[j])
+            while k >= 0:
+                values = clip.motion[:, clip.channel_start(k):clip.channel_start(k) + len(clip.channels[k])]
+                turned = [c for c, n in enumerate(clip.channels[k]) if n.endswith("rotation")]
+                still = values.shape[1] == 0 or not np.ptp(values, axis=0).any()
+                if not still or np.any(values[:, turned]):
+                    return None
+                k = int(clip.parents[k])
+            return j
+    return None
+
+
 def _root(clip: BvhClip) -> tuple[int, list[int], list[int]]:
-    """The root joint, its position and rotation channel columns; ValueError without a root path."""
-    root = int(np.flatnonzero(np.asarray(clip.parents) < 0)[0])
+    """The moving root joint, its position and rotation channel columns; ValueError without one."""
+    root = moving_root(clip)
+    if root is None:
+        raise ValueError(f"{clip.path.name}: no joint carries a path to loop on")
     names = clip.channels[root]
     start = clip.channel_start(root)
-    if not all(a in names for a in _POSITION):
-        raise ValueError(f"{clip.path.name}: its root joint {clip.joints[root]!r} has no path to loop on")
     rotation = [start + k for k, n in enumerate(names) if n.endswith("rotation")]
     return root, [start + names.index(a) for a in _POSITION], rotation
 
@@ -146,7 +166,7 @@ def looped_clip(clip: BvhClip, seconds: float, first: int = 0, unit_m: float = 1
 def walks_on(motion: Motion) -> bool:
     """Whether ``motion`` can be looped with its root walking on: a BVH clip read with its file's
     positions and a root path."""
-    return motion.positions is not None and motion.root is not None
+    return motion.positions is not None and motion.root is not None and moving_root(motion.positions.clip) is not None
 
 
 def looped_motion(motion: Motion, seconds: float, layout) -> tuple[Motion, LoopedClip]:
