@@ -208,3 +208,16 @@ def test_a_bvh_walk_plays_looped_on_its_own_cycle_and_once_as_it_is(cmu_bvh_dir)
     own = quat.angle_deg(plain.motion.q[1:], plain.motion.q[:-1]).max(axis=0)
     wrap = quat.angle_deg(plain.motion.q[0], plain.motion.q[-1])  # a clip played again from its start
     assert (steps <= np.maximum(own, 20.0)).all() and steps.max() < wrap.max() / 4, (steps, own, wrap)
+
+
+def test_the_subjects_of_one_clip_share_its_arrays(cmu_bvh_dir):
+    """``emulate --source clip --subjects 3``: each subject plays the clip from its own place in it,
+    and all three hold one copy of its samples (raw sensors: one of its readings)."""
+    args = parse("--source", str(cmu_bvh_dir / "02_01.bvh"), "--layout", "full", "--subjects", "3")
+    feeds = list(emulate.build_feeds(args).values())
+    assert feeds[0].q is feeds[1].q is feeds[2].q
+    assert len({f.offset for f in feeds}) == 3
+    assert np.array_equal(feeds[1].sample(0), feeds[0].sample(feeds[1].offset))
+    raw = list(emulate.build_feeds(parse("--source", str(cmu_bvh_dir / "02_01.bvh"), "--layout", "full",
+                                         "--subjects", "2", "--imu", "raw")).values())
+    assert raw[0].readings_feed is raw[1].readings_feed and raw[0] is not raw[1]

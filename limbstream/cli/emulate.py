@@ -3,6 +3,7 @@ process (the part: :mod:`limbstream.device_emulator.main`)."""
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import logging
 import os
@@ -50,10 +51,12 @@ def motion_feeds(args: argparse.Namespace, names: list[str], scripted: bool) -> 
                                      layout=layout) for i, name in enumerate(names)}
     else:
         motions = source_motions(args)
-        feeds = {}
+        feeds, clips = {}, {}
         for i, name in enumerate(names):
             clip, start = clip_of(args.first_subject + i, len(motions), args.same_start)
-            feeds[name] = LoopFeed(motions[clip], args.rate, once=args.once, start=start)
+            if clip not in clips:  # one feed's arrays per clip, its subjects each at their own place in it
+                clips[clip] = LoopFeed(motions[clip], args.rate, once=args.once)
+            feeds[name] = clips[clip].starting_at(start)
     if not scripted:
         return feeds
     return {name: calibration.ScriptedFeed(f, args.rate, None if f.length is not None or not hasattr(f, "q")
@@ -67,8 +70,13 @@ def raw_feeds(args: argparse.Namespace, names: list[str]) -> dict[str, RawFeed]:
                                               layout=flags.layout(args)), args.imu_rate, args.rate)
                 for i, name in enumerate(names)}
     motions = source_motions(args)
-    return {name: RawFeed(motions[clip_of(args.first_subject + i, len(motions), True)[0]], args.imu_rate, args.rate,
-                          once=args.once) for i, name in enumerate(names)}
+    feeds, clips = {}, {}
+    for i, name in enumerate(names):
+        clip = clip_of(args.first_subject + i, len(motions), True)[0]
+        if clip not in clips:
+            clips[clip] = RawFeed(motions[clip], args.imu_rate, args.rate, once=args.once)
+        feeds[name] = copy.copy(clips[clip])  # its readings shared: a clip's subjects all play it from its start
+    return feeds
 
 
 def source_motions(args: argparse.Namespace) -> list:

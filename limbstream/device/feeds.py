@@ -8,6 +8,7 @@ continuous across chunks.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -42,21 +43,34 @@ class LoopFeed:
     """
 
     def __init__(self, motion: Motion, fs: float, once: bool = False, start: float = 0.0):
-        if not 0.0 <= start < 1.0:
-            raise ValueError(f"start must be in [0, 1), got {start}")
         self.motion = resample(motion, fs)
-        self.q = np.roll(self.motion.q.astype(np.float32), -int(start * len(self.motion.q)), axis=0)
+        self.q = self.motion.q.astype(np.float32)  # (m, S, 4), shared by the feeds starting_at other places
+        self.offset = _start_sample(start, len(self.q))
         self.segments = self.motion.segments
         self.rest_pose = self.motion.rest_pose
         self.orientations = self.motion.orientations  # wire.ORIENTATIONS
         self.body = self.motion.body  # its wearer's dimensions (None: the default adult), its devices announce
         self.length = len(self.q) if once else None
 
+    def starting_at(self, start: float) -> LoopFeed:
+        """The same clip ``start`` (a fraction, as the constructor's) into it, its arrays shared: the
+        feeds of many subjects of one clip hold it once."""
+        feed = copy.copy(self)
+        feed.offset = _start_sample(start, len(self.q))
+        return feed
+
     def sample(self, k: int) -> np.ndarray:
         """(S, 4) float32 orientations at sample k; IndexError past the end of a finite stream."""
         if self.length is not None and not 0 <= k < self.length:
             raise IndexError(f"sample {k} of a {self.length}-sample stream ({self.motion.name})")
-        return self.q[k % len(self.q)]
+        return self.q[(k + self.offset) % len(self.q)]
+
+
+def _start_sample(start: float, samples: int) -> int:
+    """The sample ``start`` (a fraction in [0, 1)) into a clip of ``samples``; ValueError otherwise."""
+    if not 0.0 <= start < 1.0:
+        raise ValueError(f"start must be in [0, 1), got {start}")
+    return int(start * samples)
 
 
 class GeneratorFeed:
