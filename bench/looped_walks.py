@@ -13,7 +13,9 @@ and prints, at each of ``--at`` minutes, the horizontal root error as a percenta
 walked so far (the true root's, over 0.1 s steps, as eval sums it), its largest over the run,
 and the median over the clips. A looped path turns by the same angle every pass, and an estimate
 whose turn per pass differs goes round another circle: its end error rises and falls over the
-minutes, so one end figure says little; the largest says more.
+minutes, so one end figure says little; the largest says more. A last table gives each clip's
+largest turn of a segment between samples where the loop joins, against a restart from its first
+frame.
 """
 from __future__ import annotations
 
@@ -25,16 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
+from limbstream import quat
 from limbstream.evaluation.translation import aligned
+from limbstream.sources import load
+from limbstream.sources.bvh_loop import looped_motion
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / ".." / "shared" / "data" / "cmu"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from root_path_plot import DATA, RAW, ROW  # noqa: E402  (bench/root_path_plot.py: the same eval rows)
+
 WALKS = ("02_01", "131_01", "131_02", "131_03")
 """The CMU walks of docs/benchmarks.md's root translation tables."""
-RAW = ("--imu", "raw", "--imu-model", "icm42688p", "--mounting-deg", "90", "--heading-deg", "180",
-       "--calibration", "rest,mounting", "--heading-correction", "joints")
-"""make run's sensors in eval's terms."""
-ROW = ("--algorithms", "fastsw", "--thresholds", "9e-4", "--max-len", "25", "--layout", "full")
 
 
 def errors(dump: dict, at_s: list[float]) -> tuple[list[float], float, float]:
@@ -51,6 +53,22 @@ def errors(dump: dict, at_s: list[float]) -> tuple[list[float], float, float]:
     at = [float(pct[min(len(every) - 1, int(np.searchsorted(t[every], t[0] + s)))]) for s in at_s]
     late = t[every] - t[0] >= 60.0
     return at, float(pct[late].max() if late.any() else pct.max()), float(walked[-1])
+
+
+def seams(data: Path, clips: list[str]) -> None:
+    """Per clip, the largest turn of a segment between two samples (50 Hz, ``--layout full``): the
+    file's own, over a looped minute (its seams included), and where the clip starts again from
+    its first frame (as a plain loop does)."""
+    print("\n### Where the loop joins: the largest turn of a segment between samples, degrees\n")
+    print("| clip | the file's own | looped on its cycle | started again from its first frame |")
+    print("|---|---:|---:|---:|")
+    for clip in clips:
+        [motion] = load(data / f"{clip}.bvh", layout="full")
+        looped = looped_motion(motion, 60.0, "full")[0]
+        own = quat.angle_deg(motion.q[1:], motion.q[:-1]).max()
+        loop = quat.angle_deg(looped.q[1:], looped.q[:-1]).max()
+        again = quat.angle_deg(motion.q[-1], motion.q[0]).max()
+        print(f"| {clip} | {own:.1f} | {loop:.1f} | {again:.1f} |")
 
 
 def main() -> int:
@@ -86,6 +104,7 @@ def main() -> int:
         print(f"| loop({clip}) | {path:.0f} | " + " | ".join(f"{p:.1f}" for p in pct) + f" | {worst:.1f} |")
     med = np.median(np.array([r[1] for r in rows]), axis=0)
     print("| median | | " + " | ".join(f"{p:.1f}" for p in med) + f" | {np.median([r[2] for r in rows]):.1f} |")
+    seams(args.data, args.clips + [c for c in ("01_01",) if c not in args.clips and (args.data / f"{c}.bvh").exists()])
     return 0
 
 

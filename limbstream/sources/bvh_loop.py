@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from limbstream import quat
+from limbstream.body import Layout
 from limbstream.calibration import yaw, yaw_of
 from limbstream.sources import Motion
 from limbstream.sources.bvh import BvhClip, joint_positions, local_rotations, motion_of_clip
@@ -169,7 +170,7 @@ def walks_on(motion: Motion) -> bool:
     return motion.positions is not None and motion.root is not None and moving_root(motion.positions.clip) is not None
 
 
-def looped_motion(motion: Motion, seconds: float, layout) -> tuple[Motion, LoopedClip]:
+def looped_motion(motion: Motion, seconds: float, layout: str | Layout) -> tuple[Motion, LoopedClip]:
     """A BVH motion (read with its file's positions: ``motion.positions``) looped for ``seconds``
     of motion with its root travelling on, read again as the file was onto ``layout``; named
     ``loop(<name>)``. ValueError for a motion without its file or its root path."""

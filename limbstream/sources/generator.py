@@ -115,6 +115,7 @@ _TREE_AXES: list[tuple[str, float, np.ndarray]] = [
 _TREE_JOINTS = [joint for joint, _, _ in _TREE_AXES]
 _TREE_SIGNS = np.array([sign for _, sign, _ in _TREE_AXES])[:, None]
 _TREE_AXIS = np.array([_axis_index(axis) for _, _, axis in _TREE_AXES])
+_LIMB_AXIS = np.array([_axis_index(axis) for _, _, axis in limbs.AXES])
 
 
 def _elementary_all(a: dict[str, np.ndarray], heading: float) -> dict[str, np.ndarray]:
@@ -135,7 +136,7 @@ def _limb_rotations(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{joint: (n, 4)} the rotations of the feet and hands (:data:`.generator_limbs.AXES`)."""
     angle = np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES])
     return dict(zip([joint for joint, _, _ in limbs.AXES],
-                    _rotations(angle, np.array([_axis_index(axis) for _, _, axis in limbs.AXES]))))
+                    _rotations(angle, _LIMB_AXIS)))
 
 
 def _chains(parent: np.ndarray, e: dict[str, np.ndarray], *steps: list[str]) -> np.ndarray:
