@@ -3,6 +3,7 @@ checked through an independent BVH reader, and ``eval --loop-minutes`` scoring r
 over the looped walk."""
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 
@@ -11,6 +12,7 @@ import pytest
 from support.bvh import read_bvh_positions, write_bvh
 
 from limbstream import cli, quat
+from limbstream.cli import emulate
 from limbstream.calibration import yaw
 from limbstream.sources import load
 from limbstream.sources.bvh import parse_bvh
@@ -99,3 +101,17 @@ def test_a_path_under_a_static_root_is_looped_there(cmu_bvh_dir, tmp_path):
     looped = read_bvh_positions(tmp_path / "loop.bvh")
     assert np.all(looped["Floor"] == 0.0)
     assert np.linalg.norm(looped["Hips"][-1, [0, 2]] - looped["Hips"][0, [0, 2]]) > 8.0
+
+
+def test_a_clip_too_short_for_a_loop_is_looped_as_any_other(cmu_bvh_dir, tmp_path):
+    """Half a second of a walk: no cycle to loop on, so ``emulate`` plays it as it plays any clip
+    (starting again from its first frame), not refuse it."""
+    clip = parse_bvh(cmu_bvh_dir / "02_01.bvh")
+    (tmp_path / "short.bvh").write_text(write_bvh(dataclasses.replace(clip, motion=clip.motion[:60])))
+    [motion] = load(tmp_path / "short.bvh", layout="full")
+    assert motion.root is not None and not bvh_loop.walks_on(motion)
+    parser = argparse.ArgumentParser()
+    emulate.add_arguments(parser)
+    [feed] = emulate.build_feeds(parser.parse_args(["--source", str(tmp_path / "short.bvh"), "--layout", "full",
+                                                    "--subjects", "1"])).values()
+    assert feed.motion.name == "short" and len(feed.q) == len(motion.t)

@@ -166,8 +166,13 @@ def looped_clip(clip: BvhClip, seconds: float, first: int = 0, unit_m: float = 1
 
 def walks_on(motion: Motion) -> bool:
     """Whether ``motion`` can be looped with its root walking on: a BVH clip read with its file's
-    positions and a root path."""
-    return motion.positions is not None and motion.root is not None and moving_root(motion.positions.clip) is not None
+    positions, a joint that carries its path and more than :data:`LOOP_MIN_S` of frames (a shorter
+    one is looped as any other clip is)."""
+    source = motion.positions
+    if source is None or motion.root is None or moving_root(source.clip) is None:
+        return False
+    first = round(source.start_s / source.clip.frame_time)
+    return source.clip.n_frames - first > round(LOOP_MIN_S / source.clip.frame_time)
 
 
 def looped_motion(motion: Motion, seconds: float, layout: str | Layout) -> tuple[Motion, LoopedClip]:
