@@ -276,7 +276,9 @@ class Emulator:
         m = self._streaming()
         taken, n, q = self._take(k, m)
         row = k % self._ring
-        self._ring_ref[row, taken] = np.round(self.clocks.sample_time(n, taken)).astype(np.int64)
+        truth = self.settings.host.truth
+        if truth:  # the truth tap's columns
+            self._ring_ref[row, taken] = np.round(self.clocks.sample_time(n, taken)).astype(np.int64)
         self._ring_q[row, taken] = q
         if self.raw is not None:
             self._step_raw(k, m, taken)
@@ -288,12 +290,13 @@ class Emulator:
                     self._new_stream(self.devices[slot], k)
             y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept
             y[taken] = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.host.fs, q)
-            self._ring_own[row, taken] = y[taken]
+            if truth:
+                self._ring_own[row, taken] = y[taken]
             ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
                      & 0xFFFFFFFF).astype(np.uint32)
             self.bank.update(ticks, y, taken, stamps)
         self.ticks = k + 1
-        if self.settings.host.truth:
+        if truth:
             self._tap(k, m)
         self._end(taken[self.n[taken] > self.n_last[taken]], k)
         self.host.answer_queries()

@@ -124,15 +124,39 @@ def about_axes(angle: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """(j, n, 4) float64 the rotations by ``angle`` (j, n) rad about coordinate axes ``axis`` (j,)
     (0: X, 1: Y, 2: Z): scipy's ``Rotation.from_rotvec`` of ``angle`` times the unit axis, bit for
     bit (its half-angle scale, with its series below 1e-3 rad), at a third of its cost."""
+    c, s = half_turns(angle)
+    out = np.zeros(c.shape + (4,))
+    out[..., 0] = c
+    out[np.arange(len(c)), :, 1 + np.asarray(axis)] = s
+    return out
+
+
+def half_turns(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(c, s), each shaped as ``angle`` (rad): the rotation by ``angle`` about a coordinate axis is
+    the quaternion (c, s along that axis), as :func:`about_axes` (scipy's ``from_rotvec``) makes it."""
     angle = np.asarray(angle, np.float64)
     size = np.abs(angle)  # the rotation vector's norm: sqrt(a * a) is |a| exactly
+    half = size / 2
     small = size <= 1e-3
-    size2 = size * size
-    scale = np.where(small, 0.5 - size2 / 48 + size2 * size2 / 3840, np.sin(size / 2) / np.where(small, 1.0, size))
-    out = np.zeros(angle.shape + (4,))
-    out[..., 0] = np.cos(size / 2)
-    out[np.arange(len(angle)), :, 1 + np.asarray(axis)] = angle * scale
-    return out
+    scale = np.sin(half)
+    np.divide(scale, size, out=scale, where=~small)
+    if small.any():  # scipy's series there
+        size2 = size[small] * size[small]
+        scale[small] = 0.5 - size2 / 48 + size2 * size2 / 3840
+    return np.cos(half), angle * scale
+
+
+def times_about_axis(q: tuple[np.ndarray, ...], c: np.ndarray, s: np.ndarray, axis: int) -> tuple[np.ndarray, ...]:
+    """The Hamilton product q (c, s along coordinate axis ``axis``: 0 X, 1 Y, 2 Z), ``q`` given and
+    returned as its components (w, x, y, z), arrays broadcasting with ``c`` and ``s``: the values of
+    :func:`multiply` by that quaternion (its products by the zero parts left out; an exact zero may
+    differ in sign), in a third of its arithmetic."""
+    w, x, y, z = q
+    if axis == 0:
+        return w * c - x * s, w * s + x * c, y * c + z * s, z * c - y * s
+    if axis == 1:
+        return w * c - y * s, x * c - z * s, w * s + y * c, x * s + z * c
+    return w * c - z * s, x * c + y * s, y * c - x * s, w * s + z * c
 
 
 def left_matrix(a: np.ndarray) -> np.ndarray:

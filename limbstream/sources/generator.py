@@ -116,35 +116,8 @@ _TREE_JOINTS = [joint for joint, _, _ in _TREE_AXES]
 _TREE_SIGNS = np.array([sign for _, sign, _ in _TREE_AXES])[:, None]
 _TREE_AXIS = np.array([_axis_index(axis) for _, _, axis in _TREE_AXES])
 _LIMB_AXIS = np.array([_axis_index(axis) for _, _, axis in limbs.AXES])
-
-
-def _elementary_all(a: dict[str, np.ndarray], heading: float) -> dict[str, np.ndarray]:
-    """{joint: (n, 4)} the rotations of :data:`_TREE_AXES` by the angles ``a`` (degrees, |angle|
-    < 180; the pelvis yaw plus the heading), continuous in the angle."""
-    angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
-    angle[0] = heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
-    return dict(zip(_TREE_JOINTS, _rotations(angle, _TREE_AXIS)))
-
-
-def _rotations(angle: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """(j, n, 4) the rotations by ``angle`` (j, n) degrees about coordinate axes ``axis`` (j,) (0: X,
-    1: Y, 2: Z)."""
-    return quat.about_axes(np.radians(angle), axis)
-
-
-def _limb_rotations(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """{joint: (n, 4)} the rotations of the feet and hands (:data:`.generator_limbs.AXES`)."""
-    angle = np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES])
-    return dict(zip([joint for joint, _, _ in limbs.AXES],
-                    _rotations(angle, _LIMB_AXIS)))
-
-
-def _chains(parent: np.ndarray, e: dict[str, np.ndarray], *steps: list[str]) -> np.ndarray:
-    """(c, n, 4) ``parent`` (n, 4) times c chains of factors at once (chain i's s-th: ``e[steps[s][i]]``)."""
-    out = parent[None]
-    for names in steps:
-        out = quat.multiply(out, np.stack([e[name] for name in names]))
-    return out
+SIDE = 9
+"""The first of the sides' joints in :data:`_TREE_AXES` (the left's, then as many of the right's)."""
 
 
 class GeneratorSource:
@@ -221,9 +194,14 @@ class GeneratorSource:
         -------
         dict joint -> (n,) float64 degrees, for every name in :data:`JOINTS`.
         """
+        return self._joint_angles(t, feet=True)
+
+    def _joint_angles(self, t: np.ndarray, feet: bool) -> dict[str, np.ndarray]:
+        """:meth:`joint_angles`; without ``feet`` the ankles and subtalar joints are left as the
+        activities give them, not kept to the floor (paper10's segments do not depend on them)."""
         t = np.atleast_1d(np.asarray(t, np.float64))
         cur, prev, w = self._blend(t)
-        out = {j: np.zeros(len(t)) for j in JOINTS}
+        out = np.zeros((len(JOINTS), len(t)))
         for idx in np.unique(np.concatenate([cur, prev[w < 1.0]])):
             w_cur = np.where(prev == cur, 1.0, w)  # a one-activity loop has nothing to fade from
             weight = np.where(cur == idx, w_cur, 0.0) + np.where(
@@ -233,39 +211,66 @@ class GeneratorSource:
             if not mask.any():
                 continue
             angles = _ACTIVITY_FUNCS[self._schedule[idx][0]](t[mask], self._subject)
-            for j in JOINTS:
-                out[j][mask] += weight[mask] * angles[j]
-        limbs.on_the_floor(out)  # after the cross-fades: the feet keep to the floor through them too
-        return out
+            every = mask.all()
+            activity = np.empty((len(JOINTS), len(t) if every else int(mask.sum())))
+            for row, j in zip(activity, JOINTS):
+                row[:] = angles[j]
+            if every:
+                out += weight * activity
+            else:
+                out[:, mask] += weight[mask] * activity
+        angles = dict(zip(JOINTS, out))
+        if feet:
+            limbs.on_the_floor(angles)  # after the cross-fades: the feet keep to the floor through them too
+        return angles
 
     def orientations(self, t: np.ndarray) -> np.ndarray:
         """(n, S, 4) noise-free global orientations of :attr:`segments` at times ``t`` (s).
 
         Mounting offsets apply if enabled; noise does not (it belongs to sample indices).
         """
-        a = self.joint_angles(t)
-        e = _elementary_all(a, self._subject.heading)
-        # each level of the tree in one product per factor: all chains of a level advance together
-        pelvis = quat.multiply(quat.multiply(e["pelvis_yaw"], e["pelvis_tilt"]), e["pelvis_obliquity"])
-        trunk, thigh_l, thigh_r = _chains(pelvis, e, ["trunk_rot", "hip_abd_l", "hip_abd_r"],
-                                          ["trunk_flex", "hip_flex_l", "hip_flex_r"],
-                                          ["trunk_lat", "hip_rot_l", "hip_rot_r"])
-        neck, upper_l, upper_r = _chains(trunk, e, ["neck_rot", "shoulder_abd_l", "shoulder_abd_r"],
-                                         ["neck_flex", "shoulder_flex_l", "shoulder_flex_r"],
-                                         ["neck_lat", "shoulder_rot_l", "shoulder_rot_r"])
-        shank_l, shank_r, lower_l, lower_r = quat.multiply(np.stack([thigh_l, thigh_r, upper_l, upper_r]), np.stack(
-            [e["knee_flex_l"], e["knee_flex_r"], e["elbow_flex_l"], e["elbow_flex_r"]]))
-        seg = dict(hip=pelvis, neck=neck, l_thigh=thigh_l, r_thigh=thigh_r, l_shank=shank_l, r_shank=shank_r,
-                   l_upperarm=upper_l, r_upperarm=upper_r, l_lowerarm=lower_l, r_lowerarm=lower_r)
+        a = self._joint_angles(t, feet=self._limbs)
+        angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
+        angle[0] = self._subject.heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
+        c, s = quat.half_turns(np.radians(angle))
+
+        def turned(q, rows, c=c, s=s):
+            """q times the elementary rotations ``rows`` of (c, s), left to right."""
+            for row in rows:
+                q = quat.times_about_axis(q, c[row], s[row], _TREE_AXIS[row])
+            return q
+
+        zero = np.zeros(len(c[0]))
+        pelvis = turned((c[0], zero, s[0], zero), (1, 2))  # the yaw (about Y), tilt and obliquity
+        trunk = turned(pelvis, (3, 4, 5))
+        neck = turned(trunk, (6, 7, 8))
+        # both sides at once: (2, n) components, the left's then the right's, turned by the
+        # joints SIDE + k (k: the joint's place among a side's, _TREE_AXES)
+        c, s = c[SIDE:].reshape(2, -1, len(zero)), s[SIDE:].reshape(2, -1, len(zero))
+
+        def sides(q, joints):
+            for k in joints:
+                q = quat.times_about_axis(q, c[:, k], s[:, k], _TREE_AXIS[SIDE + k])
+            return q
+
+        thighs = sides(pelvis, (0, 1, 2))
+        uppers = sides(trunk, (4, 5, 6))
+        shanks, lowers = sides(thighs, (3,)), sides(uppers, (7,))
+        seg = dict(hip=pelvis, neck=neck)
+        for i, side in enumerate("lr"):
+            seg.update({f"{side}_thigh": [p[i] for p in thighs], f"{side}_shank": [p[i] for p in shanks],
+                        f"{side}_upperarm": [p[i] for p in uppers], f"{side}_lowerarm": [p[i] for p in lowers]})
         if self._limbs:
-            e = _limb_rotations(a)
-            tips = ("ankle_flex", "subtalar"), ("wrist_flex", "wrist_dev")  # foot off the shank, hand off the forearm
-            parents = np.stack([shank_l, shank_r, lower_l, lower_r])
-            for step in range(2):
-                parents = quat.multiply(parents, np.stack([e[f"{tips[limb][step]}_{side}"] for limb in (0, 1)
-                                                           for side in ("l", "r")]))
-            seg.update(zip(("l_foot", "r_foot", "l_hand", "r_hand"), parents), chest=trunk, head=neck)
-        q = np.stack([seg[s] for s in self.segments], axis=1)
+            angle = np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES])
+            c, s = (v.reshape(2, -1, len(zero)) for v in quat.half_turns(np.radians(angle)))
+            feet, hands = shanks, lowers  # the foot off the shank, the hand off the forearm (limbs.AXES)
+            for k in (0, 1):
+                feet = quat.times_about_axis(feet, c[:, k], s[:, k], _LIMB_AXIS[k])
+                hands = quat.times_about_axis(hands, c[:, 2 + k], s[:, 2 + k], _LIMB_AXIS[2 + k])
+            for i, side in enumerate("lr"):
+                seg.update({f"{side}_foot": [p[i] for p in feet], f"{side}_hand": [p[i] for p in hands]})
+            seg.update(chest=trunk, head=neck)
+        q = np.stack([part for name in self.segments for part in seg[name]], axis=-1).reshape(len(zero), -1, 4)
         if self.mounting_offsets:
             q = quat.multiply(q, self._mount[None, :, :])
         return q
