@@ -197,3 +197,16 @@ def test_about_axes_is_scipys_rotation_vector_bit_for_bit():
     rotvec = angle[..., None] * np.eye(3)[axis][:, None, :]
     want = quat.from_rotation(Rotation.from_rotvec(rotvec.reshape(-1, 3))).reshape(q.shape)
     assert np.array_equal(q, want)  # the generator's orientations stay those of its reference
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_times_about_axis_is_the_product_by_the_elementary_rotation(axis):
+    rng = np.random.default_rng(5 + axis)
+    q = quat.normalize(rng.normal(size=(300, 4)))
+    q[:20, 1:] = 0.0  # rotations about one axis, as the generator's tree begins
+    q[20:40, 2] = 0.0
+    angle = np.concatenate([rng.uniform(-np.pi, np.pi, 250), rng.uniform(-2e-3, 2e-3, 48), [0.0, 1e-3]])
+    want = quat.multiply(q, quat.about_axes(angle[None], [axis])[0])
+    c, s = quat.half_turns(angle)
+    got = np.stack(quat.times_about_axis(tuple(q.T), c, s, axis), axis=-1)
+    assert np.array_equal(got, want)  # the same values (an exact zero's sign aside)
