@@ -61,6 +61,7 @@ def main() -> int:
             truth=args.truth, truth_by_subject=True, config=wire.DeviceConfig().validate())))
         emulator.declare()
         parts = [(emulator, "step", "the step"), (emulator, "_take", "taking the samples"),
+                 (emulator._feed_rows, "rows", "the feeds' samples"),
                  (emulator.bank, "update", "the kernel and its points"),
                  (emulator.host, "publish_points", "the points' puts"), (emulator, "_tap", "the truth tap"),
                  (emulator.host, "answer_queries", "config queries")]

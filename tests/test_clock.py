@@ -243,7 +243,8 @@ def test_devices_sample_on_their_own_clock_grid(tmp_path):
     session = zconfig.open_session(zconfig.ZenohSettings(mode="peer", connect=()))
     try:
         cs = ClockSettings(offset_ms=50, drift_ppm=1000, sync=False, seed=3)
-        e = Emulator(session, {"s01": GeneratorFeed(1, 50.0)}, EmulatorSettings(HostSettings(truth=False), clock=cs))
+        # (with the truth tap: the reference times are its)
+        e = Emulator(session, {"s01": GeneratorFeed(1, 50.0)}, EmulatorSettings(HostSettings(truth=True), clock=cs))
         e.declare()
         e.clocks.boot(T0)
         e.start_us = T0

@@ -126,9 +126,10 @@ def _default_body(layout: Layout) -> Body | None:
 class FeedRows:
     """Sample k of each of several feeds, stacked: one tick's values of all their devices.
 
-    The built-in generator's feeds (their chunks all of one length) are read from one array of
-    their current chunks, one gather for all of them; other feeds one by one. A finite feed holds
-    its last sample past its end.
+    The built-in generator's feeds (their chunks all of one length L) are read from one ring of
+    their current chunks by sample: row k % L holds sample k of every one of them (each chunk
+    written there when it is made), so a tick reads one contiguous row; other feeds one by one. A
+    finite feed holds its last sample past its end.
 
     Parameters
     ----------
@@ -144,8 +145,9 @@ class FeedRows:
             gen, shapes = [], {(0, 0)}
         chunk_len, segments = shapes.pop()
         self._gen = np.array(gen, np.int64)
-        self._chunks = np.zeros((len(gen), chunk_len, segments, 4), np.float32)  # their current chunks
-        self._start = np.zeros(len(gen), np.int64)  # the first sample of each
+        self._segments = segments
+        self._ring = np.zeros((chunk_len, len(gen) * segments, 4), np.float32)  # row k % L: their samples k
+        self._start = np.zeros(len(gen), np.int64)  # the first sample of each one's current chunk
         self._len = np.zeros(len(gen), np.int64)    # its samples (0: none yet)
         self._gen_rows = (self._first[self._gen][:, None] + np.arange(segments)).ravel()
         self._others = [i for i in range(len(feeds)) if i not in set(gen)]
@@ -156,12 +158,12 @@ class FeedRows:
         gen = np.searchsorted(self._gen, count)  # generator feeds among the first count
         if gen:
             i = k - self._start[:gen]
+            ring, width = self._ring, self._segments
             for g in np.flatnonzero((i < 0) | (i >= self._len[:gen])).tolist():
                 start, chunk = self.feeds[self._gen[g]].chunk_at(k)
-                self._chunks[g, :len(chunk)] = chunk
+                ring[np.arange(start, start + len(chunk)) % len(ring), g * width:(g + 1) * width] = chunk
                 self._start[g], self._len[g] = start, len(chunk)
-            i = k - self._start[:gen]
-            out[self._gen_rows[:gen * self._chunks.shape[2]]] = self._chunks[np.arange(gen), i].reshape(-1, 4)
+            out[self._gen_rows[:gen * width]] = ring[k % len(ring), :gen * width]
         for f in self._others:
             if f < count:
                 feed = self.feeds[f]
