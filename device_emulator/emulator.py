@@ -145,6 +145,8 @@ class Emulator:
         ends = np.array([(d.source.length - 1) if d.source.length else -1 for d in self.devices], np.float64)
         last = np.floor(((ends * self.period_us) * (1.0 + self.clocks.drift) - self.clocks.phase_us) / self.period_us)
         self.n_last = np.where(ends >= 0, last, np.inf)
+        self._finite = bool((ends >= 0).any())  # a feed ends
+        self._any_ended = False                 # a stream ended (self.ended has a True)
         on = settings.sensors.on and self.raw is None
         self.sensors = settings.sensors.draw(n, stream=settings.clock_id) if on else None
         self._ring = ring
@@ -195,8 +197,10 @@ class Emulator:
         n = self.n[:m]
         live = ~self.ended[:m]
         if not self.modelled:  # every device samples at every tick, on the feed's own grid
-            taken = slots[live]
-            return taken, n[live], self._feed_rows.rows(k, self._feeds_in(m))[live]
+            rows = self._feed_rows.rows(k, self._feeds_in(m))
+            if not self._any_ended:
+                return slots, n.copy(), rows
+            return slots[live], n[live], rows[live]
         tau = self.clocks.sample_time(n, slots)
         due = live & (tau <= t_k + 0.5)
         taken = slots[due]
@@ -288,8 +292,11 @@ class Emulator:
             if self.sync is not None and self.sync.steps:
                 for slot in taken[self.sync.stepped[taken]]:
                     self._new_stream(self.devices[slot], k)
-            y = np.full((m, 4), np.nan, np.float32)  # devices without a sample this tick: rejected, state kept
-            y[taken] = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.host.fs, q)
+            own = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.host.fs, q)
+            y = np.asarray(own, np.float32)
+            if len(taken) < m:  # devices without a sample this tick: rejected, state kept
+                y = np.full((m, 4), np.nan, np.float32)
+                y[taken] = own
             if truth:
                 self._ring_own[row, taken] = y[taken]
             ticks = (np.round(self.clocks.phase_us[:m] + self.n[:m] * self.period_us).astype(np.int64)
@@ -298,7 +305,8 @@ class Emulator:
         self.ticks = k + 1
         if truth:
             self._tap(k, m)
-        self._end(taken[self.n[taken] > self.n_last[taken]], k)
+        if self._finite:
+            self._end(taken[self.n[taken] > self.n_last[taken]], k)
         self.host.answer_queries()
 
     def _step_raw(self, k: int, m: int, taken: np.ndarray) -> None:
@@ -371,6 +379,7 @@ class Emulator:
         if self.settings.host.truth:
             self._flush_tap(slots, k)
         self.ended[slots] = True
+        self._any_ended = True
         self._m = None
 
     def finish(self) -> None:
