@@ -9,7 +9,8 @@ rotations").
 
 A part's time includes the parts it calls (the generator is inside "taking the samples", the puts
 inside "the kernel and its points"); "the rest of the loop" is the tick loop's thread less the
-step (pacing, the sync's results). Each timer costs about a microsecond.
+step (pacing, the sync's results). Each timer costs about a microsecond. Last, the points put in
+those ticks and the thread CPU of each (``bench/put_cost.py``: a put alone).
 """
 from __future__ import annotations
 
@@ -70,6 +71,12 @@ def main() -> int:
             parts.append((emulator.sync, "stamp", "stamps (time sync)"))
         for obj, name, part in parts:
             timed(obj, name, part)
+        puts = emulator.host.publish_points
+
+        def counted_puts(slots, payload, ends):
+            spent["puts"] += len(slots)  # (a count, not seconds)
+            return puts(slots, payload, ends)
+        emulator.host.publish_points = counted_puts  # type: ignore[method-assign]
         start: dict[str, float] = {}
         tick = emulator._tick
 
@@ -90,12 +97,16 @@ def main() -> int:
         raise SystemExit(f"no ticks after the warm-up: run longer than {WARMUP_TICKS / 50:g} s")
     print(f"\n### The emulator's tick by part ({args.devices} devices, {ticks} ticks after {WARMUP_TICKS}, "
           f"truth tap {'on' if args.truth else 'off'})\n")
+    count = spent.pop("puts", 0.0)
     print("| part | ms per tick | % of the tick loop's thread |")
     print("|---|---:|---:|")
     rows = [("the tick loop's thread", loop), *sorted(spent.items(), key=lambda item: -item[1]),
             ("the rest of the loop", loop - spent["the step"])]
     for part, seconds in rows:
         print(f"| {part} | {1e3 * seconds / ticks:.3f} | {100 * seconds / loop:.0f} |")
+    if count:
+        each = spent["the points' puts"] / count
+        print(f"\n{count:.0f} points put, {1e6 * each:.1f} us of the thread each")
     return 0
 
 

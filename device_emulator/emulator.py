@@ -146,7 +146,6 @@ class Emulator:
         last = np.floor(((ends * self.period_us) * (1.0 + self.clocks.drift) - self.clocks.phase_us) / self.period_us)
         self.n_last = np.where(ends >= 0, last, np.inf)
         self._finite = bool((ends >= 0).any())  # a feed ends
-        self._any_ended = False                 # a stream ended (self.ended has a True)
         on = settings.sensors.on and self.raw is None
         self.sensors = settings.sensors.draw(n, stream=settings.clock_id) if on else None
         self._ring = ring
@@ -198,7 +197,7 @@ class Emulator:
         live = ~self.ended[:m]
         if not self.modelled:  # every device samples at every tick, on the feed's own grid
             rows = self._feed_rows.rows(k, self._feeds_in(m))
-            if not self._any_ended:
+            if live.all():
                 return slots, n.copy(), rows
             return slots[live], n[live], rows[live]
         tau = self.clocks.sample_time(n, slots)
@@ -293,8 +292,9 @@ class Emulator:
                 for slot in taken[self.sync.stepped[taken]]:
                     self._new_stream(self.devices[slot], k)
             own = q if self.sensors is None else self.sensors.report_many(taken, n / self.settings.host.fs, q)
-            y = np.asarray(own, np.float32)
-            if len(taken) < m:  # devices without a sample this tick: rejected, state kept
+            if len(taken) == m:
+                y = np.asarray(own, np.float32)
+            else:  # devices without a sample this tick: rejected, state kept
                 y = np.full((m, 4), np.nan, np.float32)
                 y[taken] = own
             if truth:
@@ -379,7 +379,6 @@ class Emulator:
         if self.settings.host.truth:
             self._flush_tap(slots, k)
         self.ended[slots] = True
-        self._any_ended = True
         self._m = None
 
     def finish(self) -> None:

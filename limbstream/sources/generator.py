@@ -120,6 +120,19 @@ SIDE = 9
 """The first of the sides' joints in :data:`_TREE_AXES` (the left's, then as many of the right's)."""
 
 
+def _turned(q: tuple[np.ndarray, ...], c: np.ndarray, s: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``q`` (its components w, x, y, z) times the elementary rotations (``c[i]``, ``s[i]`` about
+    coordinate axis ``axes[i]``, :func:`limbstream.quat.times_about_axis`), left to right."""
+    for ci, si, axis in zip(c, s, axes):
+        q = quat.times_about_axis(q, ci, si, axis)
+    return q
+
+
+def _by_side(v: np.ndarray) -> np.ndarray:
+    """(2 j, n) rows of the left's j joints then the right's -> (j, 2, n): joint k of both sides."""
+    return v.reshape(2, -1, v.shape[-1]).swapaxes(0, 1)
+
+
 class GeneratorSource:
     """Seeded synthetic subject, sample by sample or in chunks, forever.
 
@@ -233,40 +246,26 @@ class GeneratorSource:
         angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
         angle[0] = self._subject.heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
         c, s = quat.half_turns(np.radians(angle))
-
-        def turned(q, rows, c=c, s=s):
-            """q times the elementary rotations ``rows`` of (c, s), left to right."""
-            for row in rows:
-                q = quat.times_about_axis(q, c[row], s[row], _TREE_AXIS[row])
-            return q
-
         zero = np.zeros(len(c[0]))
-        pelvis = turned((c[0], zero, s[0], zero), (1, 2))  # the yaw (about Y), tilt and obliquity
-        trunk = turned(pelvis, (3, 4, 5))
-        neck = turned(trunk, (6, 7, 8))
-        # both sides at once: (2, n) components, the left's then the right's, turned by the
-        # joints SIDE + k (k: the joint's place among a side's, _TREE_AXES)
-        c, s = c[SIDE:].reshape(2, -1, len(zero)), s[SIDE:].reshape(2, -1, len(zero))
-
-        def sides(q, joints):
-            for k in joints:
-                q = quat.times_about_axis(q, c[:, k], s[:, k], _TREE_AXIS[SIDE + k])
-            return q
-
-        thighs = sides(pelvis, (0, 1, 2))
-        uppers = sides(trunk, (4, 5, 6))
-        shanks, lowers = sides(thighs, (3,)), sides(uppers, (7,))
-        seg = dict(hip=pelvis, neck=neck)
+        pelvis = _turned((c[0], zero, s[0], zero), c[1:3], s[1:3], _TREE_AXIS[1:3])  # the yaw (about Y) first
+        trunk = _turned(pelvis, c[3:6], s[3:6], _TREE_AXIS[3:6])
+        neck = _turned(trunk, c[6:9], s[6:9], _TREE_AXIS[6:9])
+        # both sides at once: joint k of a side (its place among a side's in _TREE_AXES) as (2, n),
+        # the left's then the right's
+        c, s, axes = _by_side(c[SIDE:]), _by_side(s[SIDE:]), _TREE_AXIS[SIDE:]
+        thighs = _turned(pelvis, c[0:3], s[0:3], axes[0:3])
+        shanks = _turned(thighs, c[3:4], s[3:4], axes[3:4])
+        uppers = _turned(trunk, c[4:7], s[4:7], axes[4:7])
+        lowers = _turned(uppers, c[7:8], s[7:8], axes[7:8])
+        seg: dict[str, Sequence[np.ndarray]] = dict(hip=pelvis, neck=neck)  # each segment's (w, x, y, z)
         for i, side in enumerate("lr"):
             seg.update({f"{side}_thigh": [p[i] for p in thighs], f"{side}_shank": [p[i] for p in shanks],
                         f"{side}_upperarm": [p[i] for p in uppers], f"{side}_lowerarm": [p[i] for p in lowers]})
-        if self._limbs:
-            angle = np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES])
-            c, s = (v.reshape(2, -1, len(zero)) for v in quat.half_turns(np.radians(angle)))
-            feet, hands = shanks, lowers  # the foot off the shank, the hand off the forearm (limbs.AXES)
-            for k in (0, 1):
-                feet = quat.times_about_axis(feet, c[:, k], s[:, k], _LIMB_AXIS[k])
-                hands = quat.times_about_axis(hands, c[:, 2 + k], s[:, 2 + k], _LIMB_AXIS[2 + k])
+        if self._limbs:  # the foot off the shank, the hand off the forearm (limbs.AXES)
+            c, s = (_by_side(v) for v in quat.half_turns(np.radians(
+                np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES]))))
+            feet = _turned(shanks, c[0:2], s[0:2], _LIMB_AXIS[0:2])
+            hands = _turned(lowers, c[2:4], s[2:4], _LIMB_AXIS[2:4])
             for i, side in enumerate("lr"):
                 seg.update({f"{side}_foot": [p[i] for p in feet], f"{side}_hand": [p[i] for p in hands]})
             seg.update(chest=trunk, head=neck)
