@@ -4,15 +4,13 @@ device (docs/protocol.md, "Key expressions").
 Per device: its segment point publisher (advanced: a cache for recovery, miss detection), its
 truth-tap publisher (with ``truth``; with ``truth_by_subject`` one per subject instead, its
 messages holding the batches of all the subject's devices: ``wire.truth``), and its liveliness
-token while it is online. Per subject: one config queryable, whose queries its Zenoh callback only
-hands to one queue of the host's, answered between ticks, at most :data:`QUERIES_PER_TICK` per call
-(a tick asks one queue, not each subject's channel). What a device answers comes from its owner: the
+token while it is online. Per subject: one config queryable, read between ticks (never in a
+Zenoh callback), at most :data:`QUERIES_PER_TICK` queries per call. What a device answers comes from its owner: the
 ``configure`` and ``status`` callbacks (devices whose kernels run in this process:
 :class:`~limbstream.device.bank.DeviceBank`; a device on a serial link asks its firmware).
 """
 from __future__ import annotations
 
-import collections
 import logging
 import threading
 from collections.abc import Callable, Iterator
@@ -33,10 +31,6 @@ QUERIES_PER_TICK = 10
 """Config queries one call answers at most (each may name a whole subject's devices): an
 aggregator's status poll asks every subject at once, and answering 100 subjects in one tick
 would make it late; the rest wait a tick."""
-
-QUERY_BACKLOG = 1024
-"""Config queries waiting for an answer at most; one arriving beyond is dropped (counted in
-``DeviceHost.queries_dropped``: its asker gets no answer from these devices)."""
 
 IDLE_S = 0.05
 """After a finite run, config queries are answered this often, s."""
@@ -133,9 +127,6 @@ class DeviceHost(Generic[S]):
         self.by_id: dict[str, Device[S]] = {}
         self.subjects: dict[str, list[tuple[zenoh.KeyExpr, Device[S]]]] = {}  # each served subject's devices
         self._queryables: dict[str, Any] = {}    # by subject
-        self._queries: collections.deque[tuple[str, zenoh.Query]] = collections.deque()  # (subject, query) to answer
-        self.queries_dropped = 0                 # beyond QUERY_BACKLOG
-        self._dropped_told = 0
         self.truth_pubs: dict[str, Any] = {}     # by subject, with truth_by_subject
         self.declared = False
 
@@ -180,15 +171,8 @@ class DeviceHost(Generic[S]):
             self.truth_pubs[subject] = io.truth_publisher(self.session, subject)
 
     def _declare_queryable(self, subject: str) -> None:
-        queries = self._queries
-
-        def arrived(query: zenoh.Query) -> None:  # on a Zenoh thread: hand off only
-            if len(queries) < QUERY_BACKLOG:
-                queries.append((subject, query))
-            else:
-                self.queries_dropped += 1
-
-        self._queryables[subject] = self.session.declare_queryable(wire.device_selector(wire.CONFIG, subject), arrived)
+        self._queryables[subject] = self.session.declare_queryable(wire.device_selector(wire.CONFIG, subject),
+                                                                   zenoh.handlers.FifoChannel(1024))
 
     def online(self, d: Device[S]) -> None:
         """The device comes online: its liveliness token."""
@@ -255,17 +239,12 @@ class DeviceHost(Generic[S]):
 
     def answer_queries(self, budget: int = QUERIES_PER_TICK) -> None:
         """Apply and answer the config queries that arrived since the last call, at most ``budget``."""
-        queries = self._queries
-        if self.queries_dropped > self._dropped_told:
-            log.warning("config queries dropped: %d beyond %d waiting (%d in all)",
-                        self.queries_dropped - self._dropped_told, QUERY_BACKLOG, self.queries_dropped)
-            self._dropped_told = self.queries_dropped
-        while budget > 0 and queries:
-            subject, query = queries.popleft()
-            budget -= 1
-            targets = [d for key, d in self.subjects[subject]
-                       if (d.online or self.offline_answers) and key.intersects(query.key_expr)]
-            io.answer_config(query, targets, self.configure, self.status)
+        for subject, queryable in self._queryables.items():
+            while budget > 0 and (query := queryable.try_recv()) is not None:
+                budget -= 1
+                targets = [d for key, d in self.subjects[subject]
+                           if (d.online or self.offline_answers) and key.intersects(query.key_expr)]
+                io.answer_config(query, targets, self.configure, self.status)
 
     def idle(self, stop: threading.Event, also: Callable[[], object] | None = None) -> None:
         """After a finite run: answer config queries (and call ``also``) every IDLE_S until ``stop``
@@ -287,6 +266,5 @@ class DeviceHost(Generic[S]):
         for obj in [*self._queryables.values(), *self.truth_pubs.values()]:
             obj.undeclare()
         self._queryables.clear()
-        self._queries.clear()
         self.truth_pubs.clear()
         self.declared = False
