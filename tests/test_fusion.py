@@ -57,6 +57,25 @@ def test_frames_wait_for_the_slowest_device():
     assert [f.seq for f in frames] == list(range(51)) and all(f.flags == wire.FRAME_NO_ROOT for f in frames)  # paper10: no feet
 
 
+def test_a_frame_time_between_the_devices_first_stamps_is_the_subjects_first_frame():
+    """The devices of a subject begin their streams together, but each stamps its first sample on
+    its own clock, and the stamps fall either side of a frame time (T0 + 20 ms). An aggregator
+    running when they began builds the frames up to the earliest stamp (its watermark); one
+    restarted then, from the devices' history, must begin with the next frame time, not skip it
+    (FIRST_POINT_REACH): the frame holds each late device at its first point, unflagged."""
+    agg, sent = aggregator()
+    online_subject(agg)
+    for i, segment in enumerate(SEGMENTS):
+        skew = -60 + 15 * i  # -60 .. +75 us about the frame time
+        for k in range(6):
+            point = wire.SegmentPoint(1, k, 5 * k, T0 + 20_000 + skew + k * STEP_US, IDENTITY)
+            agg.on_point(wire.seg_key("s01", segment), wire.encode_point(point), 0.0)
+    agg.advance(live=False, now=0.0)
+    frames = exact(sent)
+    assert [f.t_us - T0 for f in frames[:2]] == [20_000, 40_000]
+    assert not any(f.flags & wire.FRAME_MISSING for f in frames)
+
+
 def test_online_device_without_points_does_not_stall_its_subject():
     agg, sent = aggregator()
     online_subject(agg)

@@ -41,6 +41,14 @@ FIRST_FRAME_WAIT_S = 1.0
 """How long a subject's first exact frame waits, at most, for all of its devices to settle
 (DeviceTrack.settled) after it could first start, seconds; then it starts from the settled
 ones (a device whose stream keeps restarting must not hold the others back)."""
+FIRST_POINT_REACH = 0.25
+"""How far before a device's first point, in frame periods, its first point stands for it in
+exact frames (held there, not flagged MISSING). The devices of a subject take their first
+samples together, but each stamps its own on its own clock, and the clocks agree only to within
+the sync's error (about 0.1 ms here; more before the sync has converged). Without a reach, a
+frame time that fell between those stamps split the subject's frames: a running aggregator built
+the frames up to it (the earliest stamp passed), and one restarted just then began the subject
+after it (its first frame needs every device's first point), so a consumer lost that frame."""
 LIVE_EASE = 0.1
 """How fast a subject's live clock offset may come down, s per s of the aggregator's clock: a
 message that arrives later than the best one seen (transport delay, a stalled loop) lowers the
@@ -178,7 +186,7 @@ class FrameBuilder:
 
     def start(self, subjects: list, view: DeviceView, table: DeviceTable, store: PointStore, clock: float) -> None:
         """Fix the first frame of the subjects that can start: where every device they have is
-        covered, once every one of them settled (its start in, or its history query answered: a
+        covered (from FIRST_POINT_REACH before its first point), once every one of them settled (its start in, or its history query answered: a
         device whose history is still on its way would otherwise start the frames at its live
         points), at the latest FIRST_FRAME_WAIT_S after it could first start."""
         for i in np.flatnonzero((self.next_frame < 0) & (view.watermark != NO_TIME)):
@@ -188,7 +196,7 @@ class FrameBuilder:
             tracks = [t for t in sub.tracks.values() if table.placed[t.slot]]  # (those its layout has)
             if all(table.settled[t.slot] for t in tracks) or clock - sub.waiting_since >= FIRST_FRAME_WAIT_S:
                 ready = [t for t in tracks if table.settled[t.slot]] or tracks
-                first = max(store.first_t(t.slot) or 0 for t in ready)
+                first = max(store.first_t(t.slot) or 0 for t in ready) - FIRST_POINT_REACH * self.period_us
                 self.next_frame[i] = math.ceil(first / self.period_us)
 
     def plan_exact(self, watermark: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -219,7 +227,7 @@ class FrameBuilder:
         """(E,) flags of exact frames (subject ``owner``, time ``t_us``), (E, C) the segments
         of their layouts they lack and (E, C) the segments inside a span of their device's lost
         points: MISSING where a segment has no device, is held beyond a stale device's last
-        point or lies before its first point;
+        point or lies before its first point's reach;
         GAP inside a span whose points were lost (``gappy``: the devices with such spans; one whose
         spans all end before its subject's frames is taken out: no frame to come is in them); the
         subject's rest pose."""
@@ -227,7 +235,7 @@ class FrameBuilder:
         valid = slots >= 0
         rows = np.maximum(slots, 0)
         beyond = valid & (view.last_t[rows] < t_us[:, None])
-        before = valid & (store.n[rows] > 0) & (store.t[rows, 0] > t_us[:, None])
+        before = valid & (store.n[rows] > 0) & (store.t[rows, 0] > t_us[:, None] + FIRST_POINT_REACH * self.period_us)
         lacking = ((view.stale[owner] & beyond) | before | ~valid) & table.in_layout[owner]
         missing = lacking.any(axis=1)
         gap = np.zeros(slots.shape, bool)
