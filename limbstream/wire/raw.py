@@ -213,6 +213,12 @@ _HEADS = {v: np.dtype([("version", "u1"), ("flags", "u1"), ("stream", "<u2"), ("
 """The headers of every version as NumPy record types (the bytes of the structs above)."""
 
 
+def _all_finite(x: np.ndarray) -> np.ndarray:
+    """(n,) whether every value of each row of ``x`` (n, 4) float32 is finite: the row's four
+    bools read as one 32-bit word (a reduction along 4 values costs ten times more)."""
+    return np.isfinite(x).view(np.uint32)[:, 0] == 0x01010101
+
+
 def decode_raws(payloads: list[bytes]) -> RawColumns:
     """Many truth-tap payloads at once -> :class:`RawColumns`: the same batches and the same
     reasons as :func:`decode_raw` of each, in a few NumPy calls for all."""
@@ -246,7 +252,10 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
             ref_us[rows] = ref0[sample_batch[rows]] + body["ref_dt_us"]
         if v == 3:
             own[rows] = body["own"]
-    bad = ~np.isfinite(q).all(axis=1) | ((version[sample_batch] == 3) & ~np.isfinite(own).all(axis=1))
+    bad = ~_all_finite(q)
+    v3 = np.flatnonzero(version[sample_batch] == 3)
+    if len(v3):
+        bad[v3] |= ~_all_finite(own[v3])
     finite = np.bincount(sample_batch[bad], minlength=b) == 0
     later = rank[1:] > 0  # a sample after the first of its batch: its times may not go back
     back = later & ((np.diff(t_us) < 0) | (np.diff(ref_us) < 0))

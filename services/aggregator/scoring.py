@@ -191,7 +191,11 @@ class Scoring:
             truth = both[:, :4]
             self._score_own(slots, t_us, both[:, 4:])
             if self.turns is not None:  # the reconstruction turned by c is compared: truth turned by -c
-                truth = quat.multiply(calibration.yaw(-self.turns(slots, t_us)), truth.astype(np.float64))
+                turn = self.turns(slots, t_us)
+                turned = np.flatnonzero(turn)  # (devices without a correction: as they are)
+                if len(turned):
+                    truth = truth.astype(np.float64)
+                    truth[turned] = quat.multiply(calibration.yaw(-turn[turned]), truth[turned])
             exact, predicted = self.store.errors(slots, t_us, truth)
             self.exact.add(slots, exact)
             self.live.add(slots, predicted)
