@@ -5,7 +5,9 @@ Each revision is checked out in a temporary worktree and installed (its C kernel
 virtual environment of its own that borrows this environment's dependencies; then, per
 revision, in turn: the soak (``bench/soak.py``, shortened), the aggregator core bench
 (``bench/pipeline.py core``; again with ``--no-joint-angles`` where the revision has joint angles,
-and what the angles add to its CPU, and with ``--layout full`` where it has the whole-body layout) and the emulator bench (``bench/pipeline.py emulator``). Run it
+and what the angles add to its CPU, and with ``--layout full`` where it has the whole-body layout) and the emulator bench (``bench/pipeline.py emulator``);
+then the core bench ``--core-rounds`` times more, the two revisions in turn, its figure being each
+one's median (a single run of a revision has varied by a quarter from one run to the next). Run it
 before resolving any change that touches the device, router or aggregator path
 (docs/benchmarks.md, "Regression check").
 
@@ -149,6 +151,26 @@ def layout_costs(pythons: dict[str, Path], dirs: dict[str, Path], args) -> None:
               f"{', '.join(f'{r:.2f}' for r in ratios)}, median {statistics.median(ratios):.2f}")
 
 
+def core_rounds(pythons: dict[str, Path], dirs: dict[str, Path], first: dict[str, float], args) -> dict[str, float]:
+    """The core bench (200 subjects, live frames at ``--live-rate``) ``--core-rounds`` times more,
+    base and head in turn, so that both meet the same drift of the machine's speed; prints every
+    run and returns each revision's median over its runs (``first``: the run :func:`numbers` made)."""
+    import statistics
+    rate = ("--live-rate", f"{args.live_rate:g}")
+    runs = {rev: [value] for rev, value in first.items()}
+    print(f"\n| core bench run | {args.base} | {args.head} | ratio |\n|---:|---:|---:|---:|")
+    for k in range(args.core_rounds + 1):
+        if k:
+            for rev in runs:
+                with_rate = rate if "--live-rate" in (dirs[rev] / "bench/pipeline.py").read_text() else ()
+                row = table_row(run(pythons[rev], dirs[rev], "bench/pipeline.py", "core", "--subjects", "200",
+                                    "--seconds", f"{args.seconds:g}", *with_rate), "subjects", "200")
+                runs[rev].append(row.get("CPU per second of stream", float("nan")))
+        b, h = runs[args.base][-1], runs[args.head][-1]
+        print(f"| {k + 1} | {b:.1f} % | {h:.1f} % | {h / b:.2f} |", flush=True)
+    return {rev: statistics.median(v) for rev, v in runs.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", required=True, help="baseline revision (e.g. a tag, edac059, main)")
@@ -162,6 +184,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--layouts", type=int, default=0, metavar="N",
                         help="instead of the checks above: the core bench's cost per device on paper10 and full, "
                              "both revisions, N rounds back to back")
+    parser.add_argument("--core-rounds", type=int, default=2, metavar="N",
+                        help="the core bench N times more, the revisions in turn; its figure is then the median of "
+                             "each revision's N + 1 runs (default 2; 0: its one run)")
     args = parser.parse_args(argv)
     results = {}
     with tempfile.TemporaryDirectory(prefix="limbstream-regress-") as tmp:
@@ -173,6 +198,12 @@ def main(argv: list[str] | None = None) -> int:
             for rev, name in ((args.base, "base"), (args.head, "head")):
                 print(f"running {rev} ...", flush=True)
                 results[rev] = numbers(pythons[rev], Path(tmp) / name, args)
+            if args.core_rounds:  # the core bench's figure: the median of each revision's runs
+                core = next(k for k in results[args.head] if k.startswith("core bench, 200 subjects, live"))
+                dirs = {args.base: Path(tmp) / "base", args.head: Path(tmp) / "head"}
+                medians = core_rounds(pythons, dirs, {rev: results[rev][core] for rev in dirs}, args)
+                for rev, median in medians.items():
+                    results[rev][core] = median
         finally:
             for name in ("base", "head"):
                 subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(Path(tmp) / name)],
