@@ -56,6 +56,20 @@ def test_reconstruction_in_c_is_numpys():
         assert np.abs(p - quat.angle_deg(ref.predicted(slots, t), truth)).max() < 1e-9
 
 
+def test_errors_of_a_devices_run_of_samples_are_those_of_each_alone():
+    """Truth samples come in runs of one device's consecutive times, whose spans the errors'
+    call prepares once: the same bits as each sample's alone."""
+    for seed in range(3):
+        c, _ = random_stores(seed)
+        slots, t = queries(c, seed)
+        order = np.lexsort((t, slots))
+        slots, t = slots[order], t[order]
+        truth = quat.normalize(np.random.default_rng(seed).normal(size=(len(slots), 4))).astype(np.float32)
+        e, p = c.errors(slots, t, truth)
+        alone = np.array([c.errors(slots[i:i + 1], t[i:i + 1], truth[i:i + 1]) for i in range(len(slots))])
+        assert np.array_equal(e, alone[:, 0, 0]) and np.array_equal(p, alone[:, 1, 0])
+
+
 def two_points(q0, q1, w=(0.0, 0.0, 0.0)) -> PointStore:
     store = PointStore(8)
     store.add_slot()

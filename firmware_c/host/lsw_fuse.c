@@ -36,34 +36,58 @@ static void unit_point(const LswFuseRows *rows, int64_t r, int64_t k, double *y)
     y[3] = d / norm;
 }
 
+/** The span of a non-empty row that SLERP uses at times whose point at or before them is k: its
+ * ends (k1 == k: a row of one point), the two points normalised and their arc. */
+typedef struct {
+    int64_t r, k, k1;
+    double q0[4], q1[4];
+    LswArc arc;
+} Span;
+
+/** The first end of row r's span for point k (-1: none): k within 0 .. n - 2. */
+static int64_t span_start(const LswFuseRows *rows, int64_t r, int64_t k)
+{
+    const int64_t n = rows->n[r];
+    const int64_t last = n >= 2 ? n - 2 : 0;
+    return k < 0 ? 0 : (k > last ? last : k);
+}
+
+static void span_of(const LswFuseRows *rows, int64_t r, int64_t k, Span *s)
+{
+    const int64_t n = rows->n[r];
+    s->r = r;
+    s->k = span_start(rows, r, k);
+    s->k1 = s->k + 1 < n - 1 ? s->k + 1 : n - 1;
+    unit_point(rows, r, s->k, s->q0);
+    unit_point(rows, r, s->k1, s->q1);
+    s->arc = lsw_quat_arc(s->q0, s->q1);
+}
+
+/** The SLERP reconstruction at time x on span s. */
+static void span_at(const LswFuseRows *rows, const Span *s, int64_t x, double *y)
+{
+    const int64_t *t = rows->t + s->r * rows->cap;
+    const double span = (double)(t[s->k1] - t[s->k]);
+    double u = (double)(x - t[s->k]) / (span > 0.0 ? span : 1.0);
+    u = u < 0.0 ? 0.0 : (u > 1.0 ? 1.0 : u);
+    lsw_quat_slerp_on(s->q0, s->q1, &s->arc, u, y);
+}
+
 /** The SLERP reconstruction of non-empty row r at time x, k the point at or before x (-1: none). */
 static void exact(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, double *y)
 {
-    const int64_t n = rows->n[r];
-    const int64_t *t = rows->t + r * rows->cap;
-    const int64_t last = n >= 2 ? n - 2 : 0;
-    int64_t k1;
-    double q0[4], q1[4], span, u;
-    k = k < 0 ? 0 : (k > last ? last : k);
-    k1 = k + 1 < n - 1 ? k + 1 : n - 1;
-    span = (double)(t[k1] - t[k]);
-    u = (double)(x - t[k]) / (span > 0.0 ? span : 1.0);
-    u = u < 0.0 ? 0.0 : (u > 1.0 ? 1.0 : u);
-    unit_point(rows, r, k, q0);
-    unit_point(rows, r, k1, q1);
-    lsw_quat_slerp(q0, q1, u, y);
+    Span s;
+    span_of(rows, r, k, &s);
+    span_at(rows, &s, x, y);
 }
 
-/** Point k of row r extrapolated to time x with its body rate: limbstream.quat.predict
- * (normalize(q + dt q (0, omega) / 2) with q normalised). */
-static void predict(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, double *y)
+/** Unit q (a point of a row) extrapolated by dt s with its body rate w: limbstream.quat.predict
+ * (normalize(q + dt q (0, omega) / 2)). */
+static void predict_from(const double *q, const float *w, double dt, double *y)
 {
-    const float *w = rows->w + (r * rows->cap + k) * 3;
-    const double dt = (double)(x - rows->t[r * rows->cap + k]) / 1e6;
     const double bx = w[0], by = w[1], bz = w[2];
-    double q[4], qdot[4];
+    double qdot[4];
     int i;
-    unit_point(rows, r, k, q);
     qdot[0] = 0.5 * (q[0] * 0.0 - q[1] * bx - q[2] * by - q[3] * bz);
     qdot[1] = 0.5 * (q[0] * bx + q[1] * 0.0 + q[2] * bz - q[3] * by);
     qdot[2] = 0.5 * (q[0] * by - q[1] * bz + q[2] * 0.0 + q[3] * bx);
@@ -72,6 +96,14 @@ static void predict(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, do
         y[i] = q[i] + dt * qdot[i];
     }
     lsw_quat_normalize(y);
+}
+
+/** Point k of row r extrapolated to time x with its body rate (predict_from, q normalised). */
+static void predict(const LswFuseRows *rows, int64_t r, int64_t x, int64_t k, double *y)
+{
+    double q[4];
+    unit_point(rows, r, k, q);
+    predict_from(q, rows->w + (r * rows->cap + k) * 3, (double)(x - rows->t[r * rows->cap + k]) / 1e6, y);
 }
 
 /** y = identity. */
@@ -131,15 +163,47 @@ void lsw_fuse_reconstruct(const LswFuseRows *rows, size_t count, const int64_t *
 void lsw_fuse_errors(const LswFuseRows *rows, size_t count, const int64_t *slots, const int64_t *t_us,
                      const float *truth, double *exact_deg, double *predicted_deg)
 {
+    /* A device's truth samples come in runs of consecutive times: a run finds its point from the
+     * last one's, and each span is prepared once (the same arithmetic as query's: the same bits). */
+    Span span;
+    int64_t k = -1;
     size_t i;
+    span.r = -1;
     for (i = 0; i < count; i++) {
         const float *s = truth + 4 * i;
         const double b[4] = {s[0], s[1], s[2], s[3]};
-        const int64_t k = rows->n[slots[i]] > 0 ? locate(rows, slots[i], t_us[i]) : -1;
-        double y[4];
-        query(rows, slots[i], t_us[i], LSW_FUSE_EXACT, k, y);
+        const int64_t r = slots[i], x = t_us[i], n = rows->n[r];
+        const int64_t *t = rows->t + r * rows->cap;
+        double y[4], q[4];
+        if (n == 0) {
+            identity(y);
+            exact_deg[i] = predicted_deg[i] = angle_deg(y, b);
+            span.r = -1;
+            continue;
+        }
+        if (span.r == r && k >= 0 && t[k] <= x && (k + 1 >= n || x < t[k + 1])) {
+            /* the same point as the sample before */
+        } else if (span.r == r && k >= 0 && k + 1 < n && t[k + 1] <= x && (k + 2 >= n || x < t[k + 2])) {
+            k += 1;
+        } else {
+            k = locate(rows, r, x);
+        }
+        if (span.r != r || span.k != span_start(rows, r, k)) {
+            span_of(rows, r, k, &span);
+        }
+        span_at(rows, &span, x, y);
         exact_deg[i] = angle_deg(y, b);
-        query(rows, slots[i], t_us[i], LSW_FUSE_PREDICTED, k, y);
+        if (k < 0) {
+            identity(y);
+        } else {
+            if (k == span.k || k == span.k1) {
+                const double *p = k == span.k ? span.q0 : span.q1;
+                q[0] = p[0], q[1] = p[1], q[2] = p[2], q[3] = p[3];
+            } else {
+                unit_point(rows, r, k, q);
+            }
+            predict_from(q, rows->w + (r * rows->cap + k) * 3, (double)(x - t[k]) / 1e6, y);
+        }
         predicted_deg[i] = angle_deg(y, b);
     }
 }

@@ -14,6 +14,7 @@ is stored stays what it learns from (:mod:`.heading`).
 """
 from __future__ import annotations
 
+import operator
 import time
 from collections.abc import Callable
 
@@ -32,6 +33,8 @@ from limbstream.services.aggregator.store import PointStore
 from limbstream.services.aggregator.track import NUMBERS as TRACK_NUMBERS
 from limbstream.services.aggregator.track import TEXTS as TRACK_TEXTS
 from limbstream.services.aggregator.track import MAX_T_US, DeviceTrack, stream_figures
+
+_TRACK, _SLOT = operator.itemgetter(0), operator.attrgetter("slot")  # (track, row) -> track -> its slot
 
 
 class Subject:
@@ -166,10 +169,9 @@ class Fusion:
         gap of that many points the device's cache may still hold (``DeviceTrack.holes``). Returns how
         many were taken in."""
         self.advance_clock(now)
-        items = self._placed(items, "segment_not_in_layout")
+        items, slots = self._placed(items, "segment_not_in_layout")
         if not items:
             return 0
-        slots = np.fromiter((t.slot for t, _ in items), np.int64, len(items))
         rows = np.fromiter((i for _, i in items), np.int64, len(items))
         fast = self._usual(slots, rows, points)
         self._take_usual(slots[fast], rows[fast], points, now)
@@ -193,15 +195,16 @@ class Fusion:
         self._view = None
         return len(kept)
 
-    def _placed(self, items: list[tuple[DeviceTrack, int]], reason: str) -> list[tuple[DeviceTrack, int]]:
-        """The ``items`` of devices placed in their subject's layout; each of the others is counted
-        on its device as ``reason`` (:mod:`.layouts`)."""
-        placed = self.table.placed[np.fromiter((t.slot for t, _ in items), np.int64, len(items))]
+    def _placed(self, items: list[tuple[DeviceTrack, int]], reason: str) -> tuple[list[tuple[DeviceTrack, int]], np.ndarray]:
+        """The ``items`` of devices placed in their subject's layout, and their slots (k,); each of
+        the others is counted on its device as ``reason`` (:mod:`.layouts`)."""
+        slots = np.fromiter(map(_SLOT, map(_TRACK, items)), np.int64, len(items))
+        placed = self.table.placed[slots]
         if placed.all():
-            return items
+            return items, slots
         for j in np.flatnonzero(~placed).tolist():
             items[j][0].dropped[reason] += 1
-        return [item for item, ok in zip(items, placed.tolist()) if ok]
+        return [item for item, ok in zip(items, placed.tolist()) if ok], slots[placed]
 
     def _usual(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> np.ndarray:
         """(P,) which points are the usual case (DeviceTrack.accept_point appends them without a
@@ -321,11 +324,10 @@ class Fusion:
         taken in all at once from the devices' columns, the others one by one
         (DeviceTrack.accept_raw). Returns how many were taken in."""
         self.advance_clock(now)
-        items = self._placed(items, wire.device_reason("raw", "segment_not_in_layout"))
+        items, slots = self._placed(items, wire.device_reason("raw", "segment_not_in_layout"))
         if not items:
             return 0
         table = self.table
-        slots = np.fromiter((t.slot for t, _ in items), np.int64, len(items))
         rows = np.fromiter((i for _, i in items), np.int64, len(items))
         first, last = batches.start[rows], batches.start[rows] + batches.count[rows] - 1
         t_first, t_last = batches.t_us[first], batches.t_us[last]
