@@ -4,6 +4,7 @@ NumPy forward kinematics (tests/reference_aggregator/skeleton.py), on random row
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from support.reference_aggregator.skeleton import Skeleton as NumpySkeleton
 from support.reference_aggregator.store import PointStore as NumpyStore
 
@@ -68,6 +69,31 @@ def test_errors_of_a_devices_run_of_samples_are_those_of_each_alone():
         e, p = c.errors(slots, t, truth)
         alone = np.array([c.errors(slots[i:i + 1], t[i:i + 1], truth[i:i + 1]) for i in range(len(slots))])
         assert np.array_equal(e, alone[:, 0, 0]) and np.array_equal(p, alone[:, 1, 0])
+
+
+def test_ring_ranks_are_the_sorted_values_at_those_ranks():
+    """Rows full and partly full, of positive, signed and whole values, with NaN, -0 and rows of
+    one value throughout: each rank's value is the row's sorted values' (numpy's order)."""
+    rng = np.random.default_rng(1)
+    window = 3000
+    for trial in range(60):
+        ring = [rng.gamma(2, 1, (20, window)), rng.normal(0, 5, (20, window)),
+                np.round(rng.normal(0, 2, (20, window)))][trial % 3].astype(np.float32)
+        if trial % 5 == 0:
+            ring[rng.random(ring.shape) < 0.01] = np.nan
+        if trial % 7 == 0:
+            ring[rng.random(ring.shape) < 0.05] = -0.0
+        if trial % 11 == 0:
+            ring[:] = 1.5
+        rows = rng.integers(0, 20, 15)
+        n = rng.integers(1, window + 1, 15)
+        n[::3] = window
+        ranks = np.stack([np.floor(p * (n - 1)).astype(np.int64) for p in (0.0, 0.5, 0.99)] + [n - 1], axis=1)
+        got = reconstruct.ring_ranks(ring, rows, n, ranks)
+        for i in range(len(rows)):
+            assert np.array_equal(got[i], np.sort(ring[rows[i], :n[i]])[ranks[i]], equal_nan=True), (trial, i)
+    with pytest.raises(ValueError):
+        reconstruct.ring_ranks(ring, rows[:1], np.array([window]), np.array([[window]]))
 
 
 def two_points(q0, q1, w=(0.0, 0.0, 0.0)) -> PointStore:

@@ -6,6 +6,8 @@
 #include "lsw_quat.h"
 
 #include <math.h>
+#include <stdlib.h>
+#include <string.h>
 
 
 /** Index of the last point of row r at or before time x (-1: none): a binary search. */
@@ -279,4 +281,114 @@ void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t win
         seen[r] += 1;
         total[r] += values[i];
     }
+}
+
+#define RANK_BITS 11u                           /* buckets of the radix select: 2^RANK_BITS */
+#define RANK_BUCKETS (1u << RANK_BITS)
+
+/** A float's bits as an unsigned integer in the float's order (negatives reversed below the
+ * positives; every NaN last, as numpy sorts them). */
+static uint32_t ordered_bits(float v)
+{
+    uint32_t b;
+    memcpy(&b, &v, sizeof b);
+    if ((b & 0x7FFFFFFFu) > 0x7F800000u) {
+        return 0xFFFFFFFFu; /* any NaN: last */
+    }
+    return (b & 0x80000000u) ? ~b : (b | 0x80000000u);
+}
+
+static float from_ordered_bits(uint32_t k)
+{
+    const uint32_t b = (k & 0x80000000u) ? (k & 0x7FFFFFFFu) : ~k;
+    float v;
+    memcpy(&v, &b, sizeof v);
+    return v;
+}
+
+/** The key of rank r (0-based) among keys[0 .. m-1], reordering them (Hoare's selection). */
+static uint32_t select_key(uint32_t *keys, int64_t m, int64_t r)
+{
+    int64_t lo = 0, hi = m - 1;
+    while (lo < hi) {
+        const uint32_t pivot = keys[lo + (hi - lo) / 2];
+        int64_t i = lo, j = hi;
+        while (i <= j) {
+            while (keys[i] < pivot) {
+                i++;
+            }
+            while (keys[j] > pivot) {
+                j--;
+            }
+            if (i <= j) {
+                const uint32_t x = keys[i];
+                keys[i++] = keys[j];
+                keys[j--] = x;
+            }
+        }
+        if (r <= j) {
+            hi = j;
+        } else if (r >= i) {
+            lo = i;
+        } else {
+            return keys[r];
+        }
+    }
+    return keys[r];
+}
+
+int lsw_fuse_ring_ranks(const float *ring, int64_t window, size_t count, const int64_t *rows, const int64_t *n,
+                        size_t nranks, const int64_t *ranks, float *out)
+{
+    uint32_t counts[RANK_BUCKETS];
+    /* scratch: the row's keys, then each rank's candidates */
+    uint32_t *keys = nranks <= LSW_FUSE_MAX_RANKS ? malloc((size_t)window * (nranks + 1) * sizeof *keys) : NULL;
+    size_t i, j;
+    if (keys == NULL) {
+        return -1;
+    }
+    for (i = 0; i < count; i++) {
+        const float *v = ring + rows[i] * window;
+        const int64_t m = n[i];
+        const int64_t *rank = ranks + i * nranks;
+        uint32_t bucket[LSW_FUSE_MAX_RANKS], below[LSW_FUSE_MAX_RANKS], got[LSW_FUSE_MAX_RANKS], top = 0;
+        size_t pending = 0, todo[LSW_FUSE_MAX_RANKS];
+        int64_t k;
+        memset(counts, 0, sizeof counts);
+        for (k = 0; k < m; k++) {
+            const uint32_t key = ordered_bits(v[k]);
+            keys[k] = key;
+            counts[key >> (32u - RANK_BITS)]++;
+            top = key > top ? key : top;
+        }
+        for (j = 0; j < nranks; j++) {
+            uint32_t b = 0, under = 0;
+            if (rank[j] == m - 1) {  /* the largest: known */
+                out[i * nranks + j] = from_ordered_bits(top);
+                continue;
+            }
+            while (under + counts[b] <= (uint32_t)rank[j]) {
+                under += counts[b++];
+            }
+            todo[pending] = j, bucket[pending] = b, below[pending] = under, got[pending] = 0;
+            pending++;
+        }
+        if (pending) {  /* one pass gathers every pending rank's candidates: those of its bucket */
+            for (k = 0; k < m; k++) {
+                const uint32_t key = keys[k], b = key >> (32u - RANK_BITS);
+                size_t p;
+                for (p = 0; p < pending; p++) {
+                    if (b == bucket[p]) {
+                        keys[window * (p + 1) + got[p]++] = key;
+                    }
+                }
+            }
+        }
+        for (j = 0; j < pending; j++) {
+            uint32_t *mine = keys + window * (j + 1);
+            out[i * nranks + todo[j]] = from_ordered_bits(select_key(mine, got[j], rank[todo[j]] - below[j]));
+        }
+    }
+    free(keys);
+    return 0;
 }

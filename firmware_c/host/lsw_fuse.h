@@ -60,6 +60,22 @@ void lsw_fuse_errors(const LswFuseRows *rows, size_t count, const int64_t *slots
 void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t window, size_t count,
                           const int64_t *rows, const double *values);
 
+/**
+ * Order statistics of ring windows: out[i * nranks + j] = the value of rank ranks[i * nranks + j]
+ * (0: the smallest) among the first n[i] values of row rows[i] of ring (window floats per row);
+ * each rank within 0 .. n[i] - 1, n[i] within 1 .. window. The same values as sorting the row's
+ * values (as numpy orders floats; -0 before +0, NaN last): a radix select on the floats'
+ * ordered bits: one pass counts the row's values by their top 11 bits (and finds the largest), one
+ * pass gathers each rank's candidates (the values of its bucket), and a selection among them
+ * picks it.
+ * Returns 0, or -1 where no scratch memory could be had or nranks exceeds LSW_FUSE_MAX_RANKS (out
+ * untouched).
+ * services/aggregator/rings.py.
+ */
+#define LSW_FUSE_MAX_RANKS 8u /**< ranks per row at most (lsw_fuse_ring_ranks) */
+int lsw_fuse_ring_ranks(const float *ring, int64_t window, size_t count, const int64_t *rows, const int64_t *n,
+                        size_t nranks, const int64_t *ranks, float *out);
+
 #define LSW_FUSE_MAX_JOINTS 64u /**< joints of a body at most (lsw_fuse_chain) */
 
 /**

@@ -91,6 +91,32 @@ def ring_append(ring: np.ndarray, seen: np.ndarray, total: np.ndarray, rows: np.
                               rows.ctypes.data, values.ctypes.data)
 
 
+_lib.lsw_fuse_ring_ranks.argtypes = [_vp, ctypes.c_int64, ctypes.c_size_t, _vp, _vp, ctypes.c_size_t, _vp, _vp]
+_lib.lsw_fuse_ring_ranks.restype = ctypes.c_int
+
+
+MAX_RANKS = 8
+"""LSW_FUSE_MAX_RANKS (lsw_fuse.h)."""
+
+
+def ring_ranks(ring: np.ndarray, rows: np.ndarray, n: np.ndarray, ranks: np.ndarray) -> np.ndarray:
+    """(k, R) float32: of each row ``rows[i]`` (k,) of ring windows ``ring`` (rows, window) float32,
+    the values of ranks ``ranks[i]`` (k, R) int64 (0: the smallest) among its first ``n[i]`` (k,)
+    values, as sorting them gives; each n within 1 .. window, each rank within 0 .. n - 1."""
+    if ring.dtype != np.float32 or not ring.flags.c_contiguous:
+        raise TypeError("ring must be C-contiguous float32")
+    rows, n, ranks = _int64(rows), _int64(n), _int64(ranks)
+    if ranks.ndim != 2 or len(ranks) != len(rows) or len(n) != len(rows) or ranks.shape[1] > MAX_RANKS:
+        raise ValueError(f"ranks must be (k, R), R <= {MAX_RANKS}, and n (k,) for k = {len(rows)} rows")
+    if not (((1 <= n) & (n <= ring.shape[1])).all() and ((0 <= ranks) & (ranks < n[:, None])).all()):
+        raise ValueError("each n must be within 1 .. window and each rank within 0 .. n - 1")
+    out = np.empty(ranks.shape, np.float32)
+    if _lib.lsw_fuse_ring_ranks(ring.ctypes.data, ring.shape[1], len(rows), rows.ctypes.data, n.ctypes.data,
+                                ranks.shape[1], ranks.ctypes.data, out.ctypes.data):
+        raise MemoryError("ring_ranks: no scratch memory")
+    return out
+
+
 _lib.lsw_fuse_chain.argtypes = [ctypes.c_size_t, _vp, ctypes.c_uint32, _vp, ctypes.c_uint32, _vp, _vp, _vp, _vp, _vp,
                                 _vp, _vp, ctypes.c_uint32, _vp, _vp]
 _lib.lsw_fuse_chain.restype = None
