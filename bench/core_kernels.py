@@ -11,25 +11,15 @@ Run it on two revisions (e.g. in a worktree of each) to compare them.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
+from generator_cost import best  # (bench/ is the script's folder)
 
 from limbstream import wire
 from limbstream.services.aggregator.rings import ErrorRings
 from limbstream.services.aggregator.store import PointStore
 
 T0 = 1_790_000_000_000_000
-
-
-def best(rounds: int, run) -> float:
-    """The shortest of ``rounds`` runs of ``run()``, s."""
-    times = []
-    for _ in range(rounds):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def unit(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
