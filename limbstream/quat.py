@@ -146,19 +146,6 @@ def half_turns(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.cos(half), angle * scale
 
 
-def times_about_axis(q: tuple[np.ndarray, ...], c: np.ndarray, s: np.ndarray, axis: int) -> tuple[np.ndarray, ...]:
-    """The Hamilton product q (c, s along coordinate axis ``axis``: 0 X, 1 Y, 2 Z), ``q`` given and
-    returned as its components (w, x, y, z), arrays broadcasting with ``c`` and ``s``: the values of
-    :func:`multiply` by that quaternion (its products by the zero parts left out; an exact zero may
-    differ in sign), with 12 operations where it does 28."""
-    w, x, y, z = q
-    if axis == 0:
-        return w * c - x * s, w * s + x * c, y * c + z * s, z * c - y * s
-    if axis == 1:
-        return w * c - y * s, x * c - z * s, w * s + y * c, x * s + z * c
-    return w * c - z * s, x * c + y * s, y * c - x * s, w * s + z * c
-
-
 def left_matrix(a: np.ndarray) -> np.ndarray:
     """The (4, 4) float64 matrix L of the left product by quaternion ``a``: ``multiply(a, b)`` is
     ``L @ b`` (``b @ L.T`` for (..., 4) ``b``), one matrix product when ``a`` is fixed."""

@@ -9,6 +9,7 @@ import pytest
 from limbstream import quat
 from limbstream.body import FULL, PAPER10, Body, layout_from_dict
 from limbstream.sources import SEGMENTS
+from limbstream.sources import generator_limbs as limbs
 from limbstream.sources.generator import STILL_S, GeneratorSource, JOINT_RANGES, generate
 
 FS = 50.0
@@ -63,6 +64,23 @@ def test_full_is_paper10_plus_chest_hands_and_feet(noise, mounting):
         plain = generate(60.0, FS, seed=3, noise_deg=noise, layout="full")
         offset = quat.angle_deg(plain.q[0], batch.q[0])
         assert ((offset > 4) & (offset < 16)).all(), offset
+
+
+def test_the_hands_and_feet_are_their_parents_turned_by_their_joints():
+    """Each foot is its shank, each hand its forearm, times the elementary rotations of its two
+    joint angles (generator_limbs.AXES, in order), to the bit (an exact zero's sign aside)."""
+    src = GeneratorSource(4, FS, layout="full")
+    t = np.arange(0, src.period_s, 1 / FS)
+    q, a = src.orientations(t), src.joint_angles(t)
+    for side in "lr":
+        for segment, parent, joints in (("foot", "shank", ("ankle_flex", "subtalar")),
+                                        ("hand", "lowerarm", ("wrist_flex", "wrist_dev"))):
+            want = q[:, SEG[f"{side}_{parent}"]]
+            for joint in joints:
+                _, sign, axis = next(row for row in limbs.AXES if row[0] == f"{joint}_{side}")
+                turn = quat.about_axes(np.radians(sign * a[f"{joint}_{side}"])[None], [int(np.argmax(axis))])[0]
+                want = quat.multiply(want, turn)
+            np.testing.assert_array_equal(q[:, SEG[f"{side}_{segment}"]], want, err_msg=f"{side}_{segment}")
 
 
 def test_a_layout_of_known_segments_takes_them_by_name_and_others_are_refused():

@@ -11,6 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from limbstream import quat
+from limbstream.kernel.tree import Tree
 
 SEED = 20240614
 ONE = np.array([1.0, 0.0, 0.0, 0.0])
@@ -200,13 +201,24 @@ def test_about_axes_is_scipys_rotation_vector_bit_for_bit():
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
-def test_times_about_axis_is_the_product_by_the_elementary_rotation(axis):
+def test_a_tree_node_is_its_parent_times_its_elementary_rotation(axis):
     rng = np.random.default_rng(5 + axis)
-    q = quat.normalize(rng.normal(size=(300, 4)))
-    q[:20, 1:] = 0.0  # rotations about one axis, as the generator's tree begins
-    q[20:40, 2] = 0.0
-    angle = np.concatenate([rng.uniform(-np.pi, np.pi, 250), rng.uniform(-2e-3, 2e-3, 48), [0.0, 1e-3]])
-    want = quat.multiply(q, quat.about_axes(angle[None], [axis])[0])
-    c, s = quat.half_turns(angle)
-    got = np.stack(quat.times_about_axis(tuple(q.T), c, s, axis), axis=-1)
-    assert np.array_equal(got, want)  # the same values (an exact zero's sign aside)
+    first = [0, 0, 1, 2, 2]  # the parent's own axis, from the identity
+    angle = np.concatenate([rng.uniform(-180, 180, 250), rng.uniform(-0.1, 0.1, 48), [0.0, np.degrees(1e-3)]])
+    deg = np.stack([rng.uniform(-180, 180, len(angle)), angle])
+    deg[0, :20] = 0.0
+    tree = Tree([first[axis + 1], axis], [-1, 0], [1, 0])
+    got = tree.turn(deg)
+    parent = quat.about_axes(np.radians(deg[:1]), [first[axis + 1]])[0]
+    want = quat.multiply(parent, quat.about_axes(np.radians(angle)[None], [axis])[0])
+    assert np.array_equal(got[:, 0], want)  # the same values (an exact zero's sign aside)
+    assert np.array_equal(got[:, 1], parent)
+
+
+def test_a_tree_refuses_a_child_before_its_parent_and_angles_of_another_shape():
+    with pytest.raises(ValueError, match="parents before their children"):
+        Tree([0, 1], [1, -1], [0])
+    with pytest.raises(ValueError, match="axes 0..2"):
+        Tree([3], [-1], [0])
+    with pytest.raises(ValueError, match=r"deg must be \(2, n\)"):
+        Tree([0, 1], [-1, 0], [1]).turn(np.zeros((3, 5)))

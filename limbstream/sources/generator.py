@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from limbstream import quat, wire
 from limbstream.body import FULL, Layout
+from limbstream.kernel.tree import Tree
 from limbstream.sources import SEGMENTS, Motion
 from limbstream.sources import generator_limbs as limbs
 from limbstream.sources.generator_activities import ACTIVITY_FUNCS as _ACTIVITY_FUNCS
@@ -112,25 +113,41 @@ _TREE_AXES: list[tuple[str, float, np.ndarray]] = [
         ("shoulder_abd", lat, _Z), ("shoulder_flex", -1.0, _X), ("shoulder_rot", -lat, _Y), ("elbow_flex", -1.0, _X),
     )
 ]
-_TREE_JOINTS = [joint for joint, _, _ in _TREE_AXES]
-_TREE_SIGNS = np.array([sign for _, sign, _ in _TREE_AXES])[:, None]
-_TREE_AXIS = np.array([_axis_index(axis) for _, _, axis in _TREE_AXES])
-_LIMB_AXIS = np.array([_axis_index(axis) for _, _, axis in limbs.AXES])
 SIDE = 9
 """The first of the sides' joints in :data:`_TREE_AXES` (the left's, then as many of the right's)."""
+_LIMB_NODE = len(_TREE_AXES)
+"""The first of the hands' and feet's nodes (:data:`limbs.AXES`, the left's then the right's)."""
 
 
-def _turned(q: tuple[np.ndarray, ...], c: np.ndarray, s: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, ...]:
-    """``q`` (its components w, x, y, z) times the elementary rotations (``c[i]``, ``s[i]`` about
-    coordinate axis ``axes[i]``, :func:`limbstream.quat.times_about_axis`), left to right."""
-    for ci, si, axis in zip(c, s, axes):
-        q = quat.times_about_axis(q, ci, si, axis)
-    return q
+def _tree_parents() -> list[int]:
+    """The parent node of each elementary rotation of :data:`_TREE_AXES` then :data:`limbs.AXES`
+    (-1: the first, the pelvis's yaw from the identity): each segment's factors left to right,
+    from its parent segment's last."""
+    parents = [-1, 0, 1, 2, 3, 4, 5, 6, 7]  # pelvis, trunk, neck
+    for side in range(2):
+        b = SIDE + 8 * side  # hip_abd, hip_flex, hip_rot, knee_flex, shoulder_abd, ..., elbow_flex
+        parents += [2, b, b + 1, b + 2, 5, b + 4, b + 5, b + 6]
+    for side in range(2):
+        b, limb = SIDE + 8 * side, _LIMB_NODE + 4 * side  # ankle_flex, subtalar, wrist_flex, wrist_dev
+        parents += [b + 3, limb, b + 7, limb + 2]
+    return parents
 
 
-def _by_side(v: np.ndarray) -> np.ndarray:
-    """(2 j, n) rows of the left's j joints then the right's -> (j, 2, n): joint k of both sides."""
-    return v.reshape(2, -1, v.shape[-1]).swapaxes(0, 1)
+def _segment_nodes() -> dict[str, int]:
+    """The node whose orientation is each segment's."""
+    nodes = {"hip": 2, "chest": 5, "neck": 8, "head": 8}
+    for i, side in enumerate("lr"):
+        b, limb = SIDE + 8 * i, _LIMB_NODE + 4 * i
+        nodes.update({f"{side}_thigh": b + 2, f"{side}_shank": b + 3, f"{side}_upperarm": b + 6,
+                      f"{side}_lowerarm": b + 7, f"{side}_foot": limb + 1, f"{side}_hand": limb + 3})
+    return nodes
+
+
+_NODE_ANGLES = [(joint, sign) for joint, sign, _ in _TREE_AXES + limbs.AXES]
+"""Each node's joint angle and its sign."""
+_NODE_AXIS = [_axis_index(axis) for _, _, axis in _TREE_AXES + limbs.AXES]
+_NODE_PARENT = _tree_parents()
+_SEGMENT_NODE = _segment_nodes()
 
 
 class GeneratorSource:
@@ -170,6 +187,8 @@ class GeneratorSource:
         self._starts = np.cumsum([0.0] + [s for _, s in self._schedule])
         self.segments = _segments_of(layout)
         self._limbs = self.segments != SEGMENTS  # paper10 alone computes neither hands nor feet
+        nodes = len(_NODE_AXIS) if self._limbs else _LIMB_NODE
+        self._tree = Tree(_NODE_AXIS[:nodes], _NODE_PARENT[:nodes], [_SEGMENT_NODE[s] for s in self.segments])
         mounting = dict(zip(SEGMENTS + limbs.SEGMENTS, np.concatenate([self._subject.mounting,
                                                                        self._subject.limbs.mounting])))
         mounting["head"] = mounting["neck"]
@@ -243,33 +262,11 @@ class GeneratorSource:
         Mounting offsets apply if enabled; noise does not (it belongs to sample indices).
         """
         a = self._joint_angles(t, feet=self._limbs)
-        angle = _TREE_SIGNS * np.stack([a[joint] for joint in _TREE_JOINTS])
-        angle[0] = self._subject.heading + a["pelvis_yaw"]  # _TREE_AXES starts with it
-        c, s = quat.half_turns(np.radians(angle))
-        zero = np.zeros(len(c[0]))
-        pelvis = _turned((c[0], zero, s[0], zero), c[1:3], s[1:3], _TREE_AXIS[1:3])  # the yaw (about Y) first
-        trunk = _turned(pelvis, c[3:6], s[3:6], _TREE_AXIS[3:6])
-        neck = _turned(trunk, c[6:9], s[6:9], _TREE_AXIS[6:9])
-        # both sides at once: joint k of a side (its place among a side's in _TREE_AXES) as (2, n),
-        # the left's then the right's
-        c, s, axes = _by_side(c[SIDE:]), _by_side(s[SIDE:]), _TREE_AXIS[SIDE:]
-        thighs = _turned(pelvis, c[0:3], s[0:3], axes[0:3])
-        shanks = _turned(thighs, c[3:4], s[3:4], axes[3:4])
-        uppers = _turned(trunk, c[4:7], s[4:7], axes[4:7])
-        lowers = _turned(uppers, c[7:8], s[7:8], axes[7:8])
-        seg: dict[str, Sequence[np.ndarray]] = dict(hip=pelvis, neck=neck)  # each segment's (w, x, y, z)
-        for i, side in enumerate("lr"):
-            seg.update({f"{side}_thigh": [p[i] for p in thighs], f"{side}_shank": [p[i] for p in shanks],
-                        f"{side}_upperarm": [p[i] for p in uppers], f"{side}_lowerarm": [p[i] for p in lowers]})
-        if self._limbs:  # the foot off the shank, the hand off the forearm (limbs.AXES)
-            c, s = (_by_side(v) for v in quat.half_turns(np.radians(
-                np.stack([sign * a[joint] for joint, sign, _ in limbs.AXES]))))
-            feet = _turned(shanks, c[0:2], s[0:2], _LIMB_AXIS[0:2])
-            hands = _turned(lowers, c[2:4], s[2:4], _LIMB_AXIS[2:4])
-            for i, side in enumerate("lr"):
-                seg.update({f"{side}_foot": [p[i] for p in feet], f"{side}_hand": [p[i] for p in hands]})
-            seg.update(chest=trunk, head=neck)
-        q = np.stack([part for name in self.segments for part in seg[name]], axis=-1).reshape(len(zero), -1, 4)
+        deg = np.empty((len(self._tree.axis), len(t)))
+        for row, (joint, sign) in zip(deg, _NODE_ANGLES):
+            np.multiply(sign, a[joint], out=row)
+        deg[0] = self._subject.heading + a["pelvis_yaw"]  # the first node
+        q = self._tree.turn(deg)
         if self.mounting_offsets:
             q = quat.multiply(q, self._mount[None, :, :])
         return q

@@ -118,31 +118,39 @@ def _gait(t: np.ndarray, p: Subject, step_hz: float, phase: float) -> tuple[np.n
     return s, (s + 0.5) % 1.0
 
 
+def _cycle(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cos, sin) of the cycle fraction ``s`` as an angle, each computed once for every joint that
+    reads it."""
+    turn = 2 * np.pi * s
+    return np.cos(turn), np.sin(turn)
+
+
 def _walking(t: np.ndarray, p: Subject) -> dict[str, np.ndarray]:
     """Walking, ~1.8 steps/s: hip 30 deg flexion to 10 deg extension, knee to ~60 deg in swing."""
     k = p.amplitude
     sl, sr = _gait(t, p, 1.8, p.phase[0])
+    leg = {"l": _cycle(sl), "r": _cycle(sr)}
+    cos_l, sin_l = leg["l"]
     two = np.sin(4 * np.pi * sl)
     a = {
         "pelvis_tilt": 4 + 2 * two,
-        "pelvis_obliquity": 4 * k * np.sin(2 * np.pi * sl),
-        "pelvis_yaw": 5 * k * np.cos(2 * np.pi * sl),
+        "pelvis_obliquity": 4 * k * sin_l,
+        "pelvis_yaw": 5 * k * cos_l,
         "trunk_flex": p.posture["trunk_flex"] + 2 + 1.5 * two,
-        "trunk_lat": -2 * np.sin(2 * np.pi * sl),
-        "trunk_rot": -7 * k * np.cos(2 * np.pi * sl),
+        "trunk_lat": -2 * sin_l,
+        "trunk_rot": -7 * k * cos_l,
         "neck_flex": p.posture["neck_flex"] + 1.5 * two,
-        "neck_lat": 1.5 * np.sin(2 * np.pi * sl),
-        "neck_rot": 3 * np.cos(2 * np.pi * sl),
+        "neck_lat": 1.5 * sin_l,
+        "neck_rot": 3 * cos_l,
     }
     for side, s, other in (("l", sl, sr), ("r", sr, sl)):
-        a[f"hip_flex_{side}"] = 10 + 20 * k * np.cos(2 * np.pi * s)
-        a[f"hip_abd_{side}"] = 2 + 3 * np.sin(2 * np.pi * s)
-        a[f"hip_rot_{side}"] = 4 * np.cos(2 * np.pi * s)
+        cos_s, sin_s = leg[side]
+        a[f"hip_flex_{side}"] = 10 + 20 * k * cos_s
+        a[f"hip_abd_{side}"] = 2 + 3 * sin_s
+        a[f"hip_rot_{side}"] = 4 * cos_s
         a[f"knee_flex_{side}"] = 4 + 12 * k * _bump(s, 0.13, 5.0) + 54 * k * _bump(s, 0.72, 4.0)
-        a[f"shoulder_flex_{side}"] = 3 + 16 * k * np.cos(
-            2 * np.pi * other
-        )  # arm swings with the other leg
-        a[f"shoulder_abd_{side}"] = p.posture["shoulder_abd"] + 2 * np.sin(2 * np.pi * s)
+        a[f"shoulder_flex_{side}"] = 3 + 16 * k * leg["r" if side == "l" else "l"][0]  # arm swings with the other leg
+        a[f"shoulder_abd_{side}"] = p.posture["shoulder_abd"] + 2 * sin_s
         a[f"shoulder_rot_{side}"] = 8 + 0 * t
         a[f"elbow_flex_{side}"] = p.posture["elbow_flex"] + 8 + 10 * k * _open(other + 0.25)
         swing = 2 * np.pi * (other + p.limbs.phase)  # the hand swings behind the forearm
@@ -154,25 +162,28 @@ def _running(t: np.ndarray, p: Subject) -> dict[str, np.ndarray]:
     """Running on the spot, ~2.7 steps/s: knees lifted to ~55 deg hip flexion, heels kicked back."""
     k = p.amplitude
     sl, sr = _gait(t, p, 2.7, p.phase[1])
+    leg = {"l": _cycle(sl), "r": _cycle(sr)}
+    cos_l, sin_l = leg["l"]
     two = np.sin(4 * np.pi * sl)
     a = {
         "pelvis_tilt": 7 + 3 * two,
-        "pelvis_obliquity": 4 * np.sin(2 * np.pi * sl),
-        "pelvis_yaw": 4 * np.cos(2 * np.pi * sl),
+        "pelvis_obliquity": 4 * sin_l,
+        "pelvis_yaw": 4 * cos_l,
         "trunk_flex": p.posture["trunk_flex"] + 6 + 2 * two,
-        "trunk_lat": -2 * np.sin(2 * np.pi * sl),
-        "trunk_rot": -6 * np.cos(2 * np.pi * sl),
+        "trunk_lat": -2 * sin_l,
+        "trunk_rot": -6 * cos_l,
         "neck_flex": p.posture["neck_flex"] - 4 + 2 * two,
-        "neck_lat": 2 * np.sin(2 * np.pi * sl),
-        "neck_rot": 3 * np.cos(2 * np.pi * sl),
+        "neck_lat": 2 * sin_l,
+        "neck_rot": 3 * cos_l,
     }
     for side, s, other in (("l", sl, sr), ("r", sr, sl)):
+        cos_s, sin_s = leg[side]
         a[f"hip_flex_{side}"] = 5 + 48 * k * _bump(s, 0.3, 1.2)
-        a[f"hip_abd_{side}"] = 3 + 2 * np.sin(2 * np.pi * s)
-        a[f"hip_rot_{side}"] = 3 * np.cos(2 * np.pi * s)
+        a[f"hip_abd_{side}"] = 3 + 2 * sin_s
+        a[f"hip_rot_{side}"] = 3 * cos_s
         a[f"knee_flex_{side}"] = 12 + 78 * k * _bump(s, 0.22, 1.2)
         a[f"shoulder_flex_{side}"] = 8 + 30 * k * np.cos(2 * np.pi * (other - 0.3))
-        a[f"shoulder_abd_{side}"] = p.posture["shoulder_abd"] + 4 + 3 * np.sin(2 * np.pi * s)
+        a[f"shoulder_abd_{side}"] = p.posture["shoulder_abd"] + 4 + 3 * sin_s
         a[f"shoulder_rot_{side}"] = 15 + 0 * t
         a[f"elbow_flex_{side}"] = 80 + 12 * np.cos(2 * np.pi * (other - 0.3))
         pump = np.cos(2 * np.pi * (other - 0.3 + p.limbs.phase))
