@@ -242,8 +242,9 @@ class DeviceHost(Generic[S]):
         for subject, queryable in self._queryables.items():
             while budget > 0 and (query := queryable.try_recv()) is not None:
                 budget -= 1
+                selector = query.key_expr
                 targets = [d for key, d in self.subjects[subject]
-                           if (d.online or self.offline_answers) and key.intersects(query.key_expr)]
+                           if (d.online or self.offline_answers) and key.intersects(selector)]
                 io.answer_config(query, targets, self.configure, self.status)
 
     def idle(self, stop: threading.Event, also: Callable[[], object] | None = None) -> None:

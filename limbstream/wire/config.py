@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING
 
 from .body import DEFAULT_REST_POSE, ORIENTATIONS, check_rest_pose, decode_body, encode_body
@@ -105,7 +105,9 @@ class DeviceConfig:
         return DeviceConfig(**{f.name: TUNABLES[f.name].check(getattr(self, f.name)) for f in fields(self)})
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """{tunable: value} in :data:`TUNABLES`' order (a status carries it for every device it
+        reports: read directly, not through ``dataclasses.asdict``'s deep copy)."""
+        return {name: getattr(self, name) for name in TUNABLES}
 
     def flags(self) -> list[str]:
         """The command-line flags that give this config (``["--threshold", "0.01", ...]``)."""
