@@ -71,7 +71,7 @@ def main() -> int:
     x = rng.uniform(-10.0, 10.0, 200_000)  # radians, as the half-angles and the activities' phases
     libm = (np.array_equal(np.sin(x), [math.sin(v) for v in x]) and np.array_equal(np.cos(x), [math.cos(v) for v in x]))
     print(f"\nNumPy's float64 sin and cos equal the C library's (`math`) on {len(x):,} values in -10..10 rad: "
-          f"{'yes' if libm else 'NO'} (numpy {np.__version__}; a generator in C keeps its bits only if they do)")
+          f"{'yes' if libm else 'NO'} (numpy {np.__version__}; the tree in C, firmware_c/host/lsw_gen.c, gives the numpy code's bits only if they do)")
     return 0 if same else 1
 
 
