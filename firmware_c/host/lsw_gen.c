@@ -19,7 +19,8 @@ static void half_turn(double a, double *c, double *s) {
     *s = a * scale;
 }
 
-/** q times the rotation (c, s about axis): limbstream.quat.times_about_axis, its operations. */
+/** q times the rotation (c, s about axis): quat.multiply's eight products and four sums that do not
+ *  multiply by zero. */
 static void times_about_axis(const double *q, double c, double s, int32_t axis, double *out) {
     double w = q[0], x = q[1], y = q[2], z = q[3];
     if (axis == 0) {

@@ -4,10 +4,11 @@
  *
  * A tree of elementary rotations (nodes, parents first): node j turns its parent's orientation
  * by its angle about a coordinate axis, or starts from the identity (parent -1). Every value is
- * computed in double as the generator's numpy code computes it, operation for operation (degrees
- * to radians, scipy's half-angle scale with its series below 1e-3 rad, the Hamilton product by an
- * elementary rotation: limbstream.quat.half_turns and times_about_axis), so both give the same
- * bits (tests/test_emulator_equality.py).
+ * computed in double as numpy computes it (degrees to radians as np.radians, scipy's half-angle
+ * scale with its series below 1e-3 rad as limbstream.quat.half_turns), and each node is the
+ * Hamilton product of its parent by the elementary rotation with the products by its zero parts
+ * left out: limbstream.quat.multiply's values but for the sign of an exact zero (tests/test_quat.py,
+ * tests/test_emulator_equality.py hold it to them).
  */
 #ifndef LSW_GEN_H
 #define LSW_GEN_H

@@ -1,6 +1,7 @@
 """A tree of elementary rotations in C (``firmware_c/host/lsw_gen.c``): the built-in generator's
-segment orientations from its joint angles, every sample of a chunk in one call, the same bits as
-:func:`limbstream.quat.half_turns` and :func:`limbstream.quat.times_about_axis` give node by node."""
+segment orientations from its joint angles, every sample of a chunk in one call: each node its
+parent times :func:`limbstream.quat.about_axes`' rotation, :func:`limbstream.quat.multiply`'s values
+(an exact zero's sign aside)."""
 from __future__ import annotations
 
 import ctypes
