@@ -71,9 +71,43 @@ def test_errors_of_a_devices_run_of_samples_are_those_of_each_alone():
         assert np.array_equal(e, alone[:, 0, 0]) and np.array_equal(p, alone[:, 1, 0])
 
 
+def assert_same_as_a_fresh_view(store: PointStore, slots: np.ndarray, t: np.ndarray, truth: np.ndarray) -> None:
+    """The store's C view answers as a view made now (that remembers nothing) does, bit for bit."""
+    fresh = reconstruct.PointRows(store.t, store.q, store.w, store.n)
+    for mode in (reconstruct.EXACT, reconstruct.LIVE, reconstruct.PREDICTED):
+        assert np.array_equal(store._c.reconstruct(slots, t, mode), fresh.reconstruct(slots, t, mode))
+    assert np.array_equal(np.array(store.errors(slots, t, truth)), np.array(fresh.errors(slots, t, truth)))
+
+
+def test_remembered_spans_give_a_fresh_views_bits_whatever_changed_in_the_rows():
+    """A store's C view remembers each row's last SLERP spans between calls: its answers are those of
+    a view that remembers nothing, also after points were rewritten in place (as a calibration
+    does), forgotten, or a row began again with the same times and other orientations."""
+    for seed in range(3):
+        c, _ = random_stores(seed)
+        rng = np.random.default_rng(seed)
+        slots, t = queries(c, seed)
+        truth = quat.normalize(rng.normal(size=(len(slots), 4))).astype(np.float32)
+        assert_same_as_a_fresh_view(c, slots, t, truth)
+        assert_same_as_a_fresh_view(c, slots, t, truth)  # every span remembered now
+        rows = np.flatnonzero(c.n[:c.size] >= 2)
+        for r in rows[::3]:  # points rewritten in place, times kept
+            n = c.n[r]
+            c.q[r, :n] = quat.multiply(quat.normalize(rng.normal(size=4)), c.q[r, :n].astype(np.float64)).astype(np.float32)
+        c.q[rows[1], 0, 0] = -c.q[rows[1], 0, 0]  # one component's sign
+        c.shift(int(rows[2]), 1)
+        again = int(rows[4])
+        times, n = c.t[again, :c.n[again]].copy(), int(c.n[again])
+        c.reset(again)
+        for k in range(n):
+            c.append(again, int(times[k]), rng.normal(size=4))
+        assert_same_as_a_fresh_view(c, slots, t, truth)
+
+
 def test_ring_ranks_are_the_sorted_values_at_those_ranks():
-    """Rows full and partly full, of positive, signed and whole values, with NaN, -0 and rows of
-    one value throughout: each rank's value is the row's sorted values' (numpy's order)."""
+    """Rows full, partly full and short, of positive, signed and whole values, with NaN, -0 and rows of
+    one value throughout, asked for ranks across the row or only among its largest: each rank's
+    value is the row's sorted values' (numpy's order)."""
     rng = np.random.default_rng(1)
     window = 3000
     for trial in range(60):
@@ -88,10 +122,12 @@ def test_ring_ranks_are_the_sorted_values_at_those_ranks():
         rows = rng.integers(0, 20, 15)
         n = rng.integers(1, window + 1, 15)
         n[::3] = window
-        ranks = np.stack([np.floor(p * (n - 1)).astype(np.int64) for p in (0.0, 0.5, 0.99)] + [n - 1], axis=1)
-        got = reconstruct.ring_ranks(ring, rows, n, ranks)
-        for i in range(len(rows)):
-            assert np.array_equal(got[i], np.sort(ring[rows[i], :n[i]])[ranks[i]], equal_nan=True), (trial, i)
+        n[1::5] = rng.integers(1, 10 * reconstruct.RING_TOP, len(n[1::5]))  # short rows
+        for quantiles in ((0.0, 0.5, 0.99), (0.99,), (0.999, 0.995)):  # the last two: ranks among the top (a heap)
+            ranks = np.stack([np.floor(p * (n - 1)).astype(np.int64) for p in quantiles] + [n - 1], axis=1)
+            got = reconstruct.ring_ranks(ring, rows, n, ranks)
+            for i in range(len(rows)):
+                assert np.array_equal(got[i], np.sort(ring[rows[i], :n[i]])[ranks[i]], equal_nan=True), (trial, i)
     with pytest.raises(ValueError):
         reconstruct.ring_ranks(ring, rows[:1], np.array([window]), np.array([[window]]))
 

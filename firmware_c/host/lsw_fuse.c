@@ -46,6 +46,18 @@ typedef struct {
     LswArc arc;
 } Span;
 
+struct LswFuseSpan {
+    int64_t used, t0, t1; /* used: 1 once filled; the ends' times */
+    float p0[4], p1[4];   /* the ends as stored */
+    double q0[4], q1[4];  /* the ends normalised */
+    LswArc arc;
+};
+
+size_t lsw_fuse_row_spans_size(void)
+{
+    return LSW_FUSE_SPANS * sizeof(LswFuseSpan);
+}
+
 /** The first end of row r's span for point k (-1: none): k within 0 .. n - 2. */
 static int64_t span_start(const LswFuseRows *rows, int64_t r, int64_t k)
 {
@@ -54,15 +66,61 @@ static int64_t span_start(const LswFuseRows *rows, int64_t r, int64_t k)
     return k < 0 ? 0 : (k > last ? last : k);
 }
 
+/** The row's remembered span joining its points k and k1 as they are now, moved to the front of
+ * the row's spans; NULL if none is, the front one then emptied for the caller to fill. */
+static const LswFuseSpan *remembered(const LswFuseRows *rows, int64_t r, int64_t k, int64_t k1)
+{
+    LswFuseSpan *m = rows->spans + LSW_FUSE_SPANS * r;
+    const int64_t *t = rows->t + r * rows->cap;
+    const float *p0 = rows->q + (r * rows->cap + k) * 4, *p1 = rows->q + (r * rows->cap + k1) * 4;
+    int j;
+    for (j = 0; j < LSW_FUSE_SPANS; j++) {
+        if (m[j].used && m[j].t0 == t[k] && m[j].t1 == t[k1] && memcmp(m[j].p0, p0, sizeof m[j].p0) == 0 &&
+            memcmp(m[j].p1, p1, sizeof m[j].p1) == 0) {
+            break;
+        }
+    }
+    if (j == LSW_FUSE_SPANS) { /* none: the oldest makes room at the front */
+        memmove(m + 1, m, (LSW_FUSE_SPANS - 1) * sizeof *m);
+        m[0].used = 0;
+        return NULL;
+    }
+    if (j > 0) {
+        const LswFuseSpan hit = m[j];
+        memmove(m + 1, m, (size_t)j * sizeof *m);
+        m[0] = hit;
+    }
+    return m;
+}
+
 static void span_of(const LswFuseRows *rows, int64_t r, int64_t k, Span *s)
 {
     const int64_t n = rows->n[r];
+    const LswFuseSpan *hit;
+    LswFuseSpan *m;
     s->r = r;
     s->k = span_start(rows, r, k);
     s->k1 = s->k + 1 < n - 1 ? s->k + 1 : n - 1;
+    if (rows->spans != NULL && (hit = remembered(rows, r, s->k, s->k1)) != NULL) {
+        memcpy(s->q0, hit->q0, sizeof s->q0);
+        memcpy(s->q1, hit->q1, sizeof s->q1);
+        s->arc = hit->arc;
+        return;
+    }
     unit_point(rows, r, s->k, s->q0);
     unit_point(rows, r, s->k1, s->q1);
     s->arc = lsw_quat_arc(s->q0, s->q1);
+    if (rows->spans != NULL) { /* the front span: remembered() moved the others back */
+        m = rows->spans + LSW_FUSE_SPANS * r;
+        m->used = 1;
+        m->t0 = rows->t[r * rows->cap + s->k];
+        m->t1 = rows->t[r * rows->cap + s->k1];
+        memcpy(m->p0, rows->q + (r * rows->cap + s->k) * 4, sizeof m->p0);
+        memcpy(m->p1, rows->q + (r * rows->cap + s->k1) * 4, sizeof m->p1);
+        memcpy(m->q0, s->q0, sizeof m->q0);
+        memcpy(m->q1, s->q1, sizeof m->q1);
+        m->arc = s->arc;
+    }
 }
 
 /** The SLERP reconstruction at time x on span s. */
@@ -337,6 +395,40 @@ static uint32_t select_key(uint32_t *keys, int64_t m, int64_t r)
     return keys[r];
 }
 
+/** The keys of the count largest values of v[0 .. m-1] in ascending order into top (count within
+ * 1 .. min(m, LSW_FUSE_RING_TOP)): one pass through a min-heap of the largest so far. */
+static void top_keys(const float *v, int64_t m, int64_t count, uint32_t *top)
+{
+    int64_t k, i, c;
+    for (k = 0; k < m; k++) {
+        const uint32_t key = ordered_bits(v[k]);
+        if (k < count) { /* filling: sift up */
+            for (i = k; i > 0 && top[(i - 1) / 2] > key; i = (i - 1) / 2) {
+                top[i] = top[(i - 1) / 2];
+            }
+            top[i] = key;
+        } else if (key > top[0]) { /* larger than the least kept: it takes the root's place, sift down */
+            for (i = 0; (c = 2 * i + 1) < count; i = c) {
+                if (c + 1 < count && top[c + 1] < top[c]) {
+                    c++;
+                }
+                if (top[c] >= key) {
+                    break;
+                }
+                top[i] = top[c];
+            }
+            top[i] = key;
+        }
+    }
+    for (k = 1; k < count; k++) { /* ascending: an insertion sort of a few */
+        const uint32_t key = top[k];
+        for (i = k; i > 0 && top[i - 1] > key; i--) {
+            top[i] = top[i - 1];
+        }
+        top[i] = key;
+    }
+}
+
 int lsw_fuse_ring_ranks(const float *ring, int64_t window, size_t count, const int64_t *rows, const int64_t *n,
                         size_t nranks, const int64_t *ranks, float *out)
 {
@@ -353,7 +445,18 @@ int lsw_fuse_ring_ranks(const float *ring, int64_t window, size_t count, const i
         const int64_t *rank = ranks + i * nranks;
         uint32_t bucket[LSW_FUSE_MAX_RANKS], below[LSW_FUSE_MAX_RANKS], got[LSW_FUSE_MAX_RANKS], top = 0;
         size_t pending = 0, todo[LSW_FUSE_MAX_RANKS];
-        int64_t k;
+        int64_t k, least = m - 1;
+        for (j = 0; j < nranks; j++) {
+            least = rank[j] < least ? rank[j] : least;
+        }
+        if (LSW_FUSE_RING_TOP_OF(m, least)) { /* only the top few asked (a high quantile, the max) */
+            uint32_t best[LSW_FUSE_RING_TOP];
+            top_keys(v, m, m - least, best);
+            for (j = 0; j < nranks; j++) {
+                out[i * nranks + j] = from_ordered_bits(best[rank[j] - least]);
+            }
+            continue;
+        }
         memset(counts, 0, sizeof counts);
         for (k = 0; k < m; k++) {
             const uint32_t key = ordered_bits(v[k]);

@@ -29,6 +29,13 @@ typedef enum {
                                  receiver knowing only those points shows then); identity if there is none */
 } LswFuseMode;
 
+/** A SLERP span remembered between calls: the two points it joins, as stored, and what SLERP needs
+ * of them. Opaque: a row has LSW_FUSE_SPANS of them, lsw_fuse_row_spans_size() bytes. */
+typedef struct LswFuseSpan LswFuseSpan;
+
+/** Bytes of a row's LSW_FUSE_SPANS spans. */
+size_t lsw_fuse_row_spans_size(void);
+
 /** The rows of a point store (see the top of this file). */
 typedef struct {
     const int64_t *t; /**< rows x cap times, us */
@@ -36,7 +43,12 @@ typedef struct {
     const float *w;   /**< rows x cap x 3 body rates, rad/s */
     const int64_t *n; /**< rows: points held */
     int64_t cap;      /**< points per row at most */
+    LswFuseSpan *spans; /**< rows x LSW_FUSE_SPANS spans the queries last used, zeroed at first (NULL: none);
+                             one is reused only where its points' times and stored values are the same,
+                             bit for bit, so the rows may change in any way between calls */
 } LswFuseRows;
+
+#define LSW_FUSE_SPANS 2 /**< spans remembered per row: an exact frame's and a truth sample's */
 
 /**
  * out[i] (4 doubles, unit norm): row slots[i] at time t_us[i] (us) as mode[i] (LswFuseMode) asks.
@@ -67,12 +79,16 @@ void lsw_fuse_ring_append(float *ring, int64_t *seen, double *total, int64_t win
  * values (as numpy orders floats; -0 before +0, NaN last): a radix select on the floats'
  * ordered bits: one pass counts the row's values by their top 11 bits (and finds the largest), one
  * pass gathers each rank's candidates (the values of its bucket), and a selection among them
- * picks it.
+ * picks it. A row whose ranks are all among its few largest (a high quantile and the maximum:
+ * LSW_FUSE_RING_TOP_OF) takes them from one pass through a heap of its largest values instead.
  * Returns 0, or -1 where no scratch memory could be had or nranks exceeds LSW_FUSE_MAX_RANKS (out
  * untouched).
  * services/aggregator/rings.py.
  */
 #define LSW_FUSE_MAX_RANKS 8u /**< ranks per row at most (lsw_fuse_ring_ranks) */
+#define LSW_FUSE_RING_TOP 64u  /**< ranks among a row's largest this many ... */
+/** ... and its largest eighth at most: taken from a heap (lsw_fuse_ring_ranks), for m values, least the lowest rank */
+#define LSW_FUSE_RING_TOP_OF(m, least) ((m) - (least) <= (int64_t)LSW_FUSE_RING_TOP && 8 * ((m) - (least)) <= (m))
 int lsw_fuse_ring_ranks(const float *ring, int64_t window, size_t count, const int64_t *rows, const int64_t *n,
                         size_t nranks, const int64_t *ranks, float *out);
 

@@ -205,7 +205,7 @@ class FuseRows(ctypes.Structure):
     capacity; limbstream.kernel.reconstruct)."""
 
     _fields_ = [("t", ctypes.c_void_p), ("q", ctypes.c_void_p), ("w", ctypes.c_void_p), ("n", ctypes.c_void_p),
-                ("cap", ctypes.c_int64)]
+                ("cap", ctypes.c_int64), ("spans", ctypes.c_void_p)]
 
 
 class RootState(ctypes.Structure):

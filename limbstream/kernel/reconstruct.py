@@ -26,6 +26,8 @@ _lib.lsw_fuse_reconstruct.argtypes = [_vp, ctypes.c_size_t, _vp, _vp, _vp, _vp]
 _lib.lsw_fuse_reconstruct.restype = None
 _lib.lsw_fuse_errors.argtypes = [_vp, ctypes.c_size_t, _vp, _vp, _vp, _vp, _vp]
 _lib.lsw_fuse_errors.restype = None
+_lib.lsw_fuse_row_spans_size.argtypes = []
+_lib.lsw_fuse_row_spans_size.restype = ctypes.c_size_t
 
 
 def _int64(a: np.ndarray) -> np.ndarray:
@@ -41,6 +43,9 @@ class PointRows:
     q : (rows, cap, 4) float32 orientations.
     w : (rows, cap, 3) float32 body rates, rad/s.
     n : (rows,) int64 points held per row.
+
+    It remembers the last SLERP spans each row's queries used (their arcs), reused only where the
+    span's two points are the same times and stored values, so the arrays may change between calls.
     """
 
     def __init__(self, t: np.ndarray, q: np.ndarray, w: np.ndarray, n: np.ndarray):
@@ -49,8 +54,10 @@ class PointRows:
                 raise TypeError(f"{name} must be C-contiguous {np.dtype(dtype).name}")
         if q.shape != (*t.shape, 4) or w.shape != (*t.shape, 3) or n.shape != t.shape[:1]:
             raise ValueError(f"shapes t {t.shape}, q {q.shape}, w {w.shape}, n {n.shape} do not match")
+        self._spans = np.zeros(len(t) * _lib.lsw_fuse_row_spans_size(), np.uint8)
         self._arrays = (t, q, w, n)  # kept alive while C points into them
-        self._rows = FuseRows(t.ctypes.data, q.ctypes.data, w.ctypes.data, n.ctypes.data, t.shape[1])
+        self._rows = FuseRows(t.ctypes.data, q.ctypes.data, w.ctypes.data, n.ctypes.data, t.shape[1],
+                              self._spans.ctypes.data)
         self._ref = ctypes.addressof(self._rows)
 
     def reconstruct(self, slots: np.ndarray, t_us: np.ndarray, mode: np.ndarray | int) -> np.ndarray:
@@ -97,6 +104,17 @@ _lib.lsw_fuse_ring_ranks.restype = ctypes.c_int
 
 MAX_RANKS = 8
 """LSW_FUSE_MAX_RANKS (lsw_fuse.h)."""
+
+RING_TOP = 64
+"""LSW_FUSE_RING_TOP (lsw_fuse.h)."""
+
+
+def takes_top(n: np.ndarray, least: np.ndarray) -> np.ndarray:
+    """(k,) bool: rows of ``n`` (k,) values asked for ranks ``least`` (k,) and above are answered
+    from a heap of their largest values, cheaper than their radix select or a sort
+    (LSW_FUSE_RING_TOP_OF: at most RING_TOP of them, an eighth of the row at most)."""
+    top = n - least
+    return (top <= RING_TOP) & (8 * top <= n)
 
 
 def ring_ranks(ring: np.ndarray, rows: np.ndarray, n: np.ndarray, ranks: np.ndarray) -> np.ndarray:

@@ -42,24 +42,33 @@ class ErrorRings:
 
     def summary(self, rows: np.ndarray, quantiles: tuple[float, ...] = ()) -> tuple[np.ndarray, ...]:
         """(mean, max, *quantiles) over each row's window, each (rows,), NaN for empty rows; a
-        quantile ``p`` (0..1) is the lower order statistic, the mean summed in float64. Full
-        windows (every row in the long run) take their order statistics from one radix select
-        per row (``reconstruct.ring_ranks``: a few passes over its values, a third of a partition
-        per rank); windows not yet full are sorted, only their values (NumPy's sort is the faster
-        up to a thousand or so). Empty rows (truth tap or live frames off) cost nothing."""
+        quantile ``p`` (0..1) is the lower order statistic, the mean summed in float64. In C
+        (``reconstruct.ring_ranks``): full windows (every row in the long run), by a radix select
+        (a few passes over its values, a third of a partition per rank), and windows asked only
+        for their few largest (a high quantile and the max) by one pass through a heap; the other
+        windows not yet full are sorted (NumPy's sort is the faster up to a thousand values or so).
+        Empty rows (truth tap or live frames off) cost nothing."""
         n = np.minimum(self.count[rows], self.window)
         out = np.full((2 + len(quantiles), len(rows)), np.nan)
-        full = np.flatnonzero(n == self.window)
-        if len(full):
-            k = np.full(len(full), self.window)
-            ranks = np.array([int(np.floor(p * (self.window - 1))) for p in quantiles] + [self.window - 1])
-            picked = reconstruct.ring_ranks(self.values, rows[full], k, np.broadcast_to(ranks, (len(full), len(ranks))))
-            out[0, full] = self.values[rows[full]].sum(axis=1, dtype=np.float64) / self.window
-            out[1, full] = picked[:, -1]
-            out[2:, full] = picked[:, :-1].T
-        part = np.flatnonzero((n > 0) & (n < self.window))
+        have = np.flatnonzero(n > 0)
+        if len(have) == 0:
+            return tuple(out)
+        k = n[have]
+        ranks = np.stack([np.floor(p * (k - 1)).astype(np.int64) for p in quantiles] + [k - 1], axis=1)
+        chosen = (k == self.window) | reconstruct.takes_top(k, ranks.min(axis=1))
+        if chosen.any():
+            c = have[chosen]
+            picked = reconstruct.ring_ranks(self.values, rows[c], k[chosen], ranks[chosen])
+            out[1, c] = picked[:, -1]
+            out[2:, c] = picked[:, :-1].T
+            width = int(k[chosen].max())
+            v = self.values[rows[c], :width]
+            if (k[chosen] < width).any():
+                v = np.where(np.arange(width) < k[chosen, None], v, np.float32(0.0))
+            out[0, c] = v.sum(axis=1, dtype=np.float64) / k[chosen]
+        part, k = have[~chosen], k[~chosen]
         if len(part):
-            k, r = n[part], np.arange(len(part))
+            r = np.arange(len(part))
             width = int(k.max())
             v = self.values[rows[part], :width]
             unused = np.arange(width) >= k[:, None]
