@@ -320,3 +320,22 @@ def test_a_frame_stage_takes_each_ticks_frames_of_every_subject_before_they_are_
 
 
 SUBJECTS = ("s01", "s02")
+
+
+def test_one_drain_with_a_devices_old_stream_its_new_one_and_its_start_late_keeps_each_row_in_order():
+    """Points of one drain taken by the full rules are stored together at the drain's end, except a
+    device's own, stored before its row changes: a new stream of that device drops the old one's, an
+    earlier point of its stream's start is inserted in time order after its later ones."""
+    agg, _ = aggregator()
+    online_subject(agg)
+    a, b = SEGMENTS[0], SEGMENTS[1]
+    drain = [(a, 1, k) for k in range(3)] + [(b, 1, k) for k in range(2)] + [(a, 2, k) for k in range(4, 7)] \
+        + [(b, 1, 2), (a, 2, 0), (a, 2, 1)]  # a's new stream, then its start (history) late in the same drain
+    keys = [wire.seg_key("s01", seg) for seg, _, _ in drain]
+    payloads = [wire.encode_point(wire.SegmentPoint(stream, k, 5 * k, T0 + k * STEP_US, IDENTITY))
+                for _, stream, k in drain]
+    agg.take_points(keys, payloads, 0.0)
+    store = agg.fusion.store
+    for seg, expected in ((a, [0, 1, 4, 5, 6]), (b, [0, 1, 2])):
+        slot = agg.track("s01", seg).slot
+        assert np.array_equal(store.t[slot, :store.n[slot]], T0 + np.array(expected) * STEP_US), seg

@@ -226,7 +226,10 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
     nbytes, buf, offset, version = joined(payloads, _HEADER_V1.size)
     long = nbytes >= _HEADER_V1.size
     stream, count, first_index, t0, ref0 = (np.zeros(b, np.int64) for _ in range(5))
+    present = set(version.tolist())
     for v, (header, dtype) in _LAYOUT.items():
+        if v not in present:  # (a drain's batches are mostly of one version)
+            continue
         mine = np.flatnonzero((version == v) & (nbytes >= header.size))
         head = buf[offset[mine, None] + np.arange(header.size)].view(_HEADS[v])[:, 0]
         ok = (head["count"] > 0) & (nbytes[mine] == header.size + head["count"].astype(np.int64) * dtype.itemsize)
@@ -241,6 +244,8 @@ def decode_raws(payloads: list[bytes]) -> RawColumns:
     t_us, ref_us, q = np.zeros(total, np.int64), np.zeros(total, np.int64), np.zeros((total, 4), np.float32)
     own = np.full((total, 4), np.nan, np.float32)
     for v, (header, dtype) in _LAYOUT.items():
+        if v not in present:
+            continue
         batches = np.flatnonzero((version == v) & (count > 0))
         if len(batches) == 0:
             continue

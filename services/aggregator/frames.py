@@ -352,15 +352,18 @@ class FrameBuilder:
             slots.append(l_slots)
             times.append(l_at)
             live_view.append(np.ones(l_slots.shape, bool))
-        all_slots = np.concatenate(slots)
+        all_slots, at, live_at = np.concatenate(slots), np.concatenate(times), np.concatenate(live_view)
         valid = all_slots >= 0
-        q = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (*all_slots.shape, 1))
-        at = np.concatenate(times)[valid]
-        q[valid] = store.reconstruct(all_slots[valid], at, np.concatenate(live_view)[valid])
+        whole = valid.all()  # (the usual: every column of every frame has a device; then no masks)
+        asked, at, live_at = (a.reshape(-1) if whole else a[valid] for a in (all_slots, at, live_at))
+        found = store.reconstruct(asked, at, live_at)
         if correct is not None:
-            turned = q[valid]
-            correct(all_slots[valid], at, turned)
-            q[valid] = turned
+            correct(asked, at, found)
+        if whole:
+            q = found.reshape(*all_slots.shape, 4)
+        else:
+            q = np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (*all_slots.shape, 1))
+            q[valid] = found
         owner, n = np.concatenate([e_owner, l_owner]), len(e_t)
         codes = self.layout_code[owner]
         groups: tuple[list[FrameGroup], list[FrameGroup]] = ([], [])

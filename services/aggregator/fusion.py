@@ -14,6 +14,7 @@ is stored stays what it learns from (:mod:`.heading`).
 """
 from __future__ import annotations
 
+import itertools
 import operator
 import time
 from collections.abc import Callable
@@ -176,7 +177,7 @@ class Fusion:
         fast = self._usual(slots, rows, points)
         self._take_usual(slots[fast], rows[fast], points, now)
         self._store_rows(slots[fast], rows[fast], points)
-        appended: list[tuple[int, int]] = []
+        appended: dict[int, list[int]] = {}
         stream, seq, index, t_us, flags, nbytes = (getattr(points, name).tolist() for name in
                                                    ("stream", "seq", "index", "t_us", "flags", "nbytes"))
         kept = slots[fast].tolist()
@@ -250,15 +251,16 @@ class Fusion:
         table.arrivals.add(devices, now, count, nbytes)
 
     def _accept(self, track: DeviceTrack, i: int, stream: list, seq: list, index: list, t_us: list, flags: list,
-                nbytes: list, now: float, appended: list[tuple[int, int]], points: wire.PointColumns) -> bool:
+                nbytes: list, now: float, appended: dict[int, list[int]], points: wire.PointColumns) -> bool:
         """Point ``i`` (its fields: the columns as lists) by the full rules (a new stream, the
         start of a stream, gaps, duplicates, time going back, the stream's end, an earlier point
-        arriving late); True if it is taken in."""
+        arriving late); True if it is taken in. ``appended``: the rows of the points taken in so far
+        by device slot, still to store (the device's own are stored before its row changes)."""
         state = track.check_stream(stream[i])
         if state == "stale":
             return False
         if state == "new":
-            self._store(appended, points)
+            self._store({track.slot: appended.pop(track.slot, [])}, points)
             self._new_stream(track, now)
         slot, gaps = track.slot, track.gaps
         how = track.accept_point(seq[i], index[i], t_us[i], flags[i], nbytes[i], now,
@@ -267,11 +269,11 @@ class Fusion:
             return False
         self.calibrating.first_sample(slot, seq[i], t_us[i])
         if how == "append":
-            appended.append((slot, i))
+            appended.setdefault(slot, []).append(i)
             if track.gaps != gaps:
                 self._gappy.add(track)
         elif how == "insert":  # an earlier point (the stream's start, a gap filled), in time order
-            self._store(appended, points)
+            self._store({slot: appended.pop(slot, [])}, points)
             self._insert(track, points, i)
         return True
 
@@ -284,12 +286,13 @@ class Fusion:
         self.calibrating.correct(slots, t_us, q, w)
         return t_us, q, w
 
-    def _store(self, appended: list[tuple[int, int]], points: wire.PointColumns) -> None:
-        """Store the points ``appended`` ((slot, row) each, in order) and forget them."""
-        if appended:
-            slots, rows = np.array(appended, np.int64).T
-            self._store_rows(slots, rows, points)
-            appended.clear()
+    def _store(self, appended: dict[int, list[int]], points: wire.PointColumns) -> None:
+        """Store the points ``appended`` (their rows by device slot, in order) and forget them."""
+        if any(appended.values()):
+            slots = np.repeat(np.fromiter(appended, np.int64, len(appended)), [len(r) for r in appended.values()])
+            self._store_rows(slots, np.fromiter(itertools.chain.from_iterable(appended.values()), np.int64, len(slots)),
+                             points)
+        appended.clear()
 
     def _store_rows(self, slots: np.ndarray, rows: np.ndarray, points: wire.PointColumns) -> None:
         """Store points ``rows`` (P,) of ``points`` in the rows of devices ``slots`` (P,), in order."""
