@@ -1,6 +1,6 @@
-"""What three of the aggregator's per-second jobs cost, alone (docs/benchmarks.md, "Three core runs
-a revision"): decoding a drain's truth-tap batches, the truth's errors against the points, and
-the stats' order statistics of the error windows.
+"""What four of the aggregator's jobs cost, alone (docs/benchmarks.md, "Three core runs a
+revision"): decoding a drain's truth-tap batches, the truth's errors against the points, the exact
+frames' reconstruction tick after tick, and the stats' order statistics of the error windows.
 
     python bench/core_kernels.py
 
@@ -49,9 +49,15 @@ def main() -> int:
     truth = unit(rng, (len(slots),))
     errors = best(args.rounds, lambda: store.errors(slots, t_us, truth))
 
+    every, ticks = np.arange(d), 20
+    within = store.t[:, 30] + 1_000 * np.arange(ticks)[:, None]  # 20 ticks' times, 1 ms apart: within one span
+    frames = best(args.rounds, lambda: [store.interpolate(every, within[k]) for k in range(ticks)])
+
     print(f"\n| job | {d:,} devices |\n|---|---:|")
     print(f"| decode_raws, one batch of 25 samples per device | {1e3 * decode:.2f} ms |")
     print(f"| the truth's errors (runs of 25 samples a device) | {1e9 * errors / len(slots):.0f} ns per sample |")
+    print(f"| exact frames' SLERP, every device at a tick's time, {ticks} ticks in turn | "
+          f"{1e9 * frames / (ticks * d):.0f} ns per device |")
     rows = np.arange(d // 5)  # a stats batch: a fifth of the devices
     for held in (3000, 1000, 300):
         rings = ErrorRings(3000, rows=d)

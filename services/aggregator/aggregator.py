@@ -87,7 +87,7 @@ class Aggregator:
         self.bad_keys = self.intake.bad_keys
         self.frame_stages: list[FrameStage] = []  # work on each tick's frames before they are encoded
         if settings.joint_angles:
-            self.frame_stages.append(JointStage(self.fusion, live=settings.live_rate > 0, heard=self.heard))
+            self.frame_stages.append(JointStage(self.fusion, live=settings.live_rate > 0, unheard=self.unheard))
         self._last_stats: dict[str, bytes] = {}  # each subject's newest stats message
         self._seg_subs, self._raw_subs, self._alive_subs, self._misses = [], [], [], []  # declared by open()
         self._truth_subs: list = []  # subjects' truth taps (per-device ones: _raw_subs)
@@ -333,6 +333,14 @@ class Aggregator:
         self._publisher(key, kind)
         return time.monotonic() < self._asking[key]
 
+    def unheard(self, keys: list[str], owners: list[int], kind: str) -> list[int]:
+        """Which frames of subjects ``owners`` (their keys ``keys[owner]``) no subscriber matches
+        (:meth:`heard`), by position in ``owners``: a set lookup each (most ticks, none)."""
+        if self.session is None:
+            return []
+        heard = self._heard
+        return [j for j, i in enumerate(owners) if keys[i] not in heard and not self.heard(keys[i], kind)]
+
     def _put(self, key: str, kind: str, payload: bytes) -> None:
         """A frame stage's message (no session: an aggregator fed by hand, whose caller takes
         what it wants by replacing this)."""
@@ -382,10 +390,10 @@ class Aggregator:
         for group in batch.exact + batch.live:  # one batch per layout and kind
             kind = "pose_live" if group.frames.kind == wire.KIND_LIVE else "pose_exact"
             owners = group.owner.tolist()
-            heard = [self.heard(keys[i], kind) for i in owners]
-            if not all(heard):
-                rows = np.flatnonzero(heard)
-                self.loop.unheard += len(owners) - len(rows)
+            unheard = self.unheard(keys, owners, kind)
+            if unheard:
+                rows = np.delete(np.arange(len(owners)), unheard)
+                self.loop.unheard += len(unheard)
                 owners, frames = [owners[r] for r in rows], group.frames.rows(rows)
             else:
                 frames = group.frames

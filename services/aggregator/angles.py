@@ -65,16 +65,16 @@ class JointStage:
     clock : the time source of the refreshes (monotonic seconds).
     layout_of : subject index -> its body layout (``limbstream.body.Layout``; None: ``paper10``);
         None: every subject's is ``paper10``.
-    heard : (key, its ``zconfig.QOS`` kind) -> whether a subscriber matches it now (the
-        aggregator's :meth:`~.aggregator.Aggregator.heard`): the angles of subjects nobody hears
-        are not worked out, unless their hinge sums need the frames (rest-calibrated devices);
-        None: every subject's are.
+    unheard : (keys by subject, subjects, their ``zconfig.QOS`` kind) -> the positions of those
+        subjects whose key no subscriber matches now (the aggregator's
+        :meth:`~.aggregator.Aggregator.unheard`): their angles are not worked out, unless their
+        hinge sums need the frames (rest-calibrated devices); None: every subject's are.
     """
 
     def __init__(self, fusion: Fusion, live: bool = True, clock=time.monotonic,
                  layout_of: Callable[[int], object | None] | None = None,
-                 heard: Callable[[str, str], bool] | None = None):
-        self.fusion, self.live, self.clock, self.layout_of, self.heard = fusion, live, clock, layout_of, heard
+                 unheard: Callable[[list[str], list[int], str], list[int]] | None = None):
+        self.fusion, self.live, self.clock, self.layout_of, self.unheard = fusion, live, clock, layout_of, unheard
         self.layouts: list = []                       # per subject: its layout (None: paper10)
         self.basis = np.zeros(0, np.int64)            # (S,) wire.ANGLE_BASES code
         self.level = np.zeros(0, np.int64)            # (S,) the level of its weakest online device
@@ -98,11 +98,12 @@ class JointStage:
         for g in groups:
             layout = None if g.frames.layout == PAPER10 else g.frames.layout
             rows = np.arange(len(g.owner))
-            if self.heard is not None and not (self._any_rest and layout is None):
-                keys, heard = self._keys, self.heard
-                rows = rows[[heard(keys[i], wire.ANGLES) for i in g.owner.tolist()]]
-                if len(rows) == 0:
-                    continue
+            if self.unheard is not None and not (self._any_rest and layout is None):
+                unheard = self.unheard(self._keys, g.owner.tolist(), wire.ANGLES)
+                if unheard:
+                    rows = np.delete(rows, unheard)
+                    if len(rows) == 0:
+                        continue
             out += self._angles(g.frames, g.owner, g.missing, rows, layout, now)
         return out
 
