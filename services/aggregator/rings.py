@@ -57,15 +57,15 @@ class ErrorRings:
         ranks = np.stack([np.floor(p * (k - 1)).astype(np.int64) for p in quantiles] + [k - 1], axis=1)
         chosen = (k == self.window) | reconstruct.takes_top(k, ranks.min(axis=1))
         if chosen.any():
-            c = have[chosen]
-            picked = reconstruct.ring_ranks(self.values, rows[c], k[chosen], ranks[chosen])
+            c, kc = have[chosen], k[chosen]
+            picked = reconstruct.ring_ranks(self.values, rows[c], kc, ranks[chosen])
             out[1, c] = picked[:, -1]
             out[2:, c] = picked[:, :-1].T
-            width = int(k[chosen].max())
+            width = int(kc.max())
             v = self.values[rows[c], :width]
-            if (k[chosen] < width).any():
-                v = np.where(np.arange(width) < k[chosen, None], v, np.float32(0.0))
-            out[0, c] = v.sum(axis=1, dtype=np.float64) / k[chosen]
+            if (kc < width).any():
+                v = np.where(np.arange(width) < kc[:, None], v, np.float32(0.0))
+            out[0, c] = v.sum(axis=1, dtype=np.float64) / kc
         part, k = have[~chosen], k[~chosen]
         if len(part):
             r = np.arange(len(part))
